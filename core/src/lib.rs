@@ -1,0 +1,19 @@
+//! `cms-core`: the hardware-independent heart of the rail corrugation
+//! measurement system (CMS).
+//!
+//! `no_std`, no allocator, no `unsafe`. The sensor head's firmware and the
+//! host tools both build on it, so a stripe found on the microcontroller and
+//! one found by `cms-host detect` come from the same integers.
+//!
+//! * [`fixed`] — the fixed-point types every interface uses (`Px`, Q16.16 pixels).
+//! * [`peak`] — laser-stripe detection in one image row: the multi-scale
+//!   Ricker CWT detector (default), the paper's Eq. (12)–(13) as written, and
+//!   the Table 2 baselines.
+//! * [`optics`] — the detector's scale range from the head's geometry (Eq. 10–11).
+#![no_std]
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod fixed;
+pub mod optics;
+pub mod peak;

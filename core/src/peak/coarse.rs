@@ -1,0 +1,219 @@
+//! The shared front end: robust noise, hot pixels, the coarse Ricker pass and
+//! its candidates.
+//!
+//! The coarse pass approximates the Ricker response at one scale `s` (the
+//! geometric mean of the scale range) without a multiply: three box filters of
+//! width `w = 2h + 1` (integer running sums, each followed by `>> floor(log2 w)`
+//! to keep 16-bit data inside `i32`) approximate a Gaussian of σ = s (variance
+//! 3(w² − 1)/12), and `2G[i] − G[i−q] − G[i+q]` with `q ≈ s` is minus a
+//! second difference of it. Cost: about 8 additions per pixel, whatever `s`.
+//! Edges replicate the first and last pixel, so a constant row gives exactly
+//! zero response.
+
+use super::kernels::Rung;
+use super::{Candidate, MAX_CANDIDATES};
+use heapless::Vec;
+
+/// Robust white-noise σ of the pixels (counts × 256) from the median
+/// absolute second difference: for white noise `x[i−1] − 2x[i] + x[i+1]` has
+/// σ√6, and median |·| = 0.6745 σ√6, so σ = 1.4826 / √6 · median = 0.6053 ·
+/// median (155/256). Stripes, hot pixels and edges are a minority of the row
+/// and do not move the median.
+pub fn pixel_noise_q8(x: &[i32], scratch: &mut [i32]) -> i32 {
+    let m = x.len().saturating_sub(2);
+    if m == 0 {
+        return 0;
+    }
+    for (s, w) in scratch.iter_mut().zip(x.windows(3)) {
+        *s = (w[0] - 2 * w[1] + w[2]).abs();
+    }
+    let med = *scratch[..m].select_nth_unstable(m / 2).1;
+    med.saturating_mul(155)
+}
+
+/// Robust σ (Q8) of a zero-mean response: 1.4826 · median |r| (380/256).
+pub fn abs_median_sigma_q8(r: &[i32], scratch: &mut [i32]) -> i32 {
+    let n = r.len();
+    for (s, v) in scratch.iter_mut().zip(r) {
+        *s = v.saturating_abs();
+    }
+    let med = *scratch[..n].select_nth_unstable(n / 2).1;
+    med.saturating_mul(380)
+}
+
+/// Replaces isolated hot pixels in place; returns how many.
+///
+/// A pixel is hot when it is a strict local maximum below saturation, its
+/// excess over the mean of its neighbours exceeds 8.6 σ (`2x₀ − x₋ − x₊ >
+/// 7 σ√6`), and, after subtracting the local background (the minimum over
+/// ±3 px), `(u₀ − 3σ)² > K · (u₋ + 3σ)(u₊ + 3σ)` with `K = e^(1/σ_min²)`: no
+/// Gaussian of width ≥ σ_min is that peaked anywhere on its profile, because
+/// a sampled Gaussian has `u₀² = e^(1/σ²) u₋ u₊` exactly. The 3 σ allowances
+/// keep noise from tipping the test.
+pub fn remove_spikes(x: &mut [i32], noise_q8: i32, k_q16: i64, sat: i32) -> u16 {
+    let n = x.len();
+    if n < 3 {
+        return 0;
+    }
+    let sigma = (noise_q8 as i64 + 128) >> 8;
+    let lin = (noise_q8 as i64 * 7 * 627) >> 16; // 7 σ √6 (627/256 = √6)
+    let margin = 3 * sigma;
+    let mut count = 0u16;
+    for i in 1..n - 1 {
+        let (a, b, c) = (x[i - 1] as i64, x[i] as i64, x[i + 1] as i64);
+        if b >= sat as i64 || b <= a || b <= c || 2 * b - a - c <= lin.max(1) {
+            continue;
+        }
+        let lo = i.saturating_sub(3);
+        let hi = (i + 3).min(n - 1);
+        let bg = x[lo..=hi].iter().copied().min().unwrap_or(0) as i64;
+        let (ua, ub, uc) = (a - bg, b - bg, c - bg);
+        let top = (ub - margin).max(0);
+        let lhs = top * top;
+        let rhs = (k_q16 * ((ua + margin) * (uc + margin))) >> 16;
+        if lhs > rhs {
+            x[i] = (bg + ((ua.max(0) * uc.max(0)) as u64).isqrt() as i64) as i32;
+            count = count.saturating_add(1);
+        }
+    }
+    count
+}
+
+/// One box pass of half-width `h` with edge replication, `>> shift` after.
+fn box_pass(src: &[i32], dst: &mut [i32], h: usize, shift: u32) {
+    let n = src.len();
+    let last = src[n - 1];
+    let first = src[0];
+    let at = |i: isize| -> i32 {
+        if i < 0 {
+            first
+        } else if i as usize >= n {
+            last
+        } else {
+            src[i as usize]
+        }
+    };
+    let hi = h as isize;
+    let mut acc: i32 = (-hi..=hi).map(at).sum();
+    for (i, d) in dst.iter_mut().enumerate() {
+        *d = acc >> shift;
+        let add = if i + h + 1 < n { src[i + h + 1] } else { last };
+        let sub = if i >= h { src[i - h] } else { first };
+        acc += add - sub;
+    }
+}
+
+/// Three box passes `x → a → b → g`.
+pub fn smooth(x: &[i32], a: &mut [i32], b: &mut [i32], g: &mut [i32], rung: &Rung) {
+    box_pass(x, a, rung.box_half, rung.box_shift);
+    box_pass(a, b, rung.box_half, rung.box_shift);
+    box_pass(b, g, rung.box_half, rung.box_shift);
+}
+
+/// `r[i] = 2 g[i] − g[i−q] − g[i+q]`, edges replicated.
+pub fn second_difference(g: &[i32], r: &mut [i32], q: usize) {
+    let n = g.len();
+    for (i, d) in r.iter_mut().enumerate() {
+        let l = g[i.saturating_sub(q)];
+        let h = g[(i + q).min(n - 1)];
+        *d = 2 * g[i] - l - h;
+    }
+}
+
+/// Local maxima of `r` above `threshold`, the strongest `MAX_CANDIDATES`.
+pub fn candidates(r: &[i32], threshold: i32) -> Vec<Candidate, MAX_CANDIDATES> {
+    let mut out: Vec<Candidate, MAX_CANDIDATES> = Vec::new();
+    let n = r.len();
+    for i in 0..n {
+        let v = r[i];
+        if v <= threshold {
+            continue;
+        }
+        let left_ok = i == 0 || v > r[i - 1];
+        let right_ok = i + 1 == n || v >= r[i + 1];
+        if !(left_ok && right_ok) {
+            continue;
+        }
+        let c = Candidate { pos: i, resp: v };
+        if out.push(c).is_err() {
+            // Full: replace the weakest if this one is stronger.
+            if let Some((j, w)) = out.iter().enumerate().min_by_key(|(_, c)| c.resp) {
+                if w.resp < v {
+                    out[j] = c;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The saturated run within `reach` of `pos`, if any: `(first, last)` index.
+pub fn saturated_run(x: &[i32], pos: usize, reach: usize, sat: i32) -> Option<(usize, usize)> {
+    let n = x.len();
+    let lo = pos.saturating_sub(reach);
+    let hi = (pos + reach).min(n - 1);
+    // The saturated pixel nearest to pos.
+    let hit = (0..=reach)
+        .flat_map(|d| [pos.checked_sub(d), Some(pos + d)])
+        .flatten()
+        .filter(|&i| i >= lo && i <= hi)
+        .find(|&i| x[i] >= sat)?;
+    let mut s = hit;
+    while s > 0 && x[s - 1] >= sat {
+        s -= 1;
+    }
+    let mut e = hit;
+    while e + 1 < n && x[e + 1] >= sat {
+        e += 1;
+    }
+    Some((s, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn box_pass_of_constant_is_constant() {
+        let x = [7i32; 20];
+        let mut y = [0i32; 20];
+        box_pass(&x, &mut y, 2, 0);
+        assert!(y.iter().all(|&v| v == 35));
+    }
+
+    #[test]
+    fn box_pass_matches_direct_sum() {
+        let x: [i32; 12] = [1, 5, 2, 8, 3, 9, 4, 7, 6, 0, 2, 1];
+        let mut y = [0i32; 12];
+        box_pass(&x, &mut y, 1, 0);
+        // interior: y[i] = x[i-1] + x[i] + x[i+1]
+        assert_eq!(y[1], 8);
+        assert_eq!(y[5], 16);
+        // edges replicate: y[0] = x[0] + x[0] + x[1]
+        assert_eq!(y[0], 7);
+        assert_eq!(y[11], 4);
+    }
+
+    #[test]
+    fn spike_is_removed_and_gaussian_kept() {
+        // A hot pixel on a flat background of 100 with noise 0.
+        let mut x = [100i32; 16];
+        x[8] = 900;
+        let k = (core::f64::consts::E * 65536.0) as i64; // σ_min = 1
+        assert_eq!(remove_spikes(&mut x, 256, k, 4095), 1);
+        assert!(x[8] < 110);
+        // A Gaussian of σ = 1.5 is untouched.
+        let mut g = [0i32; 21];
+        let vals = [100, 103, 117, 171, 324, 635, 1046, 1400, 1546, 1400, 1046, 635, 324, 171, 117, 103, 100, 100, 100, 100, 100];
+        g.copy_from_slice(&vals);
+        assert_eq!(remove_spikes(&mut g, 256, k, 4095), 0);
+    }
+
+    #[test]
+    fn noise_of_alternating_pattern() {
+        // ±2 alternation: second difference is ±8 everywhere, median 8 → σ_q8 = 8·155.
+        let x: [i32; 10] = core::array::from_fn(|i| if i % 2 == 0 { 102 } else { 98 });
+        let mut s = [0i32; 10];
+        assert_eq!(pixel_noise_q8(&x, &mut s), 8 * 155);
+    }
+}

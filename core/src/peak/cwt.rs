@@ -1,0 +1,235 @@
+//! The default detector: multi-scale Ricker CWT, sub-pixel by the maximum of
+//! the response over *continuous* position.
+//!
+//! # What it does
+//! For a candidate at pixel `c`:
+//!
+//! 1. **Best-matching scale** (pixel level, paper §5): the Ricker response
+//!    `R(c, s) = s^(−3/2) Σ x[i] ψ((i − c)/s)` on every ladder rung of the
+//!    scale range, with a hill-climb in position. For a Gaussian stripe of
+//!    width σ, `R(s) ∝ σ s^(3/2) / (s² + σ²)^(3/2)` peaks at s = σ under this
+//!    normalisation (with Eq. 2's `s^(−1/2)` it would peak at s = √5 σ ≈ 2.24 σ,
+//!    and with `s^(−1)` at s = √2 σ). A parabola through the three best
+//!    rungs (quarter-octave spaced) gives the width σ̂.
+//! 2. **Sub-pixel position**: the maximum of `R(t, s_fit)` over continuous
+//!    `t`, i.e. the zero of `∂R/∂t = Σ x[i] D(i − t)` with `D = −ψ′` (odd), at
+//!    `s_fit ≈ 1.5 σ̂`. `D` is tabulated at 1/16-px phases (`build.rs`), so
+//!    `∂R/∂t` is evaluated exactly at phase points — no interpolation of the
+//!    response between pixels, hence no pixel locking — and the last 1/16 px
+//!    is a secant step on a function that is linear there to < 10⁻⁵ px.
+//!
+//! # Why this estimator
+//! The zero of `Σ x[i] D(i − t)` for an odd kernel is an M-estimator whose
+//! variance for a Gaussian stripe in white noise is
+//! `σn² Σ D² / (A Σ g′ D)²`; for `D = −ψ′` at `s = 1.5 σ` it is 1.051 × the
+//! Cramér–Rao bound (1.05–1.07 over a quarter-octave width mismatch).
+//! The derivative-of-Gaussian correlator would reach 1.00 ×, but it responds
+//! to a linear background; `−ψ′` is orthogonal to constants *and* slopes
+//! (`∫ t ψ′ = 0`) and, being odd, to any even background around the stripe
+//! (glow), so an ambient gradient does not move the stripe. Sampling bias is
+//! negligible for σ ≥ 1: by Poisson summation the pixel-periodic error term is
+//! of order `e^(−2π² s²)`.
+//!
+//! # Cost
+//! Per candidate: one Ricker evaluation per rung (2·ceil(5 s)+1 taps) twice
+//! at most, and 4–6 derivative evaluations of 2·ceil(5 s_fit)+1 taps each:
+//! for σ = 2.5 px about 400 multiply-adds, independent of row length.
+
+use super::kernels::{self, NORM_SHIFT, PHASES, RUNGS};
+use super::{Flags, RowView, Stripe};
+use crate::fixed::Px;
+
+/// The `s^(−3/2)`-normalised Ricker response at integer `c` on rung `k`,
+/// counts × 256. Taps past the row's edge read the edge pixel.
+pub fn response_q8(x: &[i32], c: usize, k: usize) -> i64 {
+    let h = kernels::ricker(k);
+    let n = x.len();
+    let l = h.len() - 1;
+    let mut acc = h[0] as i64 * x[c] as i64;
+    if c >= l && c + l < n {
+        let right = x[c + 1..=c + l].iter();
+        let left = x[c - l..c].iter().rev();
+        for ((&w, &a), &b) in h[1..].iter().zip(left).zip(right) {
+            acc += w as i64 * (a + b) as i64;
+        }
+    } else {
+        for (m, &w) in h.iter().enumerate().skip(1) {
+            let a = x[c.saturating_sub(m)];
+            let b = x[(c + m).min(n - 1)];
+            acc += w as i64 * (a + b) as i64;
+        }
+    }
+    (acc * RUNGS[k].norm) >> NORM_SHIFT
+}
+
+/// `Σ x[i] D(i − (k + p/PHASES))` on derivative table `d`: positive left of
+/// the response's maximum, negative right of it. Edge pixels replicate.
+pub fn slope_at(x: &[i32], k: isize, p: usize, d: &[i16]) -> i64 {
+    let n = x.len() as isize;
+    let reach = ((d.len() - 1) / PHASES) as isize + 1;
+    let mut acc = 0i64;
+    if k - reach >= 0 && k + reach < n {
+        let k = k as usize;
+        // right: i = k + m, m ≥ 1, table index m·P − p
+        for (&a, &w) in x[k + 1..].iter().zip(d[PHASES - p..].iter().step_by(PHASES)) {
+            acc += a as i64 * w as i64;
+        }
+        // left: i = k − m, m ≥ 0, table index m·P + p
+        for (&a, &w) in x[..=k].iter().rev().zip(d[p..].iter().step_by(PHASES)) {
+            acc -= a as i64 * w as i64;
+        }
+    } else {
+        let at = |i: isize| x[i.clamp(0, n - 1) as usize] as i64;
+        for (m, &w) in d[PHASES - p..].iter().step_by(PHASES).enumerate() {
+            acc += at(k + 1 + m as isize) * w as i64;
+        }
+        for (m, &w) in d[p..].iter().step_by(PHASES).enumerate() {
+            acc -= at(k - m as isize) * w as i64;
+        }
+    }
+    acc
+}
+
+/// Sub-pixel zero of the slope near `c` on derivative table `d`, Q16.16 px.
+/// `None` when no sign change is found within ±3 px.
+pub fn slope_zero(x: &[i32], c: usize, d: &[i16]) -> Option<Px> {
+    let n = x.len() as isize;
+    let mut k = c as isize;
+    let mut f_k = slope_at(x, k, 0, d);
+    // Bracket [k, k+1] with f(k) > 0 ≥ f(k+1).
+    let mut steps = 0;
+    let (lo, f_lo, f_hi) = loop {
+        if f_k > 0 {
+            if k + 1 >= n {
+                return None;
+            }
+            let f1 = slope_at(x, k + 1, 0, d);
+            if f1 <= 0 {
+                break (k, f_k, f1);
+            }
+            k += 1;
+            f_k = f1;
+        } else {
+            if k == 0 {
+                return None;
+            }
+            let f0 = slope_at(x, k - 1, 0, d);
+            if f0 > 0 {
+                break (k - 1, f0, f_k);
+            }
+            k -= 1;
+            f_k = f0;
+        }
+        steps += 1;
+        if steps > 3 {
+            return None;
+        }
+    };
+    // First guess by linear interpolation, then the enclosing phase interval.
+    let guess = ((f_lo * PHASES as i64) / (f_lo - f_hi)) as usize;
+    let mut p = guess.min(PHASES - 1);
+    let eval = |p: usize| match p {
+        0 => f_lo,
+        PHASES => f_hi,
+        _ => slope_at(x, lo, p, d),
+    };
+    let mut fa = eval(p);
+    let mut fb = eval(p + 1);
+    while fa <= 0 && p > 0 {
+        p -= 1;
+        fb = fa;
+        fa = eval(p);
+    }
+    while fb > 0 && p + 1 < PHASES {
+        p += 1;
+        fa = fb;
+        fb = eval(p + 1);
+    }
+    const STEP: i64 = 65536 / PHASES as i64;
+    let frac = (fa * STEP) / (fa - fb).max(1);
+    Some(Px(((lo as i64) * 65536 + p as i64 * STEP + frac) as i32))
+}
+
+/// The CWT estimator for one candidate.
+pub(crate) fn refine(v: &RowView<'_>, c0: usize) -> Option<Stripe> {
+    let x = v.x;
+    let n = x.len();
+    let (k_lo, k_hi) = (v.plan.k_lo, v.plan.k_hi);
+    let mut resp = [0i64; kernels::LADDER_LEN];
+    let best_scale = |c: usize, resp: &mut [i64; kernels::LADDER_LEN]| {
+        let mut best = k_lo;
+        for k in k_lo..=k_hi {
+            resp[k] = response_q8(x, c, k);
+            if resp[k] > resp[best] {
+                best = k;
+            }
+        }
+        best
+    };
+    let mut c = c0;
+    let mut kb = best_scale(c, &mut resp);
+    // Pixel level: climb to the integer maximum of the best scale's response.
+    let mut moved = false;
+    for _ in 0..3 {
+        let here = resp[kb];
+        let left = if c > 0 { response_q8(x, c - 1, kb) } else { i64::MIN };
+        let right = if c + 1 < n { response_q8(x, c + 1, kb) } else { i64::MIN };
+        if right > here && right >= left {
+            c += 1;
+        } else if left > here {
+            c -= 1;
+        } else {
+            break;
+        }
+        resp[kb] = right.max(left);
+        moved = true;
+    }
+    if moved {
+        kb = best_scale(c, &mut resp);
+    }
+    let r0 = resp[kb];
+    if r0 <= 0 {
+        return None;
+    }
+    let mut flags = Flags::NONE;
+    // Width: parabola through the neighbouring rungs (log-scale axis).
+    let dk_q16: i64 = if kb > k_lo && kb < k_hi {
+        let (rm, rp) = (resp[kb - 1], resp[kb + 1]);
+        let den = rm - 2 * r0 + rp;
+        if den < 0 { (((rm - rp) << 15) / den).clamp(-32768, 32768) } else { 0 }
+    } else {
+        flags.insert(Flags::LOW_CONFIDENCE);
+        0
+    };
+    // σ̂ = s_kb · 2^(dk/4) ≈ s_kb (1 + y + y²/2), y = dk · ln2/4 (11357/65536).
+    let y = (dk_q16 * 11357) >> 16;
+    let factor = 65536 + y + ((y * y) >> 17);
+    let width = Px(((RUNGS[kb].scale_q16 as i64 * factor) >> 16) as i32);
+
+    // Detection test at the best scale: response above threshold × its noise.
+    let noise_resp_q8 = (v.noise_q8 as i64 * RUNGS[kb].noise_q8) >> 8;
+    let thr = (noise_resp_q8 * v.cfg.threshold_sigma_q8 as i64) >> 8;
+    let amplitude = (r0 * RUNGS[kb].amp_inv) >> 24;
+    if r0 <= thr || amplitude < v.cfg.min_amplitude as i64 {
+        return None;
+    }
+    if r0 < 2 * thr {
+        flags.insert(Flags::LOW_CONFIDENCE);
+    }
+
+    // Fit rung: nearest to 1.5 σ̂, i.e. kb + dk + 4·log2(1.5) (= 2.3399, Q16 153_348).
+    let j = ((((kb as i64) << 16) + dk_q16 + 153_348 + 32_768) >> 16).clamp(0, kernels::LADDER_LEN as i64 - 1) as usize;
+    let d = kernels::deriv(j);
+    let reach = RUNGS[j].half_len;
+    if c < reach || c + reach >= n {
+        flags.insert(Flags::CLIPPED);
+    }
+    let position = match slope_zero(x, c, d) {
+        Some(p) => p,
+        None => {
+            flags.insert(Flags::LOW_CONFIDENCE);
+            Px::from_int(c as i32)
+        }
+    };
+    Some(Stripe { position, strength: amplitude.clamp(0, u32::MAX as i64) as u32, width, flags })
+}

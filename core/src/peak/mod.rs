@@ -1,0 +1,567 @@
+//! Laser-stripe detection in one image row.
+//!
+//! A row of 8–16-bit pixels goes in; up to `N` stripes come out, each with a
+//! sub-pixel position ([`Px`], 1/65536 px), a strength (peak height above the
+//! background, counts), a width (the stripe's Gaussian σ, px) and [`Flags`].
+//!
+//! # Pipeline
+//! Every method shares the front end, so a comparison between methods is a
+//! comparison of sub-pixel estimators, not of detection luck:
+//!
+//! 1. **Copy** the row to `i32` and note saturated runs.
+//! 2. **Noise**: a robust pixel-noise σ from the median absolute second
+//!    difference (`select_nth_unstable`, O(n), no allocation).
+//! 3. **Hot pixels** (paper §4, fixed-pattern noise): a single pixel that is a
+//!    local maximum, stands > 8.6 σ above its neighbours' mean, and is more
+//!    peaked than any Gaussian of the minimum stripe width could be
+//!    (`u₀² > e^(1/σ_min²)·u₋u₊` after background removal — a Gaussian has
+//!    exactly `u₀² = e^(1/σ²)·u₋u₊` at every position, centre or flank) is
+//!    replaced by the geometric mean of its neighbours.
+//! 4. **Coarse pass** ([`coarse`]): the row smoothed by a cascade of three
+//!    box filters (integer running sums: O(1) per pixel whatever the scale)
+//!    and a second difference — a Ricker response at one scale in O(n).
+//!    Candidates are its local maxima above `threshold × robust σ` of the
+//!    response (and above the absolute floor).
+//! 5. **Refinement** of each candidate by the chosen [`Method`] in a window
+//!    of a few scales: work per row is O(n) + O(candidates × scales × kernel),
+//!    never O(n × scales × kernel).
+//! 6. **Selection**: minimum separation, then strongest / first / last / all,
+//!    output in ascending position.
+//!
+//! Saturated stripes (a run of pixels at the saturation level) are one stripe
+//! whatever the method: centred on the run, refined by the interpolated
+//! crossings of the half-level on both flanks, and flagged.
+
+pub mod coarse;
+pub mod cwt;
+pub mod kernels;
+pub mod paper;
+pub mod subpixel;
+
+use crate::fixed::Px;
+use crate::optics::ScaleRange;
+use heapless::Vec;
+
+/// Most candidates refined per row (the strongest are kept).
+pub const MAX_CANDIDATES: usize = 32;
+/// Shortest row that can hold a stripe (shorter rows give no stripe).
+pub const MIN_ROW: usize = 5;
+
+/// A pixel type the detector reads (8- or 16-bit containers).
+pub trait Pixel: Copy {
+    /// The pixel's value.
+    fn value(self) -> i32;
+}
+impl Pixel for u8 {
+    fn value(self) -> i32 {
+        self as i32
+    }
+}
+impl Pixel for u16 {
+    fn value(self) -> i32 {
+        self as i32
+    }
+}
+
+/// Per-stripe quality flags (a bit set).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Flags(pub u8);
+
+impl Flags {
+    /// The stripe reaches the saturation level; centred on the saturated run.
+    pub const SATURATED: Flags = Flags(1);
+    /// The estimator's window runs past the row's edge.
+    pub const CLIPPED: Flags = Flags(2);
+    /// Weak (under twice the threshold), width at the edge of the scale
+    /// range, or no sub-pixel solution (integer position reported).
+    pub const LOW_CONFIDENCE: Flags = Flags(4);
+
+    /// No flag.
+    pub const NONE: Flags = Flags(0);
+    /// Whether every bit of `other` is set.
+    pub const fn contains(self, other: Flags) -> bool {
+        self.0 & other.0 == other.0
+    }
+    /// Sets the bits of `other`.
+    pub fn insert(&mut self, other: Flags) {
+        self.0 |= other.0;
+    }
+}
+
+/// One laser stripe found in a row.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Stripe {
+    /// Centre, pixels from the first sample (Q16.16).
+    pub position: Px,
+    /// Peak height above the local background, counts.
+    pub strength: u32,
+    /// Estimated Gaussian σ of the stripe, pixels.
+    pub width: Px,
+    /// Quality flags.
+    pub flags: Flags,
+}
+
+/// The stripes of one row, in ascending position.
+pub type Stripes<const N: usize> = Vec<Stripe, N>;
+
+/// The sub-pixel estimator.
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Method {
+    /// Multi-scale Ricker CWT, maximum of the response over continuous
+    /// position at the best-matching scale (the default; see [`cwt`]).
+    Cwt,
+    /// The paper's Eq. (12)–(13) as written (see [`paper`]).
+    CwtPaper,
+    /// Brightest pixel.
+    Max,
+    /// Centre of gravity over the run above half maximum.
+    Cog,
+    /// Centre of gravity of the low-pass (box-cascade FIR) filtered row.
+    CogFiltered,
+    /// Gaussian 3-point fit (Table 2).
+    Gaussian,
+    /// Parabolic 3-point fit (Table 2).
+    Parabolic,
+    /// Blais–Rioux 4th-order detector (Table 2).
+    BlaisRioux,
+    /// Linear interpolation (Table 2).
+    Linear,
+    /// Zero crossing of the FIR first derivative (Table 2, Forest et al.).
+    FirZero,
+}
+
+impl Method {
+    /// Every method, default first.
+    pub const ALL: [Method; 10] = [
+        Method::Cwt,
+        Method::CwtPaper,
+        Method::Max,
+        Method::Cog,
+        Method::CogFiltered,
+        Method::Gaussian,
+        Method::Parabolic,
+        Method::BlaisRioux,
+        Method::Linear,
+        Method::FirZero,
+    ];
+
+    /// The name used on the command line and in reports.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Method::Cwt => "cwt",
+            Method::CwtPaper => "cwt-paper",
+            Method::Max => "max",
+            Method::Cog => "cog",
+            Method::CogFiltered => "cog-filtered",
+            Method::Gaussian => "gaussian",
+            Method::Parabolic => "parabolic",
+            Method::BlaisRioux => "blais-rioux",
+            Method::Linear => "linear",
+            Method::FirZero => "fir-zero",
+        }
+    }
+
+    /// Parses [`Method::name`].
+    pub fn from_name(s: &str) -> Option<Method> {
+        Method::ALL.into_iter().find(|m| m.name() == s)
+    }
+}
+
+/// Which stripes a row reports.
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Select {
+    /// The `max_stripes` strongest.
+    Strongest,
+    /// The `max_stripes` nearest the row's start.
+    First,
+    /// The `max_stripes` nearest the row's end.
+    Last,
+    /// Every stripe (up to the output's capacity; the strongest if more).
+    All,
+}
+
+/// Detector configuration, validated by [`Detector::new`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Config {
+    /// Sub-pixel estimator.
+    pub method: Method,
+    /// Bit depth of the pixels, 8..=16.
+    pub bits: u8,
+    /// Stripe widths (Gaussian σ, px) to look for: the CWT's scale range.
+    pub scales: ScaleRange,
+    /// Most stripes per row (also capped by the output's capacity).
+    pub max_stripes: u8,
+    /// Which stripes to keep when there are more.
+    pub select: Select,
+    /// Detection threshold in multiples of the robust noise σ, Q8 (×256).
+    pub threshold_sigma_q8: u16,
+    /// Absolute floor: smallest stripe height above background, counts.
+    pub min_amplitude: u16,
+    /// Stripes closer than this are one (the stronger is kept).
+    pub min_separation: Px,
+    /// Narrowest stripe σ accepted (also the hot-pixel test's reference).
+    pub min_width: Px,
+    /// Widest stripe σ accepted.
+    pub max_width: Px,
+    /// Pixels at or above this value are saturated.
+    pub saturation: u16,
+}
+
+impl Config {
+    /// Defaults for `bits`-deep pixels and the given scale range: CWT, 3
+    /// strongest stripes, threshold 6 σ, floor 4 counts, separation 2·s_max,
+    /// widths [max(0.6·s_min, 0.7), 1.6·s_max], saturation 2^bits − 1.
+    pub fn new(bits: u8, scales: ScaleRange) -> Config {
+        let smin = scales.min().0 as i64;
+        let smax = scales.max().0 as i64;
+        Config {
+            method: Method::Cwt,
+            bits,
+            scales,
+            max_stripes: 3,
+            select: Select::Strongest,
+            threshold_sigma_q8: 6 * 256,
+            min_amplitude: 4,
+            min_separation: Px((2 * smax) as i32),
+            min_width: Px((smin * 6 / 10).max(45875) as i32),
+            max_width: Px((smax * 16 / 10) as i32),
+            saturation: if (8..=16).contains(&bits) { ((1u32 << bits) - 1) as u16 } else { u16::MAX },
+        }
+    }
+}
+
+/// Why a configuration or a row was refused.
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Error {
+    /// Bit depth outside 8..=16.
+    BitDepth(u8),
+    /// Smallest scale below 1 px (the ladder's first rung).
+    ScaleTooSmall,
+    /// Largest scale above 24 px (the fit needs 1.5 × s_max on the ladder).
+    ScaleTooLarge,
+    /// `max_stripes` is zero.
+    MaxStripes,
+    /// `min_width` ≥ `max_width`, or not positive.
+    WidthRange,
+    /// Threshold is zero.
+    Threshold,
+    /// The saturation level is zero or above the bit depth's maximum.
+    Saturation,
+    /// The row is longer than the detector's buffers.
+    RowTooLong {
+        /// Row length.
+        len: usize,
+        /// Capacity.
+        max: usize,
+    },
+}
+
+impl core::fmt::Display for Error {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Error::BitDepth(b) => write!(f, "bit depth {b} is outside 8..=16"),
+            Error::ScaleTooSmall => f.write_str("smallest scale must be at least 1 px"),
+            Error::ScaleTooLarge => f.write_str("largest scale must be at most 24 px"),
+            Error::MaxStripes => f.write_str("max stripes must be at least 1"),
+            Error::WidthRange => f.write_str("min width must be positive and below max width"),
+            Error::Threshold => f.write_str("threshold must be positive"),
+            Error::Saturation => f.write_str("saturation level must be in 1..=2^bits-1"),
+            Error::RowTooLong { len, max } => write!(f, "row of {len} px exceeds the detector's {max} px"),
+        }
+    }
+}
+
+impl core::error::Error for Error {}
+
+/// What the front end saw in the last row.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RowStats {
+    /// Robust pixel-noise σ, counts × 256.
+    pub noise_q8: i32,
+    /// Candidates above threshold after the coarse pass.
+    pub candidates: u16,
+    /// Hot pixels replaced.
+    pub spikes: u16,
+}
+
+/// Rung indices and constants derived once from a [`Config`].
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Plan {
+    /// Ladder rungs covering the scale range.
+    pub k_lo: usize,
+    pub k_hi: usize,
+    /// Rung of the coarse pass.
+    pub k_coarse: usize,
+    /// Integer scales of the paper's method.
+    pub paper_lo: usize,
+    pub paper_hi: usize,
+    /// Hot-pixel test: e^(1/σ_min²), Q16.
+    pub spike_k_q16: i64,
+    /// Largest scale rounded up, px.
+    pub smax_px: usize,
+}
+
+fn rung_floor(px: Px) -> usize {
+    let mut k = 0;
+    for (i, r) in kernels::RUNGS.iter().enumerate() {
+        if r.scale_q16 <= px.0 {
+            k = i;
+        }
+    }
+    k
+}
+
+fn rung_ceil(px: Px) -> usize {
+    kernels::RUNGS.iter().position(|r| r.scale_q16 >= px.0).unwrap_or(kernels::LADDER_LEN - 1)
+}
+
+/// exp(x) for 0 ≤ x ≤ 4 by series (configuration only).
+fn exp_small(x: f64) -> f64 {
+    let mut term = 1.0;
+    let mut sum = 1.0;
+    for n in 1..40 {
+        term *= x / n as f64;
+        sum += term;
+    }
+    sum
+}
+
+impl Plan {
+    fn new(cfg: &Config) -> Result<Plan, Error> {
+        if !(8..=16).contains(&cfg.bits) {
+            return Err(Error::BitDepth(cfg.bits));
+        }
+        let (smin, smax) = (cfg.scales.min(), cfg.scales.max());
+        if smin.0 < Px::ONE.0 {
+            return Err(Error::ScaleTooSmall);
+        }
+        if smax.0 > Px::from_int(24).0 {
+            return Err(Error::ScaleTooLarge);
+        }
+        if cfg.max_stripes == 0 {
+            return Err(Error::MaxStripes);
+        }
+        if cfg.min_width.0 <= 0 || cfg.min_width >= cfg.max_width {
+            return Err(Error::WidthRange);
+        }
+        if cfg.threshold_sigma_q8 == 0 {
+            return Err(Error::Threshold);
+        }
+        if cfg.saturation == 0 || (cfg.saturation as u32) > (1u32 << cfg.bits) - 1 {
+            return Err(Error::Saturation);
+        }
+        let k_lo = rung_floor(smin);
+        let k_hi = rung_ceil(smax).max(k_lo + 1);
+        let geo = (smin.0 as u64 * smax.0 as u64).isqrt();
+        let k_coarse = kernels::nearest_rung(geo as i32);
+        let paper_lo = (smin.0 as usize).div_ceil(65536).max(1);
+        let paper_hi = (smax.0 as usize >> 16).max(paper_lo);
+        let w = cfg.min_width.to_f64().max(0.5);
+        let spike_k_q16 = (exp_small(1.0 / (w * w)) * 65536.0) as i64;
+        Ok(Plan {
+            k_lo,
+            k_hi,
+            k_coarse,
+            paper_lo,
+            paper_hi,
+            spike_k_q16,
+            smax_px: (smax.0 as usize).div_ceil(65536),
+        })
+    }
+}
+
+/// A candidate from the coarse pass.
+#[derive(Clone, Copy, Debug)]
+pub struct Candidate {
+    /// Pixel index of the coarse response's local maximum.
+    pub pos: usize,
+    /// The coarse response there.
+    pub resp: i32,
+}
+
+/// Read-only view of one row's buffers, handed to the estimators.
+pub(crate) struct RowView<'a> {
+    /// The row (hot pixels repaired).
+    pub x: &'a [i32],
+    /// The row low-pass filtered by the coarse box cascade.
+    pub g: &'a [i32],
+    pub cfg: &'a Config,
+    pub plan: &'a Plan,
+    /// Robust pixel-noise σ, counts × 256.
+    pub noise_q8: i32,
+}
+
+/// The laser-stripe detector: configuration validated once, buffers for rows
+/// of up to `W` pixels (4 × `W` × 4 bytes).
+pub struct Detector<const W: usize> {
+    cfg: Config,
+    plan: Plan,
+    x: [i32; W],
+    g: [i32; W],
+    r: [i32; W],
+    s: [i32; W],
+    stats: RowStats,
+}
+
+impl<const W: usize> Detector<W> {
+    /// Validates `cfg` and builds the detector.
+    pub fn new(cfg: Config) -> Result<Self, Error> {
+        let plan = Plan::new(&cfg)?;
+        Ok(Detector { cfg, plan, x: [0; W], g: [0; W], r: [0; W], s: [0; W], stats: RowStats::default() })
+    }
+
+    /// The configuration in force.
+    pub fn config(&self) -> &Config {
+        &self.cfg
+    }
+
+    /// What the front end saw in the last row.
+    pub fn stats(&self) -> RowStats {
+        self.stats
+    }
+
+    /// Finds the stripes of `row` into `out` (cleared first), ascending position.
+    pub fn detect<P: Pixel, const N: usize>(&mut self, row: &[P], out: &mut Stripes<N>) -> Result<(), Error> {
+        out.clear();
+        self.stats = RowStats::default();
+        let n = row.len();
+        if n > W {
+            return Err(Error::RowTooLong { len: n, max: W });
+        }
+        if n < MIN_ROW || N == 0 {
+            return Ok(());
+        }
+        let sat = self.cfg.saturation as i32;
+        let x = &mut self.x[..n];
+        // Values above the bit depth cannot come from the sensor; clamp them to
+        // the saturation level rather than let them masquerade as signal.
+        for (d, p) in x.iter_mut().zip(row) {
+            *d = p.value().min(sat);
+        }
+        let noise_q8 = coarse::pixel_noise_q8(x, &mut self.s[..n]);
+        self.stats.noise_q8 = noise_q8;
+        self.stats.spikes = coarse::remove_spikes(x, noise_q8, self.plan.spike_k_q16, sat);
+        let rung = &kernels::RUNGS[self.plan.k_coarse];
+        coarse::smooth(x, &mut self.s[..n], &mut self.r[..n], &mut self.g[..n], rung);
+        coarse::second_difference(&self.g[..n], &mut self.r[..n], rung.lag);
+        let resp_sigma_q8 = coarse::abs_median_sigma_q8(&self.r[..n], &mut self.s[..n]);
+        let thr_noise = (resp_sigma_q8 as i64 * self.cfg.threshold_sigma_q8 as i64) >> 16;
+        let thr_abs = (self.cfg.min_amplitude as i64 * rung.coarse_gain_q8) >> 8;
+        let threshold = thr_noise.max(thr_abs).max(1).min(i32::MAX as i64) as i32;
+        let cands = coarse::candidates(&self.r[..n], threshold);
+        self.stats.candidates = cands.len() as u16;
+
+        let view = RowView { x: &self.x[..n], g: &self.g[..n], cfg: &self.cfg, plan: &self.plan, noise_q8 };
+        let mut found: Vec<Stripe, MAX_CANDIDATES> = Vec::new();
+        let mut runs_used: Vec<(usize, usize), MAX_CANDIDATES> = Vec::new();
+        for c in &cands {
+            let reach = rung.lag + 3 * rung.box_half + 1;
+            let stripe = match coarse::saturated_run(view.x, c.pos, reach, sat) {
+                Some(run) => {
+                    if runs_used.contains(&run) {
+                        continue;
+                    }
+                    let _ = runs_used.push(run);
+                    saturated_stripe(&view, run, sat)
+                }
+                None => refine(&view, *c),
+            };
+            if let Some(s) = stripe {
+                if s.width >= self.cfg.min_width && s.width <= self.cfg.max_width
+                    || s.flags.contains(Flags::SATURATED)
+                {
+                    let _ = found.push(s);
+                }
+            }
+        }
+        select(&mut found, &self.cfg, out);
+        Ok(())
+    }
+}
+
+fn refine(v: &RowView<'_>, c: Candidate) -> Option<Stripe> {
+    match v.cfg.method {
+        Method::Cwt => cwt::refine(v, c.pos),
+        Method::CwtPaper => paper::refine(v, c.pos),
+        m => subpixel::refine(v, c.pos, m),
+    }
+}
+
+/// One stripe from a saturated run `[s, e]`: centre of the half-level
+/// crossings on both flanks (the run's midpoint if a flank is missing).
+fn saturated_stripe(v: &RowView<'_>, (s, e): (usize, usize), sat: i32) -> Option<Stripe> {
+    let x = v.x;
+    let n = x.len();
+    let len = e - s + 1;
+    let max_len = (6 * v.cfg.max_width.0 as usize).div_ceil(65536);
+    if len > max_len.max(4) {
+        return None;
+    }
+    let reach = len + 3 * v.plan.smax_px;
+    let lo = s.saturating_sub(reach);
+    let hi = (e + reach).min(n - 1);
+    let bg = x[lo..=hi].iter().copied().min().unwrap_or(0);
+    let level = (sat + bg) / 2;
+    let mut flags = Flags::SATURATED;
+    let mid = Px((((s + e) as i64) << 15) as i32);
+    let left = (0..s).rev().find(|&i| x[i] < level).map(|i| {
+        // crossing between i and i+1
+        let (a, b) = (x[i] as i64, x[i + 1] as i64);
+        Px(((i as i64) << 16) as i32 + (((level as i64 - a) << 16) / (b - a).max(1)) as i32)
+    });
+    let right = (e + 1..n).find(|&i| x[i] < level).map(|i| {
+        let (a, b) = (x[i - 1] as i64, x[i] as i64);
+        Px((((i - 1) as i64) << 16) as i32 + (((a - level as i64) << 16) / (a - b).max(1)) as i32)
+    });
+    let (position, width) = match (left, right) {
+        (Some(l), Some(r)) => (Px(((l.0 as i64 + r.0 as i64) / 2) as i32), Px(((r.0 - l.0) as i64 * 27_830 >> 16) as i32)),
+        _ => {
+            flags.insert(Flags::CLIPPED);
+            flags.insert(Flags::LOW_CONFIDENCE);
+            (mid, Px((((len as i64) << 16) * 27_830 >> 16) as i32))
+        }
+    };
+    // 27_830 / 65536 = 1/2.3548: full width at half level → σ of a Gaussian
+    // (an underestimate for a strongly saturated stripe; flagged as such).
+    Some(Stripe { position, strength: (sat - bg).max(0) as u32, width, flags })
+}
+
+/// Minimum separation, then the selection rule; output sorted by position.
+fn select<const N: usize>(found: &mut Vec<Stripe, MAX_CANDIDATES>, cfg: &Config, out: &mut Stripes<N>) {
+    found.sort_unstable_by(|a, b| b.strength.cmp(&a.strength).then(a.position.cmp(&b.position)));
+    let mut kept: Vec<Stripe, MAX_CANDIDATES> = Vec::new();
+    for s in found.iter() {
+        if kept.iter().all(|k| k.position.abs_diff(s.position) >= cfg.min_separation) {
+            let _ = kept.push(*s);
+        }
+    }
+    let limit = match cfg.select {
+        Select::All => N,
+        _ => (cfg.max_stripes as usize).min(N),
+    };
+    match cfg.select {
+        Select::Strongest | Select::All => kept.truncate(limit),
+        Select::First => {
+            kept.sort_unstable_by_key(|s| s.position);
+            kept.truncate(limit);
+        }
+        Select::Last => {
+            kept.sort_unstable_by_key(|s| core::cmp::Reverse(s.position));
+            kept.truncate(limit);
+        }
+    }
+    kept.sort_unstable_by_key(|s| s.position);
+    for s in kept {
+        let _ = out.push(s);
+    }
+}

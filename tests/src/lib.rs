@@ -1,0 +1,1 @@
+//! Shared helpers for the behaviour tests of `cms-core`.
