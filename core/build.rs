@@ -99,11 +99,8 @@ fn main() {
         // Gain: response (counts) to a unit Gaussian of σ = s centred on a pixel,
         // computed from the rounded taps actually used.
         let full = full_even(&rq);
-        let gain: f64 = full
-            .iter()
-            .map(|&(m, w)| w as f64 * (-(m as f64).powi(2) / (2.0 * s * s)).exp())
-            .sum::<f64>()
-            * norm_used;
+        let gain: f64 =
+            full.iter().map(|&(m, w)| w as f64 * (-(m as f64).powi(2) / (2.0 * s * s)).exp()).sum::<f64>() * norm_used;
         let noise: f64 = full.iter().map(|&(_, w)| (w as f64).powi(2)).sum::<f64>().sqrt() * norm_used;
         // Amplitude from response: A = R_q8 · amp_inv >> 24, amp_inv = 2^16 / gain.
         let amp_inv = (65536.0 / gain).round() as i64;

@@ -368,15 +368,7 @@ impl Plan {
         let paper_hi = (smax.0 as usize >> 16).max(paper_lo);
         let w = cfg.min_width.to_f64().max(0.5);
         let spike_k_q16 = (exp_small(1.0 / (w * w)) * 65536.0) as i64;
-        Ok(Plan {
-            k_lo,
-            k_hi,
-            k_coarse,
-            paper_lo,
-            paper_hi,
-            spike_k_q16,
-            smax_px: (smax.0 as usize).div_ceil(65536),
-        })
+        Ok(Plan { k_lo, k_hi, k_coarse, paper_lo, paper_hi, spike_k_q16, smax_px: (smax.0 as usize).div_ceil(65536) })
     }
 }
 
@@ -477,8 +469,7 @@ impl<const W: usize> Detector<W> {
                 None => refine(&view, *c),
             };
             if let Some(s) = stripe {
-                if s.width >= self.cfg.min_width && s.width <= self.cfg.max_width
-                    || s.flags.contains(Flags::SATURATED)
+                if s.width >= self.cfg.min_width && s.width <= self.cfg.max_width || s.flags.contains(Flags::SATURATED)
                 {
                     let _ = found.push(s);
                 }
@@ -524,7 +515,9 @@ fn saturated_stripe(v: &RowView<'_>, (s, e): (usize, usize), sat: i32) -> Option
         Px((((i - 1) as i64) << 16) as i32 + (((a - level as i64) << 16) / (a - b).max(1)) as i32)
     });
     let (position, width) = match (left, right) {
-        (Some(l), Some(r)) => (Px(((l.0 as i64 + r.0 as i64) / 2) as i32), Px(((r.0 - l.0) as i64 * 27_830 >> 16) as i32)),
+        (Some(l), Some(r)) => {
+            (Px(((l.0 as i64 + r.0 as i64) / 2) as i32), Px(((r.0 - l.0) as i64 * 27_830 >> 16) as i32))
+        }
         _ => {
             flags.insert(Flags::CLIPPED);
             flags.insert(Flags::LOW_CONFIDENCE);

@@ -67,11 +67,7 @@ pub fn parabolic(a: i32, b: i32, c: i32) -> Option<Px> {
 
 /// Linear interpolation (two lines of equal and opposite slope).
 pub fn linear(a: i32, b: i32, c: i32) -> Option<Px> {
-    if c < a {
-        ratio_q16((c - a) as i64, 2 * (b - c) as i64)
-    } else {
-        ratio_q16((c - a) as i64, 2 * (b - a) as i64)
-    }
+    if c < a { ratio_q16((c - a) as i64, 2 * (b - c) as i64) } else { ratio_q16((c - a) as i64, 2 * (b - a) as i64) }
 }
 
 /// Linear zero crossing between `(x0, y0)` and `(x0 + 1, y1)`: x₀ − y₀ / (y₁ − y₀).
@@ -208,7 +204,11 @@ pub(crate) fn refine(v: &RowView<'_>, c: usize, method: Method) -> Option<Stripe
                 None
             } else {
                 let dd = |i: usize| (g[i + 1] - g[i - 1]) as i64;
-                if dd(gb) > 0 { zero_crossing(gb as i32, dd(gb), dd(gb + 1)) } else { zero_crossing(gb as i32 - 1, dd(gb - 1), dd(gb)) }
+                if dd(gb) > 0 {
+                    zero_crossing(gb as i32, dd(gb), dd(gb + 1))
+                } else {
+                    zero_crossing(gb as i32 - 1, dd(gb - 1), dd(gb))
+                }
             }
         }
         Method::Cwt | Method::CwtPaper => None,
