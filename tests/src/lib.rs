@@ -91,3 +91,5 @@ pub fn quantise(row: &[f64], noise: f64, bits: u8, rng: &mut Rng) -> Vec<u16> {
     let max = ((1u32 << bits) - 1) as f64;
     row.iter().map(|v| (v + noise * rng.normal()).round().clamp(0.0, max) as u16).collect()
 }
+pub mod montecarlo;
+pub mod reference;

@@ -202,14 +202,18 @@ mod tests {
         let k = (core::f64::consts::E * 65536.0) as i64; // σ_min = 1
         assert_eq!(remove_spikes(&mut x, 256, k, 4095), 1);
         assert!(x[8] < 110);
-        // A Gaussian of σ = 1.5 is untouched.
-        let mut g = [0i32; 21];
-        let vals = [
-            100, 103, 117, 171, 324, 635, 1046, 1400, 1546, 1400, 1046, 635, 324, 171, 117, 103, 100, 100, 100, 100,
-            100,
-        ];
-        g.copy_from_slice(&vals);
-        assert_eq!(remove_spikes(&mut g, 256, k, 4095), 0);
+        // Gaussians of σ = 1.05 … 4 at any sub-pixel offset are untouched,
+        // even 20 times above the noise.
+        extern crate std;
+        for tenth in 0..10 {
+            for sigma in [1.05f64, 1.5, 2.5, 4.0] {
+                let mut g: [i32; 41] = core::array::from_fn(|i| {
+                    let t = i as f64 - 20.0 - tenth as f64 / 10.0;
+                    (100.0 + 3000.0 * std::primitive::f64::exp(-t * t / (2.0 * sigma * sigma))) as i32
+                });
+                assert_eq!(remove_spikes(&mut g, 256, k, 4095), 0, "σ {sigma}");
+            }
+        }
     }
 
     #[test]

@@ -155,7 +155,12 @@ pub(crate) fn refine(v: &RowView<'_>, c0: usize) -> Option<Stripe> {
     let x = v.x;
     let n = x.len();
     let (k_lo, k_hi) = (v.plan.k_lo, v.plan.k_hi);
-    let mut resp = [0i64; kernels::LADDER_LEN];
+    let (w_lo, w_hi) = (v.plan.k_width_lo, v.plan.k_width_hi);
+    let mut resp = [i64::MIN; kernels::LADDER_LEN];
+    // The scale range proper, then — only while the response still grows at
+    // its edge — on towards the width limits, so that a stripe (or glow)
+    // wider or narrower than the range is measured and rejected rather than
+    // clamped to the range's edge.
     let best_scale = |c: usize, resp: &mut [i64; kernels::LADDER_LEN]| {
         let mut best = k_lo;
         for k in k_lo..=k_hi {
@@ -163,6 +168,22 @@ pub(crate) fn refine(v: &RowView<'_>, c0: usize) -> Option<Stripe> {
             if resp[k] > resp[best] {
                 best = k;
             }
+        }
+        while best >= k_hi && best < w_hi {
+            let k = best + 1;
+            resp[k] = response_q8(x, c, k);
+            if resp[k] <= resp[best] {
+                break;
+            }
+            best = k;
+        }
+        while best <= k_lo && best > w_lo {
+            let k = best - 1;
+            resp[k] = response_q8(x, c, k);
+            if resp[k] <= resp[best] {
+                break;
+            }
+            best = k;
         }
         best
     };
@@ -193,14 +214,17 @@ pub(crate) fn refine(v: &RowView<'_>, c0: usize) -> Option<Stripe> {
     }
     let mut flags = Flags::NONE;
     // Width: parabola through the neighbouring rungs (log-scale axis).
-    let dk_q16: i64 = if kb > k_lo && kb < k_hi {
-        let (rm, rp) = (resp[kb - 1], resp[kb + 1]);
+    let (rm, rp) = (resp[kb.saturating_sub(1)], resp[(kb + 1).min(kernels::LADDER_LEN - 1)]);
+    let dk_q16: i64 = if kb > 0 && rm != i64::MIN && rp != i64::MIN {
         let den = rm - 2 * r0 + rp;
         if den < 0 { (((rm - rp) << 15) / den).clamp(-32768, 32768) } else { 0 }
     } else {
-        flags.insert(Flags::LOW_CONFIDENCE);
         0
     };
+    if (kb <= k_lo && dk_q16 <= 0) || (kb >= k_hi && dk_q16 >= 0) {
+        // Width at or beyond the scale range's edge.
+        flags.insert(Flags::LOW_CONFIDENCE);
+    }
     // σ̂ = s_kb · 2^(dk/4) ≈ s_kb (1 + y + y²/2), y = dk · ln2/4 (11357/65536).
     let y = (dk_q16 * 11357) >> 16;
     let factor = 65536 + y + ((y * y) >> 17);
@@ -210,7 +234,7 @@ pub(crate) fn refine(v: &RowView<'_>, c0: usize) -> Option<Stripe> {
     let noise_resp_q8 = (v.noise_q8 as i64 * RUNGS[kb].noise_q8) >> 8;
     let thr = (noise_resp_q8 * v.cfg.threshold_sigma_q8 as i64) >> 8;
     let amplitude = (r0 * RUNGS[kb].amp_inv) >> 24;
-    if r0 <= thr || amplitude < v.cfg.min_amplitude as i64 {
+    if r0 <= thr || amplitude < v.cfg.min_amplitude as i64 || width < v.cfg.min_width || width > v.cfg.max_width {
         return None;
     }
     if r0 < 2 * thr {

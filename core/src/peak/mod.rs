@@ -300,6 +300,9 @@ pub(crate) struct Plan {
     /// Ladder rungs covering the scale range.
     pub k_lo: usize,
     pub k_hi: usize,
+    /// Rungs just beyond the width limits (the CWT measures widths out to there).
+    pub k_width_lo: usize,
+    pub k_width_hi: usize,
     /// Rung of the coarse pass.
     pub k_coarse: usize,
     /// Integer scales of the paper's method.
@@ -368,7 +371,19 @@ impl Plan {
         let paper_hi = (smax.0 as usize >> 16).max(paper_lo);
         let w = cfg.min_width.to_f64().max(0.5);
         let spike_k_q16 = (exp_small(1.0 / (w * w)) * 65536.0) as i64;
-        Ok(Plan { k_lo, k_hi, k_coarse, paper_lo, paper_hi, spike_k_q16, smax_px: (smax.0 as usize).div_ceil(65536) })
+        let k_width_lo = rung_floor(cfg.min_width).saturating_sub(1).min(k_lo);
+        let k_width_hi = (rung_ceil(cfg.max_width) + 1).min(kernels::LADDER_LEN - 4).max(k_hi);
+        Ok(Plan {
+            k_lo,
+            k_hi,
+            k_width_lo,
+            k_width_hi,
+            k_coarse,
+            paper_lo,
+            paper_hi,
+            spike_k_q16,
+            smax_px: (smax.0 as usize).div_ceil(65536),
+        })
     }
 }
 

@@ -87,11 +87,18 @@ pub fn blais_rioux(f: &[i32], b: usize) -> Option<Px> {
         return None;
     }
     let g = |i: usize| (f[i - 2] + f[i - 1] - f[i + 1] - f[i + 2]) as i64;
-    if f[b + 1] > f[b - 1] {
-        zero_crossing(b as i32, g(b), g(b + 1))
-    } else {
-        zero_crossing(b as i32 - 1, g(b - 1), g(b))
-    }
+    let right = || zero_crossing(b as i32, g(b), g(b + 1));
+    let left = || zero_crossing(b as i32 - 1, g(b - 1), g(b));
+    // Table 2 picks the side of the brighter neighbour; on a tie the sign of
+    // g(b) does (g < 0 means the peak lies right of b). If noise puts the
+    // crossing on the other side, that side is used: the detector stays
+    // mirror-symmetric.
+    let brighter_right = match f[b + 1].cmp(&f[b - 1]) {
+        core::cmp::Ordering::Greater => true,
+        core::cmp::Ordering::Less => false,
+        core::cmp::Ordering::Equal => g(b) < 0,
+    };
+    if brighter_right { right().or_else(left) } else { left().or_else(right) }
 }
 
 /// Centre of gravity of `x` above `level` over the contiguous run around

@@ -1,0 +1,136 @@
+//! Invariants of the detector, property-tested.
+
+use cms_core::fixed::Px;
+use cms_core::optics::ScaleRange;
+use cms_core::peak::{Config, Detector, Method, Select, Stripes};
+use cms_tests::{Gauss, Rng, clean_row, quantise};
+use proptest::prelude::*;
+
+const W: usize = 2048;
+
+fn detector(method: Method, bits: u8) -> Box<Detector<W>> {
+    let mut cfg = Config::new(bits, ScaleRange::new(Px::from_f64(1.5), Px::from_f64(4.0)).unwrap());
+    cfg.method = method;
+    cfg.select = Select::All;
+    Box::new(Detector::new(cfg).unwrap())
+}
+
+fn detect<P: cms_core::peak::Pixel>(det: &mut Detector<W>, row: &[P]) -> Stripes<16> {
+    let mut out = Stripes::new();
+    det.detect(row, &mut out).unwrap();
+    out
+}
+
+fn noisy_row(len: usize, x0: f64, sigma: f64, seed: u64) -> Vec<u16> {
+    let mut rng = Rng::new(seed);
+    quantise(&clean_row(len, 300.0, &[Gauss { x0, sigma, amplitude: 2500.0 }]), 5.0, 12, &mut rng)
+}
+
+fn method() -> impl Strategy<Value = Method> {
+    proptest::sample::select(Method::ALL.to_vec())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 200, ..ProptestConfig::default() })]
+
+    /// Shifting a row by k pixels shifts every stripe by exactly k.
+    #[test]
+    fn shift_moves_the_peak_by_the_same_amount(
+        m in method(), frac in 0.0f64..1.0, sigma in 1.6f64..3.8, k in 1usize..40, seed in any::<u64>()
+    ) {
+        let row = noisy_row(400, 180.0 + frac, sigma, seed);
+        // The shifted row: k samples of the same background noise in front.
+        let mut shifted = noisy_row(k, -1000.0, sigma, seed ^ 1);
+        shifted.extend_from_slice(&row);
+        let mut det = detector(m, 12);
+        let a = detect(&mut det, &row);
+        let b = detect(&mut det, &shifted);
+        prop_assert_eq!(a.len(), 1);
+        prop_assert_eq!(b.len(), 1);
+        let d = b[0].position.to_f64() - a[0].position.to_f64() - k as f64;
+        prop_assert!(d.abs() < 1e-4, "{}: shift error {d}", m.name());
+    }
+
+    /// Mirroring a row mirrors every stripe: x ↦ (n − 1) − x.
+    #[test]
+    fn mirror_mirrors_the_peak(m in method(), frac in 0.0f64..1.0, sigma in 1.6f64..3.8, seed in any::<u64>()) {
+        let row = noisy_row(401, 200.0 + frac, sigma, seed);
+        let mut rev = row.clone();
+        rev.reverse();
+        let mut det = detector(m, 12);
+        let a = detect(&mut det, &row);
+        let b = detect(&mut det, &rev);
+        prop_assert_eq!(a.len(), 1);
+        prop_assert_eq!(b.len(), 1);
+        let d = a[0].position.to_f64() + b[0].position.to_f64() - 400.0;
+        // Max picks the first of equal pixels, so mirroring may move it by one.
+        let tol = if m == Method::Max { 1.0 + 1e-9 } else { 1e-4 };
+        prop_assert!(d.abs() <= tol, "{}: mirror error {d}", m.name());
+    }
+
+    /// Random bytes: no panic, and no stripe (white noise has no stripe in it).
+    #[test]
+    fn random_bytes_give_no_stripe(m in method(), bytes in proptest::collection::vec(any::<u8>(), 0..1500)) {
+        let mut det = detector(m, 8);
+        let out = detect(&mut det, &bytes);
+        prop_assert!(out.is_empty(), "{}: {out:?}", m.name());
+    }
+
+    /// Random 16-bit words as 16-bit pixels: never a panic.
+    #[test]
+    fn random_words_never_panic(m in method(), words in proptest::collection::vec(any::<u16>(), 0..1500)) {
+        let mut det = detector(m, 16);
+        let out = detect(&mut det, &words);
+        prop_assert!(out.len() <= 16);
+    }
+}
+
+#[test]
+fn degenerate_rows_give_no_stripe() {
+    for m in Method::ALL {
+        for bits in [8u8, 12, 16] {
+            let max = ((1u32 << bits) - 1) as u16;
+            let mut det = detector(m, bits);
+            for len in 0..=3 {
+                for v in [0, 1, max / 2, max] {
+                    assert!(detect(&mut det, &vec![v; len]).is_empty());
+                }
+            }
+            for len in [4, 5, 7, 100, 752, W] {
+                for v in [0u16, 1, 1000.min(max), max] {
+                    let out = detect(&mut det, &vec![v; len]);
+                    assert!(out.is_empty(), "{} bits {bits} len {len} value {v}: {out:?}", m.name());
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn row_longer_than_buffers_is_an_error() {
+    let mut det = detector(Method::Cwt, 12);
+    let mut out: Stripes<4> = Stripes::new();
+    let row = vec![0u16; W + 1];
+    assert_eq!(det.detect(&row, &mut out), Err(cms_core::peak::Error::RowTooLong { len: W + 1, max: W }));
+}
+
+#[test]
+fn configuration_is_validated_once() {
+    use cms_core::peak::Error;
+    let scales = ScaleRange::new(Px::from_f64(1.5), Px::from_f64(4.0)).unwrap();
+    let ok = Config::new(12, scales);
+    let check = |f: &dyn Fn(&mut Config), e: Error| {
+        let mut c = ok;
+        f(&mut c);
+        assert_eq!(Detector::<64>::new(c).err(), Some(e));
+    };
+    check(&|c| c.bits = 7, Error::BitDepth(7));
+    check(&|c| c.bits = 17, Error::BitDepth(17));
+    check(&|c| c.max_stripes = 0, Error::MaxStripes);
+    check(&|c| c.threshold_sigma_q8 = 0, Error::Threshold);
+    check(&|c| c.saturation = 5000, Error::Saturation);
+    check(&|c| c.min_width = c.max_width, Error::WidthRange);
+    check(&|c| c.scales = ScaleRange::new(Px::from_f64(0.5), Px::from_f64(4.0)).unwrap(), Error::ScaleTooSmall);
+    check(&|c| c.scales = ScaleRange::new(Px::from_f64(2.0), Px::from_f64(30.0)).unwrap(), Error::ScaleTooLarge);
+    assert!(Detector::<64>::new(ok).is_ok());
+}
