@@ -483,11 +483,11 @@ impl<const W: usize> Detector<W> {
                 }
                 None => refine(&view, *c),
             };
-            if let Some(s) = stripe {
-                if s.width >= self.cfg.min_width && s.width <= self.cfg.max_width || s.flags.contains(Flags::SATURATED)
-                {
-                    let _ = found.push(s);
-                }
+            if let Some(s) = stripe
+                && (s.width >= self.cfg.min_width && s.width <= self.cfg.max_width
+                    || s.flags.contains(Flags::SATURATED))
+            {
+                let _ = found.push(s);
             }
         }
         select(&mut found, &self.cfg, out);
@@ -531,12 +531,12 @@ fn saturated_stripe(v: &RowView<'_>, (s, e): (usize, usize), sat: i32) -> Option
     });
     let (position, width) = match (left, right) {
         (Some(l), Some(r)) => {
-            (Px(((l.0 as i64 + r.0 as i64) / 2) as i32), Px(((r.0 - l.0) as i64 * 27_830 >> 16) as i32))
+            (Px(((l.0 as i64 + r.0 as i64) / 2) as i32), Px((((r.0 - l.0) as i64 * 27_830) >> 16) as i32))
         }
         _ => {
             flags.insert(Flags::CLIPPED);
             flags.insert(Flags::LOW_CONFIDENCE);
-            (mid, Px((((len as i64) << 16) * 27_830 >> 16) as i32))
+            (mid, Px(((((len as i64) << 16) * 27_830) >> 16) as i32))
         }
     };
     // 27_830 / 65536 = 1/2.3548: full width at half level → σ of a Gaussian

@@ -66,7 +66,7 @@ pub(crate) fn refine(v: &RowView<'_>, c: usize) -> Option<Stripe> {
         flags.insert(Flags::CLIPPED);
     }
     // With Eq. (2)'s normalisation a Gaussian of σ responds most at s = √5 σ.
-    let width = Px((((best_s as i64) << 16) * 29_309 >> 16) as i32); // 1/√5 = 29309/65536
+    let width = Px(((((best_s as i64) << 16) * 29_309) >> 16) as i32); // 1/√5 = 29309/65536
     let b = position.round().clamp(0, n as i32 - 1) as usize;
     let bg = super::subpixel::local_background(x, b, reach);
     Some(Stripe { position, strength: (x[b] - bg).max(0) as u32, width, flags })
