@@ -9,8 +9,9 @@ use core::fmt;
 use core::ops::{Add, Sub};
 
 /// Pixels in Q16.16: the value is `self.0 / 65536` px.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[serde(transparent)]
 pub struct Px(pub i32);
 
 impl Px {

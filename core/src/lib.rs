@@ -10,6 +10,10 @@
 //!   Ricker CWT detector (default), the paper's Eq. (12)–(13) as written, and
 //!   the Table 2 baselines.
 //! * [`optics`] — the detector's scale range from the head's geometry (Eq. 10–11).
+//! * [`protocol`] — the head ↔ host wire protocol: postcard messages in
+//!   CRC-checked, COBS-delimited frames.
+//! * [`pipeline`] — the sensor head's logic without its hardware: rows in,
+//!   profiles out, commands, and the laser-safety rules.
 #![no_std]
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
@@ -17,3 +21,5 @@
 pub mod fixed;
 pub mod optics;
 pub mod peak;
+pub mod pipeline;
+pub mod protocol;

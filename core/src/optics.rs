@@ -103,8 +103,10 @@ impl Optics {
 }
 
 /// A validated scale range `[min, max]` in pixels (stripe σ, see `peak`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// On the wire it is the pair `(min, max)`, validated again when decoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[serde(try_from = "(Px, Px)", into = "(Px, Px)")]
 pub struct ScaleRange {
     min: Px,
     max: Px,
@@ -128,6 +130,19 @@ impl ScaleRange {
     /// Largest scale.
     pub fn max(&self) -> Px {
         self.max
+    }
+}
+
+impl TryFrom<(Px, Px)> for ScaleRange {
+    type Error = OpticsError;
+    fn try_from((min, max): (Px, Px)) -> Result<Self, OpticsError> {
+        ScaleRange::new(min, max)
+    }
+}
+
+impl From<ScaleRange> for (Px, Px) {
+    fn from(r: ScaleRange) -> (Px, Px) {
+        (r.min, r.max)
     }
 }
 

@@ -64,7 +64,7 @@ impl Pixel for u16 {
 }
 
 /// Per-stripe quality flags (a bit set).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Flags(pub u8);
 
@@ -90,7 +90,7 @@ impl Flags {
 }
 
 /// One laser stripe found in a row.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Stripe {
     /// Centre, pixels from the first sample (Q16.16).
@@ -108,7 +108,7 @@ pub type Stripes<const N: usize> = Vec<Stripe, N>;
 
 /// The sub-pixel estimator.
 #[non_exhaustive]
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Method {
     /// Multi-scale Ricker CWT, maximum of the response over continuous
@@ -173,7 +173,7 @@ impl Method {
 
 /// Which stripes a row reports.
 #[non_exhaustive]
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Select {
     /// The `max_stripes` strongest.
@@ -187,7 +187,7 @@ pub enum Select {
 }
 
 /// Detector configuration, validated by [`Detector::new`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Config {
     /// Sub-pixel estimator.

@@ -1,0 +1,493 @@
+//! The sensor head without its hardware: commands in, rows in, profiles out,
+//! and the laser-safety rules — written once for the firmware and the
+//! simulated head.
+//!
+//! # Laser safety (50 mW, class 3B)
+//! The head owns the laser driver ([`LaserDriver`]) and is the only code that
+//! switches it, so no caller can forget a rule:
+//!
+//! * off at construction (before anything else can happen);
+//! * on only while [`HeadState::Streaming`], and only the lasers of the
+//!   current frame (one at a time in the sequential pattern);
+//! * off on `Stop`, on every error while streaming (the head goes to
+//!   [`HeadState::Fault`]), on a camera fault, and when no command or
+//!   heartbeat has arrived for more than [`HEARTBEAT_TIMEOUT_US`] (1 s);
+//! * off when the head is dropped.
+//!
+//! # Cost
+//! Per row: the detector (see `peak`), plus a stripe-to-laser assignment of at
+//! most 3 × 3 comparisons. Profiles are built in place in the head.
+
+use crate::fixed::Px;
+use crate::peak::{Config, Detector, Select, Stripes};
+use crate::protocol::{
+    Calibration, Command, DeviceInfo, DeviceMsg, ErrorCode, HeadState, HostMsg, LASERS, LaserPattern, LaserPoints,
+    MAX_ROWS_PER_PROFILE, PROTOCOL_VERSION, Point, Profile, RAW_CHUNK_BYTES, RawRows, Start, Status,
+};
+use heapless::{String, Vec};
+
+/// Longest silence from the host before the lasers go off, µs.
+pub const HEARTBEAT_TIMEOUT_US: u64 = 1_000_000;
+/// Interval of `Status` messages while streaming, µs.
+pub const STATUS_INTERVAL_US: u64 = 1_000_000;
+/// Exposure limits, µs.
+pub const EXPOSURE_RANGE_US: (u32, u32) = (1, 1_000_000);
+
+/// The laser enables. `set(0)` must switch every laser off.
+pub trait LaserDriver {
+    /// Drives the enables: bit k lit ⇔ laser k on.
+    fn set(&mut self, mask: u8);
+}
+
+/// Where rows come from (the camera, or the simulated one).
+pub trait Camera {
+    /// Why a frame failed.
+    type Error;
+    /// Row length, px.
+    fn width(&self) -> u16;
+    /// Rows per frame.
+    fn height(&self) -> u16;
+    /// Bits per pixel.
+    fn bits(&self) -> u8;
+    /// Exposes one frame (lasers already lit by the head). Returns the
+    /// odometer at exposure, µm.
+    fn expose(&mut self, exposure_us: u32, laser_mask: u8) -> Result<i64, Self::Error>;
+    /// The next row of the exposed frame, `width` pixels.
+    fn read_row(&mut self, row: &mut [u16]) -> Result<(), Self::Error>;
+}
+
+/// Fixed facts about the head for `Hello`.
+#[derive(Clone, Debug)]
+pub struct Identity {
+    /// Firmware version.
+    pub firmware: &'static str,
+    /// Board name.
+    pub board: &'static str,
+}
+
+/// The head's logic. `W` is the longest row it can process.
+pub struct Head<const W: usize, L: LaserDriver> {
+    lasers: L,
+    lit: u8,
+    state: HeadState,
+    fault: Option<ErrorCode>,
+    detector: Detector<W>,
+    start: Start,
+    exposure_us: u32,
+    calibration: Option<Calibration>,
+    identity: Identity,
+    last_heard_us: u64,
+    next_frame_us: u64,
+    next_status_us: u64,
+    epoch_us: u64,
+    frame_seq: u32,
+    sequential_next: u8,
+    capture: Option<(u16, u8)>,
+    track: [Px; LASERS],
+    // statistics since the last Status
+    frames: u32,
+    window_frames: u32,
+    window_rows: u32,
+    window_ns: u64,
+    window_start_us: u64,
+    dropped: u32,
+    row: [u16; W],
+    profile: Profile,
+}
+
+impl<const W: usize, L: LaserDriver> Drop for Head<W, L> {
+    fn drop(&mut self) {
+        self.lasers.set(0);
+    }
+}
+
+impl<const W: usize, L: LaserDriver> Head<W, L> {
+    /// A head with the lasers off, idle, with a validated detector.
+    pub fn new(mut lasers: L, detector: Config, identity: Identity) -> Result<Self, crate::peak::Error> {
+        lasers.set(0);
+        let detector = Detector::new(detector)?;
+        Ok(Head {
+            lasers,
+            lit: 0,
+            state: HeadState::Idle,
+            fault: None,
+            detector,
+            start: Start { rate_hz: 10, laser_mask: 0b111, pattern: LaserPattern::Simultaneous },
+            exposure_us: 200,
+            calibration: None,
+            identity,
+            last_heard_us: 0,
+            next_frame_us: 0,
+            next_status_us: 0,
+            epoch_us: 0,
+            frame_seq: 0,
+            sequential_next: 0,
+            capture: None,
+            track: [Px::ZERO; LASERS],
+            frames: 0,
+            window_frames: 0,
+            window_rows: 0,
+            window_ns: 0,
+            window_start_us: 0,
+            dropped: 0,
+            row: [0; W],
+            profile: Profile::EMPTY,
+        })
+    }
+
+    /// State.
+    pub fn state(&self) -> HeadState {
+        self.state
+    }
+
+    /// Lasers currently lit.
+    pub fn lasers_on(&self) -> u8 {
+        self.lit
+    }
+
+    /// The laser driver (for inspection by tests and the simulator).
+    pub fn laser_driver(&self) -> &L {
+        &self.lasers
+    }
+
+    fn set_lasers(&mut self, mask: u8) {
+        let mask = if self.state == HeadState::Streaming { mask } else { 0 };
+        self.lit = mask;
+        self.lasers.set(mask);
+    }
+
+    fn fail(&mut self, code: ErrorCode, seq: Option<u16>, reply: &mut impl FnMut(&DeviceMsg)) {
+        let was_streaming = self.state == HeadState::Streaming;
+        if was_streaming {
+            self.state = HeadState::Fault;
+            self.fault = Some(code);
+        }
+        self.set_lasers(0);
+        reply(&DeviceMsg::Error { seq, code });
+        if was_streaming {
+            reply(&DeviceMsg::Status(self.status(self.last_heard_us)));
+        }
+    }
+
+    /// The `Hello` message.
+    pub fn info<C: Camera>(&self, camera: &C) -> DeviceInfo {
+        let mut firmware = String::new();
+        let _ = firmware.push_str(&self.identity.firmware[..self.identity.firmware.len().min(16)]);
+        let mut board = String::new();
+        let _ = board.push_str(&self.identity.board[..self.identity.board.len().min(24)]);
+        DeviceInfo {
+            firmware,
+            protocol: PROTOCOL_VERSION,
+            board,
+            sensor_width: camera.width(),
+            sensor_height: camera.height(),
+            bits: camera.bits(),
+            detector: *self.detector.config(),
+            calibration_id: self.calibration.map_or(0, |c| c.id),
+        }
+    }
+
+    /// A framing error from the host's side of the link: reported, and while
+    /// streaming it is a fault (lasers off).
+    pub fn link_error(&mut self, code: ErrorCode, reply: &mut impl FnMut(&DeviceMsg)) {
+        self.fail(code, None, reply);
+    }
+
+    /// Carries out one command.
+    pub fn handle<C: Camera>(&mut self, cmd: Command, now_us: u64, camera: &C, reply: &mut impl FnMut(&DeviceMsg)) {
+        self.last_heard_us = now_us;
+        let seq = cmd.seq;
+        match cmd.msg {
+            HostMsg::Heartbeat => {}
+            HostMsg::GetInfo => reply(&DeviceMsg::Hello(self.info(camera))),
+            HostMsg::Start(s) => {
+                let valid_mask = s.laser_mask != 0 && s.laser_mask < (1 << LASERS);
+                if !(1..=1000).contains(&s.rate_hz) || !valid_mask {
+                    return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
+                }
+                if camera.width() as usize > W {
+                    return self.fail(ErrorCode::SensorFault, Some(seq), reply);
+                }
+                self.start = s;
+                self.state = HeadState::Streaming;
+                self.fault = None;
+                self.epoch_us = if self.frames == 0 { now_us } else { self.epoch_us };
+                self.next_frame_us = now_us;
+                self.next_status_us = now_us + STATUS_INTERVAL_US;
+                self.window_start_us = now_us;
+                self.sequential_next = 0;
+                let w = camera.width() as i32;
+                let lit = s.laser_mask.count_ones() as i32;
+                let mut k = 0;
+                for (i, t) in self.track.iter_mut().enumerate() {
+                    if s.laser_mask & (1 << i) != 0 {
+                        k += 1;
+                        *t = Px::from_int(w * k / (lit + 1));
+                    }
+                }
+                reply(&DeviceMsg::Ack(seq));
+                reply(&DeviceMsg::Status(self.status(now_us)));
+            }
+            HostMsg::Stop => {
+                self.state = HeadState::Idle;
+                self.set_lasers(0);
+                reply(&DeviceMsg::Ack(seq));
+                reply(&DeviceMsg::Status(self.status(now_us)));
+            }
+            HostMsg::SetExposure(us) => {
+                if !(EXPOSURE_RANGE_US.0..=EXPOSURE_RANGE_US.1).contains(&us) {
+                    return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
+                }
+                self.exposure_us = us;
+                reply(&DeviceMsg::Ack(seq));
+            }
+            HostMsg::SetDetector(cfg) => {
+                if self.state == HeadState::Streaming {
+                    return self.fail(ErrorCode::Busy, Some(seq), reply);
+                }
+                match Detector::new(cfg) {
+                    Ok(d) => {
+                        self.detector = d;
+                        reply(&DeviceMsg::Ack(seq));
+                    }
+                    Err(_) => self.fail(ErrorCode::InvalidConfig, Some(seq), reply),
+                }
+            }
+            HostMsg::SetCalibration(c) => {
+                if self.state == HeadState::Streaming {
+                    return self.fail(ErrorCode::Busy, Some(seq), reply);
+                }
+                if !calibration_is_valid(&c) {
+                    return self.fail(ErrorCode::InvalidConfig, Some(seq), reply);
+                }
+                self.calibration = Some(c);
+                reply(&DeviceMsg::Ack(seq));
+            }
+            HostMsg::CaptureImage(mask) => {
+                if self.state == HeadState::Streaming {
+                    return self.fail(ErrorCode::Busy, Some(seq), reply);
+                }
+                if mask >= (1 << LASERS) {
+                    return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
+                }
+                self.capture = Some((seq, mask));
+                reply(&DeviceMsg::Ack(seq));
+            }
+        }
+    }
+
+    /// Runs the head: the heartbeat watchdog, a due frame, a pending capture,
+    /// a due status. `now_us` is the head's clock; `clock_ns` measures
+    /// processing time.
+    pub fn poll<C: Camera>(
+        &mut self,
+        now_us: u64,
+        camera: &mut C,
+        clock_ns: &mut impl FnMut() -> u64,
+        reply: &mut impl FnMut(&DeviceMsg),
+    ) {
+        if self.state == HeadState::Streaming && now_us.saturating_sub(self.last_heard_us) > HEARTBEAT_TIMEOUT_US {
+            return self.fail(ErrorCode::HeartbeatLost, None, reply);
+        }
+        if let Some((seq, mask)) = self.capture.take() {
+            self.capture_image(seq, mask, camera, reply);
+        }
+        if self.state == HeadState::Streaming && now_us >= self.next_frame_us {
+            let period = 1_000_000 / self.start.rate_hz as u64;
+            // Frames whose time has already passed are dropped, not queued.
+            let late = (now_us - self.next_frame_us) / period;
+            self.dropped += late as u32;
+            self.next_frame_us += (late + 1) * period;
+            self.frame(now_us, camera, clock_ns, reply);
+        }
+        if self.state == HeadState::Streaming && now_us >= self.next_status_us {
+            self.next_status_us = now_us + STATUS_INTERVAL_US;
+            reply(&DeviceMsg::Status(self.status(now_us)));
+            self.window_start_us = now_us;
+            self.window_frames = 0;
+            self.window_rows = 0;
+            self.window_ns = 0;
+        }
+    }
+
+    fn frame<C: Camera>(
+        &mut self,
+        now_us: u64,
+        camera: &mut C,
+        clock_ns: &mut impl FnMut() -> u64,
+        reply: &mut impl FnMut(&DeviceMsg),
+    ) {
+        let mask = match self.start.pattern {
+            LaserPattern::Simultaneous => self.start.laser_mask,
+            LaserPattern::Sequential => {
+                // The next laser of the mask, in turn.
+                let mut k = self.sequential_next;
+                while self.start.laser_mask & (1 << k) == 0 {
+                    k = (k + 1) % LASERS as u8;
+                }
+                self.sequential_next = (k + 1) % LASERS as u8;
+                1 << k
+            }
+        };
+        self.set_lasers(mask);
+        let odometer_um = match camera.expose(self.exposure_us, mask) {
+            Ok(o) => o,
+            Err(_) => return self.fail(ErrorCode::SensorFault, None, reply),
+        };
+        let (width, height) = (camera.width() as usize, camera.height() as usize);
+        let parts = height.div_ceil(MAX_ROWS_PER_PROFILE).clamp(1, 255) as u8;
+        self.profile.seq = self.frame_seq;
+        self.profile.parts = parts;
+        self.profile.timestamp_us = now_us - self.epoch_us;
+        self.profile.odometer_um = odometer_um;
+        self.profile.exposure_us = self.exposure_us;
+        self.profile.laser_mask = mask;
+        let t0 = clock_ns();
+        let lit = mask.count_ones() as usize;
+        for part in 0..parts {
+            self.profile.part = part;
+            self.profile.lasers.clear();
+            for k in 0..LASERS as u8 {
+                if mask & (1 << k) != 0 {
+                    let _ = self.profile.lasers.push(LaserPoints { laser: k, points: Vec::new() });
+                }
+            }
+            let first = part as usize * MAX_ROWS_PER_PROFILE;
+            let last = (first + MAX_ROWS_PER_PROFILE).min(height);
+            for r in first..last {
+                if camera.read_row(&mut self.row[..width]).is_err() {
+                    return self.fail(ErrorCode::SensorFault, None, reply);
+                }
+                let mut stripes: Stripes<LASERS> = Stripes::new();
+                if self.detector.detect(&self.row[..width], &mut stripes).is_err() {
+                    return self.fail(ErrorCode::SensorFault, None, reply);
+                }
+                assign(&stripes, lit, &mut self.track, &mut self.profile.lasers, r as u16);
+            }
+            // Lend the profile to the message without copying it twice.
+            let msg = DeviceMsg::Profile(core::mem::replace(&mut self.profile, Profile::EMPTY));
+            reply(&msg);
+            if let DeviceMsg::Profile(p) = msg {
+                self.profile = p;
+            }
+        }
+        let dt = clock_ns().saturating_sub(t0);
+        self.frame_seq = self.frame_seq.wrapping_add(1);
+        self.frames += 1;
+        self.window_frames += 1;
+        self.window_rows += height as u32;
+        self.window_ns += dt;
+        // Between frames the lasers stay lit only in the simultaneous pattern.
+        if self.start.pattern == LaserPattern::Sequential {
+            self.set_lasers(0);
+        }
+    }
+
+    fn capture_image<C: Camera>(&mut self, seq: u16, mask: u8, camera: &mut C, reply: &mut impl FnMut(&DeviceMsg)) {
+        // A capture lights the lasers for its exposure only.
+        self.state = HeadState::Streaming;
+        self.set_lasers(mask);
+        let result = camera.expose(self.exposure_us, mask);
+        self.state = HeadState::Idle;
+        self.set_lasers(0);
+        if result.is_err() {
+            return self.fail(ErrorCode::SensorFault, Some(seq), reply);
+        }
+        let (width, height, bits) = (camera.width(), camera.height(), camera.bits());
+        let bpp = if bits > 8 { 2 } else { 1 };
+        for r in 0..height {
+            if camera.read_row(&mut self.row[..width as usize]).is_err() {
+                return self.fail(ErrorCode::SensorFault, Some(seq), reply);
+            }
+            let mut chunk = RawRows { capture: seq, first_row: r, offset: 0, width, height, bits, data: Vec::new() };
+            for (i, &p) in self.row[..width as usize].iter().enumerate() {
+                if chunk.data.len() + bpp > RAW_CHUNK_BYTES {
+                    let next = (i * bpp) as u32;
+                    let full = core::mem::replace(
+                        &mut chunk,
+                        RawRows { capture: seq, first_row: r, offset: next, width, height, bits, data: Vec::new() },
+                    );
+                    reply(&DeviceMsg::RawRows(full));
+                }
+                if bpp == 2 {
+                    let _ = chunk.data.extend_from_slice(&p.to_le_bytes());
+                } else {
+                    let _ = chunk.data.push(p as u8);
+                }
+            }
+            reply(&DeviceMsg::RawRows(chunk));
+        }
+    }
+
+    /// The current status.
+    pub fn status(&self, now_us: u64) -> Status {
+        let span_us = now_us.saturating_sub(self.window_start_us).max(1);
+        Status {
+            state: self.state,
+            lasers_on: self.lit,
+            frames: self.frames,
+            frame_rate_mhz: ((self.window_frames as u64 * 1_000_000_000) / span_us) as u32,
+            rows_per_s: ((self.window_rows as u64 * 1_000_000) / span_us) as u32,
+            dropped_frames: self.dropped,
+            ns_per_row: (self.window_ns / self.window_rows.max(1) as u64) as u32,
+            heartbeat_age_ms: (now_us.saturating_sub(self.last_heard_us) / 1000) as u32,
+            fault: self.fault,
+        }
+    }
+}
+
+/// Assigns a row's stripes to the lit lasers: in order when every lit laser
+/// has one stripe (the lasers are mounted left to right in laser order),
+/// otherwise each stripe to the lit laser whose last position is nearest.
+fn assign(
+    stripes: &Stripes<LASERS>,
+    lit: usize,
+    track: &mut [Px; LASERS],
+    out: &mut Vec<LaserPoints, LASERS>,
+    row: u16,
+) {
+    let point = |s: &crate::peak::Stripe| Point {
+        row,
+        position: s.position,
+        strength: s.strength.min(u16::MAX as u32) as u16,
+        width: s.width,
+        flags: s.flags,
+        um: None,
+    };
+    if stripes.len() == lit {
+        for (s, lp) in stripes.iter().zip(out.iter_mut()) {
+            track[lp.laser as usize] = s.position;
+            let _ = lp.points.push(point(s));
+        }
+        return;
+    }
+    for s in stripes {
+        if let Some(lp) = out.iter_mut().min_by_key(|lp| track[lp.laser as usize].abs_diff(s.position))
+            && lp.points.last().is_none_or(|p| p.row != row)
+        {
+            track[lp.laser as usize] = s.position;
+            let _ = lp.points.push(point(s));
+        }
+    }
+}
+
+/// A calibration is usable when every number is finite, the focal lengths
+/// are positive, the plane normals are unit (±1e-3) and the id is non-zero.
+pub fn calibration_is_valid(c: &Calibration) -> bool {
+    let finite = c.intrinsics.iter().chain(&c.distortion).chain(c.planes.iter().flatten()).all(|v| v.is_finite());
+    let unit = c.planes.iter().all(|p| {
+        let n2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
+        (n2 - 1.0).abs() < 2e-3
+    });
+    c.id != 0 && finite && c.intrinsics[0] > 0.0 && c.intrinsics[1] > 0.0 && unit
+}
+
+/// The detector configuration a head starts with: 12-bit pixels, stripes
+/// σ 1.5–4 px, the three strongest.
+pub fn default_detector() -> Config {
+    let scales = crate::optics::ScaleRange::new(Px::from_f64(1.5), Px::from_f64(4.0)).expect("constant range is valid");
+    let mut c = Config::new(12, scales);
+    c.max_stripes = LASERS as u8;
+    c.select = Select::Strongest;
+    c
+}

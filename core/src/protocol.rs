@@ -1,0 +1,503 @@
+//! The wire protocol between the sensor head and the host.
+//!
+//! # Framing
+//! Every message travels as one frame:
+//!
+//! ```text
+//! COBS( version:u8 ‖ postcard(message) ‖ crc32(version ‖ message):u32 LE ) ‖ 0x00
+//! ```
+//!
+//! * **postcard** encodes the message (varints, enum variants as indices): the
+//!   same Rust types on both ends, no schema drift.
+//! * **CRC-32** (ISO-HDLC, the Ethernet/zlib polynomial) over version and
+//!   payload catches what USB's own CRC cannot (buffer overruns, a replugged
+//!   port mid-frame, a simulator bug).
+//! * **COBS** removes every 0x00 from the frame, so 0x00 is an unambiguous
+//!   delimiter: after garbage or a lost byte the reader resynchronises on the
+//!   next 0x00 and loses at most the frame it was in.
+//! * The **version byte** comes first and outside postcard, so a reader of
+//!   another version says so instead of misreading the payload.
+//!
+//! # Sizes
+//! [`MAX_FRAME`] bounds any encoded frame (delimiter included); the firmware
+//! and the host size their buffers from it, and a test encodes the largest
+//! possible message of each kind against it.
+
+use crate::fixed::Px;
+use crate::peak::{Config, Flags};
+use heapless::{String, Vec};
+use serde::{Deserialize, Serialize};
+
+/// The protocol version this build speaks.
+pub const PROTOCOL_VERSION: u8 = 1;
+/// Rows carried by one `Profile` message (a taller sensor sends several parts).
+pub const MAX_ROWS_PER_PROFILE: usize = 480;
+/// Lasers of the head.
+pub const LASERS: usize = 3;
+/// Pixel bytes carried by one `RawRows` chunk.
+pub const RAW_CHUNK_BYTES: usize = 1024;
+
+/// Largest postcard encoding of any message (see `tests::max_sizes`):
+/// a `Profile` with every point at its largest varint and a triangulated
+/// point — 3 lasers × 480 points × 33 bytes + headers.
+pub const MAX_MESSAGE: usize = 47_600;
+/// Largest frame on the wire: version, message, CRC, COBS overhead
+/// (1 byte in 254, plus 1) and the delimiter.
+pub const MAX_FRAME: usize = {
+    let raw = 1 + MAX_MESSAGE + 4;
+    raw + raw / 254 + 2
+};
+/// Largest host → device frame (commands are small; the firmware's receive
+/// buffer). Checked against the largest command in a test.
+pub const MAX_COMMAND_FRAME: usize = 256;
+
+/// CRC-32/ISO-HDLC.
+pub const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+// ---------------------------------------------------------------- messages
+
+/// What the head says about itself.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DeviceInfo {
+    /// Firmware version (semver text).
+    pub firmware: String<16>,
+    /// Protocol version (same as the frame's).
+    pub protocol: u8,
+    /// Board name.
+    pub board: String<24>,
+    /// Sensor width, px.
+    pub sensor_width: u16,
+    /// Sensor height, px (rows per frame).
+    pub sensor_height: u16,
+    /// Bits per pixel.
+    pub bits: u8,
+    /// Detector configuration in force.
+    pub detector: Config,
+    /// Identifier of the loaded calibration, 0 if none.
+    pub calibration_id: u32,
+}
+
+/// A triangulated point, micrometres in the profile frame: along the laser
+/// line, and height normal to the rail surface.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PointUm {
+    /// Position along the laser line, µm.
+    pub along_um: i32,
+    /// Height normal to the rail surface, µm.
+    pub height_um: i32,
+}
+
+/// One detected stripe centre.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Point {
+    /// Image row.
+    pub row: u16,
+    /// Sub-pixel position along the row.
+    pub position: Px,
+    /// Peak height above background, counts (saturates at 65535).
+    pub strength: u16,
+    /// Stripe σ.
+    pub width: Px,
+    /// Detector flags.
+    pub flags: Flags,
+    /// Triangulated point, once a calibration is loaded.
+    pub um: Option<PointUm>,
+}
+
+/// The points of one laser in one profile message.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LaserPoints {
+    /// Laser index, 0..LASERS.
+    pub laser: u8,
+    /// Points, ascending row.
+    pub points: Vec<Point, MAX_ROWS_PER_PROFILE>,
+}
+
+/// One image's stripes (or a part of them, for sensors taller than
+/// [`MAX_ROWS_PER_PROFILE`] rows).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Profile {
+    /// Frame sequence number (wraps).
+    pub seq: u32,
+    /// This part, 0-based, and the number of parts of the frame.
+    pub part: u8,
+    /// Number of parts.
+    pub parts: u8,
+    /// Exposure start, µs since the head started.
+    pub timestamp_us: u64,
+    /// Odometer at exposure, µm.
+    pub odometer_um: i64,
+    /// Exposure, µs.
+    pub exposure_us: u32,
+    /// Lasers lit during the exposure (bit k = laser k).
+    pub laser_mask: u8,
+    /// Per lit laser, its points.
+    pub lasers: Vec<LaserPoints, LASERS>,
+}
+
+impl Profile {
+    /// No points.
+    pub const EMPTY: Profile = Profile {
+        seq: 0,
+        part: 0,
+        parts: 1,
+        timestamp_us: 0,
+        odometer_um: 0,
+        exposure_us: 0,
+        laser_mask: 0,
+        lasers: Vec::new(),
+    };
+}
+
+/// Head state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum HeadState {
+    /// Lasers off, waiting for commands.
+    Idle,
+    /// Streaming profiles.
+    Streaming,
+    /// Stopped by a fault; lasers off until the host starts again.
+    Fault,
+}
+
+/// Periodic health report.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Status {
+    /// State.
+    pub state: HeadState,
+    /// Lasers currently lit (bit mask).
+    pub lasers_on: u8,
+    /// Frames sent since start.
+    pub frames: u32,
+    /// Frame rate, millihertz.
+    pub frame_rate_mhz: u32,
+    /// Rows processed per second.
+    pub rows_per_s: u32,
+    /// Frames dropped (processing or link too slow).
+    pub dropped_frames: u32,
+    /// Mean processing time per row, ns.
+    pub ns_per_row: u32,
+    /// Time since the last heartbeat from the host, ms.
+    pub heartbeat_age_ms: u32,
+    /// The last fault, if any.
+    pub fault: Option<ErrorCode>,
+}
+
+/// Why the head refused a command or stopped.
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ErrorCode {
+    /// A frame from the host failed its CRC.
+    Crc,
+    /// A frame from the host did not decode.
+    Decode,
+    /// A frame from the host had another protocol version.
+    Version(u8),
+    /// The detector configuration was invalid.
+    InvalidConfig,
+    /// The command needs the head idle (stop first).
+    Busy,
+    /// No heartbeat from the host for more than 1 s: lasers off.
+    HeartbeatLost,
+    /// The camera failed to deliver a frame.
+    SensorFault,
+    /// A parameter is out of range (exposure, rate, mask).
+    OutOfRange,
+}
+
+impl core::fmt::Display for ErrorCode {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            ErrorCode::Crc => f.write_str("frame CRC mismatch"),
+            ErrorCode::Decode => f.write_str("frame did not decode"),
+            ErrorCode::Version(v) => write!(f, "protocol version {v}, expected {PROTOCOL_VERSION}"),
+            ErrorCode::InvalidConfig => f.write_str("invalid detector configuration"),
+            ErrorCode::Busy => f.write_str("head is streaming; stop first"),
+            ErrorCode::HeartbeatLost => f.write_str("host heartbeat lost; lasers off"),
+            ErrorCode::SensorFault => f.write_str("camera fault; lasers off"),
+            ErrorCode::OutOfRange => f.write_str("parameter out of range"),
+        }
+    }
+}
+
+/// A chunk of raw pixels for image capture (little-endian `u16` per pixel
+/// for bit depths above 8, one byte otherwise).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RawRows {
+    /// Capture identifier (the command's sequence number).
+    pub capture: u16,
+    /// First row in this chunk.
+    pub first_row: u16,
+    /// Byte offset within the first row where this chunk starts.
+    pub offset: u32,
+    /// Image width, px.
+    pub width: u16,
+    /// Image height, px.
+    pub height: u16,
+    /// Bits per pixel.
+    pub bits: u8,
+    /// Pixel bytes.
+    pub data: Vec<u8, RAW_CHUNK_BYTES>,
+}
+
+/// Device → host.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum DeviceMsg {
+    /// Sent on connection and in answer to `GetInfo`.
+    Hello(DeviceInfo),
+    /// Stripes of one image.
+    Profile(Profile),
+    /// Health, about once a second while streaming and after every state change.
+    Status(Status),
+    /// The command with this sequence number was carried out.
+    Ack(u16),
+    /// The command with this sequence number (if known) failed, or a fault.
+    Error {
+        /// Sequence number of the failed command, if the fault answers one.
+        seq: Option<u16>,
+        /// What went wrong.
+        code: ErrorCode,
+    },
+    /// Image capture data.
+    RawRows(RawRows),
+}
+
+/// How the lasers are lit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum LaserPattern {
+    /// All lasers of the mask in every frame.
+    Simultaneous,
+    /// One laser per frame, in turn.
+    Sequential,
+}
+
+/// Streaming parameters.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Start {
+    /// Frames per second (1..=1000).
+    pub rate_hz: u16,
+    /// Lasers to use (bit k = laser k, non-zero, < 1 << LASERS).
+    pub laser_mask: u8,
+    /// How they are lit.
+    pub pattern: LaserPattern,
+}
+
+/// Calibration the head uses to triangulate (camera frame, mm; see
+/// `cms-host calibrate`). The head validates and keeps it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Calibration {
+    /// Identifier (non-zero), echoed in `DeviceInfo`.
+    pub id: u32,
+    /// fx, fy, cx, cy, skew (px).
+    pub intrinsics: [f32; 5],
+    /// k1, k2, p1, p2, k3.
+    pub distortion: [f32; 5],
+    /// Per laser: nx, ny, nz (unit), d (mm): n·X = d.
+    pub planes: [[f32; 4]; LASERS],
+}
+
+/// Host → device command body.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum HostMsg {
+    /// Start streaming (lasers on).
+    Start(Start),
+    /// Stop streaming (lasers off).
+    Stop,
+    /// Exposure time, µs.
+    SetExposure(u32),
+    /// New detector configuration (validated by the head).
+    SetDetector(Config),
+    /// New calibration.
+    SetCalibration(Calibration),
+    /// Capture one full image with these lasers lit and send it as `RawRows`.
+    CaptureImage(u8),
+    /// Ask for `Hello`.
+    GetInfo,
+    /// The host is alive; without one for 1 s the head turns the lasers off.
+    Heartbeat,
+}
+
+/// A command: a sequence number for the acknowledgement, and the body.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Command {
+    /// Echoed in `Ack` / `Error`.
+    pub seq: u16,
+    /// What to do.
+    pub msg: HostMsg,
+}
+
+// ---------------------------------------------------------------- framing
+
+/// Why a frame could not be written or read.
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum WireError {
+    /// The output buffer is too small for the frame.
+    BufferTooSmall,
+    /// The frame exceeded the reader's buffer (bytes discarded up to the next delimiter).
+    Overflow,
+    /// COBS decoding failed (a stray zero or truncated frame).
+    Cobs,
+    /// Shorter than version + CRC.
+    TooShort,
+    /// Another protocol version.
+    Version(u8),
+    /// CRC mismatch.
+    Crc,
+    /// The payload is not a valid message.
+    Decode,
+}
+
+impl core::fmt::Display for WireError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            WireError::BufferTooSmall => f.write_str("frame does not fit the buffer"),
+            WireError::Overflow => f.write_str("frame longer than the receive buffer"),
+            WireError::Cobs => f.write_str("bad COBS framing"),
+            WireError::TooShort => f.write_str("frame too short"),
+            WireError::Version(v) => write!(f, "protocol version {v}, expected {PROTOCOL_VERSION}"),
+            WireError::Crc => f.write_str("CRC mismatch"),
+            WireError::Decode => f.write_str("payload does not decode"),
+        }
+    }
+}
+
+impl core::error::Error for WireError {}
+
+/// Encodes `msg` as one frame into `out`, using `scratch` for the unframed
+/// bytes. Returns the frame (delimiter included).
+pub fn encode<'a, T: Serialize>(msg: &T, scratch: &mut [u8], out: &'a mut [u8]) -> Result<&'a [u8], WireError> {
+    if scratch.len() < 5 {
+        return Err(WireError::BufferTooSmall);
+    }
+    scratch[0] = PROTOCOL_VERSION;
+    let n = postcard::to_slice(msg, &mut scratch[1..]).map_err(|_| WireError::BufferTooSmall)?.len();
+    let end = 1 + n;
+    if scratch.len() < end + 4 {
+        return Err(WireError::BufferTooSmall);
+    }
+    let crc = CRC.checksum(&scratch[..end]);
+    scratch[end..end + 4].copy_from_slice(&crc.to_le_bytes());
+    let raw = &scratch[..end + 4];
+    let m = cobs::try_encode(raw, out).map_err(|_| WireError::BufferTooSmall)?;
+    if out.len() <= m {
+        return Err(WireError::BufferTooSmall);
+    }
+    out[m] = 0;
+    Ok(&out[..=m])
+}
+
+/// Decodes one frame's bytes (COBS-encoded, without the delimiter), in place.
+pub fn decode_frame<'de, T: Deserialize<'de>>(frame: &'de mut [u8]) -> Result<T, WireError> {
+    let n = cobs::decode_in_place(frame).map_err(|_| WireError::Cobs)?;
+    if n < 5 {
+        return Err(WireError::TooShort);
+    }
+    let raw = &frame[..n];
+    if raw[0] != PROTOCOL_VERSION {
+        return Err(WireError::Version(raw[0]));
+    }
+    let (body, crc) = raw.split_at(n - 4);
+    if CRC.checksum(body) != u32::from_le_bytes([crc[0], crc[1], crc[2], crc[3]]) {
+        return Err(WireError::Crc);
+    }
+    let (msg, rest) = postcard::take_from_bytes(&body[1..]).map_err(|_| WireError::Decode)?;
+    if !rest.is_empty() {
+        return Err(WireError::Decode);
+    }
+    Ok(msg)
+}
+
+/// Counters of a frame reader.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LinkStats {
+    /// Frames decoded.
+    pub frames: u32,
+    /// Frames with a CRC mismatch.
+    pub crc_errors: u32,
+    /// Frames that failed COBS, length, version or payload decoding.
+    pub decode_errors: u32,
+    /// Frames longer than the buffer (discarded).
+    pub overflows: u32,
+    /// Bytes discarded while resynchronising.
+    pub discarded_bytes: u32,
+}
+
+/// Splits a byte stream into frames on 0x00 and decodes them.
+///
+/// `N` bounds a frame (use [`MAX_FRAME`] for device messages,
+/// [`MAX_COMMAND_FRAME`] for commands). A frame that overflows is discarded up
+/// to the next delimiter; the reader never needs a reset.
+pub struct FrameReader<const N: usize> {
+    buf: [u8; N],
+    len: usize,
+    overflow: bool,
+    stats: LinkStats,
+}
+
+impl<const N: usize> Default for FrameReader<N> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const N: usize> FrameReader<N> {
+    /// An empty reader.
+    pub const fn new() -> Self {
+        FrameReader {
+            buf: [0; N],
+            len: 0,
+            overflow: false,
+            stats: LinkStats { frames: 0, crc_errors: 0, decode_errors: 0, overflows: 0, discarded_bytes: 0 },
+        }
+    }
+
+    /// Counters so far.
+    pub fn stats(&self) -> LinkStats {
+        self.stats
+    }
+
+    /// Feeds `data`; calls `on_msg` with every complete frame's result, in order.
+    pub fn feed<T, F>(&mut self, data: &[u8], mut on_msg: F)
+    where
+        T: for<'de> Deserialize<'de>,
+        F: FnMut(Result<T, WireError>),
+    {
+        for &b in data {
+            if b != 0 {
+                if self.len < N {
+                    self.buf[self.len] = b;
+                    self.len += 1;
+                } else {
+                    if !self.overflow {
+                        self.overflow = true;
+                        self.stats.discarded_bytes = self.stats.discarded_bytes.saturating_add(self.len as u32);
+                    }
+                    self.stats.discarded_bytes = self.stats.discarded_bytes.saturating_add(1);
+                }
+                continue;
+            }
+            // Delimiter.
+            if self.overflow {
+                self.stats.overflows += 1;
+                on_msg(Err(WireError::Overflow));
+            } else if self.len > 0 {
+                let r = decode_frame::<T>(&mut self.buf[..self.len]);
+                match &r {
+                    Ok(_) => self.stats.frames += 1,
+                    Err(WireError::Crc) => self.stats.crc_errors += 1,
+                    Err(_) => {
+                        self.stats.decode_errors += 1;
+                        self.stats.discarded_bytes = self.stats.discarded_bytes.saturating_add(self.len as u32);
+                    }
+                }
+                on_msg(r);
+            }
+            self.len = 0;
+            self.overflow = false;
+        }
+    }
+}
