@@ -242,6 +242,10 @@ pub struct RawRows {
 }
 
 /// Device → host.
+///
+/// `Profile` makes this enum about 46 KB; without an allocator it cannot be
+/// boxed, so the head builds one message in place and lends it by reference.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum DeviceMsg {
     /// Sent on connection and in answer to `GetInfo`.
