@@ -118,8 +118,238 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
 }
 
 #[test]
-fn print_goldens() {
-    for (name, bytes) in goldens() {
-        println!("{name}: {}", hex(&bytes));
+fn goldens_match_the_reference_encoder() {
+    let want = include_str!("../golden/frames.txt");
+    let got: std::vec::Vec<_> = goldens().into_iter().map(|(name, bytes)| format!("{name}: {}", hex(&bytes))).collect();
+    let want: std::vec::Vec<_> = want.lines().map(str::to_owned).collect();
+    assert_eq!(got.len(), 15, "one golden per message kind");
+    for (g, w) in got.iter().zip(&want) {
+        assert_eq!(g, w);
+    }
+    assert_eq!(got.len(), want.len());
+}
+
+#[test]
+fn goldens_decode_back() {
+    for (name, mut bytes) in goldens() {
+        assert_eq!(bytes.pop(), Some(0), "{name}: frames end in the delimiter");
+        assert!(!bytes.contains(&0), "{name}: no zero inside a COBS frame");
+        let ok = if matches!(
+            name,
+            "start" | "stop" | "exposure" | "detector" | "calibration" | "capture" | "info" | "heartbeat"
+        ) {
+            decode_frame::<Command>(&mut bytes).is_ok()
+        } else {
+            decode_frame::<DeviceMsg>(&mut bytes).is_ok()
+        };
+        assert!(ok, "{name}");
+    }
+}
+
+/// The largest message of each kind fits `MAX_MESSAGE` / `MAX_FRAME`, and
+/// every command fits `MAX_COMMAND_FRAME`: the buffers are sized from these.
+#[test]
+fn encoded_sizes_are_bounded() {
+    let worst_point = Point {
+        row: u16::MAX,
+        position: Px(i32::MIN),
+        strength: u16::MAX,
+        width: Px(i32::MIN),
+        flags: Flags(u8::MAX),
+        um: Some(PointUm { along_um: i32::MIN, height_um: i32::MIN }),
+    };
+    let mut lasers = Vec::new();
+    for k in 0..LASERS as u8 {
+        let mut points = Vec::new();
+        while points.push(worst_point).is_ok() {}
+        lasers.push(LaserPoints { laser: k, points }).unwrap();
+    }
+    let profile = DeviceMsg::Profile(Profile {
+        seq: u32::MAX,
+        part: u8::MAX,
+        parts: u8::MAX,
+        timestamp_us: u64::MAX,
+        odometer_um: i64::MIN,
+        exposure_us: u32::MAX,
+        laser_mask: u8::MAX,
+        lasers,
+    });
+    let mut raw = vec![0u8; 2 * MAX_FRAME];
+    let n = postcard::to_slice(&profile, &mut raw).unwrap().len();
+    assert!(n <= MAX_MESSAGE, "profile {n} > {MAX_MESSAGE}");
+    assert!(n > MAX_MESSAGE - 100, "MAX_MESSAGE is not tight: {n}");
+    assert!(frame(&profile).len() <= MAX_FRAME);
+
+    let mut info = sample_info();
+    info.firmware = String::try_from("0123456789abcdef").unwrap();
+    info.board = String::try_from("0123456789abcdefghijklmn").unwrap();
+    info.calibration_id = u32::MAX;
+    assert!(frame(&DeviceMsg::Hello(info)).len() <= MAX_FRAME);
+    let raw_rows = DeviceMsg::RawRows(RawRows {
+        capture: u16::MAX,
+        first_row: u16::MAX,
+        offset: u32::MAX,
+        width: u16::MAX,
+        height: u16::MAX,
+        bits: 16,
+        data: Vec::from_slice(&[0xff; RAW_CHUNK_BYTES]).unwrap(),
+    });
+    assert!(frame(&raw_rows).len() <= MAX_FRAME);
+    let cal = Command {
+        seq: u16::MAX,
+        msg: HostMsg::SetCalibration(Calibration {
+            id: u32::MAX,
+            intrinsics: [f32::MAX; 5],
+            distortion: [f32::MAX; 5],
+            planes: [[f32::MAX; 4]; 3],
+        }),
+    };
+    let mut det = default_detector();
+    det.threshold_sigma_q8 = u16::MAX;
+    det.saturation = u16::MAX;
+    let det = Command { seq: u16::MAX, msg: HostMsg::SetDetector(det) };
+    for c in [cal, det, Command { seq: u16::MAX, msg: HostMsg::SetExposure(u32::MAX) }] {
+        let len = frame(&c).len();
+        assert!(len <= MAX_COMMAND_FRAME, "{c:?}: {len}");
+    }
+}
+
+#[test]
+fn reader_resynchronises_after_garbage_and_counts_damage() {
+    let good = frame(&DeviceMsg::Ack(1));
+    let mut stream = std::vec::Vec::new();
+    stream.extend_from_slice(&[0x13, 0x37, 0xff]); // garbage before the first delimiter
+    stream.push(0);
+    stream.extend_from_slice(&good);
+    let mut flipped = frame(&DeviceMsg::Ack(2));
+    flipped[3] ^= 0x10; // a flipped bit: CRC
+    stream.extend_from_slice(&flipped);
+    let truncated = frame(&DeviceMsg::Ack(3));
+    stream.extend_from_slice(&truncated[..truncated.len() / 2]); // cut short, then the next frame
+    stream.extend_from_slice(&frame(&DeviceMsg::Ack(4)));
+    stream.extend_from_slice(&vec![0x55; 300]); // longer than the reader's buffer
+    stream.push(0);
+    stream.extend_from_slice(&frame(&DeviceMsg::Ack(5)));
+    let mut reader = FrameReader::<128>::new();
+    let mut got = std::vec::Vec::new();
+    let mut errors = std::vec::Vec::new();
+    // Byte by byte and in odd chunks alike.
+    for chunk in stream.chunks(7) {
+        reader.feed::<DeviceMsg, _>(chunk, |r| match r {
+            Ok(DeviceMsg::Ack(s)) => got.push(s),
+            Ok(m) => panic!("{m:?}"),
+            Err(e) => errors.push(e),
+        });
+    }
+    assert_eq!(got, vec![1, 5]);
+    let st = reader.stats();
+    assert_eq!(st.frames, 2);
+    assert_eq!(st.crc_errors, 1);
+    assert_eq!(st.overflows, 1);
+    // garbage (bad COBS/too short), and the truncated frame merged with Ack(4)
+    assert_eq!(st.decode_errors, 2, "{errors:?}");
+}
+
+#[test]
+fn version_mismatch_is_reported_as_such() {
+    let mut scratch = vec![0u8; 64];
+    scratch[0] = 2;
+    let n = postcard::to_slice(&DeviceMsg::Ack(1), &mut scratch[1..]).unwrap().len();
+    let crc = CRC.checksum(&scratch[..1 + n]);
+    scratch[1 + n..5 + n].copy_from_slice(&crc.to_le_bytes());
+    let mut out = vec![0u8; 64];
+    let m = cobs::encode(&scratch[..5 + n], &mut out);
+    assert_eq!(decode_frame::<DeviceMsg>(&mut out[..m]), Err(WireError::Version(2)));
+}
+
+fn arb_point() -> impl Strategy<Value = Point> {
+    (
+        any::<u16>(),
+        any::<i32>(),
+        any::<u16>(),
+        any::<i32>(),
+        any::<u8>(),
+        proptest::option::of((any::<i32>(), any::<i32>())),
+    )
+        .prop_map(|(row, p, s, w, f, um)| Point {
+            row,
+            position: Px(p),
+            strength: s,
+            width: Px(w),
+            flags: Flags(f),
+            um: um.map(|(a, h)| PointUm { along_um: a, height_um: h }),
+        })
+}
+
+fn arb_profile() -> impl Strategy<Value = Profile> {
+    (
+        any::<u32>(),
+        any::<u64>(),
+        any::<i64>(),
+        any::<u32>(),
+        any::<u8>(),
+        proptest::collection::vec(proptest::collection::vec(arb_point(), 0..40), 0..=3),
+    )
+        .prop_map(|(seq, t, o, e, m, lasers)| Profile {
+            seq,
+            part: 0,
+            parts: 1,
+            timestamp_us: t,
+            odometer_um: o,
+            exposure_us: e,
+            laser_mask: m,
+            lasers: lasers
+                .into_iter()
+                .enumerate()
+                .map(|(k, pts)| LaserPoints { laser: k as u8, points: Vec::from_slice(&pts).unwrap() })
+                .collect(),
+        })
+}
+
+proptest! {
+    #[test]
+    fn profiles_round_trip(p in arb_profile()) {
+        let msg = DeviceMsg::Profile(p);
+        let mut f = frame(&msg);
+        f.pop();
+        prop_assert_eq!(decode_frame::<DeviceMsg>(&mut f).unwrap(), msg);
+    }
+
+    #[test]
+    fn commands_round_trip(seq in any::<u16>(), rate in any::<u16>(), mask in any::<u8>(), exp in any::<u32>(), which in 0u8..6) {
+        let msg = match which {
+            0 => HostMsg::Start(Start { rate_hz: rate, laser_mask: mask, pattern: LaserPattern::Simultaneous }),
+            1 => HostMsg::SetExposure(exp),
+            2 => HostMsg::CaptureImage(mask),
+            3 => HostMsg::Stop,
+            4 => HostMsg::Heartbeat,
+            _ => HostMsg::GetInfo,
+        };
+        let c = Command { seq, msg };
+        let mut f = frame(&c);
+        f.pop();
+        prop_assert_eq!(decode_frame::<Command>(&mut f).unwrap(), c);
+    }
+
+    /// Random bytes never panic the reader, and whatever it accepts passed the CRC.
+    #[test]
+    fn random_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..4000)) {
+        let mut reader = FrameReader::<512>::new();
+        let mut ok = 0u32;
+        reader.feed::<DeviceMsg, _>(&bytes, |r| if r.is_ok() { ok += 1 });
+        let st = reader.stats();
+        prop_assert_eq!(st.frames, ok);
+    }
+
+    /// A valid frame after any garbage and a delimiter is always recovered.
+    #[test]
+    fn valid_frame_after_garbage_is_recovered(garbage in proptest::collection::vec(any::<u8>(), 0..600), seq in any::<u16>()) {
+        let mut stream = garbage;
+        stream.push(0);
+        stream.extend_from_slice(&frame(&DeviceMsg::Ack(seq)));
+        let mut reader = FrameReader::<512>::new();
+        let mut last = None;
+        reader.feed::<DeviceMsg, _>(&stream, |r| if let Ok(DeviceMsg::Ack(s)) = r { last = Some(s) });
+        prop_assert_eq!(last, Some(seq));
     }
 }

@@ -1,0 +1,278 @@
+//! The sensor head's logic (`cms_core::pipeline::Head`): profiles from rows,
+//! commands, and the laser-safety rules.
+
+use cms_core::pipeline::{Camera, HEARTBEAT_TIMEOUT_US, Head, Identity, LaserDriver, default_detector};
+use cms_core::protocol::*;
+use cms_tests::{Gauss, Rng, clean_row, quantise};
+use std::cell::RefCell;
+use std::rc::Rc;
+
+/// The laser enables, with their whole history.
+#[derive(Clone, Default)]
+struct Lasers(Rc<RefCell<Vec<u8>>>);
+impl LaserDriver for Lasers {
+    fn set(&mut self, mask: u8) {
+        self.0.borrow_mut().push(mask);
+    }
+}
+impl Lasers {
+    fn now(&self) -> u8 {
+        *self.0.borrow().last().unwrap()
+    }
+}
+
+/// A camera that renders three stripes drifting with the row (a corrugated
+/// rail seen by the reference head), only for the lasers lit.
+struct Cam {
+    rng: Rng,
+    row: u16,
+    mask: u8,
+    fail: bool,
+    exposures: u32,
+}
+impl Cam {
+    fn new() -> Cam {
+        Cam { rng: Rng::new(9), row: 0, mask: 0, fail: false, exposures: 0 }
+    }
+    fn truth(row: u16, k: usize) -> f64 {
+        200.0 + 180.0 * k as f64 + 2.0 * (row as f64 / 30.0).sin()
+    }
+}
+impl Camera for Cam {
+    type Error = ();
+    fn width(&self) -> u16 {
+        752
+    }
+    fn height(&self) -> u16 {
+        480
+    }
+    fn bits(&self) -> u8 {
+        12
+    }
+    fn expose(&mut self, _exposure_us: u32, laser_mask: u8) -> Result<i64, ()> {
+        if self.fail {
+            return Err(());
+        }
+        self.row = 0;
+        self.mask = laser_mask;
+        self.exposures += 1;
+        Ok(self.exposures as i64 * 1000)
+    }
+    fn read_row(&mut self, out: &mut [u16]) -> Result<(), ()> {
+        let stripes: Vec<Gauss> = (0..3)
+            .filter(|k| self.mask & (1 << k) != 0)
+            .map(|k| Gauss { x0: Cam::truth(self.row, k), sigma: 2.5, amplitude: [2500.0, 1500.0, 900.0][k] })
+            .collect();
+        let row = quantise(&clean_row(752, 150.0, &stripes), 4.0, 12, &mut self.rng);
+        out.copy_from_slice(&row);
+        self.row += 1;
+        Ok(())
+    }
+}
+
+fn head() -> (Head<752, Lasers>, Lasers) {
+    let l = Lasers::default();
+    let h = Head::new(l.clone(), default_detector(), Identity { firmware: "test", board: "test" }).unwrap();
+    (h, l)
+}
+
+fn cmd(seq: u16, msg: HostMsg) -> Command {
+    Command { seq, msg }
+}
+
+fn start(mask: u8, pattern: LaserPattern) -> HostMsg {
+    HostMsg::Start(Start { rate_hz: 10, laser_mask: mask, pattern })
+}
+
+#[test]
+fn lasers_are_off_until_streaming_and_profiles_match_the_truth() {
+    let (mut h, l) = head();
+    let mut cam = Cam::new();
+    assert_eq!(l.now(), 0, "off at construction");
+    let mut out = Vec::new();
+    let mut clock = 0u64;
+    let mut ns = || {
+        clock += 1000;
+        clock
+    };
+    h.poll(0, &mut cam, &mut ns, &mut |m| out.push(m.clone()));
+    assert_eq!(l.now(), 0);
+    assert_eq!(cam.exposures, 0, "idle: no exposure");
+    h.handle(cmd(1, start(0b111, LaserPattern::Simultaneous)), 10, &cam, &mut |m| out.push(m.clone()));
+    assert!(out.contains(&DeviceMsg::Ack(1)));
+    h.poll(20, &mut cam, &mut ns, &mut |m| out.push(m.clone()));
+    assert_eq!(l.now(), 0b111);
+    let profiles: Vec<&Profile> =
+        out.iter().filter_map(|m| if let DeviceMsg::Profile(p) = m { Some(p) } else { None }).collect();
+    assert_eq!(profiles.len(), 1);
+    let p = profiles[0];
+    assert_eq!(p.laser_mask, 0b111);
+    assert_eq!(p.lasers.len(), 3);
+    let mut se = 0.0;
+    let mut n = 0;
+    for lp in &p.lasers {
+        assert_eq!(lp.points.len(), 480, "laser {}: one point per row", lp.laser);
+        for pt in &lp.points {
+            let e = pt.position.to_f64() - Cam::truth(pt.row, lp.laser as usize);
+            se += e * e;
+            n += 1;
+        }
+    }
+    let rms = (se / n as f64).sqrt();
+    assert!(rms < 0.02, "RMS {rms}");
+    out.clear();
+    h.handle(cmd(2, HostMsg::Stop), 30, &cam, &mut |m| out.push(m.clone()));
+    assert_eq!(l.now(), 0);
+    assert_eq!(h.state(), HeadState::Idle);
+    assert!(out.contains(&DeviceMsg::Ack(2)));
+}
+
+#[test]
+fn heartbeat_loss_turns_the_lasers_off() {
+    let (mut h, l) = head();
+    let mut cam = Cam::new();
+    let mut out = Vec::new();
+    let mut ns = || 0u64;
+    h.handle(cmd(1, start(0b111, LaserPattern::Simultaneous)), 0, &cam, &mut |m| out.push(m.clone()));
+    let mut t = 0;
+    // Heartbeats every 250 ms keep it streaming for 3 s.
+    while t < 3_000_000 {
+        h.poll(t, &mut cam, &mut ns, &mut |m| out.push(m.clone()));
+        if t % 250_000 == 0 {
+            h.handle(cmd(2, HostMsg::Heartbeat), t, &cam, &mut |m| out.push(m.clone()));
+        }
+        t += 50_000;
+    }
+    assert_eq!(h.state(), HeadState::Streaming);
+    assert_ne!(l.now(), 0);
+    // Silence: at most 1 s + one poll later the lasers are off.
+    let last_heard = t - 50_000;
+    out.clear();
+    while h.state() == HeadState::Streaming {
+        h.poll(t, &mut cam, &mut ns, &mut |m| out.push(m.clone()));
+        t += 10_000;
+    }
+    assert!(t - last_heard <= HEARTBEAT_TIMEOUT_US + 70_000, "{}", t - last_heard);
+    assert_eq!(l.now(), 0);
+    assert_eq!(h.state(), HeadState::Fault);
+    assert!(out.contains(&DeviceMsg::Error { seq: None, code: ErrorCode::HeartbeatLost }));
+    // Nothing relights them but a new Start.
+    let before = cam.exposures;
+    for _ in 0..30 {
+        h.poll(t, &mut cam, &mut ns, &mut |_| {});
+        t += 100_000;
+    }
+    assert_eq!(l.now(), 0);
+    assert_eq!(cam.exposures, before);
+}
+
+#[test]
+fn any_error_while_streaming_stops_with_lasers_off() {
+    for bad in [HostMsg::SetDetector(default_detector()), HostMsg::SetExposure(0), HostMsg::CaptureImage(1)] {
+        let (mut h, l) = head();
+        let mut cam = Cam::new();
+        let mut ns = || 0u64;
+        h.handle(cmd(1, start(0b111, LaserPattern::Simultaneous)), 0, &cam, &mut |_| {});
+        h.poll(0, &mut cam, &mut ns, &mut |_| {});
+        assert_eq!(l.now(), 0b111);
+        let mut out = Vec::new();
+        h.handle(cmd(2, bad.clone()), 1, &cam, &mut |m| out.push(m.clone()));
+        assert_eq!(l.now(), 0, "{bad:?}");
+        assert_eq!(h.state(), HeadState::Fault);
+        assert!(out.iter().any(|m| matches!(m, DeviceMsg::Error { seq: Some(2), .. })));
+    }
+    // A link error (bad CRC from the host) too.
+    let (mut h, l) = head();
+    let mut cam = Cam::new();
+    h.handle(cmd(1, start(0b001, LaserPattern::Simultaneous)), 0, &cam, &mut |_| {});
+    h.poll(0, &mut cam, &mut || 0, &mut |_| {});
+    assert_eq!(l.now(), 0b001);
+    h.link_error(ErrorCode::Crc, &mut |_| {});
+    assert_eq!(l.now(), 0);
+}
+
+#[test]
+fn camera_fault_turns_the_lasers_off() {
+    let (mut h, l) = head();
+    let mut cam = Cam::new();
+    let mut out = Vec::new();
+    h.handle(cmd(1, start(0b111, LaserPattern::Simultaneous)), 0, &cam, &mut |_| {});
+    cam.fail = true;
+    h.poll(0, &mut cam, &mut || 0, &mut |m| out.push(m.clone()));
+    assert_eq!(l.now(), 0);
+    assert!(out.contains(&DeviceMsg::Error { seq: None, code: ErrorCode::SensorFault }));
+}
+
+#[test]
+fn sequential_pattern_lights_one_laser_per_frame() {
+    let (mut h, l) = head();
+    let mut cam = Cam::new();
+    let mut masks = Vec::new();
+    h.handle(cmd(1, start(0b101, LaserPattern::Sequential)), 0, &cam, &mut |_| {});
+    for i in 0..4u64 {
+        h.handle(cmd(2, HostMsg::Heartbeat), i * 100_000, &cam, &mut |_| {});
+        h.poll(i * 100_000, &mut cam, &mut || 0, &mut |m| {
+            if let DeviceMsg::Profile(p) = m {
+                masks.push(p.laser_mask);
+                assert_eq!(p.lasers.len(), 1);
+                assert_eq!(p.lasers[0].points.len(), 480);
+            }
+        });
+    }
+    assert_eq!(masks, vec![0b001, 0b100, 0b001, 0b100]);
+    // Between frames of the sequential pattern, all off.
+    assert_eq!(l.now(), 0);
+    assert!(l.0.borrow().iter().all(|&m| m.count_ones() <= 1));
+}
+
+#[test]
+fn invalid_commands_are_refused_and_lasers_stay_off() {
+    let (mut h, l) = head();
+    let cam = Cam::new();
+    let mut out = Vec::new();
+    let mut bad_cfg = default_detector();
+    bad_cfg.bits = 3;
+    h.handle(cmd(1, HostMsg::SetDetector(bad_cfg)), 0, &cam, &mut |m| out.push(m.clone()));
+    h.handle(cmd(2, start(0, LaserPattern::Simultaneous)), 0, &cam, &mut |m| out.push(m.clone()));
+    h.handle(
+        cmd(3, HostMsg::Start(Start { rate_hz: 0, laser_mask: 1, pattern: LaserPattern::Simultaneous })),
+        0,
+        &cam,
+        &mut |m| out.push(m.clone()),
+    );
+    assert_eq!(
+        out,
+        vec![
+            DeviceMsg::Error { seq: Some(1), code: ErrorCode::InvalidConfig },
+            DeviceMsg::Error { seq: Some(2), code: ErrorCode::OutOfRange },
+            DeviceMsg::Error { seq: Some(3), code: ErrorCode::OutOfRange },
+        ]
+    );
+    assert_eq!(l.now(), 0);
+    assert_eq!(h.state(), HeadState::Idle);
+}
+
+#[test]
+fn dropping_the_head_turns_the_lasers_off() {
+    let (mut h, l) = head();
+    let mut cam = Cam::new();
+    h.handle(cmd(1, start(0b111, LaserPattern::Simultaneous)), 0, &cam, &mut |_| {});
+    h.poll(0, &mut cam, &mut || 0, &mut |_| {});
+    assert_eq!(l.now(), 0b111);
+    drop(h);
+    assert_eq!(l.now(), 0);
+}
+
+#[test]
+fn capture_sends_the_whole_image_with_lasers_lit_only_for_it() {
+    let (mut h, l) = head();
+    let mut cam = Cam::new();
+    let mut out = Vec::new();
+    h.handle(cmd(4, HostMsg::CaptureImage(0b010)), 0, &cam, &mut |m| out.push(m.clone()));
+    h.poll(0, &mut cam, &mut || 0, &mut |m| out.push(m.clone()));
+    let bytes: usize =
+        out.iter().filter_map(|m| if let DeviceMsg::RawRows(r) = m { Some(r.data.len()) } else { None }).sum();
+    assert_eq!(bytes, 752 * 480 * 2);
+    assert_eq!(l.now(), 0);
+    assert!(l.0.borrow().contains(&0b010));
+}
