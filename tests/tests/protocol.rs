@@ -252,12 +252,12 @@ fn reader_resynchronises_after_garbage_and_counts_damage() {
 
 #[test]
 fn version_mismatch_is_reported_as_such() {
-    let mut scratch = vec![0u8; 64];
+    let mut scratch = [0u8; 64];
     scratch[0] = 2;
     let n = postcard::to_slice(&DeviceMsg::Ack(1), &mut scratch[1..]).unwrap().len();
     let crc = CRC.checksum(&scratch[..1 + n]);
     scratch[1 + n..5 + n].copy_from_slice(&crc.to_le_bytes());
-    let mut out = vec![0u8; 64];
+    let mut out = [0u8; 64];
     let m = cobs::encode(&scratch[..5 + n], &mut out);
     assert_eq!(decode_frame::<DeviceMsg>(&mut out[..m]), Err(WireError::Version(2)));
 }
