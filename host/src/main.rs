@@ -1,1 +1,44 @@
-fn main() {}
+//! `cms-host`: the command-line front end. A thin dispatcher: each
+//! subcommand's arguments and work live in its own module (`detect` in the
+//! library, `bench` beside this file).
+
+use std::io::Write as _;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use cms_host::detect;
+
+mod bench;
+
+/// Host tools of the rail corrugation measurement system.
+#[derive(Parser, Debug)]
+#[command(name = "cms-host", version, about, propagate_version = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Find the laser stripes of every image row and print them as CSV.
+    Detect(detect::DetectArgs),
+    /// Accuracy and speed of the detection methods.
+    #[command(subcommand)]
+    Bench(bench::BenchCmd),
+}
+
+fn main() -> ExitCode {
+    match Cli::parse().command {
+        Command::Detect(args) => match detect::run(&args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => e.report(),
+        },
+        Command::Bench(cmd) => match bench::run(cmd) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                let _ = writeln!(std::io::stderr(), "error: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
+    }
+}

@@ -1,0 +1,65 @@
+//! `cms-host`: host-side tools of the rail corrugation measurement system.
+//!
+//! The binary (`src/main.rs`) is a thin `clap` dispatcher; each subcommand
+//! lives in its own module here so that it can be tested without spawning a
+//! process:
+//!
+//! * [`detect`] — `cms-host detect`: laser-stripe positions of image rows as CSV.
+//! * [`input`] — reading grayscale PNG/TIFF images and CSV rows.
+
+pub mod detect;
+pub mod input;
+
+use std::fmt;
+use std::io::Write as _;
+use std::process::ExitCode;
+
+/// Why a subcommand failed, and so how the process exits.
+#[derive(Debug)]
+pub enum CliError {
+    /// A bad option value or a bad input file: exit status 2.
+    Usage(String),
+    /// Writing the output failed: exit status 1 (a closed pipe exits quietly
+    /// with status 0, see [`CliError::report`]).
+    Output(std::io::Error),
+}
+
+impl fmt::Display for CliError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            CliError::Usage(m) => f.write_str(m),
+            CliError::Output(e) => write!(f, "writing output: {e}"),
+        }
+    }
+}
+
+impl From<input::InputError> for CliError {
+    fn from(e: input::InputError) -> Self {
+        CliError::Usage(e.to_string())
+    }
+}
+
+impl From<std::io::Error> for CliError {
+    fn from(e: std::io::Error) -> Self {
+        CliError::Output(e)
+    }
+}
+
+impl CliError {
+    /// Prints the error as one `error: ` line on stderr (nothing for a closed
+    /// output pipe) and returns the exit status.
+    pub fn report(&self) -> ExitCode {
+        if let CliError::Output(e) = self
+            && e.kind() == std::io::ErrorKind::BrokenPipe
+        {
+            return ExitCode::SUCCESS;
+        }
+        let msg = input::one_line(&self.to_string(), 2000);
+        // Not eprintln!: it panics if stderr is closed.
+        let _ = writeln!(std::io::stderr(), "error: {msg}");
+        match self {
+            CliError::Usage(_) => ExitCode::from(2),
+            CliError::Output(_) => ExitCode::from(1),
+        }
+    }
+}
