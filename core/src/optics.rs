@@ -35,6 +35,8 @@ pub enum OpticsError {
     Margin,
     /// `s_min` is not below `s_max`.
     ScaleOrder,
+    /// A scale is not positive.
+    ScaleNotPositive,
 }
 
 impl core::fmt::Display for OpticsError {
@@ -45,6 +47,7 @@ impl core::fmt::Display for OpticsError {
             OpticsError::Angle => "laser angle must be in (0°, 90°]",
             OpticsError::Margin => "scale margin must be in [0, 1]",
             OpticsError::ScaleOrder => "scale range: s_min must be below s_max",
+            OpticsError::ScaleNotPositive => "scale range: scales must be > 0 px",
         })
     }
 }
@@ -116,7 +119,7 @@ impl ScaleRange {
     /// Explicit values; `min` must be positive and below `max`.
     pub fn new(min: Px, max: Px) -> Result<Self, OpticsError> {
         if min.0 <= 0 {
-            return Err(OpticsError::NotPositive);
+            return Err(OpticsError::ScaleNotPositive);
         }
         if min >= max {
             return Err(OpticsError::ScaleOrder);

@@ -186,15 +186,8 @@ fn detector(args: &DetectArgs, bits: u8) -> Result<Box<Detector<MAX_ROW>>, CliEr
 
 /// The flag names, `|`-joined (empty for none).
 pub fn flag_names(flags: Flags) -> String {
-    let mut names: Vec<String> = Vec::new();
-    for (bit, name) in
-        [(Flags::SATURATED, "saturated"), (Flags::CLIPPED, "clipped"), (Flags::LOW_CONFIDENCE, "low-confidence")]
-    {
-        if flags.contains(bit) {
-            names.push(name.into());
-        }
-    }
-    let known = Flags::SATURATED.0 | Flags::CLIPPED.0 | Flags::LOW_CONFIDENCE.0;
+    let mut names: Vec<String> = flags.names().map(String::from).collect();
+    let known = Flags::NAMES.iter().fold(0, |m, (f, _)| m | f.0);
     for b in 0..8 {
         if flags.0 & !known & (1 << b) != 0 {
             names.push(format!("flag{b}"));

@@ -87,6 +87,13 @@ impl Flags {
     pub fn insert(&mut self, other: Flags) {
         self.0 |= other.0;
     }
+    /// Every flag with its name, as printed by the host tools.
+    pub const NAMES: [(Flags, &'static str); 3] =
+        [(Flags::SATURATED, "saturated"), (Flags::CLIPPED, "clipped"), (Flags::LOW_CONFIDENCE, "low-confidence")];
+    /// The names of the flags set, in bit order.
+    pub fn names(self) -> impl Iterator<Item = &'static str> {
+        Flags::NAMES.into_iter().filter(move |(f, _)| self.contains(*f)).map(|(_, n)| n)
+    }
 }
 
 /// One laser stripe found in a row.
