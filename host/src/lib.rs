@@ -9,6 +9,7 @@
 
 pub mod detect;
 pub mod input;
+pub mod sim;
 
 use std::fmt;
 use std::io::Write as _;

@@ -1,0 +1,294 @@
+//! The rail head: a longitudinal height profile (corrugation + roughness)
+//! and an optional transverse crown.
+//!
+//! The surface in the rail frame is `z(x, y) = h(x) + crown(y)`, with `x`
+//! the position along the track (the odometer's coordinate, mm), `y` across
+//! the head from its centreline, `z` up:
+//!
+//! * `h(x) = Σ A_i·sin(2π·x/λ_i + φ_i) + r(x)`: the corrugation components
+//!   and a band-limited random roughness `r` (seeded; flat amplitude
+//!   spectrum between two wavelengths with random phases, scaled to the
+//!   requested RMS, tabulated over a long period and interpolated with a C¹
+//!   cubic);
+//! * `crown(y) = −(R − sqrt(R² − y²))` for a crown radius `R` (≈ −y²/2R), 0
+//!   without one.
+
+use super::noise::Rng;
+use super::{SimError, check};
+
+/// One sinusoidal corrugation component.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Corrugation {
+    /// Wavelength along the rail, mm.
+    pub wavelength_mm: f64,
+    /// Amplitude (half the peak-to-peak height), µm.
+    pub amplitude_um: f64,
+    /// Phase at track position 0, radians.
+    pub phase_rad: f64,
+}
+
+/// The rail head's surface.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RailModel {
+    /// Corrugation components (summed).
+    pub corrugation: Vec<Corrugation>,
+    /// RMS of the random roughness, µm (0: none).
+    pub roughness_rms_um: f64,
+    /// Shortest roughness wavelength, mm.
+    pub roughness_min_wavelength_mm: f64,
+    /// Longest roughness wavelength, mm.
+    pub roughness_max_wavelength_mm: f64,
+    /// Transverse crown radius of the rail head, mm (`None`: flat across).
+    pub crown_radius_mm: Option<f64>,
+    /// Relative reflectance of the surface (scales every stripe; 1 = nominal).
+    pub reflectance: f64,
+}
+
+impl Default for RailModel {
+    /// Moderate corrugation: 30 µm at 50 mm plus 20 µm at 200 mm, 2 µm RMS
+    /// roughness over 5–500 mm, a 300 mm crown.
+    fn default() -> Self {
+        RailModel {
+            corrugation: vec![
+                Corrugation { wavelength_mm: 50.0, amplitude_um: 30.0, phase_rad: 0.0 },
+                Corrugation { wavelength_mm: 200.0, amplitude_um: 20.0, phase_rad: 1.0 },
+            ],
+            roughness_rms_um: 2.0,
+            roughness_min_wavelength_mm: 5.0,
+            roughness_max_wavelength_mm: 500.0,
+            crown_radius_mm: Some(300.0),
+            reflectance: 1.0,
+        }
+    }
+}
+
+impl RailModel {
+    /// A perfectly flat rail: no corrugation, no roughness, no crown.
+    pub fn flat() -> RailModel {
+        RailModel { corrugation: Vec::new(), roughness_rms_um: 0.0, crown_radius_mm: None, ..RailModel::default() }
+    }
+
+    pub(crate) fn validate(&self) -> Result<(), SimError> {
+        for c in &self.corrugation {
+            check("rail.corrugation.wavelength_mm", c.wavelength_mm, c.wavelength_mm > 0.0, "finite and > 0")?;
+            check("rail.corrugation.amplitude_um", c.amplitude_um, c.amplitude_um.is_finite(), "finite")?;
+            check("rail.corrugation.phase_rad", c.phase_rad, c.phase_rad.is_finite(), "finite")?;
+        }
+        check("rail.roughness_rms_um", self.roughness_rms_um, self.roughness_rms_um >= 0.0, "finite and ≥ 0")?;
+        let (lo, hi) = (self.roughness_min_wavelength_mm, self.roughness_max_wavelength_mm);
+        check("rail.roughness_min_wavelength_mm", lo, lo > 0.0, "finite and > 0")?;
+        check("rail.roughness_max_wavelength_mm", hi, hi > lo, "finite and above the minimum wavelength")?;
+        if let Some(r) = self.crown_radius_mm {
+            check("rail.crown_radius_mm", r, r > 0.0, "finite and > 0")?;
+        }
+        check("rail.reflectance", self.reflectance, self.reflectance >= 0.0, "finite and ≥ 0")?;
+        Ok(())
+    }
+}
+
+/// Longest roughness table (samples): 32 MiB of `f64`.
+const MAX_TABLE: usize = 1 << 22;
+/// Roughness samples per shortest wavelength.
+const SAMPLES_PER_MIN_WAVELENGTH: f64 = 16.0;
+/// Table period in longest wavelengths (at least).
+const PERIOD_IN_MAX_WAVELENGTHS: f64 = 40.0;
+
+/// The surface, ready to evaluate.
+#[derive(Clone, Debug)]
+pub(crate) struct Surface {
+    /// (2π/λ per mm, amplitude mm, phase).
+    corrugation: Vec<(f64, f64, f64)>,
+    /// Roughness samples, mm, periodic (empty: none).
+    rough: Vec<f64>,
+    step_mm: f64,
+    inv_step: f64,
+    crown_radius_mm: Option<f64>,
+}
+
+impl Surface {
+    pub(crate) fn new(rail: &RailModel, seed: u64) -> Result<Surface, SimError> {
+        rail.validate()?;
+        let corrugation = rail
+            .corrugation
+            .iter()
+            .map(|c| (std::f64::consts::TAU / c.wavelength_mm, c.amplitude_um * 1e-3, c.phase_rad))
+            .collect();
+        let step_mm = rail.roughness_min_wavelength_mm / SAMPLES_PER_MIN_WAVELENGTH;
+        let mut rough = Vec::new();
+        if rail.roughness_rms_um > 0.0 {
+            let want = (PERIOD_IN_MAX_WAVELENGTHS * rail.roughness_max_wavelength_mm / step_mm).ceil();
+            if want > MAX_TABLE as f64 {
+                return Err(SimError::RoughnessBand {
+                    min_mm: rail.roughness_min_wavelength_mm,
+                    max_mm: rail.roughness_max_wavelength_mm,
+                });
+            }
+            let n = (want as usize).next_power_of_two().max(4096);
+            let period = n as f64 * step_mm;
+            let k_lo = (period / rail.roughness_max_wavelength_mm).ceil().max(1.0) as usize;
+            let k_hi = ((period / rail.roughness_min_wavelength_mm).floor() as usize).min(n / 2 - 1);
+            if k_lo > k_hi {
+                return Err(SimError::RoughnessBand {
+                    min_mm: rail.roughness_min_wavelength_mm,
+                    max_mm: rail.roughness_max_wavelength_mm,
+                });
+            }
+            let mut rng = Rng::for_stream(seed, 0x524f_5547, 0, 0);
+            let mut re = vec![0.0; n];
+            let mut im = vec![0.0; n];
+            for k in k_lo..=k_hi {
+                let (s, c) = (std::f64::consts::TAU * rng.uniform()).sin_cos();
+                re[k] = c;
+                im[k] = s;
+            }
+            // Inverse DFT (conjugate trick: forward FFT of the conjugate); the
+            // real part is Σ cos(2π·k·i/n + φ_k).
+            for v in im.iter_mut() {
+                *v = -*v;
+            }
+            fft(&mut re, &mut im);
+            let rms = (re.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
+            let k = rail.roughness_rms_um * 1e-3 / rms;
+            rough = re.into_iter().map(|v| v * k).collect();
+        }
+        Ok(Surface { corrugation, rough, step_mm, inv_step: 1.0 / step_mm, crown_radius_mm: rail.crown_radius_mm })
+    }
+
+    /// Longitudinal profile `h(x)` at track position `x_mm`, mm.
+    pub(crate) fn profile_mm(&self, x_mm: f64) -> f64 {
+        let mut h = 0.0;
+        for &(k, a, p) in &self.corrugation {
+            h += a * (k * x_mm + p).sin();
+        }
+        if !self.rough.is_empty() {
+            h += self.roughness_mm(x_mm);
+        }
+        h
+    }
+
+    /// Catmull–Rom interpolation of the periodic roughness table.
+    fn roughness_mm(&self, x_mm: f64) -> f64 {
+        let n = self.rough.len();
+        let period = n as f64 * self.step_mm;
+        let t = x_mm.rem_euclid(period) * self.inv_step;
+        let i = (t.floor() as usize).min(n - 1);
+        let f = t - i as f64;
+        let m = n - 1; // n is a power of two
+        let p0 = self.rough[(i + n - 1) & m];
+        let p1 = self.rough[i];
+        let p2 = self.rough[(i + 1) & m];
+        let p3 = self.rough[(i + 2) & m];
+        p1 + 0.5 * f * (p2 - p0 + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3 + f * (3.0 * (p1 - p2) + p3 - p0)))
+    }
+
+    /// Crown drop `crown(y)` (≤ 0) and its slope at `y_mm`; `None` beyond the radius.
+    pub(crate) fn crown_mm(&self, y_mm: f64) -> Option<(f64, f64)> {
+        match self.crown_radius_mm {
+            None => Some((0.0, 0.0)),
+            Some(r) => {
+                let q = r * r - y_mm * y_mm;
+                if q <= 0.0 {
+                    return None;
+                }
+                let s = q.sqrt();
+                Some((s - r, -y_mm / s))
+            }
+        }
+    }
+
+    /// The crown radius, if any.
+    pub(crate) fn crown_radius_mm(&self) -> Option<f64> {
+        self.crown_radius_mm
+    }
+}
+
+/// In-place iterative radix-2 complex FFT (forward, unnormalised); the
+/// length must be a power of two.
+pub(crate) fn fft(re: &mut [f64], im: &mut [f64]) {
+    let n = re.len();
+    debug_assert!(n.is_power_of_two() && im.len() == n);
+    let mut j = 0;
+    for i in 1..n {
+        let mut bit = n >> 1;
+        while j & bit != 0 {
+            j ^= bit;
+            bit >>= 1;
+        }
+        j |= bit;
+        if i < j {
+            re.swap(i, j);
+            im.swap(i, j);
+        }
+    }
+    let mut len = 2;
+    while len <= n {
+        let ang = -std::f64::consts::TAU / len as f64;
+        let half = len / 2;
+        // Twiddles computed directly (no recurrence drift over long tables).
+        let tw: Vec<(f64, f64)> = (0..half).map(|k| (ang * k as f64).sin_cos()).map(|(s, c)| (c, s)).collect();
+        for start in (0..n).step_by(len) {
+            for (k, &(wr, wi)) in tw.iter().enumerate() {
+                let a = start + k;
+                let b = a + half;
+                let xr = re[b] * wr - im[b] * wi;
+                let xi = re[b] * wi + im[b] * wr;
+                re[b] = re[a] - xr;
+                im[b] = im[a] - xi;
+                re[a] += xr;
+                im[a] += xi;
+            }
+        }
+        len <<= 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fft_matches_dft() {
+        let n = 16;
+        let mut re: Vec<f64> = (0..n).map(|i| ((i * 7 + 3) % 5) as f64 - 2.0).collect();
+        let mut im: Vec<f64> = (0..n).map(|i| ((i * 3 + 1) % 4) as f64 * 0.5).collect();
+        let (r0, i0) = (re.clone(), im.clone());
+        fft(&mut re, &mut im);
+        for k in 0..n {
+            let (mut sr, mut si) = (0.0, 0.0);
+            for t in 0..n {
+                let a = -std::f64::consts::TAU * (k * t) as f64 / n as f64;
+                sr += r0[t] * a.cos() - i0[t] * a.sin();
+                si += r0[t] * a.sin() + i0[t] * a.cos();
+            }
+            assert!((sr - re[k]).abs() < 1e-9 && (si - im[k]).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn roughness_rms_band_and_period() {
+        let rail = RailModel { corrugation: Vec::new(), roughness_rms_um: 3.0, ..RailModel::default() };
+        let s = Surface::new(&rail, 7).unwrap();
+        let period = s.rough.len() as f64 * s.step_mm;
+        assert!(period >= 40.0 * 500.0, "{period}");
+        // RMS over the table, sampled off the grid.
+        let m = 200_000;
+        let rms =
+            ((0..m).map(|i| s.profile_mm(i as f64 * period / m as f64 + 0.013).powi(2)).sum::<f64>() / m as f64).sqrt();
+        assert!((rms * 1e3 - 3.0).abs() < 0.05, "{rms}");
+        // Periodic and continuous.
+        assert!((s.profile_mm(123.4) - s.profile_mm(123.4 + period)).abs() < 1e-12);
+        assert!((s.profile_mm(-0.001) - s.profile_mm(0.001)).abs() < 1e-5);
+        // Another seed, another profile.
+        let t = Surface::new(&rail, 8).unwrap();
+        assert!((0..50).any(|i| (s.profile_mm(i as f64) - t.profile_mm(i as f64)).abs() > 1e-4));
+    }
+
+    #[test]
+    fn crown() {
+        let rail = RailModel { crown_radius_mm: Some(300.0), ..RailModel::flat() };
+        let s = Surface::new(&rail, 0).unwrap();
+        let (z, slope) = s.crown_mm(10.0).unwrap();
+        assert!((z + 100.0 / 600.0).abs() < 1e-3 && (slope + 10.0 / 300.0).abs() < 1e-3);
+        assert!(s.crown_mm(301.0).is_none());
+    }
+}
