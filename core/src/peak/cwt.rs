@@ -150,8 +150,50 @@ pub fn slope_zero(x: &[i32], c: usize, d: &[i16]) -> Option<Px> {
     Some(Px(((lo as i64) * 65536 + p as i64 * STEP + frac) as i32))
 }
 
+/// A candidate confirmed as a stripe by the multi-scale test.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Confirmed {
+    /// Integer maximum of the best scale's response.
+    pub c: usize,
+    /// Best rung and its sub-rung offset (Q16).
+    pub kb: usize,
+    pub dk_q16: i64,
+    /// σ̂.
+    pub width: Px,
+    /// Amplitude estimate, counts.
+    pub amplitude: i64,
+    /// Flags so far (weak, width at the range's edge).
+    pub flags: Flags,
+}
+
 /// The CWT estimator for one candidate.
 pub(crate) fn refine(v: &RowView<'_>, c0: usize) -> Option<Stripe> {
+    let Confirmed { c, kb, dk_q16, width, amplitude, mut flags } = confirm(v, c0)?;
+    let (x, n) = (v.x, v.x.len());
+    // Fit rung: nearest to 1.5 σ̂, i.e. kb + dk + 4·log2(1.5) (= 2.3399, Q16 153_348).
+    let j = ((((kb as i64) << 16) + dk_q16 + 153_348 + 32_768) >> 16).clamp(0, kernels::LADDER_LEN as i64 - 1) as usize;
+    let d = kernels::deriv(j);
+    let reach = RUNGS[j].half_len;
+    if c < reach || c + reach >= n {
+        flags.insert(Flags::CLIPPED);
+    }
+    let position = match slope_zero(x, c, d) {
+        Some(p) => p,
+        None => {
+            flags.insert(Flags::LOW_CONFIDENCE);
+            Px::from_int(c as i32)
+        }
+    };
+    Some(Stripe { position, strength: amplitude.clamp(0, u32::MAX as i64) as u32, width, flags })
+}
+
+/// Pixel-level detection (paper §5): the best-matching scale, the integer
+/// maximum of its response, the width, and the test that decides whether
+/// the candidate is a stripe at all — the response at the best scale above
+/// `threshold ×` its own noise, the amplitude above the floor, the width in
+/// range. Every method detects through this test, so methods differ only in
+/// their sub-pixel estimate.
+pub(crate) fn confirm(v: &RowView<'_>, c0: usize) -> Option<Confirmed> {
     let x = v.x;
     let n = x.len();
     let (k_lo, k_hi) = (v.plan.k_lo, v.plan.k_hi);
@@ -240,20 +282,5 @@ pub(crate) fn refine(v: &RowView<'_>, c0: usize) -> Option<Stripe> {
     if r0 < 2 * thr {
         flags.insert(Flags::LOW_CONFIDENCE);
     }
-
-    // Fit rung: nearest to 1.5 σ̂, i.e. kb + dk + 4·log2(1.5) (= 2.3399, Q16 153_348).
-    let j = ((((kb as i64) << 16) + dk_q16 + 153_348 + 32_768) >> 16).clamp(0, kernels::LADDER_LEN as i64 - 1) as usize;
-    let d = kernels::deriv(j);
-    let reach = RUNGS[j].half_len;
-    if c < reach || c + reach >= n {
-        flags.insert(Flags::CLIPPED);
-    }
-    let position = match slope_zero(x, c, d) {
-        Some(p) => p,
-        None => {
-            flags.insert(Flags::LOW_CONFIDENCE);
-            Px::from_int(c as i32)
-        }
-    };
-    Some(Stripe { position, strength: amplitude.clamp(0, u32::MAX as i64) as u32, width, flags })
+    Some(Confirmed { c, kb, dk_q16, width, amplitude, flags })
 }

@@ -505,8 +505,18 @@ impl<const W: usize> Detector<W> {
 fn refine(v: &RowView<'_>, c: Candidate) -> Option<Stripe> {
     match v.cfg.method {
         Method::Cwt => cwt::refine(v, c.pos),
-        Method::CwtPaper => paper::refine(v, c.pos),
-        m => subpixel::refine(v, c.pos, m),
+        // The other methods detect through the same multi-scale test, then
+        // apply their own sub-pixel estimate; a coarse candidate that the
+        // test rejects (noise, a hot pixel, a glow) is no stripe for any.
+        m => {
+            let ok = cwt::confirm(v, c.pos)?;
+            let mut s = match m {
+                Method::CwtPaper => paper::refine(v, ok.c),
+                m => subpixel::refine(v, ok.c, m),
+            }?;
+            s.flags.insert(Flags(ok.flags.0 & Flags::LOW_CONFIDENCE.0));
+            Some(s)
+        }
     }
 }
 
