@@ -6,9 +6,15 @@
 //!
 //! * [`detect`] — `cms-host detect`: laser-stripe positions of image rows as CSV.
 //! * [`input`] — reading grayscale PNG/TIFF images and CSV rows.
+//! * [`listen`] — `cms-host listen`: handshake, stream, record and show a sensor head's profiles.
+//! * [`link`] — the serial port (open by path, reconnect) and frame splitting.
+//! * [`record`] — the recording format, `cms-host export` and `cms-host info`.
 
 pub mod detect;
 pub mod input;
+pub mod link;
+pub mod listen;
+pub mod record;
 pub mod sim;
 
 use std::fmt;

@@ -7,6 +7,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use cms_host::detect;
+use cms_host::{listen, record};
 
 mod bench;
 
@@ -25,11 +26,29 @@ enum Command {
     /// Accuracy and speed of the detection methods.
     #[command(subcommand)]
     Bench(bench::BenchCmd),
+    /// Stream profiles from a sensor head: live status, --json, --record.
+    Listen(listen::ListenArgs),
+    /// Export the profiles of a recording as CSV or JSON lines.
+    Export(record::ExportArgs),
+    /// Describe a recording: frames, time and distance spans, lasers, device, damage.
+    Info(record::InfoArgs),
 }
 
 fn main() -> ExitCode {
     match Cli::parse().command {
         Command::Detect(args) => match detect::run(&args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => e.report(),
+        },
+        Command::Listen(args) => match listen::run(&args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => e.report(),
+        },
+        Command::Export(args) => match record::export(&args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => e.report(),
+        },
+        Command::Info(args) => match record::info(&args) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => e.report(),
         },

@@ -1,0 +1,190 @@
+//! Writes the seed corpus of the `decode` fuzz target: real frames of every
+//! device message and every command, produced by `cms_core::pipeline::Head`
+//! (the firmware's logic) with a small camera of three Gaussian stripes.
+//!
+//! ```text
+//! cargo run -p cms-host --example fuzz_seeds -- fuzz/corpus/decode
+//! ```
+//!
+//! One frame per file (named after its message), plus a few streams of
+//! several frames (a handshake, a stream with garbage between frames).
+//! Deterministic: the same files on every run.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use cms_core::pipeline::{Camera, Head, Identity, LaserDriver, default_detector};
+use cms_core::protocol::{
+    Calibration, Command, DeviceMsg, HostMsg, LaserPattern, MAX_FRAME, PROTOCOL_VERSION, Start, encode,
+};
+use cms_tests::{Gauss, Rng, clean_row, quantise};
+
+struct Cam {
+    rows: Vec<Vec<u16>>,
+    next: usize,
+    odometer_um: i64,
+}
+
+impl Camera for Cam {
+    type Error = ();
+    fn width(&self) -> u16 {
+        160
+    }
+    fn height(&self) -> u16 {
+        12
+    }
+    fn bits(&self) -> u8 {
+        12
+    }
+    fn expose(&mut self, _: u32, _: u8) -> Result<i64, ()> {
+        self.odometer_um += 1_250;
+        Ok(self.odometer_um)
+    }
+    fn read_row(&mut self, row: &mut [u16]) -> Result<(), ()> {
+        row.copy_from_slice(&self.rows[self.next % self.rows.len()]);
+        self.next += 1;
+        Ok(())
+    }
+}
+
+struct NoLasers;
+impl LaserDriver for NoLasers {
+    fn set(&mut self, _: u8) {}
+}
+
+fn frame<T: serde::Serialize>(m: &T) -> Result<Vec<u8>, String> {
+    let mut scratch = vec![0u8; MAX_FRAME];
+    let mut out = vec![0u8; MAX_FRAME];
+    encode(m, &mut scratch, &mut out).map(|f| f.to_vec()).map_err(|e| format!("encoding: {e}"))
+}
+
+fn kind(m: &DeviceMsg) -> &'static str {
+    match m {
+        DeviceMsg::Hello(_) => "hello",
+        DeviceMsg::Profile(_) => "profile",
+        DeviceMsg::Status(_) => "status",
+        DeviceMsg::Ack(_) => "ack",
+        DeviceMsg::Error { .. } => "error",
+        DeviceMsg::RawRows(_) => "rawrows",
+    }
+}
+
+fn run(dir: &Path) -> Result<usize, String> {
+    std::fs::create_dir_all(dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+    let mut rng = Rng::new(1);
+    let rows = (0..12)
+        .map(|r| {
+            let d = (r as f64 * 0.5).sin();
+            let g = [
+                Gauss { x0: 40.0 + d, sigma: 2.0, amplitude: 1200.0 },
+                Gauss { x0: 80.0 - d, sigma: 2.5, amplitude: 1500.0 },
+                Gauss { x0: 120.0 + d, sigma: 3.0, amplitude: 1800.0 },
+            ];
+            quantise(&clean_row(160, 100.0, &g), 6.0, 12, &mut rng)
+        })
+        .collect();
+    let mut cam = Cam { rows, next: 0, odometer_um: 0 };
+    let identity = Identity { firmware: "0.1.0", board: "seed" };
+    let mut head: Box<Head<160, NoLasers>> =
+        Box::new(Head::new(NoLasers, default_detector(), identity).map_err(|e| format!("head: {e:?}"))?);
+    let mut msgs: Vec<DeviceMsg> = Vec::new();
+    let mut clock = || 0u64;
+    let calibration = Calibration {
+        id: 7,
+        intrinsics: [1400.0, 1400.0, 376.0, 240.0, 0.0],
+        distortion: [-0.1, 0.01, 0.0, 0.0, 0.0],
+        planes: [[0.0, 0.6, 0.8, 100.0], [0.0, 0.0, 1.0, 120.0], [0.0, -0.6, 0.8, 100.0]],
+    };
+    let commands = [
+        HostMsg::GetInfo,
+        HostMsg::SetExposure(300),
+        HostMsg::SetDetector(default_detector()),
+        HostMsg::SetCalibration(calibration),
+        HostMsg::GetInfo,
+        HostMsg::Start(Start { rate_hz: 100, laser_mask: 0b111, pattern: LaserPattern::Simultaneous }),
+        HostMsg::Heartbeat,
+        HostMsg::Stop,
+        HostMsg::Start(Start { rate_hz: 100, laser_mask: 0b101, pattern: LaserPattern::Sequential }),
+        HostMsg::Stop,
+        HostMsg::CaptureImage(0b010),
+        HostMsg::Start(Start { rate_hz: 0, laser_mask: 0, pattern: LaserPattern::Simultaneous }), // refused
+    ];
+    let mut cmd_frames = Vec::new();
+    let mut t = 0u64;
+    for (seq, c) in commands.into_iter().enumerate() {
+        let cmd = Command { seq: seq as u16, msg: c };
+        cmd_frames.push((format!("cmd-{seq:02}"), frame(&cmd)?));
+        t += 10_000;
+        let streaming = matches!(cmd.msg, HostMsg::Start(_));
+        head.handle(cmd, t, &cam, &mut |m: &DeviceMsg| msgs.push(m.clone()));
+        let polls = if streaming { 4 } else { 1 };
+        for _ in 0..polls {
+            t += 10_000;
+            head.poll(t, &mut cam, &mut clock, &mut |m: &DeviceMsg| msgs.push(m.clone()));
+        }
+    }
+    // Silence: the heartbeat rule's Error and Status.
+    head.handle(
+        Command {
+            seq: 99,
+            msg: HostMsg::Start(Start { rate_hz: 10, laser_mask: 1, pattern: LaserPattern::Simultaneous }),
+        },
+        t,
+        &cam,
+        &mut |m: &DeviceMsg| msgs.push(m.clone()),
+    );
+    head.poll(t + 2_000_000, &mut cam, &mut clock, &mut |m: &DeviceMsg| msgs.push(m.clone()));
+
+    let mut files: Vec<(String, Vec<u8>)> = Vec::new();
+    let mut count = std::collections::BTreeMap::<&str, usize>::new();
+    for m in &msgs {
+        let k = kind(m);
+        let n = count.entry(k).or_default();
+        *n += 1;
+        // A few of each kind are enough.
+        if *n <= 3 {
+            files.push((format!("dev-{k}-{n}"), frame(m)?));
+        }
+    }
+    files.extend(cmd_frames.iter().cloned());
+    // Streams: a handshake, and profiles with garbage and a cut frame.
+    let mut stream = Vec::new();
+    for m in msgs.iter().take(8) {
+        stream.extend(frame(m)?);
+    }
+    files.push(("stream-handshake".into(), stream));
+    let profiles: Vec<Vec<u8>> =
+        msgs.iter().filter(|m| matches!(m, DeviceMsg::Profile(_))).take(3).map(frame).collect::<Result<_, _>>()?;
+    let mut noisy = b"\x13\x37garbage\0".to_vec();
+    for p in &profiles {
+        noisy.extend_from_slice(p);
+        noisy.extend_from_slice(&p[..p.len() / 3]);
+        noisy.push(0);
+    }
+    files.push(("stream-noisy".into(), noisy));
+    // A frame of another protocol version (re-framed by hand).
+    let mut other = frame(&DeviceMsg::Ack(1))?;
+    if other.len() > 2 && other[1] == PROTOCOL_VERSION {
+        other[1] = PROTOCOL_VERSION + 1;
+    }
+    files.push(("dev-other-version".into(), other));
+    for (name, bytes) in &files {
+        let p: PathBuf = dir.join(name);
+        std::fs::write(&p, bytes).map_err(|e| format!("cannot write {}: {e}", p.display()))?;
+    }
+    Ok(files.len())
+}
+
+fn main() -> ExitCode {
+    let dir = std::env::args_os().nth(1).map(PathBuf::from).unwrap_or_else(|| PathBuf::from("fuzz/corpus/decode"));
+    match run(&dir) {
+        Ok(n) => {
+            println!("{n} seed files in {}", dir.display());
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

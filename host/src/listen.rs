@@ -1,0 +1,900 @@
+//! `cms-host listen PORT`: talk to the sensor head over its serial link,
+//! stream profiles, show the link's health, record and print what arrives.
+//!
+//! # The conversation
+//! 1. **Handshake**: `GetInfo`, and wait for `Hello` (2 s, three tries); the
+//!    head's protocol version must be this build's. Then `SetExposure` (if
+//!    asked for) and `Start`, acknowledged by `Ack`.
+//! 2. **Streaming**: every 250 ms a `Heartbeat` (the head turns its lasers off
+//!    after 1 s without one). Every intact frame is recorded and, with
+//!    `--json`, printed; damaged frames are counted by the
+//!    [`FrameReader`](cms_core::protocol::FrameReader) and skipped (the
+//!    reader resynchronises on the next 0x00).
+//! 3. **Stop** (Ctrl-C, `--frames`, `--duration`, or a closed stdout): `Stop`
+//!    (lasers off), wait up to 500 ms for its `Ack`, flush the recording,
+//!    print a summary on stderr.
+//!
+//! # When the link misbehaves
+//! * The head goes silent for 2 s while streaming: handshake again
+//!   (`GetInfo` … `Start`), counted as a *stall*.
+//! * The head reports that it stopped by itself (a `Status` that is not
+//!   streaming: heartbeat lost, a damaged command, a camera fault): `Start`
+//!   again, counted as a *head restart*.
+//! * The port fails (unplugged: the path vanishes, a read fails or hits end
+//!   of file): close it, try to open the same path every 200 ms for up to
+//!   `--reconnect-timeout`, handshake again; the recording goes on in the same
+//!   file. Counted as a *reconnect*.
+//!
+//! Nothing that arrives on the link can make the listener panic: every
+//! frame is bounds-checked by the framing and decoded by postcard into
+//! fixed-capacity types.
+
+use std::fmt;
+use std::io::{self, IsTerminal, Write};
+use std::path::PathBuf;
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use clap::{Args, ValueEnum};
+use cms_core::protocol::{
+    DeviceInfo, DeviceMsg, ErrorCode, HeadState, HostMsg, LASERS, LaserPattern, PROTOCOL_VERSION, Profile, Start,
+    WireError,
+};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+use crate::CliError;
+use crate::link::{Counters, Deframer, Link, LinkError};
+use crate::record::{self, FrameCounter, RecordError, Recorder};
+
+/// How long to wait for `Hello` after each `GetInfo`.
+pub const HELLO_TIMEOUT: Duration = Duration::from_secs(2);
+/// `GetInfo` requests before giving up.
+pub const HELLO_TRIES: u32 = 3;
+/// How long to wait for the `Ack` of `Start`.
+pub const START_TIMEOUT: Duration = Duration::from_secs(2);
+/// Interval of heartbeats (the head's timeout is 1 s).
+pub const HEARTBEAT_INTERVAL: Duration = Duration::from_millis(250);
+/// Silence while streaming after which the head is asked again.
+pub const STALL_TIMEOUT: Duration = Duration::from_secs(2);
+/// Interval of attempts to reopen a lost port.
+pub const REOPEN_INTERVAL: Duration = Duration::from_millis(200);
+/// How long to wait for the `Ack` of `Stop` when finishing.
+pub const STOP_ACK_TIMEOUT: Duration = Duration::from_millis(500);
+
+/// How the live status is shown on stderr.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Progress {
+    /// A status line redrawn in place when stderr is a terminal (and the JSON
+    /// is not going to the same terminal), otherwise a plain line a second.
+    Auto,
+    /// A plain line every second.
+    Plain,
+    /// Nothing (the summary is the caller's to print).
+    Quiet,
+}
+
+/// What to do.
+#[derive(Clone, Debug)]
+pub struct ListenOptions {
+    /// Stop after this many complete frames.
+    pub frames: Option<u64>,
+    /// Stop after this long.
+    pub duration: Option<Duration>,
+    /// Record into (append to) this file.
+    pub record: Option<PathBuf>,
+    /// One JSON object per profile message on the output.
+    pub json: bool,
+    /// Baud rate (a USB CDC head ignores it).
+    pub baud: u32,
+    /// Streaming parameters sent with `Start`.
+    pub start: Start,
+    /// Exposure to set before starting, µs.
+    pub exposure_us: Option<u32>,
+    /// How long a lost port may stay away.
+    pub reconnect_timeout: Duration,
+    /// Live status display.
+    pub progress: Progress,
+}
+
+impl Default for ListenOptions {
+    fn default() -> Self {
+        ListenOptions {
+            frames: None,
+            duration: None,
+            record: None,
+            json: false,
+            baud: 115_200,
+            start: Start { rate_hz: 30, laser_mask: 0b111, pattern: LaserPattern::Simultaneous },
+            exposure_us: None,
+            reconnect_timeout: Duration::from_secs(30),
+            progress: Progress::Auto,
+        }
+    }
+}
+
+/// Why listening failed.
+#[derive(Debug)]
+pub enum ListenError {
+    /// The port could not be opened at all.
+    Open(LinkError),
+    /// The head never answered `GetInfo`.
+    NoHello {
+        /// The port.
+        port: String,
+    },
+    /// The head speaks another protocol version.
+    Version {
+        /// The port.
+        port: String,
+        /// The head's version.
+        theirs: u8,
+    },
+    /// The head refused a command of the handshake.
+    Refused {
+        /// The command.
+        command: &'static str,
+        /// Why.
+        code: ErrorCode,
+    },
+    /// The port went away (or the head stopped answering) and did not come
+    /// back in time.
+    Lost {
+        /// The port.
+        port: String,
+        /// How long it was given.
+        after: Duration,
+        /// The last thing that went wrong.
+        why: String,
+    },
+    /// The recording failed.
+    Record(RecordError),
+    /// Writing the JSON output failed (not a closed pipe, which just stops).
+    Output(io::Error),
+}
+
+impl fmt::Display for ListenError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ListenError::Open(e) => write!(f, "{e}"),
+            ListenError::NoHello { port } => write!(
+                f,
+                "no answer from {port}: no Hello after {HELLO_TRIES} GetInfo requests {} s apart (is it a CMS sensor head, and is the baud rate right?)",
+                HELLO_TIMEOUT.as_secs()
+            ),
+            ListenError::Version { port, theirs } => write!(
+                f,
+                "the head on {port} speaks protocol version {theirs}; this cms-host speaks version {PROTOCOL_VERSION}"
+            ),
+            ListenError::Refused { command, code } => write!(f, "the head refused {command}: {code}"),
+            ListenError::Lost { port, after, why } => {
+                write!(f, "lost {port} and it did not come back within {} s ({why})", after.as_secs_f64())
+            }
+            ListenError::Record(e) => write!(f, "recording: {e}"),
+            ListenError::Output(e) => write!(f, "writing output: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for ListenError {}
+
+impl From<ListenError> for CliError {
+    fn from(e: ListenError) -> Self {
+        match e {
+            ListenError::Output(e) => CliError::Output(e),
+            e => CliError::Usage(e.to_string()),
+        }
+    }
+}
+
+/// What a listening session did.
+#[derive(Clone, Debug, Default)]
+pub struct Summary {
+    /// Complete frames received (all parts).
+    pub frames: u64,
+    /// Profile messages received.
+    pub profiles: u64,
+    /// Points received.
+    pub points: u64,
+    /// First and last sequence number of a complete frame.
+    pub seq: Option<(u32, u32)>,
+    /// Link counters over all connections.
+    pub link: Counters,
+    /// Ports reopened after a failure.
+    pub reconnects: u32,
+    /// Handshakes repeated because the head went silent.
+    pub stalls: u32,
+    /// Restarts after the head stopped by itself.
+    pub head_restarts: u32,
+    /// Frames the head dropped (its last `Status`).
+    pub head_dropped: u32,
+    /// Lasers lit according to the head's last `Status`.
+    pub lasers_on: Option<u8>,
+    /// The head's description.
+    pub device: Option<DeviceInfo>,
+    /// Frames written to the recording.
+    pub recorded: u64,
+    /// Whether the head acknowledged the final `Stop`.
+    pub stop_acked: bool,
+    /// The output pipe was closed by its reader.
+    pub output_closed: bool,
+    /// From the call to the end.
+    pub elapsed: Duration,
+    /// From the first to the last profile.
+    pub streaming: Duration,
+}
+
+impl Summary {
+    /// Resynchronisations: decode errors and overflows.
+    pub fn resyncs(&self) -> u64 {
+        self.link.resyncs()
+    }
+
+    /// Frames per second while streaming.
+    pub fn frames_per_s(&self) -> f64 {
+        let t = self.streaming.as_secs_f64();
+        if self.frames > 1 && t > 0.0 { (self.frames - 1) as f64 / t } else { 0.0 }
+    }
+}
+
+impl fmt::Display for Summary {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "frames: {} ({} profile messages, {} points, {:.1} points/frame)",
+            self.frames,
+            self.profiles,
+            self.points,
+            if self.frames > 0 { self.points as f64 / self.frames as f64 } else { 0.0 }
+        )?;
+        writeln!(f, "elapsed: {:.3} s, {:.2} frames/s", self.elapsed.as_secs_f64(), self.frames_per_s())?;
+        writeln!(
+            f,
+            "link: {} CRC errors, {} resyncs ({} decode errors, {} overflows), {} bytes discarded",
+            self.link.crc_errors,
+            self.resyncs(),
+            self.link.decode_errors,
+            self.link.overflows,
+            self.link.discarded_bytes
+        )?;
+        writeln!(
+            f,
+            "reconnects: {}, stalls: {}, head restarts: {}, head dropped frames: {}",
+            self.reconnects, self.stalls, self.head_restarts, self.head_dropped
+        )?;
+        let lasers = match self.lasers_on {
+            Some(0) => "off".to_string(),
+            Some(m) => format!("ON ({m:#05b})"),
+            None => "unknown".to_string(),
+        };
+        write!(f, "lasers: {lasers}{}", if self.stop_acked { " (stop acknowledged)" } else { "" })
+    }
+}
+
+enum Phase {
+    /// `GetInfo` sent `tries` times, the last at `sent`.
+    Hello { tries: u32, sent: Instant },
+    /// `Start` sent.
+    Starting { sent: Instant },
+    /// Streaming.
+    Streaming,
+}
+
+struct Session<'a> {
+    opts: &'a ListenOptions,
+    port: &'a str,
+    out: &'a mut dyn Write,
+    observe: &'a mut dyn FnMut(&DeviceMsg),
+    recorder: Option<Recorder>,
+    sum: Summary,
+    counter: FrameCounter,
+    phase: Phase,
+    next_seq: u16,
+    start_seq: Option<u16>,
+    exposure_seq: Option<u16>,
+    stop_seq: Option<u16>,
+    outbox: Vec<(u16, HostMsg)>,
+    /// When the stop began (and so when to give up waiting for its Ack).
+    stopping: Option<Instant>,
+    fatal: Option<ListenError>,
+    /// Protocol version of frames that failed the version check.
+    foreign_version: Option<u8>,
+    greeted: bool,
+    last_rx: Instant,
+    last_heartbeat: Instant,
+    /// Since when the link has been in trouble (lost, silent, not started).
+    trouble: Option<(Instant, String)>,
+    first_profile: Option<Instant>,
+    last_profile: Option<Instant>,
+    head_state: Option<HeadState>,
+    // rate window of the status line
+    window_start: Instant,
+    window_frames: u64,
+    window_points: u64,
+    rate: (f64, f64),
+}
+
+impl Session<'_> {
+    fn seq(&mut self) -> u16 {
+        self.next_seq = self.next_seq.wrapping_add(1);
+        self.next_seq
+    }
+
+    fn send(&mut self, msg: HostMsg) -> u16 {
+        let seq = self.seq();
+        self.outbox.push((seq, msg));
+        seq
+    }
+
+    fn hello(&mut self, now: Instant, tries: u32) {
+        self.send(HostMsg::GetInfo);
+        self.phase = Phase::Hello { tries, sent: now };
+    }
+
+    fn start(&mut self, now: Instant) {
+        if let Some(us) = self.opts.exposure_us {
+            self.exposure_seq = Some(self.send(HostMsg::SetExposure(us)));
+        }
+        self.start_seq = Some(self.send(HostMsg::Start(self.opts.start)));
+        self.phase = Phase::Starting { sent: now };
+    }
+
+    fn trouble(&mut self, now: Instant, why: String) {
+        match &mut self.trouble {
+            Some((_, w)) => *w = why,
+            None => self.trouble = Some((now, why)),
+        }
+    }
+
+    fn on_frame(&mut self, r: Result<DeviceMsg, WireError>, raw: &[u8]) {
+        let msg = match r {
+            Ok(m) => m,
+            Err(WireError::Version(v)) => {
+                self.foreign_version = Some(v);
+                return;
+            }
+            Err(_) => return,
+        };
+        if self.fatal.is_some() || (self.stopping.is_some() && matches!(msg, DeviceMsg::Profile(_))) {
+            // Past the requested end: profiles still in flight are dropped.
+            return;
+        }
+        if let Some(rec) = &mut self.recorder {
+            match rec.write_frame(raw) {
+                Ok(()) => self.sum.recorded += 1,
+                Err(e) => {
+                    self.fatal = Some(ListenError::Record(e));
+                    return;
+                }
+            }
+        }
+        (self.observe)(&msg);
+        let now = Instant::now();
+        match msg {
+            DeviceMsg::Hello(info) => {
+                if info.protocol != PROTOCOL_VERSION {
+                    self.fatal = Some(ListenError::Version { port: self.port.to_string(), theirs: info.protocol });
+                    return;
+                }
+                self.greeted = true;
+                self.sum.device = Some(info);
+                match self.phase {
+                    Phase::Hello { .. } if self.stopping.is_none() => self.start(now),
+                    // An unsolicited Hello while streaming: the head restarted.
+                    Phase::Streaming if self.stopping.is_none() => {
+                        self.sum.head_restarts += 1;
+                        self.start(now);
+                    }
+                    _ => {}
+                }
+            }
+            DeviceMsg::Profile(p) => self.on_profile(&p, now),
+            DeviceMsg::Status(s) => {
+                self.sum.head_dropped = s.dropped_frames;
+                self.sum.lasers_on = Some(s.lasers_on);
+                self.head_state = Some(s.state);
+                if s.state != HeadState::Streaming && matches!(self.phase, Phase::Streaming) && self.stopping.is_none()
+                {
+                    self.sum.head_restarts += 1;
+                    self.start(now);
+                }
+            }
+            DeviceMsg::Ack(seq) => {
+                if Some(seq) == self.start_seq && matches!(self.phase, Phase::Starting { .. }) {
+                    self.phase = Phase::Streaming;
+                    self.trouble = None;
+                    self.last_rx = now;
+                } else if Some(seq) == self.stop_seq {
+                    self.sum.stop_acked = true;
+                }
+            }
+            DeviceMsg::Error { seq: Some(seq), code } if Some(seq) == self.start_seq => {
+                self.fatal = Some(ListenError::Refused { command: "Start", code });
+            }
+            DeviceMsg::Error { seq: Some(seq), code } if Some(seq) == self.exposure_seq => {
+                self.fatal = Some(ListenError::Refused { command: "SetExposure", code });
+            }
+            DeviceMsg::Error { .. } | DeviceMsg::RawRows(_) => {}
+        }
+    }
+
+    fn on_profile(&mut self, p: &Profile, now: Instant) {
+        if let Phase::Starting { .. } = self.phase {
+            // Profiles flow, so the Start took even if its Ack was lost.
+            self.phase = Phase::Streaming;
+            self.trouble = None;
+        }
+        self.first_profile.get_or_insert(now);
+        self.last_profile = Some(now);
+        self.sum.profiles += 1;
+        let n = record::points(p);
+        self.sum.points += n;
+        self.window_points += n;
+        if self.counter.profile(p) {
+            self.sum.frames += 1;
+            self.window_frames += 1;
+            self.sum.seq = Some(self.sum.seq.map_or((p.seq, p.seq), |(first, _)| (first, p.seq)));
+            if self.opts.frames.is_some_and(|n| self.sum.frames >= n) {
+                self.stopping.get_or_insert(now);
+            }
+        }
+        if self.opts.json && !self.sum.output_closed {
+            let r = record::write_json_line(self.out, p).and_then(|()| self.out.flush());
+            match r {
+                Ok(()) => {}
+                Err(e) if e.kind() == io::ErrorKind::BrokenPipe => {
+                    self.sum.output_closed = true;
+                    self.stopping.get_or_insert(now);
+                }
+                Err(e) => self.fatal = Some(ListenError::Output(e)),
+            }
+        }
+    }
+
+    /// Timeouts of the handshake and the stream. Returns true when the port
+    /// should be closed and reopened.
+    fn timers(&mut self, now: Instant) -> bool {
+        if now.duration_since(self.last_heartbeat) >= HEARTBEAT_INTERVAL {
+            self.last_heartbeat = now;
+            self.send(HostMsg::Heartbeat);
+        }
+        if self.stopping.is_some() {
+            return false;
+        }
+        if let Some((since, why)) = &self.trouble
+            && now.duration_since(*since) > self.opts.reconnect_timeout
+            && self.greeted
+        {
+            self.fatal = Some(ListenError::Lost {
+                port: self.port.to_string(),
+                after: self.opts.reconnect_timeout,
+                why: why.clone(),
+            });
+            return false;
+        }
+        match self.phase {
+            Phase::Hello { tries, sent } if now.duration_since(sent) >= HELLO_TIMEOUT => {
+                if tries < HELLO_TRIES {
+                    self.hello(now, tries + 1);
+                } else if !self.greeted {
+                    self.fatal = Some(match self.foreign_version {
+                        Some(v) => ListenError::Version { port: self.port.to_string(), theirs: v },
+                        None => ListenError::NoHello { port: self.port.to_string() },
+                    });
+                } else {
+                    self.trouble(now, "no Hello after the head went silent".to_string());
+                    return true;
+                }
+            }
+            Phase::Starting { sent } if now.duration_since(sent) >= START_TIMEOUT => {
+                self.trouble(now, "Start was not acknowledged".to_string());
+                self.hello(now, 1);
+            }
+            Phase::Streaming if now.duration_since(self.last_rx) >= STALL_TIMEOUT => {
+                self.sum.stalls += 1;
+                self.trouble(now, format!("no bytes for {} s", STALL_TIMEOUT.as_secs()));
+                self.hello(now, 1);
+            }
+            _ => {}
+        }
+        false
+    }
+
+    fn status_line(&mut self, now: Instant, connected: bool) -> String {
+        let dt = now.duration_since(self.window_start).as_secs_f64();
+        if dt >= 1.0 {
+            let ppf = if self.window_frames > 0 { self.window_points as f64 / self.window_frames as f64 } else { 0.0 };
+            self.rate = (self.window_frames as f64 / dt, ppf);
+            self.window_start = now;
+            self.window_frames = 0;
+            self.window_points = 0;
+        }
+        let state = if !connected {
+            "reconnecting"
+        } else {
+            match self.phase {
+                Phase::Hello { .. } => "handshake",
+                Phase::Starting { .. } => "starting",
+                Phase::Streaming => "streaming",
+            }
+        };
+        let lasers = match self.sum.lasers_on {
+            Some(0) => "off".to_string(),
+            Some(m) => format!("{m:03b}"),
+            None => "?".to_string(),
+        };
+        format!(
+            "{state}: {:.1} frames/s, {:.0} points/frame, {} frames, CRC errors {}, resyncs {}, dropped {}, reconnects {}, lasers {lasers}",
+            self.rate.0,
+            self.rate.1,
+            self.sum.frames,
+            self.sum.link.crc_errors,
+            self.sum.link.resyncs(),
+            self.sum.head_dropped,
+            self.sum.reconnects,
+        )
+    }
+}
+
+/// The live status display.
+struct Display {
+    bar: Option<ProgressBar>,
+    plain: bool,
+    last: Instant,
+}
+
+impl Display {
+    fn new(opts: &ListenOptions) -> Display {
+        let tty = io::stderr().is_terminal();
+        let fancy = match opts.progress {
+            Progress::Auto => tty && !(opts.json && io::stdout().is_terminal()),
+            _ => false,
+        };
+        let plain = match opts.progress {
+            Progress::Auto => !fancy,
+            Progress::Plain => true,
+            Progress::Quiet => false,
+        };
+        let bar = fancy.then(|| {
+            let b = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr_with_hz(4));
+            if let Ok(style) = ProgressStyle::with_template("{spinner} {msg}") {
+                b.set_style(style);
+            }
+            b
+        });
+        Display { bar, plain, last: Instant::now() }
+    }
+
+    fn active(&self) -> bool {
+        self.bar.is_some() || self.plain
+    }
+
+    fn due(&self, now: Instant) -> bool {
+        let every = if self.bar.is_some() { Duration::from_millis(250) } else { Duration::from_secs(1) };
+        self.active() && now.duration_since(self.last) >= every
+    }
+
+    fn show(&mut self, now: Instant, line: String) {
+        self.last = now;
+        match &self.bar {
+            Some(b) => {
+                b.set_message(line);
+                b.tick();
+            }
+            None => {
+                let _ = writeln!(io::stderr(), "{line}");
+            }
+        }
+    }
+
+    fn finish(&self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+        }
+    }
+}
+
+/// Listens on `port` (a device path), printing `--json` lines on stdout.
+/// Returns when `opts` says so, when `stop` becomes true (Ctrl-C), or when
+/// stdout is closed; the head is stopped first.
+pub fn listen(port: &str, opts: &ListenOptions, stop: &AtomicBool) -> Result<Summary, ListenError> {
+    let stdout = io::stdout();
+    let mut out = stdout.lock();
+    listen_with(port, opts, stop, &mut out, &mut |_| {})
+}
+
+/// [`listen`] writing the JSON lines to `out`, and showing `observe` every
+/// message it keeps (the recorded ones) in order.
+pub fn listen_with(
+    port: &str,
+    opts: &ListenOptions,
+    stop: &AtomicBool,
+    out: &mut dyn Write,
+    observe: &mut dyn FnMut(&DeviceMsg),
+) -> Result<Summary, ListenError> {
+    let t0 = Instant::now();
+    let recorder = match &opts.record {
+        Some(path) => Some(Recorder::open(path).map_err(ListenError::Record)?),
+        None => None,
+    };
+    let mut link = Some(Link::open(port, opts.baud).map_err(ListenError::Open)?);
+    let mut s = Session {
+        opts,
+        port,
+        out,
+        observe,
+        recorder,
+        sum: Summary::default(),
+        counter: FrameCounter::default(),
+        phase: Phase::Hello { tries: 1, sent: t0 },
+        next_seq: 0,
+        start_seq: None,
+        exposure_seq: None,
+        stop_seq: None,
+        outbox: Vec::new(),
+        stopping: None,
+        fatal: None,
+        foreign_version: None,
+        greeted: false,
+        last_rx: t0,
+        last_heartbeat: t0,
+        trouble: Some((t0, "never started".to_string())),
+        first_profile: None,
+        last_profile: None,
+        head_state: None,
+        window_start: t0,
+        window_frames: 0,
+        window_points: 0,
+        rate: (0.0, 0.0),
+    };
+    let mut display = Display::new(opts);
+    let mut deframer = Deframer::new();
+    let mut buf = vec![0u8; 64 << 10];
+    let mut last_open_try = t0;
+    s.hello(t0, 1);
+    let result = loop {
+        let now = Instant::now();
+        if let Some(e) = s.fatal.take() {
+            break Err(e);
+        }
+        // The end, and the wait for Stop's Ack.
+        if s.stopping.is_none()
+            && (stop.load(Ordering::SeqCst) || opts.duration.is_some_and(|d| now.duration_since(t0) >= d))
+        {
+            s.stopping = Some(now);
+        }
+        if let Some(since) = s.stopping {
+            if s.stop_seq.is_none() {
+                if s.start_seq.is_none() || link.is_none() {
+                    break Ok(());
+                }
+                s.stop_seq = Some(s.send(HostMsg::Stop));
+            }
+            if s.sum.stop_acked || link.is_none() || now.duration_since(since) >= STOP_ACK_TIMEOUT {
+                break Ok(());
+            }
+        }
+        match &mut link {
+            Some(l) => match l.read(&mut buf) {
+                Ok(0) => {}
+                Ok(n) => {
+                    s.last_rx = Instant::now();
+                    deframer.feed(&buf[..n], |r, raw| s.on_frame(r, raw));
+                    s.sum.link = deframer.counters();
+                }
+                Err(e) => {
+                    s.trouble(now, e.to_string());
+                    link = None;
+                    deframer.restart();
+                    s.outbox.clear();
+                }
+            },
+            None => {
+                if now.duration_since(last_open_try) >= REOPEN_INTERVAL {
+                    last_open_try = now;
+                    if let Ok(l) = Link::open(port, opts.baud) {
+                        link = Some(l);
+                        s.sum.reconnects += 1;
+                        s.last_rx = now;
+                        s.hello(now, 1);
+                    }
+                } else {
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+                if link.is_none()
+                    && let Some((since, why)) = &s.trouble
+                    && now.duration_since(*since) > opts.reconnect_timeout
+                {
+                    break Err(ListenError::Lost {
+                        port: port.to_string(),
+                        after: opts.reconnect_timeout,
+                        why: why.clone(),
+                    });
+                }
+            }
+        }
+        if link.is_some() && s.timers(now) {
+            // The head stays silent: close the port and open it again.
+            link = None;
+            deframer.restart();
+            s.outbox.clear();
+            last_open_try = now;
+        }
+        if let Some(l) = &mut link {
+            for (seq, msg) in std::mem::take(&mut s.outbox) {
+                if let Err(e) = l.send(seq, msg) {
+                    s.trouble(now, e.to_string());
+                    link = None;
+                    deframer.restart();
+                    break;
+                }
+            }
+        } else {
+            s.outbox.clear();
+        }
+        if let Some(rec) = &mut s.recorder
+            && let Err(e) = rec.tick()
+        {
+            s.fatal = Some(ListenError::Record(e));
+        }
+        if display.due(now) {
+            let line = s.status_line(now, link.is_some());
+            display.show(now, line);
+        }
+    };
+    // Whatever happened, the lasers go off: a last Stop if the port is open
+    // (without waiting), and the head's own 1 s heartbeat rule otherwise.
+    if result.is_err()
+        && let Some(l) = &mut link
+        && s.start_seq.is_some()
+        && s.stop_seq.is_none()
+    {
+        let seq = s.seq();
+        let _ = l.send(seq, HostMsg::Stop);
+    }
+    display.finish();
+    let flushed = match &mut s.recorder {
+        Some(rec) => rec.finish().map_err(ListenError::Record),
+        None => Ok(()),
+    };
+    result?;
+    flushed?;
+    s.sum.link = deframer.counters();
+    s.sum.elapsed = t0.elapsed();
+    if let (Some(a), Some(b)) = (s.first_profile, s.last_profile) {
+        s.sum.streaming = b.duration_since(a);
+    }
+    Ok(s.sum)
+}
+
+// ------------------------------------------------------------------ CLI
+
+/// `--pattern`.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PatternArg {
+    /// All lasers of the mask in every frame.
+    Simultaneous,
+    /// One laser per frame, in turn.
+    Sequential,
+}
+
+/// Arguments of `cms-host listen`.
+#[derive(Args, Debug, Clone)]
+pub struct ListenArgs {
+    /// The head's serial port: a device path such as /dev/ttyACM0 (or `sim`
+    /// for the simulated head).
+    #[arg(value_name = "PORT")]
+    pub port: String,
+    /// Stop after N complete frames.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub frames: Option<u64>,
+    /// Stop after SECS seconds.
+    #[arg(long, value_name = "SECS", value_parser = parse_secs)]
+    pub duration: Option<Duration>,
+    /// Record every frame into FILE (appends to an existing recording).
+    #[arg(long, value_name = "FILE")]
+    pub record: Option<PathBuf>,
+    /// Print one JSON object per received profile on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Baud rate of a UART link (a USB head ignores it).
+    #[arg(long, value_name = "B", default_value_t = 115_200, value_parser = clap::value_parser!(u32).range(1..))]
+    pub baud: u32,
+    /// Frames per second, 1..=1000.
+    #[arg(long, value_name = "HZ", default_value_t = 30, value_parser = clap::value_parser!(u16).range(1..=1000))]
+    pub rate: u16,
+    /// Lasers to light, a bit mask 1..=7 (decimal, 0b… or 0x…).
+    #[arg(long, value_name = "MASK", default_value = "7", value_parser = parse_mask)]
+    pub lasers: u8,
+    /// How the lasers are lit.
+    #[arg(long, value_enum, default_value_t = PatternArg::Simultaneous)]
+    pub pattern: PatternArg,
+    /// Exposure time to set before starting, µs (1..=1000000).
+    #[arg(long, value_name = "US", value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+    pub exposure: Option<u32>,
+    /// How long a lost port may stay away before giving up, seconds.
+    #[arg(long, value_name = "SECS", default_value = "30", value_parser = parse_secs)]
+    pub reconnect_timeout: Duration,
+}
+
+fn parse_secs(s: &str) -> Result<Duration, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("`{s}` is not a number of seconds"))?;
+    if !(v.is_finite() && v > 0.0 && v <= 1e9) {
+        return Err(format!("`{s}`: seconds must be positive and at most 1e9"));
+    }
+    Ok(Duration::from_secs_f64(v))
+}
+
+fn parse_mask(s: &str) -> Result<u8, String> {
+    let t = s.trim();
+    let v = if let Some(b) = t.strip_prefix("0b") {
+        u8::from_str_radix(b, 2)
+    } else if let Some(h) = t.strip_prefix("0x") {
+        u8::from_str_radix(h, 16)
+    } else {
+        t.parse()
+    };
+    match v {
+        Ok(m) if m != 0 && m < (1 << LASERS) => Ok(m),
+        _ => Err(format!("`{s}`: a laser mask is 1..={} (bit k lights laser k)", (1 << LASERS) - 1)),
+    }
+}
+
+impl ListenArgs {
+    /// The options these arguments ask for.
+    pub fn options(&self) -> ListenOptions {
+        ListenOptions {
+            frames: self.frames,
+            duration: self.duration,
+            record: self.record.clone(),
+            json: self.json,
+            baud: self.baud,
+            start: Start {
+                rate_hz: self.rate,
+                laser_mask: self.lasers,
+                pattern: match self.pattern {
+                    PatternArg::Simultaneous => LaserPattern::Simultaneous,
+                    PatternArg::Sequential => LaserPattern::Sequential,
+                },
+            },
+            exposure_us: self.exposure,
+            reconnect_timeout: self.reconnect_timeout,
+            progress: Progress::Auto,
+        }
+    }
+}
+
+/// The flag Ctrl-C sets (installed on first use). A second Ctrl-C while
+/// stopping exits at once with status 130.
+pub fn interrupt_flag() -> &'static AtomicBool {
+    static FLAG: AtomicBool = AtomicBool::new(false);
+    static INSTALLED: OnceLock<()> = OnceLock::new();
+    INSTALLED.get_or_init(|| {
+        let _ = ctrlc::set_handler(|| {
+            if FLAG.swap(true, Ordering::SeqCst) {
+                std::process::exit(130);
+            }
+        });
+    });
+    &FLAG
+}
+
+/// Prints the summary on stderr, one `listen:` block.
+pub fn print_summary(sum: &Summary) {
+    let mut err = io::stderr().lock();
+    for line in sum.to_string().lines() {
+        let _ = writeln!(err, "listen: {line}");
+    }
+}
+
+/// `cms-host listen` on a device path.
+pub fn run(args: &ListenArgs) -> Result<(), CliError> {
+    if args.port == "sim" {
+        return Err(CliError::Usage(
+            "`listen sim` needs the simulated head, which this build does not have; give a device path".to_string(),
+        ));
+    }
+    let sum = listen(&args.port, &args.options(), interrupt_flag())?;
+    print_summary(&sum);
+    Ok(())
+}

@@ -1,0 +1,914 @@
+//! `cms-host listen` through a real pseudo-terminal.
+//!
+//! A device thread runs `cms_core::pipeline::Head` (the firmware's own logic,
+//! laser-safety rules included) with a test camera that renders rows of three
+//! Gaussian stripes, on the master side of a pty. On their way to the pty the
+//! head's frames pass an injector that inserts garbage, flips bits, truncates
+//! a frame, unplugs the device and plugs it back, or goes silent.
+//!
+//! **The replug trick.** A pty's slave path (`/dev/pts/N`) cannot be created
+//! again under the same name, so the listener is given a symlink inside a
+//! temporary directory. Unplugging removes the symlink and closes the master
+//! (the listener's reads fail, the path is gone); plugging back opens a new
+//! pty and points the symlink at it (created beside and renamed over, so the
+//! listener never sees a half-made link). To the listener it is one path that
+//! disappears and comes back, as `/dev/ttyACM0` does on a USB replug.
+//!
+//! Before unplugging, the device waits until the listener has read every byte
+//! written so far (`FIONREAD` on the device's own slave descriptor, which
+//! shares the terminal's input queue, staying 0 for 100 ms: written bytes
+//! reach that queue through the kernel's flip buffer a moment after the
+//! write): the frames "in the cable" at the moment of the unplug are then
+//! none, and every frame the device wrote intact can be required at the
+//! other end. (On a real unplug the frame in flight is lost; it arrives
+//! truncated or not at all, and is counted or simply absent.)
+
+use std::fs::File;
+use std::io::{self, Read, Write};
+use std::os::fd::{AsFd, AsRawFd, OwnedFd};
+use std::path::{Path, PathBuf};
+use std::process::{Command as Process, Stdio};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread;
+use std::time::{Duration, Instant};
+
+use cms_core::pipeline::{Camera, Head, Identity, LaserDriver, default_detector};
+use cms_core::protocol::{
+    Command, DeviceMsg, ErrorCode, FrameReader, HeadState, LaserPattern, MAX_COMMAND_FRAME, MAX_FRAME, Start,
+    WireError, encode,
+};
+use cms_host::listen::{ListenError, ListenOptions, Progress, Summary, listen_with};
+use cms_host::record;
+use cms_tests::{Gauss, Rng, clean_row, quantise};
+
+// ------------------------------------------------------------------ device
+
+/// Widest row of the test head.
+const W: usize = 752;
+
+/// Rows of three Gaussian stripes, precomputed (a few noisy frames, cycled).
+struct TestCamera {
+    width: u16,
+    height: u16,
+    rows: Vec<Vec<u16>>,
+    next: usize,
+    odometer_um: i64,
+}
+
+impl TestCamera {
+    fn new(width: u16, height: u16, frames: usize, seed: u64) -> TestCamera {
+        let mut rng = Rng::new(seed);
+        let w = width as f64;
+        let mut rows = Vec::new();
+        for f in 0..frames {
+            for r in 0..height {
+                // A little corrugation: the stripes wander along the rows.
+                let d = 3.0 * ((r as f64 + 40.0 * f as f64) * 0.07).sin();
+                let stripes = [
+                    Gauss { x0: w * 0.25 + d, sigma: 2.5, amplitude: 1500.0 },
+                    Gauss { x0: w * 0.5 - d, sigma: 2.2, amplitude: 1300.0 },
+                    Gauss { x0: w * 0.75 + 0.5 * d, sigma: 2.8, amplitude: 1700.0 },
+                ];
+                rows.push(quantise(&clean_row(width as usize, 100.0, &stripes), 8.0, 12, &mut rng));
+            }
+        }
+        TestCamera { width, height, rows, next: 0, odometer_um: 0 }
+    }
+}
+
+impl Camera for TestCamera {
+    type Error = ();
+    fn width(&self) -> u16 {
+        self.width
+    }
+    fn height(&self) -> u16 {
+        self.height
+    }
+    fn bits(&self) -> u8 {
+        12
+    }
+    fn expose(&mut self, _exposure_us: u32, _laser_mask: u8) -> Result<i64, ()> {
+        self.odometer_um += 1_000;
+        Ok(self.odometer_um)
+    }
+    fn read_row(&mut self, row: &mut [u16]) -> Result<(), ()> {
+        row.copy_from_slice(&self.rows[self.next % self.rows.len()]);
+        self.next += 1;
+        Ok(())
+    }
+}
+
+/// A laser driver that logs every change of its mask.
+#[derive(Clone, Default)]
+struct Lasers(Arc<Mutex<Vec<(Instant, u8)>>>);
+
+impl LaserDriver for Lasers {
+    fn set(&mut self, mask: u8) {
+        let mut log = self.0.lock().unwrap();
+        if log.last().is_none_or(|&(_, m)| m != mask) {
+            log.push((Instant::now(), mask));
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Damage {
+    /// Nonzero random bytes and a delimiter before the frame.
+    Garbage,
+    /// One bit of the frame flipped (never into a 0x00).
+    Flip,
+    /// The first half of the frame, then the delimiter.
+    Truncate,
+}
+
+/// What the injector does, by index of the profile frames the head produced
+/// while plugged in.
+#[derive(Clone, Debug, Default)]
+struct Plan {
+    damage: Vec<(u64, Damage)>,
+    /// Unplug after this many profiles, for this long.
+    unplug: Option<(u64, Duration)>,
+    /// Go silent (neither read nor write nor run the head) after this many
+    /// profiles, for this long.
+    silence: Option<(u64, Duration)>,
+    rate_hz: u16,
+    width: u16,
+    height: u16,
+    /// After the first profile, send it again and again (new `seq` each
+    /// time) as fast as the pty takes it.
+    replay: bool,
+}
+
+/// What the device did.
+#[derive(Debug, Default)]
+struct Report {
+    /// Sequence numbers of the profiles written intact, in order.
+    sent: Vec<u32>,
+    /// Damaged frames written (each one bad frame at the reader).
+    damaged: u64,
+    /// Encoded size of each intact profile frame, bytes.
+    frame_bytes: Vec<usize>,
+    lasers: Vec<(Instant, u8)>,
+    unplugged: Option<Instant>,
+    /// When the head last heard a command before the unplug.
+    last_heard: Option<Instant>,
+    replugged: Option<Instant>,
+    /// Head state and lasers just before the replug.
+    before_replug: Option<(HeadState, u8)>,
+    /// Head state and lasers at the end.
+    end: Option<(HeadState, u8)>,
+    /// Commands the head received, and link errors it saw.
+    commands: u64,
+    bad_commands: u64,
+}
+
+struct Pty {
+    master: File,
+    slave: OwnedFd,
+}
+
+/// A new pty in raw mode, its master non-blocking, and `link` pointing at
+/// its slave.
+fn plug(link: &Path) -> Pty {
+    use nix::fcntl::{FcntlArg, OFlag, fcntl};
+    use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
+    let p = nix::pty::openpty(None, None).expect("openpty");
+    let mut t = tcgetattr(p.slave.as_fd()).expect("tcgetattr");
+    cfmakeraw(&mut t);
+    tcsetattr(p.slave.as_fd(), SetArg::TCSANOW, &t).expect("tcsetattr");
+    let fl = OFlag::from_bits_retain(fcntl(p.master.as_fd(), FcntlArg::F_GETFL).expect("F_GETFL"));
+    fcntl(p.master.as_fd(), FcntlArg::F_SETFL(fl | OFlag::O_NONBLOCK)).expect("F_SETFL");
+    let name = nix::unistd::ttyname(p.slave.as_fd()).expect("ttyname");
+    let tmp = link.with_extension("new");
+    let _ = std::fs::remove_file(&tmp);
+    std::os::unix::fs::symlink(&name, &tmp).expect("symlink");
+    std::fs::rename(&tmp, link).expect("rename symlink");
+    Pty { master: File::from(p.master), slave: p.slave }
+}
+
+/// Bytes written to the terminal that its readers have not read yet.
+fn unread(slave: &OwnedFd) -> i32 {
+    let mut n: nix::libc::c_int = 0;
+    // SAFETY: FIONREAD writes one c_int through the pointer, which is valid.
+    let r = unsafe { nix::libc::ioctl(slave.as_raw_fd(), nix::libc::FIONREAD, &mut n as *mut nix::libc::c_int) };
+    if r < 0 { -1 } else { n }
+}
+
+fn write_all(master: &mut File, mut bytes: &[u8]) -> io::Result<()> {
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while !bytes.is_empty() {
+        match master.write(bytes) {
+            Ok(n) => bytes = &bytes[n..],
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
+                if Instant::now() > deadline {
+                    return Err(io::Error::new(io::ErrorKind::TimedOut, "nobody reads the pty"));
+                }
+                thread::sleep(Duration::from_micros(100));
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
+}
+
+/// The head on the master side of a pty reached through `link`, until
+/// `stop`. Writes its frames through the injector of `plan`.
+fn device(link: PathBuf, plan: Plan, stop: Arc<AtomicBool>) -> Report {
+    let lasers = Lasers::default();
+    let log = lasers.0.clone();
+    let identity = Identity { firmware: "0.1.0-test", board: "test-pty" };
+    let mut head: Box<Head<W, Lasers>> = Box::new(Head::new(lasers, default_detector(), identity).expect("head"));
+    let mut camera = TestCamera::new(plan.width, plan.height, 3, 7);
+    let mut rng = Rng::new(99);
+    let epoch = Instant::now();
+    let mut pty = Some(plug(&link));
+    let mut cmd_reader: Box<FrameReader<MAX_COMMAND_FRAME>> = Box::new(FrameReader::new());
+    let mut scratch = vec![0u8; MAX_FRAME];
+    let mut frame = vec![0u8; MAX_FRAME];
+    let mut rbuf = vec![0u8; 4096];
+    let mut report = Report::default();
+    let mut produced: u64 = 0;
+    let mut outq: Vec<(Option<u32>, Vec<u8>)> = Vec::new();
+    let mut cmds: Vec<Result<Command, WireError>> = Vec::new();
+    let mut clock_ns = move || epoch.elapsed().as_nanos() as u64;
+    let mut silenced = false;
+    let mut last_command: Option<Instant> = None;
+    let mut template: Option<cms_core::protocol::Profile> = None;
+    let mut unplugged = false;
+    while !stop.load(Ordering::SeqCst) {
+        let now_us = epoch.elapsed().as_micros() as u64;
+        if let Some(p) = &mut pty {
+            loop {
+                match p.master.read(&mut rbuf) {
+                    Ok(0) => break,
+                    Ok(n) => cmd_reader.feed(&rbuf[..n], |r: Result<Command, WireError>| cmds.push(r)),
+                    Err(_) => break, // WouldBlock, or EIO before the listener opened the slave
+                }
+            }
+        }
+        {
+            let mut reply = |m: &DeviceMsg| {
+                let f = encode(m, &mut scratch, &mut frame).expect("encode");
+                let seq = if let DeviceMsg::Profile(p) = m { Some(p.seq) } else { None };
+                outq.push((seq, f.to_vec()));
+            };
+            for r in cmds.drain(..) {
+                match r {
+                    Ok(c) => {
+                        report.commands += 1;
+                        last_command = Some(Instant::now());
+                        head.handle(c, now_us, &camera, &mut reply);
+                    }
+                    Err(e) => {
+                        report.bad_commands += 1;
+                        let code = if e == WireError::Crc { ErrorCode::Crc } else { ErrorCode::Decode };
+                        head.link_error(code, &mut reply);
+                    }
+                }
+            }
+            match &mut template {
+                // Replay: the head's first profile again and again, as fast
+                // as the pty takes it (the link's and listener's capacity).
+                Some(p) if head.state() == HeadState::Streaming => {
+                    p.seq = p.seq.wrapping_add(1);
+                    reply(&DeviceMsg::Profile(p.clone()));
+                }
+                _ => head.poll(now_us, &mut camera, &mut clock_ns, &mut reply),
+            }
+        }
+        if plan.replay && template.is_none() {
+            template = outq.iter().find_map(|(seq, f)| {
+                seq.and_then(|_| match cms_core::protocol::decode_frame(&mut f[..f.len() - 1].to_vec()) {
+                    Ok(DeviceMsg::Profile(p)) => Some(p),
+                    _ => None,
+                })
+            });
+        }
+        let idle = outq.is_empty();
+        for (seq, mut bytes) in outq.drain(..) {
+            let Some(p) = &mut pty else { continue };
+            let mut ok = true;
+            if let Some(seq) = seq {
+                let index = produced;
+                produced += 1;
+                match plan.damage.iter().find(|(i, _)| *i == index).map(|d| d.1) {
+                    None => {}
+                    Some(Damage::Garbage) => {
+                        let n = 1 + (rng.next_u64() % 40) as usize;
+                        let mut g: Vec<u8> = (0..n).map(|_| 1 + (rng.next_u64() % 255) as u8).collect();
+                        g.push(0);
+                        ok = write_all(&mut p.master, &g).is_ok();
+                        report.damaged += 1;
+                    }
+                    Some(Damage::Flip) => {
+                        loop {
+                            let i = (rng.next_u64() % (bytes.len() as u64 - 1)) as usize;
+                            let b = bytes[i] ^ (1 << (rng.next_u64() % 8));
+                            if b != 0 {
+                                bytes[i] = b;
+                                break;
+                            }
+                        }
+                        report.damaged += 1;
+                    }
+                    Some(Damage::Truncate) => {
+                        let half = bytes.len() / 2;
+                        bytes.truncate(half);
+                        bytes.push(0);
+                        report.damaged += 1;
+                    }
+                }
+                let intact = !plan.damage.iter().any(|&(i, d)| i == index && d != Damage::Garbage);
+                ok = ok && write_all(&mut p.master, &bytes).is_ok();
+                if ok && intact {
+                    report.sent.push(seq);
+                    report.frame_bytes.push(bytes.len());
+                }
+            } else {
+                ok = write_all(&mut p.master, &bytes).is_ok();
+            }
+            if !ok {
+                // The listener is gone: stop writing.
+                stop.store(true, Ordering::SeqCst);
+            }
+        }
+        if let Some((after, dur)) = plan.silence
+            && !silenced
+            && produced >= after
+        {
+            silenced = true;
+            thread::sleep(dur);
+        }
+        if let Some((after, dur)) = plan.unplug
+            && !unplugged
+            && produced >= after
+            && let Some(p) = pty.take()
+        {
+            unplugged = true;
+            // Let the listener read everything first: no frame in the cable.
+            // Written bytes reach the terminal's input queue (which FIONREAD
+            // counts) through the kernel's flip buffer a moment later, so
+            // the queue must stay empty for a while.
+            let t = Instant::now();
+            let mut empty_since = Instant::now();
+            while t.elapsed() < Duration::from_secs(5) {
+                if unread(&p.slave) != 0 {
+                    empty_since = Instant::now();
+                } else if empty_since.elapsed() >= Duration::from_millis(100) {
+                    break;
+                }
+                thread::sleep(Duration::from_millis(2));
+            }
+            let _ = std::fs::remove_file(&link);
+            drop(p);
+            report.unplugged = Some(Instant::now());
+            report.last_heard = last_command;
+            // Unplugged: the head runs on, hears nothing, and must turn its
+            // lasers off after 1 s; whatever it says is lost.
+            while report.unplugged.is_some_and(|u| u.elapsed() < dur) && !stop.load(Ordering::SeqCst) {
+                let now_us = epoch.elapsed().as_micros() as u64;
+                head.poll(now_us, &mut camera, &mut clock_ns, &mut |_m: &DeviceMsg| {});
+                thread::sleep(Duration::from_millis(1));
+            }
+            report.before_replug = Some((head.state(), head.lasers_on()));
+            *cmd_reader = FrameReader::new();
+            pty = Some(plug(&link));
+            report.replugged = Some(Instant::now());
+            continue;
+        }
+        if idle {
+            thread::sleep(Duration::from_micros(300));
+        }
+    }
+    report.end = Some((head.state(), head.lasers_on()));
+    drop(head);
+    report.lasers = log.lock().unwrap().clone();
+    report
+}
+
+struct Run {
+    summary: Result<Summary, ListenError>,
+    /// Profile sequence numbers the listener handed on, in order.
+    seen: Vec<u32>,
+    json: Vec<u8>,
+    report: Report,
+    /// CPU time of the listener's thread, s.
+    cpu_s: f64,
+    wall_s: f64,
+}
+
+fn thread_cpu_s() -> f64 {
+    use nix::sys::resource::{UsageWho, getrusage};
+    match getrusage(UsageWho::RUSAGE_THREAD) {
+        Ok(u) => {
+            let t = |tv: nix::sys::time::TimeVal| tv.tv_sec() as f64 + tv.tv_usec() as f64 * 1e-6;
+            t(u.user_time()) + t(u.system_time())
+        }
+        Err(_) => f64::NAN,
+    }
+}
+
+/// Runs the device with `plan` and the listener with `opts` until the
+/// listener has handed on `want` profiles (or `limit` passed), then stops both.
+fn run(dir: &Path, plan: Plan, mut opts: ListenOptions, want: u64, limit: Duration) -> Run {
+    let link = dir.join("ttyCMS");
+    let dev_stop = Arc::new(AtomicBool::new(false));
+    let dev = {
+        let (link, stop) = (link.clone(), dev_stop.clone());
+        thread::Builder::new().stack_size(16 << 20).spawn(move || device(link, plan, stop)).unwrap()
+    };
+    // The device creates the link.
+    let t = Instant::now();
+    while std::fs::symlink_metadata(&link).is_err() && t.elapsed() < Duration::from_secs(10) {
+        thread::sleep(Duration::from_millis(5));
+    }
+    opts.progress = Progress::Quiet;
+    let stop = Arc::new(AtomicBool::new(false));
+    let count = Arc::new(AtomicU64::new(0));
+    let listener = {
+        let (stop, count, port) = (stop.clone(), count.clone(), link.to_string_lossy().into_owned());
+        thread::Builder::new()
+            .stack_size(16 << 20)
+            .spawn(move || {
+                let mut seen = Vec::new();
+                let mut json = Vec::new();
+                let c0 = thread_cpu_s();
+                let t0 = Instant::now();
+                let summary = listen_with(&port, &opts, &stop, &mut json, &mut |m| {
+                    if let DeviceMsg::Profile(p) = m {
+                        seen.push(p.seq);
+                        count.fetch_add(1, Ordering::SeqCst);
+                    }
+                });
+                let cpu = thread_cpu_s() - c0;
+                (summary, seen, json, cpu, t0.elapsed().as_secs_f64())
+            })
+            .unwrap()
+    };
+    let t = Instant::now();
+    while count.load(Ordering::SeqCst) < want && t.elapsed() < limit && !listener.is_finished() {
+        thread::sleep(Duration::from_millis(10));
+    }
+    stop.store(true, Ordering::SeqCst);
+    let (summary, seen, json, cpu_s, wall_s) = listener.join().expect("the listener panicked");
+    // Let the head see the Stop's aftermath, then end the device.
+    thread::sleep(Duration::from_millis(100));
+    dev_stop.store(true, Ordering::SeqCst);
+    let report = dev.join().expect("the device panicked");
+    Run { summary, seen, json, report, cpu_s, wall_s }
+}
+
+fn recorded_profiles(path: &Path) -> (Vec<u32>, record::ScanStats, usize) {
+    let mut seqs = Vec::new();
+    let mut hellos = 0;
+    let stats = record::scan_file(path, |m| {
+        match m {
+            DeviceMsg::Profile(p) => seqs.push(p.seq),
+            DeviceMsg::Hello(_) => hellos += 1,
+            _ => {}
+        }
+        Ok(())
+    })
+    .expect("recording reads");
+    (seqs, stats, hellos)
+}
+
+fn small_plan() -> Plan {
+    Plan { rate_hz: 100, width: 320, height: 64, ..Plan::default() }
+}
+
+// ------------------------------------------------------------------ tests
+
+/// Garbage, bit flips, a truncated frame and an unplug/replug on the way:
+/// every intact frame arrives (in order, none missing), every damaged one
+/// is counted, the recording holds exactly what arrived, the reconnect is
+/// counted, and the head's lasers went off while it heard no heartbeat.
+#[test]
+fn survives_garbage_flips_truncation_and_replug() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("run.cmsrec");
+    let mut plan = small_plan();
+    plan.damage = vec![
+        (3, Damage::Garbage),
+        (5, Damage::Flip),
+        (9, Damage::Truncate),
+        (12, Damage::Flip),
+        (14, Damage::Garbage),
+        (20, Damage::Flip),
+        (33, Damage::Garbage),
+        (40, Damage::Flip),
+        (41, Damage::Truncate),
+        (47, Damage::Flip),
+    ];
+    plan.unplug = Some((25, Duration::from_millis(1500)));
+    let opts = ListenOptions {
+        record: Some(rec.clone()),
+        json: true,
+        start: Start { rate_hz: plan.rate_hz, laser_mask: 0b111, pattern: LaserPattern::Simultaneous },
+        ..ListenOptions::default()
+    };
+    let r = run(dir.path(), plan, opts, 60, Duration::from_secs(60));
+    let rep = &r.report;
+    let sum = r.summary.as_ref().expect("listen succeeds");
+
+    // Every intact frame decoded, in order, none missing: what the listener
+    // handed on is exactly the device's intact frames up to the stop.
+    assert!(r.seen.len() >= 60, "only {} profiles arrived", r.seen.len());
+    if r.seen[..] != rep.sent[..r.seen.len().min(rep.sent.len())] {
+        let first = r.seen.iter().zip(&rep.sent).position(|(a, b)| a != b);
+        panic!(
+            "intact frames lost or reordered at {first:?}: seen {:?}\nsent {:?}\n{:?}",
+            r.seen,
+            rep.sent,
+            r.summary.as_ref().map(|s| s.to_string())
+        );
+    }
+    assert_eq!(sum.frames, r.seen.len() as u64);
+    // Every damaged frame counted, and nothing else.
+    assert_eq!(rep.damaged, 10);
+    assert_eq!(sum.link.crc_errors + sum.link.decode_errors + sum.link.overflows, rep.damaged, "{sum}");
+    // The reconnect.
+    assert_eq!(sum.reconnects, 1, "{sum}");
+    assert!(rep.unplugged.is_some() && rep.replugged.is_some());
+    // Laser safety: no heartbeat for > 1 s while unplugged → lasers off,
+    // the head in Fault before the replug.
+    let (state, lit) = rep.before_replug.unwrap();
+    assert_eq!((state, lit), (HeadState::Fault, 0));
+    let heard = rep.last_heard.unwrap();
+    let off = rep.lasers.iter().find(|(t, m)| *t > heard && *m == 0).expect("lasers went off after the unplug");
+    let dt = off.0.duration_since(heard);
+    assert!(
+        dt >= Duration::from_millis(1000) && dt < Duration::from_millis(1400),
+        "lasers off {dt:?} after the last command the head heard"
+    );
+    assert!(rep.lasers.iter().any(|(t, m)| *t > rep.replugged.unwrap() && *m == 0b111), "lasers back on after");
+    // Clean stop: Stop acknowledged, lasers off, head idle.
+    assert!(sum.stop_acked, "{sum}");
+    assert_eq!(rep.end, Some((HeadState::Idle, 0)));
+    // The recording holds every frame that arrived, and two Hellos.
+    let (recorded, stats, hellos) = recorded_profiles(&rec);
+    assert_eq!(recorded, r.seen);
+    assert_eq!(stats.damaged, 0);
+    assert_eq!(stats.truncated_tail, 0);
+    assert_eq!(hellos, 2);
+    // The JSON lines are the same frames.
+    let text = String::from_utf8(r.json).unwrap();
+    let seqs: Vec<u32> = text
+        .lines()
+        .map(|l| {
+            let v: serde_json::Value = serde_json::from_str(l).expect("a JSON line");
+            assert!(v["odometer_mm"].is_f64() && v["timestamp_us"].is_u64() && v["laser_mask"] == 7);
+            assert_eq!(v["lasers"].as_array().unwrap().len(), 3);
+            v["seq"].as_u64().unwrap() as u32
+        })
+        .collect();
+    assert_eq!(seqs, r.seen);
+}
+
+/// A head that goes silent for 2.5 s: the listener asks again (GetInfo,
+/// Start) and the stream resumes without losing an intact frame.
+#[test]
+fn a_silent_head_is_asked_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut plan = small_plan();
+    plan.silence = Some((10, Duration::from_millis(2500)));
+    let opts = ListenOptions {
+        start: Start { rate_hz: plan.rate_hz, laser_mask: 0b101, pattern: LaserPattern::Sequential },
+        ..ListenOptions::default()
+    };
+    let r = run(dir.path(), plan, opts, 40, Duration::from_secs(60));
+    let sum = r.summary.expect("listen succeeds");
+    assert!(r.seen.len() >= 40);
+    assert_eq!(r.seen[..], r.report.sent[..r.seen.len()]);
+    assert_eq!(sum.stalls, 1, "{sum}");
+    assert_eq!(sum.reconnects, 0);
+    assert_eq!(sum.link.damaged(), 0);
+    // Sequential pattern: lasers 0 and 2 in turn, never together.
+    assert!(r.report.lasers.iter().all(|&(_, m)| m == 0 || m == 0b001 || m == 0b100), "{:?}", r.report.lasers);
+    assert_eq!(r.report.end, Some((HeadState::Idle, 0)));
+}
+
+/// One throughput measurement: the reference head's frame (752 × 480, three
+/// lasers) through the pty.
+fn measure(replay: bool, json: bool, record: bool, want: u64) -> String {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("t.cmsrec");
+    let plan = Plan { rate_hz: 1000, width: 752, height: 480, replay, ..Plan::default() };
+    let opts = ListenOptions {
+        record: record.then(|| rec.clone()),
+        json,
+        start: Start { rate_hz: plan.rate_hz, laser_mask: 0b111, pattern: LaserPattern::Simultaneous },
+        ..ListenOptions::default()
+    };
+    let r = run(dir.path(), plan, opts, want, Duration::from_secs(120));
+    let sum = r.summary.expect("listen succeeds");
+    assert!(r.seen.len() as u64 >= want);
+    assert_eq!(r.seen[..], r.report.sent[..r.seen.len()]);
+    assert_eq!(sum.link.damaged(), 0);
+    let bytes = r.report.frame_bytes.iter().sum::<usize>() as f64 / r.report.frame_bytes.len() as f64;
+    let fps = sum.frames_per_s();
+    let ppf = sum.points as f64 / sum.frames as f64;
+    assert!(ppf > 3.0 * 470.0, "the test camera's three stripes are found on nearly every row: {ppf}");
+    format!(
+        "{} (json {json}, record {record}): {} frames, {fps:.1} frames/s, {:.0} points/s, {ppf:.0} points/frame, \
+         {bytes:.0} bytes/frame ({:.2} MB/s), listener CPU {:.3} ms/frame ({:.0} % of one core over {:.2} s)",
+        if replay { "replayed frames" } else { "head pipeline  " },
+        sum.frames,
+        fps * ppf,
+        fps * bytes / 1e6,
+        r.cpu_s * 1e3 / sum.frames as f64,
+        100.0 * r.cpu_s / r.wall_s,
+        r.wall_s,
+    )
+}
+
+/// Sustained rate through the pty, the encoded size per frame and the
+/// listener's CPU time per frame: with the head pipeline running the
+/// detector on every row, and with frames replayed as fast as the pty takes
+/// them (the link's and listener's own capacity). Prints the figures:
+/// `cargo test --release -p cms-host --test listen throughput -- --nocapture --test-threads 1`.
+#[test]
+fn throughput_through_the_pty() {
+    let n = if cfg!(debug_assertions) { 20 } else { 300 };
+    let mut lines = vec![measure(false, true, true, n)];
+    if !cfg!(debug_assertions) {
+        lines.push(measure(true, true, true, 3 * n));
+        lines.push(measure(true, false, false, 3 * n));
+    }
+    for l in lines {
+        eprintln!("throughput: {l}");
+    }
+}
+
+/// A port that does not exist: a clear error at once.
+#[test]
+fn a_missing_port_is_a_clear_error() {
+    let stop = AtomicBool::new(false);
+    let e =
+        listen_with("/nonexistent/ttyCMS", &ListenOptions::default(), &stop, &mut io::sink(), &mut |_| {}).unwrap_err();
+    let msg = e.to_string();
+    assert!(msg.starts_with("cannot open /nonexistent/ttyCMS"), "{msg}");
+}
+
+/// A pty whose other side never answers: NoHello after three tries.
+#[test]
+fn a_silent_port_gives_no_hello() {
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("ttyMute");
+    let _pty = plug(&link);
+    let stop = AtomicBool::new(false);
+    let opts = ListenOptions { progress: Progress::Quiet, ..ListenOptions::default() };
+    let t = Instant::now();
+    let e = listen_with(link.to_str().unwrap(), &opts, &stop, &mut io::sink(), &mut |_| {}).unwrap_err();
+    assert!(matches!(e, ListenError::NoHello { .. }), "{e}");
+    assert!(e.to_string().contains("no Hello after 3 GetInfo requests"), "{e}");
+    assert!(t.elapsed() >= Duration::from_secs(6) && t.elapsed() < Duration::from_secs(9));
+}
+
+// ------------------------------------------------------------------ CLI
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_cms-host")
+}
+
+/// The device on a thread, served until dropped.
+struct Served {
+    stop: Arc<AtomicBool>,
+    dev: Option<thread::JoinHandle<Report>>,
+    link: PathBuf,
+}
+
+impl Served {
+    fn new(dir: &Path) -> Served {
+        let link = dir.join("ttyCLI");
+        let stop = Arc::new(AtomicBool::new(false));
+        let dev = {
+            let (link, stop) = (link.clone(), stop.clone());
+            thread::Builder::new().stack_size(16 << 20).spawn(move || device(link, small_plan(), stop)).unwrap()
+        };
+        let t = Instant::now();
+        while std::fs::symlink_metadata(&link).is_err() && t.elapsed() < Duration::from_secs(10) {
+            thread::sleep(Duration::from_millis(5));
+        }
+        Served { stop, dev: Some(dev), link }
+    }
+
+    fn finish(mut self) -> Report {
+        thread::sleep(Duration::from_millis(100));
+        self.stop.store(true, Ordering::SeqCst);
+        self.dev.take().unwrap().join().expect("device panicked")
+    }
+}
+
+/// `cms-host listen PORT --frames 30 --json --record F`, then `info F` and
+/// `export F --format csv|jsonl`.
+#[test]
+fn cli_listen_json_record_info_export() {
+    let dir = tempfile::tempdir().unwrap();
+    let served = Served::new(dir.path());
+    let rec = dir.path().join("cli.cmsrec");
+    let out = Process::new(bin())
+        .args(["listen", served.link.to_str().unwrap(), "--frames", "30", "--json", "--rate", "200", "--record"])
+        .arg(&rec)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let report = served.finish();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let stdout = String::from_utf8(out.stdout).unwrap();
+    let seqs: Vec<u64> = stdout
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["seq"].as_u64().unwrap())
+        .collect();
+    assert_eq!(seqs.len(), 30);
+    assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1), "{seqs:?}");
+    assert!(stderr.contains("listen: frames: 30 "), "{stderr}");
+    assert!(stderr.contains("stop acknowledged"), "{stderr}");
+    assert_eq!(report.end, Some((HeadState::Idle, 0)));
+
+    let info = Process::new(bin()).arg("info").arg(&rec).output().unwrap();
+    assert!(info.status.success());
+    let info = String::from_utf8(info.stdout).unwrap();
+    assert!(info.contains("frames: 30 (30 profile messages)"), "{info}");
+    assert!(info.contains("device: firmware 0.1.0-test, board test-pty"), "{info}");
+    assert!(info.contains("damaged frames: 0"), "{info}");
+
+    let csv = Process::new(bin()).args(["export", "--format", "csv"]).arg(&rec).output().unwrap();
+    assert!(csv.status.success());
+    let csv = String::from_utf8(csv.stdout).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some(record::CSV_HEADER));
+    assert_eq!(lines.count(), 30 * 3 * 64, "3 points per row, 64 rows, 30 frames");
+
+    let jl = dir.path().join("out.jsonl");
+    let e = Process::new(bin()).args(["export", "--format", "jsonl", "--out"]).arg(&jl).arg(&rec).output().unwrap();
+    assert!(e.status.success());
+    assert_eq!(std::fs::read_to_string(&jl).unwrap(), stdout);
+}
+
+/// Ctrl-C: Stop sent and acknowledged (lasers off), summary printed, exit 0.
+#[test]
+fn cli_ctrl_c_stops_the_head() {
+    use nix::sys::signal::{Signal, kill};
+    use nix::unistd::Pid;
+    let dir = tempfile::tempdir().unwrap();
+    let served = Served::new(dir.path());
+    let mut child = Process::new(bin())
+        .args(["listen", served.link.to_str().unwrap(), "--json"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Wait for a few frames.
+    let mut stdout = child.stdout.take().unwrap();
+    let mut got = Vec::new();
+    let mut buf = [0u8; 4096];
+    while got.iter().filter(|&&b| b == b'\n').count() < 5 {
+        let n = stdout.read(&mut buf).unwrap();
+        assert!(n > 0, "listen ended early");
+        got.extend_from_slice(&buf[..n]);
+    }
+    kill(Pid::from_raw(child.id() as i32), Signal::SIGINT).unwrap();
+    let mut rest = Vec::new();
+    stdout.read_to_end(&mut rest).unwrap();
+    let mut stderr = String::new();
+    child.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
+    let status = child.wait().unwrap();
+    let report = served.finish();
+    assert!(status.success(), "{status:?}: {stderr}");
+    assert!(stderr.contains("listen: frames: "), "{stderr}");
+    assert!(stderr.contains("stop acknowledged"), "{stderr}");
+    assert_eq!(report.end, Some((HeadState::Idle, 0)));
+    // The laser log ends with the lasers off.
+    assert_eq!(report.lasers.last().map(|l| l.1), Some(0));
+}
+
+/// Bad arguments and a missing port: one line on stderr, non-zero exit.
+#[test]
+fn cli_errors_are_one_line() {
+    for (args, needle) in [
+        (vec!["listen", "/nonexistent/ttyX"], "cannot open /nonexistent/ttyX"),
+        (vec!["listen", "/dev/null", "--lasers", "9"], "laser mask"),
+        (vec!["listen", "/dev/null", "--duration", "0"], "seconds"),
+        (vec!["info", "/nonexistent/rec"], "cannot open recording"),
+    ] {
+        let out = Process::new(bin()).args(&args).output().unwrap();
+        assert!(!out.status.success(), "{args:?}");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(stderr.contains(needle), "{args:?}: {stderr}");
+    }
+}
+
+/// `listen --json | head -1`: the closed pipe ends the listener quietly,
+/// with the head stopped.
+#[test]
+fn cli_closed_stdout_ends_quietly() {
+    let dir = tempfile::tempdir().unwrap();
+    let served = Served::new(dir.path());
+    let mut child = Process::new(bin())
+        .args(["listen", served.link.to_str().unwrap(), "--json"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdout = child.stdout.take().unwrap();
+    let mut buf = [0u8; 1];
+    while buf[0] != b'\n' {
+        stdout.read_exact(&mut buf).unwrap();
+    }
+    drop(stdout);
+    let mut stderr = String::new();
+    child.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
+    let status = child.wait().unwrap();
+    let report = served.finish();
+    assert!(status.success(), "{status:?}: {stderr}");
+    assert!(!stderr.contains("error:"), "{stderr}");
+    assert!(stderr.contains("stop acknowledged"), "{stderr}");
+    assert_eq!(report.end, Some((HeadState::Idle, 0)));
+}
+
+fn cobs_decode(f: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < f.len() {
+        let code = f[i] as usize;
+        out.extend_from_slice(&f[i + 1..i + code]);
+        i += code;
+        if code < 0xFF && i < f.len() {
+            out.push(0);
+        }
+    }
+    out
+}
+
+fn cobs_encode(raw: &[u8]) -> Vec<u8> {
+    let mut out = vec![0];
+    let mut code_at = 0;
+    for &b in raw {
+        if b == 0 {
+            out[code_at] = (out.len() - code_at) as u8;
+            code_at = out.len();
+            out.push(0);
+        } else {
+            out.push(b);
+            if out.len() - code_at == 0xFF {
+                out[code_at] = 0xFF;
+                code_at = out.len();
+                out.push(0);
+            }
+        }
+    }
+    out[code_at] = (out.len() - code_at) as u8;
+    out
+}
+
+/// A head of another protocol version is refused with both versions named.
+#[test]
+fn another_protocol_version_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("ttyV2");
+    let mut pty = plug(&link);
+    // A Hello framed as protocol version 2 (CRC recomputed).
+    let mut info = None;
+    let head: Head<W, Lasers> =
+        Head::new(Lasers::default(), default_detector(), Identity { firmware: "9", board: "v2" }).expect("head");
+    info.get_or_insert(head.info(&TestCamera::new(64, 4, 1, 1)));
+    let f = {
+        let mut scratch = vec![0u8; MAX_FRAME];
+        let mut out = vec![0u8; MAX_FRAME];
+        encode(&DeviceMsg::Hello(info.unwrap()), &mut scratch, &mut out).unwrap().to_vec()
+    };
+    let mut raw = cobs_decode(&f[..f.len() - 1]);
+    raw[0] = 2;
+    let n = raw.len() - 4;
+    let crc = cms_core::protocol::CRC.checksum(&raw[..n]);
+    raw[n..].copy_from_slice(&crc.to_le_bytes());
+    let mut v2 = cobs_encode(&raw);
+    v2.push(0);
+    let stop = Arc::new(AtomicBool::new(false));
+    let answer = {
+        let stop = stop.clone();
+        thread::spawn(move || {
+            let mut buf = [0u8; 256];
+            while !stop.load(Ordering::SeqCst) {
+                if let Ok(n) = pty.master.read(&mut buf)
+                    && buf[..n].contains(&0)
+                {
+                    let _ = write_all(&mut pty.master, &v2);
+                }
+                thread::sleep(Duration::from_millis(2));
+            }
+        })
+    };
+    let opts = ListenOptions { progress: Progress::Quiet, ..ListenOptions::default() };
+    let e =
+        listen_with(link.to_str().unwrap(), &opts, &AtomicBool::new(false), &mut io::sink(), &mut |_| {}).unwrap_err();
+    stop.store(true, Ordering::SeqCst);
+    answer.join().unwrap();
+    assert!(matches!(e, ListenError::Version { theirs: 2, .. }), "{e}");
+    assert!(e.to_string().contains("speaks protocol version 2; this cms-host speaks version 1"), "{e}");
+}
