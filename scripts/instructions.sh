@@ -4,6 +4,7 @@
 # clock, to set beside `cms-host bench speed`. Not part of CI.
 #
 #   scripts/instructions.sh [ROWS]        (default 256; takes a few minutes)
+#   METHODS="cwt cog" SIZES="752x3" scripts/instructions.sh   (a subset)
 #
 # Each configuration runs `cms-host bench speed` twice under callgrind, with
 # 64 and 64 + ROWS timed rows and no warm-up; the difference divided by ROWS
@@ -20,8 +21,8 @@ ROWS=${1:-256}
 cargo build --release -q -p cms-host
 BIN="${CARGO_TARGET_DIR:-target}/release/cms-host"
 
-METHODS="cwt cwt-paper max cog cog-filtered gaussian parabolic blais-rioux linear fir-zero"
-SIZES="640x1 640x3 752x1 752x3 1280x1 1280x3"
+METHODS=${METHODS:-"cwt cwt-paper max cog cog-filtered gaussian parabolic blais-rioux linear fir-zero"}
+SIZES=${SIZES:-"640x1 640x3 752x1 752x3 1280x1 1280x3"}
 
 count() {
     valgrind --tool=callgrind --callgrind-out-file=/dev/null \
