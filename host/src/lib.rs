@@ -16,6 +16,7 @@ pub mod link;
 pub mod listen;
 pub mod record;
 pub mod sim;
+pub mod simulate;
 
 use std::fmt;
 use std::io::Write as _;

@@ -7,6 +7,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use cms_host::detect;
+use cms_host::simulate;
 use cms_host::{listen, record};
 
 mod bench;
@@ -27,11 +28,18 @@ enum Command {
     #[command(subcommand)]
     Bench(bench::BenchCmd),
     /// Stream profiles from a sensor head: live status, --json, --record.
-    Listen(listen::ListenArgs),
+    Listen {
+        #[command(flatten)]
+        args: listen::ListenArgs,
+        #[command(flatten)]
+        sim: simulate::SimPortArgs,
+    },
     /// Export the profiles of a recording as CSV or JSON lines.
     Export(record::ExportArgs),
     /// Describe a recording: frames, time and distance spans, lasers, device, damage.
     Info(record::InfoArgs),
+    /// Simulated sensor head on a pseudo-terminal (prints its path first).
+    Simulate(simulate::SimulateArgs),
 }
 
 fn main() -> ExitCode {
@@ -40,8 +48,12 @@ fn main() -> ExitCode {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => e.report(),
         },
-        Command::Listen(args) => match listen::run(&args) {
-            Ok(()) => ExitCode::SUCCESS,
+        // PORT `sim` starts the simulated head on a pty of this process.
+        Command::Listen { args, sim } => match simulate::with_port(&args.port, &sim, |port| {
+            listen::run(&listen::ListenArgs { port: port.to_string(), ..args.clone() })
+        }) {
+            Ok(Ok(())) => ExitCode::SUCCESS,
+            Ok(Err(e)) => e.report(),
             Err(e) => e.report(),
         },
         Command::Export(args) => match record::export(&args) {
@@ -58,6 +70,10 @@ fn main() -> ExitCode {
                 let _ = writeln!(std::io::stderr(), "error: {e:#}");
                 ExitCode::FAILURE
             }
+        },
+        Command::Simulate(args) => match simulate::run(&args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => e.report(),
         },
     }
 }

@@ -1,0 +1,577 @@
+//! `cms-host simulate`: the simulated sensor head on a pseudo-terminal.
+//!
+//! The head is `cms_core::pipeline::Head` — the firmware's own command
+//! handling, detector, framing and laser-safety rules — fed with camera rows
+//! rendered by the scene model ([`crate::sim`]) instead of a sensor, and
+//! talking the wire protocol over a pty instead of USB. A listener cannot
+//! tell the difference except by the `board` name in `Hello` (`cms-sim`).
+//!
+//! * [`run`] — the subcommand: prints the pty's slave path as the first line
+//!   of stdout, serves until SIGINT/SIGTERM, prints a summary on stderr.
+//! * [`spawn_on_pty`] — the same server on a thread of this process (for
+//!   `cms-host listen sim` and tests); [`resolve_port`] turns a `listen`
+//!   PORT argument into a device path, starting the simulator for `sim`.
+
+pub mod server;
+pub mod worker;
+
+use std::io::{self, Write as _};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+
+use clap::{Args, ValueEnum};
+
+pub use scene::SceneCamera;
+pub use server::{MAX_WIDTH, Pty, RowRenderer, ServeOptions, Summary, serve};
+
+use crate::sim::{Corrugation, SimConfig};
+
+/// Why the simulated head could not start or stopped.
+#[derive(Debug)]
+pub enum SimulateError {
+    /// A bad option (exit status 2).
+    Usage(String),
+    /// A system call on the pty or the terminal failed (exit status 1).
+    Io(&'static str, io::Error),
+}
+
+impl std::fmt::Display for SimulateError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SimulateError::Usage(m) => f.write_str(m),
+            SimulateError::Io(what, e) => write!(f, "{what}: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for SimulateError {}
+
+impl SimulateError {
+    /// Prints one `error: ` line on stderr and returns the exit status.
+    pub fn report(&self) -> ExitCode {
+        let _ = writeln!(io::stderr(), "error: {}", one_line(&self.to_string()));
+        match self {
+            SimulateError::Usage(_) => ExitCode::from(2),
+            SimulateError::Io(..) => ExitCode::from(1),
+        }
+    }
+}
+
+fn one_line(s: &str) -> String {
+    s.chars().flat_map(|c| if c.is_control() { c.escape_default().collect() } else { vec![c] }).collect()
+}
+
+/// Camera and head geometry presets.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ValueEnum)]
+pub enum Preset {
+    /// The reference head: 752 × 480 global-shutter sensor, 8 bits.
+    #[default]
+    Reference,
+    /// The geometry of the paper's Table 4 (4752 × 3168).
+    Paper,
+}
+
+/// One corrugation component, `WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG]`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CorrugationArg {
+    /// Wavelength along the rail, mm.
+    pub wavelength_mm: f64,
+    /// Amplitude (half peak-to-peak), µm.
+    pub amplitude_um: f64,
+    /// Phase, degrees.
+    pub phase_deg: f64,
+}
+
+fn finite(s: &str, what: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        _ => Err(format!("{what} {s:?} is not a finite number")),
+    }
+}
+
+/// Parses `--corrugation`.
+pub fn parse_corrugation(s: &str) -> Result<CorrugationArg, String> {
+    let parts: Vec<&str> = s.split(':').collect();
+    if !(2..=3).contains(&parts.len()) {
+        return Err("expected WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG], e.g. 50:30 or 50:30:90".into());
+    }
+    let wavelength_mm = finite(parts[0], "wavelength")?;
+    let amplitude_um = finite(parts[1], "amplitude")?;
+    let phase_deg = parts.get(2).map_or(Ok(0.0), |p| finite(p, "phase"))?;
+    if wavelength_mm <= 0.0 {
+        return Err(format!("wavelength must be > 0 mm, got {wavelength_mm}"));
+    }
+    if !(0.0..=10_000.0).contains(&amplitude_um) {
+        return Err(format!("amplitude must be in 0..=10000 µm, got {amplitude_um}"));
+    }
+    Ok(CorrugationArg { wavelength_mm, amplitude_um, phase_deg })
+}
+
+/// Parses `--laser-gain a,b,c`.
+pub fn parse_gains(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<&str> = s.split(',').collect();
+    if v.len() != 3 {
+        return Err(format!("expected three comma-separated gains (one per laser), got {}", v.len()));
+    }
+    let mut g = [0.0; 3];
+    for (o, p) in g.iter_mut().zip(v) {
+        *o = finite(p, "gain")?;
+        if !(0.0..=100.0).contains(o) {
+            return Err(format!("gain must be in 0..=100, got {o}"));
+        }
+    }
+    Ok(g)
+}
+
+fn non_negative(s: &str) -> Result<f64, String> {
+    let v = finite(s, "value")?;
+    if v < 0.0 {
+        return Err(format!("must be ≥ 0, got {v}"));
+    }
+    Ok(v)
+}
+
+fn fraction(s: &str) -> Result<f64, String> {
+    let v = finite(s, "fraction")?;
+    if !(0.0..=0.1).contains(&v) {
+        return Err(format!("must be in 0..=0.1, got {v}"));
+    }
+    Ok(v)
+}
+
+fn speed(s: &str) -> Result<f64, String> {
+    let v = finite(s, "speed")?;
+    if v.abs() > 100_000.0 {
+        return Err(format!("speed must be within ±100000 mm/s, got {v}"));
+    }
+    Ok(v)
+}
+
+fn bits(s: &str) -> Result<u8, String> {
+    match s.trim() {
+        "8" => Ok(8),
+        "10" => Ok(10),
+        "12" => Ok(12),
+        _ => Err(format!("bit depth must be 8, 10 or 12, got {s:?}")),
+    }
+}
+
+/// Options of `cms-host simulate` (and the scene part of `listen sim`).
+/// `Default` is the command line without options.
+#[derive(Args, Clone, Debug)]
+pub struct SimulateArgs {
+    /// Camera and head geometry.
+    #[arg(long, value_enum, default_value_t = Preset::Reference)]
+    pub preset: Preset,
+    /// Seed of every random part of the scene (roughness, noise, hot pixels).
+    #[arg(long, value_name = "S", default_value_t = 1)]
+    pub seed: u64,
+    /// The camera's highest frame rate, Hz: the host's `Start` picks the
+    /// rate, and one above this is refused (out of range).
+    #[arg(long, value_name = "HZ", default_value_t = 30, value_parser = clap::value_parser!(u16).range(1..=1000))]
+    pub rate: u16,
+    /// Travel speed along the rail, mm/s.
+    #[arg(long = "speed-mm-s", value_name = "V", value_parser = speed)]
+    pub speed_mm_s: Option<f64>,
+    /// A corrugation component (repeat for several).
+    #[arg(long, value_name = "WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG]", value_parser = parse_corrugation)]
+    pub corrugation: Vec<CorrugationArg>,
+    /// RMS random roughness of the running surface, µm.
+    #[arg(long = "roughness-um", value_name = "R", value_parser = non_negative)]
+    pub roughness_um: Option<f64>,
+    /// Random (read) noise, RMS counts.
+    #[arg(long, value_name = "COUNTS", value_parser = non_negative)]
+    pub noise: Option<f64>,
+    /// Fraction of hot pixels (fixed pattern), 0..=0.1.
+    #[arg(long = "hot-pixels", value_name = "FRACTION", value_parser = fraction)]
+    pub hot_pixels: Option<f64>,
+    /// Row banding, RMS counts.
+    #[arg(long, value_name = "COUNTS", value_parser = non_negative)]
+    pub banding: Option<f64>,
+    /// Ambient light, counts.
+    #[arg(long, value_name = "COUNTS", value_parser = non_negative)]
+    pub ambient: Option<f64>,
+    /// Output bit depth (8, 10 or 12).
+    #[arg(long, value_name = "8|10|12", value_parser = bits)]
+    pub bits: Option<u8>,
+    /// Relative power of the three lasers (multiplies the preset's).
+    #[arg(long = "laser-gain", value_name = "A,B,C", value_parser = parse_gains)]
+    pub laser_gain: Option<[f64; 3]>,
+}
+
+impl Default for SimulateArgs {
+    fn default() -> Self {
+        SimulateArgs {
+            preset: Preset::Reference,
+            seed: 1,
+            rate: 30,
+            speed_mm_s: None,
+            corrugation: Vec::new(),
+            roughness_um: None,
+            noise: None,
+            hot_pixels: None,
+            banding: None,
+            ambient: None,
+            bits: None,
+            laser_gain: None,
+        }
+    }
+}
+
+/// Runs `cms-host simulate`.
+pub fn run(args: &SimulateArgs) -> Result<(), SimulateError> {
+    let built = scene::build(args)?;
+    let pty = Pty::open()?;
+    {
+        let mut out = io::stdout().lock();
+        writeln!(out, "{}", pty.path().display())
+            .and_then(|_| out.flush())
+            .map_err(|e| SimulateError::Io("printing the pty path", e))?;
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed))
+        .map_err(|e| SimulateError::Io("installing the SIGINT/SIGTERM handler", io::Error::other(e)))?;
+    let opts = ServeOptions {
+        max_rate_hz: built.max_rate_hz,
+        exposure_us: Some(built.exposure_us),
+        ..ServeOptions::default()
+    };
+    let summary = serve(pty, built.renderer, built.detector, &stop, &opts)?;
+    let _ = writeln!(io::stderr(), "simulate: {summary}");
+    Ok(())
+}
+
+/// A simulated head serving on a thread of this process. Dropping it stops
+/// the server (lasers off) and waits for the thread.
+pub struct SimHandle {
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<Result<Summary, SimulateError>>>,
+}
+
+impl SimHandle {
+    /// Whether the server is still running.
+    pub fn is_running(&self) -> bool {
+        self.thread.as_ref().is_some_and(|t| !t.is_finished())
+    }
+
+    /// Stops the server and returns what it did.
+    pub fn stop(mut self) -> Result<Summary, SimulateError> {
+        self.join()
+    }
+
+    fn join(&mut self) -> Result<Summary, SimulateError> {
+        self.stop.store(true, Ordering::Relaxed);
+        match self.thread.take() {
+            Some(t) => {
+                t.join().unwrap_or_else(|_| Err(SimulateError::Io("simulated head", io::Error::other("panicked"))))
+            }
+            None => Ok(Summary::default()),
+        }
+    }
+}
+
+impl Drop for SimHandle {
+    fn drop(&mut self) {
+        let _ = self.join();
+    }
+}
+
+/// Starts the simulated head described by `args` on a new pty, served by a
+/// thread of this process (laser changes are not logged). Returns the pty's
+/// slave path — open it like a serial port — and the handle that stops it.
+pub fn spawn_on_pty(args: &SimulateArgs) -> Result<(PathBuf, SimHandle), SimulateError> {
+    let built = scene::build(args)?;
+    let pty = Pty::open()?;
+    let path = pty.path().to_path_buf();
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    let opts = ServeOptions {
+        log_lasers: false,
+        max_rate_hz: built.max_rate_hz,
+        exposure_us: Some(built.exposure_us),
+        ..ServeOptions::default()
+    };
+    let thread = std::thread::Builder::new()
+        .name("cms-sim".into())
+        .stack_size(8 << 20)
+        .spawn(move || serve(pty, built.renderer, built.detector, &flag, &opts))
+        .map_err(|e| SimulateError::Io("starting the simulated head's thread", e))?;
+    Ok((path, SimHandle { stop, thread: Some(thread) }))
+}
+
+/// The simulated head's options inside `cms-host listen` (flatten into the
+/// listener's arguments).
+#[derive(Args, Clone, Debug, Default)]
+pub struct SimPortArgs {
+    /// With PORT `sim`: seed of the simulated scene.
+    #[arg(long = "sim-seed", value_name = "S")]
+    pub sim_seed: Option<u64>,
+    /// With PORT `sim`: camera and head geometry of the simulated head.
+    #[arg(long = "sim-preset", value_enum)]
+    pub sim_preset: Option<Preset>,
+}
+
+/// A `listen` PORT: `sim` starts the simulated head on a new pty and returns
+/// its slave path with the handle that keeps it running; anything else is
+/// a device path, returned as it is.
+pub fn resolve_port(port: &str, sim: &SimPortArgs) -> Result<(PathBuf, Option<SimHandle>), SimulateError> {
+    if port != "sim" {
+        if sim.sim_seed.is_some() || sim.sim_preset.is_some() {
+            return Err(SimulateError::Usage("--sim-seed and --sim-preset need PORT `sim`".into()));
+        }
+        return Ok((PathBuf::from(port), None));
+    }
+    // The listener's `--rate` decides: the camera allows up to 1000 Hz.
+    let args = SimulateArgs {
+        seed: sim.sim_seed.unwrap_or(1),
+        preset: sim.sim_preset.unwrap_or(Preset::Reference),
+        rate: 1000,
+        ..SimulateArgs::default()
+    };
+    let (path, handle) = spawn_on_pty(&args)?;
+    Ok((path, Some(handle)))
+}
+
+/// Runs `f` on the device path of a `listen` PORT (see [`resolve_port`]);
+/// a simulated head is stopped afterwards (lasers off) and its summary
+/// printed as one `sim:` line on stderr.
+pub fn with_port<T>(port: &str, sim: &SimPortArgs, f: impl FnOnce(&str) -> T) -> Result<T, SimulateError> {
+    let (path, head) = resolve_port(port, sim)?;
+    let Some(path) = path.to_str() else {
+        return Err(SimulateError::Usage(format!("port path {path:?} is not UTF-8")));
+    };
+    let r = f(path);
+    if let Some(head) = head {
+        match head.stop() {
+            Ok(s) => {
+                let _ = writeln!(io::stderr(), "sim: {s}");
+            }
+            Err(e) => {
+                let _ = writeln!(io::stderr(), "sim: error: {e}");
+            }
+        }
+    }
+    Ok(r)
+}
+
+/// The scene's configuration these options describe: the preset, then
+/// every option given on top of it. Values are checked here and by
+/// [`Scene::new`].
+pub fn sim_config(args: &SimulateArgs) -> Result<SimConfig, SimulateError> {
+    let mut cfg = match args.preset {
+        Preset::Reference => SimConfig::reference(),
+        Preset::Paper => SimConfig::paper(),
+    };
+    cfg.seed = args.seed;
+    cfg.frame_rate_hz = args.rate as f64;
+    if let Some(b) = args.bits {
+        cfg.camera.bits = b;
+    }
+    // Counts are codes at the chosen bit depth; the model works in electrons.
+    let e_per_count = cfg.camera.gain_e_per_dn();
+    if let Some(v) = args.speed_mm_s {
+        cfg.speed_mm_s = v;
+    }
+    if !args.corrugation.is_empty() {
+        cfg.rail.corrugation = args
+            .corrugation
+            .iter()
+            .map(|c| Corrugation {
+                wavelength_mm: c.wavelength_mm,
+                amplitude_um: c.amplitude_um,
+                phase_rad: c.phase_deg.to_radians(),
+            })
+            .collect();
+    }
+    if let Some(r) = args.roughness_um {
+        cfg.rail.roughness_rms_um = r;
+    }
+    if let Some(n) = args.noise {
+        cfg.noise.read_noise_e = n * e_per_count;
+    }
+    if let Some(h) = args.hot_pixels {
+        cfg.noise.hot_pixel_fraction = h;
+    }
+    if let Some(b) = args.banding {
+        cfg.noise.row_banding_e = b * e_per_count;
+    }
+    if let Some(a) = args.ambient {
+        cfg.noise.ambient_e_per_us = a * e_per_count / cfg.camera.exposure_us;
+    }
+    if let Some(g) = args.laser_gain {
+        if cfg.lasers.len() != g.len() {
+            return Err(SimulateError::Usage(format!(
+                "--laser-gain: the preset has {} lasers, not {}",
+                cfg.lasers.len(),
+                g.len()
+            )));
+        }
+        for (l, g) in cfg.lasers.iter_mut().zip(g) {
+            l.brightness *= g;
+        }
+    }
+    Ok(cfg)
+}
+
+/// The scene behind the simulated camera.
+mod scene {
+    use super::worker::Threaded;
+    use super::{RowRenderer, SimulateArgs, SimulateError, sim_config};
+    use crate::sim::{Scene, Shot};
+    use cms_core::peak::{Config, Select};
+    use cms_core::protocol::LASERS;
+
+    /// The renderer, the detector configuration for its camera, its frame
+    /// rate limit and its exposure.
+    pub(super) struct Built {
+        pub renderer: Threaded,
+        pub detector: Config,
+        pub max_rate_hz: u16,
+        pub exposure_us: u32,
+    }
+
+    pub(super) fn build(args: &SimulateArgs) -> Result<Built, SimulateError> {
+        let cfg = sim_config(args)?;
+        let scene = Scene::new(cfg).map_err(|e| SimulateError::Usage(format!("scene: {e}")))?;
+        if scene.laser_count() != LASERS {
+            return Err(SimulateError::Usage(format!("scene: {} lasers; the head has {LASERS}", scene.laser_count())));
+        }
+        let scales =
+            scene.config().optics().scale_range().map_err(|e| SimulateError::Usage(format!("scene optics: {e}")))?;
+        let mut detector = Config::new(scene.bits(), scales);
+        detector.max_stripes = LASERS as u8;
+        detector.select = Select::Strongest;
+        cms_core::peak::Detector::<1>::new(detector)
+            .map_err(|e| SimulateError::Usage(format!("detector for this scene: {e}")))?;
+        let exposure_us = scene.camera().exposure_us.round().clamp(1.0, 1e6) as u32;
+        let renderer =
+            Threaded::new(SceneCamera::new(scene)).map_err(|e| SimulateError::Io("starting the render thread", e))?;
+        Ok(Built { renderer, detector, max_rate_hz: args.rate, exposure_us })
+    }
+
+    /// The scene model as the head's row source: frames are exposed at the
+    /// odometer the head has travelled to (real time × speed), rounded to
+    /// the micrometre the `Profile` reports, so the truth of a received
+    /// profile is `Scene::shot_row_truth` of that odometer.
+    pub struct SceneCamera {
+        scene: Scene,
+        shot: Shot,
+    }
+
+    impl SceneCamera {
+        /// Renders `scene`.
+        pub fn new(scene: Scene) -> SceneCamera {
+            SceneCamera { shot: scene.shot(0, 0), scene }
+        }
+
+        /// The scene.
+        pub fn scene(&self) -> &Scene {
+            &self.scene
+        }
+    }
+
+    impl RowRenderer for SceneCamera {
+        fn size(&self) -> (u16, u16) {
+            (self.scene.width() as u16, self.scene.height() as u16)
+        }
+        fn bits(&self) -> u8 {
+            self.scene.bits()
+        }
+        fn begin_frame(&mut self, frame: u64, t_us: u64, exposure_us: u32, mask: u8) -> i64 {
+            let at = self.scene.shot_at(frame, t_us as f64, exposure_us as f64, mask);
+            let odometer_um = (at.odometer_mm * 1000.0).round() as i64;
+            self.shot = Shot { odometer_mm: odometer_um as f64 / 1000.0, ..at };
+            odometer_um
+        }
+        fn row(&mut self, r: u16, out: &mut [u16]) {
+            self.scene.render_shot_row(&self.shot, r as usize, out);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::Scene;
+
+    #[test]
+    fn option_values_parse_or_explain() {
+        let c = parse_corrugation("50:30:90").unwrap();
+        assert_eq!((c.wavelength_mm, c.amplitude_um, c.phase_deg), (50.0, 30.0, 90.0));
+        assert_eq!(parse_corrugation(" 80 : 5 ").unwrap().phase_deg, 0.0);
+        for bad in ["", "50", "50:30:1:2", "0:30", "-5:30", "50:-1", "50:nan", "inf:3", "50:30:x"] {
+            assert!(parse_corrugation(bad).is_err(), "{bad}");
+        }
+        assert_eq!(parse_gains("1,0.5,2").unwrap(), [1.0, 0.5, 2.0]);
+        for bad in ["1,2", "1,2,3,4", "1,x,1", "1,-1,1", "1,nan,1"] {
+            assert!(parse_gains(bad).is_err(), "{bad}");
+        }
+        assert!(bits("10").is_ok() && bits("9").is_err() && bits("16").is_err());
+        assert!(fraction("0.01").is_ok() && fraction("0.2").is_err());
+    }
+
+    #[test]
+    fn counts_are_codes_at_the_chosen_depth() {
+        let args = SimulateArgs {
+            bits: Some(12),
+            noise: Some(2.0),
+            banding: Some(1.0),
+            ambient: Some(40.0),
+            laser_gain: Some([1.0, 1.0, 0.5]),
+            corrugation: vec![parse_corrugation("60:25:180").unwrap()],
+            ..SimulateArgs::default()
+        };
+        let cfg = sim_config(&args).unwrap();
+        let g = cfg.camera.gain_e_per_dn();
+        assert_eq!(cfg.camera.bits, 12);
+        assert!((cfg.noise.read_noise_e - 2.0 * g).abs() < 1e-9);
+        assert!((cfg.noise.row_banding_e - g).abs() < 1e-9);
+        assert!((cfg.noise.ambient_e_per_us * cfg.camera.exposure_us - 40.0 * g).abs() < 1e-6);
+        let preset = SimConfig::reference();
+        assert_eq!(cfg.lasers[2].brightness, preset.lasers[2].brightness * 0.5);
+        assert_eq!(cfg.rail.corrugation.len(), 1);
+        assert!((cfg.rail.corrugation[0].phase_rad - std::f64::consts::PI).abs() < 1e-12);
+        // Unset options keep the preset's values.
+        let plain = sim_config(&SimulateArgs::default()).unwrap();
+        assert_eq!(plain.noise, preset.noise);
+        assert_eq!(plain.rail, preset.rail);
+    }
+
+    #[test]
+    fn threaded_rendering_equals_inline() {
+        let scene = Scene::new(sim_config(&SimulateArgs::default()).unwrap()).unwrap();
+        let mut inline = SceneCamera::new(scene.clone());
+        let mut threaded = worker::Threaded::new(SceneCamera::new(scene)).unwrap();
+        assert_eq!(threaded.size(), (752, 480));
+        let (mut a, mut b) = (vec![0u16; 752], vec![0u16; 752]);
+        // A frame abandoned half-way must not leak rows into the next.
+        threaded.begin_frame(0, 0, 100, 0b111);
+        threaded.row(0, &mut b);
+        for (frame, t_us) in [(1u64, 12_345u64), (2, 50_000)] {
+            let oa = inline.begin_frame(frame, t_us, 100, 0b101);
+            let ob = threaded.begin_frame(frame, t_us, 100, 0b101);
+            assert_eq!(oa, ob);
+            assert_eq!(oa, t_us as i64 * 2, "2 m/s = 2 µm/µs, from 0");
+            for r in 0..480 {
+                inline.row(r, &mut a);
+                threaded.row(r, &mut b);
+                assert_eq!(a, b, "frame {frame} row {r}");
+            }
+        }
+        drop(threaded); // joins the worker
+    }
+
+    #[test]
+    fn lasers_report_what_was_lit() {
+        use cms_core::pipeline::LaserDriver as _;
+        let mut l = server::SimLasers::default();
+        l.set(0b001);
+        l.set(0);
+        l.set(0b100);
+        assert_eq!((l.mask(), l.switches()), (0b100, 3));
+    }
+}

@@ -1,0 +1,505 @@
+//! The simulated head's server: a pseudo-terminal, the wire protocol, and
+//! `cms_core::pipeline::Head` paced in real time.
+//!
+//! One thread does everything, as the firmware's main loop would: read the
+//! host's bytes from the pty master, decode commands, let the head handle
+//! them, poll the head (it decides when a frame is due from the `Start`
+//! rate and the clock), encode its replies and write them to the master.
+//!
+//! # Back-pressure
+//! Nothing blocks. Replies wait in a bounded queue; when nobody reads the
+//! slave and the pty's buffer is full, new `Profile` frames are dropped
+//! whole (counted in [`Summary::link_dropped_profiles`]) rather than
+//! stalling the head: the head's watchdog and command handling keep running.
+//! Small messages (acks, errors, status) have a larger allowance so a slow
+//! reader still sees every answer.
+
+use std::collections::VecDeque;
+use std::fs::File;
+use std::io::{self, Read as _, Write as _};
+use std::os::fd::{AsFd as _, OwnedFd};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use cms_core::pipeline::{Camera, Head, Identity, LaserDriver};
+use cms_core::protocol::{
+    Command, DeviceMsg, ErrorCode, FrameReader, HeadState, HostMsg, MAX_COMMAND_FRAME, MAX_FRAME, WireError, encode,
+};
+use nix::poll::{PollFd, PollFlags, PollTimeout};
+use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
+
+use super::SimulateError;
+
+/// Longest row the simulated head accepts (the `paper` preset is 4752 px).
+pub const MAX_WIDTH: usize = 4800;
+
+/// The identity the simulated head reports in `Hello`.
+pub const IDENTITY: Identity = Identity { firmware: env!("CARGO_PKG_VERSION"), board: "cms-sim" };
+
+/// A pseudo-terminal pair: the server's master side, and the slave that a
+/// listener opens by its path.
+pub struct Pty {
+    master: File,
+    // Held open for the server's lifetime: with no slave descriptor open, the
+    // pty hangs up (reads on the master fail with EIO) between two listener
+    // connections, and the raw-mode settings would be lost.
+    _slave: OwnedFd,
+    path: PathBuf,
+}
+
+impl Pty {
+    /// Opens a new pty, raw on the slave (no echo, no line editing, no CR/LF
+    /// translation: the line discipline passes every byte through), the
+    /// master non-blocking.
+    pub fn open() -> Result<Pty, SimulateError> {
+        let sys = |what: &'static str| move |e: nix::Error| SimulateError::Io(what, io::Error::from(e));
+        let p = nix::pty::openpty(None, None).map_err(sys("openpty"))?;
+        let mut t = tcgetattr(p.slave.as_fd()).map_err(sys("tcgetattr on the pty slave"))?;
+        cfmakeraw(&mut t);
+        tcsetattr(p.slave.as_fd(), SetArg::TCSANOW, &t).map_err(sys("tcsetattr on the pty slave"))?;
+        let path = nix::unistd::ttyname(p.slave.as_fd()).map_err(sys("ttyname of the pty slave"))?;
+        for fd in [p.master.as_fd(), p.slave.as_fd()] {
+            nix::fcntl::fcntl(fd, nix::fcntl::FcntlArg::F_SETFD(nix::fcntl::FdFlag::FD_CLOEXEC))
+                .map_err(sys("fcntl(FD_CLOEXEC)"))?;
+        }
+        let fl = nix::fcntl::fcntl(p.master.as_fd(), nix::fcntl::FcntlArg::F_GETFL).map_err(sys("fcntl(F_GETFL)"))?;
+        let fl = nix::fcntl::OFlag::from_bits_retain(fl) | nix::fcntl::OFlag::O_NONBLOCK;
+        nix::fcntl::fcntl(p.master.as_fd(), nix::fcntl::FcntlArg::F_SETFL(fl)).map_err(sys("fcntl(O_NONBLOCK)"))?;
+        Ok(Pty { master: File::from(p.master), _slave: p.slave, path })
+    }
+
+    /// The slave's path (`/dev/pts/N`): what a listener opens.
+    pub fn path(&self) -> &std::path::Path {
+        &self.path
+    }
+}
+
+/// Where the simulated camera's pixels come from: the scene model, or a
+/// test pattern.
+pub trait RowRenderer {
+    /// Image width and height, px.
+    fn size(&self) -> (u16, u16);
+    /// Bits per pixel.
+    fn bits(&self) -> u8;
+    /// Starts frame `frame` (0, 1, 2, … in exposure order), exposed
+    /// `t_us` after the head started, for `exposure_us`, with the lasers of
+    /// `mask` lit. Returns the odometer at exposure, µm.
+    fn begin_frame(&mut self, frame: u64, t_us: u64, exposure_us: u32, mask: u8) -> i64;
+    /// Row `r` of the current frame into `out` (`width` pixels).
+    fn row(&mut self, r: u16, out: &mut [u16]);
+    /// CPU time spent on threads of its own (zero if it renders on the caller's).
+    fn cpu(&self) -> Duration {
+        Duration::ZERO
+    }
+}
+
+/// The simulated camera: a [`RowRenderer`] behind `cms_core`'s [`Camera`].
+pub struct SimCamera<R> {
+    renderer: R,
+    start: Instant,
+    frame: u64,
+    next_row: Option<u16>,
+}
+
+/// A row was asked for while no frame was exposed, or past the last row.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct NoFrame;
+
+impl<R: RowRenderer> SimCamera<R> {
+    /// A camera whose clock (the odometer's time base) starts at `start`.
+    pub fn new(renderer: R, start: Instant) -> Self {
+        SimCamera { renderer, start, frame: 0, next_row: None }
+    }
+
+    /// Frames exposed so far.
+    pub fn frames(&self) -> u64 {
+        self.frame
+    }
+
+    /// The renderer.
+    pub fn renderer(&self) -> &R {
+        &self.renderer
+    }
+}
+
+impl<R: RowRenderer> Camera for SimCamera<R> {
+    type Error = NoFrame;
+    fn width(&self) -> u16 {
+        self.renderer.size().0
+    }
+    fn height(&self) -> u16 {
+        self.renderer.size().1
+    }
+    fn bits(&self) -> u8 {
+        self.renderer.bits()
+    }
+    fn expose(&mut self, exposure_us: u32, laser_mask: u8) -> Result<i64, NoFrame> {
+        let t_us = self.start.elapsed().as_micros() as u64;
+        let odometer = self.renderer.begin_frame(self.frame, t_us, exposure_us, laser_mask);
+        self.frame += 1;
+        self.next_row = Some(0);
+        Ok(odometer)
+    }
+    fn read_row(&mut self, row: &mut [u16]) -> Result<(), NoFrame> {
+        let r = self.next_row.ok_or(NoFrame)?;
+        if r >= self.height() {
+            self.next_row = None;
+            return Err(NoFrame);
+        }
+        self.renderer.row(r, row);
+        self.next_row = Some(r + 1);
+        Ok(())
+    }
+}
+
+/// The simulated laser enables: they remember the mask (the head is the
+/// only caller, and it applies the safety rules).
+#[derive(Debug, Default)]
+pub struct SimLasers {
+    mask: u8,
+    lit_since_take: std::cell::Cell<u8>,
+    switches: u64,
+}
+
+impl SimLasers {
+    /// Lasers lit now.
+    pub fn mask(&self) -> u8 {
+        self.mask
+    }
+    /// Number of changes of the mask.
+    pub fn switches(&self) -> u64 {
+        self.switches
+    }
+    /// Every laser lit at some point since the previous call.
+    fn take_lit(&self) -> u8 {
+        self.lit_since_take.replace(self.mask)
+    }
+}
+
+impl LaserDriver for SimLasers {
+    fn set(&mut self, mask: u8) {
+        if mask != self.mask {
+            self.switches += 1;
+        }
+        self.mask = mask;
+        self.lit_since_take.set(self.lit_since_take.get() | mask);
+    }
+}
+
+/// How the server behaves.
+#[derive(Clone, Debug)]
+pub struct ServeOptions {
+    /// Log laser on/off changes to stderr.
+    pub log_lasers: bool,
+    /// Bytes of `Profile` frames that may wait for the reader before new
+    /// ones are dropped (small messages get four times as much).
+    pub queue_bytes: usize,
+    /// The camera's highest frame rate: a `Start` asking for more is refused
+    /// by the head (`OutOfRange`).
+    pub max_rate_hz: u16,
+    /// Exposure the head starts with (the camera's nominal one), µs; `None`
+    /// keeps the head's default.
+    pub exposure_us: Option<u32>,
+}
+
+impl Default for ServeOptions {
+    fn default() -> Self {
+        ServeOptions { log_lasers: true, queue_bytes: 2 * MAX_FRAME, max_rate_hz: 1000, exposure_us: None }
+    }
+}
+
+/// What a server did, for the closing line.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Summary {
+    /// Wall time served.
+    pub elapsed: Duration,
+    /// CPU time of the serving thread (commands, detection, framing, pty).
+    pub cpu: Duration,
+    /// CPU time of the renderer's own thread.
+    pub render_cpu: Duration,
+    /// Frames the head produced (`Status::frames`).
+    pub frames: u64,
+    /// Frames the head skipped because it fell behind its rate.
+    pub head_dropped: u64,
+    /// `Profile` messages queued for the link.
+    pub profiles_sent: u64,
+    /// `Profile` messages dropped because nobody read the pty.
+    pub link_dropped_profiles: u64,
+    /// Other messages dropped for the same reason.
+    pub link_dropped_other: u64,
+    /// Bytes written to the pty.
+    pub bytes_written: u64,
+    /// Commands decoded.
+    pub commands: u64,
+    /// Host frames that failed to decode (CRC, COBS, version, payload, overflow).
+    pub link_errors: u64,
+    /// Lasers lit when the server stopped (before the head was dropped).
+    pub lasers_at_exit: u8,
+}
+
+impl Summary {
+    /// CPU time per produced frame, every thread of the head.
+    pub fn cpu_per_frame(&self) -> Duration {
+        (self.cpu + self.render_cpu) / (self.frames.max(1) as u32)
+    }
+}
+
+impl std::fmt::Display for Summary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let secs = self.elapsed.as_secs_f64();
+        write!(
+            f,
+            "served {:.1} s: {} frames ({:.1}/s), {} skipped by the head, {} profiles dropped on the link, \
+             {} commands, {} bad host frames, {:.1} MB sent, CPU {:.2} ms/frame (head {:.2} + render {:.2}); \
+             lasers off",
+            secs,
+            self.frames,
+            self.frames as f64 / secs.max(1e-9),
+            self.head_dropped,
+            self.link_dropped_profiles,
+            self.commands,
+            self.link_errors,
+            self.bytes_written as f64 / 1e6,
+            self.cpu_per_frame().as_secs_f64() * 1e3,
+            self.cpu.as_secs_f64() * 1e3 / self.frames.max(1) as f64,
+            self.render_cpu.as_secs_f64() * 1e3 / self.frames.max(1) as f64,
+        )
+    }
+}
+
+/// Encoded replies waiting for the pty.
+struct Outbox {
+    scratch: Vec<u8>,
+    frame: Vec<u8>,
+    queue: VecDeque<Vec<u8>>,
+    spare: Vec<Vec<u8>>,
+    written: usize,
+    queued: usize,
+    cap: usize,
+    profiles_sent: u64,
+    dropped_profiles: u64,
+    dropped_other: u64,
+    bytes_written: u64,
+}
+
+impl Outbox {
+    fn new(cap: usize) -> Self {
+        Outbox {
+            scratch: vec![0; MAX_FRAME],
+            frame: vec![0; MAX_FRAME],
+            queue: VecDeque::new(),
+            spare: Vec::new(),
+            written: 0,
+            queued: 0,
+            cap,
+            profiles_sent: 0,
+            dropped_profiles: 0,
+            dropped_other: 0,
+            bytes_written: 0,
+        }
+    }
+
+    fn push(&mut self, msg: &DeviceMsg) {
+        let profile = matches!(msg, DeviceMsg::Profile(_));
+        let Ok(bytes) = encode(msg, &mut self.scratch, &mut self.frame) else {
+            // Cannot happen: MAX_FRAME bounds every message (core's test).
+            self.dropped_other += 1;
+            return;
+        };
+        let cap = if profile { self.cap } else { 4 * self.cap };
+        if self.queued + bytes.len() > cap {
+            if profile {
+                self.dropped_profiles += 1;
+            } else {
+                self.dropped_other += 1;
+            }
+            return;
+        }
+        let mut buf = self.spare.pop().unwrap_or_default();
+        buf.clear();
+        buf.extend_from_slice(bytes);
+        self.queued += buf.len();
+        self.queue.push_back(buf);
+        if profile {
+            self.profiles_sent += 1;
+        }
+    }
+
+    /// Writes what the pty takes without blocking.
+    fn flush(&mut self, w: &mut File) -> io::Result<()> {
+        while let Some(front) = self.queue.front() {
+            match w.write(&front[self.written..]) {
+                Ok(0) => break,
+                Ok(n) => {
+                    self.written += n;
+                    self.bytes_written += n as u64;
+                    if self.written == front.len() {
+                        self.queued -= front.len();
+                        self.written = 0;
+                        if let Some(b) = self.queue.pop_front()
+                            && self.spare.len() < 8
+                        {
+                            self.spare.push(b);
+                        }
+                    }
+                }
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => break,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                // EIO: no slave open (cannot happen while we hold one); retry later.
+                Err(e) if e.raw_os_error() == Some(nix::libc::EIO) => break,
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(())
+    }
+}
+
+fn wire_to_code(e: WireError) -> ErrorCode {
+    match e {
+        WireError::Crc => ErrorCode::Crc,
+        WireError::Version(v) => ErrorCode::Version(v),
+        _ => ErrorCode::Decode,
+    }
+}
+
+pub(super) fn thread_cpu() -> Duration {
+    nix::time::clock_gettime(nix::time::ClockId::CLOCK_THREAD_CPUTIME_ID).map(Duration::from).unwrap_or_default()
+}
+
+fn log(msg: std::fmt::Arguments) {
+    // Not eprintln!: it panics when stderr is closed.
+    let _ = writeln!(io::stderr(), "info: {msg}");
+}
+
+/// Serves the protocol on `pty` until `stop` is set: the simulated head's
+/// main loop (see the module documentation).
+pub fn serve<R: RowRenderer>(
+    mut pty: Pty,
+    renderer: R,
+    detector: cms_core::peak::Config,
+    stop: &AtomicBool,
+    opts: &ServeOptions,
+) -> Result<Summary, SimulateError> {
+    let start = Instant::now();
+    let cpu0 = thread_cpu();
+    let mut camera = SimCamera::new(renderer, start);
+    if camera.width() as usize > MAX_WIDTH {
+        return Err(SimulateError::Usage(format!(
+            "image width {} px exceeds the simulated head's {MAX_WIDTH} px",
+            camera.width()
+        )));
+    }
+    let mut head: Box<Head<MAX_WIDTH, SimLasers>> = Box::new(
+        Head::new(SimLasers::default(), detector, IDENTITY)
+            .map_err(|e| SimulateError::Usage(format!("detector configuration: {e}")))?,
+    );
+    if let Some(us) = opts.exposure_us {
+        // The head has no exposure setting but the command's: give it the
+        // camera's nominal exposure as a host would (the Ack goes nowhere).
+        head.handle(Command { seq: 0, msg: HostMsg::SetExposure(us) }, 0, &camera, &mut |_| {});
+    }
+    let mut out = Outbox::new(opts.queue_bytes.max(MAX_FRAME));
+    let mut reader: Box<FrameReader<MAX_COMMAND_FRAME>> = Box::default();
+    let mut rx = vec![0u8; 4096];
+    let mut decoded: Vec<Result<Command, WireError>> = Vec::new();
+    let mut clock_ns = || start.elapsed().as_nanos() as u64;
+    let (mut lit_acc, mut logged) = (0u8, 0u8);
+    let mut summary = Summary::default();
+
+    while !stop.load(Ordering::Relaxed) {
+        // Host → head.
+        loop {
+            match pty.master.read(&mut rx) {
+                Ok(0) => break,
+                Ok(n) => {
+                    reader.feed::<Command, _>(&rx[..n], |r| decoded.push(r));
+                    if n < rx.len() {
+                        break;
+                    }
+                }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => break,
+                Err(e) if e.raw_os_error() == Some(nix::libc::EIO) => break,
+                Err(e) => return Err(SimulateError::Io("reading the pty", e)),
+            }
+        }
+        let now_us = start.elapsed().as_micros() as u64;
+        for r in decoded.drain(..) {
+            match r {
+                Ok(mut cmd) => {
+                    summary.commands += 1;
+                    if let HostMsg::Start(s) = &mut cmd.msg
+                        && s.rate_hz > opts.max_rate_hz
+                    {
+                        // Faster than the camera: let the head refuse it
+                        // (and apply its fault rules) as out of range.
+                        s.rate_hz = 0;
+                    }
+                    head.handle(cmd, now_us, &camera, &mut |m| out.push(m));
+                }
+                Err(e) => {
+                    summary.link_errors += 1;
+                    head.link_error(wire_to_code(e), &mut |m| out.push(m));
+                }
+            }
+        }
+        // The head: watchdog, due frame, status.
+        head.poll(now_us, &mut camera, &mut clock_ns, &mut |m| out.push(m));
+
+        // The simulated lasers' log: the set lit while streaming, then off.
+        let lit = head.laser_driver().take_lit();
+        if head.state() == HeadState::Streaming {
+            lit_acc |= lit;
+            if lit_acc != logged && opts.log_lasers {
+                log(format_args!("lasers: {lit_acc:#05b}"));
+            }
+            logged = lit_acc;
+        } else {
+            debug_assert_eq!(head.lasers_on(), 0, "lasers lit while not streaming");
+            if logged != 0 && opts.log_lasers {
+                log(format_args!("lasers off"));
+            }
+            (lit_acc, logged) = (0, 0);
+        }
+
+        out.flush(&mut pty.master).map_err(|e| SimulateError::Io("writing the pty", e))?;
+
+        // Sleep until the host writes, the pty drains, or the next tick: 1 ms
+        // while streaming (frame times are the head's business), 20 ms idle.
+        let mut events = PollFlags::POLLIN;
+        if !out.queue.is_empty() {
+            events |= PollFlags::POLLOUT;
+        }
+        let tick: u16 = if head.state() == HeadState::Streaming { 1 } else { 20 };
+        let mut fds = [PollFd::new(pty.master.as_fd(), events)];
+        match nix::poll::poll(&mut fds, PollTimeout::from(tick)) {
+            Ok(_) | Err(nix::Error::EINTR) => {}
+            Err(e) => return Err(SimulateError::Io("poll on the pty", e.into())),
+        }
+        // A hung-up or failing master would make poll return at once: pace it.
+        if fds[0].revents().is_some_and(|r| r.intersects(PollFlags::POLLHUP | PollFlags::POLLERR)) {
+            std::thread::sleep(Duration::from_millis(tick as u64));
+        }
+    }
+
+    let now_us = start.elapsed().as_micros() as u64;
+    let status = head.status(now_us);
+    summary.elapsed = start.elapsed();
+    summary.cpu = thread_cpu().saturating_sub(cpu0);
+    summary.frames = status.frames as u64;
+    summary.head_dropped = status.dropped_frames as u64;
+    summary.profiles_sent = out.profiles_sent;
+    summary.link_dropped_profiles = out.dropped_profiles;
+    summary.link_dropped_other = out.dropped_other;
+    summary.lasers_at_exit = head.lasers_on();
+    summary.render_cpu = camera.renderer().cpu();
+    drop(head); // lasers off (the head's Drop)
+    if logged != 0 && opts.log_lasers {
+        log(format_args!("lasers off"));
+    }
+    // Best effort: the last replies (a Stop's ack) if the pty takes them.
+    let _ = out.flush(&mut pty.master);
+    summary.bytes_written = out.bytes_written;
+    Ok(summary)
+}
