@@ -59,7 +59,8 @@ pub const HEARTBEAT_INTERVAL: Duration = Duration::from_millis(250);
 pub const STALL_TIMEOUT: Duration = Duration::from_secs(2);
 /// Interval of attempts to reopen a lost port.
 pub const REOPEN_INTERVAL: Duration = Duration::from_millis(200);
-/// How long to wait for the `Ack` of `Stop` when finishing.
+/// How long to wait for the `Ack` of `Stop` (and the `Status` after it)
+/// when finishing.
 pub const STOP_ACK_TIMEOUT: Duration = Duration::from_millis(500);
 
 /// How the live status is shown on stderr.
@@ -296,6 +297,8 @@ struct Session<'a> {
     outbox: Vec<(u16, HostMsg)>,
     /// When the stop began (and so when to give up waiting for its Ack).
     stopping: Option<Instant>,
+    /// A `Status` arrived after the `Ack` of `Stop`.
+    stop_reported: bool,
     fatal: Option<ListenError>,
     /// Protocol version of frames that failed the version check.
     foreign_version: Option<u8>,
@@ -393,6 +396,10 @@ impl Session<'_> {
                 self.sum.head_dropped = s.dropped_frames;
                 self.sum.lasers_on = Some(s.lasers_on);
                 self.head_state = Some(s.state);
+                if self.sum.stop_acked {
+                    // The head's report after the Stop: its lasers now.
+                    self.stop_reported = true;
+                }
                 if s.state != HeadState::Streaming && matches!(self.phase, Phase::Streaming) && self.stopping.is_none()
                 {
                     self.sum.head_restarts += 1;
@@ -633,6 +640,7 @@ pub fn listen_with(
         stop_seq: None,
         outbox: Vec::new(),
         stopping: None,
+        stop_reported: false,
         fatal: None,
         foreign_version: None,
         greeted: false,
@@ -670,7 +678,8 @@ pub fn listen_with(
                 }
                 s.stop_seq = Some(s.send(HostMsg::Stop));
             }
-            if s.sum.stop_acked || link.is_none() || now.duration_since(since) >= STOP_ACK_TIMEOUT {
+            // The head answers Stop with Ack and then a Status (lasers off).
+            if s.stop_reported || link.is_none() || now.duration_since(since) >= STOP_ACK_TIMEOUT {
                 break Ok(());
             }
         }

@@ -547,6 +547,12 @@ pub fn export(args: &ExportArgs) -> Result<(), CliError> {
     })?;
     parse_header(&h).map_err(|why| RecordError::Format { path: args.file.clone(), why })?;
     let stats = match &args.out {
+        Some(o) if same_file(o, &args.file) => {
+            return Err(CliError::Usage(format!(
+                "--out {} is the recording itself; refusing to overwrite it",
+                o.display()
+            )));
+        }
         Some(o) => {
             let f = File::create(o).map_err(|e| CliError::Usage(format!("cannot create {}: {e}", o.display())))?;
             export_to(&args.file, args.format, &mut BufWriter::new(f))?
@@ -560,6 +566,15 @@ pub fn export(args: &ExportArgs) -> Result<(), CliError> {
         let _ = writeln!(io::stderr(), "{w}");
     }
     Ok(())
+}
+
+/// Whether two paths name the same existing file.
+fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt as _;
+    match (std::fs::metadata(a), std::fs::metadata(b)) {
+        (Ok(x), Ok(y)) => x.dev() == y.dev() && x.ino() == y.ino(),
+        _ => false,
+    }
 }
 
 // ------------------------------------------------------------------ info
@@ -685,7 +700,8 @@ impl Info {
         }
         match self.odometer_um {
             Some((a, b)) => {
-                let _ = writeln!(s, "distance: {} mm to {} mm (span {} mm)", um_to_mm(a), um_to_mm(b), um_to_mm(b - a));
+                let span = i64::try_from(b.abs_diff(a)).unwrap_or(i64::MAX);
+                let _ = writeln!(s, "distance: {} mm to {} mm (span {} mm)", um_to_mm(a), um_to_mm(b), um_to_mm(span));
             }
             None => s.push_str("distance: -\n"),
         }

@@ -545,6 +545,7 @@ fn survives_garbage_flips_truncation_and_replug() {
     assert!(rep.lasers.iter().any(|(t, m)| *t > rep.replugged.unwrap() && *m == 0b111), "lasers back on after");
     // Clean stop: Stop acknowledged, lasers off, head idle.
     assert!(sum.stop_acked, "{sum}");
+    assert_eq!(sum.lasers_on, Some(0), "{sum}");
     assert_eq!(rep.end, Some((HeadState::Idle, 0)));
     // The recording holds every frame that arrived, and two Hellos.
     let (recorded, stats, hellos) = recorded_profiles(&rec);
@@ -725,7 +726,7 @@ fn cli_listen_json_record_info_export() {
     assert_eq!(seqs.len(), 30);
     assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1), "{seqs:?}");
     assert!(stderr.contains("listen: frames: 30 "), "{stderr}");
-    assert!(stderr.contains("stop acknowledged"), "{stderr}");
+    assert!(stderr.contains("listen: lasers: off (stop acknowledged)"), "{stderr}");
     assert_eq!(report.end, Some((HeadState::Idle, 0)));
 
     let info = Process::new(bin()).arg("info").arg(&rec).output().unwrap();
@@ -780,7 +781,7 @@ fn cli_ctrl_c_stops_the_head() {
     let report = served.finish();
     assert!(status.success(), "{status:?}: {stderr}");
     assert!(stderr.contains("listen: frames: "), "{stderr}");
-    assert!(stderr.contains("stop acknowledged"), "{stderr}");
+    assert!(stderr.contains("listen: lasers: off (stop acknowledged)"), "{stderr}");
     assert_eq!(report.end, Some((HeadState::Idle, 0)));
     // The laser log ends with the lasers off.
     assert_eq!(report.lasers.last().map(|l| l.1), Some(0));
@@ -827,7 +828,7 @@ fn cli_closed_stdout_ends_quietly() {
     let report = served.finish();
     assert!(status.success(), "{status:?}: {stderr}");
     assert!(!stderr.contains("error:"), "{stderr}");
-    assert!(stderr.contains("stop acknowledged"), "{stderr}");
+    assert!(stderr.contains("listen: lasers: off (stop acknowledged)"), "{stderr}");
     assert_eq!(report.end, Some((HeadState::Idle, 0)));
 }
 

@@ -372,6 +372,13 @@ fn cli_export_and_info_of_a_truncated_file() {
         assert!(stderr.starts_with("error: ") && stderr.contains("not a CMS recording"), "{stderr}");
         assert_eq!(stderr.lines().count(), 1);
         assert!(!o.exists());
+
+        // --out naming the recording itself is refused, the recording kept.
+        let out =
+            Process::new(bin).args(["export", "--format", "csv", "--out"]).arg(&path).arg(&path).output().unwrap();
+        assert_eq!(out.status.code(), Some(2));
+        assert!(String::from_utf8_lossy(&out.stderr).contains("refusing to overwrite"));
+        assert_eq!(std::fs::read(&path).unwrap(), bytes);
     })
 }
 
@@ -389,6 +396,17 @@ fn info_counts_gaps_and_damage() {
         assert_eq!(info.scan.damaged, 1);
         assert!(info.device.is_none());
         assert!(info.report(&path).contains("device: no Hello recorded"));
+
+        // Extreme odometer values (a corrupt head) do not overflow the report.
+        let mut far = Vec::new();
+        for (seq, odo) in [(0, i64::MIN), (1, i64::MAX)] {
+            let DeviceMsg::Profile(mut p) = profile(seq, 1) else { unreachable!() };
+            p.odometer_um = odo;
+            far.push(DeviceMsg::Profile(p));
+        }
+        let path = write_file(dir.path(), "far.cmsrec", &recording(&far).0);
+        let report = Info::of_file(&path).unwrap().report(&path);
+        assert!(report.contains("span 9223372036854775.807 mm"), "{report}");
     })
 }
 
