@@ -296,7 +296,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             let period = 1_000_000 / self.start.rate_hz as u64;
             // Frames whose time has already passed are dropped, not queued.
             let late = (now_us - self.next_frame_us) / period;
-            self.dropped += late as u32;
+            self.dropped = self.dropped.wrapping_add(late as u32);
             self.next_frame_us += (late + 1) * period;
             self.frame(now_us, camera, clock_ns, reply);
         }
@@ -373,10 +373,10 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         }
         let dt = clock_ns().saturating_sub(t0);
         self.frame_seq = self.frame_seq.wrapping_add(1);
-        self.frames += 1;
-        self.window_frames += 1;
-        self.window_rows += height as u32;
-        self.window_ns += dt;
+        self.frames = self.frames.wrapping_add(1);
+        self.window_frames = self.window_frames.wrapping_add(1);
+        self.window_rows = self.window_rows.wrapping_add(height as u32);
+        self.window_ns = self.window_ns.wrapping_add(dt);
         // Between frames the lasers stay lit only in the simultaneous pattern.
         if self.start.pattern == LaserPattern::Sequential {
             self.set_lasers(0);

@@ -486,16 +486,17 @@ impl<const N: usize> FrameReader<N> {
                 continue;
             }
             // Delimiter.
+            // Counters wrap: a head may run for months at 1000 frames/s.
             if self.overflow {
-                self.stats.overflows += 1;
+                self.stats.overflows = self.stats.overflows.wrapping_add(1);
                 on_msg(Err(WireError::Overflow));
             } else if self.len > 0 {
                 let r = decode_frame::<T>(&mut self.buf[..self.len]);
                 match &r {
-                    Ok(_) => self.stats.frames += 1,
-                    Err(WireError::Crc) => self.stats.crc_errors += 1,
+                    Ok(_) => self.stats.frames = self.stats.frames.wrapping_add(1),
+                    Err(WireError::Crc) => self.stats.crc_errors = self.stats.crc_errors.wrapping_add(1),
                     Err(_) => {
-                        self.stats.decode_errors += 1;
+                        self.stats.decode_errors = self.stats.decode_errors.wrapping_add(1);
                         self.stats.discarded_bytes = self.stats.discarded_bytes.saturating_add(self.len as u32);
                     }
                 }
