@@ -445,19 +445,34 @@ fn paper_preset_streams_a_frame_in_parts() {
         _ => None,
     });
     assert_eq!((info.sensor_width, info.sensor_height), (4752, 3168));
+    if cfg!(debug_assertions) {
+        // 15 Mpx a frame: a minute per frame unoptimised (CI tests --release).
+        eprintln!("paper preset streaming: checked in optimised builds only");
+        return;
+    }
     sim.start(2, LaserPattern::Simultaneous);
     // One whole frame: 3168 rows in 7 parts of up to 480.
     let parts = sim.profiles(7);
     let first = parts.iter().position(|p| p.part == 0).expect("a frame's first part");
     let frame: Vec<&Profile> = parts[first..].iter().take_while(|p| p.seq == parts[first].seq).collect();
-    if frame.len() == 7 {
-        for (k, p) in frame.iter().enumerate() {
-            assert_eq!((p.part as usize, p.parts), (k, 7));
-            for l in &p.lasers {
-                assert!(l.points.iter().all(|q| (q.row as usize) / 480 == k), "rows of part {k}");
-                assert!(l.points.len() > 400, "part {k} laser {}: {} points", l.laser, l.points.len());
-                assert!(l.points.iter().all(|q| (12.0..20.0).contains(&q.width.to_f64())), "σ ≈ 15 px");
-            }
+    assert_eq!((first, frame.len()), (0, 7), "the first frame whole");
+    for (k, p) in frame.iter().enumerate() {
+        assert_eq!((p.part as usize, p.parts), (k, 7));
+        let rows = (3168 - 480 * k).min(480);
+        for l in &p.lasers {
+            assert!(l.points.iter().all(|q| (q.row as usize) / 480 == k), "rows of part {k}");
+            assert!(l.points.len() * 10 > rows * 9, "part {k} laser {}: {} points", l.laser, l.points.len());
+            // σ ≈ 15 px (12.4–19.5 over the working range). A saturated
+            // point's width comes from its saturated run (a hot pixel on
+            // the stripe's crest can saturate it): not a σ.
+            let w: Vec<f64> = l
+                .points
+                .iter()
+                .filter(|q| !q.flags.contains(cms_core::peak::Flags::SATURATED))
+                .map(|q| q.width.to_f64())
+                .collect();
+            let (lo, hi) = w.iter().fold((f64::MAX, 0.0f64), |(a, b), &x| (a.min(x), b.max(x)));
+            assert!(lo > 10.0 && hi < 22.0, "σ ≈ 15 px: {lo}..{hi}");
         }
     }
     assert!(parts.iter().all(|p| p.parts == 7 && p.lasers.len() == 3));

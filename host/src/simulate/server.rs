@@ -1,30 +1,33 @@
 //! The simulated head's server: a pseudo-terminal, the wire protocol, and
 //! `cms_core::pipeline::Head` paced in real time.
 //!
-//! One thread does everything, as the firmware's main loop would: read the
+//! The head's thread runs the loop a firmware's main loop would: read the
 //! host's bytes from the pty master, decode commands, let the head handle
 //! them, poll the head (it decides when a frame is due from the `Start`
-//! rate and the clock), encode its replies and write them to the master.
+//! rate and the clock) and encode its replies. A writer thread writes them
+//! to the master (as a USB peripheral's DMA would, while the next frame is
+//! processed); the renderer may have a thread of its own (see `worker`).
 //!
 //! # Back-pressure
-//! Nothing blocks. Replies wait in a bounded queue; when nobody reads the
-//! slave and the pty's buffer is full, new `Profile` frames are dropped
-//! whole (counted in [`Summary::link_dropped_profiles`]) rather than
-//! stalling the head: the head's watchdog and command handling keep running.
-//! Small messages (acks, errors, status) have a larger allowance so a slow
-//! reader still sees every answer.
+//! The head never blocks on the link. Replies wait in a bounded queue; when
+//! nobody reads the slave and the pty's buffer is full, new `Profile`
+//! frames are dropped whole (counted in [`Summary::link_dropped_profiles`])
+//! rather than stalling the head: the head's watchdog and command handling
+//! keep running. Small messages (acks, errors, status) have a larger
+//! allowance so a slow reader still sees every answer.
 
-use std::collections::VecDeque;
 use std::fs::File;
 use std::io::{self, Read as _, Write as _};
 use std::os::fd::{AsFd as _, OwnedFd};
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, mpsc};
 use std::time::{Duration, Instant};
 
 use cms_core::pipeline::{Camera, Head, Identity, LaserDriver};
 use cms_core::protocol::{
-    Command, DeviceMsg, ErrorCode, FrameReader, HeadState, HostMsg, MAX_COMMAND_FRAME, MAX_FRAME, WireError, encode,
+    Command, DeviceMsg, ErrorCode, FrameReader, HeadState, HostMsg, MAX_COMMAND_FRAME, MAX_FRAME, MAX_ROWS_PER_PROFILE,
+    WireError, encode,
 };
 use nix::poll::{PollFd, PollFlags, PollTimeout};
 use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
@@ -268,36 +271,56 @@ impl std::fmt::Display for Summary {
     }
 }
 
-/// Encoded replies waiting for the pty.
+/// State shared by the head's thread and the pty writer.
+#[derive(Default)]
+struct LinkShared {
+    /// Bytes handed to the writer and not yet written.
+    queued: AtomicUsize,
+    /// Bytes written to the pty.
+    written: AtomicU64,
+    /// The server is stopping: give up on a pty nobody reads.
+    closing: AtomicBool,
+    /// Why the writer stopped, if it failed.
+    error: Mutex<Option<io::Error>>,
+}
+
+/// Encodes replies and hands them to the writer thread, which writes them
+/// to the pty while the head goes on with the next frame (written between
+/// frames only, a pty of a few tens of KB would cap the link at one
+/// buffer-full per frame).
 struct Outbox {
     scratch: Vec<u8>,
     frame: Vec<u8>,
-    queue: VecDeque<Vec<u8>>,
-    spare: Vec<Vec<u8>>,
-    written: usize,
-    queued: usize,
+    tx: Option<mpsc::Sender<Vec<u8>>>,
+    shared: Arc<LinkShared>,
+    writer: Option<std::thread::JoinHandle<()>>,
     cap: usize,
     profiles_sent: u64,
     dropped_profiles: u64,
     dropped_other: u64,
-    bytes_written: u64,
 }
 
 impl Outbox {
-    fn new(cap: usize) -> Self {
-        Outbox {
+    fn new(master: &File, cap: usize) -> Result<Self, SimulateError> {
+        let file = master.try_clone().map_err(|e| SimulateError::Io("duplicating the pty master", e))?;
+        let shared = Arc::new(LinkShared::default());
+        let (tx, rx) = mpsc::channel();
+        let sh = shared.clone();
+        let writer = std::thread::Builder::new()
+            .name("cms-sim-write".into())
+            .spawn(move || write_loop(file, rx, &sh))
+            .map_err(|e| SimulateError::Io("starting the pty writer", e))?;
+        Ok(Outbox {
             scratch: vec![0; MAX_FRAME],
             frame: vec![0; MAX_FRAME],
-            queue: VecDeque::new(),
-            spare: Vec::new(),
-            written: 0,
-            queued: 0,
+            tx: Some(tx),
+            shared,
+            writer: Some(writer),
             cap,
             profiles_sent: 0,
             dropped_profiles: 0,
             dropped_other: 0,
-            bytes_written: 0,
-        }
+        })
     }
 
     fn push(&mut self, msg: &DeviceMsg) {
@@ -308,50 +331,80 @@ impl Outbox {
             return;
         };
         let cap = if profile { self.cap } else { 4 * self.cap };
-        if self.queued + bytes.len() > cap {
-            if profile {
-                self.dropped_profiles += 1;
-            } else {
-                self.dropped_other += 1;
-            }
-            return;
-        }
-        let mut buf = self.spare.pop().unwrap_or_default();
-        buf.clear();
-        buf.extend_from_slice(bytes);
-        self.queued += buf.len();
-        self.queue.push_back(buf);
-        if profile {
-            self.profiles_sent += 1;
+        let queued = self.shared.queued.load(Ordering::Acquire);
+        let sent = queued + bytes.len() <= cap
+            && self.tx.as_ref().is_some_and(|tx| {
+                self.shared.queued.fetch_add(bytes.len(), Ordering::AcqRel);
+                tx.send(bytes.to_vec()).is_ok()
+            });
+        match (sent, profile) {
+            (true, true) => self.profiles_sent += 1,
+            (true, false) => {}
+            (false, true) => self.dropped_profiles += 1,
+            (false, false) => self.dropped_other += 1,
         }
     }
 
-    /// Writes what the pty takes without blocking.
-    fn flush(&mut self, w: &mut File) -> io::Result<()> {
-        while let Some(front) = self.queue.front() {
-            match w.write(&front[self.written..]) {
-                Ok(0) => break,
+    /// Why the writer failed, if it did.
+    fn failed(&self) -> Option<io::Error> {
+        self.shared.error.lock().ok()?.take()
+    }
+
+    /// Lets the writer finish what the pty takes within a moment, then stops it.
+    fn close(&mut self) -> u64 {
+        self.shared.closing.store(true, Ordering::Release);
+        self.tx = None;
+        if let Some(w) = self.writer.take() {
+            let _ = w.join();
+        }
+        self.shared.written.load(Ordering::Acquire)
+    }
+}
+
+impl Drop for Outbox {
+    fn drop(&mut self) {
+        self.close();
+    }
+}
+
+/// The writer thread: every frame whole and in order, waiting for the pty
+/// to drain (non-blocking writes + poll, so that it can give up when the
+/// server stops and nobody reads).
+fn write_loop(mut file: File, rx: mpsc::Receiver<Vec<u8>>, shared: &LinkShared) {
+    const GIVE_UP: Duration = Duration::from_millis(200);
+    let mut closing_since: Option<Instant> = None;
+    while let Ok(buf) = rx.recv() {
+        let mut off = 0;
+        while off < buf.len() {
+            if shared.closing.load(Ordering::Acquire)
+                && closing_since.get_or_insert_with(Instant::now).elapsed() > GIVE_UP
+            {
+                return;
+            }
+            match file.write(&buf[off..]) {
                 Ok(n) => {
-                    self.written += n;
-                    self.bytes_written += n as u64;
-                    if self.written == front.len() {
-                        self.queued -= front.len();
-                        self.written = 0;
-                        if let Some(b) = self.queue.pop_front()
-                            && self.spare.len() < 8
-                        {
-                            self.spare.push(b);
-                        }
+                    off += n;
+                    shared.written.fetch_add(n as u64, Ordering::AcqRel);
+                }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                // Full (or, EIO, no slave open: cannot happen while the
+                // server holds one): wait for room.
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock || e.raw_os_error() == Some(nix::libc::EIO) => {
+                    let mut fds = [PollFd::new(file.as_fd(), PollFlags::POLLOUT)];
+                    let _ = nix::poll::poll(&mut fds, PollTimeout::from(20u16));
+                    if fds[0].revents().is_some_and(|r| r.intersects(PollFlags::POLLHUP | PollFlags::POLLERR)) {
+                        std::thread::sleep(Duration::from_millis(20));
                     }
                 }
-                Err(e) if e.kind() == io::ErrorKind::WouldBlock => break,
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                // EIO: no slave open (cannot happen while we hold one); retry later.
-                Err(e) if e.raw_os_error() == Some(nix::libc::EIO) => break,
-                Err(e) => return Err(e),
+                Err(e) => {
+                    if let Ok(mut slot) = shared.error.lock() {
+                        *slot = Some(e);
+                    }
+                    return;
+                }
             }
         }
-        Ok(())
+        shared.queued.fetch_sub(buf.len(), Ordering::AcqRel);
     }
 }
 
@@ -399,7 +452,9 @@ pub fn serve<R: RowRenderer>(
         // camera's nominal exposure as a host would (the Ack goes nowhere).
         head.handle(Command { seq: 0, msg: HostMsg::SetExposure(us) }, 0, &camera, &mut |_| {});
     }
-    let mut out = Outbox::new(opts.queue_bytes.max(MAX_FRAME));
+    // A tall sensor sends a frame in several parts: room for all of them.
+    let parts = (camera.height() as usize).div_ceil(MAX_ROWS_PER_PROFILE).max(1);
+    let mut out = Outbox::new(&pty.master, opts.queue_bytes.max(MAX_FRAME) * parts)?;
     let mut reader: Box<FrameReader<MAX_COMMAND_FRAME>> = Box::default();
     let mut rx = vec![0u8; 4096];
     let mut decoded: Vec<Result<Command, WireError>> = Vec::new();
@@ -463,16 +518,14 @@ pub fn serve<R: RowRenderer>(
             (lit_acc, logged) = (0, 0);
         }
 
-        out.flush(&mut pty.master).map_err(|e| SimulateError::Io("writing the pty", e))?;
-
-        // Sleep until the host writes, the pty drains, or the next tick: 1 ms
-        // while streaming (frame times are the head's business), 20 ms idle.
-        let mut events = PollFlags::POLLIN;
-        if !out.queue.is_empty() {
-            events |= PollFlags::POLLOUT;
+        if let Some(e) = out.failed() {
+            return Err(SimulateError::Io("writing the pty", e));
         }
+
+        // Sleep until the host writes or the next tick: 1 ms while
+        // streaming (frame times are the head's business), 20 ms idle.
         let tick: u16 = if head.state() == HeadState::Streaming { 1 } else { 20 };
-        let mut fds = [PollFd::new(pty.master.as_fd(), events)];
+        let mut fds = [PollFd::new(pty.master.as_fd(), PollFlags::POLLIN)];
         match nix::poll::poll(&mut fds, PollTimeout::from(tick)) {
             Ok(_) | Err(nix::Error::EINTR) => {}
             Err(e) => return Err(SimulateError::Io("poll on the pty", e.into())),
@@ -499,7 +552,6 @@ pub fn serve<R: RowRenderer>(
         log(format_args!("lasers off"));
     }
     // Best effort: the last replies (a Stop's ack) if the pty takes them.
-    let _ = out.flush(&mut pty.master);
-    summary.bytes_written = out.bytes_written;
+    summary.bytes_written = out.close();
     Ok(summary)
 }
