@@ -208,6 +208,11 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 if camera.width() as usize > W {
                     return self.fail(ErrorCode::SensorFault, Some(seq), reply);
                 }
+                // The detector's saturation level and noise floor assume its
+                // bit depth: streaming with another camera depth is refused.
+                if self.detector.config().bits != camera.bits() {
+                    return self.fail(ErrorCode::InvalidConfig, Some(seq), reply);
+                }
                 self.start = s;
                 self.state = HeadState::Streaming;
                 self.fault = None;

@@ -371,6 +371,17 @@ impl core::fmt::Display for WireError {
 
 impl core::error::Error for WireError {}
 
+impl From<WireError> for ErrorCode {
+    /// How the head reports a bad frame from the host.
+    fn from(e: WireError) -> ErrorCode {
+        match e {
+            WireError::Crc => ErrorCode::Crc,
+            WireError::Version(v) => ErrorCode::Version(v),
+            _ => ErrorCode::Decode,
+        }
+    }
+}
+
 /// Encodes `msg` as one frame into `out`, using `scratch` for the unframed
 /// bytes. Returns the frame (delimiter included).
 pub fn encode<'a, T: Serialize>(msg: &T, scratch: &mut [u8], out: &'a mut [u8]) -> Result<&'a [u8], WireError> {

@@ -276,3 +276,20 @@ fn capture_sends_the_whole_image_with_lasers_lit_only_for_it() {
     assert_eq!(l.now(), 0);
     assert!(l.0.borrow().contains(&0b010));
 }
+
+#[test]
+fn a_detector_of_another_bit_depth_is_refused_at_start() {
+    let l = Lasers::default();
+    let mut cfg = default_detector();
+    cfg.bits = 8;
+    cfg.saturation = 255;
+    let mut h: Head<752, Lasers> = Head::new(l.clone(), cfg, Identity { firmware: "t", board: "t" }).unwrap();
+    let cam = Cam::new(); // 12-bit
+    let mut out = Vec::new();
+    h.handle(cmd(1, start(0b111, LaserPattern::Simultaneous)), 0, &cam, &mut |m| out.push(m.clone()));
+    assert_eq!(out, vec![DeviceMsg::Error { seq: Some(1), code: ErrorCode::InvalidConfig }]);
+    assert_eq!(l.now(), 0);
+    assert_eq!(ErrorCode::from(WireError::Crc), ErrorCode::Crc);
+    assert_eq!(ErrorCode::from(WireError::Version(3)), ErrorCode::Version(3));
+    assert_eq!(ErrorCode::from(WireError::Overflow), ErrorCode::Decode);
+}
