@@ -4,12 +4,14 @@
 //! lives in its own module here so that it can be tested without spawning a
 //! process:
 //!
+//! * [`calib`] — `cms-host calibrate`: camera and laser-plane calibration, the calibration file, upload.
 //! * [`detect`] — `cms-host detect`: laser-stripe positions of image rows as CSV.
 //! * [`input`] — reading grayscale PNG/TIFF images and CSV rows.
 //! * [`listen`] — `cms-host listen`: handshake, stream, record and show a sensor head's profiles.
 //! * [`link`] — the serial port (open by path, reconnect) and frame splitting.
 //! * [`record`] — the recording format, `cms-host export` and `cms-host info`.
 
+pub mod calib;
 pub mod detect;
 pub mod input;
 pub mod link;

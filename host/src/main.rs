@@ -6,6 +6,7 @@ use std::io::Write as _;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use cms_host::calib;
 use cms_host::detect;
 use cms_host::simulate;
 use cms_host::{listen, record};
@@ -40,6 +41,9 @@ enum Command {
     Info(record::InfoArgs),
     /// Simulated sensor head on a pseudo-terminal (prints its path first).
     Simulate(simulate::SimulateArgs),
+    /// Camera and laser-plane calibration; upload to a head.
+    #[command(subcommand)]
+    Calibrate(calib::CalibrateCmd),
 }
 
 fn main() -> ExitCode {
@@ -72,6 +76,10 @@ fn main() -> ExitCode {
             }
         },
         Command::Simulate(args) => match simulate::run(&args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => e.report(),
+        },
+        Command::Calibrate(cmd) => match calib::run(&cmd) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => e.report(),
         },
