@@ -10,6 +10,8 @@
 //!   Ricker CWT detector (default), the paper's Eq. (12)–(13) as written, and
 //!   the Table 2 baselines.
 //! * [`optics`] — the detector's scale range from the head's geometry (Eq. 10–11).
+//! * [`triangulation`] — stripe centre → camera-frame point and profile
+//!   coordinates (mm), `f32` per point within 0.1 µm of `f64`.
 //! * [`protocol`] — the head ↔ host wire protocol: postcard messages in
 //!   CRC-checked, COBS-delimited frames.
 //! * [`pipeline`] — the sensor head's logic without its hardware: rows in,
@@ -23,3 +25,4 @@ pub mod optics;
 pub mod peak;
 pub mod pipeline;
 pub mod protocol;
+pub mod triangulation;
