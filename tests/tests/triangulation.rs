@@ -237,6 +237,7 @@ fn run(distorted: bool, samples: usize, seed: u64) {
     let mut rng = Rng::new(seed);
     let (mut along, mut height, mut point, mut naive) =
         (Stat::default(), Stat::default(), Stat::default(), Stat::default());
+    let (mut naive_along, mut naive_height) = (Stat::default(), Stat::default());
     let mut depth_range = (f64::MAX, f64::MIN);
     let mut skipped = 0;
     while point.n < samples {
@@ -266,10 +267,18 @@ fn run(distorted: bool, samples: usize, seed: u64) {
         let nv = [t * x, t * y, t];
         let dn: Vec<f64> = (0..3).map(|i| nv[i] as f64 - want[i]).collect();
         naive.add((dn[0] * dn[0] + dn[1] * dn[1] + dn[2] * dn[2]).sqrt());
+        // … and its profile coordinates in f32 from the absolute point.
+        let f = tri.frame(laser).unwrap();
+        let (o, a, up) = (f.origin_mm.map(|v| v as f32), f.along.map(|v| v as f32), f.up.map(|v| v as f32));
+        let rel = [nv[0] - o[0], nv[1] - o[1], nv[2] - o[2]];
+        naive_along.add((a[0] * rel[0] + a[1] * rel[1] + a[2] * rel[2]) as f64 - want_along);
+        let h = up[0] * nv[0] + up[1] * nv[1] + up[2] * nv[2]
+            - datum.d_mm / dot(f64s(datum.normal), f64s(datum.normal)).sqrt() as f32;
+        naive_height.add(h as f64 - want_height);
     }
     let um = |s: &Stat| format!("max {:.4} µm, RMS {:.4} µm", s.max * 1e3, s.rms() * 1e3);
     println!(
-        "{} ({} points, depth {:.1}–{:.1} mm, {} out of image):\n  along  {}\n  height {}\n  |ΔX|   {}\n  naive f32 t = d/(n·r), |ΔX|: {}",
+        "{} ({} points, depth {:.1}–{:.1} mm, {} out of image):\n  along  {}\n  height {}\n  |ΔX|   {}\n  naive f32 t = d/(n·r) on the same ray: |ΔX| {}; along {}; height {}",
         if distorted { "distorted (k1 −0.1, k2 0.05, p1 1e-4, p2 −1e-4, skew 0.8)" } else { "pinhole" },
         point.n,
         depth_range.0,
@@ -279,6 +288,8 @@ fn run(distorted: bool, samples: usize, seed: u64) {
         um(&height),
         um(&point),
         um(&naive),
+        um(&naive_along),
+        um(&naive_height),
     );
     assert!(along.max <= LIMIT_MM, "along {}", um(&along));
     assert!(height.max <= LIMIT_MM, "height {}", um(&height));
