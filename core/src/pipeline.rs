@@ -22,8 +22,9 @@ use crate::fixed::Px;
 use crate::peak::{Config, Detector, Select, Stripes};
 use crate::protocol::{
     Calibration, Command, DeviceInfo, DeviceMsg, ErrorCode, HeadState, HostMsg, LASERS, LaserPattern, LaserPoints,
-    MAX_ROWS_PER_PROFILE, PROTOCOL_VERSION, Point, Profile, RAW_CHUNK_BYTES, RawRows, Start, Status,
+    MAX_ROWS_PER_PROFILE, Metric, PROTOCOL_VERSION, Point, Profile, RAW_CHUNK_BYTES, RawRows, Start, Status,
 };
+use crate::triangulation::{CameraModel, Plane, Triangulator};
 use heapless::{String, Vec};
 
 /// Longest silence from the host before the lasers go off, µs.
@@ -74,7 +75,7 @@ pub struct Head<const W: usize, L: LaserDriver> {
     detector: Detector<W>,
     start: Start,
     exposure_us: u32,
-    calibration: Option<Calibration>,
+    calibration: Option<(Calibration, Triangulator)>,
     identity: Identity,
     last_heard_us: u64,
     next_frame_us: u64,
@@ -145,6 +146,24 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         self.lit
     }
 
+    /// Validates and keeps a calibration (also how a head restores the one
+    /// it stored before a restart). Points carry `metric` from then on.
+    pub fn load_calibration(&mut self, c: Calibration) -> Result<(), CalibrationError> {
+        let t = triangulator(&c)?;
+        self.calibration = Some((c, t));
+        Ok(())
+    }
+
+    /// The calibration in use.
+    pub fn calibration(&self) -> Option<&Calibration> {
+        self.calibration.as_ref().map(|c| &c.0)
+    }
+
+    /// The triangulator of the calibration in use.
+    pub fn triangulator(&self) -> Option<&Triangulator> {
+        self.calibration.as_ref().map(|c| &c.1)
+    }
+
     /// The laser driver (for inspection by tests and the simulator).
     pub fn laser_driver(&self) -> &L {
         &self.lasers
@@ -183,7 +202,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             sensor_height: camera.height(),
             bits: camera.bits(),
             detector: *self.detector.config(),
-            calibration_id: self.calibration.map_or(0, |c| c.id),
+            calibration_id: self.calibration.as_ref().map_or(0, |c| c.0.id),
         }
     }
 
@@ -262,10 +281,9 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 if self.state == HeadState::Streaming {
                     return self.fail(ErrorCode::Busy, Some(seq), reply);
                 }
-                if !calibration_is_valid(&c) {
+                if self.load_calibration(c).is_err() {
                     return self.fail(ErrorCode::InvalidConfig, Some(seq), reply);
                 }
-                self.calibration = Some(c);
                 reply(&DeviceMsg::Ack(seq));
             }
             HostMsg::CaptureImage(mask) => {
@@ -368,6 +386,9 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                     return self.fail(ErrorCode::SensorFault, None, reply);
                 }
                 assign(&stripes, lit, &mut self.track, &mut self.profile.lasers, r as u16);
+                if let Some((_, t)) = &self.calibration {
+                    triangulate(t, &mut self.profile.lasers, r as u16);
+                }
             }
             // Lend the profile to the message without copying it twice.
             let msg = DeviceMsg::Profile(core::mem::replace(&mut self.profile, Profile::EMPTY));
@@ -457,7 +478,7 @@ fn assign(
         strength: s.strength.min(u16::MAX as u32) as u16,
         width: s.width,
         flags: s.flags,
-        um: None,
+        metric: None,
     };
     if stripes.len() == lit {
         for (s, lp) in stripes.iter().zip(out.iter_mut()) {
@@ -476,16 +497,62 @@ fn assign(
     }
 }
 
-/// A calibration is usable when every number is finite, the focal lengths
-/// are positive, the plane normals are unit (±1e-3) and the id is non-zero.
-pub fn calibration_is_valid(c: &Calibration) -> bool {
-    let finite = c.intrinsics.iter().chain(&c.distortion).chain(c.planes.iter().flatten()).all(|v| v.is_finite());
-    let unit = c.planes.iter().all(|p| {
-        let n2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
-        (n2 - 1.0).abs() < 2e-3
-    });
-    c.id != 0 && finite && c.intrinsics[0] > 0.0 && c.intrinsics[1] > 0.0 && unit
+/// Fills in the triangulated point of each laser's point of this row.
+fn triangulate(t: &Triangulator, out: &mut Vec<LaserPoints, LASERS>, row: u16) {
+    for lp in out.iter_mut() {
+        if let Some(p) = lp.points.last_mut()
+            && p.row == row
+        {
+            p.metric = t
+                .profile(lp.laser as usize, p.position, row)
+                .map(|q| Metric { along_um: round_i32(q.along_mm * 1e3), height_nm: round_i32(q.height_mm * 1e6) });
+        }
+    }
 }
+
+/// Nearest integer, saturating (`as` saturates and truncates towards zero;
+/// `core` has no `f32::round`).
+fn round_i32(v: f32) -> i32 {
+    if v >= 0.0 { (v + 0.5) as i32 } else { (v - 0.5) as i32 }
+}
+
+/// The triangulator of a calibration: what the head checks before it keeps
+/// one (a zero id is refused too: 0 means "none" in `DeviceInfo`).
+pub fn triangulator(c: &Calibration) -> Result<Triangulator, CalibrationError> {
+    if c.id == 0 {
+        return Err(CalibrationError::ZeroId);
+    }
+    let camera = CameraModel::from_arrays(c.intrinsics, c.distortion);
+    let planes = c.planes.map(Plane::from);
+    Triangulator::new(&camera, &planes, &Plane::from(c.datum)).map_err(CalibrationError::Geometry)
+}
+
+/// A calibration is usable when [`triangulator`] accepts it.
+pub fn calibration_is_valid(c: &Calibration) -> bool {
+    triangulator(c).is_ok()
+}
+
+/// Why a head refuses a calibration.
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum CalibrationError {
+    /// The identifier is 0.
+    ZeroId,
+    /// The camera or the planes are unusable.
+    Geometry(crate::triangulation::Error),
+}
+
+impl core::fmt::Display for CalibrationError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            CalibrationError::ZeroId => f.write_str("calibration id is 0"),
+            CalibrationError::Geometry(e) => write!(f, "calibration: {e}"),
+        }
+    }
+}
+
+impl core::error::Error for CalibrationError {}
 
 /// The detector configuration a head starts with: 12-bit pixels, stripes
 /// σ 1.5–4 px, the three strongest.

@@ -93,7 +93,14 @@ fn run(dir: &Path) -> Result<usize, String> {
         id: 7,
         intrinsics: [1400.0, 1400.0, 376.0, 240.0, 0.0],
         distortion: [-0.1, 0.01, 0.0, 0.0, 0.0],
-        planes: [[0.0, 0.6, 0.8, 100.0], [0.0, 0.0, 1.0, 120.0], [0.0, -0.6, 0.8, 100.0]],
+        // Planes leaning 42° from the optical axis, lines 10 mm apart on a
+        // rail top 200 mm below the camera.
+        planes: [
+            [0.743_144_8, 0.0, -0.669_130_6, -141.257_57],
+            [0.743_144_8, 0.0, -0.669_130_6, -133.826_12],
+            [0.743_144_8, 0.0, -0.669_130_6, -126.394_67],
+        ],
+        datum: [0.0, 0.0, -1.0, -200.0],
     };
     let commands = [
         HostMsg::GetInfo,

@@ -442,9 +442,9 @@ struct JsonPoint {
     width_px: f64,
     flags: u8,
     #[serde(skip_serializing_if = "Option::is_none")]
-    along_um: Option<i32>,
+    along_mm: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    height_um: Option<i32>,
+    height_um: Option<f64>,
 }
 
 impl Serialize for JsonPoints<'_> {
@@ -457,8 +457,8 @@ impl Serialize for JsonPoints<'_> {
                 strength: p.strength,
                 width_px: p.width.to_f64(),
                 flags: p.flags.0,
-                along_um: p.um.map(|u| u.along_um),
-                height_um: p.um.map(|u| u.height_um),
+                along_mm: p.metric.map(|m| f64::from(m.along_um) / 1e3),
+                height_um: p.metric.map(|m| f64::from(m.height_nm) / 1e3),
             })?;
         }
         seq.end()
@@ -472,17 +472,24 @@ pub fn write_json_line(out: &mut dyn Write, p: &Profile) -> io::Result<()> {
 }
 
 /// The CSV header of `export --format csv`.
-pub const CSV_HEADER: &str = "seq,part,timestamp_us,odometer_mm,laser,row,position_px,strength,width_px,flags";
+pub const CSV_HEADER: &str =
+    "seq,part,timestamp_us,odometer_mm,laser,row,position_px,strength,width_px,flags,along_mm,height_um";
 
 /// Writes one profile as CSV lines, one per point. Positions and widths in
-/// pixels with 5 decimals (exact for Q16.16: they read back to the same value).
+/// pixels with 5 decimals (exact for Q16.16: they read back to the same value);
+/// `along_mm` and `height_um` exact decimals of the wire's µm and nm, empty
+/// for a head without a calibration.
 pub fn write_csv(out: &mut dyn Write, p: &Profile) -> io::Result<()> {
     let odo = um_to_mm(p.odometer_um);
     for l in &p.lasers {
         for q in &l.points {
+            let (along, height) = match q.metric {
+                Some(m) => (um_to_mm(m.along_um.into()), um_to_mm(m.height_nm.into())),
+                None => (String::new(), String::new()),
+            };
             writeln!(
                 out,
-                "{},{},{},{odo},{},{},{},{},{},{}",
+                "{},{},{},{odo},{},{},{},{},{},{},{along},{height}",
                 p.seq, p.part, p.timestamp_us, l.laser, q.row, q.position, q.strength, q.width, q.flags.0
             )?;
         }
@@ -495,7 +502,7 @@ pub fn write_csv(out: &mut dyn Write, p: &Profile) -> io::Result<()> {
 /// `--format` of `cms-host export`.
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ExportFormat {
-    /// One line per point: `seq,part,timestamp_us,odometer_mm,laser,row,position_px,strength,width_px,flags`.
+    /// One line per point: `seq,part,timestamp_us,odometer_mm,laser,row,position_px,strength,width_px,flags,along_mm,height_um`.
     Csv,
     /// One JSON object per profile message, as `listen --json`.
     Jsonl,

@@ -11,7 +11,7 @@ use cms_core::peak::Flags;
 use cms_core::pipeline::default_detector;
 use cms_core::protocol::{
     Command, DeviceInfo, DeviceMsg, FrameReader, HeadState, HostMsg, LaserPoints, MAX_COMMAND_FRAME, MAX_FRAME,
-    PROTOCOL_VERSION, Point, PointUm, Profile, Status, WireError, encode,
+    PROTOCOL_VERSION, Point, Metric, Profile, Status, WireError, encode,
 };
 use cms_host::link::Deframer;
 use cms_host::record::{self, HEADER_LEN, Info, Recorder, ScanStats};
@@ -42,7 +42,7 @@ fn profile(seq: u32, rows: u16) -> DeviceMsg {
     for k in 0..3u8 {
         let mut points = heapless::Vec::new();
         for r in 0..rows {
-            let um = (k == 1 && r == 0).then_some(PointUm { along_um: -1200, height_um: 35 });
+            let um = (k == 1 && r == 0).then_some(Metric { along_um: -1200, height_nm: 35_250 });
             points
                 .push(Point {
                     row: r,
@@ -50,7 +50,7 @@ fn profile(seq: u32, rows: u16) -> DeviceMsg {
                     strength: 1000 + r,
                     width: Px::from_f64(2.5),
                     flags: if r == 1 { Flags::LOW_CONFIDENCE } else { Flags::NONE },
-                    um,
+                    metric: um,
                 })
                 .unwrap();
         }
@@ -305,10 +305,12 @@ fn export_formats() {
         record::export_to(&path, record::ExportFormat::Csv, &mut csv).unwrap();
         let csv = String::from_utf8(csv).unwrap();
         let lines: Vec<&str> = csv.lines().collect();
-        assert_eq!(lines[0], "seq,part,timestamp_us,odometer_mm,laser,row,position_px,strength,width_px,flags");
+        assert_eq!(lines[0], record::CSV_HEADER);
+        assert!(record::CSV_HEADER.ends_with(",flags,along_mm,height_um"));
         assert_eq!(lines.len(), 1 + 3 * 2);
-        assert_eq!(lines[1], "2,0,21000,4.999,0,0,100.00200,1000,2.50000,0");
-        assert_eq!(lines[4], "2,0,21000,4.999,1,1,250.01199,1001,2.50000,4");
+        assert_eq!(lines[1], "2,0,21000,4.999,0,0,100.00200,1000,2.50000,0,,");
+        assert_eq!(lines[3], "2,0,21000,4.999,1,0,250.00200,1001,2.50000,0,-1.200,35.250");
+        assert_eq!(lines[4], "2,0,21000,4.999,1,1,250.01199,1001,2.50000,4,,");
         let mut jl = Vec::new();
         record::export_to(&path, record::ExportFormat::Jsonl, &mut jl).unwrap();
         let v: serde_json::Value = serde_json::from_slice(&jl).unwrap();
@@ -320,10 +322,10 @@ fn export_formats() {
         assert_eq!(p["row"], 0);
         assert_eq!(p["flags"], 0);
         assert_eq!(p["width_px"], 2.5);
-        assert_eq!(p["along_um"], -1200);
-        assert_eq!(p["height_um"], 35);
+        assert_eq!(p["along_mm"], -1.2);
+        assert_eq!(p["height_um"], 35.25);
         assert!((p["position_px"].as_f64().unwrap() - 250.002).abs() < 1e-4);
-        assert!(v["lasers"][0]["points"][0].get("along_um").is_none());
+        assert!(v["lasers"][0]["points"][0].get("along_mm").is_none());
     })
 }
 

@@ -17,7 +17,7 @@ Rust encoder's frames with this file byte for byte.
 import struct
 import zlib
 
-VERSION = 1
+VERSION = 2
 
 
 def varint(n):
@@ -122,7 +122,7 @@ GOLDENS = [
     ("status", dev("status", varint(1) + u8(7) + varint(1000) + varint(30000) + varint(14400)
                    + varint(0) + varint(52000) + varint(120) + opt(None))),
     ("profile", dev("profile", varint(7) + u8(0) + u8(1) + varint(100000) + zz(25000, 64) + varint(200) + u8(1)
-                    + seq([u8(0) + seq([point(0), point(1, flags=2, um=(-1200, 35))])]))),
+                    + seq([u8(0) + seq([point(0), point(1, flags=2, um=(-1200, 35250))])]))),
     ("hello", dev("hello", string("0.1.0") + u8(VERSION) + string("sim") + varint(752) + varint(480) + u8(12)
                   + default_detector() + varint(0))),
     ("raw", dev("raw", varint(9) + varint(2) + varint(0) + varint(4) + varint(3) + u8(8) + seq([bytes([b]) for b in (0, 1, 2, 255)]))),
@@ -133,7 +133,8 @@ GOLDENS = [
     ("calibration", cmd(5, "calibration", varint(1)
                         + b"".join(f32(v) for v in (1400.0, 1400.0, 376.0, 240.0, 0.0))
                         + b"".join(f32(0.0) for _ in range(5))
-                        + b"".join(f32(v) for _ in range(3) for v in (0.0, 0.6691306, 0.7431448, 300.0)))),
+                        + b"".join(f32(v) for _ in range(3) for v in (0.0, 0.6691306, 0.7431448, 300.0))
+                        + b"".join(f32(v) for v in (0.0, 0.0, -1.0, -200.0)))),
     ("capture", cmd(6, "capture", u8(0))),
     ("info", cmd(7, "info")),
     ("heartbeat", cmd(8, "heartbeat")),

@@ -18,14 +18,14 @@ fn hex(b: &[u8]) -> std::string::String {
 }
 
 fn point(row: u16) -> Point {
-    Point { row, position: Px::from_f64(201.5), strength: 1500, width: Px::from_f64(2.5), flags: Flags::NONE, um: None }
+    Point { row, position: Px::from_f64(201.5), strength: 1500, width: Px::from_f64(2.5), flags: Flags::NONE, metric: None }
 }
 
 fn sample_profile() -> Profile {
     let mut lasers = Vec::new();
     let mut pts = Vec::new();
     pts.push(point(0)).unwrap();
-    pts.push(Point { um: Some(PointUm { along_um: -1200, height_um: 35 }), flags: Flags::CLIPPED, ..point(1) })
+    pts.push(Point { metric: Some(Metric { along_um: -1200, height_nm: 35_250 }), flags: Flags::CLIPPED, ..point(1) })
         .unwrap();
     lasers.push(LaserPoints { laser: 0, points: pts }).unwrap();
     Profile {
@@ -108,6 +108,7 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
                     intrinsics: [1400.0, 1400.0, 376.0, 240.0, 0.0],
                     distortion: [0.0; 5],
                     planes: [[0.0, 0.6691306, 0.7431448, 300.0]; LASERS],
+                    datum: [0.0, 0.0, -1.0, -200.0],
                 }),
             }),
         ),
@@ -156,7 +157,7 @@ fn encoded_sizes_are_bounded() {
         strength: u16::MAX,
         width: Px(i32::MIN),
         flags: Flags(u8::MAX),
-        um: Some(PointUm { along_um: i32::MIN, height_um: i32::MIN }),
+        metric: Some(Metric { along_um: i32::MIN, height_nm: i32::MIN }),
     };
     let mut lasers = Vec::new();
     for k in 0..LASERS as u8 {
@@ -202,6 +203,7 @@ fn encoded_sizes_are_bounded() {
             intrinsics: [f32::MAX; 5],
             distortion: [f32::MAX; 5],
             planes: [[f32::MAX; 4]; 3],
+            datum: [f32::MAX; 4],
         }),
     };
     let mut det = default_detector();
@@ -253,13 +255,13 @@ fn reader_resynchronises_after_garbage_and_counts_damage() {
 #[test]
 fn version_mismatch_is_reported_as_such() {
     let mut scratch = [0u8; 64];
-    scratch[0] = 2;
+    scratch[0] = PROTOCOL_VERSION + 1;
     let n = postcard::to_slice(&DeviceMsg::Ack(1), &mut scratch[1..]).unwrap().len();
     let crc = CRC.checksum(&scratch[..1 + n]);
     scratch[1 + n..5 + n].copy_from_slice(&crc.to_le_bytes());
     let mut out = [0u8; 64];
     let m = cobs::encode(&scratch[..5 + n], &mut out);
-    assert_eq!(decode_frame::<DeviceMsg>(&mut out[..m]), Err(WireError::Version(2)));
+    assert_eq!(decode_frame::<DeviceMsg>(&mut out[..m]), Err(WireError::Version(PROTOCOL_VERSION + 1)));
 }
 
 fn arb_point() -> impl Strategy<Value = Point> {
@@ -277,7 +279,7 @@ fn arb_point() -> impl Strategy<Value = Point> {
             strength: s,
             width: Px(w),
             flags: Flags(f),
-            um: um.map(|(a, h)| PointUm { along_um: a, height_um: h }),
+            metric: um.map(|(a, h)| Metric { along_um: a, height_nm: h }),
         })
 }
 

@@ -1,1 +1,551 @@
-//! See the parent module.
+//! The calibration file: TOML, versioned, units in the key names, validated
+//! on load with an error that names the bad key.
+//!
+//! ```toml
+//! version = 1
+//! id = 1234                 # optional: the identifier the head echoes (non-zero)
+//!
+//! [camera]                  # cms-host calibrate camera
+//! width = 752               # px
+//! height = 480              # px
+//! fx = 1400.2               # focal lengths, principal point and skew: px
+//! fy = 1400.1
+//! cx = 379.3
+//! cy = 236.7
+//! skew = 0.0
+//! k1 = -0.09                # Brown–Conrady distortion (OpenCV's model and order)
+//! k2 = 0.12
+//! p1 = 0.0002
+//! p2 = -0.00015
+//! k3 = 0.0
+//! rms_px = 0.08             # RMS reprojection error of the calibration
+//!
+//! [board]                   # optional: the checkerboard used
+//! cols = 9                  # inner corners per row
+//! rows = 6                  # inner corners per column
+//! square_mm = 25.0
+//!
+//! [datum]                   # the rail-top reference plane heights are measured from
+//! nx = 0.0                  # unit normal, pointing from the rail towards the camera
+//! ny = 0.0
+//! nz = -1.0
+//! d_mm = -200.0             # n·X = d, camera frame
+//!
+//! [head]                    # optional: the detector's scale range (paper Eq. 10–11)
+//! laser_diameter_mm = 0.75
+//! range_min_mm = 170.0
+//! range_max_mm = 230.0
+//!
+//! [[laser]]                 # cms-host calibrate lasers: three entries, id 0, 1, 2
+//! id = 0                    # laser index: left to right in the image
+//! nx = 0.7431               # unit normal, camera frame
+//! ny = 0.0
+//! nz = -0.6691
+//! d_mm = -141.26            # n·X = d
+//! rms_mm = 0.004            # RMS distance of the fitted points from the plane
+//! points = 5120             # points the plane was fitted to
+//! ```
+//!
+//! The camera frame is OpenCV's: `x` right, `y` down, `z` forward, mm.
+//! A file from `calibrate camera` has `[camera]` (and `[board]`) only; the
+//! head needs all of `[camera]`, `[datum]` and three `[[laser]]`s.
+
+use std::fmt;
+use std::path::Path;
+
+use cms_core::protocol::{Calibration, LASERS};
+use serde::{Deserialize, Serialize};
+
+use super::{Board, Intrinsics};
+
+/// The file format version this build reads and writes.
+pub const FILE_VERSION: u32 = 1;
+
+/// Tolerance on `|n| = 1` for the plane normals of a file (they are
+/// renormalised on load).
+const UNIT_TOLERANCE: f64 = 1e-3;
+
+/// A calibration file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationFile {
+    /// Format version: [`FILE_VERSION`].
+    pub version: u32,
+    /// Identifier the head echoes in its `Hello` (non-zero); derived from
+    /// the content when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub id: Option<u32>,
+    /// Camera intrinsics and distortion.
+    pub camera: CameraSection,
+    /// The checkerboard the camera was calibrated with.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub board: Option<BoardSection>,
+    /// The rail-top reference plane.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub datum: Option<PlaneSection>,
+    /// Optics of the head, for the detector's scale range.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub head: Option<HeadSection>,
+    /// Laser planes.
+    #[serde(default, rename = "laser", skip_serializing_if = "Vec::is_empty")]
+    pub lasers: Vec<LaserSection>,
+}
+
+/// `[camera]`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSection {
+    /// Image width, px.
+    pub width: u32,
+    /// Image height, px.
+    pub height: u32,
+    /// Focal length along x, px.
+    pub fx: f64,
+    /// Focal length along y, px.
+    pub fy: f64,
+    /// Principal point column, px.
+    pub cx: f64,
+    /// Principal point row, px.
+    pub cy: f64,
+    /// Skew, px.
+    pub skew: f64,
+    /// Radial r².
+    pub k1: f64,
+    /// Radial r⁴.
+    pub k2: f64,
+    /// Tangential p1.
+    pub p1: f64,
+    /// Tangential p2.
+    pub p2: f64,
+    /// Radial r⁶.
+    pub k3: f64,
+    /// RMS reprojection error of the calibration, px.
+    pub rms_px: f64,
+}
+
+/// `[board]`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoardSection {
+    /// Inner corners per row.
+    pub cols: u32,
+    /// Inner corners per column.
+    pub rows: u32,
+    /// Square side, mm.
+    pub square_mm: f64,
+}
+
+/// `[datum]`: a plane `n·X = d_mm` in the camera frame.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlaneSection {
+    /// Unit normal, x.
+    pub nx: f64,
+    /// Unit normal, y.
+    pub ny: f64,
+    /// Unit normal, z.
+    pub nz: f64,
+    /// Offset, mm.
+    pub d_mm: f64,
+}
+
+/// `[head]`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeadSection {
+    /// Thickness of the laser sheet (Table 4 "laser diameter"), mm.
+    pub laser_diameter_mm: f64,
+    /// Nearest working distance, mm.
+    pub range_min_mm: f64,
+    /// Farthest working distance, mm.
+    pub range_max_mm: f64,
+}
+
+/// One `[[laser]]`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LaserSection {
+    /// Laser index, `0..3`, left to right in the image.
+    pub id: u32,
+    /// Unit normal, x.
+    pub nx: f64,
+    /// Unit normal, y.
+    pub ny: f64,
+    /// Unit normal, z.
+    pub nz: f64,
+    /// Offset, mm: `n·X = d_mm`.
+    pub d_mm: f64,
+    /// RMS distance of the fitted points from the plane, mm.
+    pub rms_mm: f64,
+    /// Points the plane was fitted to.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub points: Option<u64>,
+}
+
+/// What is wrong with a calibration file: one line naming the file and the key.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct FileError(pub String);
+
+impl fmt::Display for FileError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for FileError {}
+
+impl From<FileError> for crate::CliError {
+    fn from(e: FileError) -> Self {
+        crate::CliError::Usage(e.0)
+    }
+}
+
+/// Largest calibration file read, bytes (a real one is under 2 KB).
+const MAX_FILE_BYTES: u64 = 1 << 20;
+
+fn finite(key: &str, v: f64) -> Result<(), String> {
+    if v.is_finite() { Ok(()) } else { Err(format!("{key} = {v} is not a finite number")) }
+}
+
+fn positive(key: &str, v: f64) -> Result<(), String> {
+    if v.is_finite() && v > 0.0 { Ok(()) } else { Err(format!("{key} = {v} must be a finite number > 0")) }
+}
+
+fn unit(section: &str, n: [f64; 3]) -> Result<[f64; 3], String> {
+    for (k, v) in ["nx", "ny", "nz"].iter().zip(n) {
+        finite(&format!("{section}.{k}"), v)?;
+    }
+    let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    if (len - 1.0).abs() > UNIT_TOLERANCE {
+        return Err(format!("{section}: (nx, ny, nz) must be a unit vector, its length is {len:.6}"));
+    }
+    // Renormalise only what is off by more than rounding, so that a file
+    // written and read back is unchanged.
+    if (len - 1.0).abs() < 1e-9 {
+        return Ok(n);
+    }
+    Ok([n[0] / len, n[1] / len, n[2] / len])
+}
+
+impl CalibrationFile {
+    /// A camera-only file.
+    pub fn camera_only(intr: &Intrinsics, rms_px: f64, board: Option<&Board>) -> CalibrationFile {
+        CalibrationFile {
+            version: FILE_VERSION,
+            id: None,
+            camera: CameraSection::from_intrinsics(intr, rms_px),
+            board: board.map(|b| BoardSection { cols: b.cols as u32, rows: b.rows as u32, square_mm: b.square_mm }),
+            datum: None,
+            head: None,
+            lasers: Vec::new(),
+        }
+    }
+
+    /// Parses and validates the text of a file; `name` prefixes the errors.
+    pub fn parse(text: &str, name: &str) -> Result<CalibrationFile, FileError> {
+        let mut f: CalibrationFile = toml::from_str(text).map_err(|e| {
+            let line = e.span().map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
+            let msg = crate::input::one_line(e.message(), 300);
+            FileError(match line {
+                Some(l) => format!("{name}:{l}: {msg}"),
+                None => format!("{name}: {msg}"),
+            })
+        })?;
+        f.validate().map_err(|m| FileError(format!("{name}: {m}")))?;
+        Ok(f)
+    }
+
+    /// Reads, parses and validates a file.
+    pub fn load(path: &Path) -> Result<CalibrationFile, FileError> {
+        let name = path.display().to_string();
+        let meta = std::fs::metadata(path).map_err(|e| FileError(format!("{name}: {e}")))?;
+        if meta.len() > MAX_FILE_BYTES {
+            return Err(FileError(format!("{name}: {} bytes is too big for a calibration file", meta.len())));
+        }
+        let bytes = std::fs::read(path).map_err(|e| FileError(format!("{name}: {e}")))?;
+        let text = String::from_utf8(bytes).map_err(|_| FileError(format!("{name}: not UTF-8 text")))?;
+        CalibrationFile::parse(&text, &name)
+    }
+
+    /// The TOML text, with a header comment.
+    pub fn to_toml(&self) -> String {
+        let body = toml::to_string(self).unwrap_or_default();
+        format!(
+            "# Calibration of a rail corrugation sensor head (cms-host calibrate).\n\
+             # Camera frame: x right, y down, z forward, mm; pixel centres at integers.\n{body}"
+        )
+    }
+
+    /// Writes the file (to a temporary beside it, then renamed, so a
+    /// failure never leaves half a file).
+    pub fn save(&self, path: &Path) -> Result<(), crate::CliError> {
+        let tmp = path.with_extension("toml.partial");
+        std::fs::write(&tmp, self.to_toml())
+            .and_then(|()| std::fs::rename(&tmp, path))
+            .map_err(|e| crate::CliError::Usage(format!("writing {}: {e}", path.display())))
+    }
+
+    /// Checks every value, and renormalises the plane normals.
+    fn validate(&mut self) -> Result<(), String> {
+        if self.version != FILE_VERSION {
+            return Err(format!("version = {} is not supported (this cms-host reads version {FILE_VERSION})", self.version));
+        }
+        if self.id == Some(0) {
+            return Err("id must be non-zero".into());
+        }
+        let c = &self.camera;
+        if c.width == 0 || c.width > u16::MAX as u32 {
+            return Err(format!("camera.width = {} must be in 1..=65535", c.width));
+        }
+        if c.height == 0 || c.height > u16::MAX as u32 {
+            return Err(format!("camera.height = {} must be in 1..=65535", c.height));
+        }
+        positive("camera.fx", c.fx)?;
+        positive("camera.fy", c.fy)?;
+        for (k, v) in [("cx", c.cx), ("cy", c.cy), ("skew", c.skew), ("k1", c.k1), ("k2", c.k2)]
+            .into_iter()
+            .chain([("p1", c.p1), ("p2", c.p2), ("k3", c.k3), ("rms_px", c.rms_px)])
+        {
+            finite(&format!("camera.{k}"), v)?;
+        }
+        if c.rms_px < 0.0 {
+            return Err(format!("camera.rms_px = {} must be ≥ 0", c.rms_px));
+        }
+        if let Some(b) = &self.board {
+            if b.cols < 2 || b.rows < 2 {
+                return Err(format!("board: {}×{} inner corners; at least 2×2", b.cols, b.rows));
+            }
+            positive("board.square_mm", b.square_mm)?;
+        }
+        if let Some(d) = &mut self.datum {
+            let n = unit("datum", [d.nx, d.ny, d.nz])?;
+            finite("datum.d_mm", d.d_mm)?;
+            if d.d_mm >= 0.0 {
+                return Err(format!(
+                    "datum.d_mm = {} must be < 0: the normal points from the rail towards the camera, which is above the rail",
+                    d.d_mm
+                ));
+            }
+            [d.nx, d.ny, d.nz] = n;
+        }
+        if let Some(h) = &self.head {
+            positive("head.laser_diameter_mm", h.laser_diameter_mm)?;
+            positive("head.range_min_mm", h.range_min_mm)?;
+            positive("head.range_max_mm", h.range_max_mm)?;
+            if h.range_max_mm <= h.range_min_mm {
+                return Err(format!("head.range_max_mm = {} must be above range_min_mm", h.range_max_mm));
+            }
+        }
+        let mut seen = [false; LASERS];
+        for (i, l) in self.lasers.iter_mut().enumerate() {
+            let at = format!("laser #{} (id {})", i + 1, l.id);
+            let Some(slot) = seen.get_mut(l.id as usize) else {
+                return Err(format!("{at}: id must be in 0..{LASERS}"));
+            };
+            if std::mem::replace(slot, true) {
+                return Err(format!("{at}: id {} appears twice", l.id));
+            }
+            let n = unit(&at, [l.nx, l.ny, l.nz])?;
+            finite(&format!("{at}: d_mm"), l.d_mm)?;
+            if l.d_mm.abs() < 1.0 {
+                return Err(format!("{at}: d_mm = {} puts the camera on the laser plane", l.d_mm));
+            }
+            finite(&format!("{at}: rms_mm"), l.rms_mm)?;
+            if l.rms_mm < 0.0 {
+                return Err(format!("{at}: rms_mm = {} must be ≥ 0", l.rms_mm));
+            }
+            [l.nx, l.ny, l.nz] = n;
+        }
+        if !self.lasers.is_empty() && self.lasers.len() != LASERS {
+            return Err(format!("{} [[laser]] entries; a head has {LASERS}", self.lasers.len()));
+        }
+        Ok(())
+    }
+
+    /// The camera's intrinsics.
+    pub fn intrinsics(&self) -> Intrinsics {
+        self.camera.intrinsics()
+    }
+
+    /// The board, if the file names one.
+    pub fn board(&self) -> Option<Board> {
+        self.board.map(|b| Board { cols: b.cols as usize, rows: b.rows as usize, square_mm: b.square_mm })
+    }
+
+    /// The identifier sent to the head: `id`, or else a CRC-32 of the
+    /// calibration's numbers (never 0).
+    pub fn head_id(&self) -> u32 {
+        if let Some(id) = self.id {
+            return id;
+        }
+        let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+        let mut d = crc.digest();
+        d.update(self.to_toml().as_bytes());
+        d.finalize().max(1)
+    }
+
+    /// The calibration message for the head: needs the datum and all three lasers.
+    pub fn to_head(&self) -> Result<Calibration, FileError> {
+        let datum = self.datum.ok_or_else(|| FileError("no [datum]: run cms-host calibrate lasers".into()))?;
+        if self.lasers.len() != LASERS {
+            return Err(FileError(format!(
+                "{} [[laser]] entries; the head needs {LASERS} (run cms-host calibrate lasers)",
+                self.lasers.len()
+            )));
+        }
+        let c = &self.camera;
+        let mut planes = [[0.0f32; 4]; LASERS];
+        for l in &self.lasers {
+            planes[l.id as usize] = [l.nx as f32, l.ny as f32, l.nz as f32, l.d_mm as f32];
+        }
+        Ok(Calibration {
+            id: self.head_id(),
+            intrinsics: [c.fx as f32, c.fy as f32, c.cx as f32, c.cy as f32, c.skew as f32],
+            distortion: [c.k1 as f32, c.k2 as f32, c.p1 as f32, c.p2 as f32, c.k3 as f32],
+            planes,
+            datum: [datum.nx as f32, datum.ny as f32, datum.nz as f32, datum.d_mm as f32],
+        })
+    }
+}
+
+impl CameraSection {
+    /// From calibrated intrinsics.
+    pub fn from_intrinsics(i: &Intrinsics, rms_px: f64) -> CameraSection {
+        CameraSection {
+            width: i.width,
+            height: i.height,
+            fx: i.fx,
+            fy: i.fy,
+            cx: i.cx,
+            cy: i.cy,
+            skew: i.skew,
+            k1: i.k1,
+            k2: i.k2,
+            p1: i.p1,
+            p2: i.p2,
+            k3: i.k3,
+            rms_px,
+        }
+    }
+
+    /// The intrinsics.
+    pub fn intrinsics(&self) -> Intrinsics {
+        Intrinsics {
+            width: self.width,
+            height: self.height,
+            fx: self.fx,
+            fy: self.fy,
+            cx: self.cx,
+            cy: self.cy,
+            skew: self.skew,
+            k1: self.k1,
+            k2: self.k2,
+            p1: self.p1,
+            p2: self.p2,
+            k3: self.k3,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    pub(crate) const FULL: &str = "version = 1
+[camera]
+width = 752
+height = 480
+fx = 1400.0
+fy = 1400.0
+cx = 379.2
+cy = 236.8
+skew = 0.0
+k1 = -0.09
+k2 = 0.12
+p1 = 0.0002
+p2 = -0.00015
+k3 = 0.0
+rms_px = 0.1
+[datum]
+nx = 0.0
+ny = 0.0
+nz = -1.0
+d_mm = -200.0
+[[laser]]
+id = 0
+nx = 0.7431448
+ny = 0.0
+nz = -0.6691306
+d_mm = -141.25757
+rms_mm = 0.003
+[[laser]]
+id = 1
+nx = 0.7431448
+ny = 0.0
+nz = -0.6691306
+d_mm = -133.82612
+rms_mm = 0.003
+[[laser]]
+id = 2
+nx = 0.7431448
+ny = 0.0
+nz = -0.6691306
+d_mm = -126.39467
+rms_mm = 0.003
+";
+
+    #[test]
+    fn round_trip_and_head_message() {
+        let f = CalibrationFile::parse(FULL, "cal.toml").unwrap();
+        let again = CalibrationFile::parse(&f.to_toml(), "again").unwrap();
+        assert_eq!(f, again);
+        let c = f.to_head().unwrap();
+        assert_ne!(c.id, 0);
+        assert_eq!(c.intrinsics, [1400.0, 1400.0, 379.2, 236.8, 0.0]);
+        assert_eq!(c.planes[2][3], -126.39467);
+        assert_eq!(c.datum, [0.0, 0.0, -1.0, -200.0]);
+        assert!(cms_core::pipeline::calibration_is_valid(&c));
+    }
+
+    fn err(text: &str) -> String {
+        CalibrationFile::parse(text, "cal.toml").unwrap_err().0
+    }
+
+    #[test]
+    fn errors_name_the_key() {
+        assert_eq!(err(&FULL.replace("fx = 1400.0", "fx = -3.0")), "cal.toml: camera.fx = -3 must be a finite number > 0");
+        assert!(err(&FULL.replace("fy = 1400.0", "fy = nan")).contains("camera.fy"));
+        assert!(err(&FULL.replace("version = 1", "version = 7")).contains("version = 7"));
+        let e = err(&FULL.replace("k3 = 0.0", "k3 = 0.0\nk4 = 1.0"));
+        assert!(e.starts_with("cal.toml:15:") && e.contains("k4"), "{e}");
+        let e = err(&FULL.replace("cy = 236.8\n", ""));
+        assert!(e.contains("cy"), "{e}");
+        let e = err(&FULL.replace("id = 2", "id = 1"));
+        assert_eq!(e, "cal.toml: laser #3 (id 1): id 1 appears twice");
+        let e = err(&FULL.replacen("nx = 0.7431448", "nx = 0.5", 1));
+        assert!(e.starts_with("cal.toml: laser #1 (id 0): (nx, ny, nz) must be a unit vector"), "{e}");
+        assert!(err(&FULL.replace("d_mm = -200.0", "d_mm = 200.0")).contains("datum.d_mm"));
+        let e = err(&FULL.replace("width = 752", "width = \"752\""));
+        assert!(e.starts_with("cal.toml:3:"), "{e}");
+        assert!(err("version = 1").contains("camera"));
+        assert!(!err("[camera\n").is_empty());
+        for e in [err(&FULL.replace("k1 = -0.09", "k1 = [1, 2]")), err("\u{0}\u{1}"), err("")] {
+            assert!(!e.contains('\n'), "{e}");
+        }
+    }
+
+    #[test]
+    fn camera_only_files_do_not_make_a_head_calibration() {
+        let end = FULL.find("[datum]").unwrap();
+        let f = CalibrationFile::parse(&FULL[..end], "cam.toml").unwrap();
+        assert!(f.to_head().unwrap_err().0.contains("[datum]"));
+        let two = FULL.rfind("[[laser]]").unwrap();
+        assert!(err(&FULL[..two]).contains("2 [[laser]] entries"));
+    }
+
+    #[test]
+    fn normals_are_renormalised() {
+        let f = CalibrationFile::parse(&FULL.replace("nz = -1.0", "nz = -1.0005"), "cal.toml").unwrap();
+        assert_eq!(f.datum.unwrap().nz, -1.0);
+    }
+}
