@@ -1,12 +1,829 @@
-//! See the parent module. (Being written.)
+//! Camera calibration from checkerboard views: Zhang's closed-form
+//! initialisation, Levenberg–Marquardt refinement of the intrinsics, the
+//! distortion and every board pose; the pose of a board seen by a calibrated
+//! camera; and `cms-host calibrate camera`.
+//!
+//! **Initialisation** (Zhang 2000). A homography per view from the board
+//! plane to the image by the normalised DLT (Hartley's conditioning; the
+//! null vector of the 9 × 9 normal matrix, so four points suffice); the
+//! image of the absolute conic `B = K⁻ᵀK⁻¹` from the two constraints
+//! `h₁ᵀBh₂ = 0`, `h₁ᵀBh₁ = h₂ᵀBh₂` of each view (plus `B₁₂ = 0` when the skew
+//! is fixed), solved after mapping the image to `[-½, ½]` so the six unknowns
+//! have comparable magnitudes; the intrinsics in closed form; each pose from
+//! `K⁻¹H` with its rotation made orthonormal by SVD. When the closed form is
+//! degenerate (too few or too similar views, or a principal point outside the
+//! image) it falls back to OpenCV's initialisation: principal point at the
+//! image centre, focal lengths by linear least squares on the same
+//! constraints. Distortion starts at zero.
+//!
+//! **Refinement.** One dense Levenberg–Marquardt over the free intrinsics
+//! (`fx, fy, cx, cy`, optionally the skew — fixed at 0 by default, as in
+//! OpenCV — `k1, k2, p1, p2, k3`) and six parameters per view (Rodrigues
+//! vector, translation), minimising the squared pixel reprojection error.
+//! With a fixed aspect ratio (OpenCV's `CALIB_FIX_ASPECT_RATIO`) `fx = a·fy`
+//! and only `fy` is free. The Jacobian is by central differences (the model
+//! is smooth and cheap: 13 views × 54 corners is 88 unknowns and 1404
+//! residuals, a few ms per iteration); damping is Marquardt's `λ·diag(JᵀJ)`,
+//! which makes the step invariant to each parameter's units. The
+//! `levenberg-marquardt` crate was not used: its current release needs
+//! nalgebra 0.34 and the workspace is on 0.33 (two nalgebras would be built),
+//! and a 60-line solver with this problem's scaling is easier to audit.
+//! Block-sparse normal equations (Schur complement on the poses) would matter
+//! only beyond ~100 views.
+//!
+//! **Errors** are reported as OpenCV does: the RMS over corners of the
+//! Euclidean reprojection distance, overall and per view.
 
+use std::fmt;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, SMatrix, SymmetricEigen, Vector3};
+
+use super::board::{CornerError, find_corners};
+use super::{Board, BoardPose, Intrinsics};
 use crate::CliError;
 
-/// Arguments.
+/// What [`calibrate`] estimates.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CalibOptions {
+    /// Keep the skew at 0 (OpenCV always does).
+    pub fix_skew: bool,
+    /// Keep `fx / fy` at this ratio (OpenCV's `CALIB_FIX_ASPECT_RATIO`).
+    pub fix_aspect: Option<f64>,
+    /// After a first fit, drop views whose RMS error exceeds this (px) and
+    /// fit again.
+    pub max_view_rms_px: Option<f64>,
+    /// Levenberg–Marquardt iteration limit.
+    pub max_iterations: usize,
+}
+
+impl Default for CalibOptions {
+    fn default() -> Self {
+        CalibOptions { fix_skew: true, fix_aspect: None, max_view_rms_px: None, max_iterations: 200 }
+    }
+}
+
+/// The result of [`calibrate`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraCalibration {
+    /// Intrinsics and distortion.
+    pub intrinsics: Intrinsics,
+    /// RMS reprojection error over all corners of the views used, px.
+    pub rms_px: f64,
+    /// Indices (into the `views` given) of the views used.
+    pub views_used: Vec<usize>,
+    /// Views dropped for their RMS error (`CalibOptions::max_view_rms_px`),
+    /// with that error from the first fit, px.
+    pub views_rejected: Vec<(usize, f64)>,
+    /// RMS reprojection error of each view used, px.
+    pub per_view_rms_px: Vec<f64>,
+    /// Board pose of each view used.
+    pub poses: Vec<BoardPose>,
+    /// Levenberg–Marquardt iterations of the last fit.
+    pub iterations: usize,
+}
+
+/// Why a calibration failed.
+#[derive(Clone, Debug, PartialEq)]
+pub enum CalibError {
+    /// Fewer than three views (after rejection).
+    TooFewViews {
+        /// Views available.
+        got: usize,
+    },
+    /// A view does not hold one point per board corner.
+    CornerCount {
+        /// Index of the view.
+        view: usize,
+        /// Points given.
+        got: usize,
+        /// `cols × rows`.
+        expected: usize,
+    },
+    /// The views do not determine the camera (collinear corners, parallel
+    /// views, non-finite numbers).
+    Degenerate(&'static str),
+}
+
+impl fmt::Display for CalibError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            CalibError::TooFewViews { got } => write!(f, "{got} usable views; calibration needs at least 3"),
+            CalibError::CornerCount { view, got, expected } => {
+                write!(f, "view {view} has {got} corners, the board {expected}")
+            }
+            CalibError::Degenerate(why) => write!(f, "degenerate views: {why}"),
+        }
+    }
+}
+
+impl std::error::Error for CalibError {}
+
+// ---------------------------------------------------------------------------
+// Geometry helpers.
+
+fn rodrigues(r: [f64; 3]) -> Matrix3<f64> {
+    Rotation3::new(Vector3::new(r[0], r[1], r[2])).into_inner()
+}
+
+fn rodrigues_inv(m: &Matrix3<f64>) -> [f64; 3] {
+    let v = Rotation3::from_matrix_unchecked(*m).scaled_axis();
+    [v[0], v[1], v[2]]
+}
+
+fn pose_from(r: [f64; 3], t: [f64; 3]) -> BoardPose {
+    let m = rodrigues(r);
+    let mut rot = [[0.0; 3]; 3];
+    for (i, row) in rot.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = m[(i, j)];
+        }
+    }
+    BoardPose { rot, t_mm: t }
+}
+
+/// The nearest rotation (Frobenius) to `m`, by SVD.
+fn orthonormalise(m: &Matrix3<f64>) -> Matrix3<f64> {
+    let svd = m.svd(true, true);
+    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else { return Matrix3::identity() };
+    let mut r = u * vt;
+    if r.determinant() < 0.0 {
+        let mut d = Matrix3::identity();
+        d[(2, 2)] = -1.0;
+        r = u * d * vt;
+    }
+    r
+}
+
+/// Hartley conditioning: centroid to the origin, mean distance √2.
+fn conditioner(pts: &[[f64; 2]]) -> Matrix3<f64> {
+    let n = pts.len() as f64;
+    let (mx, my) = (pts.iter().map(|p| p[0]).sum::<f64>() / n, pts.iter().map(|p| p[1]).sum::<f64>() / n);
+    let md = pts.iter().map(|p| ((p[0] - mx).powi(2) + (p[1] - my).powi(2)).sqrt()).sum::<f64>() / n;
+    let s = if md > 0.0 { std::f64::consts::SQRT_2 / md } else { 1.0 };
+    Matrix3::new(s, 0.0, -s * mx, 0.0, s, -s * my, 0.0, 0.0, 1.0)
+}
+
+/// The homography `dst ~ H · (src, 1)` by the normalised DLT.
+fn homography(src: &[[f64; 2]], dst: &[[f64; 2]]) -> Result<Matrix3<f64>, CalibError> {
+    if src.len() < 4 || src.len() != dst.len() {
+        return Err(CalibError::Degenerate("a homography needs 4 points"));
+    }
+    let (ts, td) = (conditioner(src), conditioner(dst));
+    let mut ata = SMatrix::<f64, 9, 9>::zeros();
+    for (s, d) in src.iter().zip(dst) {
+        let a = ts * Vector3::new(s[0], s[1], 1.0);
+        let b = td * Vector3::new(d[0], d[1], 1.0);
+        let (x, y, u, v) = (a[0], a[1], b[0], b[1]);
+        let r1 = SMatrix::<f64, 9, 1>::from_column_slice(&[x, y, 1.0, 0.0, 0.0, 0.0, -u * x, -u * y, -u]);
+        let r2 = SMatrix::<f64, 9, 1>::from_column_slice(&[0.0, 0.0, 0.0, x, y, 1.0, -v * x, -v * y, -v]);
+        ata += r1 * r1.transpose() + r2 * r2.transpose();
+    }
+    let h = smallest_eigenvector(&DMatrix::from_iterator(9, 9, ata.iter().copied()));
+    let hn = Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8]);
+    let tdi = td.try_inverse().ok_or(CalibError::Degenerate("coincident image points"))?;
+    let hm = tdi * hn * ts;
+    if !hm.iter().all(|v| v.is_finite()) || hm.norm() == 0.0 {
+        return Err(CalibError::Degenerate("no homography"));
+    }
+    Ok(hm / hm.norm())
+}
+
+fn smallest_eigenvector(m: &DMatrix<f64>) -> DVector<f64> {
+    let e = SymmetricEigen::new(m.clone());
+    let mut k = 0;
+    for i in 1..e.eigenvalues.len() {
+        if e.eigenvalues[i] < e.eigenvalues[k] {
+            k = i;
+        }
+    }
+    e.eigenvectors.column(k).into_owned()
+}
+
+/// Board pose from a homography `H ~ K [r1 r2 t]`.
+fn pose_from_homography(k: &Matrix3<f64>, h: &Matrix3<f64>) -> Result<([f64; 3], [f64; 3]), CalibError> {
+    let ki = k.try_inverse().ok_or(CalibError::Degenerate("singular camera matrix"))?;
+    let m = ki * h;
+    let (c1, c2, c3) = (m.column(0).into_owned(), m.column(1).into_owned(), m.column(2).into_owned());
+    let n = 0.5 * (c1.norm() + c2.norm());
+    if n.is_nan() || n <= 0.0 {
+        return Err(CalibError::Degenerate("degenerate homography"));
+    }
+    // The board is in front of the camera: t_z > 0 fixes H's sign.
+    let lambda = if c3[2] < 0.0 { -1.0 / n } else { 1.0 / n };
+    let r1 = c1 * lambda;
+    let r2 = c2 * lambda;
+    let r3 = r1.cross(&r2);
+    let r = orthonormalise(&Matrix3::from_columns(&[r1, r2, r3]));
+    let t = c3 * lambda;
+    Ok((rodrigues_inv(&r), [t[0], t[1], t[2]]))
+}
+
+fn v_ij(h: &Matrix3<f64>, i: usize, j: usize) -> [f64; 6] {
+    let (a, b) = (h.column(i), h.column(j));
+    [
+        a[0] * b[0],
+        a[0] * b[1] + a[1] * b[0],
+        a[1] * b[1],
+        a[2] * b[0] + a[0] * b[2],
+        a[2] * b[1] + a[1] * b[2],
+        a[2] * b[2],
+    ]
+}
+
+/// Zhang's closed form on homographies of a normalised image; `None` when
+/// degenerate.
+fn zhang(hs: &[Matrix3<f64>], fix_skew: bool) -> Option<Matrix3<f64>> {
+    let mut rows: Vec<[f64; 6]> = Vec::new();
+    for h in hs {
+        let v12 = v_ij(h, 0, 1);
+        let (v11, v22) = (v_ij(h, 0, 0), v_ij(h, 1, 1));
+        rows.push(v12);
+        rows.push(std::array::from_fn(|k| v11[k] - v22[k]));
+    }
+    let mut vtv = DMatrix::<f64>::zeros(6, 6);
+    for r in &rows {
+        let v = DVector::from_column_slice(r);
+        vtv += &v * v.transpose();
+    }
+    if fix_skew {
+        // B₁₂ = 0 (zero skew), weighted to dominate.
+        vtv[(1, 1)] += 1e3 * vtv.trace().max(1e-30);
+    }
+    let b = smallest_eigenvector(&vtv);
+    let b = if b[0] < 0.0 { -b } else { b };
+    let (b11, b12, b22, b13, b23, b33) = (b[0], b[1], b[2], b[3], b[4], b[5]);
+    let den = b11 * b22 - b12 * b12;
+    if !(b11 > 0.0 && den > 0.0) {
+        return None;
+    }
+    let v0 = (b12 * b13 - b11 * b23) / den;
+    let lambda = b33 - (b13 * b13 + v0 * (b12 * b13 - b11 * b23)) / b11;
+    if (lambda / b11).is_nan() || lambda / b11 <= 0.0 {
+        return None;
+    }
+    let alpha = (lambda / b11).sqrt();
+    let beta = (lambda * b11 / den).sqrt();
+    let gamma = if fix_skew { 0.0 } else { -b12 * alpha * alpha * beta / lambda };
+    let u0 = gamma * v0 / beta - b13 * alpha * alpha / lambda;
+    let k = Matrix3::new(alpha, gamma, u0, 0.0, beta, v0, 0.0, 0.0, 1.0);
+    k.iter().all(|v| v.is_finite()).then_some(k)
+}
+
+/// OpenCV's initialisation: principal point given, zero skew, focal lengths
+/// by least squares on Zhang's constraints.
+fn focal_only(hs: &[Matrix3<f64>], aspect: Option<f64>) -> Option<(f64, f64)> {
+    // Unknowns a = 1/fx², b = 1/fy²: rows [p, q] · [a, b] = −c.
+    let (mut m11, mut m12, mut m22, mut r1, mut r2) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for h in hs {
+        let (h1, h2) = (h.column(0), h.column(1));
+        for (p, q, c) in [
+            (h1[0] * h2[0], h1[1] * h2[1], h1[2] * h2[2]),
+            (h1[0] * h1[0] - h2[0] * h2[0], h1[1] * h1[1] - h2[1] * h2[1], h1[2] * h1[2] - h2[2] * h2[2]),
+        ] {
+            m11 += p * p;
+            m12 += p * q;
+            m22 += q * q;
+            r1 -= p * c;
+            r2 -= q * c;
+        }
+    }
+    let (a, b) = match aspect {
+        // fx = s·fy: a = b / s², one unknown b.
+        Some(s) => {
+            let w = 1.0 / (s * s);
+            let b = (w * r1 + r2) / (w * w * m11 + 2.0 * w * m12 + m22);
+            (w * b, b)
+        }
+        None => {
+            let det = m11 * m22 - m12 * m12;
+            ((m22 * r1 - m12 * r2) / det, (m11 * r2 - m12 * r1) / det)
+        }
+    };
+    (a > 0.0 && b > 0.0 && a.is_finite() && b.is_finite()).then(|| (1.0 / a.sqrt(), 1.0 / b.sqrt()))
+}
+
+// ---------------------------------------------------------------------------
+// Levenberg–Marquardt.
+
+/// Minimises `|r(x)|²` from `x`; returns the iterations taken. `r` writes
+/// the residuals into its second argument.
+fn levenberg_marquardt<F>(x: &mut [f64], n_res: usize, max_iter: usize, mut r: F) -> usize
+where
+    F: FnMut(&[f64], &mut [f64]),
+{
+    let n = x.len();
+    let mut res = vec![0.0; n_res];
+    r(x, &mut res);
+    let mut cost: f64 = res.iter().map(|v| v * v).sum();
+    let mut lambda = 1e-3;
+    let mut jac = DMatrix::<f64>::zeros(n_res, n);
+    let (mut rp, mut rm) = (vec![0.0; n_res], vec![0.0; n_res]);
+    let mut xt = x.to_vec();
+    let mut iterations = 0;
+    while iterations < max_iter {
+        iterations += 1;
+        for k in 0..n {
+            let h = 1e-6 * x[k].abs().max(1e-2);
+            xt.copy_from_slice(x);
+            xt[k] = x[k] + h;
+            r(&xt, &mut rp);
+            xt[k] = x[k] - h;
+            r(&xt, &mut rm);
+            for i in 0..n_res {
+                jac[(i, k)] = (rp[i] - rm[i]) / (2.0 * h);
+            }
+        }
+        let jtj = jac.transpose() * &jac;
+        let g = jac.transpose() * DVector::from_column_slice(&res);
+        let mut improved = false;
+        while lambda < 1e16 {
+            let mut a = jtj.clone();
+            for k in 0..n {
+                a[(k, k)] += lambda * jtj[(k, k)].max(1e-12);
+            }
+            let Some(chol) = a.cholesky() else {
+                lambda *= 10.0;
+                continue;
+            };
+            let step = chol.solve(&(-&g));
+            for k in 0..n {
+                xt[k] = x[k] + step[k];
+            }
+            r(&xt, &mut rp);
+            let new_cost: f64 = rp.iter().map(|v| v * v).sum();
+            if new_cost.is_finite() && new_cost <= cost {
+                let small = step.norm() <= 1e-12 * (1.0 + x.iter().map(|v| v * v).sum::<f64>().sqrt());
+                let rel = (cost - new_cost) / cost.max(1e-300);
+                x.copy_from_slice(&xt);
+                res.copy_from_slice(&rp);
+                cost = new_cost;
+                lambda = (lambda / 10.0).max(1e-12);
+                improved = !(small || rel < 1e-14);
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    iterations
+}
+
+// ---------------------------------------------------------------------------
+// Calibration.
+
+/// The free intrinsic parameters and how they map to [`Intrinsics`].
+struct Layout {
+    fix_skew: bool,
+    aspect: Option<f64>,
+    width: u32,
+    height: u32,
+}
+
+impl Layout {
+    fn n(&self) -> usize {
+        // f (or fx, fy), cx, cy, [skew], k1 k2 p1 p2 k3
+        (if self.aspect.is_some() { 1 } else { 2 }) + 2 + usize::from(!self.fix_skew) + 5
+    }
+
+    fn pack(&self, k: &Intrinsics) -> Vec<f64> {
+        let mut v = Vec::with_capacity(self.n());
+        match self.aspect {
+            Some(_) => v.push(k.fy),
+            None => v.extend([k.fx, k.fy]),
+        }
+        v.extend([k.cx, k.cy]);
+        if !self.fix_skew {
+            v.push(k.skew);
+        }
+        v.extend([k.k1, k.k2, k.p1, k.p2, k.k3]);
+        v
+    }
+
+    fn unpack(&self, v: &[f64]) -> Intrinsics {
+        let (fx, fy, mut i) = match self.aspect {
+            Some(a) => (a * v[0], v[0], 1),
+            None => (v[0], v[1], 2),
+        };
+        let (cx, cy) = (v[i], v[i + 1]);
+        i += 2;
+        let skew = if self.fix_skew {
+            0.0
+        } else {
+            i += 1;
+            v[i - 1]
+        };
+        Intrinsics {
+            width: self.width,
+            height: self.height,
+            fx,
+            fy,
+            cx,
+            cy,
+            skew,
+            k1: v[i],
+            k2: v[i + 1],
+            p1: v[i + 2],
+            p2: v[i + 3],
+            k3: v[i + 4],
+        }
+    }
+}
+
+/// Writes the reprojection residuals (projected − observed, px) of one view.
+fn view_residuals(k: &Intrinsics, pose: &[f64], obj: &[[f64; 3]], obs: &[[f64; 2]], out: &mut [f64]) {
+    let p = pose_from([pose[0], pose[1], pose[2]], [pose[3], pose[4], pose[5]]);
+    for (n, (o, m)) in obj.iter().zip(obs).enumerate() {
+        let c = p.to_camera(*o);
+        // Behind the camera: a large finite residual keeps LM away.
+        let q = k.project(c).unwrap_or([m[0] + 1e6, m[1] + 1e6]);
+        out[2 * n] = q[0] - m[0];
+        out[2 * n + 1] = q[1] - m[1];
+    }
+}
+
+fn rms_of(res: &[f64]) -> f64 {
+    (res.iter().map(|v| v * v).sum::<f64>() / (res.len() / 2).max(1) as f64).sqrt()
+}
+
+/// Calibrates a camera from views of `board`: each view the detected
+/// corners, in [`Board::object_points`] order, px.
+pub fn calibrate(
+    board: &Board,
+    views: &[Vec<[f64; 2]>],
+    width: u32,
+    height: u32,
+    opts: &CalibOptions,
+) -> Result<CameraCalibration, CalibError> {
+    let expected = board.cols * board.rows;
+    for (view, v) in views.iter().enumerate() {
+        if v.len() != expected {
+            return Err(CalibError::CornerCount { view, got: v.len(), expected });
+        }
+        if !v.iter().all(|p| p[0].is_finite() && p[1].is_finite()) {
+            return Err(CalibError::Degenerate("non-finite corner"));
+        }
+    }
+    let all: Vec<usize> = (0..views.len()).collect();
+    let mut cal = calibrate_subset(board, views, &all, width, height, opts)?;
+    if let Some(limit) = opts.max_view_rms_px {
+        let rejected: Vec<(usize, f64)> = cal
+            .views_used
+            .iter()
+            .zip(&cal.per_view_rms_px)
+            .filter(|&(_, &e)| e > limit)
+            .map(|(&v, &e)| (v, e))
+            .collect();
+        if !rejected.is_empty() {
+            let keep: Vec<usize> = all.iter().copied().filter(|v| !rejected.iter().any(|r| r.0 == *v)).collect();
+            cal = calibrate_subset(board, views, &keep, width, height, opts)?;
+            cal.views_rejected = rejected;
+        }
+    }
+    Ok(cal)
+}
+
+fn calibrate_subset(
+    board: &Board,
+    views: &[Vec<[f64; 2]>],
+    used: &[usize],
+    width: u32,
+    height: u32,
+    opts: &CalibOptions,
+) -> Result<CameraCalibration, CalibError> {
+    if used.len() < 3 {
+        return Err(CalibError::TooFewViews { got: used.len() });
+    }
+    if width == 0 || height == 0 {
+        return Err(CalibError::Degenerate("empty image"));
+    }
+    let obj = board.object_points();
+    let plane: Vec<[f64; 2]> = obj.iter().map(|p| [p[0], p[1]]).collect();
+    let (w, h) = (width as f64, height as f64);
+    // Image normalisation for Zhang's conic: centre to 0, larger side to 1.
+    let s = 1.0 / w.max(h);
+    let norm = Matrix3::new(s, 0.0, -0.5 * s * w, 0.0, s, -0.5 * s * h, 0.0, 0.0, 1.0);
+    let mut hs = Vec::with_capacity(used.len());
+    for &v in used {
+        let hm = homography(&plane, &views[v])?;
+        let hn = norm * hm;
+        hs.push(hn / hn.norm());
+    }
+    let kz = zhang(&hs, opts.fix_skew).and_then(|kn| {
+        let k = norm.try_inverse()? * kn;
+        let ok = k[(0, 0)] > 0.0
+            && k[(1, 1)] > 0.0
+            && (0.0..w).contains(&k[(0, 2)])
+            && (0.0..h).contains(&k[(1, 2)])
+            && (k[(0, 0)] / k[(1, 1)]).ln().abs() < 0.7;
+        ok.then_some(k)
+    });
+    let (mut fx, mut fy, cx, cy, skew) = match kz {
+        Some(k) => (k[(0, 0)], k[(1, 1)], k[(0, 2)], k[(1, 2)], k[(0, 1)]),
+        None => {
+            // Homographies with the principal point (image centre) at the origin, in pixels.
+            let c = Matrix3::new(1.0, 0.0, -0.5 * (w - 1.0), 0.0, 1.0, -0.5 * (h - 1.0), 0.0, 0.0, 1.0);
+            let hc: Vec<Matrix3<f64>> = hs.iter().map(|hn| c * norm.try_inverse().unwrap_or_default() * hn).collect();
+            let (fx, fy) = focal_only(&hc, opts.fix_aspect)
+                .ok_or(CalibError::Degenerate("no focal length fits the views (too few tilted views?)"))?;
+            (fx, fy, 0.5 * (w - 1.0), 0.5 * (h - 1.0), 0.0)
+        }
+    };
+    if let Some(a) = opts.fix_aspect {
+        let f = (fx * fy / a).sqrt();
+        fx = a * f;
+        fy = f;
+    }
+    let k0 = Intrinsics {
+        width,
+        height,
+        fx,
+        fy,
+        cx,
+        cy,
+        skew: if opts.fix_skew { 0.0 } else { skew },
+        k1: 0.0,
+        k2: 0.0,
+        p1: 0.0,
+        p2: 0.0,
+        k3: 0.0,
+    };
+    let kmat = Matrix3::new(k0.fx, k0.skew, k0.cx, 0.0, k0.fy, k0.cy, 0.0, 0.0, 1.0);
+    let layout = Layout { fix_skew: opts.fix_skew, aspect: opts.fix_aspect, width, height };
+    let ni = layout.n();
+    let mut x = layout.pack(&k0);
+    for &v in used {
+        let (r, t) = pose_from_homography(&kmat, &homography(&plane, &views[v])?)?;
+        x.extend(r);
+        x.extend(t);
+    }
+    let npts = obj.len();
+    let n_res = 2 * npts * used.len();
+    let residuals = |x: &[f64], out: &mut [f64]| {
+        let k = layout.unpack(&x[..ni]);
+        for (n, &v) in used.iter().enumerate() {
+            let pose = &x[ni + 6 * n..ni + 6 * n + 6];
+            view_residuals(&k, pose, &obj, &views[v], &mut out[2 * npts * n..2 * npts * (n + 1)]);
+        }
+    };
+    let iterations = levenberg_marquardt(&mut x, n_res, opts.max_iterations, residuals);
+    let mut res = vec![0.0; n_res];
+    residuals(&x, &mut res);
+    if !res.iter().all(|v| v.is_finite()) {
+        return Err(CalibError::Degenerate("the fit diverged"));
+    }
+    let intrinsics = layout.unpack(&x[..ni]);
+    let per_view_rms_px = (0..used.len()).map(|n| rms_of(&res[2 * npts * n..2 * npts * (n + 1)])).collect();
+    let poses = (0..used.len())
+        .map(|n| {
+            let p = &x[ni + 6 * n..ni + 6 * n + 6];
+            pose_from([p[0], p[1], p[2]], [p[3], p[4], p[5]])
+        })
+        .collect();
+    Ok(CameraCalibration {
+        intrinsics,
+        rms_px: rms_of(&res),
+        views_used: used.to_vec(),
+        views_rejected: Vec::new(),
+        per_view_rms_px,
+        poses,
+        iterations,
+    })
+}
+
+/// The pose of `board` seen by a calibrated camera, from its detected
+/// `corners` (in [`Board::object_points`] order, px), and the RMS
+/// reprojection error of the fit, px: the homography of the undistorted,
+/// normalised corners gives the pose, Levenberg–Marquardt on the pixel
+/// reprojection error refines it.
+pub fn board_pose(intr: &Intrinsics, board: &Board, corners: &[[f64; 2]]) -> Result<(BoardPose, f64), CalibError> {
+    let obj = board.object_points();
+    if corners.len() != obj.len() {
+        return Err(CalibError::CornerCount { view: 0, got: corners.len(), expected: obj.len() });
+    }
+    if !(intr.fx > 0.0 && intr.fy > 0.0 && corners.iter().all(|p| p[0].is_finite() && p[1].is_finite())) {
+        return Err(CalibError::Degenerate("bad intrinsics or corners"));
+    }
+    let plane: Vec<[f64; 2]> = obj.iter().map(|p| [p[0], p[1]]).collect();
+    let norm: Vec<[f64; 2]> = corners
+        .iter()
+        .map(|p| {
+            let r = intr.unproject(p[0], p[1]);
+            [r[0], r[1]]
+        })
+        .collect();
+    let hm = homography(&plane, &norm)?;
+    let (r, t) = pose_from_homography(&Matrix3::identity(), &hm)?;
+    let mut x: Vec<f64> = r.into_iter().chain(t).collect();
+    let n_res = 2 * obj.len();
+    let residuals = |x: &[f64], out: &mut [f64]| view_residuals(intr, x, &obj, corners, out);
+    levenberg_marquardt(&mut x, n_res, 100, residuals);
+    let mut res = vec![0.0; n_res];
+    residuals(&x, &mut res);
+    let rms = rms_of(&res);
+    if !rms.is_finite() || !x.iter().all(|v| v.is_finite()) {
+        return Err(CalibError::Degenerate("the pose fit diverged"));
+    }
+    Ok((pose_from([x[0], x[1], x[2]], [x[3], x[4], x[5]]), rms))
+}
+
+// ---------------------------------------------------------------------------
+// The command.
+
+/// `cms-host calibrate camera`: intrinsics and distortion from photographs
+/// of a checkerboard.
 #[derive(clap::Args, Debug, Clone)]
-pub struct CameraArgs {}
+pub struct CameraArgs {
+    /// Inner corners of the board, COLSxROWS (e.g. 9x6).
+    #[arg(long, value_name = "COLSxROWS")]
+    pub board: String,
+    /// Side of a board square, mm.
+    #[arg(long, value_name = "MM")]
+    pub square_mm: f64,
+    /// The calibration file to write (TOML).
+    #[arg(long, value_name = "FILE")]
+    pub out: PathBuf,
+    /// Keep fx = fy (OpenCV's CALIB_FIX_ASPECT_RATIO at 1).
+    #[arg(long)]
+    pub fix_aspect: bool,
+    /// Estimate the skew too (fixed at 0 by default).
+    #[arg(long)]
+    pub free_skew: bool,
+    /// Drop views whose RMS reprojection error exceeds this many pixels, and fit again.
+    #[arg(long, value_name = "PX")]
+    pub max_view_rms: Option<f64>,
+    /// Photographs of the board (PNG, JPEG, TIFF; 8 or 16 bits).
+    #[arg(required = true, value_name = "IMAGES")]
+    pub images: Vec<PathBuf>,
+}
+
+/// Parses `COLSxROWS`.
+pub fn parse_board(s: &str, square_mm: f64) -> Result<Board, String> {
+    let bad = || format!("--board {s:?}: expected COLSxROWS inner corners, e.g. 9x6");
+    let (c, r) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let cols: usize = c.trim().parse().map_err(|_| bad())?;
+    let rows: usize = r.trim().parse().map_err(|_| bad())?;
+    if !(2..=1000).contains(&cols) || !(2..=1000).contains(&rows) {
+        return Err(format!("--board {s}: needs 2 to 1000 inner corners each way"));
+    }
+    if !(square_mm.is_finite() && square_mm > 0.0) {
+        return Err(format!("--square-mm {square_mm}: must be a positive length"));
+    }
+    Ok(Board { cols, rows, square_mm })
+}
+
+/// Reads an image as grayscale `0..1` (8- or 16-bit, colour converted by luma).
+pub fn load_gray(path: &Path) -> Result<(Vec<f32>, u32, u32), String> {
+    let img = image::ImageReader::open(path)
+        .map_err(|e| format!("{}: {e}", path.display()))?
+        .with_guessed_format()
+        .map_err(|e| format!("{}: {e}", path.display()))?
+        .decode()
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    let g = img.to_luma32f();
+    let (w, h) = g.dimensions();
+    Ok((g.into_raw(), w, h))
+}
+
+/// The `[camera]` and `[board]` file written by `calibrate camera`.
+#[derive(serde::Serialize)]
+struct CameraFile {
+    version: u32,
+    camera: CameraSection,
+    board: BoardSection,
+}
+
+#[derive(serde::Serialize)]
+struct CameraSection {
+    width: u32,
+    height: u32,
+    fx: f64,
+    fy: f64,
+    cx: f64,
+    cy: f64,
+    skew: f64,
+    k1: f64,
+    k2: f64,
+    p1: f64,
+    p2: f64,
+    k3: f64,
+    rms_px: f64,
+}
+
+#[derive(serde::Serialize)]
+struct BoardSection {
+    cols: usize,
+    rows: usize,
+    square_mm: f64,
+}
+
+/// The calibration file's text for a camera-only calibration.
+pub fn camera_toml(cal: &CameraCalibration, board: &Board) -> String {
+    let k = &cal.intrinsics;
+    let file = CameraFile {
+        version: 1,
+        camera: CameraSection {
+            width: k.width,
+            height: k.height,
+            fx: k.fx,
+            fy: k.fy,
+            cx: k.cx,
+            cy: k.cy,
+            skew: k.skew,
+            k1: k.k1,
+            k2: k.k2,
+            p1: k.p1,
+            p2: k.p2,
+            k3: k.k3,
+            rms_px: cal.rms_px,
+        },
+        board: BoardSection { cols: board.cols, rows: board.rows, square_mm: board.square_mm },
+    };
+    // Plain numbers and strings only: serialisation cannot fail.
+    toml::to_string(&file).unwrap_or_default()
+}
 
 /// Runs the subcommand.
-pub fn run(_args: &CameraArgs) -> Result<(), CliError> {
-    Err(CliError::Usage("not implemented yet".into()))
+pub fn run(args: &CameraArgs) -> Result<(), CliError> {
+    let board = parse_board(&args.board, args.square_mm).map_err(CliError::Usage)?;
+    if let Some(m) = args.max_view_rms
+        && !(m.is_finite() && m > 0.0)
+    {
+        return Err(CliError::Usage(format!("--max-view-rms {m}: must be a positive number of pixels")));
+    }
+    let mut out = std::io::stdout().lock();
+    let mut views = Vec::new();
+    let mut names = Vec::new();
+    let mut size: Option<(u32, u32, &Path)> = None;
+    for path in &args.images {
+        let (px, w, h) = load_gray(path).map_err(CliError::Usage)?;
+        match size {
+            None => size = Some((w, h, path)),
+            Some((w0, h0, first)) if (w0, h0) != (w, h) => {
+                return Err(CliError::Usage(format!(
+                    "{}: {w} x {h}, but {} is {w0} x {h0}; all images must come from one camera mode",
+                    path.display(),
+                    first.display()
+                )));
+            }
+            Some(_) => {}
+        }
+        match find_corners(&px, w as usize, h as usize, &board) {
+            Ok(c) => {
+                views.push(c);
+                names.push(path.display().to_string());
+            }
+            Err(e @ (CornerError::Incomplete { .. } | CornerError::Inconsistent)) => {
+                writeln!(out, "{}: rejected: {e}", path.display())?;
+            }
+            Err(e) => return Err(CliError::Usage(format!("{}: {e}", path.display()))),
+        }
+    }
+    let Some((w, h, _)) = size else { return Err(CliError::Usage("no images".into())) };
+    if views.len() < 3 {
+        return Err(CliError::Usage(format!(
+            "the board ({}x{}) was found in {} of {} images; calibration needs at least 3",
+            board.cols,
+            board.rows,
+            views.len(),
+            args.images.len()
+        )));
+    }
+    let opts = CalibOptions {
+        fix_skew: !args.free_skew,
+        fix_aspect: args.fix_aspect.then_some(1.0),
+        max_view_rms_px: args.max_view_rms,
+        ..CalibOptions::default()
+    };
+    let cal = calibrate(&board, &views, w, h, &opts).map_err(|e| CliError::Usage(e.to_string()))?;
+    for &(v, e) in &cal.views_rejected {
+        writeln!(out, "{}: rejected: RMS {e:.3} px > {:.3} px", names[v], args.max_view_rms.unwrap_or(0.0))?;
+    }
+    for (&v, e) in cal.views_used.iter().zip(&cal.per_view_rms_px) {
+        writeln!(out, "{}: RMS {e:.3} px", names[v])?;
+    }
+    let k = &cal.intrinsics;
+    writeln!(
+        out,
+        "{} views, {w} x {h}: fx {:.3} fy {:.3} cx {:.3} cy {:.3} skew {:.4} px; k1 {:.5} k2 {:.5} p1 {:.6} p2 {:.6} k3 {:.5}; RMS {:.4} px",
+        cal.views_used.len(),
+        k.fx,
+        k.fy,
+        k.cx,
+        k.cy,
+        k.skew,
+        k.k1,
+        k.k2,
+        k.p1,
+        k.p2,
+        k.k3,
+        cal.rms_px
+    )?;
+    std::fs::write(&args.out, camera_toml(&cal, &board))
+        .map_err(|e| CliError::Usage(format!("{}: {e}", args.out.display())))?;
+    writeln!(out, "wrote {}", args.out.display())?;
+    Ok(())
 }
