@@ -77,6 +77,7 @@
 //! assert!(row[centre.round() as usize] > 100);
 //! ```
 
+pub mod board;
 pub mod camera;
 pub mod geom;
 pub mod noise;
