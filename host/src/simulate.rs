@@ -13,6 +13,7 @@
 //!   PORT argument into a device path, starting the simulator for `sim`.
 
 pub mod server;
+pub mod stored;
 pub mod worker;
 
 use std::io::{self, Write as _};
@@ -200,6 +201,11 @@ pub struct SimulateArgs {
     /// Relative power of the three lasers (multiplies the preset's).
     #[arg(long = "laser-gain", value_name = "A,B,C", value_parser = parse_gains)]
     pub laser_gain: Option<[f64; 3]>,
+    /// Directory where the head keeps its calibration across restarts
+    /// [default: $CMS_SIM_STATE, else $XDG_STATE_HOME/cms-host/sim-head, else
+    /// ~/.local/state/cms-host/sim-head].
+    #[arg(long, value_name = "DIR")]
+    pub state: Option<PathBuf>,
 }
 
 impl Default for SimulateArgs {
@@ -217,6 +223,7 @@ impl Default for SimulateArgs {
             ambient: None,
             bits: None,
             laser_gain: None,
+            state: None,
         }
     }
 }
@@ -238,11 +245,17 @@ pub fn run(args: &SimulateArgs) -> Result<(), SimulateError> {
     let opts = ServeOptions {
         max_rate_hz: built.max_rate_hz,
         exposure_us: Some(built.exposure_us),
+        calibration_file: calibration_file(args),
         ..ServeOptions::default()
     };
     let summary = serve(pty, built.renderer, built.detector, &stop, &opts)?;
     let _ = writeln!(io::stderr(), "simulate: {summary}");
     Ok(())
+}
+
+/// Where the head described by `args` keeps its calibration.
+fn calibration_file(args: &SimulateArgs) -> Option<PathBuf> {
+    args.state.clone().or_else(stored::default_dir).map(|d| d.join(stored::FILE_NAME))
 }
 
 /// A simulated head serving on a thread of this process. Dropping it stops
@@ -293,6 +306,7 @@ pub fn spawn_on_pty(args: &SimulateArgs) -> Result<(PathBuf, SimHandle), Simulat
         log_lasers: false,
         max_rate_hz: built.max_rate_hz,
         exposure_us: Some(built.exposure_us),
+        calibration_file: calibration_file(args),
         ..ServeOptions::default()
     };
     let thread = std::thread::Builder::new()
@@ -313,6 +327,9 @@ pub struct SimPortArgs {
     /// With PORT `sim`: camera and head geometry of the simulated head.
     #[arg(long = "sim-preset", value_enum)]
     pub sim_preset: Option<Preset>,
+    /// With PORT `sim`: the simulated head's state directory (its kept calibration).
+    #[arg(long = "sim-state", value_name = "DIR")]
+    pub sim_state: Option<PathBuf>,
 }
 
 /// A `listen` PORT: `sim` starts the simulated head on a new pty and returns
@@ -320,8 +337,8 @@ pub struct SimPortArgs {
 /// a device path, returned as it is.
 pub fn resolve_port(port: &str, sim: &SimPortArgs) -> Result<(PathBuf, Option<SimHandle>), SimulateError> {
     if port != "sim" {
-        if sim.sim_seed.is_some() || sim.sim_preset.is_some() {
-            return Err(SimulateError::Usage("--sim-seed and --sim-preset need PORT `sim`".into()));
+        if sim.sim_seed.is_some() || sim.sim_preset.is_some() || sim.sim_state.is_some() {
+            return Err(SimulateError::Usage("--sim-seed, --sim-preset and --sim-state need PORT `sim`".into()));
         }
         return Ok((PathBuf::from(port), None));
     }
@@ -330,6 +347,7 @@ pub fn resolve_port(port: &str, sim: &SimPortArgs) -> Result<(PathBuf, Option<Si
         seed: sim.sim_seed.unwrap_or(1),
         preset: sim.sim_preset.unwrap_or(Preset::Reference),
         rate: 1000,
+        state: sim.sim_state.clone(),
         ..SimulateArgs::default()
     };
     let (path, handle) = spawn_on_pty(&args)?;

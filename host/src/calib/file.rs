@@ -288,7 +288,10 @@ impl CalibrationFile {
     /// Checks every value, and renormalises the plane normals.
     fn validate(&mut self) -> Result<(), String> {
         if self.version != FILE_VERSION {
-            return Err(format!("version = {} is not supported (this cms-host reads version {FILE_VERSION})", self.version));
+            return Err(format!(
+                "version = {} is not supported (this cms-host reads version {FILE_VERSION})",
+                self.version
+            ));
         }
         if self.id == Some(0) {
             return Err("id must be non-zero".into());
@@ -302,10 +305,12 @@ impl CalibrationFile {
         }
         positive("camera.fx", c.fx)?;
         positive("camera.fy", c.fy)?;
-        for (k, v) in [("cx", c.cx), ("cy", c.cy), ("skew", c.skew), ("k1", c.k1), ("k2", c.k2)]
-            .into_iter()
-            .chain([("p1", c.p1), ("p2", c.p2), ("k3", c.k3), ("rms_px", c.rms_px)])
-        {
+        for (k, v) in [("cx", c.cx), ("cy", c.cy), ("skew", c.skew), ("k1", c.k1), ("k2", c.k2)].into_iter().chain([
+            ("p1", c.p1),
+            ("p2", c.p2),
+            ("k3", c.k3),
+            ("rms_px", c.rms_px),
+        ]) {
             finite(&format!("camera.{k}"), v)?;
         }
         if c.rms_px < 0.0 {
@@ -451,7 +456,7 @@ impl CameraSection {
 mod tests {
     use super::*;
 
-    pub(crate) const FULL: &str = "version = 1
+    const FULL: &str = "version = 1
 [camera]
 width = 752
 height = 480
@@ -513,7 +518,10 @@ rms_mm = 0.003
 
     #[test]
     fn errors_name_the_key() {
-        assert_eq!(err(&FULL.replace("fx = 1400.0", "fx = -3.0")), "cal.toml: camera.fx = -3 must be a finite number > 0");
+        assert_eq!(
+            err(&FULL.replace("fx = 1400.0", "fx = -3.0")),
+            "cal.toml: camera.fx = -3 must be a finite number > 0"
+        );
         assert!(err(&FULL.replace("fy = 1400.0", "fy = nan")).contains("camera.fy"));
         assert!(err(&FULL.replace("version = 1", "version = 7")).contains("version = 7"));
         let e = err(&FULL.replace("k3 = 0.0", "k3 = 0.0\nk4 = 1.0"));

@@ -1,12 +1,157 @@
-//! See the parent module. (Being written.)
+//! `cms-host calibrate upload CAL.toml PORT`: sends a calibration to a sensor
+//! head (PORT `sim`: the simulated head, which keeps it in its state
+//! directory as the real head keeps it in flash).
+//!
+//! The exchange: `GetInfo` → `Hello` (the camera's size must be the file's);
+//! `SetCalibration` → `Ack` (the head validates the numbers itself and
+//! refuses them with `InvalidConfig`); with a `[head]` section, the detector's
+//! scale range from the calibration (paper Eq. 10–11) by `SetDetector`; and a
+//! last `GetInfo` to see the head report the new calibration's id.
 
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use cms_core::fixed::Px;
+use cms_core::pipeline::triangulator;
+use cms_core::protocol::{DeviceInfo, DeviceMsg, ErrorCode, HostMsg, PROTOCOL_VERSION};
+
+use super::file::CalibrationFile;
 use crate::CliError;
+use crate::link::{Deframer, Link};
+use crate::simulate::{self, SimPortArgs};
 
-/// Arguments.
+/// How long to wait for each answer.
+const ANSWER_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// Arguments of `calibrate upload`.
 #[derive(clap::Args, Debug, Clone)]
-pub struct UploadArgs {}
+pub struct UploadArgs {
+    /// The calibration file (from `calibrate lasers`).
+    #[arg(value_name = "CAL.toml")]
+    pub file: PathBuf,
+    /// Serial port of the head (`/dev/ttyACM0`), or `sim` for the simulated head.
+    #[arg(value_name = "PORT")]
+    pub port: String,
+    /// Baud rate (ignored by USB CDC heads).
+    #[arg(long, default_value_t = 115_200)]
+    pub baud: u32,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub sim: SimPortArgs,
+}
 
-/// Runs the subcommand.
-pub fn run(_args: &UploadArgs) -> Result<(), CliError> {
-    Err(CliError::Usage("not implemented yet".into()))
+/// Runs `calibrate upload`.
+pub fn run(args: &UploadArgs) -> Result<(), CliError> {
+    let file = CalibrationFile::load(&args.file)?;
+    let cal = file.to_head().map_err(|e| CliError::Usage(format!("{}: {e}", args.file.display())))?;
+    // The head would refuse it; say why here, in words.
+    let tri = triangulator(&cal)
+        .map_err(|e| CliError::Usage(format!("{}: the head would refuse it: {e}", args.file.display())))?;
+    let scales = match file.head {
+        Some(h) => Some(
+            tri.scale_range(h.laser_diameter_mm, (h.range_min_mm, h.range_max_mm))
+                .map_err(|e| CliError::Usage(format!("{}: [head]: {e}", args.file.display())))?,
+        ),
+        None => None,
+    };
+    let r = simulate::with_port(&args.port, &args.sim, |port| -> Result<String, CliError> {
+        let mut s = Session::open(port, args.baud)?;
+        let info = s.info()?;
+        if info.protocol != PROTOCOL_VERSION {
+            return Err(CliError::Usage(format!(
+                "the head on {port} speaks protocol version {}; this cms-host speaks {PROTOCOL_VERSION}",
+                info.protocol
+            )));
+        }
+        let (w, h) = (file.camera.width, file.camera.height);
+        if (u32::from(info.sensor_width), u32::from(info.sensor_height)) != (w, h) {
+            return Err(CliError::Usage(format!(
+                "{} is for a {w}×{h} camera; the head on {port} has {}×{}",
+                args.file.display(),
+                info.sensor_width,
+                info.sensor_height
+            )));
+        }
+        s.command(HostMsg::SetCalibration(cal), "the calibration")?;
+        let mut note = String::new();
+        if let Some(sr) = scales {
+            let mut det = info.detector;
+            det.scales = sr;
+            s.command(HostMsg::SetDetector(det), "the detector's scale range")?;
+            note = format!(", detector scales {:.2}–{:.2} px", Px::to_f64(sr.min()), Px::to_f64(sr.max()));
+        }
+        let after = s.info()?;
+        if after.calibration_id != cal.id {
+            return Err(CliError::Usage(format!(
+                "the head on {port} acknowledged the calibration but reports id {:#010x}, not {:#010x}",
+                after.calibration_id, cal.id
+            )));
+        }
+        Ok(format!("calibration {:#010x} loaded by the head on {port}{note}", cal.id))
+    })
+    .map_err(|e| CliError::Usage(e.to_string()))??;
+    println!("{r}");
+    Ok(())
+}
+
+/// A request/answer conversation with a head.
+struct Session {
+    link: Link,
+    frames: Deframer,
+    seq: u16,
+    buf: Vec<u8>,
+}
+
+impl Session {
+    fn open(port: &str, baud: u32) -> Result<Session, CliError> {
+        let link = Link::open(port, baud).map_err(|e| CliError::Usage(e.to_string()))?;
+        Ok(Session { link, frames: Deframer::new(), seq: 0, buf: vec![0; 4096] })
+    }
+
+    fn send(&mut self, msg: HostMsg) -> Result<u16, CliError> {
+        self.seq = self.seq.wrapping_add(1).max(1);
+        match self.link.send(self.seq, msg) {
+            Ok(true) => Ok(self.seq),
+            Ok(false) => Err(CliError::Usage(format!("{}: the head does not read its commands", self.link.path()))),
+            Err(e) => Err(CliError::Usage(e.to_string())),
+        }
+    }
+
+    /// Waits for the first message `pick` takes.
+    fn wait<T>(&mut self, what: &str, mut pick: impl FnMut(DeviceMsg) -> Option<T>) -> Result<T, CliError> {
+        let deadline = Instant::now() + ANSWER_TIMEOUT;
+        while Instant::now() < deadline {
+            let n = self.link.read(&mut self.buf).map_err(|e| CliError::Usage(e.to_string()))?;
+            let mut got = None;
+            self.frames.feed(&self.buf[..n], |r, _| {
+                if got.is_none()
+                    && let Ok(m) = r
+                {
+                    got = pick(m);
+                }
+            });
+            if let Some(v) = got {
+                return Ok(v);
+            }
+        }
+        Err(CliError::Usage(format!("{}: no answer to {what} within {} s", self.link.path(), ANSWER_TIMEOUT.as_secs())))
+    }
+
+    fn info(&mut self) -> Result<DeviceInfo, CliError> {
+        self.send(HostMsg::GetInfo)?;
+        self.wait("GetInfo", |m| match m {
+            DeviceMsg::Hello(i) => Some(i),
+            _ => None,
+        })
+    }
+
+    fn command(&mut self, msg: HostMsg, what: &str) -> Result<(), CliError> {
+        let seq = self.send(msg)?;
+        let r: Result<(), ErrorCode> = self.wait(what, |m| match m {
+            DeviceMsg::Ack(s) if s == seq => Some(Ok(())),
+            DeviceMsg::Error { seq: Some(s), code } if s == seq => Some(Err(code)),
+            _ => None,
+        })?;
+        r.map_err(|code| CliError::Usage(format!("{}: the head refused {what}: {code:?}", self.link.path())))
+    }
 }

@@ -16,6 +16,7 @@
 //! keep running. Small messages (acks, errors, status) have a larger
 //! allowance so a slow reader still sees every answer.
 
+use super::stored;
 use std::fs::File;
 use std::io::{self, Read as _, Write as _};
 use std::os::fd::{AsFd as _, OwnedFd};
@@ -204,11 +205,20 @@ pub struct ServeOptions {
     /// Exposure the head starts with (the camera's nominal one), µs; `None`
     /// keeps the head's default.
     pub exposure_us: Option<u32>,
+    /// Where the head keeps its calibration across restarts (the real
+    /// head's flash); `None`: it forgets it.
+    pub calibration_file: Option<std::path::PathBuf>,
 }
 
 impl Default for ServeOptions {
     fn default() -> Self {
-        ServeOptions { log_lasers: true, queue_bytes: 2 * MAX_FRAME, max_rate_hz: 1000, exposure_us: None }
+        ServeOptions {
+            log_lasers: true,
+            queue_bytes: 2 * MAX_FRAME,
+            max_rate_hz: 1000,
+            exposure_us: None,
+            calibration_file: None,
+        }
     }
 }
 
@@ -452,6 +462,16 @@ pub fn serve<R: RowRenderer>(
         // camera's nominal exposure as a host would (the Ack goes nowhere).
         head.handle(Command { seq: 0, msg: HostMsg::SetExposure(us) }, 0, &camera, &mut |_| {});
     }
+    if let Some(path) = &opts.calibration_file {
+        match stored::load(path) {
+            Ok(Some(c)) => match head.load_calibration(c) {
+                Ok(()) => log(format_args!("calibration {:#010x} restored from {}", c.id, path.display())),
+                Err(e) => log(format_args!("stored calibration in {} not used: {e}", path.display())),
+            },
+            Ok(None) => {}
+            Err(e) => log(format_args!("stored calibration not used: {e}")),
+        }
+    }
     // A tall sensor sends a frame in several parts: room for all of them.
     let parts = (camera.height() as usize).div_ceil(MAX_ROWS_PER_PROFILE).max(1);
     let mut out = Outbox::new(&pty.master, opts.queue_bytes.max(MAX_FRAME) * parts)?;
@@ -491,7 +511,14 @@ pub fn serve<R: RowRenderer>(
                         // (and apply its fault rules) as out of range.
                         s.rate_hz = 0;
                     }
+                    let kept = head.calibration().copied();
                     head.handle(cmd, now_us, &camera, &mut |m| out.push(m));
+                    if let (Some(path), Some(c)) = (&opts.calibration_file, head.calibration())
+                        && Some(*c) != kept
+                        && let Err(e) = stored::save(path, c)
+                    {
+                        log(format_args!("keeping the calibration: {e}"));
+                    }
                 }
                 Err(e) => {
                     summary.link_errors += 1;

@@ -1,0 +1,92 @@
+//! The simulated head's non-volatile memory: the calibration it keeps across
+//! restarts, as the real head keeps it in flash.
+//!
+//! The file holds one wire frame of `SetCalibration` (protocol version and
+//! CRC-32 included), so a damaged or foreign file is detected, reported and
+//! not used; it is written to a temporary file and renamed, so a crash during
+//! a write leaves the previous calibration.
+
+use std::io;
+use std::path::{Path, PathBuf};
+
+use cms_core::protocol::{Calibration, Command, HostMsg, MAX_COMMAND_FRAME, decode_frame, encode};
+
+/// The calibration file inside a state directory.
+pub const FILE_NAME: &str = "calibration.frame";
+
+/// The default state directory: `$CMS_SIM_STATE`, else
+/// `$XDG_STATE_HOME/cms-host/sim-head`, else `~/.local/state/cms-host/sim-head`.
+pub fn default_dir() -> Option<PathBuf> {
+    if let Some(d) = std::env::var_os("CMS_SIM_STATE") {
+        return Some(PathBuf::from(d));
+    }
+    let base = match std::env::var_os("XDG_STATE_HOME") {
+        Some(x) if !x.is_empty() => PathBuf::from(x),
+        _ => PathBuf::from(std::env::var_os("HOME")?).join(".local/state"),
+    };
+    Some(base.join("cms-host/sim-head"))
+}
+
+/// The stored calibration, `None` if there is none.
+pub fn load(path: &Path) -> Result<Option<Calibration>, String> {
+    let mut bytes = match std::fs::read(path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(format!("{}: {e}", path.display())),
+    };
+    if bytes.len() > MAX_COMMAND_FRAME || bytes.last() != Some(&0) {
+        return Err(format!("{}: not a calibration record ({} bytes)", path.display(), bytes.len()));
+    }
+    let n = bytes.len() - 1;
+    match decode_frame::<Command>(&mut bytes[..n]) {
+        Ok(Command { msg: HostMsg::SetCalibration(c), .. }) => Ok(Some(c)),
+        Ok(_) => Err(format!("{}: not a calibration record", path.display())),
+        Err(e) => Err(format!("{}: damaged calibration record ({e})", path.display())),
+    }
+}
+
+/// Stores a calibration (atomically: temporary file, then rename).
+pub fn save(path: &Path, c: &Calibration) -> Result<(), String> {
+    let mut scratch = [0u8; MAX_COMMAND_FRAME];
+    let mut frame = [0u8; MAX_COMMAND_FRAME];
+    let bytes = encode(&Command { seq: 0, msg: HostMsg::SetCalibration(*c) }, &mut scratch, &mut frame)
+        .map_err(|e| format!("encoding the calibration: {e}"))?;
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    }
+    let tmp = path.with_extension("partial");
+    std::fs::write(&tmp, bytes)
+        .and_then(|()| std::fs::rename(&tmp, path))
+        .map_err(|e| format!("{}: {e}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cal() -> Calibration {
+        Calibration {
+            id: 42,
+            intrinsics: [1400.0, 1400.0, 379.2, 236.8, 0.0],
+            distortion: [-0.09, 0.12, 2e-4, -1.5e-4, 0.0],
+            planes: [[0.743_144_8, 0.0, -0.669_130_6, -133.8]; 3],
+            datum: [0.0, 0.0, -1.0, -200.0],
+        }
+    }
+
+    #[test]
+    fn round_trip_missing_and_damaged() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("sub").join(FILE_NAME);
+        assert_eq!(load(&path), Ok(None));
+        save(&path, &cal()).unwrap();
+        assert_eq!(load(&path), Ok(Some(cal())));
+        let mut bytes = std::fs::read(&path).unwrap();
+        bytes[5] ^= 0x40;
+        std::fs::write(&path, &bytes).unwrap();
+        let e = load(&path).unwrap_err();
+        assert!(e.contains("damaged"), "{e}");
+        std::fs::write(&path, b"hello").unwrap();
+        assert!(load(&path).unwrap_err().contains("not a calibration record"));
+    }
+}
