@@ -10,8 +10,8 @@ use cms_core::fixed::Px;
 use cms_core::peak::Flags;
 use cms_core::pipeline::default_detector;
 use cms_core::protocol::{
-    Command, DeviceInfo, DeviceMsg, FrameReader, HeadState, HostMsg, LaserPoints, MAX_COMMAND_FRAME, MAX_FRAME,
-    PROTOCOL_VERSION, Point, Metric, Profile, Status, WireError, encode,
+    Command, DeviceInfo, DeviceMsg, FrameReader, HeadState, HostMsg, LaserPoints, MAX_COMMAND_FRAME, MAX_FRAME, Metric,
+    PROTOCOL_VERSION, Point, Profile, Status, WireError, encode,
 };
 use cms_host::link::Deframer;
 use cms_host::record::{self, HEADER_LEN, Info, Recorder, ScanStats};
