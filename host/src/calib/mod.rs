@@ -10,6 +10,7 @@
 //! * [`file`] — the TOML calibration file: versioned, units in the keys,
 //!   validated on load.
 //! * [`upload`] — `cms-host calibrate upload`.
+//! * [`truth`] — the true calibration of a simulated head.
 //! * [`render`] — `cms-host calibrate render`: calibration images from the
 //!   simulated head, with the truth beside them.
 //!
@@ -26,6 +27,7 @@ pub mod camera;
 pub mod file;
 pub mod lasers;
 pub mod render;
+pub mod truth;
 pub mod upload;
 
 /// A planar checkerboard: `cols × rows` inner corners, `square_mm` apart.

@@ -1,0 +1,43 @@
+//! The true calibration of a simulated head, as a calibration file: what
+//! `calibrate camera` + `calibrate lasers` should find from its images, and
+//! what the end-to-end tests triangulate with.
+
+use super::file::{CalibrationFile, FILE_VERSION, LaserSection, PlaneSection};
+use crate::sim::Scene;
+use crate::sim::board::camera_intrinsics;
+use crate::sim::geom::Plane;
+
+/// A plane as `[[laser]]`/`[datum]` numbers, oriented so that `d < 0` (the
+/// normal points from the plane towards the camera).
+fn oriented(p: &Plane) -> ([f64; 3], f64) {
+    let s = if p.d_mm > 0.0 { -1.0 } else { 1.0 };
+    ([s * p.normal[0], s * p.normal[1], s * p.normal[2]], s * p.d_mm)
+}
+
+/// The scene's camera, laser planes and rail-top datum (the nominal rail
+/// top, `z = 0` of the rail frame: heights are then the sim's
+/// `StripeTruth::height_um`), with the head's optics.
+pub fn truth(scene: &Scene) -> CalibrationFile {
+    let cfg = scene.config();
+    let rail_top = Plane { normal: [0.0, 0.0, 1.0], d_mm: 0.0 };
+    let datum = scene.camera_pose().plane_to_cam(&rail_top);
+    let (n, d_mm) = oriented(&datum);
+    let mut f = CalibrationFile::camera_only(&camera_intrinsics(scene.camera()), 0.0, None);
+    f.version = FILE_VERSION;
+    f.datum = Some(PlaneSection { nx: n[0], ny: n[1], nz: n[2], d_mm });
+    f.head = Some(super::file::HeadSection {
+        laser_diameter_mm: cfg.head.laser_diameter_mm,
+        range_min_mm: cfg.head.working_range_mm[0],
+        range_max_mm: cfg.head.working_range_mm[1],
+    });
+    f.lasers = scene
+        .laser_planes()
+        .iter()
+        .enumerate()
+        .map(|(k, p)| {
+            let (n, d_mm) = oriented(p);
+            LaserSection { id: k as u32, nx: n[0], ny: n[1], nz: n[2], d_mm, rms_mm: 0.0, points: None }
+        })
+        .collect();
+    f
+}
