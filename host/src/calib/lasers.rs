@@ -1,12 +1,526 @@
-//! See the parent module. (Being written.)
+//! `cms-host calibrate lasers`: the three laser planes from laser-on /
+//! laser-off image pairs of the checkerboard at several poses (paper §6.1).
+//!
+//! Per pair:
+//! 1. the board's inner corners in the lasers-off image, and the board's pose
+//!    from them with the calibrated camera ([`super::camera::board_pose`]);
+//! 2. the lasers-on image minus the lasers-off image: the laser lines alone,
+//!    without the checker's edges (which a row detector would otherwise
+//!    take for stripes) and without the lamp;
+//! 3. per image row, the stripes by the core detector (`cms_core::peak`, the
+//!    head's own);
+//! 4. each stripe centre back-projected onto the board plane (undistortion,
+//!    ray, plane), kept if it falls on the printed board.
+//!
+//! **Which stripe is which laser** does not depend on luck: a row counts only
+//! when it has exactly one stripe per laser, and the stripes are then
+//! numbered left to right — the head's own convention (its lasers are
+//! mounted left to right in laser order, and parallel or fanned planes that
+//! do not cross in front of the camera keep that order in every row). The
+//! fitted planes are then checked against that assumption: a point farther
+//! than 5 robust σ from its plane is dropped and counted, and a laser whose
+//! points disagree (RMS above `--max-rms-mm`) fails the calibration rather
+//! than producing a wrong plane.
+//!
+//! Per laser, a total-least-squares plane (the smallest-eigenvalue direction
+//! of the points' scatter about their centroid) with its RMS residual; one
+//! pose gives a line, so at least three poses at different depths must each
+//! contribute points, and the fit refuses point sets that are nearly
+//! collinear.
+//!
+//! **Datum** (the rail-top plane heights are measured from): the board plane
+//! of one pose (`--datum-pose K`, the board laid on the rail or on a
+//! reference block), or else the plane perpendicular to the optical axis
+//! through the point where the middle laser's plane crosses it (a head
+//! mounted square to the rail, paper §2.2).
 
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+use cms_core::fixed::Px;
+use cms_core::optics::ScaleRange;
+use cms_core::peak::{Config, Detector, Select, Stripes};
+use cms_core::protocol::LASERS;
+use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+
+use super::file::{CalibrationFile, HeadSection, LaserSection, PlaneSection};
+use super::{Board, BoardPose, Intrinsics};
 use crate::CliError;
+use crate::input::{Pixels, Rows, read_rows};
 
-/// Arguments.
+/// Widest image the row detector takes.
+const MAX_WIDTH: usize = 8192;
+
+/// Points a laser needs from a pose for the pose to count for it.
+const MIN_POINTS_PER_POSE: usize = 10;
+
+/// Arguments of `calibrate lasers`.
 #[derive(clap::Args, Debug, Clone)]
-pub struct LasersArgs {}
+pub struct LasersArgs {
+    /// The camera calibration (from `calibrate camera`).
+    #[arg(long, value_name = "CAM.toml")]
+    pub camera: PathBuf,
+    /// Where to write the full calibration.
+    #[arg(long, value_name = "CAL.toml")]
+    pub out: PathBuf,
+    /// Inner corners of the board, COLSxROWS [default: the camera file's [board]].
+    #[arg(long, value_name = "COLSxROWS")]
+    pub board: Option<String>,
+    /// Side of a square, mm [default: the camera file's [board]].
+    #[arg(long = "square-mm", value_name = "S")]
+    pub square_mm: Option<f64>,
+    /// The pair (1-based) whose board plane is the rail-top datum.
+    #[arg(long = "datum-pose", value_name = "K")]
+    pub datum_pose: Option<usize>,
+    /// Stripe σ range the detector searches on the board, px.
+    #[arg(long, value_name = "MIN:MAX", default_value = "1:16")]
+    pub scales: String,
+    /// Largest acceptable RMS distance of a laser's points from its plane, mm.
+    #[arg(long = "max-rms-mm", value_name = "MM", default_value_t = 0.1)]
+    pub max_rms_mm: f64,
+    /// Laser sheet thickness, mm: with --range-mm, adds the [head] section
+    /// (the detector's scale range, paper Eq. 10–11).
+    #[arg(long = "laser-diameter-mm", value_name = "D", requires = "range_mm")]
+    pub laser_diameter_mm: Option<f64>,
+    /// Working range, mm.
+    #[arg(long = "range-mm", value_name = "MIN:MAX", requires = "laser_diameter_mm")]
+    pub range_mm: Option<String>,
+    /// Image pairs of the board at each pose: lasers off, then lasers on
+    /// (PNG, TIFF or JPEG, same camera), e.g. board-00.png lasers-00.png board-01.png …
+    #[arg(value_name = "OFF ON", required = true)]
+    pub images: Vec<PathBuf>,
+}
 
-/// Runs the subcommand.
-pub fn run(_args: &LasersArgs) -> Result<(), CliError> {
-    Err(CliError::Usage("not implemented yet".into()))
+/// Options of [`calibrate_lasers`].
+#[derive(Clone, Copy, Debug)]
+pub struct LaserOptions {
+    /// Detector scale range on the board, px.
+    pub scales: (f64, f64),
+    /// Largest acceptable plane RMS, mm.
+    pub max_rms_mm: f64,
+    /// Pose (0-based) whose board is the datum.
+    pub datum_pose: Option<usize>,
+}
+
+impl Default for LaserOptions {
+    fn default() -> Self {
+        LaserOptions { scales: (1.0, 16.0), max_rms_mm: 0.1, datum_pose: None }
+    }
+}
+
+/// What one pose gave.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PoseReport {
+    /// The board's pose.
+    pub pose: BoardPose,
+    /// RMS reprojection error of the board's corners, px.
+    pub board_rms_px: f64,
+    /// Points per laser on the board.
+    pub points: [usize; LASERS],
+    /// Stripes far from every laser's line, or a second one near the same line (not used).
+    pub ambiguous_rows: usize,
+}
+
+/// A fitted laser plane.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LaserPlane {
+    /// Unit normal, camera frame, oriented so that `d_mm < 0`.
+    pub normal: [f64; 3],
+    /// `normal · X = d_mm`.
+    pub d_mm: f64,
+    /// RMS distance of the points kept, mm.
+    pub rms_mm: f64,
+    /// Points kept.
+    pub points: usize,
+    /// Points dropped as outliers.
+    pub outliers: usize,
+    /// Poses that contributed.
+    pub poses: usize,
+}
+
+/// The result of [`calibrate_lasers`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct LaserCalibration {
+    /// Per laser, left to right.
+    pub planes: [LaserPlane; LASERS],
+    /// The datum: unit normal towards the camera and `d_mm < 0`.
+    pub datum: ([f64; 3], f64),
+    /// Per pose (pair), or why it was not used.
+    pub poses: Vec<Result<PoseReport, String>>,
+}
+
+/// A laser-off / laser-on pair.
+pub struct Pair {
+    /// Lasers off.
+    pub off: Rows,
+    /// Lasers on.
+    pub on: Rows,
+    /// For messages.
+    pub name: String,
+}
+
+fn gray(r: &Rows) -> Vec<f32> {
+    match r.pixels() {
+        Pixels::U8(v) => v.iter().map(|&p| f32::from(p)).collect(),
+        Pixels::U16(v) => v.iter().map(|&p| f32::from(p)).collect(),
+    }
+}
+
+fn value(r: &Rows, i: usize) -> u16 {
+    match r.pixels() {
+        Pixels::U8(v) => u16::from(v[i]),
+        Pixels::U16(v) => v[i],
+    }
+}
+
+/// The stripe points of one pair on the board, camera frame, per laser.
+fn pose_points(
+    intr: &Intrinsics,
+    board: &Board,
+    pair: &Pair,
+    det: &mut Detector<MAX_WIDTH>,
+) -> Result<(PoseReport, [Vec<[f64; 3]>; LASERS]), String> {
+    let (w, h) = (pair.off.width(), pair.off.height());
+    if (pair.on.width(), pair.on.height()) != (w, h) {
+        return Err(format!("the lasers-on image is {}×{}, the lasers-off {w}×{h}", pair.on.width(), pair.on.height()));
+    }
+    if (w as u32, h as u32) != (intr.width, intr.height) {
+        return Err(format!("{w}×{h} images; the camera was calibrated at {}×{}", intr.width, intr.height));
+    }
+    let corners = super::board::find_corners(&gray(&pair.off), w, h, board).map_err(|e| format!("board: {e}"))?;
+    let (pose, board_rms_px) =
+        super::camera::board_pose(intr, board, &corners).map_err(|e| format!("board pose: {e}"))?;
+    let (n, d) = pose.plane();
+    let s = board.square_mm;
+    let (x_max, y_max) = (board.cols as f64 * s, board.rows as f64 * s);
+    // The lasers-off image's bright level: a stripe counts only where the
+    // board under it is uniformly white (on black squares it is 17× weaker,
+    // and across a checker edge the reflectance step moves its centre).
+    let mut sorted: Vec<u16> = (0..w * h).step_by(7).map(|i| value(&pair.off, i)).collect();
+    sorted.sort_unstable();
+    let white = f64::from(sorted[sorted.len() * 95 / 100]);
+    let uniform_white = |u: f64, v: usize, sigma: f64| {
+        let half = (3.0 * sigma + 2.0).ceil() as isize;
+        let (c, v) = (u.round() as isize, v as isize);
+        let (mut lo, mut hi) = (f64::MAX, 0.0f64);
+        for y in (v - 2).max(0)..=(v + 2).min(h as isize - 1) {
+            for x in (c - half).max(0)..=(c + half).min(w as isize - 1) {
+                let p = f64::from(value(&pair.off, y as usize * w + x as usize));
+                lo = lo.min(p);
+                hi = hi.max(p);
+            }
+        }
+        hi >= 0.5 * white && lo >= 0.75 * hi
+    };
+    // Every row's stripes.
+    let mut rows: Vec<Vec<(f64, f64)>> = Vec::with_capacity(h);
+    let mut diff = vec![0u16; w];
+    for v in 0..h {
+        for (u, o) in diff.iter_mut().enumerate() {
+            let i = v * w + u;
+            *o = value(&pair.on, i).saturating_sub(value(&pair.off, i));
+        }
+        let mut stripes: Stripes<{ LASERS + 1 }> = Stripes::new();
+        // A row the detector cannot take (it validated its configuration) has no stripe.
+        let _ = det.detect(&diff, &mut stripes);
+        let mut r: Vec<(f64, f64)> = stripes.iter().map(|s| (s.position.to_f64(), s.width.to_f64())).collect();
+        r.sort_by(|a, b| a.0.total_cmp(&b.0));
+        rows.push(r);
+    }
+    // Which stripe is which laser: each laser's line across the image,
+    // u(v) quadratic, from the rows that show all of them (left to right);
+    // then every stripe of every row goes to the nearest line, if near.
+    let mut lines = Vec::with_capacity(LASERS);
+    for k in 0..LASERS {
+        let obs: Vec<(f64, f64)> =
+            rows.iter().enumerate().filter(|(_, r)| r.len() == LASERS).map(|(v, r)| (v as f64, r[k].0)).collect();
+        if obs.len() < 10 {
+            return Err(format!("laser {k}: only {} rows show every laser's stripe", obs.len()));
+        }
+        lines.push(quadratic(&obs));
+    }
+    let mut pts: [Vec<[f64; 3]>; LASERS] = Default::default();
+    let mut ambiguous = 0;
+    for (v, r) in rows.iter().enumerate() {
+        let mut taken = [false; LASERS];
+        for &(u, sigma) in r {
+            let dist: Vec<f64> = lines.iter().map(|c| (eval(c, v as f64) - u).abs()).collect();
+            let k = (0..LASERS).min_by(|&a, &b| dist[a].total_cmp(&dist[b])).unwrap_or(0);
+            if dist[k] > (2.0 * sigma).max(4.0) || std::mem::replace(&mut taken[k], true) {
+                ambiguous += 1;
+                continue;
+            }
+            if !uniform_white(u, v, sigma) {
+                continue;
+            }
+            let ray = intr.unproject(u, v as f64);
+            let den = n[0] * ray[0] + n[1] * ray[1] + n[2] * ray[2];
+            if den.abs() < 1e-9 {
+                continue;
+            }
+            let t = d / den;
+            let x = [ray[0] * t, ray[1] * t, ray[2] * t];
+            // On the printed board (its outer squares included)?
+            let rel = [x[0] - pose.t_mm[0], x[1] - pose.t_mm[1], x[2] - pose.t_mm[2]];
+            let r = &pose.rot;
+            let bx = r[0][0] * rel[0] + r[1][0] * rel[1] + r[2][0] * rel[2];
+            let by = r[0][1] * rel[0] + r[1][1] * rel[1] + r[2][1] * rel[2];
+            if t > 0.0 && bx >= -s && bx <= x_max && by >= -s && by <= y_max {
+                pts[k].push(x);
+            }
+        }
+    }
+    let points = [pts[0].len(), pts[1].len(), pts[2].len()];
+    Ok((PoseReport { pose, board_rms_px, points, ambiguous_rows: ambiguous }, pts))
+}
+
+/// Least-squares `u = c0 + c1·v + c2·v²` through `(v, u)` points (`v`
+/// centred and scaled for conditioning).
+fn quadratic(obs: &[(f64, f64)]) -> [f64; 5] {
+    let n = obs.len() as f64;
+    let mean = obs.iter().map(|o| o.0).sum::<f64>() / n;
+    let scale = obs.iter().map(|o| (o.0 - mean).abs()).fold(1.0, f64::max);
+    let mut a = nalgebra::Matrix3::<f64>::zeros();
+    let mut b = Vector3::<f64>::zeros();
+    for &(v, u) in obs {
+        let t = (v - mean) / scale;
+        let row = Vector3::new(1.0, t, t * t);
+        a += row * row.transpose();
+        b += row * u;
+    }
+    let c = a.try_inverse().map_or(Vector3::new(obs[0].1, 0.0, 0.0), |inv| inv * b);
+    [c[0], c[1], c[2], mean, scale]
+}
+
+fn eval(c: &[f64; 5], v: f64) -> f64 {
+    let t = (v - c[3]) / c[4];
+    c[0] + t * (c[1] + t * c[2])
+}
+
+/// Total-least-squares plane of `pts`: (unit normal with `d < 0`, d, RMS,
+/// the middle singular spread in mm — near 0 for collinear points).
+fn tls_plane(pts: &[[f64; 3]]) -> ([f64; 3], f64, f64, f64) {
+    let n = pts.len() as f64;
+    let mut c = Vector3::zeros();
+    for p in pts {
+        c += Vector3::from(*p);
+    }
+    c /= n;
+    let mut m = Matrix3::zeros();
+    for p in pts {
+        let q = Vector3::from(*p) - c;
+        m += q * q.transpose();
+    }
+    let eig = SymmetricEigen::new(m / n);
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    let mut normal: Vector3<f64> = eig.eigenvectors.column(order[0]).into();
+    let mut d = normal.dot(&c);
+    if d > 0.0 {
+        normal = -normal;
+        d = -d;
+    }
+    let rms = eig.eigenvalues[order[0]].max(0.0).sqrt();
+    let spread = eig.eigenvalues[order[1]].max(0.0).sqrt();
+    ([normal.x, normal.y, normal.z], d, rms, spread)
+}
+
+fn fit(k: usize, pts: &[[f64; 3]], poses: usize, max_rms_mm: f64) -> Result<LaserPlane, String> {
+    if poses < 3 {
+        return Err(format!("laser {k}: points from {poses} poses; a plane needs at least 3 at different depths"));
+    }
+    let (mut n, mut d, _, spread) = tls_plane(pts);
+    if spread < 1.0 {
+        return Err(format!(
+            "laser {k}: the points are nearly on one line (spread {spread:.2} mm): vary the board's depth"
+        ));
+    }
+    // One robust pass: drop points beyond 5 robust σ (median absolute residual × 1.4826).
+    let mut kept: Vec<[f64; 3]> = pts.to_vec();
+    let mut res: Vec<f64> = kept.iter().map(|p| (n[0] * p[0] + n[1] * p[1] + n[2] * p[2] - d).abs()).collect();
+    let mut sorted = res.clone();
+    sorted.sort_by(f64::total_cmp);
+    let sigma = 1.4826 * sorted[sorted.len() / 2];
+    if sigma > 0.0 {
+        let mut i = 0;
+        kept.retain(|_| {
+            let keep = res[i] <= 5.0 * sigma;
+            i += 1;
+            keep
+        });
+        (n, d, _, _) = tls_plane(&kept);
+        res = kept.iter().map(|p| n[0] * p[0] + n[1] * p[1] + n[2] * p[2] - d).collect();
+    }
+    let rms = (res.iter().map(|r| r * r).sum::<f64>() / res.len() as f64).sqrt();
+    if rms > max_rms_mm {
+        return Err(format!(
+            "laser {k}: its points are {rms:.3} mm RMS from their plane (limit {max_rms_mm} mm): stripes assigned to the wrong laser, or a bad camera calibration"
+        ));
+    }
+    Ok(LaserPlane { normal: n, d_mm: d, rms_mm: rms, points: kept.len(), outliers: pts.len() - kept.len(), poses })
+}
+
+/// Calibrates the laser planes from image pairs of `board` seen by a camera
+/// with intrinsics `intr`.
+pub fn calibrate_lasers(
+    intr: &Intrinsics,
+    board: &Board,
+    pairs: &[Pair],
+    opts: &LaserOptions,
+) -> Result<LaserCalibration, String> {
+    let scales = ScaleRange::new(Px::from_f64(opts.scales.0), Px::from_f64(opts.scales.1))
+        .map_err(|e| format!("--scales: {e}"))?;
+    let bits = pairs.first().map_or(8, |p| p.on.bits());
+    let mut cfg = Config::new(bits, scales);
+    cfg.max_stripes = LASERS as u8 + 1; // one more than lasers: a spurious stripe makes the row ambiguous
+    cfg.select = Select::Strongest;
+    let mut det: Box<Detector<MAX_WIDTH>> =
+        Box::new(Detector::new(cfg).map_err(|e| format!("detector for {bits}-bit images: {e}"))?);
+    let mut all: [Vec<[f64; 3]>; LASERS] = Default::default();
+    let mut contributing = [0usize; LASERS];
+    let mut poses = Vec::new();
+    for pair in pairs {
+        if pair.off.width() > MAX_WIDTH {
+            poses.push(Err(format!("{}: wider than {MAX_WIDTH} px", pair.name)));
+            continue;
+        }
+        match pose_points(intr, board, pair, &mut det) {
+            Ok((report, pts)) => {
+                for (k, p) in pts.into_iter().enumerate() {
+                    if p.len() >= MIN_POINTS_PER_POSE {
+                        contributing[k] += 1;
+                        all[k].extend(p);
+                    }
+                }
+                poses.push(Ok(report));
+            }
+            Err(e) => poses.push(Err(format!("{}: {e}", pair.name))),
+        }
+    }
+    let mut planes = Vec::with_capacity(LASERS);
+    for k in 0..LASERS {
+        planes.push(fit(k, &all[k], contributing[k], opts.max_rms_mm)?);
+    }
+    let planes: [LaserPlane; LASERS] = [planes[0], planes[1], planes[2]];
+    let datum = match opts.datum_pose {
+        Some(i) => match poses.get(i) {
+            Some(Ok(r)) => {
+                let (n, d) = r.pose.plane();
+                if d > 0.0 { ([-n[0], -n[1], -n[2]], -d) } else { (n, d) }
+            }
+            Some(Err(e)) => return Err(format!("--datum-pose {}: {e}", i + 1)),
+            None => return Err(format!("--datum-pose {}: there are {} pairs", i + 1, poses.len())),
+        },
+        None => {
+            let m = &planes[LASERS / 2];
+            if m.normal[2].abs() < 1e-6 {
+                return Err("the middle laser's plane contains the optical axis: give --datum-pose".into());
+            }
+            ([0.0, 0.0, -1.0], -(m.d_mm / m.normal[2]).abs())
+        }
+    };
+    Ok(LaserCalibration { planes, datum, poses })
+}
+
+fn pair_of(s: &str, what: &str) -> Result<(f64, f64), String> {
+    let (a, b) = s.split_once(':').ok_or_else(|| format!("{what} {s:?}: expected MIN:MAX"))?;
+    let p = |t: &str| t.trim().parse::<f64>().map_err(|_| format!("{what} {s:?}: {t:?} is not a number"));
+    let (a, b) = (p(a)?, p(b)?);
+    if !(a.is_finite() && b.is_finite() && a > 0.0 && b > a) {
+        return Err(format!("{what} {s:?}: need 0 < MIN < MAX"));
+    }
+    Ok((a, b))
+}
+
+/// Runs `calibrate lasers`.
+pub fn run(args: &LasersArgs) -> Result<(), CliError> {
+    let usage = CliError::Usage;
+    let mut file = CalibrationFile::load(&args.camera)?;
+    let board = match (&args.board, args.square_mm, file.board()) {
+        (Some(b), Some(s), _) => super::camera::parse_board(b, s).map_err(usage)?,
+        (None, None, Some(b)) => b,
+        (None, None, None) => {
+            return Err(usage(format!("{} has no [board]: give --board and --square-mm", args.camera.display())));
+        }
+        _ => return Err(usage("--board and --square-mm go together".into())),
+    };
+    let scales = pair_of(&args.scales, "--scales").map_err(usage)?;
+    if !(args.max_rms_mm.is_finite() && args.max_rms_mm > 0.0) {
+        return Err(usage(format!("--max-rms-mm {}: must be > 0", args.max_rms_mm)));
+    }
+    let head = match (args.laser_diameter_mm, &args.range_mm) {
+        (Some(d), Some(r)) => {
+            let (lo, hi) = pair_of(r, "--range-mm").map_err(usage)?;
+            if !(d.is_finite() && d > 0.0) {
+                return Err(usage(format!("--laser-diameter-mm {d}: must be > 0")));
+            }
+            Some(HeadSection { laser_diameter_mm: d, range_min_mm: lo, range_max_mm: hi })
+        }
+        _ => None,
+    };
+    if args.images.len() % 2 != 0 || args.images.len() < 6 {
+        return Err(usage(format!(
+            "{} images: give pairs (lasers off, lasers on) of at least 3 poses",
+            args.images.len()
+        )));
+    }
+    let mut pairs = Vec::new();
+    for ch in args.images.chunks(2) {
+        let off = read_rows(&ch[0])?;
+        let on = read_rows(&ch[1])?;
+        pairs.push(Pair { off, on, name: format!("{} + {}", ch[0].display(), ch[1].display()) });
+    }
+    let opts = LaserOptions { scales, max_rms_mm: args.max_rms_mm, datum_pose: args.datum_pose.map(|k| k.max(1) - 1) };
+    if args.datum_pose == Some(0) {
+        return Err(usage("--datum-pose counts from 1".into()));
+    }
+    let intr = file.intrinsics();
+    let cal = calibrate_lasers(&intr, &board, &pairs, &opts).map_err(usage)?;
+    let mut report = String::new();
+    for (i, p) in cal.poses.iter().enumerate() {
+        let _ = match p {
+            Ok(r) => writeln!(
+                report,
+                "pose {:>2}: board {:.3} px RMS at {:.0} mm; points per laser {:?}; {} stripes not assigned",
+                i + 1,
+                r.board_rms_px,
+                r.pose.t_mm[2],
+                r.points,
+                r.ambiguous_rows
+            ),
+            Err(e) => writeln!(report, "pose {:>2}: rejected: {e}", i + 1),
+        };
+    }
+    for (k, l) in cal.planes.iter().enumerate() {
+        let _ = writeln!(
+            report,
+            "laser {k}: n = ({:+.6}, {:+.6}, {:+.6}), d = {:.4} mm, RMS {:.4} mm over {} points from {} poses ({} outliers)",
+            l.normal[0], l.normal[1], l.normal[2], l.d_mm, l.rms_mm, l.points, l.poses, l.outliers
+        );
+    }
+    file.datum = Some(PlaneSection { nx: cal.datum.0[0], ny: cal.datum.0[1], nz: cal.datum.0[2], d_mm: cal.datum.1 });
+    file.lasers = cal
+        .planes
+        .iter()
+        .enumerate()
+        .map(|(k, l)| LaserSection {
+            id: k as u32,
+            nx: l.normal[0],
+            ny: l.normal[1],
+            nz: l.normal[2],
+            d_mm: l.d_mm,
+            rms_mm: l.rms_mm,
+            points: Some(l.points as u64),
+        })
+        .collect();
+    if head.is_some() {
+        file.head = head;
+    }
+    // The head would refuse a calibration its triangulation cannot use: say so now.
+    let msg = file.to_head().map_err(|e| usage(e.to_string()))?;
+    cms_core::pipeline::triangulator(&msg).map_err(|e| usage(format!("the fitted planes are unusable: {e}")))?;
+    file.save(&args.out)?;
+    print!("{report}");
+    println!("wrote {}", args.out.display());
+    Ok(())
 }
