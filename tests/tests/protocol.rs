@@ -18,7 +18,14 @@ fn hex(b: &[u8]) -> std::string::String {
 }
 
 fn point(row: u16) -> Point {
-    Point { row, position: Px::from_f64(201.5), strength: 1500, width: Px::from_f64(2.5), flags: Flags::NONE, metric: None }
+    Point {
+        row,
+        position: Px::from_f64(201.5),
+        strength: 1500,
+        width: Px::from_f64(2.5),
+        flags: Flags::NONE,
+        metric: None,
+    }
 }
 
 fn sample_profile() -> Profile {

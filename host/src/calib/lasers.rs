@@ -173,13 +173,16 @@ fn value(r: &Rows, i: usize) -> u16 {
     }
 }
 
+/// Points per laser, camera frame, mm.
+type PerLaser = [Vec<[f64; 3]>; LASERS];
+
 /// The stripe points of one pair on the board, camera frame, per laser.
 fn pose_points(
     intr: &Intrinsics,
     board: &Board,
     pair: &Pair,
     det: &mut Detector<MAX_WIDTH>,
-) -> Result<(PoseReport, [Vec<[f64; 3]>; LASERS]), String> {
+) -> Result<(PoseReport, PerLaser), String> {
     let (w, h) = (pair.off.width(), pair.off.height());
     if (pair.on.width(), pair.on.height()) != (w, h) {
         return Err(format!("the lasers-on image is {}×{}, the lasers-off {w}×{h}", pair.on.width(), pair.on.height()));
@@ -458,7 +461,7 @@ pub fn run(args: &LasersArgs) -> Result<(), CliError> {
         }
         _ => None,
     };
-    if args.images.len() % 2 != 0 || args.images.len() < 6 {
+    if !args.images.len().is_multiple_of(2) || args.images.len() < 6 {
         return Err(usage(format!(
             "{} images: give pairs (lasers off, lasers on) of at least 3 poses",
             args.images.len()
