@@ -293,3 +293,66 @@ fn a_detector_of_another_bit_depth_is_refused_at_start() {
     assert_eq!(ErrorCode::from(WireError::Version(3)), ErrorCode::Version(3));
     assert_eq!(ErrorCode::from(WireError::Overflow), ErrorCode::Decode);
 }
+
+/// A calibration of the reference head (planes leaning 42° from the optical
+/// axis, lines 10 mm apart, rail top 200 mm below the camera).
+fn calibration(id: u32) -> Calibration {
+    let (c, s) = (0.743_144_8f32, 0.669_130_6f32);
+    Calibration {
+        id,
+        intrinsics: [1400.0, 1400.0, 376.0, 240.0, 0.0],
+        distortion: [-0.09, 0.12, 2e-4, -1.5e-4, 0.0],
+        planes: [-10.0f32, 0.0, 10.0].map(|o| [c, 0.0, -s, c * o - s * 200.0]),
+        datum: [0.0, 0.0, -1.0, -200.0],
+    }
+}
+
+#[test]
+fn a_calibrated_head_triangulates_every_point_and_refuses_bad_calibrations() {
+    let (mut h, l) = head();
+    let mut cam = Cam::new();
+    let mut out = Vec::new();
+    // Refused: the id 0, a plane through the camera, a datum above it.
+    let mut through = calibration(5);
+    through.planes[1][3] = 0.0;
+    let mut above = calibration(6);
+    above.datum = [0.0, 0.0, 1.0, 200.0];
+    for (seq, bad) in [(1, calibration(0)), (2, through), (3, above)] {
+        h.handle(cmd(seq, HostMsg::SetCalibration(bad)), 0, &cam, &mut |m| out.push(m.clone()));
+        assert!(out.contains(&DeviceMsg::Error { seq: Some(seq), code: ErrorCode::InvalidConfig }), "{out:?}");
+        assert!(h.calibration().is_none());
+    }
+    h.handle(cmd(4, HostMsg::SetCalibration(calibration(7))), 0, &cam, &mut |m| out.push(m.clone()));
+    assert!(out.contains(&DeviceMsg::Ack(4)));
+    out.clear();
+    h.handle(cmd(5, HostMsg::GetInfo), 0, &cam, &mut |m| out.push(m.clone()));
+    assert!(matches!(&out[0], DeviceMsg::Hello(i) if i.calibration_id == 7), "{out:?}");
+
+    out.clear();
+    let mut clock = 0u64;
+    let mut ns = || {
+        clock += 1000;
+        clock
+    };
+    h.handle(cmd(6, start(0b111, LaserPattern::Simultaneous)), 10, &cam, &mut |m| out.push(m.clone()));
+    h.poll(20, &mut cam, &mut ns, &mut |m| out.push(m.clone()));
+    // Not while streaming: the lasers go off, the calibration stays.
+    h.handle(cmd(7, HostMsg::SetCalibration(calibration(8))), 30, &cam, &mut |m| out.push(m.clone()));
+    assert!(out.contains(&DeviceMsg::Error { seq: Some(7), code: ErrorCode::Busy }));
+    assert_eq!(l.now(), 0);
+    assert_eq!(h.calibration().map(|c| c.id), Some(7));
+
+    let tri = h.triangulator().unwrap();
+    let p = out.iter().find_map(|m| if let DeviceMsg::Profile(p) = m { Some(p) } else { None }).unwrap();
+    let mut n = 0;
+    for lp in &p.lasers {
+        for pt in &lp.points {
+            let m = pt.metric.expect("every point triangulated");
+            let want = tri.profile(lp.laser as usize, pt.position, pt.row).unwrap();
+            assert!((f64::from(m.along_um) - f64::from(want.along_mm) * 1e3).abs() <= 0.51, "{m:?} {want:?}");
+            assert!((f64::from(m.height_nm) - f64::from(want.height_mm) * 1e6).abs() <= 4.0, "{m:?} {want:?}");
+            n += 1;
+        }
+    }
+    assert_eq!(n, 3 * 480);
+}

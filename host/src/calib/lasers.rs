@@ -527,3 +527,47 @@ pub fn run(args: &LasersArgs) -> Result<(), CliError> {
     println!("wrote {}", args.out.display());
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tls_plane_recovers_a_known_plane_and_refuses_a_line() {
+        let n = [0.8f64, 0.0, -0.6];
+        let d = -120.0;
+        // Points on the plane: X = p0 + a·e1 + b·e2, with a little deterministic "noise".
+        let p0 = [n[0] * d, n[1] * d, n[2] * d];
+        let (e1, e2) = ([0.6, 0.0, 0.8], [0.0, 1.0, 0.0]);
+        let mut pts = Vec::new();
+        for i in 0..40 {
+            for j in 0..5 {
+                let (a, b) = (i as f64 - 20.0, 4.0 * j as f64);
+                let wobble = 0.01 * ((i * 7 + j * 3) % 5) as f64 - 0.02;
+                pts.push([0, 1, 2].map(|k| p0[k] + a * e1[k] + b * e2[k] + wobble * n[k]));
+            }
+        }
+        let (m, dd, rms, spread) = tls_plane(&pts);
+        assert!((m[0] - 0.8).abs() < 1e-4 && m[1].abs() < 1e-4 && (m[2] + 0.6).abs() < 1e-4, "{m:?}");
+        assert!((dd - d).abs() < 0.01 && dd < 0.0, "{dd}");
+        assert!(rms > 0.005 && rms < 0.02, "{rms}");
+        assert!(spread > 1.0);
+        let line: Vec<[f64; 3]> = (0..50).map(|i| [0, 1, 2].map(|k| p0[k] + i as f64 * e1[k])).collect();
+        let e = fit(0, &line, 3, 0.1).unwrap_err();
+        assert!(e.contains("nearly on one line"), "{e}");
+        assert!(fit(0, &pts, 2, 0.1).unwrap_err().contains("2 poses"));
+        let p = fit(1, &pts, 3, 0.1).unwrap();
+        assert_eq!((p.points, p.outliers), (200, 0));
+        assert!(fit(1, &pts, 3, 0.001).unwrap_err().contains("wrong laser"));
+    }
+
+    #[test]
+    fn quadratic_fits_a_curved_line() {
+        let obs: Vec<(f64, f64)> =
+            (0..480).step_by(5).map(|v| (v as f64, 300.0 + 0.1 * v as f64 - 2e-4 * (v * v) as f64)).collect();
+        let c = quadratic(&obs);
+        for v in [0.0, 123.0, 479.0] {
+            assert!((eval(&c, v) - (300.0 + 0.1 * v - 2e-4 * v * v)).abs() < 1e-9);
+        }
+    }
+}
