@@ -35,8 +35,8 @@ use std::time::{Duration, Instant};
 
 use cms_core::pipeline::{Camera, Head, Identity, LaserDriver, default_detector};
 use cms_core::protocol::{
-    Command, DeviceMsg, ErrorCode, FrameReader, HeadState, LaserPattern, MAX_COMMAND_FRAME, MAX_FRAME, Start,
-    WireError, encode,
+    Command, DeviceMsg, ErrorCode, FrameReader, HeadState, LaserPattern, MAX_COMMAND_FRAME, MAX_FRAME,
+    PROTOCOL_VERSION, Start, WireError, encode,
 };
 use cms_host::listen::{ListenError, ListenOptions, Progress, Summary, listen_with};
 use cms_host::record;
@@ -873,7 +873,7 @@ fn another_protocol_version_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("ttyV2");
     let mut pty = plug(&link);
-    // A Hello framed as protocol version 2 (CRC recomputed).
+    // A Hello framed as the next protocol version (CRC recomputed).
     let mut info = None;
     let head: Head<W, Lasers> =
         Head::new(Lasers::default(), default_detector(), Identity { firmware: "9", board: "v2" }).expect("head");
@@ -884,7 +884,7 @@ fn another_protocol_version_is_refused() {
         encode(&DeviceMsg::Hello(info.unwrap()), &mut scratch, &mut out).unwrap().to_vec()
     };
     let mut raw = cobs_decode(&f[..f.len() - 1]);
-    raw[0] = 2;
+    raw[0] = PROTOCOL_VERSION + 1;
     let n = raw.len() - 4;
     let crc = cms_core::protocol::CRC.checksum(&raw[..n]);
     raw[n..].copy_from_slice(&crc.to_le_bytes());
@@ -910,6 +910,8 @@ fn another_protocol_version_is_refused() {
         listen_with(link.to_str().unwrap(), &opts, &AtomicBool::new(false), &mut io::sink(), &mut |_| {}).unwrap_err();
     stop.store(true, Ordering::SeqCst);
     answer.join().unwrap();
-    assert!(matches!(e, ListenError::Version { theirs: 2, .. }), "{e}");
-    assert!(e.to_string().contains("speaks protocol version 2; this cms-host speaks version 1"), "{e}");
+    assert!(matches!(e, ListenError::Version { theirs, .. } if theirs == PROTOCOL_VERSION + 1), "{e}");
+    let want =
+        format!("speaks protocol version {}; this cms-host speaks version {PROTOCOL_VERSION}", PROTOCOL_VERSION + 1);
+    assert!(e.to_string().contains(&want), "{e}");
 }
