@@ -10,6 +10,7 @@
 //! * [`listen`] — `cms-host listen`: handshake, stream, record and show a sensor head's profiles.
 //! * [`link`] — the serial port (open by path, reconnect) and frame splitting.
 //! * [`record`] — the recording format, `cms-host export` and `cms-host info`.
+//! * [`standards`] — rail-standard analysis of a longitudinal profile: EN 13231-3 bands, EN 15610 roughness.
 
 pub mod calib;
 pub mod detect;
@@ -19,6 +20,7 @@ pub mod listen;
 pub mod record;
 pub mod sim;
 pub mod simulate;
+pub mod standards;
 
 use std::fmt;
 use std::io::Write as _;
