@@ -242,3 +242,29 @@ proptest! {
         let _ = en15610::curvature_process(&z, dx_mm, 375.0);
     }
 }
+
+/// The band filter against scipy's `butter` + `sosfiltfilt` of the same design
+/// (`tests/scripts/standards_reference.py`), away from the ends where the two
+/// pad differently.
+#[test]
+fn band_filter_matches_scipy_in_the_interior() {
+    let text = include_str!("data/standards/band_30_100.csv");
+    let (mut z, mut reference) = (Vec::new(), Vec::new());
+    for line in text.lines().filter(|l| !l.starts_with('#') && !l.starts_with('x')) {
+        let f: Vec<&str> = line.split(',').collect();
+        z.push(f[1].parse::<f64>().unwrap());
+        reference.push(f[2].parse::<f64>().ok());
+    }
+    let y = en13231::band_pass(&z, 1.0, 30.0, 100.0).unwrap();
+    let mut worst = 0.0f64;
+    let mut compared = 0;
+    for (got, want) in y.iter().zip(&reference) {
+        if let Some(want) = want {
+            worst = worst.max((got - want).abs());
+            compared += 1;
+        }
+    }
+    println!("30–100 mm band vs scipy over {compared} samples: largest difference {worst:.2e} µm");
+    assert_eq!(compared, 1000);
+    assert!(worst < 1e-5, "{worst}");
+}
