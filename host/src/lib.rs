@@ -6,6 +6,7 @@
 //!
 //! * [`calib`] — `cms-host calibrate`: camera and laser-plane calibration, the calibration file, upload.
 //! * [`detect`] — `cms-host detect`: laser-stripe positions of image rows as CSV.
+//! * [`fit`] — `cms-host fit`: IEEE 1057 and the paper's rotated sine fits of a profile.
 //! * [`input`] — reading grayscale PNG/TIFF images and CSV rows.
 //! * [`listen`] — `cms-host listen`: handshake, stream, record and show a sensor head's profiles.
 //! * [`link`] — the serial port (open by path, reconnect) and frame splitting.
@@ -14,6 +15,7 @@
 
 pub mod calib;
 pub mod detect;
+pub mod fit;
 pub mod input;
 pub mod link;
 pub mod listen;

@@ -8,6 +8,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use cms_host::calib;
 use cms_host::detect;
+use cms_host::fit;
 use cms_host::simulate;
 use cms_host::{listen, record};
 
@@ -41,6 +42,8 @@ enum Command {
     Info(record::InfoArgs),
     /// Simulated sensor head on a pseudo-terminal (prints its path first).
     Simulate(simulate::SimulateArgs),
+    /// Fit a sine (the paper's rotated sine by default) to a profile x_mm,z_mm.
+    Fit(fit::FitArgs),
     /// Camera and laser-plane calibration; upload to a head.
     #[command(subcommand)]
     Calibrate(calib::CalibrateCmd),
@@ -76,6 +79,10 @@ fn main() -> ExitCode {
             }
         },
         Command::Simulate(args) => match simulate::run(&args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => e.report(),
+        },
+        Command::Fit(args) => match fit::run(&args) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => e.report(),
         },
