@@ -309,7 +309,7 @@ fn export_formats() {
         assert!(record::CSV_HEADER.ends_with(",flags,along_mm,height_um"));
         assert_eq!(lines.len(), 1 + 3 * 2);
         assert_eq!(lines[1], "2,0,21000,4.999,0,0,100.00200,1000,2.50000,0,,");
-        assert_eq!(lines[3], "2,0,21000,4.999,1,0,250.00200,1001,2.50000,0,-1.200,35.250");
+        assert_eq!(lines[3], "2,0,21000,4.999,1,0,250.00200,1000,2.50000,0,-1.200,35.250");
         assert_eq!(lines[4], "2,0,21000,4.999,1,1,250.01199,1001,2.50000,4,,");
         let mut jl = Vec::new();
         record::export_to(&path, record::ExportFormat::Jsonl, &mut jl).unwrap();
@@ -358,7 +358,7 @@ fn cli_export_and_info_of_a_truncated_file() {
             "seq: 0 to 3, 0 missing",
             "lasers: 0 (12 points), 1 (12 points), 2 (12 points)",
             "points: 36 (9.0 per frame)",
-            "device: firmware 1.2.3, board bench, protocol 1, sensor 752x480 at 12 bits, calibration none",
+            &format!("device: firmware 1.2.3, board bench, protocol {PROTOCOL_VERSION}, sensor 752x480 at 12 bits, calibration none"),
             "damaged frames: 0",
             "truncated bytes at the end: 37",
         ] {
