@@ -358,7 +358,9 @@ fn cli_export_and_info_of_a_truncated_file() {
             "seq: 0 to 3, 0 missing",
             "lasers: 0 (12 points), 1 (12 points), 2 (12 points)",
             "points: 36 (9.0 per frame)",
-            &format!("device: firmware 1.2.3, board bench, protocol {PROTOCOL_VERSION}, sensor 752x480 at 12 bits, calibration none"),
+            &format!(
+                "device: firmware 1.2.3, board bench, protocol {PROTOCOL_VERSION}, sensor 752x480 at 12 bits, calibration none"
+            ),
             "damaged frames: 0",
             "truncated bytes at the end: 37",
         ] {
