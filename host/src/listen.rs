@@ -263,6 +263,11 @@ impl fmt::Display for Summary {
             "reconnects: {}, stalls: {}, head restarts: {}, head dropped frames: {}",
             self.reconnects, self.stalls, self.head_restarts, self.head_dropped
         )?;
+        match self.device.as_ref().map(|d| d.calibration_id) {
+            Some(0) => writeln!(f, "calibration: none (positions in pixels only: see cms-host calibrate)")?,
+            Some(id) => writeln!(f, "calibration: {id:#010x} (points in mm along the line, heights in µm)")?,
+            None => {}
+        }
         let lasers = match self.lasers_on {
             Some(0) => "off".to_string(),
             Some(m) => format!("ON ({m:#05b})"),

@@ -44,7 +44,8 @@ fn upload_is_kept_across_restarts_and_points_carry_millimetres() {
 
     let l = run(&["listen", "sim", "--sim-state", state_s, "--frames", "3", "--json"]);
     assert!(l.status.success(), "{l:?}");
-    assert!(String::from_utf8_lossy(&l.stderr).contains("restored from"));
+    let said = String::from_utf8_lossy(&l.stderr);
+    assert!(said.contains("restored from") && said.contains("listen: calibration: 0x"), "{said}");
     let mut n = 0;
     for line in String::from_utf8(l.stdout).unwrap().lines() {
         let v: serde_json::Value = serde_json::from_str(line).unwrap();

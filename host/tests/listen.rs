@@ -727,6 +727,7 @@ fn cli_listen_json_record_info_export() {
     assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1), "{seqs:?}");
     assert!(stderr.contains("listen: frames: 30 "), "{stderr}");
     assert!(stderr.contains("listen: lasers: off (stop acknowledged)"), "{stderr}");
+    assert!(stderr.contains("listen: calibration: none (positions in pixels only"), "{stderr}");
     assert_eq!(report.end, Some((HeadState::Idle, 0)));
 
     let info = Process::new(bin()).arg("info").arg(&rec).output().unwrap();
