@@ -158,8 +158,9 @@ impl ToRadians for f64 {
     }
 }
 
-/// sin(x) for |x| ≤ π/2 by its Taylor series (13 terms: error < 1e-15).
-fn sin(x: f64) -> f64 {
+/// sin(x) for |x| ≤ π/2 by its Taylor series (13 terms: error < 1e-15);
+/// `core` has no `f64::sin`. Also used by `triangulation`'s setup.
+pub(crate) fn sin(x: f64) -> f64 {
     let x2 = x * x;
     let mut term = x;
     let mut sum = x;

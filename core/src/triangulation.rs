@@ -71,7 +71,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use crate::fixed::Px;
-use crate::optics::{Optics, OpticsError, ScaleRange};
+use crate::optics::{Optics, OpticsError, ScaleRange, sin};
 use crate::protocol::LASERS;
 use micromath::F32;
 
@@ -505,7 +505,7 @@ impl Triangulator {
     /// range r), i.e. between the optical axis and the plane: 42° for Table 4.
     pub fn alpha_deg(&self, laser: usize) -> Result<f64, Error> {
         let l = self.lasers.get(laser).ok_or(Error::Laser)?;
-        Ok(asin64(abs64(l.frame.laser_normal[2])).to_degrees_core())
+        Ok(asin(abs64(l.frame.laser_normal[2])).to_degrees_core())
     }
 
     /// The detector's optics for laser `laser` (paper Eq. 10–11, 25 % margin):
@@ -613,28 +613,16 @@ fn sqrt64(x: f64) -> f64 {
     y
 }
 
-/// sin(x) for |x| ≤ π/2 by its Taylor series (13 terms: error < 1e-15).
-fn sin64(x: f64) -> f64 {
-    let x2 = x * x;
-    let mut term = x;
-    let mut sum = x;
-    for n in 1..13 {
-        term *= -x2 / ((2 * n) as f64 * (2 * n + 1) as f64);
-        sum += term;
-    }
-    sum
-}
-
-/// asin(s) for s ∈ [0, 1] by bisection on `sin64` (setup only; 64 halvings
+/// asin(s) for s ∈ [0, 1] by bisection on `optics::sin` (setup only; 64 halvings
 /// of [0, π/2] reach `f64` resolution, robust at s = 1 where Newton is not).
-fn asin64(s: f64) -> f64 {
+fn asin(s: f64) -> f64 {
     let (mut lo, mut hi) = (0.0f64, core::f64::consts::FRAC_PI_2);
     if !(s < 1.0) {
         return hi;
     }
     for _ in 0..64 {
         let mid = 0.5 * (lo + hi);
-        if sin64(mid) < s {
+        if sin(mid) < s {
             lo = mid;
         } else {
             hi = mid;
@@ -665,7 +653,7 @@ mod tests {
     /// then `O_k = (x_k, 0, 450)` exactly and lies in image row 1584.
     fn simple() -> (CameraModel, [Plane; LASERS], Plane) {
         let cam = CameraModel::pinhole(5106.0, 5107.0, 2376.0, 1584.0);
-        let (c, s) = (sin64(core::f64::consts::FRAC_PI_2 - A), sin64(A));
+        let (c, s) = (sin(core::f64::consts::FRAC_PI_2 - A), sin(A));
         let lasers = core::array::from_fn(|k| {
             let xk = 25.0 * (k as f64 - 1.0);
             Plane { normal: [-c as f32, 0.0, s as f32], d_mm: (-c * xk + s * 450.0) as f32 }
@@ -830,7 +818,7 @@ mod tests {
         assert!((r.min().to_f64() - 10.649).abs() < 0.003 && (r.max().to_f64() - 21.298).abs() < 0.003, "{r:?}");
         assert_eq!(t.optics(LASERS, 2.0, (350.0, 550.0)), Err(Error::Laser));
         assert_eq!(t.optics(0, 2.0, (550.0, 350.0)), Err(Error::Optics(OpticsError::RangeOrder)));
-        assert!((asin64(0.5) - core::f64::consts::PI / 6.0).abs() < 1e-15);
+        assert!((asin(0.5) - core::f64::consts::PI / 6.0).abs() < 1e-15);
         assert!((sqrt64(2.0) - core::f64::consts::SQRT_2).abs() < 1e-15);
     }
 
