@@ -165,9 +165,9 @@ fn normalize(a: Vec3) -> Vec3 {
     [a[0] / n, a[1] / n, a[2] / n]
 }
 
-/// The board-frame point `(x, y)` (mm) that pixel `(u, v)` sees, `None` if
-/// its ray misses the board plane (parallel or behind the camera).
-pub fn board_point(cam: &Camera, pose: &BoardPose, u: f64, v: f64) -> Option<[f64; 2]> {
+/// The camera-frame point of the board plane that pixel `(u, v)` sees,
+/// `None` if its ray misses the plane (parallel or behind the camera).
+fn ray_on_board(cam: &Camera, pose: &BoardPose, u: f64, v: f64) -> Option<Vec3> {
     let ray = cam.unproject(u, v);
     let (n, d) = pose.plane();
     let den = dot(n, ray);
@@ -175,10 +175,13 @@ pub fn board_point(cam: &Camera, pose: &BoardPose, u: f64, v: f64) -> Option<[f6
         return None;
     }
     let s = d / den;
-    if s.is_nan() || s <= 0.0 || !s.is_finite() {
-        return None;
-    }
-    let x = [ray[0] * s, ray[1] * s, ray[2] * s];
+    (s > 0.0 && s.is_finite()).then(|| [ray[0] * s, ray[1] * s, ray[2] * s])
+}
+
+/// The board-frame point `(x, y)` (mm) that pixel `(u, v)` sees, `None` if
+/// its ray misses the board plane (parallel or behind the camera).
+pub fn board_point(cam: &Camera, pose: &BoardPose, u: f64, v: f64) -> Option<[f64; 2]> {
+    let x = ray_on_board(cam, pose, u, v)?;
     let b = mat_t_vec(&pose.rot, sub(x, pose.t_mm));
     Some([b[0], b[1]])
 }
@@ -186,14 +189,7 @@ pub fn board_point(cam: &Camera, pose: &BoardPose, u: f64, v: f64) -> Option<[f6
 /// The signed distance (mm) from `plane` of the board point that pixel
 /// `(u, v)` sees.
 fn plane_distance_at(cam: &Camera, pose: &BoardPose, plane: &Plane, u: f64, v: f64) -> Option<f64> {
-    let ray = cam.unproject(u, v);
-    let (n, d) = pose.plane();
-    let den = dot(n, ray);
-    if den.abs() < 1e-12 {
-        return None;
-    }
-    let s = d / den;
-    (s > 0.0 && s.is_finite()).then(|| plane.distance_mm([ray[0] * s, ray[1] * s, ray[2] * s]))
+    ray_on_board(cam, pose, u, v).map(|x| plane.distance_mm(x))
 }
 
 /// The true column (sub-pixel, pixel centres at integers) at which a laser
