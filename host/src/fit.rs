@@ -34,7 +34,8 @@
 //! uniform grid — the head's profiles are nearly uniform —, detrended,
 //! zero-padded ×8, parabolic interpolation of the magnitude) and from the
 //! paper's ellipse method on the differenced profile (notes §3, lag ≈ λ/4 from
-//! the DFT estimate). Each start runs the plain IEEE 1057 four-parameter
+//! the DFT estimate), and Jacquelin's non-iterative estimate (below). Each
+//! start runs the plain IEEE 1057 four-parameter
 //! iteration. That iteration can diverge (it does on the 15-point public test
 //! vector); the fallback cannot: the three-parameter residual `S(ω)` (linear
 //! least squares at fixed ω) scanned over the band `[π/span, π/mean spacing]`
@@ -62,11 +63,18 @@
 //! the fallback scan O(n·G) with G ≤ 4096 grid points. A 400-point profile
 //! fits in milliseconds (the whole `cms-host fit` run: ~50 ms).
 //!
+//! **Two methods.** [`fit`] (`--method lsq`, the default) is least squares
+//! as above. [`fit_jacquelin`] (`--method jacquelin`, model `sine` only) is
+//! Jacquelin's non-iterative regression through an integral equation
+//! ([`jacquelin`]: three linear steps, no start value, no iteration), given
+//! as is; it is also one more start value of the least-squares fit.
+//!
 //! **The public test vector (notes §3).** Its ω = 2.02074 is Jacquelin's
-//! non-iterative estimate, not the least-squares minimum: at that ω the
-//! three-parameter fit reproduces its offset and coefficients exactly, but
-//! the residual is lower at ω = 1.98131 (RSS 0.32035 against 0.34552), which
-//! is what a least-squares fit (this one, or scipy's) returns. The plain
+//! non-iterative estimate, which [`jacquelin`] reproduces (ω₁ = 2.32536 from
+//! the integral equation, ω₂ = 2.02074 from the sawtooth step, offset
+//! −0.405617, coefficients 1.27520 and −0.577491), not the least-squares
+//! minimum: the residual is lower at ω = 1.98131 (RSS 0.32035 against
+//! 0.34552), which is what a least-squares fit (this one, or scipy's) returns. The plain
 //! IEEE iteration reaches that minimum from starts within ±40 %, and side
 //! minima (ω 4.36, 6.97) from starts 2× off; the scan does not depend on the
 //! start.
@@ -164,6 +172,21 @@ pub enum Start {
     Ellipse,
     /// The scan and golden-section search of the three-parameter residual.
     Scan,
+    /// Jacquelin's non-iterative estimate ([`jacquelin`]), as is or as the
+    /// start of the IEEE 1057 iteration.
+    Jacquelin,
+}
+
+/// How `cms-host fit` estimates the parameters: [`fit`] or [`fit_jacquelin`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Least squares: the best of several starts refined by Levenberg–Marquardt (the default).
+    #[default]
+    Lsq,
+    /// Jacquelin's non-iterative integral-equation regression, not refined
+    /// (model `sine`, one component only).
+    Jacquelin,
 }
 
 /// Options of [`fit`].
@@ -184,6 +207,8 @@ impl Default for Options {
 /// One sine component `a·sin ωx' + b·cos ωx' = A·sin(ωx' + φ)`.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Component {
+    /// `ω`, the angular wavenumber, rad/mm.
+    pub omega_rad_per_mm: f64,
     /// `2π/ω`, mm (along the rotated axis x' for the rotated model).
     pub wavelength_mm: f64,
     /// `A = √(a²+b²)`: half the peak-to-peak, mm.
@@ -208,6 +233,8 @@ pub struct Component {
 pub struct Fit {
     /// The model fitted.
     pub model: Model,
+    /// Least squares, or Jacquelin's non-iterative estimate.
+    pub method: Method,
     /// Points fitted.
     pub points: usize,
     /// Dominant component's wavelength, mm.
@@ -376,6 +403,113 @@ pub fn four_param_ieee(x: &[f64], z: &[f64], omega0: f64, max_iterations: usize)
 }
 
 // ---------------------------------------------------------------------------
+// Jacquelin's non-iterative sinusoidal regression
+
+/// The result of [`jacquelin`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Jacquelin {
+    /// ω₁, from the integral equation (first step).
+    pub omega1: f64,
+    /// ω₂, from the linearised arcsine ("sawtooth") regression (second step):
+    /// the method's estimate of ω.
+    pub omega: f64,
+    /// The three-parameter fit at ω₂ (third step).
+    pub linear: Linear,
+}
+
+/// Jacquelin's non-iterative sinusoidal regression ("Régressions et
+/// équations intégrales", 2009, the chapter on sinusoids) of
+/// `z ≈ c + a sin ωx + b cos ωx`, in three linear steps, no iteration:
+///
+/// 1. **Integral equation.** A sinusoid solves
+///    `z(x) = −ω² ∬ z + P₂(x)` (P₂ a quadratic), so with the cumulative
+///    trapezoidal integrals `S_k = S_{k−1} + ½(z_k + z_{k−1})(x_k − x_{k−1})`,
+///    `SS_k` likewise of S (points sorted by x), the linear least squares
+///    `z_k ≈ A·SS_k + B x_k² + C x_k + D` gives `ω₁ = √−A`, and the offset and
+///    coefficients follow from A…D.
+/// 2. **Sawtooth.** With `ρ₁ = √(a₁² + b₁²)` and `φ₁ = atan2(b₁, a₁)` (a₁, b₁
+///    the sine and cosine coefficients, c₁ the offset), each
+///    point's phase is unwrapped: `K_k = round((ω₁x_k + φ₁)/π)`,
+///    `θ_k = (−1)^K_k · arcsin((z_k − c₁)/ρ₁) + πK_k` (clamped at ±π/2), and
+///    the straight line `θ_k ≈ ω₂x_k + φ₂` gives ω₂.
+/// 3. The three-parameter fit ([`three_param`]) at ω₂.
+///
+/// ω₂ is *not* the least-squares ω (the residual is generally lower nearby;
+/// [`fit`] uses it as one more start value and refines). On the public test
+/// vector of notes §3 it gives ω = 2.02074, offset −0.405617, coefficients
+/// 1.27520 and −0.577491. Its weakness is step 1's numerical integration: it
+/// needs several points per period (ω₁ is biased by about 1/n² at n points
+/// per period on uniform data), which step 2 largely removes.
+///
+/// The steps run on x centred and scaled to [−1, 1] (the integral equation is
+/// invariant under that, and x⁴ of raw millimetres would be ill-conditioned).
+/// `None` when A ≥ 0 (no oscillation found), for fewer than 5 points, or when
+/// a system is singular. Cost O(n log n) (the sort).
+pub fn jacquelin(x: &[f64], z: &[f64]) -> Option<Jacquelin> {
+    if x.len() != z.len() || x.len() < 5 {
+        return None;
+    }
+    let mut pts: Vec<(f64, f64)> = x.iter().copied().zip(z.iter().copied()).collect();
+    pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let (lo, hi) = (pts[0].0, pts[pts.len() - 1].0);
+    let (mid, half) = (lo / 2.0 + hi / 2.0, hi / 2.0 - lo / 2.0);
+    if !(half > 0.0 && half.is_finite()) {
+        return None;
+    }
+    let t: Vec<f64> = pts.iter().map(|p| (p.0 - mid) / half).collect();
+    let y: Vec<f64> = pts.iter().map(|p| p.1).collect();
+    // Step 1: the integral equation.
+    let (mut s, mut ss) = (0.0, 0.0);
+    let mut ata = Matrix4::zeros();
+    let mut atb = Vector4::zeros();
+    for k in 0..t.len() {
+        if k > 0 {
+            let dt = t[k] - t[k - 1];
+            let s_next = s + 0.5 * (y[k] + y[k - 1]) * dt;
+            ss += 0.5 * (s_next + s) * dt;
+            s = s_next;
+        }
+        let row = Vector4::new(ss, t[k] * t[k], t[k], 1.0);
+        ata += row * row.transpose();
+        atb += row * y[k];
+    }
+    let sol = ata.lu().solve(&atb)?;
+    let (a_, b_, c_, d_) = (sol[0], sol[1], sol[2], sol[3]);
+    if a_.partial_cmp(&0.0) != Some(std::cmp::Ordering::Less) {
+        return None;
+    }
+    let w1 = (-a_).sqrt();
+    let offset1 = 2.0 * b_ / (w1 * w1);
+    let t1 = t[0];
+    let p = b_ * t1 * t1 + c_ * t1 + d_ - offset1;
+    let q = (c_ + 2.0 * b_ * t1) / w1;
+    let (st, ct) = (w1 * t1).sin_cos();
+    let (sin1, cos1) = (p * st + q * ct, p * ct - q * st);
+    // Step 2: the sawtooth made straight.
+    let rho = sin1.hypot(cos1);
+    let phi = cos1.atan2(sin1);
+    if !(rho > 0.0 && rho.is_finite() && offset1.is_finite()) {
+        return None;
+    }
+    let theta: Vec<f64> = t
+        .iter()
+        .zip(&y)
+        .map(|(&t, &y)| {
+            let k = ((w1 * t + phi) / std::f64::consts::PI).round();
+            let u = (y - offset1) / rho;
+            let base = if u.abs() < 1.0 { u.asin() } else { std::f64::consts::FRAC_PI_2.copysign(u) };
+            let sign = if k.rem_euclid(2.0) == 0.0 { 1.0 } else { -1.0 };
+            sign * base + std::f64::consts::PI * k
+        })
+        .collect();
+    let (w2, _) = line_fit(&t, &theta)?;
+    let omega = w2.abs() / half;
+    // Step 3: the three-parameter fit on the original data.
+    let linear = three_param(x, z, omega)?;
+    (omega.is_finite() && omega > 0.0).then_some(Jacquelin { omega1: w1 / half, omega, linear })
+}
+
+// ---------------------------------------------------------------------------
 // Start values of ω
 
 /// The profile resampled on a uniform grid over its x span (linear
@@ -541,13 +675,19 @@ fn sine_start(x: &[f64], z: &[f64]) -> Option<(f64, Linear, Start)> {
     let in_band = |w: f64| w >= band.0 * (1.0 - 1e-9) && w <= band.1 * (1.0 + 1e-9);
     let dft = dft_omega(x, z);
     let ellipse = dft.and_then(|w| ellipse_omega(x, z, w));
+    let jacq = jacquelin(x, z);
     let mut best: Option<(f64, Linear, Start)> = None;
     let mut consider = |w: f64, lin: Linear, start: Start| {
         if best.as_ref().is_none_or(|b| lin.rss < b.1.rss) {
             best = Some((w, lin, start));
         }
     };
-    for (w0, start) in [(dft, Start::Dft), (ellipse, Start::Ellipse)] {
+    if let Some(j) = jacq
+        && in_band(j.omega)
+    {
+        consider(j.omega, j.linear, Start::Jacquelin);
+    }
+    for (w0, start) in [(dft, Start::Dft), (ellipse, Start::Ellipse), (jacq.map(|j| j.omega), Start::Jacquelin)] {
         if let Some(r) = w0.and_then(|w0| four_param_ieee(x, z, w0, IEEE_MAX_ITERATIONS))
             && r.converged
             && in_band(r.omega)
@@ -724,17 +864,9 @@ pub fn fit(x_mm: &[f64], z_mm: &[f64], opts: &Options) -> Result<Fit, FitError> 
     if k == 0 || k > MAX_COMPONENTS {
         return Err(FitError::Components(k));
     }
-    if x_mm.len() != z_mm.len() {
-        return Err(FitError::LengthMismatch { x: x_mm.len(), z: z_mm.len() });
-    }
-    if let Some(index) = x_mm.iter().zip(z_mm).position(|(x, z)| !(x.is_finite() && z.is_finite())) {
-        return Err(FitError::NonFinite { index });
-    }
     let fit_rotation = opts.model == Model::Rotated;
     let n_params = 3 * k + 1 + usize::from(fit_rotation);
-    if x_mm.len() <= n_params {
-        return Err(FitError::TooFewPoints { points: x_mm.len(), needed: n_params + 1 });
-    }
+    check_points(x_mm, z_mm, n_params + 1)?;
     // Centre and scale isotropically (halves first: no overflow).
     let range = |v: &[f64]| v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
     let ((x_lo, x_hi), (z_lo, z_hi)) = (range(x_mm), range(z_mm));
@@ -804,6 +936,34 @@ pub fn fit(x_mm: &[f64], z_mm: &[f64], opts: &Options) -> Result<Fit, FitError> 
     Ok(f)
 }
 
+/// Equal lengths, finite coordinates, at least `needed` points.
+fn check_points(x_mm: &[f64], z_mm: &[f64], needed: usize) -> Result<(), FitError> {
+    if x_mm.len() != z_mm.len() {
+        return Err(FitError::LengthMismatch { x: x_mm.len(), z: z_mm.len() });
+    }
+    if let Some(index) = x_mm.iter().zip(z_mm).position(|(x, z)| !(x.is_finite() && z.is_finite())) {
+        return Err(FitError::NonFinite { index });
+    }
+    if x_mm.len() < needed {
+        return Err(FitError::TooFewPoints { points: x_mm.len(), needed });
+    }
+    Ok(())
+}
+
+/// Jacquelin's non-iterative estimate ([`jacquelin`]) of the plain sine
+/// (model `sine`, one component), reported as a [`Fit`] without refinement:
+/// `iterations` 0, `converged` true (nothing to converge), `start`
+/// [`Start::Jacquelin`], and no uncertainties (the Jacobian formula holds at
+/// the least-squares minimum, which this is not).
+pub fn fit_jacquelin(x_mm: &[f64], z_mm: &[f64]) -> Result<Fit, FitError> {
+    check_points(x_mm, z_mm, 5)?;
+    let j = jacquelin(x_mm, z_mm).ok_or(FitError::Degenerate("Jacquelin's method found no oscillation"))?;
+    let p = Params(vec![j.linear.offset, 0.0, j.linear.sin, j.linear.cos, j.omega]);
+    let mut f = report(Model::Sine, x_mm.len(), &p, None, j.linear.rss, Start::Jacquelin, 0, true);
+    f.method = Method::Jacquelin;
+    Ok(f)
+}
+
 /// `σ² (JᵀJ)⁻¹` at `p` on the original data, in the full parameter layout
 /// (θ's row and column zero when it is not fitted). `None` if singular or not
 /// finite.
@@ -850,6 +1010,7 @@ fn report(
             let amp = a.hypot(b);
             let tau = std::f64::consts::TAU;
             Component {
+                omega_rad_per_mm: w.abs(),
                 wavelength_mm: tau / w.abs(),
                 amplitude_mm: amp,
                 phase_rad: b.atan2(a),
@@ -865,6 +1026,7 @@ fn report(
     let d = &components[0];
     Fit {
         model,
+        method: Method::Lsq,
         points,
         wavelength_mm: d.wavelength_mm,
         amplitude_mm: d.amplitude_mm,
@@ -898,6 +1060,12 @@ pub struct FitArgs {
     #[arg(long, default_value = "1", value_name = "N", value_parser = clap::value_parser!(u8).range(1..=8))]
     pub components: u8,
 
+    /// `lsq` (default): least squares, the best of the DFT, ellipse, Jacquelin and scan starts refined by
+    /// Levenberg–Marquardt; `jacquelin`: Jacquelin's non-iterative integral-equation estimate as is, not the
+    /// least-squares optimum (needs `--model sine` and one component).
+    #[arg(long, value_enum, default_value_t = Method::Lsq)]
+    pub method: Method,
+
     /// One JSON object on stdout instead of text.
     #[arg(long)]
     pub json: bool,
@@ -914,7 +1082,14 @@ pub fn run(args: &FitArgs) -> Result<(), CliError> {
     let profile =
         parse_profile(&String::from_utf8_lossy(&bytes)).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
     let opts = Options { model: args.model, components: usize::from(args.components) };
-    let fit = fit(&profile.x_mm, &profile.z_mm, &opts).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
+    let fit = match args.method {
+        Method::Lsq => fit(&profile.x_mm, &profile.z_mm, &opts),
+        Method::Jacquelin if args.model != Model::Sine || args.components != 1 => {
+            return Err(CliError::Usage("--method jacquelin needs --model sine and --components 1".into()));
+        }
+        Method::Jacquelin => fit_jacquelin(&profile.x_mm, &profile.z_mm),
+    }
+    .map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
     let mut out = BufWriter::new(io::stdout().lock());
     if args.json {
         serde_json::to_writer(&mut out, &fit).map_err(io::Error::from)?;
@@ -933,10 +1108,17 @@ pub fn write_text(out: &mut impl Write, f: &Fit) -> io::Result<()> {
         Model::Rotated => "rotated sine",
         Model::Sine => "sine (IEEE 1057)",
     };
-    writeln!(out, "model        {model}, {} points, {} component(s)", f.points, f.components.len())?;
+    let method = match f.method {
+        Method::Lsq => "least squares",
+        Method::Jacquelin => "Jacquelin (non-iterative)",
+    };
+    writeln!(out, "model        {model}, {method}, {} points, {} component(s)", f.points, f.components.len())?;
+    let d = &f.components[0];
+    writeln!(out, "omega        {:.6} rad/mm", d.omega_rad_per_mm)?;
     writeln!(out, "wavelength   {:.6} mm{}", f.wavelength_mm, pm(f.wavelength_sigma_mm))?;
     writeln!(out, "amplitude    {:.6} mm{}", f.amplitude_mm, pm(f.amplitude_sigma_mm))?;
     writeln!(out, "phase        {:.6} rad{}", f.phase_rad, pm(f.phase_sigma_rad))?;
+    writeln!(out, "sin, cos     {:.6} mm, {:.6} mm", d.sin_mm, d.cos_mm)?;
     writeln!(out, "offset       {:.6} mm{}", f.offset_mm, pm(f.offset_sigma_mm))?;
     writeln!(out, "rotation     {:.6} rad{}", f.rotation_rad, pm(f.rotation_sigma_rad))?;
     writeln!(out, "rms residual {:.6} mm", f.rms_residual_mm)?;
@@ -956,6 +1138,7 @@ pub fn write_text(out: &mut impl Write, f: &Fit) -> io::Result<()> {
         Start::Dft => "DFT peak",
         Start::Ellipse => "ellipse method",
         Start::Scan => "residual scan",
+        Start::Jacquelin => "Jacquelin's estimate",
     };
     writeln!(
         out,
@@ -1003,6 +1186,24 @@ mod tests {
         let (x, z) = synth(50.0, 0.1, 0.3, 0.0, 0.0, 300, 1.0);
         let (scan, _) = scan_omega(&x, &z, 0.01, 3.0).unwrap();
         assert!((scan / w - 1.0).abs() < 0.01, "scan {scan} vs {w}");
+    }
+
+    #[test]
+    fn jacquelin_is_close_on_a_sampled_sine() {
+        // 50 points per period, uniform; step 2 removes most of step 1's
+        // integration bias.
+        let x: Vec<f64> = (0..300).map(|i| 3.0 + i as f64).collect();
+        let w = std::f64::consts::TAU / 50.0;
+        let z: Vec<f64> = x.iter().map(|x| 0.1 * (w * x + 0.4).sin() + 2.0).collect();
+        let j = jacquelin(&x, &z).unwrap();
+        assert!((j.omega / w - 1.0).abs() < 1e-3, "{j:?}");
+        assert!((j.linear.offset - 2.0).abs() < 1e-3 && (j.linear.sin.hypot(j.linear.cos) - 0.1).abs() < 1e-3);
+        // No oscillation: a straight line gives none or an error, never a panic.
+        let line: Vec<f64> = x.iter().map(|x| 0.5 * x).collect();
+        if let Some(j) = jacquelin(&x, &line) {
+            assert!(j.omega.is_finite());
+        }
+        assert!(jacquelin(&x[..4], &z[..4]).is_none());
     }
 
     #[test]

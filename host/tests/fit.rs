@@ -75,6 +75,63 @@ fn plain_four_parameter_iteration_goes_elsewhere() {
     assert!((w - 1.981306).abs() < 1e-5, "{w}");
 }
 
+/// Jacquelin's own method (`fit::jacquelin`, non-iterative) reproduces the
+/// vector's published figures: ω₁ = 2.32536 from the integral equation, then
+/// ω = 2.02074 from the sawtooth regression and the published offset and
+/// coefficients at it.
+#[test]
+fn jacquelin_reproduces_the_published_estimate() {
+    let j = fit::jacquelin(&JX, &JY).unwrap();
+    assert!((j.omega1 - 2.325359).abs() < 1e-6, "{j:?}");
+    assert!((j.omega - J_OMEGA).abs() < 5e-6, "{j:?}");
+    assert!((j.linear.offset + 0.405617).abs() < 1e-6, "{j:?}");
+    assert!((j.linear.sin - 1.27520).abs() < 1e-5, "{j:?}");
+    assert!((j.linear.cos + 0.577491).abs() < 1e-6, "{j:?}");
+    // The order of the points does not matter (the method sorts them).
+    let (rx, ry): (Vec<f64>, Vec<f64>) = JX.iter().rev().zip(JY.iter().rev()).map(|(x, y)| (*x, *y)).unzip();
+    assert_eq!(fit::jacquelin(&rx, &ry).unwrap().omega, j.omega);
+}
+
+/// `fit --model sine --method jacquelin` prints the published figures (the
+/// checked-in CSV is the vector); the default method prints the
+/// least-squares optimum instead; the method needs the plain sine model.
+#[test]
+fn cli_jacquelin_on_the_test_vector() {
+    let path = data("jacquelin.csv");
+    let path = path.to_str().unwrap();
+    let out = cms_host(&["fit", "--model", "sine", "--method", "jacquelin", path]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8(out.stdout).unwrap();
+    for line in [
+        "omega        2.020741 rad/mm",
+        "wavelength   3.109347 mm",
+        "sin, cos     1.275204 mm, -0.577491 mm",
+        "offset       -0.405617 mm",
+        "iterations   0 (converged), start: Jacquelin's estimate",
+    ] {
+        assert!(text.lines().any(|l| l == line), "no `{line}` in\n{text}");
+    }
+    let out = cms_host(&["fit", "--model", "sine", "--method", "jacquelin", "--json", path]);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["method"], "jacquelin");
+    let c = &v["components"][0];
+    assert!((c["omega_rad_per_mm"].as_f64().unwrap() - J_OMEGA).abs() < 5e-6, "{v}");
+    assert!((v["wavelength_mm"].as_f64().unwrap() - 3.1094).abs() < 1e-4, "{v}");
+    assert!((v["offset_mm"].as_f64().unwrap() + 0.405617).abs() < 1e-6, "{v}");
+    assert!((c["sin_mm"].as_f64().unwrap() - 1.27520).abs() < 1e-5, "{v}");
+    assert!((c["cos_mm"].as_f64().unwrap() + 0.577491).abs() < 1e-6, "{v}");
+
+    let out = cms_host(&["fit", "--model", "sine", path]);
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.lines().any(|l| l == "omega        1.981306 rad/mm"), "{text}");
+
+    let out = cms_host(&["fit", "--method", "jacquelin", path]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("--method jacquelin needs --model sine"), "{err}");
+}
+
 #[derive(serde::Deserialize)]
 struct Reference {
     cases: Vec<Case>,
@@ -189,6 +246,11 @@ proptest! {
         let model = if rotated { Model::Rotated } else { Model::Sine };
         if let Ok(f) = fit::fit(&x, &z, &Options { model, components }) {
             for v in [f.wavelength_mm, f.amplitude_mm, f.phase_rad, f.offset_mm, f.rotation_rad, f.rms_residual_mm] {
+                prop_assert!(v.is_finite(), "{f:?}");
+            }
+        }
+        if let Ok(f) = fit::fit_jacquelin(&x, &z) {
+            for v in [f.wavelength_mm, f.amplitude_mm, f.phase_rad, f.offset_mm, f.rms_residual_mm] {
                 prop_assert!(v.is_finite(), "{f:?}");
             }
         }
