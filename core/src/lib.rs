@@ -16,6 +16,8 @@
 //!   CRC-checked, COBS-delimited frames.
 //! * [`pipeline`] — the sensor head's logic without its hardware: rows in,
 //!   profiles out, commands, and the laser-safety rules.
+//! * [`synthetic`] — an integer-only synthetic scene (stripes over a
+//!   corrugated rail): the emulated head's camera, bit-identical on any target.
 #![no_std]
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
@@ -25,4 +27,5 @@ pub mod optics;
 pub mod peak;
 pub mod pipeline;
 pub mod protocol;
+pub mod synthetic;
 pub mod triangulation;

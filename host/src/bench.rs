@@ -27,6 +27,8 @@ pub enum BenchCmd {
     Accuracy(AccuracyArgs),
     /// Nanoseconds per row of every method (640/752/1280 px, 1 and 3 stripes).
     Speed(SpeedArgs),
+    /// Instructions per row of every method on the emulated Cortex-M (QEMU -icount).
+    Qemu(cms_host::qemu::BenchQemuArgs),
 }
 
 /// Options of `bench accuracy`.
@@ -113,6 +115,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
     let text = match cmd {
         BenchCmd::Accuracy(a) => accuracy(&a)?,
         BenchCmd::Speed(s) => speed(&s)?,
+        BenchCmd::Qemu(q) => cms_host::qemu::bench(&q)?,
     };
     let mut out = std::io::stdout().lock();
     out.write_all(text.as_bytes()).and_then(|()| out.flush()).context("writing the report to stdout")

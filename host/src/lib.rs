@@ -9,6 +9,7 @@
 //! * [`fit`] — `cms-host fit`: IEEE 1057 and the paper's rotated sine fits of a profile.
 //! * [`input`] — reading grayscale PNG/TIFF images and CSV rows.
 //! * [`listen`] — `cms-host listen`: handshake, stream, record and show a sensor head's profiles.
+//! * [`qemu`] — the emulated head on QEMU: `cms-host listen qemu`, `cms-host bench qemu`.
 //! * [`link`] — the serial port (open by path, reconnect) and frame splitting.
 //! * [`record`] — the recording format, `cms-host export` and `cms-host info`.
 //! * [`standards`] — rail-standard analysis of a longitudinal profile: EN 13231-3 bands, EN 15610 roughness.
@@ -19,6 +20,7 @@ pub mod fit;
 pub mod input;
 pub mod link;
 pub mod listen;
+pub mod qemu;
 pub mod record;
 pub mod sim;
 pub mod simulate;

@@ -796,7 +796,7 @@ pub enum PatternArg {
 #[derive(Args, Debug, Clone)]
 pub struct ListenArgs {
     /// The head's serial port: a device path such as /dev/ttyACM0 (or `sim`
-    /// for the simulated head).
+    /// for the simulated head, `qemu` for the emulated one).
     #[arg(value_name = "PORT")]
     pub port: String,
     /// Stop after N complete frames.

@@ -10,6 +10,7 @@ use cms_host::calib;
 use cms_host::detect;
 use cms_host::fit;
 use cms_host::simulate;
+use cms_host::{CliError, qemu};
 use cms_host::{listen, record};
 
 mod bench;
@@ -35,6 +36,8 @@ enum Command {
         args: listen::ListenArgs,
         #[command(flatten)]
         sim: simulate::SimPortArgs,
+        #[command(flatten)]
+        qemu: qemu::QemuPortArgs,
     },
     /// Export the profiles of a recording as CSV or JSON lines.
     Export(record::ExportArgs),
@@ -55,13 +58,17 @@ fn main() -> ExitCode {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => e.report(),
         },
-        // PORT `sim` starts the simulated head on a pty of this process.
-        Command::Listen { args, sim } => match simulate::with_port(&args.port, &sim, |port| {
-            listen::run(&listen::ListenArgs { port: port.to_string(), ..args.clone() })
+        // PORT `sim` starts the simulated head on a pty of this process,
+        // PORT `qemu` the emulated one in QEMU.
+        Command::Listen { args, sim, qemu } => match qemu::with_port(&args.port, &qemu, |port| {
+            simulate::with_port(port, &sim, |port| {
+                listen::run(&listen::ListenArgs { port: port.to_string(), ..args.clone() })
+            })
         }) {
-            Ok(Ok(())) => ExitCode::SUCCESS,
+            Ok(Ok(Ok(()))) => ExitCode::SUCCESS,
+            Ok(Ok(Err(e))) => e.report(),
             Ok(Err(e)) => e.report(),
-            Err(e) => e.report(),
+            Err(e) => CliError::from(e).report(),
         },
         Command::Export(args) => match record::export(&args) {
             Ok(()) => ExitCode::SUCCESS,

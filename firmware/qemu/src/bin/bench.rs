@@ -1,0 +1,126 @@
+//! `cms-qemu-bench`: instructions per row of every detection method on the
+//! Cortex-M instruction set, counted by QEMU's `-icount shift=0` (one
+//! instruction = one nanosecond of the emulated clock).
+//!
+//! The rows and detector configurations are `cms-host bench speed`'s (see
+//! build.rs): 64 distinct 12-bit rows of 752 px with 1 and 3 stripes of
+//! σ = 2.5 px at 30 dB. As in scripts/instructions.sh, each configuration
+//! is timed over 64 rows and over 64 + 256 rows, and the difference divided
+//! by 256 is the cost of one `Detector::detect` call (the timer reads and
+//! the first pass over the rows cancel out). SysTick counts the 25 MHz core
+//! clock with its interrupt off, so the count is 40 ns — 40 instructions —
+//! per step, ±0.2 instructions per row after the division.
+//!
+//! Output on UART0, one line per measurement, then QEMU is told to exit
+//! (semihosting):
+//!
+//! ```text
+//! cms-qemu-bench board=qemu-mps2-an386 cpu=cortex-m4f clock_hz=25000000
+//! calibration loop_iterations=1000000 ns=2000000
+//! method=cwt size=752x3 rows=256 ns_short=… ns_long=… found=64/64
+//! done
+//! ```
+
+#![no_std]
+#![no_main]
+
+use core::fmt::Write as _;
+
+use cms_core::peak::{Config, Detector, Stripes};
+use cms_qemu::board::{Board, SYSCLK_HZ};
+use cms_qemu::{clock, uart};
+
+mod data {
+    include!(concat!(env!("OUT_DIR"), "/bench_data.rs"));
+}
+
+/// Rows of the short and the long run (as scripts/instructions.sh).
+const SHORT: usize = 64;
+const EXTRA: usize = 256;
+
+/// Iterations of the calibration loop (2 instructions each).
+const LOOP: u32 = 1_000_000;
+
+fn pixels(rows: &[u8], i: usize, out: &mut [u16; data::LEN]) {
+    let row = &rows[(i % data::DISTINCT) * 2 * data::LEN..][..2 * data::LEN];
+    for (p, b) in out.iter_mut().zip(row.chunks_exact(2)) {
+        *p = u16::from_le_bytes([b[0], b[1]]);
+    }
+}
+
+/// Nanoseconds (= instructions under `-icount shift=0`) of `rows` calls of
+/// `detect`, and how many found exactly `stripes` stripes.
+fn time(det: &mut Detector<{ data::LEN }>, rows: &[[u16; data::LEN]], n: usize, stripes: usize) -> (u64, usize) {
+    let mut out: Stripes<4> = Stripes::new();
+    let mut ok = 0;
+    let t0 = clock::counter();
+    for i in 0..n {
+        // A failed call cannot happen (rows fit the detector); counted as a miss.
+        if det.detect(core::hint::black_box(&rows[i % rows.len()][..]), &mut out).is_ok() && out.len() == stripes {
+            ok += 1;
+        }
+    }
+    (clock::elapsed_ticks(t0) as u64 * clock::NS_PER_TICK, ok)
+}
+
+/// A loop of exactly two instructions per iteration (`subs`, `bne`): checks
+/// that the clock counts instructions.
+fn calibration() -> u64 {
+    let t0 = clock::counter();
+    // SAFETY: the asm only decrements a scratch register to zero.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "subs {n}, {n}, #1",
+            "bne 2b",
+            n = inout(reg) LOOP => _,
+            options(nomem, nostack),
+        );
+    }
+    clock::elapsed_ticks(t0) as u64 * clock::NS_PER_TICK
+}
+
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    let Some(cp) = cortex_m::Peripherals::take() else {
+        panic!("core peripherals taken twice");
+    };
+    let _syst = clock::free_running(cp.SYST);
+    uart::init(SYSCLK_HZ, 115_200);
+    let board = Board::detect();
+    let mut w = uart::Writer;
+    let _ = writeln!(w, "cms-qemu-bench board={} cpu={} clock_hz={SYSCLK_HZ}", board.name(), board.cpu());
+    let _ = writeln!(w, "calibration loop_iterations={LOOP} ns={}", calibration());
+    // 64 rows of 752 px, decoded once (1.5 KB each).
+    let mut rows = [[0u16; data::LEN]; data::DISTINCT];
+    let mut det_slot: Option<Detector<{ data::LEN }>> = None;
+    for set in data::SETS {
+        let (stripes, raw, configs) = (set.stripes, set.rows, set.configs);
+        for (i, r) in rows.iter_mut().enumerate() {
+            pixels(raw, i, r);
+        }
+        for bytes in configs {
+            let Ok(cfg) = postcard::from_bytes::<Config>(bytes) else {
+                panic!("a benchmark configuration does not decode");
+            };
+            let det = match Detector::new(cfg) {
+                Ok(d) => det_slot.insert(d),
+                Err(e) => panic!("{}: {e}", cfg.method.name()),
+            };
+            let (short, _) = time(det, &rows, SHORT, stripes);
+            let (long, ok) = time(det, &rows, SHORT + EXTRA, stripes);
+            let _ = writeln!(
+                w,
+                "method={} size={}x{stripes} rows={EXTRA} ns_short={short} ns_long={long} found={ok}/{}",
+                cfg.method.name(),
+                data::LEN,
+                SHORT + EXTRA
+            );
+        }
+    }
+    let _ = writeln!(w, "done");
+    cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_SUCCESS);
+    loop {
+        cortex_m::asm::wfi();
+    }
+}

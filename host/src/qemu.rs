@@ -1,0 +1,704 @@
+//! The emulated sensor head: `cms-host listen qemu` and `cms-host bench qemu`.
+//!
+//! The head's firmware for QEMU's `mps2-an386` (Cortex-M4F) and `mps2-an500`
+//! (Cortex-M7) boards lives in `firmware/qemu/` (its own cargo workspace).
+//! This module finds or builds its images, starts `qemu-system-arm`, and
+//! hands the listener a serial port:
+//!
+//! 1. **Image**: `--qemu-image FILE`, or else the one built from this
+//!    source tree's `firmware/qemu` — `cargo build --release` is run there
+//!    each time (a no-op when nothing changed), so the image is never stale.
+//! 2. **Start paused**: `qemu-system-arm -machine mps2-an386 -display none
+//!    -nodefaults -nic none -S -monitor stdio -serial pty -semihosting-config
+//!    enable=on,target=native -kernel IMAGE`. QEMU prints the pseudo-terminal
+//!    it gave UART0 (`char device redirected to /dev/pts/N (label serial0)`)
+//!    on its monitor, which is a pipe of this process.
+//! 3. **Attach, then continue**: the pty's slave is opened (and kept open for
+//!    QEMU's lifetime, so QEMU sees a reader from the first byte on), then
+//!    `cont` goes to the monitor. Nothing the head sends can be lost before
+//!    the listener is there.
+//! 4. **Listen** on the pty path exactly as on `/dev/ttyACM0`
+//!    ([`crate::listen`]).
+//! 5. **Stop**: `quit` on the monitor; killed if it has not exited after 2 s
+//!    (and on drop, whatever happened).
+//!
+//! Without `-icount` QEMU's clocks follow the host's, so the head keeps real
+//! time (frame rate, the 1 s heartbeat watchdog) while it computes at the
+//! emulator's speed. The benchmark runs with `-icount shift=0,sleep=off`
+//! instead: one instruction per emulated nanosecond, exact and repeatable.
+//! (`sleep=off` lets the clock leap over idle time, which would trip the
+//! head's heartbeat watchdog between two host heartbeats: it is not for
+//! `listen`.)
+
+use std::fmt;
+use std::fs::{File, OpenOptions};
+use std::io::{self, BufRead, BufReader, Read, Write};
+use std::os::unix::fs::OpenOptionsExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use clap::{Args, ValueEnum};
+
+use crate::CliError;
+
+/// The emulator.
+pub const QEMU: &str = "qemu-system-arm";
+/// The head's image (a binary of `firmware/qemu`).
+pub const HEAD_BIN: &str = "cms-qemu-head";
+/// The benchmark's image.
+pub const BENCH_BIN: &str = "cms-qemu-bench";
+/// The firmware's target.
+pub const TARGET: &str = "thumbv7em-none-eabihf";
+/// How long QEMU may take to print its pseudo-terminal.
+pub const START_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long the benchmark may run.
+pub const BENCH_TIMEOUT: Duration = Duration::from_secs(600);
+
+/// The emulated board.
+#[derive(ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Machine {
+    /// mps2-an386: Cortex-M4F.
+    #[default]
+    An386,
+    /// mps2-an500: Cortex-M7.
+    An500,
+}
+
+impl Machine {
+    /// QEMU's machine name.
+    pub fn qemu_name(self) -> &'static str {
+        match self {
+            Machine::An386 => "mps2-an386",
+            Machine::An500 => "mps2-an500",
+        }
+    }
+}
+
+/// Why the emulated head could not run.
+#[derive(Debug)]
+pub enum QemuError {
+    /// `qemu-system-arm` is not on PATH.
+    NotInstalled,
+    /// No image given and no `firmware/qemu` source to build one from.
+    NoSource {
+        /// Where the source was looked for.
+        dir: PathBuf,
+    },
+    /// The given or built image does not exist.
+    NoImage(PathBuf),
+    /// `cargo build` of the image failed.
+    Build {
+        /// The command that failed, to run by hand.
+        command: String,
+        /// Why.
+        why: String,
+    },
+    /// A system call failed.
+    Io(&'static str, io::Error),
+    /// QEMU did not print a pseudo-terminal.
+    NoPty {
+        /// The end of what it printed.
+        output: String,
+    },
+    /// QEMU exited unexpectedly.
+    Exited {
+        /// Its status.
+        status: ExitStatus,
+        /// The end of its error output.
+        stderr: String,
+    },
+    /// The benchmark's output was not as expected.
+    Bench(String),
+    /// Options that do not go together.
+    Usage(String),
+}
+
+impl fmt::Display for QemuError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            QemuError::NotInstalled => {
+                write!(f, "{QEMU} not found on PATH: install it (Debian/Ubuntu: apt-get install qemu-system-arm)")
+            }
+            QemuError::NoSource { dir } => write!(
+                f,
+                "no emulated head image: {} is missing; give --qemu-image FILE (built by `cargo build --release` in firmware/qemu)",
+                dir.display()
+            ),
+            QemuError::NoImage(p) => write!(f, "emulated head image {} does not exist", p.display()),
+            QemuError::Build { command, why } => {
+                write!(f, "building the emulated head failed ({why}); run `{command}`")
+            }
+            QemuError::Io(what, e) => write!(f, "{what}: {e}"),
+            QemuError::NoPty { output } => {
+                write!(f, "{QEMU} printed no pseudo-terminal within {} s: {output}", START_TIMEOUT.as_secs())
+            }
+            QemuError::Exited { status, stderr } => write!(f, "{QEMU} exited ({status}): {stderr}"),
+            QemuError::Bench(m) => write!(f, "qemu benchmark: {m}"),
+            QemuError::Usage(m) => f.write_str(m),
+        }
+    }
+}
+
+impl std::error::Error for QemuError {}
+
+impl From<QemuError> for CliError {
+    fn from(e: QemuError) -> Self {
+        CliError::Usage(e.to_string())
+    }
+}
+
+/// The `firmware/qemu` source directory of the tree this program was built from.
+pub fn source_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("firmware").join("qemu")
+}
+
+/// The image `bin` of `firmware/qemu`: `explicit` if given (it must exist),
+/// otherwise built (or found up to date) by cargo in the source tree. Cargo's
+/// messages go to stderr.
+pub fn image(bin: &str, explicit: Option<&Path>) -> Result<PathBuf, QemuError> {
+    if let Some(p) = explicit {
+        return if p.is_file() { Ok(p.to_path_buf()) } else { Err(QemuError::NoImage(p.to_path_buf())) };
+    }
+    let dir = source_dir();
+    let manifest = dir.join("Cargo.toml");
+    if !manifest.is_file() {
+        return Err(QemuError::NoSource { dir });
+    }
+    let dir = dir.canonicalize().map_err(|e| QemuError::Io("resolving firmware/qemu", e))?;
+    let target_dir = dir.join("target");
+    let built = target_dir.join(TARGET).join("release").join(bin);
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let command = format!("cd {} && cargo build --release --bin {bin}", dir.display());
+    let fresh = !built.is_file();
+    if fresh {
+        let _ = writeln!(io::stderr(), "qemu: building the emulated head ({command})");
+    }
+    // From inside firmware/qemu, so that its .cargo/config.toml and the
+    // repository's rust-toolchain.toml apply; an explicit target dir so that
+    // a CARGO_TARGET_DIR meant for the host crates is not used.
+    let mut cmd = Command::new(&cargo);
+    cmd.current_dir(&dir)
+        .args(["build", "--release", "--target", TARGET, "--bin", bin, "--target-dir"])
+        .arg(&target_dir)
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("CARGO_BUILD_TARGET_DIR")
+        .env_remove("RUSTFLAGS")
+        .env_remove("CARGO_ENCODED_RUSTFLAGS")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null());
+    if !fresh {
+        cmd.arg("--quiet");
+    }
+    match cmd.status() {
+        Ok(s) if s.success() => {}
+        Ok(s) => return Err(QemuError::Build { command, why: format!("cargo: {s}") }),
+        Err(e) if e.kind() == io::ErrorKind::NotFound && built.is_file() => {
+            let _ = writeln!(io::stderr(), "qemu: cargo not found; using {} as it is", built.display());
+        }
+        Err(e) => return Err(QemuError::Build { command, why: format!("cannot run cargo: {e}") }),
+    }
+    if built.is_file() { Ok(built) } else { Err(QemuError::NoImage(built)) }
+}
+
+/// The emulated head's options inside `cms-host listen` (flatten into the
+/// listener's arguments).
+#[derive(Args, Clone, Debug, Default)]
+pub struct QemuPortArgs {
+    /// With PORT `qemu`: the emulated board.
+    #[arg(long = "qemu-machine", value_enum)]
+    pub qemu_machine: Option<Machine>,
+    /// With PORT `qemu`: the head's image [default: built from firmware/qemu].
+    #[arg(long = "qemu-image", value_name = "FILE")]
+    pub qemu_image: Option<PathBuf>,
+}
+
+/// A running `qemu-system-arm`. Dropping it ends QEMU.
+pub struct Qemu {
+    child: Child,
+    monitor: Option<ChildStdin>,
+    pty: PathBuf,
+    // Held open for QEMU's lifetime: QEMU drops what UART0 sends while no
+    // one has the slave open, and only notices a new reader once a second.
+    _keeper: File,
+    stderr: mpsc::Receiver<String>,
+    resumed: bool,
+}
+
+impl fmt::Debug for Qemu {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Qemu").field("pid", &self.child.id()).field("pty", &self.pty).finish_non_exhaustive()
+    }
+}
+
+fn spawn_lines(r: impl Read + Send + 'static, tx: mpsc::Sender<String>) {
+    std::thread::spawn(move || {
+        for line in BufReader::new(r).lines() {
+            let Ok(line) = line else { break };
+            if tx.send(line).is_err() {
+                // Nobody listens any more: keep draining so QEMU never blocks.
+                continue;
+            }
+        }
+    });
+}
+
+/// Starts QEMU on `machine` with `image` and `flags` (the board without
+/// display, default devices or network; semihosting on, so that a panicking
+/// image ends QEMU). Its stdout and stderr come line by line on the channels.
+fn spawn_qemu(
+    machine: Machine,
+    image: &Path,
+    flags: &[&str],
+    stdin: Stdio,
+) -> Result<(Child, mpsc::Receiver<String>, mpsc::Receiver<String>), QemuError> {
+    let mut child = match Command::new(QEMU)
+        .args(["-machine", machine.qemu_name(), "-display", "none", "-nodefaults", "-nic", "none"])
+        .args(["-semihosting-config", "enable=on,target=native"])
+        .args(flags)
+        .arg("-kernel")
+        .arg(image)
+        .stdin(stdin)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+    {
+        Ok(c) => c,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Err(QemuError::NotInstalled),
+        Err(e) => return Err(QemuError::Io("starting qemu-system-arm", e)),
+    };
+    let (out_tx, out_rx) = mpsc::channel();
+    let (err_tx, err_rx) = mpsc::channel();
+    if let Some(o) = child.stdout.take() {
+        spawn_lines(o, out_tx);
+    }
+    if let Some(e) = child.stderr.take() {
+        spawn_lines(e, err_tx);
+    }
+    Ok((child, out_rx, err_rx))
+}
+
+fn tail(lines: &[String]) -> String {
+    let s = lines.iter().rev().take(3).rev().cloned().collect::<Vec<_>>().join(" | ");
+    crate::input::one_line(&s, 400)
+}
+
+impl Qemu {
+    /// Starts `image` on `machine`, paused, and opens UART0's pseudo-terminal.
+    /// Call [`Qemu::resume`] once the listener is ready.
+    pub fn start(machine: Machine, image: &Path) -> Result<Qemu, QemuError> {
+        let (mut child, out_rx, err_rx) =
+            spawn_qemu(machine, image, &["-S", "-monitor", "stdio", "-serial", "pty"], Stdio::piped())?;
+        let monitor = child.stdin.take();
+        let deadline = Instant::now() + START_TIMEOUT;
+        let mut seen = Vec::new();
+        let pty = loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match out_rx.recv_timeout(left.min(Duration::from_millis(100))) {
+                Ok(line) => {
+                    if let Some(p) = pty_of(&line) {
+                        break p;
+                    }
+                    seen.push(line);
+                }
+                Err(mpsc::RecvTimeoutError::Timeout) if !left.is_zero() => {}
+                Err(_) => {
+                    let _ = child.kill();
+                    let status = child.wait();
+                    let errs: Vec<String> = err_rx.try_iter().collect();
+                    return Err(match status {
+                        Ok(status) if !errs.is_empty() || left.is_zero() => {
+                            QemuError::Exited { status, stderr: tail(&errs) }
+                        }
+                        _ => QemuError::NoPty { output: tail(&seen) },
+                    });
+                }
+            }
+            if let Ok(Some(status)) = child.try_wait() {
+                let errs: Vec<String> = err_rx.iter().take(20).collect();
+                return Err(QemuError::Exited { status, stderr: tail(&errs) });
+            }
+        };
+        let keeper = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .custom_flags(nix::libc::O_NOCTTY)
+            .open(&pty)
+            .map_err(|e| QemuError::Io("opening QEMU's pseudo-terminal", e));
+        let keeper = match keeper {
+            Ok(k) => k,
+            Err(e) => {
+                let _ = child.kill();
+                let _ = child.wait();
+                return Err(e);
+            }
+        };
+        Ok(Qemu { child, monitor, pty, _keeper: keeper, stderr: err_rx, resumed: false })
+    }
+
+    /// UART0's pseudo-terminal: open it like a serial port.
+    pub fn pty(&self) -> &Path {
+        &self.pty
+    }
+
+    /// QEMU's process id.
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// Lets the CPU run (`cont` on the monitor).
+    pub fn resume(&mut self) -> Result<(), QemuError> {
+        self.monitor_command("cont")?;
+        self.resumed = true;
+        Ok(())
+    }
+
+    fn monitor_command(&mut self, cmd: &str) -> Result<(), QemuError> {
+        let Some(m) = self.monitor.as_mut() else {
+            return Err(QemuError::Io("QEMU monitor", io::Error::other("closed")));
+        };
+        m.write_all(format!("{cmd}\n").as_bytes())
+            .and_then(|_| m.flush())
+            .map_err(|e| QemuError::Io("writing to QEMU's monitor", e))
+    }
+
+    /// `Some(status)` once QEMU has exited.
+    pub fn exited(&mut self) -> Option<ExitStatus> {
+        self.child.try_wait().ok().flatten()
+    }
+
+    /// What QEMU printed on stderr so far (its last lines).
+    pub fn stderr_tail(&self) -> String {
+        tail(&self.stderr.try_iter().collect::<Vec<_>>())
+    }
+
+    /// Ends QEMU: `quit` on the monitor, killed after 2 s. Returns its status.
+    pub fn stop(mut self) -> Option<ExitStatus> {
+        self.shutdown()
+    }
+
+    fn shutdown(&mut self) -> Option<ExitStatus> {
+        if let Ok(Some(s)) = self.child.try_wait() {
+            return Some(s);
+        }
+        let _ = self.monitor_command("quit");
+        self.monitor = None;
+        let deadline = Instant::now() + Duration::from_secs(2);
+        while Instant::now() < deadline {
+            if let Ok(Some(s)) = self.child.try_wait() {
+                return Some(s);
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let _ = self.child.kill();
+        self.child.wait().ok()
+    }
+}
+
+impl Drop for Qemu {
+    fn drop(&mut self) {
+        self.shutdown();
+    }
+}
+
+/// The path in QEMU's `char device redirected to /dev/pts/N (label serial0)`.
+fn pty_of(line: &str) -> Option<PathBuf> {
+    let rest = line.split("char device redirected to ").nth(1)?;
+    let (path, label) = rest.split_once(' ')?;
+    label.contains("serial0").then(|| PathBuf::from(path))
+}
+
+/// Starts the emulated head for `cms-host listen qemu`: the image, QEMU
+/// paused, the pty opened, then running. Returns QEMU (drop it to end it).
+pub fn start_head(args: &QemuPortArgs) -> Result<Qemu, QemuError> {
+    let image = image(HEAD_BIN, args.qemu_image.as_deref())?;
+    let mut q = Qemu::start(args.qemu_machine.unwrap_or_default(), &image)?;
+    q.resume()?;
+    Ok(q)
+}
+
+/// Runs `f` on the device path of a `listen` PORT: `qemu` starts the
+/// emulated head (and ends it afterwards, with a `qemu:` line on stderr);
+/// anything else is passed through (the `--qemu-*` options then are an error).
+pub fn with_port<T>(port: &str, args: &QemuPortArgs, f: impl FnOnce(&str) -> T) -> Result<T, QemuError> {
+    if port != "qemu" {
+        if args.qemu_machine.is_some() || args.qemu_image.is_some() {
+            return Err(QemuError::Usage("--qemu-machine and --qemu-image need PORT `qemu`".into()));
+        }
+        return Ok(f(port));
+    }
+    let mut q = start_head(args)?;
+    let Some(path) = q.pty().to_str().map(str::to_string) else {
+        return Err(QemuError::Io("QEMU's pty path", io::Error::other("not UTF-8")));
+    };
+    let r = f(&path);
+    let early = q.exited();
+    let tail = q.stderr_tail();
+    let status = q.stop();
+    let _ = match (early, status) {
+        (Some(s), _) => writeln!(io::stderr(), "qemu: the emulated head exited by itself ({s}) {tail}"),
+        (None, Some(s)) => writeln!(io::stderr(), "qemu: stopped ({s})"),
+        (None, None) => writeln!(io::stderr(), "qemu: could not be stopped"),
+    };
+    Ok(r)
+}
+
+// ------------------------------------------------------------- bench qemu
+
+/// Options of `cms-host bench qemu`.
+#[derive(Args, Debug, Clone, Default)]
+pub struct BenchQemuArgs {
+    /// The emulated board.
+    #[arg(long, value_enum, default_value_t = Machine::An386)]
+    pub machine: Machine,
+    /// The benchmark's image [default: built from firmware/qemu].
+    #[arg(long, value_name = "FILE")]
+    pub image: Option<PathBuf>,
+    /// Clock of the implied rows per second, MHz (1 instruction per cycle).
+    #[arg(long, value_name = "MHZ", default_value_t = 480, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    pub clock_mhz: u32,
+}
+
+/// One configuration's count.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BenchRow {
+    /// Method name.
+    pub method: String,
+    /// Row length, px.
+    pub len: usize,
+    /// Stripes per row.
+    pub stripes: usize,
+    /// Instructions per `detect` call.
+    pub instructions: f64,
+    /// Rows (of the long run) with exactly `stripes` stripes, and rows.
+    pub found: (u64, u64),
+}
+
+/// What the benchmark image reported.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BenchReport {
+    /// Board and CPU line.
+    pub board: String,
+    /// The calibration loop: iterations, and nanoseconds counted.
+    pub calibration: (u64, u64),
+    /// Every configuration.
+    pub rows: Vec<BenchRow>,
+}
+
+fn field<'a>(line: &'a str, key: &str) -> Option<&'a str> {
+    line.split_whitespace().find_map(|w| w.strip_prefix(key)?.strip_prefix('='))
+}
+
+fn num(line: &str, key: &str) -> Result<u64, QemuError> {
+    field(line, key)
+        .and_then(|v| v.parse().ok())
+        .ok_or_else(|| QemuError::Bench(format!("no number {key}= in {:?}", crate::input::one_line(line, 200))))
+}
+
+/// Parses the benchmark image's output (see firmware/qemu/src/bin/bench.rs).
+pub fn parse_bench(text: &str) -> Result<BenchReport, QemuError> {
+    let mut lines = text.lines().map(str::trim).filter(|l| !l.is_empty());
+    let board = lines
+        .by_ref()
+        .find(|l| l.starts_with("cms-qemu-bench "))
+        .ok_or_else(|| QemuError::Bench("no `cms-qemu-bench` header in the output".into()))?
+        .trim_start_matches("cms-qemu-bench ")
+        .to_string();
+    let mut calibration = None;
+    let mut rows = Vec::new();
+    let mut done = false;
+    for l in lines {
+        if l.starts_with("calibration ") {
+            calibration = Some((num(l, "loop_iterations")?, num(l, "ns")?));
+        } else if l.starts_with("method=") {
+            let method = field(l, "method").unwrap_or_default().to_string();
+            let size = field(l, "size").unwrap_or_default();
+            let (len, stripes) = size
+                .split_once('x')
+                .and_then(|(a, b)| Some((a.parse().ok()?, b.parse().ok()?)))
+                .ok_or_else(|| QemuError::Bench(format!("bad size in {l:?}")))?;
+            let (n, short, long) = (num(l, "rows")?, num(l, "ns_short")?, num(l, "ns_long")?);
+            let found = field(l, "found")
+                .and_then(|f| f.split_once('/'))
+                .and_then(|(a, b)| Some((a.parse().ok()?, b.parse().ok()?)))
+                .ok_or_else(|| QemuError::Bench(format!("bad found= in {l:?}")))?;
+            if n == 0 || long < short {
+                return Err(QemuError::Bench(format!("inconsistent counts in {l:?}")));
+            }
+            rows.push(BenchRow { method, len, stripes, instructions: (long - short) as f64 / n as f64, found });
+        } else if l == "done" {
+            done = true;
+        } else if l.starts_with("panic") || l.contains("panic:") {
+            return Err(QemuError::Bench(format!("the image panicked: {}", crate::input::one_line(l, 300))));
+        }
+    }
+    let calibration = calibration.ok_or_else(|| QemuError::Bench("no calibration line".into()))?;
+    if !done {
+        return Err(QemuError::Bench("the output ends before `done`".into()));
+    }
+    Ok(BenchReport { board, calibration, rows })
+}
+
+/// Runs the benchmark image under `-icount shift=0,sleep=off` and returns its
+/// output.
+pub fn run_bench_image(machine: Machine, image: &Path) -> Result<String, QemuError> {
+    let flags = ["-icount", "shift=0,sleep=off", "-monitor", "none", "-serial", "stdio"];
+    let (mut child, rx, erx) = spawn_qemu(machine, image, &flags, Stdio::null())?;
+    let t0 = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().map_err(|e| QemuError::Io("waiting for qemu-system-arm", e))? {
+            break s;
+        }
+        if t0.elapsed() > BENCH_TIMEOUT {
+            let _ = child.kill();
+            let _ = child.wait();
+            return Err(QemuError::Bench(format!("no end after {} s", BENCH_TIMEOUT.as_secs())));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    // The reader threads end with the pipes.
+    let out: Vec<String> = rx.iter().collect();
+    if !status.success() {
+        let errs: Vec<String> = erx.iter().collect();
+        let mut all = out.clone();
+        all.extend(errs);
+        return Err(QemuError::Exited { status, stderr: tail(&all) });
+    }
+    Ok(out.join("\n"))
+}
+
+/// The table of `cms-host bench qemu`.
+pub fn bench_table(r: &BenchReport, clock_mhz: u32) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# Instructions per row on thumbv7em ({}), QEMU -icount shift=0: 1 instruction = 1 emulated ns",
+        r.board
+    );
+    let _ = writeln!(
+        s,
+        "# calibration: {} iterations of a 2-instruction loop counted as {} instructions",
+        r.calibration.0, r.calibration.1
+    );
+    let _ = writeln!(
+        s,
+        "# rows/s at {clock_mhz} MHz assume 1 instruction per cycle (a Cortex-M7 dual-issues some pairs and stalls on others)"
+    );
+    let mut sizes: Vec<(usize, usize)> = r.rows.iter().map(|b| (b.len, b.stripes)).collect();
+    sizes.dedup();
+    sizes.sort_unstable();
+    sizes.dedup();
+    let mut methods: Vec<&str> = Vec::new();
+    for b in &r.rows {
+        if !methods.contains(&b.method.as_str()) {
+            methods.push(&b.method);
+        }
+    }
+    s.push_str("\n| method |");
+    for (l, k) in &sizes {
+        let _ = write!(s, " {l} px × {k} | rows/s |");
+    }
+    s.push_str("\n|---|");
+    for _ in &sizes {
+        s.push_str("---:|---:|");
+    }
+    s.push('\n');
+    for m in &methods {
+        let _ = write!(s, "| {m} |");
+        for &(l, k) in &sizes {
+            match r.rows.iter().find(|b| b.method == *m && b.len == l && b.stripes == k) {
+                Some(b) => {
+                    let rate = clock_mhz as f64 * 1e6 / b.instructions;
+                    let _ = write!(s, " {} | {} |", group(b.instructions.round() as u64), group(rate.round() as u64));
+                }
+                None => s.push_str(" — | — |"),
+            }
+        }
+        s.push('\n');
+    }
+    let misses: Vec<String> = r
+        .rows
+        .iter()
+        .filter(|b| b.found.0 != b.found.1)
+        .map(|b| format!("{} {}x{}: {}/{}", b.method, b.len, b.stripes, b.found.0, b.found.1))
+        .collect();
+    if !misses.is_empty() {
+        let _ = writeln!(s, "\n# rows without exactly the expected stripes: {}", misses.join(", "));
+    }
+    s
+}
+
+/// 12345678 → "12 345 678" (the README's thin grouping).
+fn group(v: u64) -> String {
+    let d = v.to_string();
+    let mut out = String::new();
+    for (i, c) in d.chars().enumerate() {
+        if i > 0 && (d.len() - i).is_multiple_of(3) {
+            out.push(' ');
+        }
+        out.push(c);
+    }
+    out
+}
+
+/// `cms-host bench qemu`: the table on stdout.
+pub fn bench(a: &BenchQemuArgs) -> Result<String, QemuError> {
+    let image = image(BENCH_BIN, a.image.as_deref())?;
+    let out = run_bench_image(a.machine, &image)?;
+    let report = parse_bench(&out)?;
+    let (iters, ns) = report.calibration;
+    if ns != 2 * iters {
+        return Err(QemuError::Bench(format!(
+            "the clock does not count instructions: {iters} iterations of 2 instructions took {ns} ns"
+        )));
+    }
+    Ok(bench_table(&report, a.clock_mhz))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_pty_line_is_found() {
+        assert_eq!(
+            pty_of("(qemu) char device redirected to /dev/pts/7 (label serial0)"),
+            Some(PathBuf::from("/dev/pts/7"))
+        );
+        assert_eq!(pty_of("char device redirected to /dev/pts/8 (label serial1)"), None);
+        assert_eq!(pty_of("QEMU 7.2.22 monitor - type 'help' for more information"), None);
+    }
+
+    #[test]
+    fn bench_output_parses_and_tabulates() {
+        let text = "cms-qemu-bench board=qemu-mps2-an386 cpu=cortex-m4f clock_hz=25000000\n\
+                    calibration loop_iterations=1000 ns=2000\n\
+                    method=cwt size=752x1 rows=256 ns_short=640 ns_long=3200 found=320/320\n\
+                    method=cwt size=752x3 rows=256 ns_short=640 ns_long=25600640 found=319/320\n\
+                    done\n";
+        let r = parse_bench(text).unwrap();
+        assert_eq!(r.calibration, (1000, 2000));
+        assert_eq!(r.rows[0].instructions, 10.0);
+        assert_eq!(r.rows[1].instructions, 100_000.0);
+        let t = bench_table(&r, 480);
+        assert!(t.contains("| cwt | 10 | 48 000 000 | 100 000 | 4 800 |"), "{t}");
+        assert!(t.contains("cwt 752x3: 319/320"), "{t}");
+        for bad in
+            ["", "calibration loop_iterations=1 ns=2\ndone", "cms-qemu-bench x\ncalibration loop_iterations=1 ns=2"]
+        {
+            assert!(parse_bench(bad).is_err(), "{bad:?}");
+        }
+        let panicked = "cms-qemu-bench b\ncalibration loop_iterations=1 ns=2\n\0panic: boom\ndone";
+        assert!(parse_bench(panicked).unwrap_err().to_string().contains("boom"));
+    }
+
+    #[test]
+    fn thousands_are_grouped() {
+        assert_eq!(group(0), "0");
+        assert_eq!(group(999), "999");
+        assert_eq!(group(1000), "1 000");
+        assert_eq!(group(1234567), "1 234 567");
+    }
+}

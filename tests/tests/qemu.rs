@@ -1,0 +1,163 @@
+//! End to end on the emulated head: the firmware of `firmware/qemu` runs
+//! `cms_core::pipeline::Head` on a Cortex-M under QEMU and streams frames
+//! over the emulated UART; `cms-host`'s listener receives them through the
+//! pseudo-terminal exactly as from a device; and every profile is checked
+//! against the host's own run of the same pipeline on the same rows — every
+//! peak's position, strength, width and flags, and the laser each was given
+//! to, bit for bit.
+//!
+//! The rows are `cms_core::synthetic`'s: an integer-only scene that both
+//! sides compute from what a `Profile` carries (odometer, laser mask,
+//! exposure), so the host regenerates each received frame whatever the
+//! emulator's timing was (which frames the head skipped, where it was).
+//!
+//! Needs `qemu-system-arm` (`.ci/run` installs it); builds the image with
+//! cargo in `firmware/qemu` if it is missing or stale.
+
+use std::sync::atomic::AtomicBool;
+
+use cms_core::pipeline::{Head, Identity, LaserDriver, default_detector};
+use cms_core::protocol::{
+    Command, DeviceInfo, DeviceMsg, HeadState, HostMsg, LaserPattern, PROTOCOL_VERSION, Profile, Start,
+};
+use cms_core::synthetic::{Scene, SceneCamera, SceneConfig};
+use cms_host::listen::{ListenOptions, Progress, Summary, listen_with};
+use cms_host::qemu::{self, Machine, Qemu};
+
+/// The emulated head's scene seed (`SCENE_SEED` in firmware/qemu/src/bin/head.rs).
+const SCENE_SEED: u32 = 1;
+/// Row length of the emulated sensor.
+const WIDTH: usize = 752;
+
+/// What one session with the emulated head brought back.
+struct Session {
+    info: DeviceInfo,
+    profiles: Vec<Profile>,
+    summary: Summary,
+}
+
+/// Starts the emulated head on `machine`, listens for `frames` frames with
+/// `start`, and stops QEMU.
+fn listen_to_qemu(machine: Machine, start: Start, frames: u64) -> Session {
+    let image = match qemu::image(qemu::HEAD_BIN, None) {
+        Ok(i) => i,
+        Err(e) => panic!("{e}"),
+    };
+    let mut q = match Qemu::start(machine, &image) {
+        Ok(q) => q,
+        Err(e) => panic!("{e}"),
+    };
+    let port = q.pty().to_str().expect("pty paths are ASCII").to_string();
+    if let Err(e) = q.resume() {
+        panic!("{e}");
+    }
+    let opts = ListenOptions { frames: Some(frames), start, progress: Progress::Quiet, ..ListenOptions::default() };
+    let mut info = None;
+    let mut profiles = Vec::new();
+    let summary = listen_with(&port, &opts, &AtomicBool::new(false), &mut std::io::sink(), &mut |m| match m {
+        DeviceMsg::Hello(i) => info = Some(i.clone()),
+        DeviceMsg::Profile(p) => profiles.push(p.clone()),
+        _ => {}
+    });
+    let early = q.exited();
+    let stderr = q.stderr_tail();
+    q.stop();
+    let summary = match summary {
+        Ok(s) => s,
+        Err(e) => panic!("listening to the emulated head: {e} (QEMU exited early: {early:?}; {stderr})"),
+    };
+    assert_eq!(early, None, "QEMU exited by itself: {stderr}");
+    Session { info: info.expect("the head said Hello"), profiles, summary }
+}
+
+/// The laser enables of the host's replay (nothing to drive).
+struct NoLasers;
+
+impl LaserDriver for NoLasers {
+    fn set(&mut self, _mask: u8) {}
+}
+
+/// Runs the host's own `Head` on the rows of every received frame and
+/// compares its profile with the received one. Returns the peaks compared.
+fn replay(s: &Session, start: Start) -> usize {
+    let identity = Identity { firmware: "host-replay", board: "host" };
+    let mut head: Box<Head<WIDTH, NoLasers>> = match Head::new(NoLasers, s.info.detector, identity) {
+        Ok(h) => Box::new(h),
+        Err(e) => panic!("the head's detector configuration is refused on the host: {e}"),
+    };
+    let scene = Scene::new(SceneConfig::reference(SCENE_SEED)).expect("reference scene");
+    let mut camera = SceneCamera::new(scene);
+    let mut sink = |_: &DeviceMsg| {};
+    head.handle(Command { seq: 1, msg: HostMsg::Start(start) }, 0, &camera, &mut sink);
+    assert_eq!(head.state(), HeadState::Streaming);
+    let period_us = 1_000_000 / start.rate_hz as u64;
+    let mut peaks = 0;
+    for (i, got) in s.profiles.iter().enumerate() {
+        assert_eq!(got.parts, 1, "480 rows fit one profile");
+        let t = (i as u64 + 1) * period_us;
+        camera.travel_to(got.odometer_um);
+        head.handle(Command { seq: 2, msg: HostMsg::Heartbeat }, t, &camera, &mut sink);
+        let mut mine = Vec::new();
+        head.poll(t, &mut camera, &mut || 0, &mut |m| {
+            if let DeviceMsg::Profile(p) = m {
+                mine.push(p.clone());
+            }
+        });
+        assert_eq!(mine.len(), 1, "frame {i}: the replay made one profile");
+        let mut want = mine.remove(0);
+        // The only field that depends on the clock.
+        want.timestamp_us = got.timestamp_us;
+        if want != *got {
+            for (a, b) in want.lasers.iter().zip(&got.lasers) {
+                for (p, q) in a.points.iter().zip(&b.points) {
+                    assert_eq!(p, q, "frame {i} (seq {}), laser {}: first differing point", got.seq, a.laser);
+                }
+            }
+            assert_eq!(want, *got, "frame {i}: profile header or point counts differ");
+        }
+        peaks += got.lasers.iter().map(|l| l.points.len()).sum::<usize>();
+    }
+    peaks
+}
+
+fn check_session(s: &Session, start: Start, frames: u64, board: &str) -> usize {
+    assert_eq!(s.info.protocol, PROTOCOL_VERSION);
+    assert_eq!(s.info.board.as_str(), board);
+    assert_eq!((s.info.sensor_width, s.info.sensor_height, s.info.bits), (752, 480, 12));
+    assert_eq!(s.info.detector, default_detector());
+    assert_eq!(s.summary.frames, frames);
+    assert_eq!(s.profiles.len() as u64, frames, "one profile per frame");
+    let l = &s.summary.link;
+    assert_eq!((l.crc_errors, l.decode_errors, l.overflows, l.discarded_bytes), (0, 0, 0, 0), "a clean link");
+    assert_eq!((s.summary.reconnects, s.summary.stalls, s.summary.head_restarts), (0, 0, 0));
+    assert_eq!(s.summary.lasers_on, Some(0), "lasers off after the stop");
+    // Consecutive frames of the head, travelling forwards.
+    for (k, w) in s.profiles.windows(2).enumerate() {
+        assert_eq!(w[1].seq, w[0].seq + 1, "frame {k}");
+        assert!(w[1].odometer_um > w[0].odometer_um, "frame {k}: the head travels");
+    }
+    let peaks = replay(s, start);
+    // Every lit laser's stripe is found in every row of this scene.
+    let lit_per_frame: usize = s.profiles.iter().map(|p| p.laser_mask.count_ones() as usize * 480).sum();
+    assert_eq!(peaks, lit_per_frame, "a peak per lit laser per row");
+    peaks
+}
+
+#[test]
+fn every_peak_of_the_emulated_m4_equals_the_hosts() {
+    let start = Start { rate_hz: 30, laser_mask: 0b111, pattern: LaserPattern::Simultaneous };
+    let s = listen_to_qemu(Machine::An386, start, 4);
+    let peaks = check_session(&s, start, 4, "qemu-mps2-an386");
+    assert_eq!(peaks, 4 * 3 * 480);
+    eprintln!("mps2-an386: {} frames, {peaks} peaks equal to the host's", s.profiles.len());
+}
+
+#[test]
+fn every_peak_of_the_emulated_m7_equals_the_hosts_with_lasers_in_turn() {
+    let start = Start { rate_hz: 20, laser_mask: 0b101, pattern: LaserPattern::Sequential };
+    let s = listen_to_qemu(Machine::An500, start, 4);
+    let masks: Vec<u8> = s.profiles.iter().map(|p| p.laser_mask).collect();
+    assert_eq!(masks, [0b001, 0b100, 0b001, 0b100], "one laser per frame, in turn");
+    let peaks = check_session(&s, start, 4, "qemu-mps2-an500");
+    eprintln!("mps2-an500: {} frames, {peaks} peaks equal to the host's", s.profiles.len());
+}
