@@ -34,6 +34,7 @@ use std::fmt;
 use std::fs::{File, OpenOptions};
 use std::io::{self, BufRead, BufReader, Read, Write};
 use std::os::unix::fs::OpenOptionsExt;
+use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
 use std::sync::mpsc;
@@ -252,8 +253,16 @@ fn spawn_qemu(
     image: &Path,
     flags: &[&str],
     stdin: Stdio,
+    own_group: bool,
 ) -> Result<(Child, mpsc::Receiver<String>, mpsc::Receiver<String>), QemuError> {
-    let mut child = match Command::new(QEMU)
+    let mut cmd = Command::new(QEMU);
+    if own_group {
+        // Ctrl-C at the terminal goes to the foreground process group: in a
+        // group of its own QEMU outlives it, so that the listener can stop
+        // the head (lasers off) before QEMU is told to quit.
+        cmd.process_group(0);
+    }
+    let mut child = match cmd
         .args(["-machine", machine.qemu_name(), "-display", "none", "-nodefaults", "-nic", "none"])
         .args(["-semihosting-config", "enable=on,target=native"])
         .args(flags)
@@ -289,7 +298,7 @@ impl Qemu {
     /// Call [`Qemu::resume`] once the listener is ready.
     pub fn start(machine: Machine, image: &Path) -> Result<Qemu, QemuError> {
         let (mut child, out_rx, err_rx) =
-            spawn_qemu(machine, image, &["-S", "-monitor", "stdio", "-serial", "pty"], Stdio::piped())?;
+            spawn_qemu(machine, image, &["-S", "-monitor", "stdio", "-serial", "pty"], Stdio::piped(), true)?;
         let monitor = child.stdin.take();
         let deadline = Instant::now() + START_TIMEOUT;
         let mut seen = Vec::new();
@@ -428,7 +437,14 @@ pub fn with_port<T>(port: &str, args: &QemuPortArgs, f: impl FnOnce(&str) -> T) 
         }
         return Ok(f(port));
     }
+    // Ctrl-C from here on stops the listener (and then QEMU) instead of
+    // ending this process with QEMU left running in its own process group.
+    let stop = crate::listen::interrupt_flag();
     let mut q = start_head(args)?;
+    if stop.load(std::sync::atomic::Ordering::SeqCst) {
+        q.stop();
+        return Err(QemuError::Usage("interrupted while starting the emulated head".into()));
+    }
     let Some(path) = q.pty().to_str().map(str::to_string) else {
         return Err(QemuError::Io("QEMU's pty path", io::Error::other("not UTF-8")));
     };
@@ -544,7 +560,7 @@ pub fn parse_bench(text: &str) -> Result<BenchReport, QemuError> {
 /// output.
 pub fn run_bench_image(machine: Machine, image: &Path) -> Result<String, QemuError> {
     let flags = ["-icount", "shift=0,sleep=off", "-monitor", "none", "-serial", "stdio"];
-    let (mut child, rx, erx) = spawn_qemu(machine, image, &flags, Stdio::null())?;
+    let (mut child, rx, erx) = spawn_qemu(machine, image, &flags, Stdio::null(), false)?;
     let t0 = Instant::now();
     let status = loop {
         if let Some(s) = child.try_wait().map_err(|e| QemuError::Io("waiting for qemu-system-arm", e))? {
