@@ -381,6 +381,7 @@ fn plot(path: &Path, cells: &[CellStats], s: &Study) -> Result<()> {
     let finite = cells.iter().map(|c| c.ratio()).filter(|v| v.is_finite());
     let lo = finite.clone().fold(1.0f64, f64::min) * 0.8;
     let hi = finite.fold(1.0f64, f64::max) * 1.25;
+    cms_host::plot::fonts();
     let root = SVGBackend::new(path, (1400, 1000)).into_drawing_area();
     root.fill(&WHITE)?;
     let title = format!(

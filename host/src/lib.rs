@@ -4,22 +4,26 @@
 //! lives in its own module here so that it can be tested without spawning a
 //! process:
 //!
+//! * [`analyze`] — `cms-host analyze`: a recording stitched along the track and judged by the rail standards.
 //! * [`calib`] — `cms-host calibrate`: camera and laser-plane calibration, the calibration file, upload.
 //! * [`detect`] — `cms-host detect`: laser-stripe positions of image rows as CSV.
 //! * [`fit`] — `cms-host fit`: IEEE 1057 and the paper's rotated sine fits of a profile.
 //! * [`input`] — reading grayscale PNG/TIFF images and CSV rows.
+//! * [`plot`] — SVG and PNG plots with an embedded font.
 //! * [`listen`] — `cms-host listen`: handshake, stream, record and show a sensor head's profiles.
 //! * [`qemu`] — the emulated head on QEMU: `cms-host listen qemu`, `cms-host bench qemu`.
 //! * [`link`] — the serial port (open by path, reconnect) and frame splitting.
 //! * [`record`] — the recording format, `cms-host export` and `cms-host info`.
 //! * [`standards`] — rail-standard analysis of a longitudinal profile: EN 13231-3 bands, EN 15610 roughness.
 
+pub mod analyze;
 pub mod calib;
 pub mod detect;
 pub mod fit;
 pub mod input;
 pub mod link;
 pub mod listen;
+pub mod plot;
 pub mod qemu;
 pub mod record;
 pub mod sim;

@@ -44,6 +44,7 @@ use cms_core::protocol::{
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::CliError;
+use crate::analyze::live::LiveEstimate;
 use crate::link::{Counters, Deframer, Link, LinkError};
 use crate::record::{self, FrameCounter, RecordError, Recorder};
 
@@ -320,6 +321,8 @@ struct Session<'a> {
     window_frames: u64,
     window_points: u64,
     rate: (f64, f64),
+    /// The recent calibrated frames, for the corrugation estimate.
+    live: LiveEstimate,
 }
 
 impl Session<'_> {
@@ -439,6 +442,7 @@ impl Session<'_> {
         self.first_profile.get_or_insert(now);
         self.last_profile = Some(now);
         self.sum.profiles += 1;
+        self.live.push(p);
         let n = record::points(p);
         self.sum.points += n;
         self.window_points += n;
@@ -535,8 +539,10 @@ impl Session<'_> {
             Some(m) => format!("{m:03b}"),
             None => "?".to_string(),
         };
+        // Once calibrated points flow: the sine fit of each laser's last half metre.
+        let corrugation = self.live.status();
         format!(
-            "{state}: {:.1} frames/s, {:.0} points/frame, {} frames, CRC errors {}, resyncs {}, dropped {}, reconnects {}, lasers {lasers}",
+            "{state}: {:.1} frames/s, {:.0} points/frame, {} frames, CRC errors {}, resyncs {}, dropped {}, reconnects {}, lasers {lasers}{}{corrugation}",
             self.rate.0,
             self.rate.1,
             self.sum.frames,
@@ -544,6 +550,7 @@ impl Session<'_> {
             self.sum.link.resyncs(),
             self.sum.head_dropped,
             self.sum.reconnects,
+            if corrugation.is_empty() { "" } else { ", " },
         )
     }
 }
@@ -659,6 +666,7 @@ pub fn listen_with(
         window_frames: 0,
         window_points: 0,
         rate: (0.0, 0.0),
+        live: LiveEstimate::default(),
     };
     let mut display = Display::new(opts);
     let mut deframer = Deframer::new();

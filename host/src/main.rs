@@ -6,6 +6,7 @@ use std::io::Write as _;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use cms_host::analyze;
 use cms_host::calib;
 use cms_host::detect;
 use cms_host::fit;
@@ -47,6 +48,8 @@ enum Command {
     Simulate(simulate::SimulateArgs),
     /// Fit a sine (the paper's rotated sine by default) to a profile x_mm,z_mm.
     Fit(fit::FitArgs),
+    /// Stitch a recording along the track; EN 13231-3 bands, EN 15610 roughness; --report DIR.
+    Analyze(analyze::AnalyzeArgs),
     /// Camera and laser-plane calibration; upload to a head.
     #[command(subcommand)]
     Calibrate(calib::CalibrateCmd),
@@ -90,6 +93,10 @@ fn main() -> ExitCode {
             Err(e) => e.report(),
         },
         Command::Fit(args) => match fit::run(&args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => e.report(),
+        },
+        Command::Analyze(args) => match analyze::run(&args) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => e.report(),
         },

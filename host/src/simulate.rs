@@ -330,6 +330,27 @@ pub struct SimPortArgs {
     /// With PORT `sim`: the simulated head's state directory (its kept calibration).
     #[arg(long = "sim-state", value_name = "DIR")]
     pub sim_state: Option<PathBuf>,
+    /// With PORT `sim`: travel speed of the simulated head along the rail, mm/s.
+    #[arg(long = "sim-speed-mm-s", value_name = "V", value_parser = speed)]
+    pub sim_speed_mm_s: Option<f64>,
+    /// With PORT `sim`: a corrugation component of the simulated rail (repeat for several).
+    #[arg(long = "sim-corrugation", value_name = "WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG]", value_parser = parse_corrugation)]
+    pub sim_corrugation: Vec<CorrugationArg>,
+    /// With PORT `sim`: RMS random roughness of the simulated rail, µm.
+    #[arg(long = "sim-roughness-um", value_name = "R", value_parser = non_negative)]
+    pub sim_roughness_um: Option<f64>,
+}
+
+impl SimPortArgs {
+    /// Whether any option was given (they all need PORT `sim`).
+    fn any(&self) -> bool {
+        self.sim_seed.is_some()
+            || self.sim_preset.is_some()
+            || self.sim_state.is_some()
+            || self.sim_speed_mm_s.is_some()
+            || !self.sim_corrugation.is_empty()
+            || self.sim_roughness_um.is_some()
+    }
 }
 
 /// A `listen` PORT: `sim` starts the simulated head on a new pty and returns
@@ -337,8 +358,8 @@ pub struct SimPortArgs {
 /// a device path, returned as it is.
 pub fn resolve_port(port: &str, sim: &SimPortArgs) -> Result<(PathBuf, Option<SimHandle>), SimulateError> {
     if port != "sim" {
-        if sim.sim_seed.is_some() || sim.sim_preset.is_some() || sim.sim_state.is_some() {
-            return Err(SimulateError::Usage("--sim-seed, --sim-preset and --sim-state need PORT `sim`".into()));
+        if sim.any() {
+            return Err(SimulateError::Usage("--sim-seed, --sim-preset, --sim-state, --sim-speed-mm-s, --sim-corrugation and --sim-roughness-um need PORT `sim`".into()));
         }
         return Ok((PathBuf::from(port), None));
     }
@@ -348,6 +369,9 @@ pub fn resolve_port(port: &str, sim: &SimPortArgs) -> Result<(PathBuf, Option<Si
         preset: sim.sim_preset.unwrap_or(Preset::Reference),
         rate: 1000,
         state: sim.sim_state.clone(),
+        speed_mm_s: sim.sim_speed_mm_s,
+        corrugation: sim.sim_corrugation.clone(),
+        roughness_um: sim.sim_roughness_um,
         ..SimulateArgs::default()
     };
     let (path, handle) = spawn_on_pty(&args)?;

@@ -490,13 +490,19 @@ pub fn band_table(a: &Analysis) -> String {
 /// The band-filtered profiles as CSV: `x_mm` and one column per band (mm),
 /// empty where a sample is a gap or a band was not evaluated.
 pub fn bands_csv(a: &Analysis) -> String {
+    bands_csv_from(a, 0.0)
+}
+
+/// [`bands_csv`] with sample 0 at track position `x0_mm`.
+pub fn bands_csv_from(a: &Analysis, x0_mm: f64) -> String {
     let mut s = String::from("x_mm");
     for b in &a.bands {
         let _ = write!(s, ",band_{}_{}_mm", fmt_mm(b.band.lo_mm), fmt_mm(b.band.hi_mm));
     }
     s.push('\n');
     for i in 0..a.samples {
-        let _ = write!(s, "{}", i as f64 * a.dx_mm);
+        // Rounded to the nanometre: no 0.30000000000000004.
+        let _ = write!(s, "{}", ((x0_mm + i as f64 * a.dx_mm) * 1e6).round() / 1e6);
         for b in &a.bands {
             match b.outcome.as_ref().ok().and_then(|st| st.band_mm.get(i)).filter(|v| v.is_finite()) {
                 Some(v) => {

@@ -1,0 +1,59 @@
+//! Cost of one update of `listen`'s live corrugation estimate
+//! (`cms_host::analyze::live`): the window of recent frames stitched and one
+//! rotated-sine fit per laser. The frames are those of the reference head
+//! at 1 m/s and 30 frames/s (480 points per laser, 68.6 mm each, 33 mm
+//! apart) over a rail with 30 µm of corrugation at 50 mm and 2 µm of noise
+//! per point: the window holds 16 frames, about half a metre of rail.
+//!
+//! `cargo bench -p cms-host --bench corrugation`.
+
+use cms_host::analyze::live::LiveEstimate;
+use cms_host::analyze::stitch::FramePoints;
+use criterion::{Criterion, criterion_group, criterion_main};
+use std::hint::black_box;
+use std::time::Duration;
+
+fn window() -> LiveEstimate {
+    let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+    let mut noise = move || {
+        // xorshift64*, two uniforms summed: a bounded, roughly normal noise.
+        let mut u = || {
+            seed ^= seed >> 12;
+            seed ^= seed << 25;
+            seed ^= seed >> 27;
+            (seed.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
+        };
+        2.0 * (u() + u() - 1.0) * 6f64.sqrt() / 2.0
+    };
+    let mut live = LiveEstimate::default();
+    for i in 0..40u32 {
+        let o = 33.3 * i as f64;
+        let mut f = FramePoints { seq: i, odometer_mm: o, ..FramePoints::default() };
+        for (k, pts) in f.lasers.iter_mut().enumerate() {
+            *pts = (0..480)
+                .map(|r| -34.3 + 0.143 * r as f64)
+                .map(|a| (a, 30.0 * (std::f64::consts::TAU * (o + a) / 50.0).sin() + 100.0 * k as f64 + noise()))
+                .collect();
+        }
+        live.add(f);
+    }
+    live
+}
+
+fn update(c: &mut Criterion) {
+    let live = window();
+    let est = live.estimate();
+    assert_eq!(est.len(), 3);
+    for e in &est {
+        let f = e.fit.as_ref().expect("a fit");
+        assert!((f.wavelength_mm - 50.0).abs() < 0.5 && (f.amplitude_um - 30.0).abs() < 2.0, "{f:?}");
+    }
+    println!("window: {} frames, {:.0} mm of track per laser", live.frames(), est[0].length_mm);
+    let mut g = c.benchmark_group("live");
+    g.sample_size(20).measurement_time(Duration::from_secs(5));
+    g.bench_function("estimate", |b| b.iter(|| black_box(live.estimate())));
+    g.finish();
+}
+
+criterion_group!(benches, update);
+criterion_main!(benches);

@@ -1,0 +1,183 @@
+//! The live corrugation estimate of `cms-host listen`: per laser, a sine
+//! fitted to the last half metre of track stitched from the most recent
+//! calibrated frames.
+//!
+//! Frames are gathered as they arrive ([`LiveEstimate::push`], O(points));
+//! the estimate is made only when the status line is drawn
+//! ([`LiveEstimate::estimate`], once a second, or four times with a
+//! terminal): the window's frames are stitched ([`super::stitch`], 1 mm
+//! samples, direction from the data, offset registration) and each laser's
+//! profile gets the paper's rotated-sine fit ([`crate::fit`]). The window is
+//! the frames within [`WINDOW_MM`] of odometer of the newest (at most
+//! [`MAX_FRAMES`]), so at walking pace or at 2 m/s it is about half a metre
+//! of rail: ten wavelengths of 50 mm corrugation.
+//!
+//! **Cheap by design.** The status line is drawn by the listener's own
+//! loop: while it computes, nobody reads the port, and a head whose link
+//! buffer fills drops frames. The full fit ([`crate::fit::fit`]: three starts,
+//! the fallback scan, Levenberg–Marquardt on the rotated model) took 0.5 s
+//! per update here, so the live estimate is the short path of the same
+//! module: the profile detrended (a straight line takes the sensor's
+//! rotation), ω from the interpolated peak of an FFT of the 1 mm samples
+//! (zero-padded ×8, gaps as zeros; [`fit::dft_omega`]'s plain DFT alone
+//! cost 10 ms per laser), then
+//! the IEEE 1057 four-parameter iteration ([`fit::four_param_ieee`]),
+//! falling back to the three-parameter fit at the DFT's ω if the iteration
+//! breaks down or wanders more than 20 % away. Cost per update: the
+//! `corrugation` benchmark (`cargo bench -p cms-host --bench corrugation`).
+
+use std::collections::VecDeque;
+use std::fmt::Write as _;
+
+use cms_core::protocol::Profile;
+
+use super::stitch::{self, Direction, FrameAssembler, FramePoints, Registration};
+use crate::fit;
+
+/// Odometer span of the frames kept, mm.
+pub const WINDOW_MM: f64 = 500.0;
+/// Most frames kept.
+pub const MAX_FRAMES: usize = 60;
+/// Fewest stitched samples a fit is tried on.
+const MIN_SAMPLES: usize = 40;
+
+/// The recent calibrated frames.
+#[derive(Debug, Default)]
+pub struct LiveEstimate {
+    asm: FrameAssembler,
+    window: VecDeque<FramePoints>,
+}
+
+/// One laser's estimate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LaserEstimate {
+    pub laser: usize,
+    /// Stitched track length fitted, mm.
+    pub length_mm: f64,
+    /// The sine, or why there is none.
+    pub fit: Result<Sine, String>,
+}
+
+/// A fitted sine.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sine {
+    pub wavelength_mm: f64,
+    /// Half the peak-to-peak, µm.
+    pub amplitude_um: f64,
+}
+
+/// ω (rad/mm) of the largest spectral peak of samples on a grid (x a
+/// multiple of the spacing apart; missing samples count as zero), by a
+/// zero-padded FFT and parabolic interpolation of the magnitude, over
+/// wavelengths from three samples to the span.
+fn fft_omega(x: &[f64], z: &[f64]) -> Option<f64> {
+    let (lo, hi) = (x.first()?, x.last()?);
+    let dx = x.windows(2).map(|w| w[1] - w[0]).fold(f64::INFINITY, f64::min);
+    if !(dx > 0.0 && dx.is_finite()) {
+        return None;
+    }
+    let n = ((hi - lo) / dx).round() as usize + 1;
+    let m = (8 * n).next_power_of_two();
+    let mut buf = vec![rustfft::num_complex::Complex::new(0.0, 0.0); m];
+    for (x, z) in x.iter().zip(z) {
+        let i = ((x - lo) / dx).round() as usize;
+        if let Some(b) = buf.get_mut(i) {
+            b.re = *z;
+        }
+    }
+    rustfft::FftPlanner::<f64>::new().plan_fft_forward(m).process(&mut buf);
+    let mag: Vec<f64> = buf[..m / 2].iter().map(|c| c.norm()).collect();
+    // Bins of wavelengths between the span and three samples.
+    let (k_lo, k_hi) = ((m / n).max(1), m / 3);
+    let k = (k_lo..k_hi.min(mag.len() - 1)).max_by(|&a, &b| mag[a].total_cmp(&mag[b]))?;
+    let (a, b, c) = (mag[k - 1], mag[k], mag[k + 1]);
+    let den = a - 2.0 * b + c;
+    let delta = if den < 0.0 { (0.5 * (a - c) / den).clamp(-0.5, 0.5) } else { 0.0 };
+    Some(std::f64::consts::TAU * (k as f64 + delta) / (m as f64 * dx))
+}
+
+/// The quick sine fit of a profile (x mm, z µm); see the module docs.
+pub fn quick_sine(x: &[f64], z_um: &[f64]) -> Result<Sine, String> {
+    let n = x.len() as f64;
+    if x.len() < MIN_SAMPLES || x.len() != z_um.len() {
+        return Err(format!("{} samples", x.len()));
+    }
+    let xm = x.iter().sum::<f64>() / n;
+    let zm = z_um.iter().sum::<f64>() / n;
+    let xc: Vec<f64> = x.iter().map(|v| v - xm).collect();
+    let sxx: f64 = xc.iter().map(|v| v * v).sum();
+    let slope = xc.iter().zip(z_um).map(|(x, z)| x * (z - zm)).sum::<f64>() / sxx;
+    let zd: Vec<f64> = xc.iter().zip(z_um).map(|(x, z)| z - zm - slope * x).collect();
+    let w0 = fft_omega(&xc, &zd).ok_or("no spectral peak")?;
+    let (w, lin) = match fit::four_param_ieee(&xc, &zd, w0, 20) {
+        Some(f) if (f.omega / w0 - 1.0).abs() < 0.2 => (f.omega, f.linear),
+        _ => (w0, fit::three_param(&xc, &zd, w0).ok_or("singular fit")?),
+    };
+    let s = Sine { wavelength_mm: std::f64::consts::TAU / w, amplitude_um: lin.sin.hypot(lin.cos) };
+    if s.wavelength_mm.is_finite() && s.amplitude_um.is_finite() { Ok(s) } else { Err("no finite fit".into()) }
+}
+
+impl LiveEstimate {
+    /// Feeds one profile message.
+    pub fn push(&mut self, p: &Profile) {
+        if let Some(f) = self.asm.push(p) {
+            self.add(f);
+        }
+    }
+
+    /// Adds a complete frame.
+    pub fn add(&mut self, f: FramePoints) {
+        let newest = f.odometer_mm;
+        self.window.push_back(f);
+        while self.window.len() > MAX_FRAMES
+            || self.window.front().is_some_and(|o| (newest - o.odometer_mm).abs() > WINDOW_MM)
+        {
+            self.window.pop_front();
+        }
+    }
+
+    /// Frames in the window.
+    pub fn frames(&self) -> usize {
+        self.window.len()
+    }
+
+    /// The estimate per laser (empty without calibrated frames).
+    pub fn estimate(&self) -> Vec<LaserEstimate> {
+        let frames: Vec<FramePoints> = self.window.iter().cloned().collect();
+        let opts = stitch::Options {
+            dx_mm: 1.0,
+            direction: Direction::Auto,
+            registration: Registration::Offset,
+            ..stitch::Options::default()
+        };
+        let Ok(s) = stitch::stitch(&frames, &opts) else { return Vec::new() };
+        s.lasers
+            .iter()
+            .map(|l| {
+                let (x, z): (Vec<f64>, Vec<f64>) =
+                    (0..l.z_um.len()).filter(|&i| l.z_um[i].is_finite()).map(|i| (l.x_mm(i), l.z_um[i])).unzip();
+                LaserEstimate { laser: l.laser, length_mm: l.covered_mm(), fit: quick_sine(&x, &z) }
+            })
+            .collect()
+    }
+
+    /// `corrugation L0 50.1 mm/30.2 µm L1 …` (empty without calibrated frames).
+    pub fn status(&self) -> String {
+        let est = self.estimate();
+        if est.is_empty() {
+            return String::new();
+        }
+        let mut s = String::from("corrugation");
+        for e in &est {
+            match &e.fit {
+                Ok(f) => {
+                    let _ = write!(s, " L{} {:.1} mm/{:.1} µm", e.laser, f.wavelength_mm, f.amplitude_um);
+                }
+                Err(_) => {
+                    let _ = write!(s, " L{} -", e.laser);
+                }
+            }
+        }
+        s
+    }
+}

@@ -1,0 +1,538 @@
+//! `cms-host analyze RECORDING [--report DIR] [--json]`: a recording's
+//! calibrated frames placed along the track by their odometer, stitched into
+//! one longitudinal profile per laser line ([`stitch`]), and judged as a rail
+//! engineer expects (reference notes §2): the EN 13231-3 wavelength bands
+//! and the EN 15610 one-third-octave roughness spectrum against the ISO 3095
+//! limit ([`crate::standards`]). A summary goes to stdout (or one JSON
+//! object with `--json`); `--report DIR` writes a Markdown and a
+//! self-contained HTML report with SVG and PNG plots, and CSV exports
+//! ([`report`]).
+//!
+//! Whatever the recording holds, nothing here panics: a file that is not a
+//! recording, a recording without calibrated points or absurd options are a
+//! one-line error (exit status 2). A record too short for a standard's
+//! window is not an error: the summary says which band or wavelength could
+//! not be evaluated and why, and gives the rest.
+//!
+//! Cost: reading is the recording's decoding (about 2 000 frames/s, see
+//! README); stitching `O(P log P)` in the points; the standards `O(N log N)`
+//! in the samples. A 3 m sim recording (90 frames, 130 000 points) is
+//! analysed in well under a second, plots included.
+
+pub mod live;
+pub mod report;
+pub mod stitch;
+
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use clap::{Args, ValueEnum};
+use cms_core::protocol::DeviceMsg;
+use serde_json::{Value, json};
+
+use crate::CliError;
+use crate::record::{self, ScanStats};
+use crate::standards::{StandardsError, en13231, en15610};
+use stitch::{Direction, FrameAssembler, FramePoints, Registration, Stitched, Stitching};
+
+/// `--direction`.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DirectionArg {
+    /// Whichever registers better (forward on a tie).
+    Auto,
+    /// Track position = odometer + along (image rows run with the odometer).
+    Forward,
+    /// Track position = odometer − along.
+    Reverse,
+}
+
+/// `--register`.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RegisterArg {
+    /// Height offset and tilt per frame from its overlap.
+    OffsetTilt,
+    /// Height offset only.
+    Offset,
+    /// No registration: overlapping frames averaged as they are.
+    None,
+}
+
+/// Arguments of `cms-host analyze`.
+#[derive(Args, Debug, Clone)]
+pub struct AnalyzeArgs {
+    /// A recording (`cms-host listen --record`) of a calibrated head.
+    #[arg(value_name = "RECORDING")]
+    pub recording: PathBuf,
+    /// Write a report (report.md, report.html, SVG and PNG plots, CSV) into DIR (created if missing).
+    #[arg(long, value_name = "DIR")]
+    pub report: Option<PathBuf>,
+    /// Print one JSON object instead of the text summary.
+    #[arg(long)]
+    pub json: bool,
+    /// Sample spacing of the stitched profile, mm (EN 15610 needs ≤ 1).
+    #[arg(long = "dx-mm", value_name = "MM", default_value_t = 1.0, value_parser = positive)]
+    pub dx_mm: f64,
+    /// How image rows map onto the track.
+    #[arg(long, value_enum, default_value_t = DirectionArg::Auto)]
+    pub direction: DirectionArg,
+    /// What registration corrects per frame.
+    #[arg(long, value_enum, default_value_t = RegisterArg::Offset)]
+    pub register: RegisterArg,
+    /// EN 15610 Welch segment length, mm (≥ 1000; wavelengths up to a quarter of it).
+    #[arg(long = "segment-mm", value_name = "MM", default_value_t = en15610::MIN_SEGMENT_MM, value_parser = positive)]
+    pub segment_mm: f64,
+    /// Skip EN 15610 spike removal.
+    #[arg(long = "no-spike-removal")]
+    pub no_spike_removal: bool,
+    /// Skip EN 15610 curvature (wheel) processing.
+    #[arg(long = "no-curvature")]
+    pub no_curvature: bool,
+}
+
+fn positive(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v <= 1e6 => Ok(v),
+        _ => Err(format!("`{s}` is not a positive length in mm (at most 1e6)")),
+    }
+}
+
+/// What [`analyze`] needs besides the frames.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Options {
+    pub stitch: stitch::Options,
+    pub roughness: en15610::Options,
+}
+
+impl AnalyzeArgs {
+    /// The analysis options these arguments ask for.
+    pub fn options(&self) -> Options {
+        Options {
+            stitch: stitch::Options {
+                dx_mm: self.dx_mm,
+                direction: match self.direction {
+                    DirectionArg::Auto => Direction::Auto,
+                    DirectionArg::Forward => Direction::Forward,
+                    DirectionArg::Reverse => Direction::Reverse,
+                },
+                registration: match self.register {
+                    RegisterArg::OffsetTilt => Registration::OffsetTilt,
+                    RegisterArg::Offset => Registration::Offset,
+                    RegisterArg::None => Registration::None,
+                },
+                ..stitch::Options::default()
+            },
+            roughness: en15610::Options {
+                segment_mm: self.segment_mm,
+                remove_spikes: !self.no_spike_removal,
+                curvature: !self.no_curvature,
+                ..en15610::Options::default()
+            },
+        }
+    }
+}
+
+/// The calibrated frames of a recording and what else it said.
+#[derive(Debug, Clone, Default)]
+pub struct Recording {
+    pub frames: Vec<FramePoints>,
+    /// Profile messages.
+    pub profiles: u64,
+    pub calibrated_points: u64,
+    pub uncalibrated_points: u64,
+    /// Calibration id of the last `Hello`.
+    pub calibration_id: Option<u32>,
+    pub stats: ScanStats,
+}
+
+impl Recording {
+    /// Lowest and highest odometer of the frames, mm.
+    pub fn odometer_range_mm(&self) -> Option<(f64, f64)> {
+        let it = self.frames.iter().map(|f| f.odometer_mm);
+        let lo = it.clone().fold(f64::INFINITY, f64::min);
+        let hi = it.fold(f64::NEG_INFINITY, f64::max);
+        (lo <= hi).then_some((lo, hi))
+    }
+}
+
+/// Reads a recording's calibrated frames.
+pub fn read_recording(path: &Path) -> Result<Recording, CliError> {
+    let mut rec = Recording::default();
+    let mut asm = FrameAssembler::default();
+    let stats = record::scan_file(path, |msg| {
+        match msg {
+            DeviceMsg::Profile(p) => {
+                rec.profiles += 1;
+                if let Some(f) = asm.push(p) {
+                    rec.frames.push(f);
+                }
+            }
+            DeviceMsg::Hello(info) => rec.calibration_id = Some(info.calibration_id),
+            _ => {}
+        }
+        Ok(())
+    })
+    .map_err(|e| CliError::Usage(e.to_string()))?;
+    rec.frames.extend(asm.finish());
+    rec.calibrated_points = asm.calibrated_points;
+    rec.uncalibrated_points = asm.uncalibrated_points;
+    rec.stats = stats;
+    let name = path.display();
+    if rec.profiles == 0 {
+        return Err(CliError::Usage(format!("{name}: the recording holds no profiles")));
+    }
+    if rec.frames.is_empty() {
+        return Err(CliError::Usage(format!(
+            "{name}: no calibrated points in {} profiles (the head had no calibration loaded: see cms-host calibrate upload)",
+            rec.profiles
+        )));
+    }
+    Ok(rec)
+}
+
+/// One laser's outcome.
+#[derive(Debug, Clone)]
+pub struct LaserAnalysis {
+    pub stitched: Stitched,
+    pub bands: Result<en13231::Analysis, StandardsError>,
+    pub roughness: Result<en15610::Roughness, StandardsError>,
+}
+
+/// The whole analysis.
+#[derive(Debug, Clone)]
+pub struct Analysis {
+    pub options: Options,
+    pub stitching: Stitching,
+    pub lasers: Vec<LaserAnalysis>,
+}
+
+/// Stitches the frames and runs both standards on every laser's profile.
+pub fn analyze(frames: &[FramePoints], opts: &Options) -> Result<Analysis, stitch::StitchError> {
+    let mut stitching = stitch::stitch(frames, &opts.stitch)?;
+    let lasers = std::mem::take(&mut stitching.lasers)
+        .into_iter()
+        .map(|s| {
+            let bands = en13231::analyze(&s.z_um, s.dx_mm);
+            let roughness = en15610::analyze(&s.z_um, s.dx_mm, &opts.roughness);
+            LaserAnalysis { stitched: s, bands, roughness }
+        })
+        .collect();
+    Ok(Analysis { options: opts.clone(), stitching, lasers })
+}
+
+/// ISO 3095 wavelengths the spectrum does not reach, with why.
+pub fn iso3095_not_evaluated(r: &en15610::Roughness) -> Vec<(f64, String)> {
+    let s = &r.spectrum;
+    en15610::ISO3095_LIMIT
+        .iter()
+        .filter(|(w, _)| !s.bands.iter().any(|b| (b.nominal_wavelength_mm - w).abs() < 1e-6 * w))
+        .map(|&(w, _)| {
+            let why = if w > s.segment_mm / 4.0 {
+                format!("needs segments of at least {} mm (--segment-mm)", fmt_len(4.0 * w))
+            } else {
+                format!("shorter than the sampling resolves (spacing {} mm)", fmt_len(s.dx_mm))
+            };
+            (w, why)
+        })
+        .collect()
+}
+
+/// The band of highest level.
+pub fn spectrum_peak(r: &en15610::Roughness) -> Option<&en15610::ThirdOctave> {
+    r.spectrum.bands.iter().max_by(|a, b| a.level_db.total_cmp(&b.level_db))
+}
+
+fn fmt_len(v: f64) -> String {
+    if (v - v.round()).abs() < 1e-6 * v.abs().max(1.0) { format!("{}", v.round()) } else { format!("{v:.2}") }
+}
+
+fn rms(v: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
+    if n == 0 { 0.0 } else { (s / n as f64).sqrt() }
+}
+
+fn direction_name(d: Direction) -> &'static str {
+    match d {
+        Direction::Forward => "x = odometer + along",
+        Direction::Reverse => "x = odometer − along",
+        Direction::Auto => "auto",
+    }
+}
+
+fn registration_name(r: Registration) -> &'static str {
+    match r {
+        Registration::OffsetTilt => "offset and tilt",
+        Registration::Offset => "offset",
+        Registration::None => "none",
+    }
+}
+
+fn opt_um(v: Option<f64>) -> String {
+    v.map_or("-".into(), |v| format!("{v:.2} µm"))
+}
+
+/// The recording's and the stitching's description (a few lines).
+pub fn describe(path: &Path, rec: &Recording, a: &Analysis) -> String {
+    let mut s = String::new();
+    let seqs = rec.frames.iter().map(|f| f.seq);
+    let (smin, smax) = (seqs.clone().min().unwrap_or(0), seqs.max().unwrap_or(0));
+    let (olo, ohi) = rec.odometer_range_mm().unwrap_or((0.0, 0.0));
+    let _ = writeln!(
+        s,
+        "recording {}: {} frames with calibrated points (seq {smin}–{smax}), {} points, odometer {olo:.3}–{ohi:.3} mm{}",
+        path.display(),
+        rec.frames.len(),
+        rec.calibrated_points,
+        match rec.calibration_id {
+            Some(id) => format!(", calibration {id:#010x}"),
+            None => String::new(),
+        }
+    );
+    if rec.uncalibrated_points > 0 {
+        let _ = writeln!(s, "  {} points without a calibrated position were left out", rec.uncalibrated_points);
+    }
+    for w in record::warnings(path, &rec.stats) {
+        let _ = writeln!(s, "  {w}");
+    }
+    let st = &a.stitching;
+    let auto = match st.auto_residuals_um {
+        Some((f, r)) => {
+            format!(" (chosen from the data: median overlap residual forward {}, reverse {})", opt_um(f), opt_um(r))
+        }
+        None => String::new(),
+    };
+    let _ = writeln!(
+        s,
+        "stitching: {}{auto}; registration: {}; samples every {} mm",
+        direction_name(st.direction),
+        registration_name(a.options.stitch.registration),
+        fmt_len(a.options.stitch.dx_mm)
+    );
+    s
+}
+
+/// One laser's stitching in a few lines.
+pub fn describe_stitched(l: &Stitched) -> String {
+    let mut s = String::new();
+    let overlap = stitch::median(l.fits.iter().map(|f| f.overlap_mm).collect());
+    let _ = writeln!(
+        s,
+        "laser {}: {:.0} mm of track from x = {:.1} mm ({:.0} mm covered), {} frames, {} points; {} registered \
+         (median overlap {}, residual median {}, offsets RMS {:.2} µm, tilts RMS {:.4} µm/mm), {} unregistered join(s), {} gap(s)",
+        l.laser,
+        l.length_mm(),
+        l.x0_mm,
+        l.covered_mm(),
+        l.frames,
+        l.points,
+        l.fits.len(),
+        overlap.map_or("-".into(), |v| format!("{v:.0} mm")),
+        opt_um(l.median_residual_um()),
+        rms(l.fits.iter().map(|f| f.offset_um)),
+        rms(l.fits.iter().map(|f| f.tilt_um_per_mm)),
+        l.joins.len(),
+        l.gaps.len()
+    );
+    for g in l.gaps.iter().take(20) {
+        let _ = writeln!(s, "  gap at x = {:.1} mm, {} mm long", g.start_mm, fmt_len(g.length_mm));
+    }
+    if l.gaps.len() > 20 {
+        let _ = writeln!(s, "  … and {} more gaps (see the report)", l.gaps.len() - 20);
+    }
+    for j in l.joins.iter().take(10) {
+        let _ = writeln!(
+            s,
+            "  frame {} joined unregistered at x = {:.1} mm (overlap {:.1} mm)",
+            j.seq, j.at_mm, j.overlap_mm
+        );
+    }
+    if l.joins.len() > 10 {
+        let _ = writeln!(s, "  … and {} more unregistered joins", l.joins.len() - 10);
+    }
+    s
+}
+
+/// One laser's EN 15610 outcome: the table, the wavelengths not evaluated,
+/// the peak; or why there is none.
+pub fn describe_roughness(r: &Result<en15610::Roughness, StandardsError>) -> String {
+    let mut s = String::new();
+    match r {
+        Ok(r) => {
+            s.push_str(&en15610::spectrum_table(r));
+            let missing = iso3095_not_evaluated(r);
+            if !missing.is_empty() {
+                let list: Vec<String> = missing.iter().map(|(w, why)| format!("{} mm ({why})", fmt_len(*w))).collect();
+                let _ = writeln!(s, "ISO 3095 wavelengths not evaluated: {}", list.join("; "));
+            }
+            if let Some(p) = spectrum_peak(r) {
+                let over = r.spectrum.bands.iter().filter(|b| b.exceeds() == Some(true)).count();
+                let _ = writeln!(
+                    s,
+                    "spectrum peak: {} mm one-third octave at {:.1} dB{}; {over} of {} bands over the ISO 3095 limit",
+                    fmt_len(p.nominal_wavelength_mm),
+                    p.level_db,
+                    match p.margin_db() {
+                        Some(m) if m < 0.0 =>
+                            format!(" (ISO 3095 limit {:.1} dB: over by {:.1} dB)", p.level_db + m, -m),
+                        Some(m) => format!(" (ISO 3095 limit {:.1} dB: {:.1} dB below)", p.level_db + m, m),
+                        None => String::new(),
+                    },
+                    r.spectrum.bands.iter().filter(|b| b.iso3095_limit_db.is_some()).count()
+                );
+            }
+        }
+        Err(e) => {
+            let _ = writeln!(s, "EN 15610 roughness not evaluated: {e}");
+        }
+    }
+    s
+}
+
+/// One laser's EN 13231-3 outcome.
+pub fn describe_bands(b: &Result<en13231::Analysis, StandardsError>) -> String {
+    match b {
+        Ok(a) => en13231::band_table(a),
+        Err(e) => format!("EN 13231-3 bands not evaluated: {e}\n"),
+    }
+}
+
+/// The printed summary.
+pub fn summary(path: &Path, rec: &Recording, a: &Analysis) -> String {
+    let mut s = describe(path, rec, a);
+    for l in &a.lasers {
+        s.push('\n');
+        s.push_str(&describe_stitched(&l.stitched));
+        for part in [describe_bands(&l.bands), describe_roughness(&l.roughness)] {
+            for line in part.lines() {
+                let _ = writeln!(s, "  {line}");
+            }
+        }
+    }
+    s
+}
+
+fn num(v: f64) -> Value {
+    if v.is_finite() { json!(v) } else { Value::Null }
+}
+
+/// The analysis as one JSON object.
+pub fn to_json(path: &Path, rec: &Recording, a: &Analysis) -> Value {
+    let (olo, ohi) = rec.odometer_range_mm().unwrap_or((f64::NAN, f64::NAN));
+    let lasers: Vec<Value> = a
+        .lasers
+        .iter()
+        .map(|l| {
+            let s = &l.stitched;
+            let bands = match &l.bands {
+                Ok(b) => json!({
+                    "record_mm": b.record_mm,
+                    "runs": b.runs,
+                    "bands": b.bands.iter().map(|r| {
+                        let mut o = json!({
+                            "lo_mm": r.band.lo_mm, "hi_mm": r.band.hi_mm, "window_mm": r.band.window_mm,
+                            "mean_pp_limit_mm": r.band.mean_pp_limit_mm, "edge_mm": r.edge_mm,
+                        });
+                        match &r.outcome {
+                            Ok(st) => {
+                                o["average_mean_pp_mm"] = num(st.average_mean_pp_mm);
+                                o["worst_mean_pp_mm"] = num(st.worst_mean_pp_mm);
+                                o["worst_max_pp_mm"] = num(st.worst_max_pp_mm);
+                                o["rms_mm"] = num(st.rms_mm);
+                                o["exceeding_percent"] = num(st.exceeding_percent);
+                                o["exceeding_mm"] = num(st.exceeding_mm);
+                                o["windows"] = json!(st.windows);
+                                o["passes"] = json!(st.passes);
+                                if let Some(p) = st.abs_exceeding_percent {
+                                    o["abs_limit_mm"] = json!(r.band.abs_limit_mm);
+                                    o["abs_exceeding_percent"] = num(p);
+                                }
+                            }
+                            Err(e) => o["error"] = json!(e.to_string()),
+                        }
+                        o
+                    }).collect::<Vec<_>>(),
+                }),
+                Err(e) => json!({ "error": e.to_string() }),
+            };
+            let roughness = match &l.roughness {
+                Ok(r) => json!({
+                    "segments": r.spectrum.segments,
+                    "segment_mm": r.spectrum.segment_mm,
+                    "spikes_removed": r.spikes_removed,
+                    "bands": r.spectrum.bands.iter().map(|b| json!({
+                        "nominal_wavelength_mm": b.nominal_wavelength_mm,
+                        "wavelength_mm": b.wavelength_mm,
+                        "level_db": num(b.level_db),
+                        "iso3095_limit_db": b.iso3095_limit_db,
+                        "exceeds": b.exceeds(),
+                    })).collect::<Vec<_>>(),
+                    "not_evaluated": iso3095_not_evaluated(r).iter().map(|(w, why)| json!({
+                        "nominal_wavelength_mm": w, "why": why,
+                    })).collect::<Vec<_>>(),
+                    "peak_wavelength_mm": spectrum_peak(r).map(|p| p.nominal_wavelength_mm),
+                }),
+                Err(e) => json!({ "error": e.to_string() }),
+            };
+            json!({
+                "laser": s.laser,
+                "x0_mm": s.x0_mm,
+                "dx_mm": s.dx_mm,
+                "samples": s.z_um.len(),
+                "length_mm": s.length_mm(),
+                "covered_mm": s.covered_mm(),
+                "frames": s.frames,
+                "points": s.points,
+                "registered": s.fits.len(),
+                "registration_residual_median_um": s.median_residual_um(),
+                "offset_rms_um": rms(s.fits.iter().map(|f| f.offset_um)),
+                "tilt_rms_um_per_mm": rms(s.fits.iter().map(|f| f.tilt_um_per_mm)),
+                "unregistered_joins": s.joins.iter().map(|j| json!({
+                    "seq": j.seq, "at_mm": j.at_mm, "overlap_mm": j.overlap_mm,
+                })).collect::<Vec<_>>(),
+                "gaps": s.gaps.iter().map(|g| json!({ "start_mm": g.start_mm, "length_mm": g.length_mm })).collect::<Vec<_>>(),
+                "en13231": bands,
+                "en15610": roughness,
+            })
+        })
+        .collect();
+    json!({
+        "recording": path.display().to_string(),
+        "frames": rec.frames.len(),
+        "profiles": rec.profiles,
+        "calibrated_points": rec.calibrated_points,
+        "uncalibrated_points": rec.uncalibrated_points,
+        "calibration_id": rec.calibration_id,
+        "odometer_mm": [num(olo), num(ohi)],
+        "damaged_frames": rec.stats.damaged,
+        "direction": match a.stitching.direction { Direction::Reverse => "reverse", _ => "forward" },
+        "auto_residuals_um": a.stitching.auto_residuals_um.map(|(f, r)| json!({ "forward": f, "reverse": r })),
+        "registration": match a.options.stitch.registration {
+            Registration::OffsetTilt => "offset-tilt",
+            Registration::Offset => "offset",
+            Registration::None => "none",
+        },
+        "lasers": lasers,
+    })
+}
+
+/// Runs `cms-host analyze`.
+pub fn run(args: &AnalyzeArgs) -> Result<(), CliError> {
+    let rec = read_recording(&args.recording)?;
+    let opts = args.options();
+    let a = analyze(&rec.frames, &opts).map_err(|e| CliError::Usage(format!("{}: {e}", args.recording.display())))?;
+    let text = summary(&args.recording, &rec, &a);
+    if let Some(dir) = &args.report {
+        report::write(dir, &args.recording, &rec, &a, &text)?;
+    }
+    let mut out = std::io::stdout().lock();
+    if args.json {
+        writeln!(out, "{}", to_json(&args.recording, &rec, &a))?;
+    } else {
+        out.write_all(text.as_bytes())?;
+        if let Some(dir) = &args.report {
+            writeln!(out, "\nreport: {}", dir.join("report.html").display())?;
+        }
+    }
+    out.flush()?;
+    Ok(())
+}

@@ -1,0 +1,405 @@
+//! The `analyze --report DIR` report: what the summary says, with plots and
+//! the data behind them.
+//!
+//! Files written into `DIR`:
+//!
+//! | file | what |
+//! |---|---|
+//! | `report.html` | self-contained (SVG inline): summary, tables, plots |
+//! | `report.md` | the same in Markdown, plots linked as `*.svg` |
+//! | `summary.txt` | the printed summary |
+//! | `profile.svg/.png` | stitched profile of each laser (median removed), gaps blank |
+//! | `bands_laserK.svg/.png` | per laser: the four EN 13231-3 band signals, the moving-window mean peak-to-peak and its limit |
+//! | `spectrum.svg/.png` | EN 15610 one-third-octave levels per laser against the ISO 3095 limit |
+//! | `profile.csv` | `x_mm` and one height column per laser (µm), empty in gaps |
+//! | `bands_laserK.csv` | `x_mm` and the four band signals (mm) |
+//! | `spectrum_laserK.csv` | the spectrum (`en15610::spectrum_csv`) |
+//! | `registration.csv` | per laser and frame: overlap, offset, tilt, residual |
+//! | `gaps.csv` | per laser: start and length of every gap |
+//!
+//! Long profiles are plotted through a min/max envelope of at most
+//! [`MAX_PLOT_POINTS`] points per line (the CSVs keep every sample).
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use super::{Analysis, Recording};
+use crate::CliError;
+use crate::plot::{self, Figure, err};
+use crate::standards::{en13231, en15610};
+
+/// Most points of one plotted line.
+pub const MAX_PLOT_POINTS: usize = 4000;
+
+const COLOURS: [RGBColor; 3] = [RGBColor(214, 39, 40), RGBColor(44, 160, 44), RGBColor(31, 119, 180)];
+
+fn colour(laser: usize) -> RGBColor {
+    COLOURS[laser % COLOURS.len()]
+}
+
+/// Splits `(x, y)` at non-finite `y` into continuous pieces and thins each to
+/// a min/max envelope so that all of them hold about `max` points.
+pub fn plot_pieces(x0: f64, dx: f64, y: &[f64], max: usize) -> Vec<Vec<(f64, f64)>> {
+    let finite = y.iter().filter(|v| v.is_finite()).count().max(1);
+    // Samples per bucket (each bucket gives its min and max).
+    let per = (2 * finite).div_ceil(max.max(2)).max(1);
+    let mut out = Vec::new();
+    for run in crate::standards::segments(y) {
+        let mut piece = Vec::new();
+        if per == 1 {
+            piece.extend(run.map(|i| (x0 + i as f64 * dx, y[i])));
+        } else {
+            let idx: Vec<usize> = run.collect();
+            for chunk in idx.chunks(per) {
+                let (mut lo, mut hi) = (chunk[0], chunk[0]);
+                for &i in chunk {
+                    if y[i] < y[lo] {
+                        lo = i;
+                    }
+                    if y[i] > y[hi] {
+                        hi = i;
+                    }
+                }
+                let (a, b) = if lo <= hi { (lo, hi) } else { (hi, lo) };
+                piece.push((x0 + a as f64 * dx, y[a]));
+                if b != a {
+                    piece.push((x0 + b as f64 * dx, y[b]));
+                }
+            }
+        }
+        out.push(piece);
+    }
+    out
+}
+
+fn range(pieces: &[Vec<(f64, f64)>]) -> Option<((f64, f64), (f64, f64))> {
+    let pts = pieces.iter().flatten();
+    let mut r: Option<((f64, f64), (f64, f64))> = None;
+    for &(x, y) in pts {
+        r = Some(match r {
+            None => ((x, x), (y, y)),
+            Some(((x0, x1), (y0, y1))) => ((x0.min(x), x1.max(x)), (y0.min(y), y1.max(y))),
+        });
+    }
+    r
+}
+
+/// Pads a value range so that it is never empty.
+fn padded(lo: f64, hi: f64) -> (f64, f64) {
+    let span = (hi - lo).max(1e-9);
+    (lo - 0.05 * span, hi + 0.05 * span)
+}
+
+/// Continuous pieces of a plotted line.
+type Pieces = Vec<Vec<(f64, f64)>>;
+
+/// The stitched profiles.
+struct ProfileFig {
+    /// Per laser, its pieces.
+    lines: Vec<(usize, Pieces)>,
+}
+
+impl Figure for ProfileFig {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+        root.fill(&WHITE).map_err(err)?;
+        let all: Vec<Vec<(f64, f64)>> = self.lines.iter().flat_map(|(_, p)| p.clone()).collect();
+        let Some(((x0, x1), (y0, y1))) = range(&all) else { return Ok(()) };
+        let (x0, x1) = padded(x0, x1);
+        let (y0, y1) = padded(y0, y1);
+        let mut chart = ChartBuilder::on(root)
+            .caption("Stitched longitudinal profile per laser line (median removed)", ("sans-serif", 20))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(70)
+            .build_cartesian_2d(x0..x1, y0..y1)
+            .map_err(err)?;
+        chart.configure_mesh().x_desc("track position x, mm").y_desc("height, µm").draw().map_err(err)?;
+        for (laser, pieces) in &self.lines {
+            let c = colour(*laser);
+            for (i, p) in pieces.iter().enumerate() {
+                let s = chart.draw_series(LineSeries::new(p.iter().copied(), c.stroke_width(1))).map_err(err)?;
+                if i == 0 {
+                    s.label(format!("laser {laser}"))
+                        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+                }
+            }
+        }
+        chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(err)?;
+        Ok(())
+    }
+}
+
+/// One laser's EN 13231-3 bands.
+struct BandsFig<'a> {
+    laser: usize,
+    x0: f64,
+    a: &'a en13231::Analysis,
+}
+
+impl Figure for BandsFig<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+        root.fill(&WHITE).map_err(err)?;
+        let root = root
+            .titled(
+                &format!(
+                    "Laser {}: EN 13231-3 bands (µm), moving-window mean peak-to-peak (black) and its limit (dashed)",
+                    self.laser
+                ),
+                ("sans-serif", 18),
+            )
+            .map_err(err)?;
+        let dx = self.a.dx_mm;
+        let x_end = self.x0 + self.a.samples as f64 * dx;
+        for (panel, b) in root.split_evenly((self.a.bands.len().max(1), 1)).iter().zip(&self.a.bands) {
+            let name = b.band.name();
+            let st = match &b.outcome {
+                Ok(st) => st,
+                Err(e) => {
+                    panel
+                        .draw(&Text::new(
+                            format!("{name}: not evaluated: {e}"),
+                            (20, 30),
+                            ("sans-serif", 15).into_font().color(&BLACK),
+                        ))
+                        .map_err(err)?;
+                    continue;
+                }
+            };
+            let to_um = |v: &[f64]| v.iter().map(|v| v * 1000.0).collect::<Vec<f64>>();
+            let band = plot_pieces(self.x0, dx, &to_um(&st.band_mm), MAX_PLOT_POINTS);
+            let pp = plot_pieces(self.x0, dx, &to_um(&st.mean_pp_mm), MAX_PLOT_POINTS);
+            let limit_um = b.band.mean_pp_limit_mm * 1000.0;
+            let ((_, _), (lo, hi)) = range(&band).unwrap_or(((0.0, 1.0), (-1.0, 1.0)));
+            let top = hi.max(limit_um).max(range(&pp).map_or(0.0, |r| r.1.1));
+            let (lo, top) = padded(lo.min(-limit_um * 0.1), top);
+            let mut chart = ChartBuilder::on(panel)
+                .caption(
+                    format!(
+                        "{name}: window {} mm, {:.1} % of length over the limit",
+                        b.band.window_mm, st.exceeding_percent
+                    ),
+                    ("sans-serif", 15),
+                )
+                .margin(8)
+                .x_label_area_size(28)
+                .y_label_area_size(60)
+                .build_cartesian_2d(self.x0..x_end.max(self.x0 + dx), lo..top)
+                .map_err(err)?;
+            chart.configure_mesh().y_desc("µm").max_light_lines(2).draw().map_err(err)?;
+            let c = colour(self.laser);
+            for p in &band {
+                chart.draw_series(LineSeries::new(p.iter().copied(), c.stroke_width(1))).map_err(err)?;
+            }
+            for p in &pp {
+                chart.draw_series(LineSeries::new(p.iter().copied(), BLACK.stroke_width(2))).map_err(err)?;
+            }
+            chart
+                .draw_series(DashedLineSeries::new(
+                    [(self.x0, limit_um), (x_end, limit_um)],
+                    8,
+                    5,
+                    BLACK.stroke_width(1),
+                ))
+                .map_err(err)?;
+        }
+        Ok(())
+    }
+}
+
+/// The roughness spectra against the ISO 3095 limit.
+struct SpectrumFig<'a> {
+    spectra: Vec<(usize, &'a en15610::Spectrum)>,
+}
+
+impl Figure for SpectrumFig<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+        root.fill(&WHITE).map_err(err)?;
+        let levels = self.spectra.iter().flat_map(|(_, s)| s.bands.iter().map(|b| b.level_db));
+        let lim = en15610::ISO3095_LIMIT.iter().map(|l| l.1);
+        let (lo, hi) = levels.chain(lim).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            if v.is_finite() { (a.min(v), b.max(v)) } else { (a, b) }
+        });
+        let (lo, hi) = if lo <= hi { padded(lo.max(-60.0), hi) } else { (-20.0, 20.0) };
+        let mut chart = ChartBuilder::on(root)
+            .caption("EN 15610 roughness, one-third octaves, against the ISO 3095 limit (black)", ("sans-serif", 20))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d((2.5f64..500.0).log_scale(), lo..hi)
+            .map_err(err)?;
+        chart.configure_mesh().x_desc("wavelength, mm").y_desc("roughness level, dB re 1 µm").draw().map_err(err)?;
+        let mut limit: Vec<(f64, f64)> = en15610::ISO3095_LIMIT.to_vec();
+        limit.sort_by(|a, b| a.0.total_cmp(&b.0));
+        chart
+            .draw_series(LineSeries::new(limit.iter().copied(), BLACK.stroke_width(2)))
+            .map_err(err)?
+            .label("ISO 3095 limit")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(2)));
+        for (laser, s) in &self.spectra {
+            let c = colour(*laser);
+            let mut pts: Vec<(f64, f64)> = s
+                .bands
+                .iter()
+                .filter(|b| b.level_db.is_finite())
+                .map(|b| (b.nominal_wavelength_mm, b.level_db))
+                .collect();
+            pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+            chart
+                .draw_series(LineSeries::new(pts.iter().copied(), c.stroke_width(2)))
+                .map_err(err)?
+                .label(format!("laser {laser}"))
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+            chart.draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled()))).map_err(err)?;
+        }
+        chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(err)?;
+        Ok(())
+    }
+}
+
+fn median_of(z: &[f64]) -> f64 {
+    super::stitch::median(z.to_vec()).unwrap_or(0.0)
+}
+
+/// The stitched profiles on one grid: `x_mm,laser_K_um…`.
+fn profile_csv(a: &Analysis) -> String {
+    let mut s = String::from("x_mm");
+    for l in &a.lasers {
+        let _ = write!(s, ",laser_{}_um", l.stitched.laser);
+    }
+    s.push('\n');
+    let dx = a.options.stitch.dx_mm;
+    // Every laser's x0 is a multiple of dx: one shared integer grid.
+    let idx = |x: f64| (x / dx).round() as i64;
+    let lo = a.lasers.iter().map(|l| idx(l.stitched.x0_mm)).min().unwrap_or(0);
+    let hi = a.lasers.iter().map(|l| idx(l.stitched.x0_mm) + l.stitched.z_um.len() as i64).max().unwrap_or(0);
+    for i in lo..hi {
+        let _ = write!(s, "{}", (i as f64 * dx * 1e6).round() / 1e6);
+        for l in &a.lasers {
+            let j = i - idx(l.stitched.x0_mm);
+            match usize::try_from(j).ok().and_then(|j| l.stitched.z_um.get(j)).filter(|v| v.is_finite()) {
+                Some(v) => {
+                    let _ = write!(s, ",{v:.4}");
+                }
+                None => s.push(','),
+            }
+        }
+        s.push('\n');
+    }
+    s
+}
+
+fn registration_csv(a: &Analysis) -> String {
+    let mut s = String::from("laser,seq,centre_mm,overlap_mm,offset_um,tilt_um_per_mm,residual_um\n");
+    for l in &a.lasers {
+        for f in &l.stitched.fits {
+            let _ = writeln!(
+                s,
+                "{},{},{:.3},{:.3},{:.4},{:.6},{:.4}",
+                l.stitched.laser, f.seq, f.centre_mm, f.overlap_mm, f.offset_um, f.tilt_um_per_mm, f.residual_um
+            );
+        }
+    }
+    s
+}
+
+fn gaps_csv(a: &Analysis) -> String {
+    let mut s = String::from("laser,start_mm,length_mm\n");
+    for l in &a.lasers {
+        for g in &l.stitched.gaps {
+            let _ = writeln!(s, "{},{:.3},{:.3}", l.stitched.laser, g.start_mm, g.length_mm);
+        }
+    }
+    s
+}
+
+fn html_escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+}
+
+/// Writes the report into `dir`.
+pub fn write(dir: &Path, recording: &Path, rec: &Recording, a: &Analysis, summary: &str) -> Result<(), CliError> {
+    let out_err = |what: &str, e: String| CliError::Output(std::io::Error::other(format!("{what}: {e}")));
+    std::fs::create_dir_all(dir)
+        .map_err(|e| CliError::Usage(format!("cannot create report directory {}: {e}", dir.display())))?;
+    let put = |name: &str, text: &str| {
+        let p = dir.join(name);
+        std::fs::write(&p, text).map_err(|e| out_err(&p.display().to_string(), e.to_string()))
+    };
+    put("summary.txt", summary)?;
+    put("profile.csv", &profile_csv(a))?;
+    put("registration.csv", &registration_csv(a))?;
+    put("gaps.csv", &gaps_csv(a))?;
+
+    // (title, svg file stem, svg text)
+    let mut figures: Vec<(String, String, String)> = Vec::new();
+    let lines = a
+        .lasers
+        .iter()
+        .map(|l| {
+            let s = &l.stitched;
+            let m = median_of(&s.z_um);
+            let z: Vec<f64> = s.z_um.iter().map(|v| v - m).collect();
+            (s.laser, plot_pieces(s.x0_mm, s.dx_mm, &z, MAX_PLOT_POINTS))
+        })
+        .collect();
+    let svg = plot::svg_and_png(&dir.join("profile"), (1400, 600), &ProfileFig { lines })
+        .map_err(|e| out_err("profile plot", e))?;
+    figures.push(("Stitched profiles".into(), "profile".into(), svg));
+    for l in &a.lasers {
+        let k = l.stitched.laser;
+        if let Ok(b) = &l.bands {
+            put(&format!("bands_laser{k}.csv"), &en13231::bands_csv_from(b, l.stitched.x0_mm))?;
+            let stem = format!("bands_laser{k}");
+            let svg =
+                plot::svg_and_png(&dir.join(&stem), (1400, 1000), &BandsFig { laser: k, x0: l.stitched.x0_mm, a: b })
+                    .map_err(|e| out_err("band plot", e))?;
+            figures.push((format!("Laser {k}: EN 13231-3 bands"), stem, svg));
+        }
+        if let Ok(r) = &l.roughness {
+            put(&format!("spectrum_laser{k}.csv"), &en15610::spectrum_csv(&r.spectrum))?;
+        }
+    }
+    let spectra: Vec<(usize, &en15610::Spectrum)> =
+        a.lasers.iter().filter_map(|l| l.roughness.as_ref().ok().map(|r| (l.stitched.laser, &r.spectrum))).collect();
+    if !spectra.is_empty() {
+        let svg = plot::svg_and_png(&dir.join("spectrum"), (1100, 650), &SpectrumFig { spectra })
+            .map_err(|e| out_err("spectrum plot", e))?;
+        figures.push(("EN 15610 roughness spectrum".into(), "spectrum".into(), svg));
+    }
+
+    let title = format!("Rail corrugation analysis: {}", recording.display());
+    let head = super::describe(recording, rec, a);
+    let mut md = format!("# {title}\n\n```text\n{head}```\n");
+    let mut html = format!(
+        "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{t}</title>\n<style>body{{font-family:sans-serif;max-width:1450px;margin:auto}}pre{{background:#f6f6f6;padding:8px;overflow-x:auto}}svg{{max-width:100%;height:auto}}</style></head><body>\n<h1>{t}</h1>\n<pre>{h}</pre>\n",
+        t = html_escape(&title),
+        h = html_escape(&head)
+    );
+    for l in &a.lasers {
+        let k = l.stitched.laser;
+        let text = format!(
+            "{}\n{}\n{}",
+            super::describe_stitched(&l.stitched),
+            super::describe_bands(&l.bands),
+            super::describe_roughness(&l.roughness)
+        );
+        let _ = write!(md, "\n## Laser {k}\n\n```text\n{text}```\n");
+        let _ = write!(html, "<h2>Laser {k}</h2>\n<pre>{}</pre>\n", html_escape(&text));
+    }
+    md.push_str("\n## Plots\n");
+    html.push_str("<h2>Plots</h2>\n");
+    for (t, stem, svg) in &figures {
+        let _ = write!(md, "\n### {t}\n\n![{t}]({stem}.svg) ([PNG]({stem}.png))\n");
+        let _ = write!(html, "<h3>{}</h3>\n{svg}\n", html_escape(t));
+    }
+    let files = "profile.csv (x_mm, one height column per laser, µm), bands_laserK.csv (band signals, mm), \
+                 spectrum_laserK.csv (one-third octaves), registration.csv (per frame), gaps.csv, summary.txt";
+    let _ = write!(md, "\n## Data\n\n{files}\n");
+    let _ = write!(html, "<h2>Data</h2>\n<p>{}</p>\n</body></html>\n", html_escape(files));
+    put("report.md", &md)?;
+    put("report.html", &html)?;
+    Ok(())
+}

@@ -1,0 +1,594 @@
+//! Frames placed along the track and stitched into one continuous
+//! longitudinal profile per laser line.
+//!
+//! # Where a point lies on the track
+//!
+//! The camera sees a patch of rail head; each laser's line runs **along the
+//! rail**, so one frame gives, per laser, a short longitudinal profile: the
+//! calibrated points `(along_mm, height)` in that laser's profile frame
+//! (`cms_core::triangulation`: `along` on the line where the laser plane
+//! meets the rail-top datum, increasing with the image rows, from the point
+//! nearest where the optical axis meets the datum; `height` normal to the
+//! datum). The frame's odometer says where the head was. So a point lies at
+//! track position
+//!
+//! ```text
+//! x_mm = odometer_mm + s · along_mm        s = +1 (forward) or −1 (reverse)
+//! ```
+//!
+//! `s` is how the head is mounted: +1 when image rows run in the direction
+//! the odometer counts up. The origins of the three lasers' frames sit at
+//! the same track position (the optical axis), so the three profiles share
+//! `x`. On the simulated head `x` is exactly the rail model's track
+//! coordinate (`host/tests/triangulate_sim.rs` checks along = x − odometer
+//! to 0.5 µm). [`Direction::Auto`] picks `s` from the data: the sign whose
+//! overlapping frames agree better (a corrugated rail disagrees with itself
+//! when mirrored; a flat one cannot tell, and forward is kept).
+//!
+//! # Resampling
+//!
+//! The profile is a grid of cells `dx_mm` wide (cell `i` centred on
+//! `x0 + i·dx`). Each frame's points in a cell give one value at the cell's
+//! centre: the intercept of their least-squares line (the mean when they do
+//! not spread), which is unbiased on a sloped profile; a cell whose points
+//! lie all on one side of its centre (a frame's ragged end) is not used.
+//!
+//! # Registration
+//!
+//! Each frame's heights are relative to the head, which bounces and pitches
+//! on the trolley: between frames the whole profile may move by an offset
+//! and tilt. Frames are taken in track order and each is registered onto
+//! what has been stitched before it: over the cells they share, the
+//! least-squares offset (and, if asked, tilt, when the overlap is at least
+//! [`Options::min_tilt_overlap_mm`] long) of the frame's values minus the
+//! stitched ones is subtracted from the whole frame, which is then averaged
+//! in (weighted by its points per cell). A frame that overlaps less than
+//! [`Options::min_overlap_mm`] cannot be registered: it is added as it is,
+//! and the join is reported (an *unregistered join*; across a gap it starts
+//! a new run). The registration's residual RMS over the overlap is kept per
+//! frame: with a rigid head it is the sensor noise averaged over a cell; a
+//! wrong direction or a bad odometer shows up there first.
+//!
+//! Registration chains: each frame's offset/tilt error carries into the
+//! ones after it. For offsets that is a random walk in height (measured on
+//! 2 m of synthetic rail, 35 mm overlaps, 2 µm noise per point, ±20 µm of
+//! bounce: 0.67 µm RMS left, against 6.5 µm without registration). For
+//! tilts it is a random walk in *slope*, integrated: the same rail with
+//! ±0.2 µm/mm of pitch per frame is left with 8.5 µm RMS by offset-and-tilt
+//! registration — the pitch is gone, but the walk costs more than the pitch
+//! did (6.6 µm with offsets only). So [`Registration::Offset`] is the
+//! default and [`Registration::OffsetTilt`] is for heads that really pitch
+//! over short records (`host/tests/analyze.rs` has the figures).
+//!
+//! # Gaps
+//!
+//! Cells no frame covered are NaN; every stretch of them inside the profile
+//! is a [`Gap`] (position, length). The standards' analyses split the profile
+//! there and never interpolate across.
+//!
+//! # Cost
+//!
+//! `O(P log P)` for P points (sorting each frame's points into cells) plus
+//! `O(C)` per frame for C cells it covers; memory 3 × f64 per grid cell.
+//! A grid longer than [`MAX_CELLS`] is refused.
+
+use std::fmt;
+
+use cms_core::protocol::{LASERS, Profile};
+
+/// Most cells of a stitched profile (20 km at 1 mm).
+pub const MAX_CELLS: usize = 20_000_000;
+
+/// One frame's calibrated points, per laser: `(along_mm, height_um)`.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct FramePoints {
+    /// Frame sequence number.
+    pub seq: u32,
+    /// Odometer at the exposure, mm.
+    pub odometer_mm: f64,
+    /// Per laser, its points (along the line, mm; height, µm).
+    pub lasers: [Vec<(f64, f64)>; LASERS],
+}
+
+impl FramePoints {
+    /// Number of points over all lasers.
+    pub fn points(&self) -> usize {
+        self.lasers.iter().map(Vec::len).sum()
+    }
+}
+
+/// Gathers the calibrated points of profile messages into frames (the parts
+/// of one frame share its `seq` and odometer). Points without a metric
+/// (no calibration loaded) are counted and left out.
+#[derive(Debug, Default)]
+pub struct FrameAssembler {
+    current: Option<FramePoints>,
+    /// Points without a triangulated position.
+    pub uncalibrated_points: u64,
+    /// Points with one.
+    pub calibrated_points: u64,
+}
+
+impl FrameAssembler {
+    /// Feeds one profile message; returns the previous frame when this one
+    /// starts a new frame.
+    pub fn push(&mut self, p: &Profile) -> Option<FramePoints> {
+        let odometer_mm = p.odometer_um as f64 / 1000.0;
+        let done = match &self.current {
+            Some(f) if f.seq == p.seq && f.odometer_mm == odometer_mm && p.part != 0 => None,
+            _ => self.current.take(),
+        };
+        let f = self.current.get_or_insert_with(|| FramePoints { seq: p.seq, odometer_mm, ..FramePoints::default() });
+        for l in &p.lasers {
+            let Some(dst) = f.lasers.get_mut(l.laser as usize) else { continue };
+            for pt in &l.points {
+                match pt.metric {
+                    Some(m) => {
+                        dst.push((m.along_um as f64 / 1000.0, m.height_nm as f64 / 1000.0));
+                        self.calibrated_points += 1;
+                    }
+                    None => self.uncalibrated_points += 1,
+                }
+            }
+        }
+        done.filter(|f| f.points() > 0)
+    }
+
+    /// The last frame, if it has points.
+    pub fn finish(&mut self) -> Option<FramePoints> {
+        self.current.take().filter(|f| f.points() > 0)
+    }
+}
+
+/// How image rows map onto the track.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Direction {
+    /// `x = odometer + along`.
+    Forward,
+    /// `x = odometer − along`.
+    Reverse,
+    /// Whichever registers better (forward when they tie).
+    Auto,
+}
+
+/// What registration corrects per frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Registration {
+    /// Nothing: frames averaged as they are.
+    None,
+    /// A height offset.
+    Offset,
+    /// A height offset and a tilt.
+    OffsetTilt,
+}
+
+/// Options of [`stitch`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Options {
+    /// Grid spacing, mm.
+    pub dx_mm: f64,
+    pub direction: Direction,
+    pub registration: Registration,
+    /// Shortest overlap that registers a frame, mm.
+    pub min_overlap_mm: f64,
+    /// Shortest overlap that also estimates a tilt, mm.
+    pub min_tilt_overlap_mm: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            dx_mm: 1.0,
+            direction: Direction::Auto,
+            registration: Registration::Offset,
+            min_overlap_mm: 3.0,
+            min_tilt_overlap_mm: 10.0,
+        }
+    }
+}
+
+/// Why stitching failed.
+#[derive(Debug, Clone, PartialEq)]
+pub enum StitchError {
+    /// The grid spacing is not a positive finite number.
+    BadSpacing(f64),
+    /// No frame has a calibrated point.
+    NoPoints,
+    /// The frames span more than [`MAX_CELLS`] cells.
+    TooLong { span_mm: f64, dx_mm: f64 },
+}
+
+impl fmt::Display for StitchError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            StitchError::BadSpacing(dx) => write!(f, "sample spacing {dx} mm is not a positive finite number"),
+            StitchError::NoPoints => {
+                f.write_str("no calibrated points (the head had no calibration loaded: see cms-host calibrate upload)")
+            }
+            StitchError::TooLong { span_mm, dx_mm } => write!(
+                f,
+                "the frames span {span_mm:.0} mm of track: more than {MAX_CELLS} samples at {dx_mm} mm (odometer jumps?)"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for StitchError {}
+
+/// A stretch of track no frame covered.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gap {
+    /// Track position of the first missing sample, mm.
+    pub start_mm: f64,
+    /// Length, mm (missing samples × spacing).
+    pub length_mm: f64,
+}
+
+/// How one frame was registered.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameFit {
+    pub seq: u32,
+    /// Track position of the frame's centre, mm.
+    pub centre_mm: f64,
+    /// Length of its overlap with the frames before it, mm.
+    pub overlap_mm: f64,
+    /// Offset subtracted, µm (at the overlap's centre).
+    pub offset_um: f64,
+    /// Tilt subtracted, µm per mm.
+    pub tilt_um_per_mm: f64,
+    /// RMS of frame minus stitched over the overlap after the correction, µm.
+    pub residual_um: f64,
+}
+
+/// A frame added without registration (too little overlap).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Join {
+    pub seq: u32,
+    /// Track position of the frame's first sample, mm.
+    pub at_mm: f64,
+    /// Its overlap with the frames before it, mm (0: none).
+    pub overlap_mm: f64,
+}
+
+/// One laser's stitched profile.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Stitched {
+    pub laser: usize,
+    /// Track position of sample 0, mm.
+    pub x0_mm: f64,
+    pub dx_mm: f64,
+    /// Heights, µm; NaN where no frame covered the track.
+    pub z_um: Vec<f64>,
+    /// Frames that contributed.
+    pub frames: usize,
+    /// Points that contributed.
+    pub points: usize,
+    /// Registered frames.
+    pub fits: Vec<FrameFit>,
+    /// Frames joined without registration (the first frame is not one).
+    pub joins: Vec<Join>,
+    pub gaps: Vec<Gap>,
+}
+
+impl Stitched {
+    /// Track position of sample `i`, mm.
+    pub fn x_mm(&self, i: usize) -> f64 {
+        self.x0_mm + i as f64 * self.dx_mm
+    }
+
+    /// Length from the first to past the last sample, mm.
+    pub fn length_mm(&self) -> f64 {
+        self.z_um.len() as f64 * self.dx_mm
+    }
+
+    /// Length of the samples with data, mm.
+    pub fn covered_mm(&self) -> f64 {
+        self.z_um.iter().filter(|v| v.is_finite()).count() as f64 * self.dx_mm
+    }
+
+    /// Median registration residual, µm (`None` without registrations).
+    pub fn median_residual_um(&self) -> Option<f64> {
+        median(self.fits.iter().map(|f| f.residual_um).collect())
+    }
+}
+
+/// The outcome of [`stitch`]: one profile per laser that has points.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Stitching {
+    /// The direction used (never `Auto`).
+    pub direction: Direction,
+    /// With [`Direction::Auto`]: median registration residual of forward and reverse, µm.
+    pub auto_residuals_um: Option<(Option<f64>, Option<f64>)>,
+    pub lasers: Vec<Stitched>,
+}
+
+/// Median of finite values (`None` if there are none).
+pub fn median(mut v: Vec<f64>) -> Option<f64> {
+    v.retain(|x| x.is_finite());
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    Some(if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) })
+}
+
+/// Stitches every laser of `frames` (in any order).
+pub fn stitch(frames: &[FramePoints], opts: &Options) -> Result<Stitching, StitchError> {
+    if !(opts.dx_mm.is_finite() && opts.dx_mm > 0.0) {
+        return Err(StitchError::BadSpacing(opts.dx_mm));
+    }
+    let lasers_with_points: Vec<usize> =
+        (0..LASERS).filter(|&k| frames.iter().any(|f| f.lasers[k].iter().any(|p| finite(*p)))).collect();
+    let Some(&busiest) =
+        lasers_with_points.iter().max_by_key(|&&k| frames.iter().map(|f| f.lasers[k].len()).sum::<usize>())
+    else {
+        return Err(StitchError::NoPoints);
+    };
+    let (direction, auto_residuals_um) = match opts.direction {
+        Direction::Auto => {
+            // Offset-only registration for the comparison: a wrong sign
+            // must not be rescued by tilts.
+            let probe = Options { registration: Registration::Offset, ..*opts };
+            let fwd = stitch_laser(frames, busiest, 1.0, &probe)?.median_residual_um();
+            let rev = stitch_laser(frames, busiest, -1.0, &probe)?.median_residual_um();
+            let d = match (fwd, rev) {
+                (Some(f), Some(r)) if r < 0.8 * f => Direction::Reverse,
+                _ => Direction::Forward,
+            };
+            (d, Some((fwd, rev)))
+        }
+        d => (d, None),
+    };
+    let sign = if direction == Direction::Reverse { -1.0 } else { 1.0 };
+    let lasers =
+        lasers_with_points.iter().map(|&k| stitch_laser(frames, k, sign, opts)).collect::<Result<Vec<_>, _>>()?;
+    Ok(Stitching { direction, auto_residuals_um, lasers })
+}
+
+fn finite(p: (f64, f64)) -> bool {
+    p.0.is_finite() && p.1.is_finite()
+}
+
+/// One frame's cells: (cell index, value µm, points).
+struct FrameCells {
+    seq: u32,
+    cells: Vec<(usize, f64, usize)>,
+}
+
+/// Stitches laser `k` with `x = odometer + sign·along`.
+pub fn stitch_laser(frames: &[FramePoints], k: usize, sign: f64, opts: &Options) -> Result<Stitched, StitchError> {
+    let dx = opts.dx_mm;
+    fn xs(f: &FramePoints, k: usize, sign: f64) -> impl Iterator<Item = (f64, f64)> + '_ {
+        let o = f.odometer_mm;
+        f.lasers[k].iter().copied().filter(move |p| finite(*p) && o.is_finite()).map(move |(a, h)| (o + sign * a, h))
+    }
+    let (lo, hi) = frames
+        .iter()
+        .flat_map(|f| xs(f, k, sign))
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (x, _)| (lo.min(x), hi.max(x)));
+    if !(lo.is_finite() && hi.is_finite()) {
+        return Err(StitchError::NoPoints);
+    }
+    let span_cells = ((hi - lo) / dx).ceil() + 2.0;
+    if span_cells.partial_cmp(&(MAX_CELLS as f64)) != Some(std::cmp::Ordering::Less) {
+        return Err(StitchError::TooLong { span_mm: hi - lo, dx_mm: dx });
+    }
+    let x0 = (lo / dx).round() * dx;
+    let n = span_cells as usize;
+
+    // Each frame into cells.
+    let mut per_frame: Vec<FrameCells> = Vec::with_capacity(frames.len());
+    let mut points_used = 0usize;
+    for f in frames {
+        let mut pts: Vec<(usize, f64, f64)> = xs(f, k, sign)
+            .filter_map(|(x, h)| {
+                let c = ((x - x0) / dx).round();
+                (c >= 0.0 && c < n as f64).then_some((c as usize, x - (x0 + c * dx), h))
+            })
+            .collect();
+        if pts.is_empty() {
+            continue;
+        }
+        pts.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
+        let mut cells = Vec::new();
+        for group in pts.chunk_by(|a, b| a.0 == b.0) {
+            if let Some(v) = cell_value(group, dx) {
+                cells.push((group[0].0, v, group.len()));
+                points_used += group.len();
+            }
+        }
+        if !cells.is_empty() {
+            per_frame.push(FrameCells { seq: f.seq, cells });
+        }
+    }
+    // Track order: by the frame's centre.
+    let centre = |fc: &FrameCells| (fc.cells[0].0 + fc.cells[fc.cells.len() - 1].0) as f64 / 2.0;
+    per_frame.sort_by(|a, b| centre(a).total_cmp(&centre(b)));
+
+    let mut sum = vec![0.0; n];
+    let mut weight = vec![0usize; n];
+    let mut fits = Vec::new();
+    let mut joins = Vec::new();
+    for (i, fc) in per_frame.iter_mut().enumerate() {
+        let overlap: Vec<(f64, f64)> = fc
+            .cells
+            .iter()
+            .filter(|c| weight[c.0] > 0)
+            .map(|&(c, v, _)| (c as f64 * dx, v - sum[c] / weight[c] as f64))
+            .collect();
+        let overlap_mm = match (overlap.first(), overlap.last()) {
+            (Some(a), Some(b)) => b.0 - a.0 + dx,
+            _ => 0.0,
+        };
+        let centre_mm = x0 + centre(fc) * dx;
+        if i > 0 && opts.registration != Registration::None {
+            if overlap.len() >= 2 && overlap_mm >= opts.min_overlap_mm {
+                let tilt = opts.registration == Registration::OffsetTilt && overlap_mm >= opts.min_tilt_overlap_mm;
+                let (xm, a, b) = line(&overlap, tilt);
+                for c in &mut fc.cells {
+                    c.1 -= a + b * (c.0 as f64 * dx - xm);
+                }
+                let rss: f64 = overlap.iter().map(|&(x, d)| (d - a - b * (x - xm)).powi(2)).sum();
+                fits.push(FrameFit {
+                    seq: fc.seq,
+                    centre_mm,
+                    overlap_mm,
+                    offset_um: a,
+                    tilt_um_per_mm: b,
+                    residual_um: (rss / overlap.len() as f64).sqrt(),
+                });
+            } else {
+                joins.push(Join { seq: fc.seq, at_mm: x0 + fc.cells[0].0 as f64 * dx, overlap_mm });
+            }
+        }
+        for &(c, v, w) in &fc.cells {
+            sum[c] += v * w as f64;
+            weight[c] += w;
+        }
+    }
+    let mut z_um: Vec<f64> =
+        sum.iter().zip(&weight).map(|(s, &w)| if w > 0 { s / w as f64 } else { f64::NAN }).collect();
+    // Trim the empty ends of the grid.
+    let first = z_um.iter().position(|v| v.is_finite()).unwrap_or(0);
+    let last = z_um.iter().rposition(|v| v.is_finite()).map_or(0, |i| i + 1);
+    z_um.truncate(last);
+    z_um.drain(..first.min(z_um.len()));
+    let x0_mm = x0 + first as f64 * dx;
+    let mut gaps = Vec::new();
+    let mut i = 0;
+    while i < z_um.len() {
+        if z_um[i].is_finite() {
+            i += 1;
+            continue;
+        }
+        let s = i;
+        while i < z_um.len() && !z_um[i].is_finite() {
+            i += 1;
+        }
+        gaps.push(Gap { start_mm: x0_mm + s as f64 * dx, length_mm: (i - s) as f64 * dx });
+    }
+    Ok(Stitched { laser: k, x0_mm, dx_mm: dx, z_um, frames: per_frame.len(), points: points_used, fits, joins, gaps })
+}
+
+/// A cell's value at its centre from its points `(cell, x − centre, h)`
+/// (sorted by x): the least-squares line's intercept, or the mean when the
+/// points do not spread; `None` when they lie all on one side of the centre.
+fn cell_value(group: &[(usize, f64, f64)], dx: f64) -> Option<f64> {
+    let (first, last) = (group[0].1, group[group.len() - 1].1);
+    let tol = 1e-9 * dx;
+    if first > tol || last < -tol {
+        return None;
+    }
+    let n = group.len() as f64;
+    let mx = group.iter().map(|p| p.1).sum::<f64>() / n;
+    let mh = group.iter().map(|p| p.2).sum::<f64>() / n;
+    let (mut sxx, mut sxh) = (0.0, 0.0);
+    for p in group {
+        sxx += (p.1 - mx).powi(2);
+        sxh += (p.1 - mx) * (p.2 - mh);
+    }
+    if group.len() < 3 || sxx < 1e-6 * dx * dx * n {
+        return Some(mh);
+    }
+    Some(mh - sxh / sxx * mx)
+}
+
+/// Least-squares `d ≈ a + b·(x − xm)` (b = 0 unless `tilt`); returns (xm, a, b).
+fn line(pts: &[(f64, f64)], tilt: bool) -> (f64, f64, f64) {
+    let n = pts.len() as f64;
+    let xm = pts.iter().map(|p| p.0).sum::<f64>() / n;
+    let a = pts.iter().map(|p| p.1).sum::<f64>() / n;
+    if !tilt {
+        return (xm, a, 0.0);
+    }
+    let (mut sxx, mut sxd) = (0.0, 0.0);
+    for &(x, d) in pts {
+        sxx += (x - xm) * (x - xm);
+        sxd += (x - xm) * (d - a);
+    }
+    let b = if sxx > 0.0 { sxd / sxx } else { 0.0 };
+    (xm, a, b)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A frame of `len_mm` of a sine profile seen from odometer `o`, points every `step` mm.
+    fn frame(seq: u32, o: f64, len_mm: f64, step: f64, z: impl Fn(f64) -> f64) -> FramePoints {
+        let mut f = FramePoints { seq, odometer_mm: o, ..FramePoints::default() };
+        let n = (len_mm / step) as usize;
+        f.lasers[1] = (0..=n).map(|i| -len_mm / 2.0 + i as f64 * step).map(|a| (a, z(o + a))).collect();
+        f
+    }
+
+    #[test]
+    fn cell_value_is_the_intercept_on_a_slope() {
+        let g: Vec<(usize, f64, f64)> =
+            (0..7).map(|i| (0, -0.4 + 0.13 * i as f64, 3.0 + 2.0 * (-0.4 + 0.13 * i as f64))).collect();
+        assert!((cell_value(&g, 1.0).unwrap() - 3.0).abs() < 1e-12);
+        // All on one side: not used.
+        assert_eq!(cell_value(&g[4..], 1.0), None);
+    }
+
+    #[test]
+    fn overlapping_frames_of_a_rigid_head_stitch_exactly() {
+        let z = |x: f64| 30.0 * (x * std::f64::consts::TAU / 50.0).sin();
+        let frames: Vec<FramePoints> = (0..20).map(|i| frame(i, 33.0 * i as f64, 68.0, 0.143, z)).collect();
+        let s = stitch(&frames, &Options::default()).unwrap();
+        assert_eq!(s.direction, Direction::Forward);
+        let l = &s.lasers[0];
+        assert!(l.gaps.is_empty() && l.joins.is_empty() && l.fits.len() == 19, "{l:?}");
+        let worst = (0..l.z_um.len()).map(|i| (l.z_um[i] - z(l.x_mm(i))).abs()).fold(0.0, f64::max);
+        // The cell intercept is exact on a line; the sine's curvature over ±0.5 mm leaves < 0.1 µm.
+        assert!(worst < 0.1, "{worst}");
+    }
+
+    #[test]
+    fn reversed_mounting_is_found() {
+        let z = |x: f64| 30.0 * (x * std::f64::consts::TAU / 50.0).sin() + 10.0 * (x / 23.0).cos();
+        let frames: Vec<FramePoints> = (0..20)
+            .map(|i| {
+                let mut f = frame(i, 30.0 * i as f64, 68.0, 0.2, z);
+                // The head sees the rail mirrored: along = odometer − x.
+                for p in &mut f.lasers[1] {
+                    p.0 = -p.0;
+                }
+                f
+            })
+            .collect();
+        let s = stitch(&frames, &Options::default()).unwrap();
+        assert_eq!(s.direction, Direction::Reverse, "{:?}", s.auto_residuals_um);
+    }
+
+    #[test]
+    fn assembler_joins_parts_and_skips_uncalibrated_points() {
+        use cms_core::fixed::Px;
+        use cms_core::peak::Flags;
+        use cms_core::protocol::{LaserPoints, Metric, Point};
+        let pt = |m: Option<Metric>| Point {
+            row: 0,
+            position: Px::from_f64(1.0),
+            strength: 1,
+            width: Px::from_f64(1.0),
+            flags: Flags::NONE,
+            metric: m,
+        };
+        let msg = |seq: u32, part: u8, metric: Option<Metric>| {
+            let mut p = Profile { seq, part, parts: 2, odometer_um: 1500, ..Profile::EMPTY };
+            let mut lp = LaserPoints { laser: 2, points: heapless::Vec::new() };
+            lp.points.push(pt(metric)).unwrap();
+            p.lasers.push(lp).unwrap();
+            p
+        };
+        let m = Some(Metric { along_um: -2500, height_nm: 12_000 });
+        let mut a = FrameAssembler::default();
+        assert!(a.push(&msg(7, 0, m)).is_none());
+        assert!(a.push(&msg(7, 1, None)).is_none());
+        let f = a.push(&msg(8, 0, m)).unwrap();
+        assert_eq!((f.seq, f.odometer_mm, f.lasers[2].clone()), (7, 1.5, vec![(-2.5, 12.0)]));
+        assert_eq!((a.calibrated_points, a.uncalibrated_points), (2, 1));
+        assert_eq!(a.finish().unwrap().seq, 8);
+    }
+}

@@ -1,0 +1,67 @@
+//! Shared plotting plumbing: the font plotters draws text with, and one
+//! drawing rendered both as SVG and as PNG.
+//!
+//! plotters is built with `ab_glyph` (pure Rust text layout) instead of its
+//! system-font backend, so text needs a registered font: DejaVu Sans is
+//! embedded (the `dejavu` crate) and registered as `sans-serif` by
+//! [`fonts`], which every plotting function calls first. PNGs are drawn
+//! into an RGB buffer (`BitMapBackend::with_buffer`) and encoded by the
+//! `image` crate the host already uses for PNG.
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+/// Registers the embedded font as `sans-serif` (once; later calls are free).
+pub fn fonts() {
+    static DONE: OnceLock<()> = OnceLock::new();
+    DONE.get_or_init(|| {
+        // The embedded file is a valid font: this cannot fail but is not unwrapped.
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular());
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Bold, dejavu::sans::bold());
+    });
+}
+
+/// A figure that can draw itself on any plotters backend.
+pub trait Figure {
+    /// Draws onto `root` (plotters' errors as text).
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String>;
+}
+
+/// plotters' drawing error as text.
+pub fn err<E: std::fmt::Debug>(e: E) -> String {
+    format!("plotting: {e:?}")
+}
+
+/// Renders `fig` at `size` px as `BASE.svg` and `BASE.png`. Returns the SVG
+/// text too (for embedding in HTML).
+pub fn svg_and_png(base: &Path, size: (u32, u32), fig: &impl Figure) -> Result<String, String> {
+    fonts();
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, size).into_drawing_area();
+        fig.draw(&root)?;
+        root.present().map_err(err)?;
+    }
+    let svg_path = base.with_extension("svg");
+    std::fs::write(&svg_path, &svg).map_err(|e| format!("{}: {e}", svg_path.display()))?;
+    let mut rgb = vec![0u8; size.0 as usize * size.1 as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut rgb, size).into_drawing_area();
+        fig.draw(&root)?;
+        root.present().map_err(err)?;
+    }
+    let png_path = base.with_extension("png");
+    image::save_buffer_with_format(
+        &png_path,
+        &rgb,
+        size.0,
+        size.1,
+        image::ExtendedColorType::Rgb8,
+        image::ImageFormat::Png,
+    )
+    .map_err(|e| format!("{}: {e}", png_path.display()))?;
+    Ok(svg)
+}
