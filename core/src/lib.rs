@@ -16,15 +16,23 @@
 //!   CRC-checked, COBS-delimited frames.
 //! * [`pipeline`] — the sensor head's logic without its hardware: rows in,
 //!   profiles out, commands, and the laser-safety rules.
+//! * [`duty`] — the lasers' enforced maximum duty cycle.
+//! * [`odometer`] — wheel-encoder counts → travelled distance, and the
+//!   frame-every-N-mm trigger.
+//! * [`persist`] — calibration and settings in two CRC-checked flash slots
+//!   that survive a power cut during a write.
 //! * [`synthetic`] — an integer-only synthetic scene (stripes over a
 //!   corrugated rail): the emulated head's camera, bit-identical on any target.
 #![no_std]
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod duty;
 pub mod fixed;
+pub mod odometer;
 pub mod optics;
 pub mod peak;
+pub mod persist;
 pub mod pipeline;
 pub mod protocol;
 pub mod synthetic;

@@ -7,8 +7,12 @@
 //! switches it, so no caller can forget a rule:
 //!
 //! * off at construction (before anything else can happen);
-//! * on only while [`HeadState::Streaming`], and only the lasers of the
-//!   current frame (one at a time in the sequential pattern);
+//! * on only while [`HeadState::Streaming`], only the lasers of the
+//!   current frame (one at a time in the sequential pattern), and only for
+//!   that frame's exposure (strobed: off again before its rows are read);
+//! * never beyond the duty-cycle limit ([`crate::duty`]): `Start` and
+//!   `SetExposure` refuse a steady exposure × rate above it, and every strobe
+//!   is booked against it (a refused strobe drops the frame, lasers off);
 //! * off on `Stop`, on every error while streaming (the head goes to
 //!   [`HeadState::Fault`]), on a camera fault, and when no command or
 //!   heartbeat has arrived for more than [`HEARTBEAT_TIMEOUT_US`] (1 s);
@@ -17,12 +21,24 @@
 //! # Cost
 //! Per row: the detector (see `peak`), plus a stripe-to-laser assignment of at
 //! most 3 × 3 comparisons. Profiles are built in place in the head.
+//!
+//! # Triggers and persistence
+//! Frames come every `1 / rate_hz` ([`Trigger::Timed`]) or every N µm of
+//! odometer travel ([`Trigger::Distance`], at most `rate_hz`; travel faster
+//! than that drops frames, counted). Calibration, exposure, detector and
+//! trigger are what a head keeps in flash ([`Stored`]): the head marks them
+//! changed and the firmware writes them when [`Head::take_store_request`]
+//! says so (the write itself is `persist`'s).
 
+use crate::duty::DutyLimit;
 use crate::fixed::Px;
+use crate::odometer::DistanceTrigger;
 use crate::peak::{Config, Detector, Select, Stripes};
+use crate::persist::Stored;
 use crate::protocol::{
     Calibration, Command, DeviceInfo, DeviceMsg, ErrorCode, HeadState, HostMsg, LASERS, LaserPattern, LaserPoints,
     MAX_ROWS_PER_PROFILE, Metric, PROTOCOL_VERSION, Point, Profile, RAW_CHUNK_BYTES, RawRows, Start, Status,
+    StoreHealth, Trigger,
 };
 use crate::triangulation::{CameraModel, Plane, Triangulator};
 use heapless::{String, Vec};
@@ -55,6 +71,15 @@ pub trait Camera {
     fn expose(&mut self, exposure_us: u32, laser_mask: u8) -> Result<i64, Self::Error>;
     /// The next row of the exposed frame, `width` pixels.
     fn read_row(&mut self, row: &mut [u16]) -> Result<(), Self::Error>;
+    /// The odometer now, µm, if the head has one (needed by
+    /// [`Trigger::Distance`]).
+    fn odometer_um(&self) -> Option<i64> {
+        None
+    }
+    /// Rows lost before processing since start (DMA overrun).
+    fn dropped_rows(&self) -> u32 {
+        0
+    }
 }
 
 /// Fixed facts about the head for `Hello`.
@@ -92,6 +117,15 @@ pub struct Head<const W: usize, L: LaserDriver> {
     window_ns: u64,
     window_start_us: u64,
     dropped: u32,
+    window_on_us: u64,
+    duty: DutyLimit,
+    trigger: Trigger,
+    distance: Option<DistanceTrigger>,
+    cpu_hz: u32,
+    link_backlog: u32,
+    store: StoreHealth,
+    store_dirty: bool,
+    dropped_rows: u32,
     row: [u16; W],
     profile: Profile,
 }
@@ -131,6 +165,15 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             window_ns: 0,
             window_start_us: 0,
             dropped: 0,
+            window_on_us: 0,
+            duty: DutyLimit::default(),
+            trigger: Trigger::Timed,
+            distance: None,
+            cpu_hz: 0,
+            link_backlog: 0,
+            store: StoreHealth::Volatile,
+            store_dirty: false,
+            dropped_rows: 0,
             row: [0; W],
             profile: Profile::EMPTY,
         })
@@ -162,6 +205,69 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
     /// The triangulator of the calibration in use.
     pub fn triangulator(&self) -> Option<&Triangulator> {
         self.calibration.as_ref().map(|c| &c.1)
+    }
+
+    /// What a head keeps across restarts.
+    pub fn stored(&self) -> Stored {
+        Stored {
+            calibration: self.calibration.as_ref().map(|c| c.0),
+            exposure_us: self.exposure_us,
+            detector: *self.detector.config(),
+            trigger: self.trigger,
+        }
+    }
+
+    /// Restores what [`Head::stored`] gave before a restart. Settings that
+    /// fail validation are not used: the head keeps its defaults for them,
+    /// and a refused calibration makes the store health `Refused`.
+    pub fn restore(&mut self, s: &Stored, health: StoreHealth) {
+        self.store = health;
+        if (EXPOSURE_RANGE_US.0..=EXPOSURE_RANGE_US.1).contains(&s.exposure_us) {
+            self.exposure_us = s.exposure_us;
+        }
+        if let Ok(d) = Detector::new(s.detector) {
+            self.detector = d;
+        }
+        if valid_trigger(s.trigger) {
+            self.trigger = s.trigger;
+        }
+        if let Some(c) = s.calibration
+            && self.load_calibration(c).is_err()
+        {
+            self.store = StoreHealth::Refused;
+        }
+    }
+
+    /// Records what the head's flash held at start-up when nothing could be
+    /// restored (`Missing`, `Corrupt`), for `Hello`.
+    pub fn set_store_health(&mut self, health: StoreHealth) {
+        self.store = health;
+    }
+
+    /// What should be written to flash now, if anything changed since the
+    /// last call. Only asked for while idle (a flash erase stalls the bus).
+    pub fn take_store_request(&mut self) -> Option<Stored> {
+        if self.state == HeadState::Streaming || !self.store_dirty {
+            return None;
+        }
+        self.store_dirty = false;
+        Some(self.stored())
+    }
+
+    /// The core clock, Hz, so that `Status` gives cycles per row (the
+    /// processing clock passed to [`Head::poll`] must then count ns of it).
+    pub fn set_cpu_hz(&mut self, hz: u32) {
+        self.cpu_hz = hz;
+    }
+
+    /// Bytes waiting to go out on the link (for `Status`).
+    pub fn set_link_backlog(&mut self, bytes: u32) {
+        self.link_backlog = bytes;
+    }
+
+    /// The duty-cycle limiter (for inspection).
+    pub fn duty_limit(&self) -> &DutyLimit {
+        &self.duty
     }
 
     /// The laser driver (for inspection by tests and the simulator).
@@ -203,6 +309,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             bits: camera.bits(),
             detector: *self.detector.config(),
             calibration_id: self.calibration.as_ref().map_or(0, |c| c.0.id),
+            store: self.store,
         }
     }
 
@@ -227,6 +334,18 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 if camera.width() as usize > W {
                     return self.fail(ErrorCode::SensorFault, Some(seq), reply);
                 }
+                if !self.duty.sustainable(self.exposure_us, 1_000_000 / s.rate_hz as u64) {
+                    return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
+                }
+                self.distance = match self.trigger {
+                    Trigger::Timed => None,
+                    Trigger::Distance { every_um } => {
+                        match camera.odometer_um().map(|p| DistanceTrigger::new(every_um, p)) {
+                            Some(Ok(t)) => Some(t),
+                            _ => return self.fail(ErrorCode::OutOfRange, Some(seq), reply),
+                        }
+                    }
+                };
                 // The detector's saturation level and noise floor assume its
                 // bit depth: streaming with another camera depth is refused.
                 if self.detector.config().bits != camera.bits() {
@@ -239,6 +358,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 self.next_frame_us = now_us;
                 self.next_status_us = now_us + STATUS_INTERVAL_US;
                 self.window_start_us = now_us;
+                self.window_on_us = 0;
                 self.sequential_next = 0;
                 let w = camera.width() as i32;
                 let lit = s.laser_mask.count_ones() as i32;
@@ -259,10 +379,15 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 reply(&DeviceMsg::Status(self.status(now_us)));
             }
             HostMsg::SetExposure(us) => {
-                if !(EXPOSURE_RANGE_US.0..=EXPOSURE_RANGE_US.1).contains(&us) {
+                let period_us = 1_000_000 / self.start.rate_hz as u64;
+                let streaming = self.state == HeadState::Streaming;
+                if !(EXPOSURE_RANGE_US.0..=EXPOSURE_RANGE_US.1).contains(&us)
+                    || (streaming && !self.duty.sustainable(us, period_us))
+                {
                     return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
                 }
                 self.exposure_us = us;
+                self.store_dirty = true;
                 reply(&DeviceMsg::Ack(seq));
             }
             HostMsg::SetDetector(cfg) => {
@@ -272,6 +397,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 match Detector::new(cfg) {
                     Ok(d) => {
                         self.detector = d;
+                        self.store_dirty = true;
                         reply(&DeviceMsg::Ack(seq));
                     }
                     Err(_) => self.fail(ErrorCode::InvalidConfig, Some(seq), reply),
@@ -284,6 +410,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 if self.load_calibration(c).is_err() {
                     return self.fail(ErrorCode::InvalidConfig, Some(seq), reply);
                 }
+                self.store_dirty = true;
                 reply(&DeviceMsg::Ack(seq));
             }
             HostMsg::CaptureImage(mask) => {
@@ -294,6 +421,17 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                     return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
                 }
                 self.capture = Some((seq, mask));
+                reply(&DeviceMsg::Ack(seq));
+            }
+            HostMsg::SetTrigger(t) => {
+                if self.state == HeadState::Streaming {
+                    return self.fail(ErrorCode::Busy, Some(seq), reply);
+                }
+                if !valid_trigger(t) {
+                    return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
+                }
+                self.trigger = t;
+                self.store_dirty = true;
                 reply(&DeviceMsg::Ack(seq));
             }
         }
@@ -313,16 +451,32 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             return self.fail(ErrorCode::HeartbeatLost, None, reply);
         }
         if let Some((seq, mask)) = self.capture.take() {
-            self.capture_image(seq, mask, camera, reply);
+            self.capture_image(seq, mask, now_us, camera, reply);
         }
-        if self.state == HeadState::Streaming && now_us >= self.next_frame_us {
-            let period = 1_000_000 / self.start.rate_hz as u64;
+        let period = 1_000_000 / self.start.rate_hz as u64;
+        if self.state == HeadState::Streaming
+            && let Some(trigger) = self.distance.as_mut()
+        {
+            // Distance trigger: a frame per boundary crossed, no faster than
+            // the rate; boundaries passed over (or too soon) are dropped.
+            let fired = camera.odometer_um().and_then(|p| trigger.poll(p));
+            if let Some(skipped) = fired {
+                self.dropped = self.dropped.wrapping_add(skipped);
+                if now_us >= self.next_frame_us {
+                    self.next_frame_us = now_us + period;
+                    self.frame(now_us, camera, clock_ns, reply);
+                } else {
+                    self.dropped = self.dropped.wrapping_add(1);
+                }
+            }
+        } else if self.state == HeadState::Streaming && now_us >= self.next_frame_us {
             // Frames whose time has already passed are dropped, not queued.
             let late = (now_us - self.next_frame_us) / period;
             self.dropped = self.dropped.wrapping_add(late as u32);
             self.next_frame_us += (late + 1) * period;
             self.frame(now_us, camera, clock_ns, reply);
         }
+        self.dropped_rows = camera.dropped_rows();
         if self.state == HeadState::Streaming && now_us >= self.next_status_us {
             self.next_status_us = now_us + STATUS_INTERVAL_US;
             reply(&DeviceMsg::Status(self.status(now_us)));
@@ -330,6 +484,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             self.window_frames = 0;
             self.window_rows = 0;
             self.window_ns = 0;
+            self.window_on_us = 0;
         }
     }
 
@@ -352,8 +507,17 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 1 << k
             }
         };
+        if !self.duty.request(now_us, self.exposure_us) {
+            // Over the duty-cycle limit: no strobe, no frame.
+            self.dropped = self.dropped.wrapping_add(1);
+            return;
+        }
+        // Strobe: lit for the exposure only, off before the rows are read.
         self.set_lasers(mask);
-        let odometer_um = match camera.expose(self.exposure_us, mask) {
+        let exposed = camera.expose(self.exposure_us, mask);
+        self.set_lasers(0);
+        self.window_on_us += self.exposure_us as u64;
+        let odometer_um = match exposed {
             Ok(o) => o,
             Err(_) => return self.fail(ErrorCode::SensorFault, None, reply),
         };
@@ -403,13 +567,19 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         self.window_frames = self.window_frames.wrapping_add(1);
         self.window_rows = self.window_rows.wrapping_add(height as u32);
         self.window_ns = self.window_ns.wrapping_add(dt);
-        // Between frames the lasers stay lit only in the simultaneous pattern.
-        if self.start.pattern == LaserPattern::Sequential {
-            self.set_lasers(0);
-        }
     }
 
-    fn capture_image<C: Camera>(&mut self, seq: u16, mask: u8, camera: &mut C, reply: &mut impl FnMut(&DeviceMsg)) {
+    fn capture_image<C: Camera>(
+        &mut self,
+        seq: u16,
+        mask: u8,
+        now_us: u64,
+        camera: &mut C,
+        reply: &mut impl FnMut(&DeviceMsg),
+    ) {
+        if mask != 0 && !self.duty.request(now_us, self.exposure_us) {
+            return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
+        }
         // A capture lights the lasers for its exposure only.
         self.state = HeadState::Streaming;
         self.set_lasers(mask);
@@ -448,18 +618,29 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
     /// The current status.
     pub fn status(&self, now_us: u64) -> Status {
         let span_us = now_us.saturating_sub(self.window_start_us).max(1);
+        let ns_per_row = self.window_ns / self.window_rows.max(1) as u64;
+        let streaming = self.state == HeadState::Streaming;
         Status {
             state: self.state,
-            lasers_on: self.lit,
+            lasers_on: if streaming { self.start.laser_mask } else { 0 },
             frames: self.frames,
             frame_rate_mhz: ((self.window_frames as u64 * 1_000_000_000) / span_us) as u32,
             rows_per_s: ((self.window_rows as u64 * 1_000_000) / span_us) as u32,
             dropped_frames: self.dropped,
-            ns_per_row: (self.window_ns / self.window_rows.max(1) as u64) as u32,
+            ns_per_row: ns_per_row.min(u32::MAX as u64) as u32,
+            cycles_per_row: (ns_per_row * self.cpu_hz as u64 / 1_000_000_000).min(u32::MAX as u64) as u32,
+            dropped_rows: self.dropped_rows,
+            link_backlog_bytes: self.link_backlog,
+            laser_duty_permille: (self.window_on_us * 1000 / span_us).min(1000) as u16,
             heartbeat_age_ms: (now_us.saturating_sub(self.last_heard_us) / 1000) as u32,
             fault: self.fault,
         }
     }
+}
+
+/// A trigger the head accepts: a distance trigger needs a non-zero interval.
+fn valid_trigger(t: Trigger) -> bool {
+    !matches!(t, Trigger::Distance { every_um: 0 })
 }
 
 /// Assigns a row's stripes to the lit lasers: in order when every lit laser

@@ -29,7 +29,7 @@ use heapless::{String, Vec};
 use serde::{Deserialize, Serialize};
 
 /// The protocol version this build speaks.
-pub const PROTOCOL_VERSION: u8 = 2;
+pub const PROTOCOL_VERSION: u8 = 3;
 /// Rows carried by one `Profile` message (a taller sensor sends several parts).
 pub const MAX_ROWS_PER_PROFILE: usize = 480;
 /// Lasers of the head.
@@ -76,6 +76,26 @@ pub struct DeviceInfo {
     pub detector: Config,
     /// Identifier of the loaded calibration, 0 if none.
     pub calibration_id: u32,
+    /// What the head found in its flash at start-up.
+    pub store: StoreHealth,
+}
+
+/// What a head found in its flash at start-up (see `persist`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StoreHealth {
+    /// A valid record, both slots sound.
+    Ok,
+    /// Nothing stored (a new head): defaults, no calibration.
+    Missing,
+    /// A write had been interrupted; the previous record is in use.
+    Recovered,
+    /// No valid record: defaults, no calibration. Recalibrate.
+    Corrupt,
+    /// A valid record whose calibration the head refused: not used.
+    Refused,
+    /// This head keeps nothing across restarts (the simulated head).
+    Volatile,
 }
 
 /// A triangulated point in the profile frame of its laser (see
@@ -169,7 +189,8 @@ pub enum HeadState {
 pub struct Status {
     /// State.
     pub state: HeadState,
-    /// Lasers currently lit (bit mask).
+    /// Lasers in use (bit mask): strobed, each lit only during its
+    /// frames' exposures. 0 when not streaming.
     pub lasers_on: u8,
     /// Frames sent since start.
     pub frames: u32,
@@ -177,10 +198,20 @@ pub struct Status {
     pub frame_rate_mhz: u32,
     /// Rows processed per second.
     pub rows_per_s: u32,
-    /// Frames dropped (processing or link too slow).
+    /// Frames dropped (processing or link too slow, trigger faster than
+    /// the rate limit, or refused by the laser duty-cycle limit).
     pub dropped_frames: u32,
     /// Mean processing time per row, ns.
     pub ns_per_row: u32,
+    /// Mean processing time per row in core clock cycles (DWT counter on
+    /// the head; 0 where the clock is unknown, as on the simulated head).
+    pub cycles_per_row: u32,
+    /// Rows lost before processing since start (camera DMA overrun).
+    pub dropped_rows: u32,
+    /// Bytes waiting to go out on the link when the status was made.
+    pub link_backlog_bytes: u32,
+    /// Laser on-time over the last status window, per mille of the time.
+    pub laser_duty_permille: u16,
     /// Time since the last heartbeat from the host, ms.
     pub heartbeat_age_ms: u32,
     /// The last fault, if any.
@@ -206,8 +237,11 @@ pub enum ErrorCode {
     HeartbeatLost,
     /// The camera failed to deliver a frame.
     SensorFault,
-    /// A parameter is out of range (exposure, rate, mask).
+    /// A parameter is out of range (exposure, rate, mask, duty cycle,
+    /// a distance trigger without an encoder).
     OutOfRange,
+    /// Calibration or settings could not be written to flash.
+    Storage,
 }
 
 impl core::fmt::Display for ErrorCode {
@@ -221,6 +255,7 @@ impl core::fmt::Display for ErrorCode {
             ErrorCode::HeartbeatLost => f.write_str("host heartbeat lost; lasers off"),
             ErrorCode::SensorFault => f.write_str("camera fault; lasers off"),
             ErrorCode::OutOfRange => f.write_str("parameter out of range"),
+            ErrorCode::Storage => f.write_str("flash write failed; settings not kept"),
         }
     }
 }
@@ -291,6 +326,19 @@ pub struct Start {
     pub pattern: LaserPattern,
 }
 
+/// What starts a frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Trigger {
+    /// Every `1 / rate_hz` (the `Start` rate).
+    Timed,
+    /// Every `every_um` of travel on the odometer (how trolleys sample the
+    /// rail), at most `rate_hz` frames per second (faster travel drops frames).
+    Distance {
+        /// Interval, µm (non-zero).
+        every_um: u32,
+    },
+}
+
 /// Calibration the head uses to triangulate (camera frame, mm; see
 /// `cms-host calibrate`). The head validates and keeps it.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -327,6 +375,8 @@ pub enum HostMsg {
     GetInfo,
     /// The host is alive; without one for 1 s the head turns the lasers off.
     Heartbeat,
+    /// How frames are triggered from the next `Start` on (kept in flash).
+    SetTrigger(Trigger),
 }
 
 /// A command: a sequence number for the acknowledgement, and the body.

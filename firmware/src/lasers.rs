@@ -5,7 +5,7 @@
 //!
 //! | laser | pin  | OpenMV-Cam-H7 header | note                         |
 //! |-------|------|----------------------|------------------------------|
-//! | 0     | PD12 | P7                   | TIM4_CH1 (AF2), for later PWM |
+//! | 0     | PD12 | P7                   | TIM4_CH1 (AF2)               |
 //! | 1     | PD13 | P8                   | TIM4_CH2 (AF2)               |
 //! | 2     | PD14 | P9                   | TIM4_CH3 (AF2)               |
 //!
@@ -17,7 +17,9 @@
 //! 1. **Reset → firmware init**: after any reset the STM32H7 leaves every
 //!    GPIO in analog mode (high impedance). The laser board MUST pull each
 //!    ENABLE line down (e.g. 10 kΩ to GND at the driver input); that pull-down
-//!    is what keeps the lasers off until [`Lasers::new`] drives the lines.
+//!    is what keeps the lasers off until the first statement of `main`
+//!    (`board::lasers_off_at_reset`, before clocks or any other init) drives
+//!    the lines low through the registers.
 //! 2. **Init**: [`Lasers::new`] sets the output latch low *before* switching
 //!    the pin to output mode (embassy's `Output::new` does it in that order),
 //!    so there is no glitch.
@@ -32,6 +34,7 @@
 //! (breakpoint, `probe-rs` stop) the outputs keep their last state. Keep the
 //! lasers' hardware interlock (key switch / enclosure) in the loop.
 
+use cms_core::pipeline::LaserDriver;
 use embassy_stm32::Peri;
 use embassy_stm32::gpio::{Level, Output, Speed};
 use embassy_stm32::pac;
@@ -46,7 +49,9 @@ const PINS: [usize; 3] = [12, 13, 14];
 pub const COUNT: usize = PINS.len();
 
 /// Owns the three laser-enable outputs; all lasers off while it exists unless
-/// switched on explicitly (nothing in this firmware does yet).
+/// switched on by the head (`cms_core::pipeline::Head`, the only caller of
+/// [`LaserDriver::set`], which applies the safety rules: strobe during
+/// exposures only, duty-cycle limit, heartbeat).
 pub struct Lasers {
     enable: [Output<'static>; COUNT],
 }
@@ -74,6 +79,14 @@ impl Lasers {
     /// Whether every enable line is driven low.
     pub fn all_are_off(&self) -> bool {
         self.enable.iter().all(|pin| pin.is_set_low())
+    }
+}
+
+impl LaserDriver for Lasers {
+    fn set(&mut self, mask: u8) {
+        for (k, pin) in self.enable.iter_mut().enumerate() {
+            pin.set_level(if mask & (1 << k) != 0 { Level::High } else { Level::Low });
+        }
     }
 }
 

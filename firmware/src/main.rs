@@ -1,16 +1,21 @@
-//! `cms-firmware`: the CMS sensor head (STM32H743VI, OpenMV-Cam-H7 class).
+//! `cms-firmware`: the CMS sensor head (STM32H743VI, OpenMV-Cam-H7 class,
+//! MT9V034 global-shutter sensor). Thin over `cms-core`: the head's logic
+//! (commands, laser-safety rules, row pipeline, triangulation, protocol) is
+//! `cms_core::pipeline::Head`, the same code the simulated head runs and the
+//! host tests exercise; this crate supplies the hardware behind its traits.
 //!
-//! A minimal embassy skeleton around `cms-core`:
-//!
-//! 1. clocks: HSI → PLL1 → 400 MHz core (valid for every H743 silicon
-//!    revision at VOS1), 200 MHz AHB, 100 MHz APB; instruction cache on;
-//! 2. the three laser-enable outputs, driven low (lasers off) right after
-//!    the clocks (see `lasers.rs` for the pins and the safety chain);
-//! 3. the stripe detector, built once and validated; a self-test on a
-//!    synthetic 752-px row whose stripes are logged over defmt-rtt;
-//! 4. a heartbeat: a short blink of PC1 once a second when healthy, or a fast
-//!    blink of the red LED (PC0) when the detector or its self-test failed —
-//!    the lasers then stay off.
+//! Start-up order:
+//! 1. laser enables driven low through the registers (`board::lasers_off_at_reset`)
+//!    — first statement, before clocks or any other init;
+//! 2. clocks (480 MHz on rev V silicon, 400 MHz on rev Y: `board.rs`), the
+//!    `Lasers` driver owning the pins, I-cache, DWT cycle counter;
+//! 3. the independent watchdog (500 ms; a hung head resets, and after reset
+//!    the pins are high impedance, held off by the laser board's pull-downs);
+//! 4. the detector self-test on a synthetic row (logged);
+//! 5. flash: calibration and settings restored, or reported missing/corrupt;
+//! 6. the MT9V034 over I²C, the DCMI ring, the encoder timer;
+//! 7. USB CDC-ACM tasks, then the head loop: commands in, `Head::poll`, a
+//!    settings save when the head asks for one, the watchdog fed.
 //!
 //! Build and flash from this directory: `cargo build --release`,
 //! `cargo run --release` (probe-rs, see `.cargo/config.toml`).
@@ -18,59 +23,98 @@
 #![no_std]
 #![no_main]
 
+mod board;
+mod camera;
 mod fault;
 mod lasers;
+mod link;
 mod selftest;
+mod store;
+
+use core::sync::atomic::{AtomicU32, Ordering};
 
 use cms_core::fixed::Px;
 use cms_core::optics::{OpticsError, ScaleRange};
 use cms_core::peak::{self, Config, Detector, Stripes};
-use defmt::{error, info, warn};
+use cms_core::pipeline::{Head, Identity, default_detector};
+use cms_core::protocol::{
+    Command, DeviceMsg, FrameReader, HeadState, MAX_COMMAND_FRAME, MAX_FRAME, StoreHealth, WireError, encode,
+};
+use defmt::{error, info, unwrap, warn};
 use defmt_rtt as _;
 use embassy_executor::Spawner;
 use embassy_stm32::gpio::{Level, Output, Speed};
-use embassy_time::{Duration, Timer};
+use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_stm32::{bind_interrupts, dcmi, dma, i2c, peripherals, timer, usb};
+use embassy_time::{Duration, Instant, Timer};
+use static_cell::StaticCell;
 
+use crate::camera::Mt9v034;
 use crate::lasers::Lasers;
-use crate::selftest::WIDTH;
 
-/// Core clock after [`clock_config`], for turning cycle counts into time.
-const SYSCLK_HZ: u32 = 400_000_000;
+bind_interrupts!(struct Irqs {
+    OTG_FS => usb::InterruptHandler<peripherals::USB_OTG_FS>;
+    DCMI => dcmi::InterruptHandler<peripherals::DCMI>;
+    DMA1_STREAM0 => dma::InterruptHandler<peripherals::DMA1_CH0>;
+    DMA2_STREAM1 => camera::RingInterrupt;
+    I2C1_EV => i2c::EventInterruptHandler<peripherals::I2C1>;
+    I2C1_ER => i2c::ErrorInterruptHandler<peripherals::I2C1>;
+});
+
 /// Most stripes the self-test collects (the head has three lasers).
 const MAX_STRIPES: usize = 4;
 
-/// HSI (64 MHz) / 4 × 50 = 800 MHz VCO; P / 2 = 400 MHz system clock.
-///
-/// HSI rather than HSE because the crystal frequency is board specific; USB
-/// will use the HSI48 (on by default) trimmed by the CRS.
-fn clock_config() -> embassy_stm32::Config {
-    use embassy_stm32::rcc::{
-        AHBPrescaler, APBPrescaler, HSIPrescaler, Pll, PllDiv, PllMul, PllPreDiv, PllSource, Sysclk, VoltageScale,
-    };
-    let mut config = embassy_stm32::Config::default();
-    config.rcc.hsi = Some(HSIPrescaler::DIV1);
-    config.rcc.pll1 = Some(Pll {
-        source: PllSource::HSI,
-        prediv: PllPreDiv::DIV4,
-        mul: PllMul::MUL50,
-        fracn: None,
-        divp: Some(PllDiv::DIV2), // 400 MHz: system clock
-        divq: Some(PllDiv::DIV8), // 100 MHz: SPI/SDMMC kernel clocks
-        divr: None,
-    });
-    config.rcc.sys = Sysclk::PLL1_P;
-    config.rcc.ahb_pre = AHBPrescaler::DIV2; // 200 MHz (AXI, AHB: DCMI, DMA)
-    config.rcc.apb1_pre = APBPrescaler::DIV2; // 100 MHz
-    config.rcc.apb2_pre = APBPrescaler::DIV2;
-    config.rcc.apb3_pre = APBPrescaler::DIV2;
-    config.rcc.apb4_pre = APBPrescaler::DIV2;
-    config.rcc.voltage_scale = VoltageScale::Scale1;
-    config
+/// Why the detector could not start.
+#[derive(defmt::Format)]
+enum StartError {
+    /// The scale range was refused.
+    Scales(OpticsError),
+    /// The detector configuration was refused.
+    Config(peak::Error),
 }
 
-/// Instruction cache and the DWT cycle counter. The data cache stays off
-/// until the DMA buffers get an uncached MPU region (camera DMA into a cached
-/// AXI SRAM would otherwise need explicit cache maintenance).
+/// The self-test's detector: 12-bit pixels, stripe σ between 1 and 4 px.
+fn build_selftest_detector() -> Result<Detector<{ board::WIDTH }>, StartError> {
+    let scales = ScaleRange::new(Px::from_f64(1.0), Px::from_f64(4.0)).map_err(StartError::Scales)?;
+    Detector::new(Config::new(12, scales)).map_err(StartError::Config)
+}
+
+/// The head's detector: the core's default at the sensor's 8 bits.
+fn head_detector() -> Config {
+    let mut c = default_detector();
+    c.bits = board::BITS;
+    c.saturation = (1 << board::BITS) - 1;
+    c
+}
+
+/// Q16.16 pixels as `f32`, for log messages only.
+fn px_f32(p: Px) -> f32 {
+    p.0 as f32 / 65536.0
+}
+
+/// Runs the detector on the synthetic row and logs what it found.
+fn self_test(detector: &mut Detector<{ board::WIDTH }>, mhz: u32) -> bool {
+    let mut stripes: Stripes<MAX_STRIPES> = Stripes::new();
+    let cycles = match selftest::run(detector, &mut stripes) {
+        Ok(cycles) => cycles,
+        Err(e) => {
+            error!("self-test: detect failed: {}", e);
+            return false;
+        }
+    };
+    info!("self-test: {} stripes in {} cycles ({} us at {} MHz)", stripes.len(), cycles, cycles / mhz, mhz);
+    let report = selftest::check(&stripes);
+    let ok = report.matched == selftest::TRUTH.len() && stripes.len() == selftest::TRUTH.len();
+    if ok {
+        info!("self-test passed: worst error {=f32} px", px_f32(report.worst));
+    } else {
+        error!("self-test FAILED: {} of {} stripes", report.matched, selftest::TRUTH.len());
+    }
+    ok
+}
+
+/// Instruction cache and the DWT cycle counter. The data cache stays off:
+/// the DCMI ring is read while DMA writes it (no cache maintenance needed).
 fn enable_core_features() {
     match cortex_m::Peripherals::take() {
         Some(mut cp) => {
@@ -83,126 +127,224 @@ fn enable_core_features() {
     }
 }
 
-/// Why the detector could not start.
-#[derive(defmt::Format)]
-enum StartError {
-    /// The scale range was refused.
-    Scales(OpticsError),
-    /// The detector configuration was refused.
-    Config(peak::Error),
-}
-
-/// The head's detector: 12-bit pixels, stripe σ between 1 and 4 px.
-fn build_detector() -> Result<Detector<WIDTH>, StartError> {
-    let scales = ScaleRange::new(Px::from_f64(1.0), Px::from_f64(4.0)).map_err(StartError::Scales)?;
-    Detector::new(Config::new(12, scales)).map_err(StartError::Config)
-}
-
-/// Q16.16 pixels as `f32`, for log messages only.
-fn px_f32(p: Px) -> f32 {
-    p.0 as f32 / 65536.0
-}
-
-/// Runs the detector on the synthetic row and logs what it found. Returns
-/// whether every synthetic stripe was found within the tolerance.
-fn self_test(detector: &mut Detector<WIDTH>) -> bool {
-    let mut stripes: Stripes<MAX_STRIPES> = Stripes::new();
-    let cycles = match selftest::run(detector, &mut stripes) {
-        Ok(cycles) => cycles,
-        Err(e) => {
-            error!("self-test: detect failed: {}", e);
-            return false;
+/// The DWT cycle counter extended to 64 bits (it wraps every 8.9 s at
+/// 480 MHz; the head loop reads it far more often).
+fn cycles64() -> u64 {
+    static HIGH: AtomicU32 = AtomicU32::new(0);
+    static LAST: AtomicU32 = AtomicU32::new(0);
+    critical_section::with(|_| {
+        let now = cortex_m::peripheral::DWT::cycle_count();
+        if now < LAST.load(Ordering::Relaxed) {
+            HIGH.fetch_add(1, Ordering::Relaxed);
         }
-    };
-    info!(
-        "self-test: {} stripes in {} cycles ({} us at {} MHz); {}",
-        stripes.len(),
-        cycles,
-        cycles / (SYSCLK_HZ / 1_000_000),
-        SYSCLK_HZ / 1_000_000,
-        detector.stats()
-    );
-    for s in &stripes {
-        let (laser, err) = selftest::nearest_truth(s);
-        info!(
-            "  stripe x = {=f32} px (laser {}, error {=f32} px), strength {}, sigma {=f32} px, {}",
-            px_f32(s.position),
-            laser,
-            px_f32(err),
-            s.strength,
-            px_f32(s.width),
-            s.flags
-        );
-    }
-    let report = selftest::check(&stripes);
-    let ok = report.matched == selftest::TRUTH.len() && stripes.len() == selftest::TRUTH.len();
-    if ok {
-        info!("self-test passed: worst error {=f32} px", px_f32(report.worst));
-    } else {
-        error!(
-            "self-test FAILED: {} of {} stripes within {=f32} px ({} found)",
-            report.matched,
-            selftest::TRUTH.len(),
-            px_f32(selftest::TOLERANCE),
-            stripes.len()
-        );
-    }
-    ok
+        LAST.store(now, Ordering::Relaxed);
+        ((HIGH.load(Ordering::Relaxed) as u64) << 32) | now as u64
+    })
 }
 
-/// Blinks the status LEDs (active low): a 50 ms flash of `status` every
-/// second when healthy, otherwise `fault` at 5 Hz.
+/// Blinks the status LED (active low) once a second; the fault LED at 5 Hz
+/// when the head could not start.
 #[embassy_executor::task]
-async fn heartbeat(mut status: Output<'static>, mut fault: Output<'static>, healthy: bool) {
-    let (led, on, off) = if healthy {
-        (&mut status, Duration::from_millis(50), Duration::from_millis(950))
-    } else {
-        (&mut fault, Duration::from_millis(100), Duration::from_millis(100))
-    };
+async fn blink(mut led: Output<'static>, fast: bool) {
+    let (on, off) = if fast { (100, 100) } else { (50, 950) };
     loop {
         led.set_low();
-        Timer::after(on).await;
+        Timer::after(Duration::from_millis(on)).await;
         led.set_high();
-        Timer::after(off).await;
+        Timer::after(Duration::from_millis(off)).await;
     }
+}
+
+/// Encoding buffers for one device message (version, payload, CRC, COBS).
+struct Encoder {
+    scratch: [u8; MAX_FRAME],
+    out: [u8; MAX_FRAME],
 }
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
-    let p = embassy_stm32::init(clock_config());
-    // First thing once the GPIO clocks run: own the laser enables, all low.
+    // 1. Lasers off before anything else.
+    board::lasers_off_at_reset();
+    // 2. Clocks, then the laser driver owns the pins.
+    let rev = board::silicon_revision();
+    let sysclk = board::sysclk_hz(rev);
+    let p = embassy_stm32::init(board::clock_config(rev));
     let lasers = Lasers::new(p.PD12, p.PD13, p.PD14);
-    info!("cms-firmware {}: {} lasers off", env!("CARGO_PKG_VERSION"), lasers::COUNT);
+    defmt::assert!(lasers.all_are_off(), "laser enables not low after init");
+    info!(
+        "cms-firmware {}: silicon rev {=u16:#x}, {} MHz, lasers off",
+        env!("CARGO_PKG_VERSION"),
+        rev,
+        sysclk / 1_000_000
+    );
     enable_core_features();
-
-    // OpenMV-Cam-H7 RGB LED, active low: start dark.
     let status_led = Output::new(p.PC1, Level::High, Speed::Low);
     let fault_led = Output::new(p.PC0, Level::High, Speed::Low);
 
-    let mut detector = match build_detector() {
-        Ok(d) => Some(d),
+    // 3. Watchdog.
+    let mut watchdog = IndependentWatchdog::new(p.IWDG1, store::WATCHDOG_MS as u32 * 1000);
+    watchdog.unleash();
+
+    // 4. Self-test.
+    let healthy = match build_selftest_detector() {
+        Ok(mut d) => self_test(&mut d, sysclk / 1_000_000),
         Err(e) => {
-            error!("detector refused its configuration: {}; lasers stay off", e);
+            error!("self-test detector refused: {}", e);
+            false
+        }
+    };
+    watchdog.pet();
+
+    // 5. The head, with what flash holds.
+    static HEAD: StaticCell<Head<{ board::WIDTH }, Lasers>> = StaticCell::new();
+    let identity = Identity { firmware: env!("CARGO_PKG_VERSION"), board: "OpenMV-H7 MT9V034" };
+    let head = match Head::new(lasers, head_detector(), identity) {
+        Ok(h) => HEAD.init(h),
+        Err(e) => {
+            error!("head detector refused: {}; lasers stay off", e);
+            spawner.spawn(unwrap!(blink(fault_led, true)));
+            loop {
+                watchdog.pet();
+                Timer::after(Duration::from_millis(100)).await;
+            }
+        }
+    };
+    head.set_cpu_hz(sysclk);
+    let mut store = match store::Store::new(embassy_stm32::flash::Flash::new_blocking(p.FLASH)) {
+        Ok(s) => Some(s),
+        Err(e) => {
+            error!("flash slots: {}", e);
             None
         }
     };
-    let healthy = match detector.as_mut() {
-        Some(d) => self_test(d),
-        None => false,
+    match store.as_mut().map(|s| s.load()) {
+        Some((Some(stored), health)) => {
+            head.restore(&stored, health);
+            let id = head.calibration().map_or(0, |c| c.id);
+            info!("flash: {}, calibration {} (0: none or refused)", health, id);
+        }
+        Some((None, health)) => {
+            head.set_store_health(health);
+            warn!("flash: {}: defaults, no calibration", health);
+        }
+        None => head.set_store_health(StoreHealth::Corrupt),
+    }
+    watchdog.pet();
+
+    // 6. Sensor, DCMI, encoder.
+    let dcmi = dcmi::Dcmi::new_8bit(
+        p.DCMI,
+        p.DMA1_CH0,
+        Irqs,
+        p.PC6,
+        p.PC7,
+        p.PE0,
+        p.PE1,
+        p.PE4,
+        p.PB6,
+        p.PE5,
+        p.PE6,
+        p.PB7,
+        p.PA4,
+        p.PA6,
+        dcmi::Config::default(),
+    );
+    let mut i2c_config = i2c::Config::default();
+    i2c_config.frequency = embassy_stm32::time::Hertz(100_000);
+    let i2c = i2c::I2c::new_blocking(p.I2C1, p.PB8, p.PB9, i2c_config);
+    let _sensor_reset = Output::new(p.PA10, Level::High, Speed::Low); // released
+    let _sensor_standby = Output::new(p.PD7, Level::Low, Speed::Low); // awake
+    let exposure = Output::new(p.PD6, Level::Low, Speed::VeryHigh);
+    let qei = timer::qei::Qei::new(p.TIM5, p.PA0, p.PA1, Default::default());
+    Timer::after(Duration::from_millis(2)).await; // sensor out of reset
+    let mut camera = match Mt9v034::new(i2c, dcmi, exposure, qei, sysclk) {
+        Ok(c) => Some(c),
+        Err(e) => {
+            error!("camera: {}; streaming will be refused", e);
+            None
+        }
     };
-    if !healthy {
-        warn!("not healthy: lasers stay off");
-    }
-    debug_assert!(lasers.all_are_off());
+    let ok = healthy && camera.is_some();
+    spawner.spawn(unwrap!(blink(if ok { status_led } else { fault_led }, !ok)));
 
-    match heartbeat(status_led, fault_led, healthy) {
-        Ok(token) => spawner.spawn(token),
-        Err(e) => error!("heartbeat task not spawned: {}", e),
-    }
+    // 7. USB and the head loop.
+    static EP_OUT: StaticCell<[u8; 256]> = StaticCell::new();
+    let mut usb_config = usb::Config::default();
+    usb_config.vbus_detection = false; // bus powered
+    let driver = usb::Driver::new_fs(p.USB_OTG_FS, Irqs, p.PA12, p.PA11, EP_OUT.init([0; 256]), usb_config);
+    let (device, tx, rx) = link::build(driver);
+    spawner.spawn(unwrap!(link::usb_device(device)));
+    spawner.spawn(unwrap!(link::usb_tx(tx)));
+    spawner.spawn(unwrap!(link::usb_rx(rx)));
 
-    // The row pipeline (DCMI capture → detector → host link) will take the
-    // detector and the lasers from here. Until then this task keeps both, so
-    // the enables stay actively driven low.
-    core::future::pending::<()>().await;
-    drop((lasers, detector));
+    static ENCODER: StaticCell<Encoder> = StaticCell::new();
+    let enc = ENCODER.init(Encoder { scratch: [0; MAX_FRAME], out: [0; MAX_FRAME] });
+    let mut reader: FrameReader<MAX_COMMAND_FRAME> = FrameReader::new();
+    let mhz = (sysclk / 1_000_000) as u64;
+    let mut clock_ns = move || cycles64() * 1000 / mhz;
+    let mut reply = |m: &DeviceMsg| {
+        if let DeviceMsg::Status(s) = m {
+            info!(
+                "status: {} frames, {} mHz, {} ns/row ({} cycles), dropped {} frames {} rows, backlog {} B, duty {} permille",
+                s.frames,
+                s.frame_rate_mhz,
+                s.ns_per_row,
+                s.cycles_per_row,
+                s.dropped_frames,
+                s.dropped_rows,
+                s.link_backlog_bytes,
+                s.laser_duty_permille
+            );
+        }
+        match encode(m, &mut enc.scratch, &mut enc.out) {
+            Ok(frame) => {
+                link::send(frame);
+            }
+            Err(e) => error!("encode: {}", e),
+        }
+    };
+    let mut rx_buf = [0u8; 64];
+    loop {
+        watchdog.pet();
+        let now_us = Instant::now().as_micros();
+        // Commands in.
+        while let Ok(n) = link::RX.try_read(&mut rx_buf) {
+            let mut cmds: heapless::Vec<Result<Command, WireError>, 16> = heapless::Vec::new();
+            reader.feed::<Command, _>(&rx_buf[..n], |r| {
+                let _ = cmds.push(r);
+            });
+            for r in cmds {
+                match (r, camera.as_ref()) {
+                    (Ok(cmd), Some(cam)) => head.handle(cmd, now_us, cam, &mut reply),
+                    (Ok(cmd), None) => reply(&DeviceMsg::Error {
+                        seq: Some(cmd.seq),
+                        code: cms_core::protocol::ErrorCode::SensorFault,
+                    }),
+                    (Err(e), _) => head.link_error(e.into(), &mut reply),
+                }
+            }
+        }
+        // Rows in, profiles out.
+        if let Some(cam) = camera.as_mut() {
+            head.set_link_backlog(link::backlog());
+            head.poll(now_us, cam, &mut clock_ns, &mut reply);
+            let _ = cms_core::pipeline::Camera::odometer_um(cam); // keep the 16-bit count from wrapping unseen
+        }
+        // Settings to flash, when idle.
+        if let Some(s) = head.take_store_request() {
+            match store.as_mut().map(|st| st.save(&s)) {
+                Some(Ok(seq)) => info!("flash: settings saved (record {})", seq),
+                Some(Err(e)) => {
+                    error!("flash: save failed: {}", e);
+                    reply(&DeviceMsg::Error { seq: None, code: cms_core::protocol::ErrorCode::Storage });
+                }
+                None => reply(&DeviceMsg::Error { seq: None, code: cms_core::protocol::ErrorCode::Storage }),
+            }
+        }
+        if head.state() == HeadState::Streaming {
+            embassy_futures::yield_now().await;
+        } else {
+            Timer::after(Duration::from_millis(1)).await;
+        }
+    }
 }

@@ -15,7 +15,7 @@ use std::process::ExitCode;
 
 use cms_core::pipeline::{Camera, Head, Identity, LaserDriver, default_detector};
 use cms_core::protocol::{
-    Calibration, Command, DeviceMsg, HostMsg, LaserPattern, MAX_FRAME, PROTOCOL_VERSION, Start, encode,
+    Calibration, Command, DeviceMsg, HostMsg, LaserPattern, MAX_FRAME, PROTOCOL_VERSION, Start, Trigger, encode,
 };
 use cms_tests::{Gauss, Rng, clean_row, quantise};
 
@@ -107,6 +107,8 @@ fn run(dir: &Path) -> Result<usize, String> {
         HostMsg::SetExposure(300),
         HostMsg::SetDetector(default_detector()),
         HostMsg::SetCalibration(calibration),
+        HostMsg::SetTrigger(Trigger::Distance { every_um: 5_000 }),
+        HostMsg::SetTrigger(Trigger::Timed),
         HostMsg::GetInfo,
         HostMsg::Start(Start { rate_hz: 100, laser_mask: 0b111, pattern: LaserPattern::Simultaneous }),
         HostMsg::Heartbeat,

@@ -290,6 +290,10 @@ mod tests {
             rows_per_s: 0,
             dropped_frames: 0,
             ns_per_row: 0,
+            cycles_per_row: 0,
+            dropped_rows: 0,
+            link_backlog_bytes: 0,
+            laser_duty_permille: 0,
             heartbeat_age_ms: 0,
             fault: None,
         })

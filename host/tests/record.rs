@@ -11,7 +11,7 @@ use cms_core::peak::Flags;
 use cms_core::pipeline::default_detector;
 use cms_core::protocol::{
     Command, DeviceInfo, DeviceMsg, FrameReader, HeadState, HostMsg, LaserPoints, MAX_COMMAND_FRAME, MAX_FRAME, Metric,
-    PROTOCOL_VERSION, Point, Profile, Status, WireError, encode,
+    PROTOCOL_VERSION, Point, Profile, Status, StoreHealth, WireError, encode,
 };
 use cms_host::link::Deframer;
 use cms_host::record::{self, HEADER_LEN, Info, Recorder, ScanStats};
@@ -78,6 +78,7 @@ fn hello() -> DeviceMsg {
         bits: 12,
         detector: default_detector(),
         calibration_id: 0,
+        store: StoreHealth::Volatile,
     })
 }
 
@@ -90,6 +91,10 @@ fn status() -> DeviceMsg {
         rows_per_s: 14_400,
         dropped_frames: 2,
         ns_per_row: 900,
+        cycles_per_row: 0,
+        dropped_rows: 0,
+        link_backlog_bytes: 0,
+        laser_duty_permille: 0,
         heartbeat_age_ms: 100,
         fault: None,
     })

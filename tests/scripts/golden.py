@@ -17,7 +17,7 @@ Rust encoder's frames with this file byte for byte.
 import struct
 import zlib
 
-VERSION = 2
+VERSION = 3
 
 
 def varint(n):
@@ -104,7 +104,8 @@ def point(row, flags=0, um=None):
 
 
 DEVICE = {"hello": 0, "profile": 1, "status": 2, "ack": 3, "error": 4, "raw": 5}
-HOST = {"start": 0, "stop": 1, "exposure": 2, "detector": 3, "calibration": 4, "capture": 5, "info": 6, "heartbeat": 7}
+HOST = {"start": 0, "stop": 1, "exposure": 2, "detector": 3, "calibration": 4, "capture": 5, "info": 6, "heartbeat": 7,
+        "trigger": 8}
 
 
 def dev(kind, body=b""):
@@ -120,11 +121,12 @@ GOLDENS = [
     ("error", dev("error", opt(varint(5)) + varint(5))),          # HeartbeatLost = 5
     ("error-version", dev("error", opt(None) + varint(2) + u8(2))),  # Version(2)
     ("status", dev("status", varint(1) + u8(7) + varint(1000) + varint(30000) + varint(14400)
-                   + varint(0) + varint(52000) + varint(120) + opt(None))),
+                   + varint(0) + varint(52000) + varint(24960) + varint(3) + varint(4096) + varint(6)
+                   + varint(120) + opt(None))),
     ("profile", dev("profile", varint(7) + u8(0) + u8(1) + varint(100000) + zz(25000, 64) + varint(200) + u8(1)
                     + seq([u8(0) + seq([point(0), point(1, flags=2, um=(-1200, 35250))])]))),
     ("hello", dev("hello", string("0.1.0") + u8(VERSION) + string("sim") + varint(752) + varint(480) + u8(12)
-                  + default_detector() + varint(0))),
+                  + default_detector() + varint(0) + varint(2))),  # StoreHealth::Recovered = 2
     ("raw", dev("raw", varint(9) + varint(2) + varint(0) + varint(4) + varint(3) + u8(8) + seq([bytes([b]) for b in (0, 1, 2, 255)]))),
     ("start", cmd(1, "start", varint(30) + u8(7) + varint(1))),     # Sequential = 1
     ("stop", cmd(2, "stop")),
@@ -138,6 +140,7 @@ GOLDENS = [
     ("capture", cmd(6, "capture", u8(0))),
     ("info", cmd(7, "info")),
     ("heartbeat", cmd(8, "heartbeat")),
+    ("trigger", cmd(9, "trigger", varint(1) + varint(5000))),        # Distance { every_um: 5000 }
 ]
 
 if __name__ == "__main__":

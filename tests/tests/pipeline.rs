@@ -1,10 +1,13 @@
 //! The sensor head's logic (`cms_core::pipeline::Head`): profiles from rows,
 //! commands, and the laser-safety rules.
 
+use cms_core::duty::{DUTY_BURST_US, DutyLimit, MAX_DUTY_PERMILLE};
+use cms_core::persist::Stored;
 use cms_core::pipeline::{Camera, HEARTBEAT_TIMEOUT_US, Head, Identity, LaserDriver, default_detector};
 use cms_core::protocol::*;
 use cms_tests::{Gauss, Rng, clean_row, quantise};
-use std::cell::RefCell;
+use proptest::prelude::*;
+use std::cell::{Cell, RefCell};
 use std::rc::Rc;
 
 /// The laser enables, with their whole history.
@@ -29,10 +32,31 @@ struct Cam {
     mask: u8,
     fail: bool,
     exposures: u32,
+    /// The laser driver, to see what is lit at each exposure.
+    lasers: Option<Lasers>,
+    /// The driver's mask during each exposure.
+    lit: Vec<u8>,
+    /// The odometer, µm, when the head has an encoder.
+    odo: Cell<Option<i64>>,
+    /// Rows the camera lost (DMA overrun).
+    lost_rows: u32,
 }
 impl Cam {
     fn new() -> Cam {
-        Cam { rng: Rng::new(9), row: 0, mask: 0, fail: false, exposures: 0 }
+        Cam {
+            rng: Rng::new(9),
+            row: 0,
+            mask: 0,
+            fail: false,
+            exposures: 0,
+            lasers: None,
+            lit: Vec::new(),
+            odo: Cell::new(None),
+            lost_rows: 0,
+        }
+    }
+    fn watching(l: &Lasers) -> Cam {
+        Cam { lasers: Some(l.clone()), ..Cam::new() }
     }
     fn truth(row: u16, k: usize) -> f64 {
         200.0 + 180.0 * k as f64 + 2.0 * (row as f64 / 30.0).sin()
@@ -55,8 +79,17 @@ impl Camera for Cam {
         }
         self.row = 0;
         self.mask = laser_mask;
+        if let Some(l) = &self.lasers {
+            self.lit.push(l.now());
+        }
         self.exposures += 1;
-        Ok(self.exposures as i64 * 1000)
+        Ok(self.odo.get().unwrap_or(self.exposures as i64 * 1000))
+    }
+    fn odometer_um(&self) -> Option<i64> {
+        self.odo.get()
+    }
+    fn dropped_rows(&self) -> u32 {
+        self.lost_rows
     }
     fn read_row(&mut self, out: &mut [u16]) -> Result<(), ()> {
         let stripes: Vec<Gauss> = (0..3)
@@ -87,7 +120,7 @@ fn start(mask: u8, pattern: LaserPattern) -> HostMsg {
 #[test]
 fn lasers_are_off_until_streaming_and_profiles_match_the_truth() {
     let (mut h, l) = head();
-    let mut cam = Cam::new();
+    let mut cam = Cam::watching(&l);
     assert_eq!(l.now(), 0, "off at construction");
     let mut out = Vec::new();
     let mut clock = 0u64;
@@ -101,7 +134,8 @@ fn lasers_are_off_until_streaming_and_profiles_match_the_truth() {
     h.handle(cmd(1, start(0b111, LaserPattern::Simultaneous)), 10, &cam, &mut |m| out.push(m.clone()));
     assert!(out.contains(&DeviceMsg::Ack(1)));
     h.poll(20, &mut cam, &mut ns, &mut |m| out.push(m.clone()));
-    assert_eq!(l.now(), 0b111);
+    assert_eq!(cam.lit, vec![0b111], "lit during the exposure");
+    assert_eq!(l.now(), 0, "strobed: off again before the rows are read");
     let profiles: Vec<&Profile> =
         out.iter().filter_map(|m| if let DeviceMsg::Profile(p) = m { Some(p) } else { None }).collect();
     assert_eq!(profiles.len(), 1);
@@ -130,7 +164,7 @@ fn lasers_are_off_until_streaming_and_profiles_match_the_truth() {
 #[test]
 fn heartbeat_loss_turns_the_lasers_off() {
     let (mut h, l) = head();
-    let mut cam = Cam::new();
+    let mut cam = Cam::watching(&l);
     let mut out = Vec::new();
     let mut ns = || 0u64;
     h.handle(cmd(1, start(0b111, LaserPattern::Simultaneous)), 0, &cam, &mut |m| out.push(m.clone()));
@@ -144,7 +178,7 @@ fn heartbeat_loss_turns_the_lasers_off() {
         t += 50_000;
     }
     assert_eq!(h.state(), HeadState::Streaming);
-    assert_ne!(l.now(), 0);
+    assert!(cam.lit.len() >= 29 && cam.lit.iter().all(|&m| m == 0b111), "{:?}", cam.lit);
     // Silence: at most 1 s + one poll later the lasers are off.
     let last_heard = t - 50_000;
     out.clear();
@@ -170,25 +204,29 @@ fn heartbeat_loss_turns_the_lasers_off() {
 fn any_error_while_streaming_stops_with_lasers_off() {
     for bad in [HostMsg::SetDetector(default_detector()), HostMsg::SetExposure(0), HostMsg::CaptureImage(1)] {
         let (mut h, l) = head();
-        let mut cam = Cam::new();
+        let mut cam = Cam::watching(&l);
         let mut ns = || 0u64;
         h.handle(cmd(1, start(0b111, LaserPattern::Simultaneous)), 0, &cam, &mut |_| {});
         h.poll(0, &mut cam, &mut ns, &mut |_| {});
-        assert_eq!(l.now(), 0b111);
+        assert_eq!(cam.lit, vec![0b111]);
         let mut out = Vec::new();
         h.handle(cmd(2, bad.clone()), 1, &cam, &mut |m| out.push(m.clone()));
         assert_eq!(l.now(), 0, "{bad:?}");
         assert_eq!(h.state(), HeadState::Fault);
         assert!(out.iter().any(|m| matches!(m, DeviceMsg::Error { seq: Some(2), .. })));
+        // No further strobe after the fault.
+        h.poll(200_000, &mut cam, &mut ns, &mut |_| {});
+        assert_eq!(cam.lit, vec![0b111], "{bad:?}");
     }
     // A link error (bad CRC from the host) too.
     let (mut h, l) = head();
-    let mut cam = Cam::new();
+    let mut cam = Cam::watching(&l);
     h.handle(cmd(1, start(0b001, LaserPattern::Simultaneous)), 0, &cam, &mut |_| {});
     h.poll(0, &mut cam, &mut || 0, &mut |_| {});
-    assert_eq!(l.now(), 0b001);
+    assert_eq!(cam.lit, vec![0b001]);
     h.link_error(ErrorCode::Crc, &mut |_| {});
     assert_eq!(l.now(), 0);
+    assert_eq!(h.state(), HeadState::Fault);
 }
 
 #[test]
@@ -255,12 +293,14 @@ fn invalid_commands_are_refused_and_lasers_stay_off() {
 #[test]
 fn dropping_the_head_turns_the_lasers_off() {
     let (mut h, l) = head();
-    let mut cam = Cam::new();
+    let mut cam = Cam::watching(&l);
     h.handle(cmd(1, start(0b111, LaserPattern::Simultaneous)), 0, &cam, &mut |_| {});
     h.poll(0, &mut cam, &mut || 0, &mut |_| {});
-    assert_eq!(l.now(), 0b111);
+    assert_eq!(cam.lit, vec![0b111]);
+    let switches = l.0.borrow().len();
     drop(h);
     assert_eq!(l.now(), 0);
+    assert_eq!(l.0.borrow().len(), switches + 1, "the drop drives the enables low");
 }
 
 #[test]
@@ -355,4 +395,220 @@ fn a_calibrated_head_triangulates_every_point_and_refuses_bad_calibrations() {
         }
     }
     assert_eq!(n, 3 * 480);
+}
+
+/// Messages of one call, collected.
+fn collect(f: impl FnOnce(&mut dyn FnMut(&DeviceMsg))) -> Vec<DeviceMsg> {
+    let mut out = Vec::new();
+    f(&mut |m: &DeviceMsg| out.push(m.clone()));
+    out
+}
+
+#[test]
+fn exposure_times_rate_over_the_duty_limit_is_refused() {
+    let (mut h, l) = head();
+    let mut cam = Cam::watching(&l);
+    // 30 ms at 10 Hz is 30 %: over the 25 % limit.
+    h.handle(cmd(1, HostMsg::SetExposure(30_000)), 0, &cam, &mut |_| {});
+    let out = collect(|r| h.handle(cmd(2, start(0b111, LaserPattern::Simultaneous)), 0, &cam, &mut |m| r(m)));
+    assert_eq!(out, vec![DeviceMsg::Error { seq: Some(2), code: ErrorCode::OutOfRange }]);
+    assert_eq!(h.state(), HeadState::Idle);
+    // 25 ms at 10 Hz is exactly the limit: accepted, and strobed 25 % of the time.
+    h.handle(cmd(3, HostMsg::SetExposure(25_000)), 0, &cam, &mut |_| {});
+    h.handle(cmd(4, start(0b111, LaserPattern::Simultaneous)), 0, &cam, &mut |_| {});
+    assert_eq!(h.state(), HeadState::Streaming);
+    let mut status = None;
+    for t in (0..=2_000_000u64).step_by(10_000) {
+        if t % 500_000 == 0 {
+            h.handle(cmd(5, HostMsg::Heartbeat), t, &cam, &mut |_| {});
+        }
+        h.poll(t, &mut cam, &mut || 0, &mut |m| {
+            if let DeviceMsg::Status(s) = m {
+                status = Some(*s);
+            }
+        });
+    }
+    assert_eq!(cam.lit.len(), 21);
+    assert_eq!(status.unwrap().laser_duty_permille, 250);
+    assert_eq!(status.unwrap().dropped_frames, 0);
+    // Raising the exposure while streaming past the limit is a fault: lasers off.
+    let out = collect(|r| h.handle(cmd(6, HostMsg::SetExposure(26_000)), 2_000_000, &cam, &mut |m| r(m)));
+    assert!(out.contains(&DeviceMsg::Error { seq: Some(6), code: ErrorCode::OutOfRange }));
+    assert_eq!(h.state(), HeadState::Fault);
+    assert_eq!(l.now(), 0);
+}
+
+proptest! {
+    /// Whatever is asked, the strobes the limiter allows add up to at most
+    /// duty · T + burst over every interval T (checked on all intervals
+    /// between strobe starts, where the bound is tightest).
+    #[test]
+    fn the_duty_limit_holds_over_every_interval(
+        requests in proptest::collection::vec((0u64..200_000, 1u32..60_000), 1..200),
+    ) {
+        let mut d = DutyLimit::default();
+        let mut t = 0u64;
+        let mut allowed: Vec<(u64, u64)> = Vec::new();
+        for (gap, on) in requests {
+            // A strobe cannot start before the previous one ended.
+            t += gap + allowed.last().map_or(0, |&(s, o)| (s + o).saturating_sub(t));
+            if d.request(t, on) {
+                allowed.push((t, on as u64));
+            }
+        }
+        for i in 0..allowed.len() {
+            let mut on = 0;
+            for j in i..allowed.len() {
+                on += allowed[j].1;
+                // Interval from the start of strobe i to the end of strobe j.
+                let span = allowed[j].0 + allowed[j].1 - allowed[i].0;
+                prop_assert!(
+                    on * 1000 <= span * MAX_DUTY_PERMILLE as u64 + DUTY_BURST_US as u64 * 1000,
+                    "{} us on in {} us", on, span
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn heartbeat_loss_stops_the_strobes_within_one_second_in_every_mode() {
+    for (pattern, mask) in [(LaserPattern::Simultaneous, 0b111), (LaserPattern::Sequential, 0b011)] {
+        let (mut h, l) = head();
+        let mut cam = Cam::watching(&l);
+        cam.odo.set(Some(0));
+        h.handle(cmd(1, HostMsg::SetTrigger(Trigger::Distance { every_um: 1000 })), 0, &cam, &mut |_| {});
+        h.handle(cmd(2, start(mask, pattern)), 0, &cam, &mut |_| {});
+        // The trolley moves 1 mm per 10 ms poll; the host falls silent at 0.
+        let mut last_strobe = 0;
+        let mut t = 0;
+        while t < 3_000_000 {
+            let before = cam.lit.len();
+            h.poll(t, &mut cam, &mut || 0, &mut |_| {});
+            if cam.lit.len() > before {
+                last_strobe = t;
+            }
+            cam.odo.set(Some(t as i64 / 10));
+            t += 10_000;
+        }
+        assert!(last_strobe > 0 && last_strobe <= HEARTBEAT_TIMEOUT_US, "{pattern:?}: strobe at {last_strobe} us");
+        assert_eq!(l.now(), 0);
+        assert_eq!(h.state(), HeadState::Fault);
+    }
+}
+
+#[test]
+fn the_distance_trigger_takes_a_frame_every_interval_and_counts_the_ones_it_cannot() {
+    let (mut h, l) = head();
+    let mut cam = Cam::watching(&l);
+    // Without an encoder a distance trigger cannot start.
+    h.handle(cmd(1, HostMsg::SetTrigger(Trigger::Distance { every_um: 5_000 })), 0, &cam, &mut |_| {});
+    let out = collect(|r| h.handle(cmd(2, start(0b001, LaserPattern::Simultaneous)), 0, &cam, &mut |m| r(m)));
+    assert_eq!(out, vec![DeviceMsg::Error { seq: Some(2), code: ErrorCode::OutOfRange }]);
+    let out =
+        collect(|r| h.handle(cmd(3, HostMsg::SetTrigger(Trigger::Distance { every_um: 0 })), 0, &cam, &mut |m| r(m)));
+    assert_eq!(out, vec![DeviceMsg::Error { seq: Some(3), code: ErrorCode::OutOfRange }]);
+    // With one: a frame at each 5 mm, carrying the odometer.
+    cam.odo.set(Some(-2_000));
+    h.handle(
+        cmd(4, HostMsg::Start(Start { rate_hz: 50, laser_mask: 1, pattern: LaserPattern::Simultaneous })),
+        0,
+        &cam,
+        &mut |_| {},
+    );
+    let mut odo = Vec::new();
+    // 0.2 m/s for 0.3 s (polled every ms; 40 frames/s), then 10 m/s for
+    // 0.2 s: 50 frames/s cannot keep up with one per 5 mm (2000/s), so
+    // those are dropped.
+    let mut p = -2_000i64;
+    for ms in 0..500u64 {
+        p += if ms < 300 { 200 } else { 10_000 };
+        cam.odo.set(Some(p));
+        if ms % 200 == 0 {
+            h.handle(cmd(5, HostMsg::Heartbeat), ms * 1000, &cam, &mut |_| {});
+        }
+        h.poll(ms * 1000, &mut cam, &mut || 0, &mut |m| {
+            if let DeviceMsg::Profile(pr) = m {
+                odo.push(pr.odometer_um);
+            }
+        });
+    }
+    // The slow part: every 5 mm exactly, 12 frames in 60 mm.
+    let slow: Vec<i64> = odo.iter().copied().filter(|&o| o <= 58_000).collect();
+    assert_eq!(slow.len(), 12, "{slow:?}");
+    assert_eq!(slow[0], 3_000);
+    assert!(slow.windows(2).all(|w| w[1] - w[0] == 5_000), "{slow:?}");
+    // The fast part: at most 50 frames/s, the rest counted as dropped.
+    let fast = odo.len() - slow.len();
+    assert!(fast <= 11, "{fast}");
+    let status = h.status(500_000);
+    let boundaries = (p + 2_000) / 5_000;
+    assert_eq!(odo.len() as i64 + status.dropped_frames as i64, boundaries, "every boundary is a frame or a drop");
+}
+
+#[test]
+fn settings_changes_ask_to_be_stored_and_restore_reports_what_it_refused() {
+    let (mut h, _l) = head();
+    let cam = Cam::new();
+    assert_eq!(h.take_store_request(), None, "nothing changed");
+    assert_eq!(h.info(&cam).store, StoreHealth::Volatile);
+    h.handle(cmd(1, HostMsg::SetCalibration(calibration(7))), 0, &cam, &mut |_| {});
+    h.handle(cmd(2, HostMsg::SetExposure(300)), 0, &cam, &mut |_| {});
+    let s = h.take_store_request().expect("changed");
+    assert_eq!(s.calibration, Some(calibration(7)));
+    assert_eq!(s.exposure_us, 300);
+    assert_eq!(h.take_store_request(), None, "asked once");
+    // Not while streaming (a flash erase stalls the bus for a second).
+    h.handle(cmd(3, start(0b001, LaserPattern::Simultaneous)), 0, &cam, &mut |_| {});
+    h.handle(cmd(4, HostMsg::SetExposure(200)), 0, &cam, &mut |_| {});
+    assert_eq!(h.take_store_request(), None);
+    h.handle(cmd(5, HostMsg::Stop), 0, &cam, &mut |_| {});
+    assert_eq!(h.take_store_request().map(|s| s.exposure_us), Some(200));
+
+    // A fresh head restores it.
+    let (mut h2, _) = head();
+    h2.restore(&s, StoreHealth::Ok);
+    assert_eq!(h2.stored(), s);
+    assert_eq!(h2.info(&cam).calibration_id, 7);
+    assert_eq!(h2.info(&cam).store, StoreHealth::Ok);
+    assert_eq!(h2.take_store_request(), None, "restoring is not a change");
+    // A stored calibration the head refuses is reported and not used.
+    let (mut h3, _) = head();
+    let bad = Stored { calibration: Some(calibration(0)), ..s };
+    h3.restore(&bad, StoreHealth::Ok);
+    assert_eq!(h3.calibration(), None);
+    assert_eq!(h3.info(&cam).store, StoreHealth::Refused);
+    assert_eq!(h3.stored().exposure_us, 300, "the rest is used");
+}
+
+#[test]
+fn status_carries_cycles_dropped_rows_backlog_and_duty() {
+    let (mut h, l) = head();
+    let mut cam = Cam::watching(&l);
+    h.set_cpu_hz(480_000_000);
+    h.set_link_backlog(12_345);
+    cam.lost_rows = 17;
+    h.handle(cmd(1, start(0b111, LaserPattern::Simultaneous)), 0, &cam, &mut |_| {});
+    let mut clock = 0u64;
+    // 50 µs of processing per row, 480 rows per frame.
+    let mut ns = || {
+        clock += 480 * 50_000;
+        clock
+    };
+    let mut statuses = Vec::new();
+    for t in (0..=1_000_000u64).step_by(100_000) {
+        h.poll(t, &mut cam, &mut ns, &mut |m| {
+            if let DeviceMsg::Status(s) = m {
+                statuses.push(*s);
+            }
+        });
+    }
+    let s = statuses.last().expect("a status after 1 s");
+    assert_eq!(s.ns_per_row, 50_000);
+    assert_eq!(s.cycles_per_row, 24_000, "50 us at 480 MHz");
+    assert_eq!(s.dropped_rows, 17);
+    assert_eq!(s.link_backlog_bytes, 12_345);
+    assert_eq!(s.lasers_on, 0b111);
+    // 10 exposures of 200 µs in 1 s: 2 per mille.
+    assert_eq!(s.laser_duty_permille, 2);
 }

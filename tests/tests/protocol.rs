@@ -57,6 +57,7 @@ fn sample_info() -> DeviceInfo {
         bits: 12,
         detector: default_detector(),
         calibration_id: 0,
+        store: StoreHealth::Recovered,
     }
 }
 
@@ -78,6 +79,10 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
                 rows_per_s: 14_400,
                 dropped_frames: 0,
                 ns_per_row: 52_000,
+                cycles_per_row: 24_960,
+                dropped_rows: 3,
+                link_backlog_bytes: 4096,
+                laser_duty_permille: 6,
                 heartbeat_age_ms: 120,
                 fault: None,
             })),
@@ -122,6 +127,7 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
         ("capture", frame(&Command { seq: 6, msg: HostMsg::CaptureImage(0) })),
         ("info", frame(&Command { seq: 7, msg: HostMsg::GetInfo })),
         ("heartbeat", frame(&Command { seq: 8, msg: HostMsg::Heartbeat })),
+        ("trigger", frame(&Command { seq: 9, msg: HostMsg::SetTrigger(Trigger::Distance { every_um: 5000 }) })),
     ]
 }
 
@@ -130,7 +136,7 @@ fn goldens_match_the_reference_encoder() {
     let want = include_str!("../golden/frames.txt");
     let got: std::vec::Vec<_> = goldens().into_iter().map(|(name, bytes)| format!("{name}: {}", hex(&bytes))).collect();
     let want: std::vec::Vec<_> = want.lines().map(str::to_owned).collect();
-    assert_eq!(got.len(), 15, "one golden per message kind");
+    assert_eq!(got.len(), 16, "one golden per message kind");
     for (g, w) in got.iter().zip(&want) {
         assert_eq!(g, w);
     }
@@ -144,7 +150,7 @@ fn goldens_decode_back() {
         assert!(!bytes.contains(&0), "{name}: no zero inside a COBS frame");
         let ok = if matches!(
             name,
-            "start" | "stop" | "exposure" | "detector" | "calibration" | "capture" | "info" | "heartbeat"
+            "start" | "stop" | "exposure" | "detector" | "calibration" | "capture" | "info" | "heartbeat" | "trigger"
         ) {
             decode_frame::<Command>(&mut bytes).is_ok()
         } else {
@@ -217,7 +223,8 @@ fn encoded_sizes_are_bounded() {
     det.threshold_sigma_q8 = u16::MAX;
     det.saturation = u16::MAX;
     let det = Command { seq: u16::MAX, msg: HostMsg::SetDetector(det) };
-    for c in [cal, det, Command { seq: u16::MAX, msg: HostMsg::SetExposure(u32::MAX) }] {
+    let trig = Command { seq: u16::MAX, msg: HostMsg::SetTrigger(Trigger::Distance { every_um: u32::MAX }) };
+    for c in [cal, det, trig, Command { seq: u16::MAX, msg: HostMsg::SetExposure(u32::MAX) }] {
         let len = frame(&c).len();
         assert!(len <= MAX_COMMAND_FRAME, "{c:?}: {len}");
     }
@@ -325,13 +332,14 @@ proptest! {
     }
 
     #[test]
-    fn commands_round_trip(seq in any::<u16>(), rate in any::<u16>(), mask in any::<u8>(), exp in any::<u32>(), which in 0u8..6) {
+    fn commands_round_trip(seq in any::<u16>(), rate in any::<u16>(), mask in any::<u8>(), exp in any::<u32>(), which in 0u8..7) {
         let msg = match which {
             0 => HostMsg::Start(Start { rate_hz: rate, laser_mask: mask, pattern: LaserPattern::Simultaneous }),
             1 => HostMsg::SetExposure(exp),
             2 => HostMsg::CaptureImage(mask),
             3 => HostMsg::Stop,
             4 => HostMsg::Heartbeat,
+            5 => HostMsg::SetTrigger(if exp % 2 == 0 { Trigger::Timed } else { Trigger::Distance { every_um: exp } }),
             _ => HostMsg::GetInfo,
         };
         let c = Command { seq, msg };

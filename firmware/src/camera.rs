@@ -1,0 +1,371 @@
+//! The MT9V034 on the DCMI: I²C configuration, snapshot exposures, and
+//! continuous capture of each frame into a small circular DMA buffer so that
+//! every row is detected while the next ones arrive — no frame buffer.
+//!
+//! # Capture
+//! embassy-stm32 0.6's DCMI driver is snapshot-only (one DMA transfer of at
+//! most 65 535 words, no per-line progress), so it is used only to configure
+//! the pins, the clock and DCMI_CR; the DMA is driven through the PAC:
+//! DMA2 stream 1, request 75 (DCMI) through DMAMUX1 channel 9, 32-bit
+//! peripheral-to-memory, **circular** over [`RING_ROWS`] rows in AXI SRAM
+//! (DMA1/2 cannot reach DTCM), half- and full-transfer interrupts counting
+//! half-rings. The number of words written since the frame began is then
+//! `halves × half + (words into the current half)`, read under a critical
+//! section that services a pending flag first, so it is exact. Row `r` of
+//! the frame sits in ring slot `r mod RING_ROWS`; it is copied out (atomic
+//! word loads: the DMA writes behind the compiler's back, the D-cache is off)
+//! and checked again afterwards: if the DMA has meanwhile overwritten it, the
+//! row is counted as dropped and given to the detector as zeros.
+//!
+//! # Exposure and strobe
+//! The sensor runs in snapshot mode: [`Mt9v034::expose`] restarts the ring,
+//! arms one DCMI capture, raises EXPOSURE (integration starts on the edge and
+//! lasts the shutter width), busy-waits that long with the lasers lit by the
+//! head, and returns; the head switches the lasers off before reading rows.
+//! LED_OUT of the sensor is high exactly during integration: wire it into
+//! the laser drivers' enable AND gate so the hardware enforces the strobe too.
+//!
+//! # Pixel format
+//! 8-bit DCMI on D9..D2 of the sensor's 10-bit ADC: 8 bits per pixel, one
+//! byte each, four pixels per DMA word (first pixel in the low byte).
+
+use core::cell::Cell;
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+
+use cms_core::odometer::Odometer;
+use cms_core::pipeline::Camera;
+use embassy_stm32::dcmi::Dcmi;
+use embassy_stm32::gpio::Output;
+use embassy_stm32::i2c::{I2c, Master};
+use embassy_stm32::mode::Blocking;
+use embassy_stm32::pac;
+use embassy_stm32::pac::dma::vals::{Dir, Dmdis, Fth, Pl, Size};
+use embassy_stm32::peripherals::{DCMI, TIM5};
+use embassy_stm32::timer::qei::Qei;
+
+use crate::board;
+
+/// Rows in the circular DMA buffer.
+pub const RING_ROWS: usize = 8;
+/// 32-bit words per row (4 pixels per word).
+pub const ROW_WORDS: usize = board::WIDTH / 4;
+/// Words in the ring.
+pub const RING_WORDS: usize = RING_ROWS * ROW_WORDS;
+const HALF_WORDS: u32 = (RING_WORDS / 2) as u32;
+/// DMA2 stream used for the ring, and its DMAMUX1 channel (DMA2 streams are
+/// channels 8..15).
+const STREAM: usize = 1;
+const DMAMUX_CHANNEL: usize = 8 + STREAM;
+/// DMAMUX1 request line of the DCMI (RM0433, table "DMAMUX1 requests").
+const DCMI_REQUEST: u8 = 75;
+/// Longest wait for one row, µs (a frame takes 15 ms to read out).
+const ROW_TIMEOUT_US: u32 = 50_000;
+
+/// The ring. AtomicU32 so that reads are never elided or merged while the DMA
+/// writes; on a Cortex-M7 a relaxed load is a plain `ldr`.
+static RING: [AtomicU32; RING_WORDS] = [const { AtomicU32::new(0) }; RING_WORDS];
+/// Half-rings completed since the ring was (re)started.
+static HALVES: AtomicU32 = AtomicU32::new(0);
+/// A DMA transfer error happened.
+static DMA_ERROR: AtomicBool = AtomicBool::new(false);
+
+/// Handler of the ring's DMA interrupt (bound in `main.rs`).
+pub struct RingInterrupt;
+
+impl embassy_stm32::interrupt::typelevel::Handler<embassy_stm32::interrupt::typelevel::DMA2_STREAM1> for RingInterrupt {
+    unsafe fn on_interrupt() {
+        service_ring();
+    }
+}
+
+/// Counts completed half-rings and clears their flags (interrupt, or a
+/// reader with interrupts off).
+fn service_ring() {
+    let isr = pac::DMA2.isr(0).read();
+    let mut halves = 0;
+    if isr.htif(STREAM) {
+        halves += 1;
+    }
+    if isr.tcif(STREAM) {
+        halves += 1;
+    }
+    if isr.teif(STREAM) {
+        DMA_ERROR.store(true, Ordering::Relaxed);
+    }
+    pac::DMA2.ifcr(0).write(|w| {
+        w.set_htif(STREAM, isr.htif(STREAM));
+        w.set_tcif(STREAM, isr.tcif(STREAM));
+        w.set_teif(STREAM, isr.teif(STREAM));
+    });
+    if halves > 0 {
+        HALVES.fetch_add(halves, Ordering::Relaxed);
+    }
+}
+
+/// Words the DMA has written since the ring started.
+fn words_written() -> u32 {
+    critical_section::with(|_| {
+        loop {
+            service_ring();
+            let ndtr = pac::DMA2.st(STREAM).ndtr().read().ndt() as u32;
+            let isr = pac::DMA2.isr(0).read();
+            if isr.htif(STREAM) || isr.tcif(STREAM) {
+                continue; // a half completed between the two reads: count it first
+            }
+            let halves = HALVES.load(Ordering::Relaxed);
+            let offset = RING_WORDS as u32 - ndtr.min(RING_WORDS as u32);
+            let in_half = offset.saturating_sub((halves % 2) * HALF_WORDS).min(HALF_WORDS);
+            return halves * HALF_WORDS + in_half;
+        }
+    })
+}
+
+/// Stops the stream, then restarts it at the beginning of the ring.
+fn restart_ring() {
+    let st = pac::DMA2.st(STREAM);
+    st.cr().modify(|w| w.set_en(false));
+    while st.cr().read().en() {}
+    pac::DMA2.ifcr(0).write(|w| {
+        w.set_htif(STREAM, true);
+        w.set_tcif(STREAM, true);
+        w.set_teif(STREAM, true);
+        w.set_dmeif(STREAM, true);
+        w.set_feif(STREAM, true);
+    });
+    HALVES.store(0, Ordering::Relaxed);
+    DMA_ERROR.store(false, Ordering::Relaxed);
+    pac::DMAMUX1.ccr(DMAMUX_CHANNEL).write(|w| w.set_dmareq_id(DCMI_REQUEST));
+    st.par().write_value(pac::DCMI.dr().as_ptr() as u32);
+    st.m0ar().write_value(RING.as_ptr() as u32);
+    st.ndtr().write(|w| w.set_ndt(RING_WORDS as u16));
+    st.fcr().write(|w| {
+        w.set_dmdis(Dmdis::DISABLED);
+        w.set_fth(Fth::HALF);
+    });
+    st.cr().write(|w| {
+        w.set_dir(Dir::PERIPHERAL_TO_MEMORY);
+        w.set_circ(true);
+        w.set_minc(true);
+        w.set_psize(Size::BITS32);
+        w.set_msize(Size::BITS32);
+        w.set_pl(Pl::VERY_HIGH);
+        w.set_htie(true);
+        w.set_tcie(true);
+        w.set_teie(true);
+        w.set_en(true);
+    });
+}
+
+/// MT9V034 registers used here (data sheet register reference).
+mod reg {
+    pub const CHIP_VERSION: u8 = 0x00;
+    pub const COL_START: u8 = 0x01;
+    pub const ROW_START: u8 = 0x02;
+    pub const WINDOW_HEIGHT: u8 = 0x03;
+    pub const WINDOW_WIDTH: u8 = 0x04;
+    pub const HBLANK: u8 = 0x05;
+    pub const VBLANK: u8 = 0x06;
+    pub const CHIP_CONTROL: u8 = 0x07;
+    pub const SHUTTER_WIDTH_A: u8 = 0x0B;
+    pub const RESET: u8 = 0x0C;
+    pub const ADC_MODE: u8 = 0x1C;
+    pub const ANALOG_GAIN_A: u8 = 0x35;
+    pub const AEC_AGC_ENABLE: u8 = 0xAF;
+    /// The MT9V034's CHIP_VERSION.
+    pub const MT9V034: u16 = 0x1324;
+}
+
+/// Why the camera failed.
+#[derive(Clone, Copy, Debug, defmt::Format)]
+pub enum CameraError {
+    /// I²C transfer failed (no sensor, bus stuck).
+    I2c,
+    /// The sensor is not an MT9V034 (CHIP_VERSION read).
+    WrongChip(u16),
+    /// No row within the timeout (no pixel clock, no VSYNC).
+    Timeout,
+    /// DMA transfer error or DCMI overrun.
+    Transfer,
+    /// `read_row` without an exposure, or past the last row.
+    NoFrame,
+}
+
+/// The sensor and its capture path.
+pub struct Mt9v034 {
+    i2c: I2c<'static, Blocking, Master>,
+    _dcmi: Dcmi<'static, DCMI>,
+    exposure_pin: Output<'static>,
+    qei: Qei<'static, TIM5>,
+    odometer: Cell<Odometer>,
+    shutter_rows: u16,
+    next_row: Option<usize>,
+    dropped_rows: u32,
+    cycles_per_us: u32,
+}
+
+impl Mt9v034 {
+    /// Checks the chip, configures it (full 752 × 480 window, snapshot mode,
+    /// manual exposure and gain, linear 10-bit ADC) and the odometer.
+    pub fn new(
+        i2c: I2c<'static, Blocking, Master>,
+        dcmi: Dcmi<'static, DCMI>,
+        exposure_pin: Output<'static>,
+        qei: Qei<'static, TIM5>,
+        sysclk_hz: u32,
+    ) -> Result<Self, CameraError> {
+        let odometer = Odometer::new(16, qei.count() as u32, board::ENCODER_NM_PER_COUNT, board::ENCODER_REVERSE)
+            .map_err(|_| CameraError::NoFrame)?;
+        let mut cam = Mt9v034 {
+            i2c,
+            _dcmi: dcmi,
+            exposure_pin,
+            qei,
+            odometer: Cell::new(odometer),
+            shutter_rows: 0,
+            next_row: None,
+            dropped_rows: 0,
+            cycles_per_us: sysclk_hz / 1_000_000,
+        };
+        let id = cam.read(reg::CHIP_VERSION)?;
+        if id != reg::MT9V034 {
+            return Err(CameraError::WrongChip(id));
+        }
+        cam.write(reg::RESET, 0x0001)?; // soft reset of the digital logic
+        cam.write(reg::RESET, 0x0000)?;
+        for (r, v) in [
+            (reg::COL_START, 1),
+            (reg::ROW_START, 4),
+            (reg::WINDOW_HEIGHT, board::HEIGHT as u16),
+            (reg::WINDOW_WIDTH, board::WIDTH as u16),
+            (reg::HBLANK, board::HBLANK as u16),
+            (reg::VBLANK, 45),
+            // Progressive scan, snapshot mode (bits 4:3 = 3), parallel output
+            // on, simultaneous integration and readout.
+            (reg::CHIP_CONTROL, 0x0398),
+            (reg::AEC_AGC_ENABLE, 0x0000), // manual exposure and gain: the detector's noise model needs them fixed
+            (reg::ADC_MODE, 0x0302),       // linear 10-bit ADC, context A and B
+            (reg::ANALOG_GAIN_A, 16),      // 1×
+        ] {
+            cam.write(r, v)?;
+        }
+        cam.set_exposure(200)?;
+        Ok(cam)
+    }
+
+    fn write(&mut self, r: u8, v: u16) -> Result<(), CameraError> {
+        let [hi, lo] = v.to_be_bytes();
+        self.i2c.blocking_write(board::SENSOR_I2C_ADDR, &[r, hi, lo]).map_err(|_| CameraError::I2c)
+    }
+
+    fn read(&mut self, r: u8) -> Result<u16, CameraError> {
+        let mut b = [0u8; 2];
+        self.i2c.blocking_write_read(board::SENSOR_I2C_ADDR, &[r], &mut b).map_err(|_| CameraError::I2c)?;
+        Ok(u16::from_be_bytes(b))
+    }
+
+    /// Shutter width in rows for `exposure_us` (rounded up, at least one).
+    fn set_exposure(&mut self, exposure_us: u32) -> Result<(), CameraError> {
+        let rows = (exposure_us as u64 * 1000).div_ceil(board::ROW_TIME_NS as u64).clamp(1, 32_765) as u16;
+        if rows != self.shutter_rows {
+            self.write(reg::SHUTTER_WIDTH_A, rows)?;
+            self.shutter_rows = rows;
+        }
+        Ok(())
+    }
+
+    /// Exposure actually used, µs (whole rows).
+    pub fn exposure_ns(&self) -> u32 {
+        self.shutter_rows as u32 * board::ROW_TIME_NS
+    }
+
+    fn elapsed_us(&self, since: u32) -> u32 {
+        cortex_m::peripheral::DWT::cycle_count().wrapping_sub(since) / self.cycles_per_us
+    }
+}
+
+impl Camera for Mt9v034 {
+    type Error = CameraError;
+
+    fn width(&self) -> u16 {
+        board::WIDTH as u16
+    }
+
+    fn height(&self) -> u16 {
+        board::HEIGHT as u16
+    }
+
+    fn bits(&self) -> u8 {
+        board::BITS
+    }
+
+    fn expose(&mut self, exposure_us: u32, _laser_mask: u8) -> Result<i64, CameraError> {
+        self.set_exposure(exposure_us)?;
+        let odometer_um = self.odometer_um().unwrap_or(0);
+        // Ring from its start, then one DCMI capture (snapshot mode: the next
+        // frame after VSYNC, then CAPTURE clears itself).
+        restart_ring();
+        pac::DCMI.icr().write(|w| {
+            w.set_ovr_isc(true);
+            w.set_err_isc(true);
+            w.set_frame_isc(true);
+        });
+        pac::DCMI.cr().modify(|w| {
+            w.set_enable(true);
+            w.set_capture(true);
+        });
+        // Integration starts on EXPOSURE's rising edge and lasts the shutter
+        // width; the lasers (lit by the head) stay on for exactly that long.
+        self.exposure_pin.set_high();
+        cortex_m::asm::delay(self.exposure_ns() / 1000 * self.cycles_per_us);
+        self.exposure_pin.set_low();
+        self.next_row = Some(0);
+        Ok(odometer_um)
+    }
+
+    fn read_row(&mut self, row: &mut [u16]) -> Result<(), CameraError> {
+        let r = self.next_row.ok_or(CameraError::NoFrame)?;
+        if r >= board::HEIGHT {
+            self.next_row = None;
+            return Err(CameraError::NoFrame);
+        }
+        let need = ((r + 1) * ROW_WORDS) as u32;
+        let start = cortex_m::peripheral::DWT::cycle_count();
+        while words_written() < need {
+            let ris = pac::DCMI.ris().read();
+            if DMA_ERROR.load(Ordering::Relaxed) || ris.ovr_ris() || ris.err_ris() {
+                self.next_row = None;
+                return Err(CameraError::Transfer);
+            }
+            if self.elapsed_us(start) > ROW_TIMEOUT_US {
+                self.next_row = None;
+                return Err(CameraError::Timeout);
+            }
+        }
+        let base = (r % RING_ROWS) * ROW_WORDS;
+        for (k, px) in row.chunks_exact_mut(4).enumerate().take(ROW_WORDS) {
+            let w = RING[base + k].load(Ordering::Relaxed).to_le_bytes();
+            for (p, b) in px.iter_mut().zip(w) {
+                *p = b as u16;
+            }
+        }
+        // Overwritten while (or before) we copied it: the DMA is RING_ROWS
+        // rows ahead. Lost, counted, and blank for the detector.
+        if words_written() > ((r + RING_ROWS) * ROW_WORDS) as u32 {
+            self.dropped_rows = self.dropped_rows.wrapping_add(1);
+            row.fill(0);
+        }
+        self.next_row = Some(r + 1);
+        Ok(())
+    }
+
+    fn odometer_um(&self) -> Option<i64> {
+        let mut o = self.odometer.get();
+        let d = o.update(self.qei.count() as u32);
+        self.odometer.set(o);
+        Some(d)
+    }
+
+    fn dropped_rows(&self) -> u32 {
+        self.dropped_rows
+    }
+}
