@@ -8,6 +8,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use cms_host::analyze;
 use cms_host::calib;
+use cms_host::capture;
 use cms_host::detect;
 use cms_host::fit;
 use cms_host::simulate;
@@ -50,6 +51,8 @@ enum Command {
     Fit(fit::FitArgs),
     /// Stitch a recording along the track; EN 13231-3 bands, EN 15610 roughness; --report DIR.
     Analyze(analyze::AnalyzeArgs),
+    /// One full frame from a sensor head (or `sim`) as a PNG: what the sensor sees.
+    Capture(capture::CaptureArgs),
     /// Camera and laser-plane calibration; upload to a head.
     #[command(subcommand)]
     Calibrate(calib::CalibrateCmd),
@@ -97,6 +100,10 @@ fn main() -> ExitCode {
             Err(e) => e.report(),
         },
         Command::Analyze(args) => match analyze::run(&args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => e.report(),
+        },
+        Command::Capture(args) => match capture::run(&args) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => e.report(),
         },

@@ -341,6 +341,24 @@ impl Outbox {
             return;
         };
         let cap = if profile { self.cap } else { 4 * self.cap };
+        // An image capture answers an explicit command and is larger than
+        // the queue (a 12-bit frame is 0.7 MB): its chunks wait for the
+        // reader (up to 5 s of no progress) instead of being dropped.
+        if matches!(msg, DeviceMsg::RawRows(_)) {
+            let mut last = self.shared.queued.load(Ordering::Acquire);
+            let mut since = std::time::Instant::now();
+            while self.shared.queued.load(Ordering::Acquire) + bytes.len() > cap
+                && since.elapsed() < std::time::Duration::from_secs(5)
+                && self.shared.error.lock().is_ok_and(|e| e.is_none())
+            {
+                std::thread::sleep(std::time::Duration::from_millis(1));
+                let now = self.shared.queued.load(Ordering::Acquire);
+                if now < last {
+                    since = std::time::Instant::now();
+                }
+                last = now;
+            }
+        }
         let queued = self.shared.queued.load(Ordering::Acquire);
         let sent = queued + bytes.len() <= cap
             && self.tx.as_ref().is_some_and(|tx| {

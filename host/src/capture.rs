@@ -1,0 +1,286 @@
+//! `cms-host capture PORT --out frame.png`: one full frame from a sensor head
+//! as the sensor sees it (for calibration and for diagnosing a site).
+//!
+//! The exchange: `GetInfo` → `Hello` (protocol and image size), optionally
+//! `SetExposure`, then `CaptureImage(lasers)` → `Ack` and the frame as
+//! `RawRows` chunks of the capture's sequence number, until every byte of
+//! every row has arrived. The head lights the chosen lasers for that one
+//! exposure only (and refuses while streaming: stop first).
+//!
+//! The PNG is 8-bit grey for an 8-bit sensor; deeper pixels are written as
+//! 16-bit grey shifted left to fill 16 bits (`v << (16 − bits)`: exact and
+//! reversible, and viewers show it at the right brightness).
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use cms_core::protocol::{DeviceInfo, DeviceMsg, HostMsg, LASERS, PROTOCOL_VERSION, RawRows};
+
+use crate::CliError;
+use crate::link::{Deframer, Link};
+use crate::simulate::{self, SimPortArgs};
+
+/// Longest silence from the head before the capture is abandoned.
+const SILENCE: Duration = Duration::from_secs(3);
+
+/// Arguments of `capture`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct CaptureArgs {
+    /// Serial port of the head (`/dev/ttyACM0`), or `sim` for the simulated head.
+    #[arg(value_name = "PORT")]
+    pub port: String,
+    /// Where to write the image (PNG).
+    #[arg(long, value_name = "FILE.png")]
+    pub out: PathBuf,
+    /// Lasers lit during the exposure, as a bit mask (0 = none, 7 = all three).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u8).range(0..(1 << LASERS)))]
+    pub lasers: u8,
+    /// Exposure, µs (default: the head's own).
+    #[arg(long, value_name = "US")]
+    pub exposure: Option<u32>,
+    /// Baud rate (ignored by USB CDC heads).
+    #[arg(long, default_value_t = 115_200)]
+    pub baud: u32,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub sim: SimPortArgs,
+}
+
+/// A captured frame.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Frame {
+    /// Width, px.
+    pub width: u32,
+    /// Height, px.
+    pub height: u32,
+    /// Bits per pixel.
+    pub bits: u8,
+    /// Row-major pixels.
+    pub pixels: Vec<u16>,
+}
+
+/// Runs `capture`.
+pub fn run(args: &CaptureArgs) -> Result<(), CliError> {
+    if args.out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() != Some("png") {
+        return Err(CliError::Usage(format!(
+            "--out {}: the image is written as PNG; name it *.png",
+            args.out.display()
+        )));
+    }
+    let frame = simulate::with_port(&args.port, &args.sim, |port| capture(port, args))
+        .map_err(|e| CliError::Usage(e.to_string()))??;
+    save_png(&frame, &args.out)?;
+    println!(
+        "{}: {}×{} px, {} bit, lasers {:#05b}",
+        args.out.display(),
+        frame.width,
+        frame.height,
+        frame.bits,
+        args.lasers
+    );
+    Ok(())
+}
+
+/// Writes the frame as PNG (see the module docs for the bit depth).
+pub fn save_png(frame: &Frame, path: &std::path::Path) -> Result<(), CliError> {
+    let err = |e: image::ImageError| CliError::Usage(format!("{}: {e}", path.display()));
+    if frame.bits <= 8 {
+        let data = frame.pixels.iter().map(|&p| p as u8).collect();
+        let img = image::GrayImage::from_raw(frame.width, frame.height, data).expect("size checked when assembled");
+        img.save(path).map_err(err)
+    } else {
+        let shift = 16 - u32::from(frame.bits.min(16));
+        let data = frame.pixels.iter().map(|&p| p << shift).collect();
+        let img = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(frame.width, frame.height, data)
+            .expect("size checked when assembled");
+        img.save(path).map_err(err)
+    }
+}
+
+struct Session {
+    link: Link,
+    frames: Deframer,
+    buf: Vec<u8>,
+    seq: u16,
+}
+
+impl Session {
+    fn send(&mut self, msg: HostMsg) -> Result<u16, CliError> {
+        self.seq = self.seq.wrapping_add(1).max(1);
+        match self.link.send(self.seq, msg) {
+            Ok(true) => Ok(self.seq),
+            Ok(false) => Err(CliError::Usage(format!("{}: the head does not read its commands", self.link.path()))),
+            Err(e) => Err(CliError::Usage(e.to_string())),
+        }
+    }
+
+    /// Feeds what arrives to `take` until it returns `Some` or the head has
+    /// been silent for [`SILENCE`]; every message is offered.
+    fn until<T>(
+        &mut self,
+        what: &str,
+        mut take: impl FnMut(DeviceMsg) -> Result<Option<T>, CliError>,
+    ) -> Result<T, CliError> {
+        let mut heard = Instant::now();
+        loop {
+            let n = self.link.read(&mut self.buf).map_err(|e| CliError::Usage(e.to_string()))?;
+            if n > 0 {
+                heard = Instant::now();
+            } else if heard.elapsed() > SILENCE {
+                return Err(CliError::Usage(format!(
+                    "{}: no answer to {what} within {} s",
+                    self.link.path(),
+                    SILENCE.as_secs()
+                )));
+            }
+            let mut out = Ok(None);
+            self.frames.feed(&self.buf[..n], |r, _| {
+                if let (Ok(None), Ok(m)) = (&out, r) {
+                    out = take(m);
+                }
+            });
+            if let Some(v) = out? {
+                return Ok(v);
+            }
+        }
+    }
+}
+
+/// The conversation on an open port.
+fn capture(port: &str, args: &CaptureArgs) -> Result<Frame, CliError> {
+    let link = Link::open(port, args.baud).map_err(|e| CliError::Usage(e.to_string()))?;
+    let mut s = Session { link, frames: Deframer::new(), buf: vec![0; 64 * 1024], seq: 0 };
+    s.send(HostMsg::GetInfo)?;
+    let info: DeviceInfo = s.until("GetInfo", |m| Ok(if let DeviceMsg::Hello(i) = m { Some(i) } else { None }))?;
+    if info.protocol != PROTOCOL_VERSION {
+        return Err(CliError::Usage(format!(
+            "the head on {port} speaks protocol version {}; this cms-host speaks {PROTOCOL_VERSION}",
+            info.protocol
+        )));
+    }
+    if let Some(us) = args.exposure {
+        let seq = s.send(HostMsg::SetExposure(us))?;
+        s.until("SetExposure", |m| answer(m, seq, "--exposure"))?;
+    }
+    let seq = s.send(HostMsg::CaptureImage(args.lasers))?;
+    s.until("CaptureImage", |m| answer(m, seq, "the capture"))?;
+    let mut asm = Assembly::new(&info);
+    s.until("the image data", |m| match m {
+        DeviceMsg::RawRows(r) if r.capture == seq => asm.add(&r).map(|done| done.then_some(())),
+        DeviceMsg::Error { seq: Some(q), code } if q == seq => {
+            Err(CliError::Usage(format!("{port}: the capture failed: {code}")))
+        }
+        _ => Ok(None),
+    })?;
+    Ok(asm.frame)
+}
+
+/// An `Ack` of `seq` → done; its `Error` → the refusal in words.
+fn answer(m: DeviceMsg, seq: u16, what: &str) -> Result<Option<()>, CliError> {
+    match m {
+        DeviceMsg::Ack(q) if q == seq => Ok(Some(())),
+        DeviceMsg::Error { seq: Some(q), code } if q == seq => {
+            Err(CliError::Usage(format!("the head refused {what}: {code}")))
+        }
+        _ => Ok(None),
+    }
+}
+
+/// A frame being put together from chunks (which may come in any order).
+struct Assembly {
+    frame: Frame,
+    bpp: usize,
+    got: Vec<bool>,
+    missing: usize,
+}
+
+impl Assembly {
+    fn new(info: &DeviceInfo) -> Assembly {
+        let (w, h) = (u32::from(info.sensor_width), u32::from(info.sensor_height));
+        let bpp = if info.bits > 8 { 2 } else { 1 };
+        let bytes = w as usize * h as usize * bpp;
+        Assembly {
+            frame: Frame { width: w, height: h, bits: info.bits, pixels: vec![0; w as usize * h as usize] },
+            bpp,
+            got: vec![false; bytes],
+            missing: bytes,
+        }
+    }
+
+    /// Takes one chunk; `Ok(true)` once every byte has arrived.
+    fn add(&mut self, r: &RawRows) -> Result<bool, CliError> {
+        let f = &mut self.frame;
+        if (u32::from(r.width), u32::from(r.height), r.bits) != (f.width, f.height, f.bits) {
+            return Err(CliError::Usage(format!(
+                "the head sent a {}×{} {}-bit chunk for a {}×{} {}-bit sensor",
+                r.width, r.height, r.bits, f.width, f.height, f.bits
+            )));
+        }
+        let row_bytes = f.width as usize * self.bpp;
+        let start = r.first_row as usize * row_bytes + r.offset as usize;
+        let end = start + r.data.len();
+        if end > self.got.len() || !start.is_multiple_of(self.bpp) || !r.data.len().is_multiple_of(self.bpp) {
+            return Err(CliError::Usage(format!(
+                "the head sent a chunk outside the image (row {}, offset {}, {} bytes)",
+                r.first_row,
+                r.offset,
+                r.data.len()
+            )));
+        }
+        for (i, px) in r.data.chunks_exact(self.bpp).enumerate() {
+            let k = start / self.bpp + i;
+            f.pixels[k] = if self.bpp == 2 { u16::from_le_bytes([px[0], px[1]]) } else { u16::from(px[0]) };
+        }
+        for g in &mut self.got[start..end] {
+            if !*g {
+                *g = true;
+                self.missing -= 1;
+            }
+        }
+        Ok(self.missing == 0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use cms_core::pipeline::default_detector;
+
+    fn info(w: u16, h: u16, bits: u8) -> DeviceInfo {
+        DeviceInfo {
+            firmware: heapless::String::new(),
+            protocol: PROTOCOL_VERSION,
+            board: heapless::String::new(),
+            sensor_width: w,
+            sensor_height: h,
+            bits,
+            detector: default_detector(),
+            calibration_id: 0,
+            store: cms_core::protocol::StoreHealth::Volatile,
+        }
+    }
+
+    fn chunk(first_row: u16, offset: u32, data: &[u8]) -> RawRows {
+        RawRows {
+            capture: 1,
+            first_row,
+            offset,
+            width: 3,
+            height: 2,
+            bits: 12,
+            data: heapless::Vec::from_slice(data).unwrap(),
+        }
+    }
+
+    #[test]
+    fn chunks_in_any_order_fill_the_frame_once() {
+        let mut a = Assembly::new(&info(3, 2, 12));
+        assert!(!a.add(&chunk(1, 0, &[1, 0, 2, 0, 3, 0])).unwrap());
+        assert!(!a.add(&chunk(0, 2, &[5, 0, 6, 0])).unwrap());
+        assert!(!a.add(&chunk(0, 2, &[5, 0, 6, 0])).unwrap(), "a repeat does not complete it");
+        assert!(a.add(&chunk(0, 0, &[0xff, 0x0f])).unwrap());
+        assert_eq!(a.frame.pixels, vec![4095, 5, 6, 1, 2, 3]);
+        assert!(a.add(&chunk(1, 4, &[0, 0, 0, 0])).is_err(), "past the end");
+        assert!(a.add(&chunk(0, 1, &[0, 0])).is_err(), "half a pixel");
+    }
+}
