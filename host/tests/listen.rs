@@ -544,7 +544,7 @@ fn survives_garbage_flips_truncation_and_replug() {
         .lasers
         .iter()
         .filter(|(t, m)| *t > heard && *t < replugged && *m != 0)
-        .last()
+        .next_back()
         .expect("the head kept strobing after the unplug until the timeout");
     let dt = last_on.0.duration_since(heard);
     assert!(
