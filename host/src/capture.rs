@@ -21,7 +21,7 @@ use crate::link::{Deframer, Link};
 use crate::simulate::{self, SimPortArgs};
 
 /// Longest silence from the head before the capture is abandoned.
-const SILENCE: Duration = Duration::from_secs(3);
+const SILENCE: Duration = Duration::from_secs(10);
 
 /// Arguments of `capture`.
 #[derive(clap::Args, Debug, Clone)]

@@ -543,8 +543,7 @@ fn survives_garbage_flips_truncation_and_replug() {
     let last_on = rep
         .lasers
         .iter()
-        .filter(|(t, m)| *t > heard && *t < replugged && *m != 0)
-        .next_back()
+        .rfind(|(t, m)| *t > heard && *t < replugged && *m != 0)
         .expect("the head kept strobing after the unplug until the timeout");
     let dt = last_on.0.duration_since(heard);
     assert!(

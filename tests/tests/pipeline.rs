@@ -612,3 +612,34 @@ fn status_carries_cycles_dropped_rows_backlog_and_duty() {
     // 10 exposures of 200 µs in 1 s: 2 per mille.
     assert_eq!(s.laser_duty_permille, 2);
 }
+
+/// The link budget's input: the encoded size of one full 752 × 480 frame of
+/// three stripes, uncalibrated and calibrated (`--nocapture` prints it; the
+/// firmware README's link budget quotes it).
+#[test]
+fn encoded_frame_sizes_for_the_link_budget() {
+    let mut sizes = Vec::new();
+    for calibrated in [false, true] {
+        let (mut h, _l) = head();
+        let mut cam = Cam::new();
+        if calibrated {
+            h.handle(cmd(1, HostMsg::SetCalibration(calibration(9))), 0, &cam, &mut |_| {});
+        }
+        h.handle(cmd(2, start(0b111, LaserPattern::Simultaneous)), 0, &cam, &mut |_| {});
+        let (mut bytes, mut points) = (0usize, 0usize);
+        let (mut scratch, mut out) = (vec![0u8; MAX_FRAME], vec![0u8; MAX_FRAME]);
+        h.poll(0, &mut cam, &mut || 0, &mut |m| {
+            if let DeviceMsg::Profile(p) = m {
+                bytes += encode(m, &mut scratch, &mut out).unwrap().len();
+                points += p.lasers.iter().map(|l| l.points.len()).sum::<usize>();
+            }
+        });
+        assert_eq!(points, 3 * 480);
+        println!("calibrated {calibrated}: {bytes} bytes per frame, {:.1} per point", bytes as f64 / points as f64);
+        sizes.push(bytes);
+    }
+    // Between the smallest possible point (row < 128 … 8 bytes) and the
+    // proven maximum (28 bytes); calibration adds the two metric varints.
+    assert!(sizes[0] > 1440 * 8 && sizes[1] < 1440 * 28 + 100, "{sizes:?}");
+    assert!(sizes[1] > sizes[0] + 1440 * 4, "{sizes:?}");
+}
