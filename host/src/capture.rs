@@ -163,12 +163,13 @@ fn capture(port: &str, args: &CaptureArgs) -> Result<Frame, CliError> {
         s.until("SetExposure", |m| answer(m, seq, "--exposure"))?;
     }
     let seq = s.send(HostMsg::CaptureImage(args.lasers))?;
-    s.until("CaptureImage", |m| answer(m, seq, "the capture"))?;
+    // The Ack and the first chunks may come in one read: one loop takes
+    // both (the Ack is implied by the data; a refusal is an Error).
     let mut asm = Assembly::new(&info);
     s.until("the image data", |m| match m {
         DeviceMsg::RawRows(r) if r.capture == seq => asm.add(&r).map(|done| done.then_some(())),
         DeviceMsg::Error { seq: Some(q), code } if q == seq => {
-            Err(CliError::Usage(format!("{port}: the capture failed: {code}")))
+            Err(CliError::Usage(format!("{port}: the head refused the capture: {code}")))
         }
         _ => Ok(None),
     })?;
