@@ -801,11 +801,40 @@ struct Refined {
     converged: bool,
 }
 
-/// Levenberg–Marquardt with Marquardt's scaling: steps that do not lower the
-/// residual are rejected (damping ×4), accepted ones relax it (÷3).
+/// Levenberg–Marquardt on the model of [`evaluate`].
 fn refine(x: &[f64], z: &[f64], p0: Params, fit_rotation: bool) -> Option<Refined> {
-    let skip = usize::from(!fit_rotation);
-    let (mut r, mut j) = evaluate(x, z, &p0, fit_rotation, true)?;
+    let free: Vec<usize> = (0..p0.0.len()).filter(|&i| fit_rotation || i != 1).collect();
+    levenberg_marquardt(p0.0, &free, |p| evaluate(x, z, &Params(p.to_vec()), fit_rotation, true)).map(|o| Refined {
+        p: Params(o.p),
+        rss: o.rss,
+        iterations: o.iterations,
+        converged: o.converged,
+    })
+}
+
+/// Outcome of [`levenberg_marquardt`].
+pub(crate) struct Lm {
+    /// The parameters.
+    pub p: Vec<f64>,
+    /// Residual sum of squares at `p`.
+    pub rss: f64,
+    /// Iterations made.
+    pub iterations: usize,
+    /// Whether the convergence test was met.
+    pub converged: bool,
+}
+
+/// Levenberg–Marquardt with Marquardt's scaling: steps that do not lower the
+/// residual are rejected (damping ×4), accepted ones relax it (÷3), so it
+/// cannot diverge. `eval(p)` returns the residuals and their Jacobian, whose
+/// column k is the derivative by `p[free[k]]` (the other parameters stay
+/// fixed); `None` where the model is undefined (the step is rejected).
+pub(crate) fn levenberg_marquardt(
+    p0: Vec<f64>,
+    free: &[usize],
+    eval: impl Fn(&[f64]) -> Option<(DVector<f64>, DMatrix<f64>)>,
+) -> Option<Lm> {
+    let (mut r, mut j) = eval(&p0)?;
     let mut p = p0;
     let mut rss = r.norm_squared();
     let mut mu = 1e-3;
@@ -824,17 +853,17 @@ fn refine(x: &[f64], z: &[f64], p0: Params, fit_rotation: bool) -> Option<Refine
         let delta = -chol.solve(&g);
         let mut trial = p.clone();
         for (k, d) in delta.iter().enumerate() {
-            trial.0[column_param(k, skip)] += d;
+            trial[free[k]] += d;
         }
-        let small = delta.iter().enumerate().all(|(k, d)| d.abs() <= 1e-11 * (p.0[column_param(k, skip)].abs() + 1e-9));
-        match evaluate(x, z, &trial, fit_rotation, true) {
+        let small = delta.iter().enumerate().all(|(k, d)| d.abs() <= 1e-11 * (p[free[k]].abs() + 1e-9));
+        match eval(&trial) {
             Some((r2, j2)) if r2.norm_squared() < rss => {
                 let new = r2.norm_squared();
                 let tiny = rss - new <= 1e-14 * rss;
                 (p, r, j, rss) = (trial, r2, j2, new);
                 mu = (mu / 3.0).max(1e-12);
                 if small || tiny {
-                    return Some(Refined { p, rss, iterations: it, converged: true });
+                    return Some(Lm { p, rss, iterations: it, converged: true });
                 }
             }
             _ => {
@@ -842,16 +871,16 @@ fn refine(x: &[f64], z: &[f64], p0: Params, fit_rotation: bool) -> Option<Refine
                 // step or gradient then means converged.
                 // (A small step under heavy damping proves nothing.)
                 if (small && mu <= 1.0) || g.norm() <= 1e-12 * (jtj.norm() * rss).sqrt() {
-                    return Some(Refined { p, rss, iterations: it, converged: true });
+                    return Some(Lm { p, rss, iterations: it, converged: true });
                 }
                 mu *= 4.0;
                 if mu > 1e20 {
-                    return Some(Refined { p, rss, iterations: it, converged: false });
+                    return Some(Lm { p, rss, iterations: it, converged: false });
                 }
             }
         }
     }
-    Some(Refined { p, rss, iterations: MAX_ITERATIONS, converged: false })
+    Some(Lm { p, rss, iterations: MAX_ITERATIONS, converged: false })
 }
 
 // ---------------------------------------------------------------------------

@@ -7,6 +7,7 @@
 //! * [`analyze`] — `cms-host analyze`: a recording stitched along the track and judged by the rail standards.
 //! * [`calib`] — `cms-host calibrate`: camera and laser-plane calibration, the calibration file, upload.
 //! * [`capture`] — `cms-host capture`: one full frame from a head as a PNG.
+//! * [`corrugation`] — the lines of one image together: head frame, surface normal (paper §2.2), joint sine fit.
 //! * [`detect`] — `cms-host detect`: laser-stripe positions of image rows as CSV.
 //! * [`fit`] — `cms-host fit`: IEEE 1057 and the paper's rotated sine fits of a profile.
 //! * [`input`] — reading grayscale PNG/TIFF images and CSV rows.
@@ -20,6 +21,7 @@
 pub mod analyze;
 pub mod calib;
 pub mod capture;
+pub mod corrugation;
 pub mod detect;
 pub mod fit;
 pub mod input;

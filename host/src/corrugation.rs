@@ -1,0 +1,587 @@
+//! The three laser lines of one image together: the head frame they share,
+//! the surface normal they give (paper §2.2), and the joint sine fit of the
+//! corrugation with a common wavelength.
+//!
+//! # Geometry
+//!
+//! The calibration gives each laser's profile frame (`cms_core::triangulation`:
+//! origin `O_k` on the datum, axis `a_k` along the line, `up` the datum
+//! normal), so a profile point `(along, height)` of laser k is the 3-D point
+//! `O_k + along·a_k + height/(up·w_k)·w_k`, `w_k = n_k × a_k` the direction
+//! of the laser plane across its line. [`HeadFrame`] writes every point in
+//! one frame for all lasers: `u` along the mean line direction, `v` across
+//! the rail, `h` the datum normal; the lines sit at their known lateral
+//! offsets (15 mm apart at the paper's geometry), and lines that are not
+//! parallel are handled point by point.
+//!
+//! # The surface normal (paper §2.2)
+//!
+//! A head that is not perpendicular to the rail (pitch, roll) measures
+//! heights along the wrong direction; one that is not parallel to it (yaw)
+//! cuts the corrugation obliquely, stretching the wavelength along each line
+//! by `1/cos ψ` (1.5 % at 10°, as the paper notes). One line only sees the
+//! pitch; three lines across the running band see the roll as well: the
+//! least-squares plane `h = c + p·u + q·v` through the points of all lines
+//! gives the local surface normal `n ∝ (−p, −q, 1)`. Every point is then
+//! written in the surface frame (`z` along `n`, `x` the head's along axis
+//! projected on the surface) — the profile "projected to the measurement
+//! plane through the rail's longitudinal axis and the surface normal". This
+//! matters beyond the tilt itself: the laser planes are inclined (α = 42°),
+//! so on a surface rolled by β a crest moves its line sideways onto higher or
+//! lower ground and the heights along one line scale by `1/(1 − tan β·tan α)`
+//! — 3 % at β = 2° — unless they are measured in the surface frame.
+//!
+//! # The joint fit
+//!
+//! In the surface frame every point i of line l satisfies
+//!
+//! ```text
+//! z = c_l + g_l·x + e·x² + a·sin(ω x + κ y_i) + b·cos(ω x + κ y_i)
+//! ```
+//!
+//! one plane wave across the running band: common wavenumber `k = √(ω² + κ²)`
+//! (λ = 2π/k), amplitude `√(a² + b²)` and phase, the yaw `ψ = atan2(κ, ω)` in
+//! the phase shift between lines (`κ·Δy`, from the known lateral offsets,
+//! point by point); per line an offset and a slope (the crown and roll left
+//! over, and what little of the corrugation leaked into the plane's pitch
+//! over a non-integer number of periods: a residual slope of 1e-3 as a shear
+//! instead of a rotation changes λ by 5e-7), and a common curvature `e` (a
+//! yawed line crosses the crowned rail head obliquely and sees the crown
+//! along it: `sin²ψ/R`). The amplitude is shared on purpose: the crown's
+//! lateral slope γ scales the outer lines' amplitudes by `1 ± tan γ·tan α` in
+//! opposite directions (the inclined laser plane again), which cancels to
+//! first order in the common amplitude; each line's own fit is reported
+//! beside it, so a rail whose corrugation really differs across the band
+//! shows up as disagreeing lines. Linear in all but ω and κ; refined by
+//! `fit`'s Levenberg–Marquardt from start values taken per line (a quadratic
+//! trend, then `fit`'s sine on what is left; κ from the lines' phases
+//! against their lateral positions). With one line κ is fixed at 0.
+//!
+//! Errors left: second order in the angles (ψ·θ·β products: about 1e-4 of
+//! the wavelength at 5°, 2°, 3°, measured in the tests) and in the crown
+//! slope (`(tan γ·tan α)²·2/3` of the amplitude, 1e-3 at the paper's lines
+//! ±15 mm on a 300 mm crown).
+//!
+//! **The corrected profile** of each line is then `(s, z − g_l x − e x²)`
+//! with `s = x cos ψ + y sin ψ` the position along the rail: heights normal
+//! to the surface, positions along the rail, the three lines in phase.
+//!
+//! # Cost
+//!
+//! n points in all: the plane O(n), the start fits (`fit`, per line), each
+//! LM iteration O(n·(5 + 2L)²); a paper-geometry image (3 × 3168 points)
+//! fits in tens of milliseconds.
+
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+use serde::Serialize;
+
+use cms_core::triangulation::Triangulator;
+
+use crate::fit::{self, FitError, Options};
+
+type V3 = [f64; 3];
+
+fn dot(a: V3, b: V3) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn cross(a: V3, b: V3) -> V3 {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+
+fn unit(a: V3) -> Option<V3> {
+    let n = dot(a, a).sqrt();
+    (n > 0.0 && n.is_finite()).then(|| [a[0] / n, a[1] / n, a[2] / n])
+}
+
+fn axpy(k: f64, a: V3, b: V3) -> V3 {
+    [b[0] + k * a[0], b[1] + k * a[1], b[2] + k * a[2]]
+}
+
+/// One laser's profile frame, as used to lift a profile point to 3-D.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct LineFrame {
+    origin: V3,
+    along: V3,
+    /// In-plane direction across the line, scaled so that one unit of height
+    /// is `height · across` (i.e. `w/(up·w)`).
+    across: V3,
+}
+
+/// The head frame shared by the lasers of one calibration (module docs).
+#[derive(Debug, Clone, PartialEq)]
+pub struct HeadFrame {
+    origin: V3,
+    axes: [V3; 3],
+    lines: Vec<LineFrame>,
+}
+
+impl HeadFrame {
+    /// From the calibration's triangulator: `None` if a laser has no frame
+    /// or its plane contains the datum normal's complement (cannot happen
+    /// for a triangulator that was built).
+    pub fn new(tri: &Triangulator) -> Option<HeadFrame> {
+        let mut lines = Vec::new();
+        let mut up = [0.0; 3];
+        let mut along = [0.0; 3];
+        let mut origin = [0.0; 3];
+        for k in 0..cms_core::protocol::LASERS {
+            let f = tri.frame(k)?;
+            let w = cross(f.laser_normal, f.along);
+            let s = dot(w, f.up);
+            if s.abs() <= 1e-6 || !s.is_finite() {
+                return None;
+            }
+            lines.push(LineFrame { origin: f.origin_mm, along: f.along, across: [w[0] / s, w[1] / s, w[2] / s] });
+            (up, along, origin) = (f.up, axpy(1.0, f.along, along), axpy(1.0, f.origin_mm, origin));
+        }
+        let n = lines.len() as f64;
+        let origin = [origin[0] / n, origin[1] / n, origin[2] / n];
+        let along = unit(axpy(-dot(along, up), up, along))?;
+        let lateral = cross(up, along);
+        Some(HeadFrame { origin, axes: [along, lateral, up], lines })
+    }
+
+    /// Laser `laser`'s profile point `(along_mm, height_mm)` as `[u, v, h]`
+    /// in the head frame, mm. `None` for an unknown laser.
+    pub fn point(&self, laser: usize, along_mm: f64, height_mm: f64) -> Option<[f64; 3]> {
+        let l = self.lines.get(laser)?;
+        let x = axpy(height_mm, l.across, axpy(along_mm, l.along, l.origin));
+        let d = axpy(-1.0, self.origin, x);
+        Some([dot(d, self.axes[0]), dot(d, self.axes[1]), dot(d, self.axes[2])])
+    }
+}
+
+/// One line's points in the head frame: `[u, v, h]`, mm.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Line {
+    /// Laser index.
+    pub laser: usize,
+    /// Its points.
+    pub points: Vec<[f64; 3]>,
+}
+
+/// A line's profile after the surface-normal correction: `s_mm` along the
+/// rail, `z_mm` normal to the surface (see the module docs).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Corrected {
+    /// Laser index.
+    pub laser: usize,
+    /// Positions along the rail, mm (from the points' centroid).
+    pub s_mm: Vec<f64>,
+    /// Heights normal to the surface, mm.
+    pub z_mm: Vec<f64>,
+    /// This line's offset `c_l` of the joint model, mm.
+    pub offset_mm: f64,
+}
+
+/// The joint result of the lines of one image.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Joint {
+    /// Lines fitted.
+    pub lines: usize,
+    /// Points fitted.
+    pub points: usize,
+    /// Corrugation wavelength along the rail, `2π/√(ω² + κ²)`, mm.
+    pub wavelength_mm: f64,
+    /// Amplitude (half peak-to-peak), mm.
+    pub amplitude_mm: f64,
+    /// Phase at the centroid, rad.
+    pub phase_rad: f64,
+    /// The surface normal in the head frame `[u, v, h]` (unit).
+    pub normal: [f64; 3],
+    /// Pitch of the surface against the head (along), rad: plane and residual.
+    pub pitch_rad: f64,
+    /// Roll of the surface against the head (across), rad.
+    pub roll_rad: f64,
+    /// Yaw of the lines against the rail, `atan2(κ, ω)`, rad.
+    pub yaw_rad: f64,
+    /// Curvature of the lines' common trend `2e`, 1/mm (the crown seen by
+    /// yawed lines, or long-wave geometry).
+    pub curvature_per_mm: f64,
+    /// Root mean square of the residuals, mm.
+    pub rms_residual_mm: f64,
+    /// One-σ uncertainty of the wavelength, mm.
+    pub wavelength_sigma_mm: Option<f64>,
+    /// One-σ uncertainty of the amplitude, mm.
+    pub amplitude_sigma_mm: Option<f64>,
+    /// Levenberg–Marquardt iterations.
+    pub iterations: usize,
+    /// Whether the refinement met its convergence test.
+    pub converged: bool,
+}
+
+/// Per line in the surface frame: `(line index, [x, y, z])` points.
+struct Surface {
+    normal: V3,
+    pitch: f64,
+    roll: f64,
+    /// `x, y, z` per point and the line it belongs to.
+    x: Vec<f64>,
+    y: Vec<f64>,
+    z: Vec<f64>,
+    line: Vec<usize>,
+}
+
+/// The least-squares plane through all points and every point in its frame
+/// (centred on the centroid).
+fn surface(lines: &[Line]) -> Result<Surface, FitError> {
+    let n: usize = lines.iter().map(|l| l.points.len()).sum();
+    let all = || lines.iter().flat_map(|l| l.points.iter());
+    let c = all().fold([0.0; 3], |s, p| axpy(1.0 / n as f64, *p, s));
+    // h = c + p u + q v on centred points: 2 unknowns (q only with two lines).
+    let mut ata = Matrix3::zeros();
+    let mut atb = Vector3::zeros();
+    for p in all() {
+        let row = Vector3::new(p[0] - c[0], p[1] - c[1], 1.0);
+        ata += row * row.transpose();
+        atb += row * (p[2] - c[2]);
+    }
+    let across = lines.iter().filter(|l| !l.points.is_empty()).count() > 1 && ata[(1, 1)] > 1e-6 * n as f64;
+    let (p, q) = if across {
+        let s = ata.lu().solve(&atb).ok_or(FitError::Degenerate("the lines do not span a plane"))?;
+        (s[0], s[1])
+    } else {
+        let d = ata[(0, 0)];
+        if d <= 0.0 || !d.is_finite() {
+            return Err(FitError::Degenerate("all points at one position"));
+        }
+        (atb[0] / d, 0.0)
+    };
+    let normal = unit([-p, -q, 1.0]).ok_or(FitError::Degenerate("surface normal"))?;
+    let ex = unit(axpy(-normal[0], normal, [1.0, 0.0, 0.0])).ok_or(FitError::Degenerate("surface frame"))?;
+    let ey = cross(normal, ex);
+    let mut s = Surface { normal, pitch: p.atan(), roll: q.atan(), x: vec![], y: vec![], z: vec![], line: vec![] };
+    for (i, l) in lines.iter().enumerate() {
+        for pt in &l.points {
+            let d = axpy(-1.0, c, *pt);
+            s.x.push(dot(d, ex));
+            s.y.push(dot(d, ey));
+            s.z.push(dot(d, normal));
+            s.line.push(i);
+        }
+    }
+    Ok(s)
+}
+
+/// Parameters `[a, b, ω, κ, e, c_0, g_0, c_1, g_1, …]`.
+const OMEGA: usize = 2;
+const KAPPA: usize = 3;
+const CURVE: usize = 4;
+const LINES: usize = 5;
+
+/// Residuals `z − ẑ` of the joint model (module docs) and, over the `free`
+/// parameters, their Jacobian.
+fn evaluate(s: &Surface, p: &[f64], free: &[usize]) -> Option<(DVector<f64>, DMatrix<f64>)> {
+    let (a, b, w, kappa, e) = (p[0], p[1], p[OMEGA], p[KAPPA], p[CURVE]);
+    let n = s.x.len();
+    let mut r = DVector::zeros(n);
+    let mut j = DMatrix::zeros(n, free.len());
+    let mut col = vec![0.0; p.len()];
+    for i in 0..n {
+        let (x, y, l) = (s.x[i], s.y[i], s.line[i]);
+        let (c, g) = (p[LINES + 2 * l], p[LINES + 2 * l + 1]);
+        let (sn, cs) = (w * x + kappa * y).sin_cos();
+        r[i] = s.z[i] - (c + g * x + e * x * x + a * sn + b * cs);
+        let slope = a * cs - b * sn;
+        col.fill(0.0);
+        col[0] = -sn;
+        col[1] = -cs;
+        col[OMEGA] = -x * slope;
+        col[KAPPA] = -y * slope;
+        col[CURVE] = -x * x;
+        col[LINES + 2 * l] = -1.0;
+        col[LINES + 2 * l + 1] = -x;
+        for (k, &f) in free.iter().enumerate() {
+            j[(i, k)] = col[f];
+        }
+    }
+    (r.iter().all(|v| v.is_finite()) && j.iter().all(|v| v.is_finite())).then_some((r, j))
+}
+
+/// Least-squares `z ≈ c + g x + e x²`: `(c, g, e)`.
+fn quadratic(x: &[f64], z: &[f64]) -> Option<[f64; 3]> {
+    let mut ata = Matrix3::zeros();
+    let mut atb = Vector3::zeros();
+    for (&x, &z) in x.iter().zip(z) {
+        let row = Vector3::new(1.0, x, x * x);
+        ata += row * row.transpose();
+        atb += row * z;
+    }
+    let s = ata.lu().solve(&atb)?;
+    Some([s[0], s[1], s[2]])
+}
+
+/// Fits the lines of one image jointly (module docs); returns the joint
+/// result and the surface-normal corrected profile of each line. Lines with
+/// fewer than 8 points are left out; at least one must remain.
+pub fn joint_fit(lines: &[Line]) -> Result<(Joint, Vec<Corrected>), FitError> {
+    let lines: Vec<Line> = lines.iter().filter(|l| l.points.len() >= 8).cloned().collect();
+    if lines.is_empty() {
+        return Err(FitError::TooFewPoints { points: 0, needed: 8 });
+    }
+    for l in &lines {
+        if let Some(index) = l.points.iter().position(|p| p.iter().any(|v| !v.is_finite())) {
+            return Err(FitError::NonFinite { index });
+        }
+    }
+    let s = surface(&lines)?;
+    // Start values: per line, a quadratic trend and a plain sine on what is
+    // left (the best line gives ω); κ from the lines' phases against their
+    // lateral positions.
+    let mut starts = Vec::new();
+    for i in 0..lines.len() {
+        let idx: Vec<usize> = (0..s.x.len()).filter(|&k| s.line[k] == i).collect();
+        let x: Vec<f64> = idx.iter().map(|&k| s.x[k]).collect();
+        let z: Vec<f64> = idx.iter().map(|&k| s.z[k]).collect();
+        let y = idx.iter().map(|&k| s.y[k]).sum::<f64>() / idx.len() as f64;
+        let q = quadratic(&x, &z).ok_or(FitError::Degenerate("all points of a line at one position"))?;
+        let rest: Vec<f64> = x.iter().zip(&z).map(|(x, z)| z - q[0] - q[1] * x - q[2] * x * x).collect();
+        let f = fit::fit(&x, &rest, &Options { model: fit::Model::Sine, components: 1 })?;
+        starts.push((f, y, q));
+    }
+    let best = starts
+        .iter()
+        .min_by(|a, b| a.0.rms_residual_mm.total_cmp(&b.0.rms_residual_mm))
+        .ok_or(FitError::Degenerate("no line"))?;
+    let omega0 = std::f64::consts::TAU / best.0.wavelength_mm;
+    let amp0 = starts.iter().map(|(f, ..)| f.amplitude_mm).sum::<f64>() / starts.len() as f64;
+    let (y0, ph0) = (starts[0].1, starts[0].0.phase_rad);
+    let pts: Vec<(f64, f64)> = starts
+        .iter()
+        .map(|(f, y, _)| {
+            let d = f.phase_rad - ph0;
+            (*y - y0, d - std::f64::consts::TAU * (d / std::f64::consts::TAU).round())
+        })
+        .collect();
+    let syy: f64 = pts.iter().map(|p| p.0 * p.0).sum();
+    let several = starts.len() > 1 && syy > 1e-6;
+    let kappa0 = if several { pts.iter().map(|p| p.0 * p.1).sum::<f64>() / syy } else { 0.0 };
+    let phase0 = ph0 - kappa0 * y0;
+    let curve0 = starts.iter().map(|(.., q)| q[2]).sum::<f64>() / starts.len() as f64;
+    let mut p0 = vec![amp0 * phase0.cos(), amp0 * phase0.sin(), omega0, kappa0, curve0];
+    for (f, _, q) in &starts {
+        p0.extend([q[0] + f.offset_mm, q[1]]);
+    }
+    let free: Vec<usize> = (0..p0.len()).filter(|&i| i != KAPPA || several).collect();
+    let lm = fit::levenberg_marquardt(p0, &free, |p| evaluate(&s, p, &free))
+        .ok_or(FitError::Degenerate("the joint model cannot be evaluated"))?;
+    let p = &lm.p;
+    let (a, b, w, kappa) = (p[0], p[1], p[OMEGA], p[KAPPA]);
+    let k = w.hypot(kappa);
+    let n = s.x.len();
+    let tau = std::f64::consts::TAU;
+    let amp = a.hypot(b);
+    // Uncertainties: σ² (JᵀJ)⁻¹ over the free parameters.
+    let sigma2 = lm.rss / n.saturating_sub(free.len()).max(1) as f64;
+    let cov = evaluate(&s, p, &free).and_then(|(_, j)| j.tr_mul(&j).cholesky()).map(|c| c.inverse() * sigma2);
+    let sigma = |grad: &[(usize, f64)]| -> Option<f64> {
+        let cov = cov.as_ref()?;
+        let col = |i: usize| free.iter().position(|&f| f == i);
+        let mut v = 0.0;
+        for &(i, gi) in grad {
+            for &(j, gj) in grad {
+                v += gi * gj * cov[(col(i)?, col(j)?)];
+            }
+        }
+        (v >= 0.0 && v.is_finite()).then(|| v.sqrt())
+    };
+    let mut lgrad = vec![(OMEGA, -tau * w / k.powi(3))];
+    if several {
+        lgrad.push((KAPPA, -tau * kappa / k.powi(3)));
+    }
+    let mean_slope = (0..lines.len()).map(|l| p[LINES + 2 * l + 1]).sum::<f64>() / lines.len() as f64;
+    let joint = Joint {
+        lines: lines.len(),
+        points: n,
+        wavelength_mm: tau / k,
+        amplitude_mm: amp,
+        phase_rad: b.atan2(a),
+        normal: s.normal,
+        pitch_rad: s.pitch + mean_slope.atan(),
+        roll_rad: s.roll,
+        yaw_rad: kappa.atan2(w),
+        curvature_per_mm: 2.0 * p[CURVE],
+        rms_residual_mm: (lm.rss / n as f64).sqrt(),
+        wavelength_sigma_mm: sigma(&lgrad),
+        amplitude_sigma_mm: (amp > 0.0).then(|| sigma(&[(0, a / amp), (1, b / amp)])).flatten(),
+        iterations: lm.iterations,
+        converged: lm.converged,
+    };
+    let vals = [joint.wavelength_mm, joint.amplitude_mm, joint.phase_rad, joint.yaw_rad, joint.rms_residual_mm];
+    if vals.iter().any(|v| !v.is_finite()) || k <= 0.0 {
+        return Err(FitError::Degenerate("values out of range"));
+    }
+    // The corrected profiles: (s, z) per line, each line's trend removed.
+    let (sp, cp) = (kappa / k, w / k);
+    let mut out: Vec<Corrected> = lines
+        .iter()
+        .enumerate()
+        .map(|(i, l)| Corrected { laser: l.laser, s_mm: vec![], z_mm: vec![], offset_mm: p[LINES + 2 * i] })
+        .collect();
+    for i in 0..n {
+        let (x, y, z, l) = (s.x[i], s.y[i], s.z[i], s.line[i]);
+        let o = &mut out[l];
+        o.s_mm.push(x * cp + y * sp);
+        o.z_mm.push(z - p[LINES + 2 * l + 1] * x - p[CURVE] * x * x);
+    }
+    Ok((joint, out))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Rotation (yaw · pitch · roll) head → rail.
+    fn rotation(yaw: f64, pitch: f64, roll: f64) -> [[f64; 3]; 3] {
+        let (sy, cy) = yaw.sin_cos();
+        let (sp, cp) = pitch.sin_cos();
+        let (sr, cr) = roll.sin_cos();
+        let rz = [[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]];
+        let ry = [[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]];
+        let rx = [[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]];
+        let mul = |a: [[f64; 3]; 3], b: [[f64; 3]; 3]| {
+            let mut m = [[0.0; 3]; 3];
+            for i in 0..3 {
+                for j in 0..3 {
+                    m[i][j] = (0..3).map(|k| a[i][k] * b[k][j]).sum();
+                }
+            }
+            m
+        };
+        mul(mul(rz, ry), rx)
+    }
+
+    struct Rail {
+        lambda: f64,
+        amp: f64,
+        phase: f64,
+        crown_r: f64,
+    }
+
+    impl Rail {
+        fn height(&self, s: f64, y: f64) -> f64 {
+            self.amp * (std::f64::consts::TAU * s / self.lambda + self.phase).sin() - y * y / (2.0 * self.crown_r)
+        }
+    }
+
+    /// Three lines of a head misaligned by (yaw, pitch, roll) over a rail:
+    /// laser planes `v = v_l + t·h` containing the head's u axis (t =
+    /// tan 42°), the exact intersection with the surface for each u, plus
+    /// seeded Gaussian noise of `noise_mm`.
+    fn lines(rail: &Rail, angles: (f64, f64, f64), noise_mm: f64, seed: u64) -> Vec<Line> {
+        let r = rotation(angles.0, angles.1, angles.2);
+        let t = 42f64.to_radians().tan();
+        let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        let mut gauss = || {
+            let mut u = || {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                (state >> 11) as f64 / (1u64 << 53) as f64
+            };
+            let (a, b) = (u().max(1e-300), u());
+            (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+        };
+        [-15.0, 0.0, 15.0]
+            .iter()
+            .enumerate()
+            .map(|(laser, &vl)| {
+                let points = (0..1500)
+                    .map(|i| {
+                        let u = -140.0 + 280.0 * i as f64 / 1499.0;
+                        // Solve z_rail(P(h)) = surface(s, y) for h by fixed point.
+                        let mut h = 0.0;
+                        for _ in 0..50 {
+                            let p = [u, vl + t * h, h];
+                            let q: Vec<f64> = (0..3).map(|k| dot(r[k], p)).collect();
+                            let f = rail.height(q[0], q[1]) - q[2];
+                            // dz_rail/dh ≈ r[2]·(0, t, 1); the surface slope is small.
+                            h += f / (r[2][1] * t + r[2][2]);
+                        }
+                        [u, vl + t * h, h + noise_mm * gauss()]
+                    })
+                    .collect();
+                Line { laser, points }
+            })
+            .collect()
+    }
+
+    const RAIL: Rail = Rail { lambda: 50.0, amp: 0.1, phase: 0.7, crown_r: 300.0 };
+
+    #[test]
+    fn aligned_head_exact_data() {
+        let (j, c) = joint_fit(&lines(&RAIL, (0.0, 0.0, 0.0), 0.0, 1)).unwrap();
+        assert!(j.converged, "{j:?}");
+        assert!((j.wavelength_mm - 50.0).abs() < 1e-4, "{j:?}");
+        // The crown's slope at the outer lines cancels to first order.
+        assert!((j.amplitude_mm / 0.1 - 1.0).abs() < 2e-3, "{j:?}");
+        // The inclined planes meet the crown asymmetrically: a small roll.
+        assert!(j.yaw_rad.abs() < 1e-3 && j.pitch_rad.abs() < 1e-4 && j.roll_rad.abs() < 2e-3, "{j:?}");
+        assert_eq!(c.len(), 3);
+    }
+
+    /// Yaw 5°, pitch 2°, roll 3° over a flat rail head, and yaw 2° over the
+    /// 300 mm crown: the joint fit with the surface normal finds the rail's
+    /// wavelength and amplitude, the angles, and lines in phase; each line
+    /// alone sees the yaw-stretched wavelength and the roll-scaled amplitude.
+    #[test]
+    fn misaligned_head_is_corrected() {
+        let flat = Rail { crown_r: 1e12, ..RAIL };
+        let (yaw, pitch, roll) = (5f64.to_radians(), 2f64.to_radians(), 3f64.to_radians());
+        let cases = [(&flat, yaw, 2e-4, 1e-3, 1e-3), (&RAIL, 2f64.to_radians(), 1e-3, 5e-3, 5e-3)];
+        for (rail, yaw, tol_l, tol_a, tol_angle) in cases {
+            let ls = lines(rail, (yaw, pitch, roll), 0.0, 1);
+            let (j, c) = joint_fit(&ls).unwrap();
+            assert!(j.converged, "{j:?}");
+            assert!((j.wavelength_mm / 50.0 - 1.0).abs() < tol_l, "{j:?}");
+            assert!((j.amplitude_mm / 0.1 - 1.0).abs() < tol_a, "{j:?}");
+            assert!((j.yaw_rad.abs() - yaw).abs() < tol_angle, "{j:?}");
+            assert!((j.pitch_rad.abs() - pitch).abs() < tol_angle, "{j:?}");
+            assert!((j.roll_rad.abs() - roll).abs() < tol_angle, "{j:?}");
+            // One line on its own, in head coordinates: λ/cos ψ, and the
+            // amplitude scaled by the roll through the inclined laser plane.
+            let mid: Vec<f64> = ls[1].points.iter().map(|p| p[0]).collect();
+            let h: Vec<f64> = ls[1].points.iter().map(|p| p[2]).collect();
+            let one = fit::fit(&mid, &h, &Options::default()).unwrap();
+            assert!((one.wavelength_mm / 50.0 - 1.0).abs() > 5.0 * tol_l, "{one:?}");
+            assert!((one.amplitude_mm / 0.1 - 1.0).abs() > 0.01, "{one:?}");
+            assert!((one.amplitude_mm / 0.1 - 1.0).abs() > 10.0 * (j.amplitude_mm / 0.1 - 1.0).abs(), "{one:?}");
+            // The corrected profiles are in phase: one sine fits all three.
+            let s: Vec<f64> = c.iter().flat_map(|l| l.s_mm.iter().copied()).collect();
+            let z: Vec<f64> = c.iter().flat_map(|l| l.z_mm.iter().map(move |z| z - l.offset_mm)).collect();
+            let f = fit::fit(&s, &z, &Options { model: fit::Model::Sine, components: 1 }).unwrap();
+            assert!((f.wavelength_mm / j.wavelength_mm - 1.0).abs() < 1e-4, "{f:?}");
+            assert!(f.rms_residual_mm < 0.1 * j.amplitude_mm, "{f:?}");
+        }
+    }
+
+    /// With noise, over seeds: unbiased within the noise, and the reported
+    /// σ of the wavelength is the size of the scatter.
+    #[test]
+    fn noisy_lines() {
+        let mut errs = Vec::new();
+        for seed in 0..8 {
+            let (j, _) = joint_fit(&lines(&RAIL, (0.03, 0.01, -0.02), 0.005, seed)).unwrap();
+            assert!(j.converged);
+            let sl = j.wavelength_sigma_mm.unwrap();
+            assert!(sl > 0.0 && sl < 0.05, "{j:?}");
+            errs.push((j.wavelength_mm - 50.0) / sl);
+            assert!((j.amplitude_mm - 0.1).abs() < 1e-3, "{j:?}");
+        }
+        let rms = (errs.iter().map(|e| e * e).sum::<f64>() / errs.len() as f64).sqrt();
+        assert!(rms < 3.0, "wavelength errors in σ: {errs:?}");
+    }
+
+    #[test]
+    fn bad_inputs_are_errors() {
+        assert!(joint_fit(&[]).is_err());
+        let mut ls = lines(&RAIL, (0.0, 0.0, 0.0), 0.0, 1);
+        ls[0].points[3][2] = f64::NAN;
+        assert!(matches!(joint_fit(&ls), Err(FitError::NonFinite { .. })));
+        // One line: κ fixed, still a result.
+        let one = vec![lines(&RAIL, (0.0, 0.0, 0.0), 0.0, 1).remove(1)];
+        let (j, _) = joint_fit(&one).unwrap();
+        assert!((j.wavelength_mm - 50.0).abs() < 1e-4 && j.yaw_rad == 0.0, "{j:?}");
+    }
+}
