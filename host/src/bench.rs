@@ -9,6 +9,11 @@
 //!   1280-px 12-bit rows with 1 and 3 stripes, and the ratio `cwt` / `cog`
 //!   measured in the same run. `cargo bench -p cms-host --bench detect` times
 //!   the same rows with criterion.
+//! * `bench corrugation` — the closed loop of `cms_host::closed_loop`: the
+//!   paper's four corrugation samples through the simulated head, the
+//!   wavelength and amplitude errors over runs (`corrugation.md`,
+//!   `corrugation.csv`) and one measured frame's plot (`frame_l50_a50.png`,
+//!   `.svg`).
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand, ValueEnum};
@@ -29,6 +34,29 @@ pub enum BenchCmd {
     Speed(SpeedArgs),
     /// Instructions per row of every method on the emulated Cortex-M (QEMU -icount).
     Qemu(cms_host::qemu::BenchQemuArgs),
+    /// Corrugation through the simulated head (paper geometry, 30 dB): wavelength and amplitude errors of the
+    /// paper's four samples over runs; writes corrugation.md, corrugation.csv and a plot of one frame.
+    Corrugation(CorrugationArgs),
+}
+
+/// Options of `bench corrugation`.
+#[derive(Args, Debug, Clone)]
+pub struct CorrugationArgs {
+    /// Runs per case (noise seeds 1000.., golden-ratio phases).
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+    pub runs: u64,
+    /// Use every N-th image row (1: all 3168).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=64))]
+    pub row_step: u64,
+    /// RMS roughness of the rail, µm (0: a machined sample; the simulator's default rail has 2).
+    #[arg(long, default_value_t = 0.0)]
+    pub roughness_um: f64,
+    /// Worker threads [default: all cores].
+    #[arg(long)]
+    pub threads: Option<u64>,
+    /// Output directory (created if missing).
+    #[arg(long, default_value = "out/corrugation")]
+    pub out: PathBuf,
 }
 
 /// Options of `bench accuracy`.
@@ -116,9 +144,46 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
         BenchCmd::Accuracy(a) => accuracy(&a)?,
         BenchCmd::Speed(s) => speed(&s)?,
         BenchCmd::Qemu(q) => cms_host::qemu::bench(&q)?,
+        BenchCmd::Corrugation(c) => corrugation(&c)?,
     };
     let mut out = std::io::stdout().lock();
     out.write_all(text.as_bytes()).and_then(|()| out.flush()).context("writing the report to stdout")
+}
+
+/// `bench corrugation`: the closed-loop table and one frame's plot.
+fn corrugation(a: &CorrugationArgs) -> Result<String> {
+    use cms_host::closed_loop::{self as cl, PAPER_CASES};
+    if !(a.roughness_um >= 0.0 && a.roughness_um.is_finite()) {
+        bail!("--roughness-um must be finite and ≥ 0");
+    }
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let study = cl::Study {
+        runs: a.runs as usize,
+        row_step: a.row_step as usize,
+        threads: threads(a.threads),
+        single: true,
+        roughness_um: a.roughness_um,
+    };
+    let t = Instant::now();
+    let stats = cl::study(&PAPER_CASES, &study).map_err(anyhow::Error::msg)?;
+    let secs = t.elapsed().as_secs_f64();
+    let mut md = format!(
+        "Closed loop through the simulated head: paper geometry (Table 4), 30 dB stripes, {} runs per case, every \
+         {} image row(s), rail roughness {} µm RMS; errors = measured − true; joint fit of the three lines with \
+         the surface-normal correction, and the middle laser's own rotated-sine fit for comparison. {:.0} s on {} \
+         thread(s).\n\n",
+        study.runs, study.row_step, study.roughness_um, secs, study.threads
+    );
+    md += &cl::markdown(&stats);
+    let path = |f: &str| a.out.join(f);
+    std::fs::write(path("corrugation.md"), &md).context("writing corrugation.md")?;
+    std::fs::write(path("corrugation.csv"), cl::csv(&stats)).context("writing corrugation.csv")?;
+    // One measured frame: λ 50 mm, A 50 µm, run 0.
+    let cfg = cl::config(PAPER_CASES[0], 0, study.roughness_um);
+    let m = cl::measure_frame(&cfg, study.row_step).map_err(anyhow::Error::msg)?;
+    cms_host::measure::plot(&path("frame_l50_a50"), &m).map_err(anyhow::Error::msg)?;
+    md += &format!("\nPlot of one frame (λ 50 mm, A 50 µm): {} and .svg\n", path("frame_l50_a50.png").display());
+    Ok(md)
 }
 
 fn threads(opt: Option<u64>) -> usize {

@@ -11,6 +11,7 @@ use cms_host::calib;
 use cms_host::capture;
 use cms_host::detect;
 use cms_host::fit;
+use cms_host::measure;
 use cms_host::simulate;
 use cms_host::{CliError, qemu};
 use cms_host::{listen, record};
@@ -53,6 +54,9 @@ enum Command {
     Analyze(analyze::AnalyzeArgs),
     /// One full frame from a sensor head (or `sim`) as a PNG: what the sensor sees.
     Capture(capture::CaptureArgs),
+    /// Corrugation per image or recorded frame: each laser's profile and rotated-sine fit, the joint fit of the
+    /// three lines with the surface-normal correction, optional plots.
+    Measure(measure::MeasureArgs),
     /// Camera and laser-plane calibration; upload to a head.
     #[command(subcommand)]
     Calibrate(calib::CalibrateCmd),
@@ -104,6 +108,10 @@ fn main() -> ExitCode {
             Err(e) => e.report(),
         },
         Command::Capture(args) => match capture::run(&args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => e.report(),
+        },
+        Command::Measure(args) => match measure::run(&args) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => e.report(),
         },

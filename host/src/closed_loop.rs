@@ -1,0 +1,272 @@
+//! Closed loop through the simulated head: a corrugated rail of known
+//! wavelength and amplitude, the paper's camera and geometry (Table 4) and
+//! 30 dB stripes (`SimConfig::paper`), the head's own detector and
+//! triangulation with the head's true calibration, then `measure`'s fits —
+//! and the errors against the truth, over runs with different noise seeds
+//! and random phases. `cms-host bench corrugation` writes the table; the
+//! test `host/tests/corrugation_sim.rs` asserts it.
+//!
+//! The rail is the simulator's default rail (300 mm crown) with one
+//! corrugation sinusoid and, by default, no roughness (a machined sample
+//! like the paper's CNC ones); `Study::roughness_um` puts the default
+//! rail's texture back (2 µm RMS, 5 mm wavelength and up), which the sine
+//! model does not know and which the three lines share. Every
+//! `row_step`-th image row is used (1: all 3168 rows, 0.088 mm of rail
+//! each); one frame covers 279 mm of rail.
+//!
+//! Cost: rendering and detecting a row of 4752 px takes about 0.4 ms, so a
+//! full frame about 1.3 s, plus about 0.3 s of fits.
+
+use cms_core::peak::{Config, Detector, Select, Stripes};
+use cms_core::protocol::LASERS;
+use serde::Serialize;
+
+use crate::calib::truth::truth;
+use crate::corrugation::joint_fit;
+use crate::fit;
+use crate::measure::{Measurement, Measurer, Profiles};
+use crate::sim::{Corrugation, Scene, SimConfig};
+
+/// One case of the study.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Case {
+    /// True wavelength, mm.
+    pub wavelength_mm: f64,
+    /// True amplitude, µm.
+    pub amplitude_um: f64,
+}
+
+/// The paper's four samples (Table 5).
+pub const PAPER_CASES: [Case; 4] = [
+    Case { wavelength_mm: 50.0, amplitude_um: 50.0 },
+    Case { wavelength_mm: 50.0, amplitude_um: 100.0 },
+    Case { wavelength_mm: 100.0, amplitude_um: 50.0 },
+    Case { wavelength_mm: 100.0, amplitude_um: 100.0 },
+];
+
+/// One run's errors (measured − true).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct RunError {
+    /// Joint fit: wavelength error, mm.
+    pub wavelength_mm: f64,
+    /// Joint fit: amplitude error, µm.
+    pub amplitude_um: f64,
+    /// Middle laser's own rotated fit: wavelength error, mm (if asked).
+    pub single_wavelength_mm: Option<f64>,
+    /// Middle laser's own rotated fit: amplitude error, µm (if asked).
+    pub single_amplitude_um: Option<f64>,
+}
+
+/// Mean and standard deviation of the errors of one case.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CaseStats {
+    /// The case.
+    pub case: Case,
+    /// Runs.
+    pub runs: usize,
+    /// Joint wavelength error: mean, std (mm).
+    pub wavelength_mm: (f64, f64),
+    /// Joint amplitude error: mean, std (µm).
+    pub amplitude_um: (f64, f64),
+    /// Largest |joint wavelength error| (mm) and |amplitude error| (µm).
+    pub max_abs: (f64, f64),
+    /// Middle laser alone: wavelength error mean, std (mm), if asked.
+    pub single_wavelength_mm: Option<(f64, f64)>,
+    /// Middle laser alone: amplitude error mean, std (µm), if asked.
+    pub single_amplitude_um: Option<(f64, f64)>,
+}
+
+/// How the study runs.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Study {
+    /// Runs per case.
+    pub runs: usize,
+    /// Every `row_step`-th image row.
+    pub row_step: usize,
+    /// Worker threads.
+    pub threads: usize,
+    /// Also fit the middle laser alone (for comparison).
+    pub single: bool,
+    /// RMS roughness of the rail, µm (0: a machined sample like the
+    /// paper's CNC ones; the simulator's default rail has 2).
+    pub roughness_um: f64,
+}
+
+/// The scene of run `run` of `case`: seed and phase from the run index.
+pub fn config(case: Case, run: u64, roughness_um: f64) -> SimConfig {
+    let mut cfg = SimConfig::paper();
+    cfg.rail.roughness_rms_um = roughness_um;
+    cfg.seed = 1000 + run;
+    // A golden-ratio sequence of phases: spread, reproducible.
+    let phase = (run as f64 * 0.618_033_988_749_895).fract() * std::f64::consts::TAU;
+    cfg.rail.corrugation =
+        vec![Corrugation { wavelength_mm: case.wavelength_mm, amplitude_um: case.amplitude_um, phase_rad: phase }];
+    cfg
+}
+
+/// Renders frame 0 of `cfg` (every `row_step`-th row), detects and
+/// triangulates with the true calibration: the measurer and the profiles.
+pub fn profiles(cfg: &SimConfig, row_step: usize) -> Result<(Measurer, Profiles), String> {
+    let mut scene = Scene::new(cfg.clone()).map_err(|e| e.to_string())?;
+    let cal = truth(&scene);
+    let m = Measurer::new(&cal)?;
+    let scales = cfg.optics().scale_range().map_err(|e| e.to_string())?;
+    let mut det_cfg = Config::new(scene.bits(), scales);
+    det_cfg.max_stripes = LASERS as u8;
+    det_cfg.select = Select::Strongest;
+    let mut det = Box::new(Detector::<{ crate::detect::MAX_ROW }>::new(det_cfg).map_err(|e| e.to_string())?);
+    let mut row = vec![0u16; scene.width()];
+    let mut profiles: Profiles = Default::default();
+    for r in (0..scene.height()).step_by(row_step.max(1)) {
+        scene.render_row(0, r, scene.all_lasers_mask(), &mut row);
+        let mut s: Stripes<LASERS> = Stripes::new();
+        det.detect(&row, &mut s).map_err(|e| e.to_string())?;
+        if s.len() != LASERS {
+            continue;
+        }
+        s.sort_unstable_by_key(|x| x.position);
+        for (k, stripe) in s.iter().enumerate() {
+            if let Some(p) = m.triangulator().profile(k, stripe.position, r as u16) {
+                profiles[k].push((f64::from(p.along_mm), f64::from(p.height_mm)));
+            }
+        }
+    }
+    Ok((m, profiles))
+}
+
+/// Renders, detects, triangulates and measures frame 0 of `cfg` (all fits,
+/// as `cms-host measure` does).
+pub fn measure_frame(cfg: &SimConfig, row_step: usize) -> Result<Measurement, String> {
+    let (m, p) = profiles(cfg, row_step)?;
+    Ok(m.measure("simulated head", &p))
+}
+
+/// One run: its errors; the middle laser's own fit only if `single`.
+pub fn run(case: Case, run: u64, study: &Study) -> Result<RunError, String> {
+    let (m, p) = profiles(&config(case, run, study.roughness_um), study.row_step)?;
+    let (j, _) = joint_fit(&m.lines(&p)).map_err(|e| e.to_string())?;
+    let one = if study.single {
+        let (x, z): (Vec<f64>, Vec<f64>) = p[1].iter().copied().unzip();
+        let f = fit::fit(&x, &z, &fit::Options::default()).map_err(|e| e.to_string())?;
+        Some((f.wavelength_mm - case.wavelength_mm, f.amplitude_mm * 1e3 - case.amplitude_um))
+    } else {
+        None
+    };
+    Ok(RunError {
+        wavelength_mm: j.wavelength_mm - case.wavelength_mm,
+        amplitude_um: j.amplitude_mm * 1e3 - case.amplitude_um,
+        single_wavelength_mm: one.map(|o| o.0),
+        single_amplitude_um: one.map(|o| o.1),
+    })
+}
+
+fn mean_std(v: impl Iterator<Item = f64> + Clone) -> (f64, f64) {
+    let n = v.clone().count() as f64;
+    let m = v.clone().sum::<f64>() / n;
+    let var = v.map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
+    (m, var.sqrt())
+}
+
+/// Runs `runs` runs of each case on `threads` threads (`single`: also
+/// the middle laser's own fit, for comparison).
+pub fn study(cases: &[Case], study: &Study) -> Result<Vec<CaseStats>, String> {
+    let (runs, single) = (study.runs, study.single);
+    let jobs: Vec<(usize, u64)> = (0..cases.len()).flat_map(|c| (0..runs as u64).map(move |r| (c, r))).collect();
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let results: Vec<Result<(usize, RunError), String>> = std::thread::scope(|s| {
+        let workers: Vec<_> = (0..study.threads.max(1))
+            .map(|_| {
+                s.spawn(|| {
+                    let mut out = Vec::new();
+                    loop {
+                        let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        let Some(&(c, r)) = jobs.get(i) else { break };
+                        out.push(run(cases[c], r, study).map(|e| (c, e)));
+                    }
+                    out
+                })
+            })
+            .collect();
+        workers.into_iter().flat_map(|w| w.join().unwrap_or_default()).collect()
+    });
+    let mut per: Vec<Vec<RunError>> = vec![Vec::new(); cases.len()];
+    for r in results {
+        let (c, e) = r?;
+        per[c].push(e);
+    }
+    Ok(cases
+        .iter()
+        .zip(per)
+        .map(|(&case, e)| CaseStats {
+            case,
+            runs: e.len(),
+            wavelength_mm: mean_std(e.iter().map(|e| e.wavelength_mm)),
+            amplitude_um: mean_std(e.iter().map(|e| e.amplitude_um)),
+            max_abs: (
+                e.iter().fold(0.0f64, |m, e| m.max(e.wavelength_mm.abs())),
+                e.iter().fold(0.0f64, |m, e| m.max(e.amplitude_um.abs())),
+            ),
+            single_wavelength_mm: single.then(|| mean_std(e.iter().filter_map(|e| e.single_wavelength_mm))),
+            single_amplitude_um: single.then(|| mean_std(e.iter().filter_map(|e| e.single_amplitude_um))),
+        })
+        .collect())
+}
+
+/// The table as Markdown.
+pub fn markdown(stats: &[CaseStats]) -> String {
+    let mut s = String::from(
+        "| λ (mm) | A (µm) | runs | λ error mean ± std (mm) | max \\|λ err\\| (mm) | A error mean ± std (µm) | \
+         max \\|A err\\| (µm) | one line: λ err (mm) | one line: A err (µm) |\n\
+         |---|---|---|---|---|---|---|---|---|\n",
+    );
+    for c in stats {
+        s += &format!(
+            "| {} | {} | {} | {:+.4} ± {:.4} | {:.4} | {:+.3} ± {:.3} | {:.3} | {} | {} |\n",
+            c.case.wavelength_mm,
+            c.case.amplitude_um,
+            c.runs,
+            c.wavelength_mm.0,
+            c.wavelength_mm.1,
+            c.max_abs.0,
+            c.amplitude_um.0,
+            c.amplitude_um.1,
+            c.max_abs.1,
+            pair(c.single_wavelength_mm, 4),
+            pair(c.single_amplitude_um, 3),
+        );
+    }
+    s
+}
+
+fn pair(v: Option<(f64, f64)>, digits: usize) -> String {
+    v.map_or_else(|| "–".into(), |(m, s)| format!("{m:+.digits$} ± {s:.digits$}"))
+}
+
+fn csv_pair(v: Option<(f64, f64)>) -> String {
+    v.map_or_else(|| ",".into(), |(m, s)| format!("{m:.6},{s:.6}"))
+}
+
+/// The table as CSV.
+pub fn csv(stats: &[CaseStats]) -> String {
+    let mut s = String::from(
+        "wavelength_mm,amplitude_um,runs,wl_err_mean_mm,wl_err_std_mm,wl_err_max_mm,amp_err_mean_um,amp_err_std_um,\
+         amp_err_max_um,single_wl_err_mean_mm,single_wl_err_std_mm,single_amp_err_mean_um,single_amp_err_std_um\n",
+    );
+    for c in stats {
+        s += &format!(
+            "{},{},{},{:.6},{:.6},{:.6},{:.5},{:.5},{:.5},{},{}\n",
+            c.case.wavelength_mm,
+            c.case.amplitude_um,
+            c.runs,
+            c.wavelength_mm.0,
+            c.wavelength_mm.1,
+            c.max_abs.0,
+            c.amplitude_um.0,
+            c.amplitude_um.1,
+            c.max_abs.1,
+            csv_pair(c.single_wavelength_mm),
+            csv_pair(c.single_amplitude_um),
+        );
+    }
+    s
+}

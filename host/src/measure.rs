@@ -1,0 +1,467 @@
+//! `cms-host measure`: the corrugation of each image or recorded frame.
+//!
+//! ```text
+//! cms-host measure --calibration cal.toml INPUT... [--json] [--plot DIR]
+//! ```
+//!
+//! INPUT is an image (PNG, TIFF, JPEG or CSV rows, as `detect` reads them)
+//! or a recording (`.cmsrec`). An image's rows go through the head's own
+//! detector (`cms_core::peak`, the CWT method, with the scale range of the
+//! calibration's `[head]` optics, the three strongest stripes); a row with
+//! exactly one stripe per laser gives each laser its point, in position
+//! order (the lasers are mounted left to right in laser order), other rows
+//! are skipped (counted). A recording's complete frames (every part of a
+//! sequence number) give their points' `metric` (triangulated by the head),
+//! or, for frames recorded without a calibration, the raw peaks
+//! triangulated here with the calibration.
+//!
+//! Per image or frame and per laser: the profile `(along_mm, height_mm)` in
+//! that laser's profile frame, its rotated-sine fit (`fit`), and the joint
+//! result of the lines with the surface-normal correction (`corrugation`).
+//! Text by default; `--json`: one JSON object per image/frame per line, with
+//! the profiles. `--plot DIR`: per image/frame `NAME.svg` and `NAME.png`, the
+//! corrected profiles with the joint sine and, below, the residuals.
+//!
+//! A bad input (unreadable, not an image or recording, no calibration
+//! section needed) stops the run with a one-line error and exit status 2; an
+//! image or frame whose lines cannot be fitted is reported as such and the
+//! run goes on.
+
+use std::io::{self, BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+use cms_core::peak::{Config, Detector, Select, Stripes};
+use cms_core::pipeline::triangulator;
+use cms_core::protocol::{DeviceMsg, LASERS, Profile};
+use cms_core::triangulation::Triangulator;
+use serde::Serialize;
+
+use crate::CliError;
+use crate::calib::file::CalibrationFile;
+use crate::corrugation::{Corrected, HeadFrame, Joint, Line, joint_fit};
+use crate::detect::MAX_ROW;
+use crate::fit::{self, Fit, Options};
+use crate::input::{self, Row, Rows};
+use crate::record::{self, FrameCounter};
+
+/// Arguments of `cms-host measure`.
+#[derive(Args, Debug, Clone)]
+pub struct MeasureArgs {
+    /// Calibration file (camera, datum, three lasers, and [head] for images).
+    #[arg(long, value_name = "cal.toml")]
+    pub calibration: PathBuf,
+
+    /// One JSON object per image or frame per line on stdout, with the profiles.
+    #[arg(long)]
+    pub json: bool,
+
+    /// Write NAME.svg and NAME.png per image or frame into DIR (created if needed).
+    #[arg(long, value_name = "DIR")]
+    pub plot: Option<PathBuf>,
+
+    /// Images (PNG, TIFF, JPEG, CSV rows) or recordings (.cmsrec).
+    #[arg(required = true, value_name = "INPUT")]
+    pub inputs: Vec<PathBuf>,
+}
+
+/// Per laser, its profile points `(along_mm, height_mm)`.
+pub type Profiles = [Vec<(f64, f64)>; LASERS];
+
+/// One laser's profile and fit.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LaserResult {
+    /// Laser index.
+    pub laser: usize,
+    /// Positions along the laser line, mm.
+    pub along_mm: Vec<f64>,
+    /// Heights above the datum, mm.
+    pub height_mm: Vec<f64>,
+    /// Its rotated-sine fit.
+    pub fit: Option<Fit>,
+    /// Why there is no fit.
+    pub error: Option<String>,
+}
+
+/// The result of one image or frame.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Measurement {
+    /// The input it came from.
+    pub source: String,
+    /// Frame sequence number (recordings).
+    pub seq: Option<u32>,
+    /// Odometer at exposure, mm (recordings).
+    pub odometer_mm: Option<f64>,
+    /// Image rows without one stripe per laser (images).
+    pub rows_skipped: Option<usize>,
+    /// Per laser.
+    pub lasers: Vec<LaserResult>,
+    /// The joint result of the lines.
+    pub joint: Option<Joint>,
+    /// The surface-normal corrected profiles (skipped in JSON: derivable).
+    #[serde(skip)]
+    pub corrected: Vec<Corrected>,
+    /// Why there is no joint result.
+    pub joint_error: Option<String>,
+}
+
+/// The calibration, ready to measure with.
+pub struct Measurer {
+    tri: Triangulator,
+    frame: HeadFrame,
+    /// Detector scale range (images), if the file has `[head]`.
+    scales: Option<cms_core::optics::ScaleRange>,
+}
+
+impl Measurer {
+    /// From a calibration file: needs `[camera]`, `[datum]` and three
+    /// `[[laser]]`s.
+    pub fn new(cal: &CalibrationFile) -> Result<Measurer, String> {
+        let head = cal.to_head().map_err(|e| e.to_string())?;
+        let tri = triangulator(&head).map_err(|e| e.to_string())?;
+        let frame = HeadFrame::new(&tri).ok_or("the laser planes give no profile frame")?;
+        let scales = cal
+            .head
+            .map(|h| tri.scale_range(h.laser_diameter_mm, (h.range_min_mm, h.range_max_mm)))
+            .transpose()
+            .map_err(|e| format!("[head]: {e}"))?;
+        Ok(Measurer { tri, frame, scales })
+    }
+
+    /// The triangulator of the calibration.
+    pub fn triangulator(&self) -> &Triangulator {
+        &self.tri
+    }
+
+    /// Per-laser profiles of an image: `(profiles, rows skipped)`.
+    pub fn image_profiles(&self, rows: &Rows) -> Result<(Profiles, usize), String> {
+        let scales = self.scales.ok_or("the calibration has no [head] section (the detector's scale range)")?;
+        if rows.width() > MAX_ROW {
+            return Err(format!("rows of {} px exceed the detector's {MAX_ROW} px", rows.width()));
+        }
+        let mut cfg = Config::new(rows.bits(), scales);
+        cfg.max_stripes = LASERS as u8;
+        cfg.select = Select::Strongest;
+        let mut det = Box::new(Detector::<MAX_ROW>::new(cfg).map_err(|e| format!("detector: {e}"))?);
+        let mut out: Profiles = Default::default();
+        let mut skipped = 0;
+        let mut stripes: Stripes<LASERS> = Stripes::new();
+        for (r, row) in rows.rows().enumerate() {
+            match row {
+                Row::U8(v) => det.detect(v, &mut stripes),
+                Row::U16(v) => det.detect(v, &mut stripes),
+            }
+            .map_err(|e| format!("row {r}: {e}"))?;
+            let Ok(r16) = u16::try_from(r) else { break };
+            if stripes.len() != LASERS {
+                skipped += 1;
+                continue;
+            }
+            stripes.sort_unstable_by_key(|s| s.position);
+            for (k, s) in stripes.iter().enumerate() {
+                if let Some(p) = self.tri.profile(k, s.position, r16) {
+                    out[k].push((f64::from(p.along_mm), f64::from(p.height_mm)));
+                }
+            }
+        }
+        Ok((out, skipped))
+    }
+
+    /// Per-laser profiles of a recorded frame (its parts in order): the
+    /// head's metric points, or the raw peaks triangulated here.
+    pub fn frame_profiles(&self, parts: &[Profile]) -> Profiles {
+        let mut out: Profiles = Default::default();
+        for p in parts {
+            for l in &p.lasers {
+                let k = usize::from(l.laser);
+                if k >= LASERS {
+                    continue;
+                }
+                for q in &l.points {
+                    let pt = match q.metric {
+                        Some(m) => Some((f64::from(m.along_um) * 1e-3, f64::from(m.height_nm) * 1e-6)),
+                        None => self
+                            .tri
+                            .profile(k, q.position, q.row)
+                            .map(|p| (f64::from(p.along_mm), f64::from(p.height_mm))),
+                    };
+                    out[k].extend(pt);
+                }
+            }
+        }
+        out
+    }
+
+    /// The profiles as lines in the head frame, for [`joint_fit`].
+    pub fn lines(&self, profiles: &Profiles) -> Vec<Line> {
+        (0..LASERS)
+            .map(|k| Line {
+                laser: k,
+                points: profiles[k].iter().filter_map(|&(a, h)| self.frame.point(k, a, h)).collect(),
+            })
+            .collect()
+    }
+
+    /// Fits the profiles: each laser alone (rotated sine), then jointly
+    /// with the surface-normal correction.
+    pub fn measure(&self, source: &str, profiles: &Profiles) -> Measurement {
+        let mut lasers = Vec::new();
+        for (k, prof) in profiles.iter().enumerate() {
+            let (along_mm, height_mm): (Vec<f64>, Vec<f64>) = prof.iter().copied().unzip();
+            let (fit, error) = match fit::fit(&along_mm, &height_mm, &Options::default()) {
+                Ok(f) => (Some(f), None),
+                Err(e) => (None, Some(e.to_string())),
+            };
+            lasers.push(LaserResult { laser: k, along_mm, height_mm, fit, error });
+        }
+        let lines = self.lines(profiles);
+        let (joint, corrected, joint_error) = match joint_fit(&lines) {
+            Ok((j, c)) => (Some(j), c, None),
+            Err(e) => (None, Vec::new(), Some(e.to_string())),
+        };
+        Measurement {
+            source: source.to_string(),
+            seq: None,
+            odometer_mm: None,
+            rows_skipped: None,
+            lasers,
+            joint,
+            corrected,
+            joint_error,
+        }
+    }
+}
+
+/// Whether `path` is a recording (by its header).
+fn is_recording(path: &Path) -> bool {
+    let mut h = [0u8; 8];
+    std::fs::File::open(path).and_then(|mut f| io::Read::read_exact(&mut f, &mut h)).is_ok() && h == record::MAGIC
+}
+
+/// Runs `cms-host measure`.
+pub fn run(args: &MeasureArgs) -> Result<(), CliError> {
+    let cal_name = args.calibration.display();
+    let cal = CalibrationFile::load(&args.calibration).map_err(|e| CliError::Usage(format!("{cal_name}: {e}")))?;
+    let m = Measurer::new(&cal).map_err(|e| CliError::Usage(format!("{cal_name}: {e}")))?;
+    if let Some(dir) = &args.plot {
+        std::fs::create_dir_all(dir).map_err(|e| CliError::Usage(format!("--plot {}: {e}", dir.display())))?;
+    }
+    let mut out = BufWriter::new(io::stdout().lock());
+    for path in &args.inputs {
+        let name = path.display().to_string();
+        let results = if is_recording(path) {
+            let mut parts: Vec<Profile> = Vec::new();
+            let mut counter = FrameCounter::default();
+            let mut results = Vec::new();
+            record::scan_file(path, |msg| {
+                if let DeviceMsg::Profile(p) = msg {
+                    if p.part == 0 {
+                        parts.clear();
+                    }
+                    parts.push(p.clone());
+                    if counter.profile(p) {
+                        let mut r = m.measure(&name, &m.frame_profiles(&parts));
+                        r.seq = Some(p.seq);
+                        r.odometer_mm = Some(parts[0].odometer_um as f64 * 1e-3);
+                        results.push(r);
+                        parts.clear();
+                    }
+                }
+                Ok(())
+            })
+            .map_err(|e| CliError::Usage(format!("{name}: {e}")))?;
+            if results.is_empty() {
+                return Err(CliError::Usage(format!("{name}: no complete frame in the recording")));
+            }
+            results
+        } else {
+            let rows = input::read_rows(path)?;
+            let (profiles, skipped) = m.image_profiles(&rows).map_err(|e| CliError::Usage(format!("{name}: {e}")))?;
+            let mut r = m.measure(&name, &profiles);
+            r.rows_skipped = Some(skipped);
+            vec![r]
+        };
+        for r in &results {
+            if args.json {
+                serde_json::to_writer(&mut out, r).map_err(io::Error::from)?;
+                writeln!(out)?;
+            } else {
+                write_text(&mut out, r)?;
+            }
+            if let Some(dir) = &args.plot {
+                let stem = path.file_stem().map_or_else(|| "input".into(), |s| s.to_string_lossy().into_owned());
+                let stem = match r.seq {
+                    Some(seq) => format!("{stem}-frame{seq}"),
+                    None => stem,
+                };
+                plot(&dir.join(stem), r).map_err(|e| CliError::Usage(format!("--plot: {e}")))?;
+            }
+        }
+    }
+    out.flush()?;
+    Ok(())
+}
+
+/// The text report of one measurement.
+pub fn write_text(out: &mut impl Write, r: &Measurement) -> io::Result<()> {
+    let mut head = r.source.clone();
+    if let Some(seq) = r.seq {
+        head += &format!(" frame {seq}");
+    }
+    if let Some(o) = r.odometer_mm {
+        head += &format!(" at {o:.3} mm");
+    }
+    if let Some(s) = r.rows_skipped {
+        head += &format!(" ({s} rows without one stripe per laser skipped)");
+    }
+    writeln!(out, "{head}")?;
+    let pm = |s: Option<f64>, k: f64| s.map_or_else(String::new, |s| format!(" ± {:.4}", s * k));
+    for l in &r.lasers {
+        match &l.fit {
+            Some(f) => writeln!(
+                out,
+                "  laser {}: {} points, wavelength {:.4} mm{}, amplitude {:.2} µm{}, rotation {:.4}°, rms {:.2} µm{}",
+                l.laser,
+                f.points,
+                f.wavelength_mm,
+                pm(f.wavelength_sigma_mm, 1.0),
+                f.amplitude_mm * 1e3,
+                pm(f.amplitude_sigma_mm, 1e3),
+                f.rotation_rad.to_degrees(),
+                f.rms_residual_mm * 1e3,
+                if f.converged { "" } else { " (not converged)" }
+            )?,
+            None => writeln!(
+                out,
+                "  laser {}: {} points, no fit: {}",
+                l.laser,
+                l.along_mm.len(),
+                l.error.as_deref().unwrap_or("")
+            )?,
+        }
+    }
+    match &r.joint {
+        Some(j) => writeln!(
+            out,
+            "  joint ({} lines, {} points): wavelength {:.4} mm{}, amplitude {:.2} µm{}, yaw {:.3}°, pitch {:.3}°, \
+             roll {:.3}°, rms {:.2} µm{}",
+            j.lines,
+            j.points,
+            j.wavelength_mm,
+            pm(j.wavelength_sigma_mm, 1.0),
+            j.amplitude_mm * 1e3,
+            pm(j.amplitude_sigma_mm, 1e3),
+            j.yaw_rad.to_degrees(),
+            j.pitch_rad.to_degrees(),
+            j.roll_rad.to_degrees(),
+            j.rms_residual_mm * 1e3,
+            if j.converged { "" } else { " (not converged)" }
+        ),
+        None => writeln!(out, "  joint: no result: {}", r.joint_error.as_deref().unwrap_or("")),
+    }
+}
+
+const COLOURS: [(u8, u8, u8); 3] = [(31, 119, 180), (214, 39, 40), (44, 160, 44)];
+
+/// Writes `BASE.svg` and `BASE.png`: the corrected profiles (µm, each line's
+/// offset removed) with the joint sine, and the residuals below.
+pub fn plot(base: &Path, r: &Measurement) -> Result<(), String> {
+    crate::plot::svg_and_png(base, (1400, 900), &Plot(r)).map(|_| ())
+}
+
+struct Plot<'a>(&'a Measurement);
+
+impl crate::plot::Figure for Plot<'_> {
+    fn draw<DB: plotters::prelude::DrawingBackend>(
+        &self,
+        root: &plotters::prelude::DrawingArea<DB, plotters::coord::Shift>,
+    ) -> Result<(), String> {
+        draw(root, self.0).map_err(crate::plot::err)
+    }
+}
+
+fn draw<DB: plotters::prelude::DrawingBackend>(
+    root: &plotters::prelude::DrawingArea<DB, plotters::coord::Shift>,
+    r: &Measurement,
+) -> Result<(), plotters::drawing::DrawingAreaErrorKind<DB::ErrorType>> {
+    let text = true;
+    use plotters::prelude::*;
+    root.fill(&WHITE)?;
+    let Some(j) = &r.joint else {
+        return Ok(());
+    };
+    let model = |s: f64| j.amplitude_mm * 1e3 * (std::f64::consts::TAU * s / j.wavelength_mm + j.phase_rad).sin();
+    type Series = (usize, Vec<(f64, f64)>, Vec<(f64, f64)>);
+    let series: Vec<Series> = r
+        .corrected
+        .iter()
+        .map(|c| {
+            let pts: Vec<(f64, f64)> =
+                c.s_mm.iter().zip(&c.z_mm).map(|(&s, &z)| (s, (z - c.offset_mm) * 1e3)).collect();
+            let res = pts.iter().map(|&(s, z)| (s, z - model(s))).collect();
+            (c.laser, pts, res)
+        })
+        .collect();
+    let all = series.iter().flat_map(|s| s.1.iter());
+    let (s0, s1) = all.clone().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.0), b.max(p.0)));
+    let zmax = all.fold(0.0f64, |m, p| m.max(p.1.abs())).max(1e-3) * 1.1;
+    let rmax = series.iter().flat_map(|s| s.2.iter()).fold(0.0f64, |m, p| m.max(p.1.abs())).max(1e-3) * 1.1;
+    let (top, bottom) = root.split_vertically(600);
+    let title = format!(
+        "{}{}: λ = {:.3} mm, A = {:.2} µm ({} lines, yaw {:.2}°)",
+        r.source,
+        r.seq.map_or_else(String::new, |s| format!(" frame {s}")),
+        j.wavelength_mm,
+        j.amplitude_mm * 1e3,
+        j.lines,
+        j.yaw_rad.to_degrees()
+    );
+    for (area, range, what) in [(&top, zmax, 0), (&bottom, rmax, 1)] {
+        let mut b = ChartBuilder::on(area);
+        b.margin(15).x_label_area_size(if text { 40 } else { 0 }).y_label_area_size(if text { 70 } else { 0 });
+        if text {
+            let cap = if what == 0 { title.clone() } else { "residuals".to_string() };
+            b.caption(cap, ("sans-serif", 18));
+        }
+        let mut chart = b.build_cartesian_2d(s0..s1, -range..range)?;
+        let mut mesh = chart.configure_mesh();
+        if text {
+            mesh.x_desc("along the rail, mm (surface-normal corrected)").y_desc(if what == 0 {
+                "height, µm"
+            } else {
+                "residual, µm"
+            });
+        } else {
+            mesh.x_labels(0).y_labels(0);
+        }
+        mesh.draw()?;
+        for (laser, pts, res) in &series {
+            let (cr, cg, cb) = COLOURS[laser % COLOURS.len()];
+            let colour = RGBColor(cr, cg, cb).mix(0.6);
+            let data = if what == 0 { pts } else { res };
+            let step = (data.len() / 2000).max(1);
+            let dots = chart.draw_series(data.iter().step_by(step).map(|&p| Circle::new(p, 1, colour.filled())))?;
+            if text {
+                dots.label(format!("laser {laser}")).legend(move |(x, y)| Circle::new((x, y), 3, colour.filled()));
+            }
+        }
+        if what == 0 {
+            let n = 2000;
+            let line = (0..=n).map(|i| {
+                let s = s0 + (s1 - s0) * f64::from(i) / f64::from(n);
+                (s, model(s))
+            });
+            let l = chart.draw_series(LineSeries::new(line, BLACK.stroke_width(2)))?;
+            if text {
+                l.label("joint sine").legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], BLACK));
+                chart
+                    .configure_series_labels()
+                    .position(SeriesLabelPosition::UpperRight)
+                    .background_style(WHITE.mix(0.85))
+                    .border_style(BLACK)
+                    .draw()?;
+            }
+        }
+    }
+    Ok(())
+}
