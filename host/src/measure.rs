@@ -343,10 +343,11 @@ pub fn write_text(out: &mut impl Write, r: &Measurement) -> io::Result<()> {
     match &r.joint {
         Some(j) => writeln!(
             out,
-            "  joint ({} lines, {} points): wavelength {:.4} mm{}, amplitude {:.2} µm{}, yaw {:.3}°, pitch {:.3}°, \
+            "  joint ({} lines, {} points{}): wavelength {:.4} mm{}, amplitude {:.2} µm{}, yaw {:.3}°, pitch {:.3}°, \
              roll {:.3}°, rms {:.2} µm{}",
             j.lines,
             j.points,
+            if j.rejected > 0 { format!(", {} outliers left out", j.rejected) } else { String::new() },
             j.wavelength_mm,
             pm(j.wavelength_sigma_mm, 1.0),
             j.amplitude_mm * 1e3,
