@@ -430,4 +430,29 @@ fn sim_recording_end_to_end() {
     }
     let png = std::fs::read(report.join("spectrum.png")).unwrap();
     assert_eq!(&png[1..4], b"PNG");
+
+    // With the calibration the outer lines lose their lateral-slope scale
+    // (10 mm off the apex of a 300 mm crown, planes at 35°: ∓2.3 %): the
+    // three lasers agree on the 30–100 mm band.
+    let cal = rec.parent().unwrap().join("cal.toml");
+    let o = run(&["analyze", rec.to_str().unwrap(), "--json", "--calibration", cal.to_str().unwrap()]);
+    assert!(o.status.success(), "{o:?}");
+    let w: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(w["slid_across_frames"], v["frames"], "{}", w["slid_across_frames"]);
+    let pp = |v: &serde_json::Value| -> Vec<f64> {
+        (0..3).map(|k| v["lasers"][k]["en13231"]["bands"][1]["average_mean_pp_mm"].as_f64().unwrap()).collect()
+    };
+    let spread = |p: &[f64]| p.iter().fold(f64::MIN, |m, &x| m.max(x)) - p.iter().fold(f64::MAX, |m, &x| m.min(x));
+    let (raw, slid) = (pp(&v), pp(&w));
+    println!("30–100 mm mean peak-to-peak per laser (mm): as measured {raw:.5?}, slid across {slid:.5?}");
+    assert!(spread(&slid) < 0.5 * spread(&raw) && spread(&slid) < 0.0015, "{raw:?} → {slid:?}");
+    for p in &slid {
+        assert!((p - 0.060).abs() < 0.002, "{slid:?}");
+    }
+    // Another head's calibration is refused, in one line.
+    let text = std::fs::read_to_string(&cal).unwrap();
+    let other = dir.path().join("other.toml");
+    std::fs::write(&other, format!("id = 12345\n{text}")).unwrap();
+    let e = one_line_error(&run(&["analyze", rec.to_str().unwrap(), "--calibration", other.to_str().unwrap()]));
+    assert!(e.contains("0x00003039") && e.contains("recorded with calibration"), "{e}");
 }

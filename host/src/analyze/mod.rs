@@ -32,6 +32,9 @@ use cms_core::protocol::DeviceMsg;
 use serde_json::{Value, json};
 
 use crate::CliError;
+use crate::calib::file::CalibrationFile;
+use crate::corrugation::Across;
+use crate::measure::{Measurer, Profiles};
 use crate::record::{self, ScanStats};
 use crate::standards::{StandardsError, en13231, en15610};
 use stitch::{Direction, FrameAssembler, FramePoints, Registration, Stitched, Stitching};
@@ -88,6 +91,12 @@ pub struct AnalyzeArgs {
     /// Skip EN 15610 curvature (wheel) processing.
     #[arg(long = "no-curvature")]
     pub no_curvature: bool,
+    /// The head's calibration file (the one it recorded with): every
+    /// frame's points are then slid across the rail head's lateral slope
+    /// (the lines' lateral positions come from its laser planes), which
+    /// takes out the ±2–5 % height scale of the outer lines on a crowned rail.
+    #[arg(long, value_name = "CAL.toml")]
+    pub calibration: Option<PathBuf>,
 }
 
 fn positive(s: &str) -> Result<f64, String> {
@@ -143,6 +152,8 @@ pub struct Recording {
     /// Calibration id of the last `Hello`.
     pub calibration_id: Option<u32>,
     pub stats: ScanStats,
+    /// Frames slid across ([`slide_frames`]) and the calibration file used.
+    pub slid_across: Option<(usize, PathBuf)>,
 }
 
 impl Recording {
@@ -188,6 +199,28 @@ pub fn read_recording(path: &Path) -> Result<Recording, CliError> {
         )));
     }
     Ok(rec)
+}
+
+/// Slides every frame's points across the rail head's lateral slope
+/// ([`crate::corrugation::Across`]: the points lifted to the head frame with
+/// the calibration's laser frames, the slope from the parabola through the
+/// three lines' mean heights); returns the frames corrected (a frame with
+/// fewer than two lines of 8 points is left as it is).
+pub fn slide_frames(frames: &mut [FramePoints], m: &Measurer) -> usize {
+    let mut done = 0;
+    for f in frames {
+        let profiles: Profiles = std::array::from_fn(|k| f.lasers[k].iter().map(|&(a, h)| (a, h * 1e-3)).collect());
+        let lines = m.lines(&profiles);
+        let Some(across) = Across::new(&lines) else { continue };
+        for (k, (pts, line)) in f.lasers.iter_mut().zip(&lines).enumerate() {
+            // `lines` keeps every point of a known laser, in order.
+            for (pt, p3) in pts.iter_mut().zip(&line.points) {
+                pt.1 += (across.slide(k, *p3)[2] - p3[2]) * 1e3;
+            }
+        }
+        done += 1;
+    }
+    done
 }
 
 /// One laser's outcome.
@@ -290,6 +323,22 @@ pub fn describe(path: &Path, rec: &Recording, a: &Analysis) -> String {
     );
     if rec.uncalibrated_points > 0 {
         let _ = writeln!(s, "  {} points without a calibrated position were left out", rec.uncalibrated_points);
+    }
+    match &rec.slid_across {
+        Some((n, cal)) => {
+            let _ = writeln!(
+                s,
+                "  heights slid across the rail head's lateral slope with {} ({n} of {} frames)",
+                cal.display(),
+                rec.frames.len()
+            );
+        }
+        None => {
+            let _ = writeln!(
+                s,
+                "  heights as the head measured them (no --calibration: the outer lines keep their lateral-slope scale)"
+            );
+        }
     }
     for w in record::warnings(path, &rec.stats) {
         let _ = writeln!(s, "  {w}");
@@ -502,6 +551,7 @@ pub fn to_json(path: &Path, rec: &Recording, a: &Analysis) -> Value {
         "calibrated_points": rec.calibrated_points,
         "uncalibrated_points": rec.uncalibrated_points,
         "calibration_id": rec.calibration_id,
+        "slid_across_frames": rec.slid_across.as_ref().map(|(n, _)| n),
         "odometer_mm": [num(olo), num(ohi)],
         "damaged_frames": rec.stats.damaged,
         "direction": match a.stitching.direction { Direction::Reverse => "reverse", _ => "forward" },
@@ -517,7 +567,20 @@ pub fn to_json(path: &Path, rec: &Recording, a: &Analysis) -> Value {
 
 /// Runs `cms-host analyze`.
 pub fn run(args: &AnalyzeArgs) -> Result<(), CliError> {
-    let rec = read_recording(&args.recording)?;
+    let mut rec = read_recording(&args.recording)?;
+    if let Some(path) = &args.calibration {
+        let name = path.display();
+        let file = CalibrationFile::load(path).map_err(|e| CliError::Usage(format!("{name}: {e}")))?;
+        let id = file.to_head().map_err(|e| CliError::Usage(format!("{name}: {e}")))?.id;
+        if let Some(rid) = rec.calibration_id.filter(|&r| r != id) {
+            return Err(CliError::Usage(format!(
+                "{name} is calibration {id:#010x}, but {} was recorded with calibration {rid:#010x}",
+                args.recording.display()
+            )));
+        }
+        let m = Measurer::new(&file).map_err(|e| CliError::Usage(format!("{name}: {e}")))?;
+        rec.slid_across = Some((slide_frames(&mut rec.frames, &m), path.clone()));
+    }
     let opts = args.options();
     let a = analyze(&rec.frames, &opts).map_err(|e| CliError::Usage(format!("{}: {e}", args.recording.display())))?;
     let text = summary(&args.recording, &rec, &a);
