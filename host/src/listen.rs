@@ -39,7 +39,7 @@ use std::time::{Duration, Instant};
 use clap::{Args, ValueEnum};
 use cms_core::protocol::{
     DeviceInfo, DeviceMsg, ErrorCode, HeadState, HostMsg, LASERS, LaserPattern, PROTOCOL_VERSION, Profile, Start,
-    WireError,
+    Status, WireError,
 };
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
@@ -212,6 +212,8 @@ pub struct Summary {
     pub head_dropped: u32,
     /// Lasers lit according to the head's last `Status`.
     pub lasers_on: Option<u8>,
+    /// The head's last `Status` (its telemetry).
+    pub head: Option<Status>,
     /// The head's description.
     pub device: Option<DeviceInfo>,
     /// Frames written to the recording.
@@ -269,6 +271,9 @@ impl fmt::Display for Summary {
             Some(id) => writeln!(f, "calibration: {id:#010x} (points in mm along the line, heights in µm)")?,
             None => {}
         }
+        if let Some(h) = &self.head {
+            writeln!(f, "head (last status): {}", telemetry(h))?;
+        }
         let lasers = match self.lasers_on {
             Some(0) => "off".to_string(),
             Some(m) => format!("ON ({m:#05b})"),
@@ -276,6 +281,23 @@ impl fmt::Display for Summary {
         };
         write!(f, "lasers: {lasers}{}", if self.stop_acked { " (stop acknowledged)" } else { "" })
     }
+}
+
+/// The head's telemetry from its `Status`, compact: processing per row (ns,
+/// and core cycles where the head knows its clock), rows lost to the
+/// camera's DMA, link backlog, laser duty over the status window, and a
+/// fault if there is one.
+pub fn telemetry(s: &Status) -> String {
+    let cycles = if s.cycles_per_row > 0 { format!(" ({} cycles)", s.cycles_per_row) } else { String::new() };
+    let fault = s.fault.map(|f| format!(", fault {f:?}")).unwrap_or_default();
+    format!(
+        "{} rows/s, {} ns/row{cycles}, {} rows lost, backlog {} B, laser duty {:.1} %{fault}",
+        s.rows_per_s,
+        s.ns_per_row,
+        s.dropped_rows,
+        s.link_backlog_bytes,
+        f64::from(s.laser_duty_permille) / 10.0
+    )
 }
 
 enum Phase {
@@ -403,6 +425,7 @@ impl Session<'_> {
             DeviceMsg::Status(s) => {
                 self.sum.head_dropped = s.dropped_frames;
                 self.sum.lasers_on = Some(s.lasers_on);
+                self.sum.head = Some(s);
                 self.head_state = Some(s.state);
                 if self.sum.stop_acked {
                     // The head's report after the Stop: its lasers now.
@@ -541,8 +564,14 @@ impl Session<'_> {
         };
         // Once calibrated points flow: the sine fit of each laser's last half metre.
         let corrugation = self.live.status();
+        // The head's own report, once it has one from streaming (the one
+        // answering Start has an empty window).
+        let head = match &self.sum.head {
+            Some(h) if h.frames > 0 => format!(", head {}", telemetry(h)),
+            _ => String::new(),
+        };
         format!(
-            "{state}: {:.1} frames/s, {:.0} points/frame, {} frames, CRC errors {}, resyncs {}, dropped {}, reconnects {}, lasers {lasers}{}{corrugation}",
+            "{state}: {:.1} frames/s, {:.0} points/frame, {} frames, CRC errors {}, resyncs {}, dropped {}, reconnects {}, lasers {lasers}{head}{}{corrugation}",
             self.rate.0,
             self.rate.1,
             self.sum.frames,

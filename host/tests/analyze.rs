@@ -353,6 +353,10 @@ fn sim_recording_end_to_end() {
     let status: Vec<&str> = listen_err.lines().filter(|l| l.contains("corrugation")).collect();
     println!("{}", status.join("\n"));
     let last = status.last().expect("a status line with the corrugation estimate");
+    // … and the head's telemetry (protocol v3 status) before it.
+    assert!(last.contains(", head ") && last.contains(" ns/row") && last.contains("laser duty"), "{last}");
+    let rows_per_s: u64 = last.split(", head ").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap();
+    assert!(rows_per_s > 0, "{last}");
     for k in 0..3 {
         let tag = format!("L{k} ");
         let at = last.find(&tag).unwrap_or_else(|| panic!("{last}"));

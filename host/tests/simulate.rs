@@ -496,6 +496,13 @@ fn listen_sim_crosses_the_pty() {
     assert!(seqs.windows(2).all(|w| w[0] < w[1]), "{seqs:?}");
     let sim = err.lines().find(|l| l.starts_with("sim: served")).unwrap_or_else(|| panic!("no sim summary: {err}"));
     assert!(sim.ends_with("lasers off"), "{sim}");
+    // The head's telemetry from its last status (the one after Stop: its
+    // window may be a few ms since the last periodic status, so its rates
+    // may be 0; the live line in tests/analyze.rs checks them).
+    let head = err.lines().find(|l| l.starts_with("listen: head (last status): ")).unwrap_or_else(|| panic!("{err}"));
+    let rows_per_s: Result<u64, _> = head.split(": ").nth(2).unwrap().split(' ').next().unwrap().parse();
+    assert!(rows_per_s.is_ok() && head.contains(" ns/row") && head.contains(" rows lost, backlog "), "{head}");
+    assert!(head.contains("laser duty "), "{head}");
     // The simulator's options need PORT sim.
     let out = Process::new(BIN).args(["listen", "/dev/null", "--sim-seed", "3"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));
