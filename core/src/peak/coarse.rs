@@ -11,7 +11,9 @@
 //! zero response.
 
 use super::kernels::Rung;
-use super::{Candidate, MAX_CANDIDATES};
+use super::median::Histogram;
+use super::{Candidate, MAX_CANDIDATES, Pixel};
+use core::cell::Cell;
 use heapless::Vec;
 
 /// Most hot-pixel candidates examined per row (the first ones in the row).
@@ -27,16 +29,42 @@ pub const MAX_SPIKES: usize = 64;
 /// row has a relative standard error of about 8 %, ample for a threshold, at a
 /// third of the selection cost.
 pub fn pixel_noise_q8(x: &[i32], scratch: &mut [i32]) -> i32 {
+    let mut h = Histogram::new();
     let mut m = 0;
-    for (s, w) in scratch.iter_mut().zip(x.windows(3).step_by(NOISE_STRIDE)) {
-        *s = (w[0] - 2 * w[1] + w[2]).abs();
+    // The windows at 0, 3, 6, … are the row's exact chunks of three.
+    for (s, w) in scratch.iter_mut().zip(x.chunks_exact(NOISE_STRIDE)) {
+        let v = (w[0] - 2 * w[1] + w[2]).abs();
+        *s = v;
+        h.add(v);
         m += 1;
     }
-    if m == 0 {
-        return 0;
+    h.set_total(m);
+    h.kth(&mut scratch[..m], m / 2).saturating_mul(155)
+}
+
+/// Copies `row` into `x` (which must be as long), values above `sat`
+/// clamped to it, and returns [`pixel_noise_q8`] of the copy: one pass
+/// instead of two. `scratch` needs a third of the row.
+pub fn load_row<P: Pixel>(row: &[P], sat: i32, x: &mut [i32], scratch: &mut [i32]) -> i32 {
+    let mut h = Histogram::new();
+    let mut m = 0;
+    let mut xs = x.chunks_exact_mut(NOISE_STRIDE);
+    let mut ps = row.chunks_exact(NOISE_STRIDE);
+    for ((d, p), s) in (&mut xs).zip(&mut ps).zip(scratch.iter_mut()) {
+        let (a, b, c) = (p[0].value().min(sat), p[1].value().min(sat), p[2].value().min(sat));
+        d[0] = a;
+        d[1] = b;
+        d[2] = c;
+        let v = (a - 2 * b + c).abs();
+        *s = v;
+        h.add(v);
+        m += 1;
     }
-    let med = *scratch[..m].select_nth_unstable(m / 2).1;
-    med.saturating_mul(155)
+    for (d, p) in xs.into_remainder().iter_mut().zip(ps.remainder()) {
+        *d = p.value().min(sat);
+    }
+    h.set_total(m);
+    h.kth(&mut scratch[..m], m / 2).saturating_mul(155)
 }
 
 /// Decimation of the robust noise estimates (see [`pixel_noise_q8`]).
@@ -45,16 +73,16 @@ pub const NOISE_STRIDE: usize = 3;
 /// Robust σ (Q8) of a zero-mean response: 1.4826 · median |r| (380/256).
 /// Every `NOISE_STRIDE`-th value is used, as in [`pixel_noise_q8`].
 pub fn abs_median_sigma_q8(r: &[i32], scratch: &mut [i32]) -> i32 {
+    let mut h = Histogram::new();
     let mut m = 0;
-    for (s, v) in scratch.iter_mut().zip(r.iter().step_by(NOISE_STRIDE)) {
-        *s = v.saturating_abs();
+    for (s, c) in scratch.iter_mut().zip(r.chunks(NOISE_STRIDE)) {
+        let v = c[0].saturating_abs();
+        *s = v;
+        h.add(v);
         m += 1;
     }
-    if m == 0 {
-        return 0;
-    }
-    let med = *scratch[..m].select_nth_unstable(m / 2).1;
-    med.saturating_mul(380)
+    h.set_total(m);
+    h.kth(&mut scratch[..m], m / 2).saturating_mul(380)
 }
 
 /// Replaces isolated hot pixels in place; returns how many.
@@ -78,12 +106,7 @@ pub fn remove_spikes(x: &mut [i32], noise_q8: i32, k_q16: i64, sat: i32) -> u16 
     // the noise allows. Almost every pixel stops here.
     let lin32 = lin.min(i32::MAX as i64) as i32;
     let mut hits: Vec<usize, MAX_SPIKES> = Vec::new();
-    for (i, w) in x.windows(3).enumerate() {
-        let (a, b, c) = (w[0], w[1], w[2]);
-        if b > a && b > c && 2 * b - a - c > lin32 && b < sat && hits.push(i + 1).is_err() {
-            break;
-        }
-    }
+    scan3(x, |a, b, c| 2 * b - a - c > lin32, |i, a, b, c| !(b > a && b > c && b < sat && hits.push(i).is_err()));
     let mut count = 0u16;
     for &i in &hits {
         let (a, b, c) = (x[i - 1] as i64, x[i] as i64, x[i + 1] as i64);
@@ -105,68 +128,150 @@ pub fn remove_spikes(x: &mut [i32], noise_q8: i32, k_q16: i64, sat: i32) -> u16 
     count
 }
 
-/// One box pass of half-width `h` with edge replication, `>> shift` after.
+/// `dst[lo..hi]` of one box pass of half-width `h` over the `len` values
+/// `src(0..len)`, edges replicated, `>> shift` after: `dst[i] = Σ
+/// src(clamp(i−h..=i+h)) >> shift`. Returns the running sum at `hi − 1`
+/// (unshifted). Used for rows too short for [`response`]'s fused loop and
+/// for that loop's ends.
+fn box_span(
+    src: impl Fn(usize) -> i32,
+    len: usize,
+    dst: &[Cell<i32>],
+    h: usize,
+    shift: u32,
+    lo: usize,
+    hi: usize,
+) -> i32 {
+    let last = len as isize - 1;
+    let at = |i: isize| src(i.clamp(0, last) as usize);
+    let (h, lo_) = (h as isize, lo as isize);
+    let mut acc: i32 = (lo_ - h..=lo_ + h).map(at).sum();
+    let Some((first, rest)) = dst[lo..hi].split_first() else {
+        return acc;
+    };
+    first.set(acc >> shift);
+    for (i, d) in (lo_ + 1..).zip(rest) {
+        acc += at(i + h) - at(i - h - 1);
+        d.set(acc >> shift);
+    }
+    acc
+}
+
+/// `r[lo..hi]` of `r[i] = 2 g[i] − g[i−q] − g[i+q]`, edges replicated.
+fn second_difference_span(g: &[Cell<i32>], r: &[Cell<i32>], q: usize, lo: usize, hi: usize) {
+    let last = g.len() - 1;
+    for (i, (d, c)) in (lo..hi).zip(r[lo..hi].iter().zip(&g[lo..hi])) {
+        d.set(2 * c.get() - g[i.saturating_sub(q)].get() - g[(i + q).min(last)].get());
+    }
+}
+
+/// The coarse pass: `g`, the row `x` smoothed by three box passes of
+/// half-width `h = rung.box_half` (each `>> rung.box_shift`, edges
+/// replicated: each pass repeats its own input's end values), and `r[i] =
+/// 2 g[i] − g[i−q] − g[i+q]` (`q = rung.lag`, edges replicated). `b` is
+/// scratch; `r` doubles as the first pass's output. All as long as `x`.
 ///
-/// A running sum: `dst[i] = Σ src[i−h..=i+h] >> shift`, updated by one add
-/// and one subtract per pixel. The interior is a `zip` over two offset
-/// slices (no index clamping); only the `h` pixels at each end read the
-/// replicated edge.
-fn box_pass(src: &[i32], dst: &mut [i32], h: usize, shift: u32) {
-    let n = src.len();
-    let (first, last) = (src[0], src[n - 1]);
-    let at = |i: isize| src[i.clamp(0, n as isize - 1) as usize];
-    let hi = h as isize;
-    let mut acc: i32 = (-hi..=hi).map(at).sum();
-    if n <= 2 * h + 1 {
-        for (i, d) in dst.iter_mut().enumerate() {
-            *d = acc >> shift;
-            let i = i as isize;
-            acc += at(i + hi + 1) - at(i - hi);
-        }
+/// # Cost
+/// Two streaming loops instead of four passes: the first runs box passes 1
+/// and 2 (at step `t` it produces `a[t]`, then `b[t−h]` from it), the second
+/// box pass 3 and the second difference (`g[u]`, then `r[u−q]`). The newest
+/// input of the second stage of each loop is in a register, so each loop
+/// reads 3 values and writes 2 per pixel, and each keeps its pointers in
+/// registers on the Cortex-M4 (a single loop over all four stages would
+/// not). The few pixels at each end, where indices would be clamped, are
+/// done stage by stage.
+pub fn response(x: &[i32], r: &mut [i32], b: &mut [i32], g: &mut [i32], rung: &Rung) {
+    let n = x.len();
+    let (h, sh, q) = (rung.box_half, rung.box_shift, rung.lag);
+    let (r, b, g) = (&mut r[..n], &mut b[..n], &mut g[..n]);
+    let (r, b, g) = (
+        Cell::from_mut(r).as_slice_of_cells(),
+        Cell::from_mut(b).as_slice_of_cells(),
+        Cell::from_mut(g).as_slice_of_cells(),
+    );
+    // The first pass's output lives in `r`'s buffer until `g` is complete.
+    let a = r;
+    let (ta, tb) = (2 * h + 1, (h + 1).max(2 * q));
+    if n == 0 {
         return;
     }
-    // i in 0..h: the subtracted pixel is left of the row.
-    for (d, &add) in dst[..h].iter_mut().zip(&src[h + 1..]) {
-        *d = acc >> shift;
-        acc += add - first;
-    }
-    // i in h..n−h−1: both inside.
-    for ((d, &add), &sub) in dst[h..n - h - 1].iter_mut().zip(&src[2 * h + 1..]).zip(&src[..n - 2 * h - 1]) {
-        *d = acc >> shift;
-        acc += add - sub;
-    }
-    // i in n−h−1..n: the added pixel is right of the row.
-    for (d, &sub) in dst[n - h - 1..].iter_mut().zip(&src[n - 2 * h - 1..]) {
-        *d = acc >> shift;
-        acc += last - sub;
-    }
-}
-
-/// Three box passes `x → a → b → g`.
-pub fn smooth(x: &[i32], a: &mut [i32], b: &mut [i32], g: &mut [i32], rung: &Rung) {
-    box_pass(x, a, rung.box_half, rung.box_shift);
-    box_pass(a, b, rung.box_half, rung.box_shift);
-    box_pass(b, g, rung.box_half, rung.box_shift);
-}
-
-/// `r[i] = 2 g[i] − g[i−q] − g[i+q]`, edges replicated.
-pub fn second_difference(g: &[i32], r: &mut [i32], q: usize) {
-    let n = g.len();
-    if n <= 2 * q {
-        for (i, d) in r.iter_mut().enumerate() {
-            *d = 2 * g[i] - g[i.saturating_sub(q)] - g[(i + q).min(n - 1)];
-        }
+    if n < ta.max(tb) + h + 1 {
+        // Too short for the fused loops: pass by pass.
+        box_span(|i| x[i], n, a, h, sh, 0, n);
+        box_span(|i| a[i].get(), n, b, h, sh, 0, n);
+        box_span(|i| b[i].get(), n, g, h, sh, 0, n);
+        second_difference_span(g, r, q, 0, n);
         return;
     }
-    let (first, last) = (g[0], g[n - 1]);
-    for ((d, &c), &h) in r[..q].iter_mut().zip(g).zip(&g[q..]) {
-        *d = 2 * c - first - h;
+    let end = n - 1 - h; // last step of both loops
+    // Box passes 1 and 2: heads, loop over t in ta..=end, tails.
+    let mut acc1 = box_span(|i| x[i], n, a, h, sh, 0, ta);
+    let mut acc2 = box_span(|i| a[i].get(), n, b, h, sh, 0, ta - h);
+    let steps = x[ta + h..]
+        .iter()
+        .zip(&x[ta - h - 1..=end - h - 1])
+        .zip(&a[ta..=end])
+        .zip(&a[..=end - ta])
+        .zip(&b[ta - h..=end - h]);
+    for ((((&x_add, &x_sub), a_new), a_old), b_new) in steps {
+        acc1 += x_add - x_sub;
+        let va = acc1 >> sh;
+        a_new.set(va);
+        acc2 += va - a_old.get();
+        b_new.set(acc2 >> sh);
     }
-    for (((d, &c), &l), &h) in r[q..n - q].iter_mut().zip(&g[q..]).zip(g).zip(&g[2 * q..]) {
-        *d = 2 * c - l - h;
+    box_span(|i| x[i], n, a, h, sh, n - h, n);
+    box_span(|i| a[i].get(), n, b, h, sh, n - 2 * h, n);
+    // Box pass 3 and the second difference: the same over u in tb..=end.
+    let mut acc3 = box_span(|i| b[i].get(), n, g, h, sh, 0, tb);
+    second_difference_span(g, r, q, 0, tb - q);
+    let steps = b[tb + h..]
+        .iter()
+        .zip(&b[tb - h - 1..=end - h - 1])
+        .zip(&g[tb..=end])
+        .zip(&g[tb - q..=end - q])
+        .zip(&g[tb - 2 * q..=end - 2 * q])
+        .zip(&r[tb - q..=end - q]);
+    for (((((b_add, b_sub), g_new), g_mid), g_far), r_out) in steps {
+        acc3 += b_add.get() - b_sub.get();
+        let vg = acc3 >> sh;
+        g_new.set(vg);
+        r_out.set(2 * g_mid.get() - g_far.get() - vg);
     }
-    for ((d, &c), &l) in r[n - q..].iter_mut().zip(&g[n - q..]).zip(&g[n - 2 * q..]) {
-        *d = 2 * c - l - last;
+    box_span(|i| b[i].get(), n, g, h, sh, n - h, n);
+    second_difference_span(g, r, q, n - h - q, n);
+}
+
+/// Calls `f(i, v[i−1], v[i], v[i+1])` for every `i` in `1..len − 1`, in
+/// order, where the cheap test `pre` on the same three values holds; stops
+/// when `f` returns false. The window slides in registers, four pixels per
+/// iteration: a pixel costs a load, `pre` and a branch.
+#[inline(always)]
+fn scan3(v: &[i32], pre: impl Fn(i32, i32, i32) -> bool, mut f: impl FnMut(usize, i32, i32, i32) -> bool) {
+    if v.len() < 3 {
+        return;
+    }
+    let (mut a, mut b) = (v[0], v[1]);
+    let mut i = 1;
+    let mut chunks = v[2..].chunks_exact(4);
+    for ch in &mut chunks {
+        let (c0, c1, c2, c3) = (ch[0], ch[1], ch[2], ch[3]);
+        if pre(a, b, c0) || pre(b, c0, c1) || pre(c0, c1, c2) || pre(c1, c2, c3) {
+            for (j, (p, q, s)) in [(a, b, c0), (b, c0, c1), (c0, c1, c2), (c1, c2, c3)].into_iter().enumerate() {
+                if pre(p, q, s) && !f(i + j, p, q, s) {
+                    return;
+                }
+            }
+        }
+        (a, b) = (c2, c3);
+        i += 4;
+    }
+    for &c in chunks.remainder() {
+        if pre(a, b, c) && !f(i, a, b, c) {
+            return;
+        }
+        (a, b) = (b, c);
+        i += 1;
     }
 }
 
@@ -191,11 +296,16 @@ pub fn candidates(r: &[i32], threshold: i32) -> Vec<Candidate, MAX_CANDIDATES> {
     if (n == 1 || r[0] >= r[1]) && r[0] > threshold {
         push(0, r[0]);
     }
-    for (i, w) in r.windows(3).enumerate() {
-        if w[1] > threshold && w[1] > w[0] && w[1] >= w[2] {
-            push(i + 1, w[1]);
-        }
-    }
+    scan3(
+        r,
+        |_, b, _| b > threshold,
+        |i, a, b, c| {
+            if b > a && b >= c {
+                push(i, b);
+            }
+            true
+        },
+    );
     if n > 1 && r[n - 1] > r[n - 2] && r[n - 1] > threshold {
         push(n - 1, r[n - 1]);
     }
@@ -229,18 +339,22 @@ mod tests {
     use super::*;
 
     #[test]
-    fn box_pass_of_constant_is_constant() {
+    fn box_span_of_constant_is_constant() {
         let x = [7i32; 20];
         let mut y = [0i32; 20];
-        box_pass(&x, &mut y, 2, 0);
+        let yc = Cell::from_mut(&mut y[..]).as_slice_of_cells();
+        box_span(|i| x[i], 20, yc, 2, 0, 0, 20);
         assert!(y.iter().all(|&v| v == 35));
     }
 
     #[test]
-    fn box_pass_matches_direct_sum() {
+    fn box_span_matches_direct_sum() {
         let x: [i32; 12] = [1, 5, 2, 8, 3, 9, 4, 7, 6, 0, 2, 1];
         let mut y = [0i32; 12];
-        box_pass(&x, &mut y, 1, 0);
+        let yc = Cell::from_mut(&mut y[..]).as_slice_of_cells();
+        // In two spans: the running sum restarts exactly.
+        box_span(|i| x[i], 12, yc, 1, 0, 0, 5);
+        box_span(|i| x[i], 12, yc, 1, 0, 5, 12);
         // interior: y[i] = x[i-1] + x[i] + x[i+1]
         assert_eq!(y[1], 8);
         assert_eq!(y[5], 16);

@@ -8,9 +8,11 @@
 //! Every method shares the front end, so a comparison between methods is a
 //! comparison of sub-pixel estimators, not of detection luck:
 //!
-//! 1. **Copy** the row to `i32` and note saturated runs.
-//! 2. **Noise**: a robust pixel-noise σ from the median absolute second
-//!    difference (`select_nth_unstable`, O(n), no allocation).
+//! 1. **Copy** the row to `i32` (values above saturation clamped) and, in the
+//!    same pass, every third absolute second difference.
+//! 2. **Noise**: a robust pixel-noise σ, the median of those ([`median`]:
+//!    counted into a log-binned histogram as they are made, then the exact
+//!    median from the one bin that holds it; O(n), no allocation).
 //! 3. **Hot pixels** (paper §4, fixed-pattern noise): a single pixel that is a
 //!    local maximum, stands > 8.6 σ above its neighbours' mean, and is more
 //!    peaked than any Gaussian of the minimum stripe width could be
@@ -35,6 +37,7 @@
 pub mod coarse;
 pub mod cwt;
 pub mod kernels;
+pub mod median;
 pub mod paper;
 pub mod subpixel;
 
@@ -459,15 +462,11 @@ impl<const W: usize> Detector<W> {
         let x = &mut self.x[..n];
         // Values above the bit depth cannot come from the sensor; clamp them to
         // the saturation level rather than let them masquerade as signal.
-        for (d, p) in x.iter_mut().zip(row) {
-            *d = p.value().min(sat);
-        }
-        let noise_q8 = coarse::pixel_noise_q8(x, &mut self.s[..n]);
+        let noise_q8 = coarse::load_row(row, sat, x, &mut self.s[..n]);
         self.stats.noise_q8 = noise_q8;
         self.stats.spikes = coarse::remove_spikes(x, noise_q8, self.plan.spike_k_q16, sat);
         let rung = &kernels::RUNGS[self.plan.k_coarse];
-        coarse::smooth(x, &mut self.s[..n], &mut self.r[..n], &mut self.g[..n], rung);
-        coarse::second_difference(&self.g[..n], &mut self.r[..n], rung.lag);
+        coarse::response(x, &mut self.r[..n], &mut self.s[..n], &mut self.g[..n], rung);
         let resp_sigma_q8 = coarse::abs_median_sigma_q8(&self.r[..n], &mut self.s[..n]);
         let thr_noise = (resp_sigma_q8 as i64 * self.cfg.threshold_sigma_q8 as i64) >> 16;
         let thr_abs = (self.cfg.min_amplitude as i64 * rung.coarse_gain_q8) >> 8;
