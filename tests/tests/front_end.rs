@@ -197,7 +197,9 @@ proptest! {
         let n = x.len();
         let (g_ref, r_ref) = response_ref(&x, k);
         let (mut r, mut b, mut g) = (vec![7; n], vec![7; n], vec![7; n]);
-        coarse::response(&x, &mut r, &mut b, &mut g, &RUNGS[k]);
+        let mut xm = x.clone();
+        coarse::response(&mut xm, &mut r, &mut b, &mut g, &RUNGS[k]);
+        prop_assert_eq!(&xm, &x);
         prop_assert_eq!(&g, &g_ref);
         prop_assert_eq!(&r, &r_ref);
         let mut scratch = vec![0; n];

@@ -129,22 +129,15 @@ pub fn remove_spikes(x: &mut [i32], noise_q8: i32, k_q16: i64, sat: i32) -> u16 
     count
 }
 
-/// `dst[lo..hi]` of one box pass of half-width `h` over the `len` values
-/// `src(0..len)`, edges replicated, `>> shift` after: `dst[i] = Σ
-/// src(clamp(i−h..=i+h)) >> shift`. Returns the running sum at `hi − 1`
-/// (unshifted). Used for rows too short for [`response`]'s fused loop and
-/// for that loop's ends.
-fn box_span(
-    src: impl Fn(usize) -> i32,
-    len: usize,
-    dst: &[Cell<i32>],
-    h: usize,
-    shift: u32,
-    lo: usize,
-    hi: usize,
-) -> i32 {
-    let last = len as isize - 1;
-    let at = |i: isize| src(i.clamp(0, last) as usize);
+/// `dst[lo..hi]` of one box pass of half-width `h` over `src`, edges
+/// replicated, `>> shift` after: `dst[i] = Σ src[clamp(i−h..=i+h)] >> shift`.
+/// Returns the running sum at `hi − 1` (unshifted). Used for rows too short
+/// for [`response`]'s fused loops and for those loops' ends (out of line:
+/// it is called eleven times and is not hot).
+#[inline(never)]
+fn box_span(src: &[Cell<i32>], dst: &[Cell<i32>], h: usize, shift: u32, lo: usize, hi: usize) -> i32 {
+    let last = src.len() as isize - 1;
+    let at = |i: isize| src[i.clamp(0, last) as usize].get();
     let (h, lo_) = (h as isize, lo as isize);
     let mut acc: i32 = (lo_ - h..=lo_ + h).map(at).sum();
     let Some((first, rest)) = dst[lo..hi].split_first() else {
@@ -159,6 +152,7 @@ fn box_span(
 }
 
 /// `r[lo..hi]` of `r[i] = 2 g[i] − g[i−q] − g[i+q]`, edges replicated.
+#[inline(never)]
 fn second_difference_span(g: &[Cell<i32>], r: &[Cell<i32>], q: usize, lo: usize, hi: usize) {
     let last = g.len() - 1;
     for (i, (d, c)) in (lo..hi).zip(r[lo..hi].iter().zip(&g[lo..hi])) {
@@ -170,7 +164,8 @@ fn second_difference_span(g: &[Cell<i32>], r: &[Cell<i32>], q: usize, lo: usize,
 /// half-width `h = rung.box_half` (each `>> rung.box_shift`, edges
 /// replicated: each pass repeats its own input's end values), and `r[i] =
 /// 2 g[i] − g[i−q] − g[i+q]` (`q = rung.lag`, edges replicated). `b` is
-/// scratch; `r` doubles as the first pass's output. All as long as `x`.
+/// scratch; `r` doubles as the first pass's output. All as long as `x`,
+/// which is only read (`&mut` lets it be read as cells, like the others).
 ///
 /// # Cost
 /// Two streaming loops instead of four passes: the first runs box passes 1
@@ -181,8 +176,10 @@ fn second_difference_span(g: &[Cell<i32>], r: &[Cell<i32>], q: usize, lo: usize,
 /// registers on the Cortex-M4 (a single loop over all four stages would
 /// not). The few pixels at each end, where indices would be clamped, are
 /// done stage by stage.
-pub fn response(x: &[i32], r: &mut [i32], b: &mut [i32], g: &mut [i32], rung: &Rung) {
+pub fn response(x: &mut [i32], r: &mut [i32], b: &mut [i32], g: &mut [i32], rung: &Rung) {
     let n = x.len();
+    // `x` is only read; as cells it shares the ends' code with the other passes.
+    let x = Cell::from_mut(x).as_slice_of_cells();
     let (h, sh, q) = (rung.box_half, rung.box_shift, rung.lag);
     let (r, b, g) = (&mut r[..n], &mut b[..n], &mut g[..n]);
     let (r, b, g) = (
@@ -198,33 +195,33 @@ pub fn response(x: &[i32], r: &mut [i32], b: &mut [i32], g: &mut [i32], rung: &R
     }
     if n < ta.max(tb) + h + 1 {
         // Too short for the fused loops: pass by pass.
-        box_span(|i| x[i], n, a, h, sh, 0, n);
-        box_span(|i| a[i].get(), n, b, h, sh, 0, n);
-        box_span(|i| b[i].get(), n, g, h, sh, 0, n);
+        box_span(x, a, h, sh, 0, n);
+        box_span(a, b, h, sh, 0, n);
+        box_span(b, g, h, sh, 0, n);
         second_difference_span(g, r, q, 0, n);
         return;
     }
     let end = n - 1 - h; // last step of both loops
     // Box passes 1 and 2: heads, loop over t in ta..=end, tails.
-    let mut acc1 = box_span(|i| x[i], n, a, h, sh, 0, ta);
-    let mut acc2 = box_span(|i| a[i].get(), n, b, h, sh, 0, ta - h);
+    let mut acc1 = box_span(x, a, h, sh, 0, ta);
+    let mut acc2 = box_span(a, b, h, sh, 0, ta - h);
     let steps = x[ta + h..]
         .iter()
         .zip(&x[ta - h - 1..=end - h - 1])
         .zip(&a[ta..=end])
         .zip(&a[..=end - ta])
         .zip(&b[ta - h..=end - h]);
-    for ((((&x_add, &x_sub), a_new), a_old), b_new) in steps {
-        acc1 += x_add - x_sub;
+    for ((((x_add, x_sub), a_new), a_old), b_new) in steps {
+        acc1 += x_add.get() - x_sub.get();
         let va = acc1 >> sh;
         a_new.set(va);
         acc2 += va - a_old.get();
         b_new.set(acc2 >> sh);
     }
-    box_span(|i| x[i], n, a, h, sh, n - h, n);
-    box_span(|i| a[i].get(), n, b, h, sh, n - 2 * h, n);
+    box_span(x, a, h, sh, n - h, n);
+    box_span(a, b, h, sh, n - 2 * h, n);
     // Box pass 3 and the second difference: the same over u in tb..=end.
-    let mut acc3 = box_span(|i| b[i].get(), n, g, h, sh, 0, tb);
+    let mut acc3 = box_span(b, g, h, sh, 0, tb);
     second_difference_span(g, r, q, 0, tb - q);
     let steps = b[tb + h..]
         .iter()
@@ -239,7 +236,7 @@ pub fn response(x: &[i32], r: &mut [i32], b: &mut [i32], g: &mut [i32], rung: &R
         g_new.set(vg);
         r_out.set(2 * g_mid.get() - g_far.get() - vg);
     }
-    box_span(|i| b[i].get(), n, g, h, sh, n - h, n);
+    box_span(b, g, h, sh, n - h, n);
     second_difference_span(g, r, q, n - h - q, n);
 }
 
@@ -258,8 +255,10 @@ fn scan3(v: &[i32], pre: impl Fn(i32, i32, i32) -> bool, mut f: impl FnMut(usize
     for ch in &mut chunks {
         let (c0, c1, c2, c3) = (ch[0], ch[1], ch[2], ch[3]);
         if pre(a, b, c0) || pre(b, c0, c1) || pre(c0, c1, c2) || pre(c1, c2, c3) {
-            for (j, (p, q, s)) in [(a, b, c0), (b, c0, c1), (c0, c1, c2), (c1, c2, c3)].into_iter().enumerate() {
-                if pre(p, q, s) && !f(i + j, p, q, s) {
+            // Rare: one call site for `f` keeps the code small.
+            let w = [a, b, c0, c1, c2, c3];
+            for (j, t) in w.windows(3).enumerate() {
+                if pre(t[0], t[1], t[2]) && !f(i + j, t[0], t[1], t[2]) {
                     return;
                 }
             }
@@ -343,8 +342,10 @@ mod tests {
     fn box_span_of_constant_is_constant() {
         let x = [7i32; 20];
         let mut y = [0i32; 20];
+        let mut x = x;
+        let xc = Cell::from_mut(&mut x[..]).as_slice_of_cells();
         let yc = Cell::from_mut(&mut y[..]).as_slice_of_cells();
-        box_span(|i| x[i], 20, yc, 2, 0, 0, 20);
+        box_span(xc, yc, 2, 0, 0, 20);
         assert!(y.iter().all(|&v| v == 35));
     }
 
@@ -352,10 +353,12 @@ mod tests {
     fn box_span_matches_direct_sum() {
         let x: [i32; 12] = [1, 5, 2, 8, 3, 9, 4, 7, 6, 0, 2, 1];
         let mut y = [0i32; 12];
+        let mut x = x;
+        let xc = Cell::from_mut(&mut x[..]).as_slice_of_cells();
         let yc = Cell::from_mut(&mut y[..]).as_slice_of_cells();
         // In two spans: the running sum restarts exactly.
-        box_span(|i| x[i], 12, yc, 1, 0, 0, 5);
-        box_span(|i| x[i], 12, yc, 1, 0, 5, 12);
+        box_span(xc, yc, 1, 0, 0, 5);
+        box_span(xc, yc, 1, 0, 5, 12);
         // interior: y[i] = x[i-1] + x[i] + x[i+1]
         assert_eq!(y[1], 8);
         assert_eq!(y[5], 16);
