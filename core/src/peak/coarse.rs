@@ -28,6 +28,7 @@ pub const MAX_SPIKES: usize = 64;
 /// Every `NOISE_STRIDE`-th value is used: the median of 250 samples of a 752-px
 /// row has a relative standard error of about 8 %, ample for a threshold, at a
 /// third of the selection cost.
+#[inline(never)]
 pub fn pixel_noise_q8(x: &[i32], scratch: &mut [i32]) -> i32 {
     let mut h = Histogram::new();
     let mut m = 0;
@@ -45,6 +46,7 @@ pub fn pixel_noise_q8(x: &[i32], scratch: &mut [i32]) -> i32 {
 /// Copies `row` into `x` (which must be as long), values above `sat`
 /// clamped to it, and returns [`pixel_noise_q8`] of the copy: one pass
 /// instead of two. `scratch` needs a third of the row.
+#[inline(never)]
 pub fn load_row<P: Pixel>(row: &[P], sat: i32, x: &mut [i32], scratch: &mut [i32]) -> i32 {
     let mut h = Histogram::new();
     let mut m = 0;
@@ -73,6 +75,7 @@ pub const NOISE_STRIDE: usize = 3;
 
 /// Robust σ (Q8) of a zero-mean response: 1.4826 · median |r| (380/256).
 /// Every `NOISE_STRIDE`-th value is used, as in [`pixel_noise_q8`].
+#[inline(never)]
 pub fn abs_median_sigma_q8(r: &[i32], scratch: &mut [i32]) -> i32 {
     let mut h = Histogram::new();
     let mut m = 0;
@@ -95,6 +98,7 @@ pub fn abs_median_sigma_q8(r: &[i32], scratch: &mut [i32]) -> i32 {
 /// Gaussian of width ≥ σ_min is that peaked anywhere on its profile, because
 /// a sampled Gaussian has `u₀² = e^(1/σ²) u₋ u₊` exactly. The 3 σ allowances
 /// keep noise from tipping the test.
+#[inline(never)]
 pub fn remove_spikes(x: &mut [i32], noise_q8: i32, k_q16: i64, sat: i32) -> u16 {
     let n = x.len();
     if n < 3 {
@@ -176,6 +180,7 @@ fn second_difference_span(g: &[Cell<i32>], r: &[Cell<i32>], q: usize, lo: usize,
 /// registers on the Cortex-M4 (a single loop over all four stages would
 /// not). The few pixels at each end, where indices would be clamped, are
 /// done stage by stage.
+#[inline(never)]
 pub fn response(x: &mut [i32], r: &mut [i32], b: &mut [i32], g: &mut [i32], rung: &Rung) {
     let n = x.len();
     // `x` is only read; as cells it shares the ends' code with the other passes.
@@ -276,6 +281,7 @@ fn scan3(v: &[i32], pre: impl Fn(i32, i32, i32) -> bool, mut f: impl FnMut(usize
 }
 
 /// Local maxima of `r` above `threshold`, the strongest `MAX_CANDIDATES`.
+#[inline(never)]
 pub fn candidates(r: &[i32], threshold: i32) -> Vec<Candidate, MAX_CANDIDATES> {
     let mut out: Vec<Candidate, MAX_CANDIDATES> = Vec::new();
     let n = r.len();
