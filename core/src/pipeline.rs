@@ -80,6 +80,33 @@ pub trait Camera {
     fn dropped_rows(&self) -> u32 {
         0
     }
+    /// Most rows an image capture takes from one exposure. A camera that
+    /// cannot hold a frame (the board's DMA ring holds 8 rows, and the link
+    /// is far slower than the sensor) gives a band it can buffer: the head
+    /// then captures the image band by band, one exposure each, and sends a
+    /// band out before it exposes the next. Default: the whole frame.
+    fn capture_band_rows(&self) -> u16 {
+        self.height()
+    }
+    /// After a capture's exposure (lasers already off): keep rows
+    /// `first..first + rows` of the exposed frame for [`Camera::read_row`],
+    /// passing over the rows before them (`scratch`: one row of `width`
+    /// pixels). Default: read past the rows before the band.
+    fn start_band(&mut self, first: u16, rows: u16, scratch: &mut [u16]) -> Result<(), Self::Error> {
+        let _ = rows;
+        for _ in 0..first {
+            self.read_row(scratch)?;
+        }
+        Ok(())
+    }
+}
+
+/// An image capture under way: the next band starts at `next_row`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct CaptureJob {
+    seq: u16,
+    mask: u8,
+    next_row: u16,
 }
 
 /// Fixed facts about the head for `Hello`.
@@ -108,7 +135,7 @@ pub struct Head<const W: usize, L: LaserDriver> {
     epoch_us: u64,
     frame_seq: u32,
     sequential_next: u8,
-    capture: Option<(u16, u8)>,
+    capture: Option<CaptureJob>,
     track: [Px; LASERS],
     // statistics since the last Status
     frames: u32,
@@ -327,6 +354,9 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             HostMsg::Heartbeat => {}
             HostMsg::GetInfo => reply(&DeviceMsg::Hello(self.info(camera))),
             HostMsg::Start(s) => {
+                if self.capture.is_some() {
+                    return self.fail(ErrorCode::Busy, Some(seq), reply);
+                }
                 let valid_mask = s.laser_mask != 0 && s.laser_mask < (1 << LASERS);
                 if !(1..=1000).contains(&s.rate_hz) || !valid_mask {
                     return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
@@ -374,6 +404,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             }
             HostMsg::Stop => {
                 self.state = HeadState::Idle;
+                self.capture = None;
                 self.set_lasers(0);
                 reply(&DeviceMsg::Ack(seq));
                 reply(&DeviceMsg::Status(self.status(now_us)));
@@ -420,7 +451,10 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 if mask >= (1 << LASERS) {
                     return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
                 }
-                self.capture = Some((seq, mask));
+                if self.capture.is_some() {
+                    return self.fail(ErrorCode::Busy, Some(seq), reply);
+                }
+                self.capture = Some(CaptureJob { seq, mask, next_row: 0 });
                 reply(&DeviceMsg::Ack(seq));
             }
             HostMsg::SetTrigger(t) => {
@@ -450,8 +484,8 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         if self.state == HeadState::Streaming && now_us.saturating_sub(self.last_heard_us) > HEARTBEAT_TIMEOUT_US {
             return self.fail(ErrorCode::HeartbeatLost, None, reply);
         }
-        if let Some((seq, mask)) = self.capture.take() {
-            self.capture_image(seq, mask, now_us, camera, reply);
+        if let Some(job) = self.capture.take() {
+            self.capture_band(job, now_us, camera, reply);
         }
         let period = 1_000_000 / self.start.rate_hz as u64;
         if self.state == HeadState::Streaming
@@ -569,32 +603,48 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         self.window_ns = self.window_ns.wrapping_add(dt);
     }
 
-    fn capture_image<C: Camera>(
+    /// One band of an image capture (the whole image for a camera that
+    /// holds a frame): when the previous band has left the link buffer and
+    /// the duty limit allows the exposure, expose with the capture's lasers
+    /// lit for the exposure only, then send the band's rows as `RawRows`
+    /// chunks. Until then the job waits, lasers off, for a later poll;
+    /// `Stop` cancels it. Only the first band fails on the duty limit (as a
+    /// capture always did); later ones wait for it, as they wait for the link.
+    fn capture_band<C: Camera>(
         &mut self,
-        seq: u16,
-        mask: u8,
+        mut job: CaptureJob,
         now_us: u64,
         camera: &mut C,
         reply: &mut impl FnMut(&DeviceMsg),
     ) {
-        if mask != 0 && !self.duty.request(now_us, self.exposure_us) {
-            return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
+        let (width, height, bits) = (camera.width(), camera.height(), camera.bits());
+        let first = job.next_row == 0;
+        if !first && self.link_backlog > 0 {
+            self.capture = Some(job);
+            return;
         }
-        // A capture lights the lasers for its exposure only.
+        if job.mask != 0 && !self.duty.request(now_us, self.exposure_us) {
+            if first {
+                return self.fail(ErrorCode::OutOfRange, Some(job.seq), reply);
+            }
+            self.capture = Some(job);
+            return;
+        }
         self.state = HeadState::Streaming;
-        self.set_lasers(mask);
-        let result = camera.expose(self.exposure_us, mask);
+        self.set_lasers(job.mask);
+        let exposed = camera.expose(self.exposure_us, job.mask);
         self.state = HeadState::Idle;
         self.set_lasers(0);
-        if result.is_err() {
-            return self.fail(ErrorCode::SensorFault, Some(seq), reply);
+        let rows = camera.capture_band_rows().clamp(1, height.max(1)).min(height.saturating_sub(job.next_row));
+        if exposed.is_err() || camera.start_band(job.next_row, rows, &mut self.row[..width as usize]).is_err() {
+            return self.fail(ErrorCode::SensorFault, Some(job.seq), reply);
         }
-        let (width, height, bits) = (camera.width(), camera.height(), camera.bits());
         let bpp = if bits > 8 { 2 } else { 1 };
-        for r in 0..height {
+        for r in job.next_row..job.next_row + rows {
             if camera.read_row(&mut self.row[..width as usize]).is_err() {
-                return self.fail(ErrorCode::SensorFault, Some(seq), reply);
+                return self.fail(ErrorCode::SensorFault, Some(job.seq), reply);
             }
+            let seq = job.seq;
             let mut chunk = RawRows { capture: seq, first_row: r, offset: 0, width, height, bits, data: Vec::new() };
             for (i, &p) in self.row[..width as usize].iter().enumerate() {
                 if chunk.data.len() + bpp > RAW_CHUNK_BYTES {
@@ -612,6 +662,10 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 }
             }
             reply(&DeviceMsg::RawRows(chunk));
+        }
+        job.next_row += rows;
+        if job.next_row < height {
+            self.capture = Some(job);
         }
     }
 

@@ -369,7 +369,9 @@ pub enum HostMsg {
     SetDetector(Config),
     /// New calibration.
     SetCalibration(Calibration),
-    /// Capture one full image with these lasers lit and send it as `RawRows`.
+    /// Capture one full image with these lasers lit and send it as `RawRows`
+    /// (a head that cannot hold a frame exposes once per band of rows and
+    /// sends each band before the next; `Stop` cancels).
     CaptureImage(u8),
     /// Ask for `Hello`.
     GetInfo,

@@ -25,6 +25,22 @@
 //! LED_OUT of the sensor is high exactly during integration: wire it into
 //! the laser drivers' enable AND gate so the hardware enforces the strobe too.
 //!
+//! # Image capture in bands
+//! A capture (`cms-host capture`) needs every row of a frame, but the ring
+//! holds 8 rows and the link moves about 1 MB/s against the sensor's 45
+//! MB/s: rows read straight from the ring while the chunks go out are
+//! overwritten long before their turn. So the head captures in bands of
+//! [`BAND_ROWS`] rows, one exposure each ([`Camera::capture_band_rows`]):
+//! after the exposure (lasers off again) [`Camera::start_band`] waits past
+//! the rows above the band and copies the band's rows out of the ring as
+//! they arrive (a 188-word copy per 32 µs row), and `read_row` then serves
+//! them from [`BAND_BYTES`] of band buffer while the head sends them. The
+//! next band is exposed only once the link has sent this one (the head
+//! waits for an empty link buffer), so a band must fit in it (checked at
+//! compile time). A capture assumes a still scene: each band is its own
+//! exposure with the same lasers, exposure and gain. 15 bands of 32 rows
+//! cost 15 frame times plus 15 × 25 KB on the link: about 0.7 s.
+//!
 //! # Pixel format
 //! 8-bit DCMI on D9..D2 of the sensor's 10-bit ADC: 8 bits per pixel, one
 //! byte each, four pixels per DMA word (first pixel in the low byte).
@@ -42,11 +58,19 @@ use embassy_stm32::pac;
 use embassy_stm32::pac::dma::vals::{Dir, Dmdis, Fth, Pl, Size};
 use embassy_stm32::peripherals::{DCMI, TIM5};
 use embassy_stm32::timer::qei::Qei;
+use static_cell::StaticCell;
 
 use crate::board;
 
 /// Rows in the circular DMA buffer.
 pub const RING_ROWS: usize = 8;
+/// Rows of an image capture per exposure (module docs).
+pub const BAND_ROWS: usize = 32;
+/// Bytes of the band buffer (8-bit pixels).
+pub const BAND_BYTES: usize = BAND_ROWS * board::WIDTH;
+// A band's frames (one RawRows chunk of a row each, with at most 48 bytes
+// of header, COBS, CRC and delimiter) must fit in the empty link buffer.
+const _: () = assert!(BAND_ROWS * (board::WIDTH + 48) <= crate::link::TX_BYTES);
 /// 32-bit words per row (4 pixels per word).
 pub const ROW_WORDS: usize = board::WIDTH / 4;
 /// Words in the ring.
@@ -201,6 +225,9 @@ pub struct Mt9v034 {
     next_row: Option<usize>,
     dropped_rows: u32,
     cycles_per_us: u32,
+    /// A capture's band of rows, and the next of its `rows` to serve.
+    band: &'static mut [u8; BAND_BYTES],
+    band_next: Option<(usize, usize)>,
 }
 
 impl Mt9v034 {
@@ -225,6 +252,11 @@ impl Mt9v034 {
             next_row: None,
             dropped_rows: 0,
             cycles_per_us: sysclk_hz / 1_000_000,
+            band: {
+                static BAND: StaticCell<[u8; BAND_BYTES]> = StaticCell::new();
+                BAND.init([0; BAND_BYTES])
+            },
+            band_next: None,
         };
         let id = cam.read(reg::CHIP_VERSION)?;
         if id != reg::MT9V034 {
@@ -319,10 +351,67 @@ impl Camera for Mt9v034 {
         cortex_m::asm::delay(self.exposure_ns() / 1000 * self.cycles_per_us);
         self.exposure_pin.set_low();
         self.next_row = Some(0);
+        self.band_next = None;
         Ok(odometer_um)
     }
 
     fn read_row(&mut self, row: &mut [u16]) -> Result<(), CameraError> {
+        if let Some((i, rows)) = self.band_next {
+            if i >= rows {
+                self.band_next = None;
+                return Err(CameraError::NoFrame);
+            }
+            let src = &self.band[i * board::WIDTH..][..board::WIDTH];
+            for (p, &b) in row.iter_mut().zip(src) {
+                *p = u16::from(b);
+            }
+            self.band_next = Some((i + 1, rows));
+            return Ok(());
+        }
+        self.ring_row(row)
+    }
+
+    fn odometer_um(&self) -> Option<i64> {
+        let mut o = self.odometer.get();
+        let d = o.update(self.qei.count() as u32);
+        self.odometer.set(o);
+        Some(d)
+    }
+
+    fn dropped_rows(&self) -> u32 {
+        self.dropped_rows
+    }
+
+    fn capture_band_rows(&self) -> u16 {
+        BAND_ROWS as u16
+    }
+
+    fn start_band(&mut self, first: u16, rows: u16, scratch: &mut [u16]) -> Result<(), CameraError> {
+        let rows = usize::from(rows).min(BAND_ROWS);
+        let lost = self.dropped_rows;
+        for _ in 0..first {
+            self.ring_row(scratch)?;
+        }
+        for i in 0..rows {
+            self.ring_row(scratch)?;
+            for (b, &p) in self.band[i * board::WIDTH..][..board::WIDTH].iter_mut().zip(scratch.iter()) {
+                *b = p as u8;
+            }
+        }
+        // A band row the DMA overtook would be a black row in the image:
+        // better no capture than a wrong one.
+        if self.dropped_rows != lost {
+            return Err(CameraError::Transfer);
+        }
+        self.band_next = Some((0, rows));
+        Ok(())
+    }
+}
+
+impl Mt9v034 {
+    /// The next row of the exposed frame straight from the ring, waiting
+    /// for it to arrive (module docs).
+    fn ring_row(&mut self, row: &mut [u16]) -> Result<(), CameraError> {
         let r = self.next_row.ok_or(CameraError::NoFrame)?;
         if r >= board::HEIGHT {
             self.next_row = None;
@@ -356,16 +445,5 @@ impl Camera for Mt9v034 {
         }
         self.next_row = Some(r + 1);
         Ok(())
-    }
-
-    fn odometer_um(&self) -> Option<i64> {
-        let mut o = self.odometer.get();
-        let d = o.update(self.qei.count() as u32);
-        self.odometer.set(o);
-        Some(d)
-    }
-
-    fn dropped_rows(&self) -> u32 {
-        self.dropped_rows
     }
 }

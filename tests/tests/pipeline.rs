@@ -643,3 +643,211 @@ fn encoded_frame_sizes_for_the_link_budget() {
     assert!(sizes[0] > 1440 * 8 && sizes[1] < 1440 * 28 + 100, "{sizes:?}");
     assert!(sizes[1] > sizes[0] + 1440 * 4, "{sizes:?}");
 }
+
+/// A camera like the board's (firmware/src/camera.rs): after an exposure
+/// the rows arrive one every `ROW_US` into a ring of `RING` rows whether
+/// anyone reads them or not, and a row read after the ring has come round
+/// over it is lost (zeros, counted). `start_band` copies a band of up to
+/// `band_rows` rows out of the ring as they arrive, and `read_row` then
+/// serves them at the reader's pace. Time is the shared `clock` (µs), which
+/// the link advances by 1 µs per byte (USB full speed, ~1 MB/s).
+struct RingCam {
+    clock: Rc<Cell<u64>>,
+    exposed_at: u64,
+    next: u16,
+    band_rows: u16,
+    band: Vec<Vec<u16>>,
+    band_next: Option<usize>,
+    lost: u32,
+    exposures: u32,
+    lasers: Lasers,
+    lit: Vec<u8>,
+}
+
+impl RingCam {
+    const RING: u64 = 8;
+    const ROW_US: u64 = 31;
+
+    fn new(band_rows: u16, clock: &Rc<Cell<u64>>, lasers: &Lasers) -> RingCam {
+        RingCam {
+            clock: clock.clone(),
+            exposed_at: 0,
+            next: 0,
+            band_rows,
+            band: Vec::new(),
+            band_next: None,
+            lost: 0,
+            exposures: 0,
+            lasers: lasers.clone(),
+            lit: Vec::new(),
+        }
+    }
+
+    /// The scene: a static pattern (the head is not moving while it captures).
+    fn pixel(r: u16, c: usize) -> u16 {
+        ((u32::from(r) * 37 + c as u32 * 11 + (u32::from(r) * c as u32) % 97) % 4096) as u16
+    }
+
+    fn ring_row(&mut self, out: &mut [u16]) {
+        let r = self.next;
+        let arrival = self.exposed_at + (u64::from(r) + 1) * Self::ROW_US;
+        let now = self.clock.get().max(arrival); // wait for it if it is not there yet
+        self.clock.set(now);
+        if now > arrival + Self::RING * Self::ROW_US {
+            self.lost += 1;
+            out.fill(0);
+        } else {
+            for (c, p) in out.iter_mut().enumerate() {
+                *p = Self::pixel(r, c);
+            }
+        }
+        self.next += 1;
+    }
+}
+
+impl Camera for RingCam {
+    type Error = ();
+    fn width(&self) -> u16 {
+        752
+    }
+    fn height(&self) -> u16 {
+        480
+    }
+    fn bits(&self) -> u8 {
+        12
+    }
+    fn expose(&mut self, exposure_us: u32, _laser_mask: u8) -> Result<i64, ()> {
+        self.lit.push(self.lasers.now());
+        self.exposures += 1;
+        self.clock.set(self.clock.get() + u64::from(exposure_us));
+        self.exposed_at = self.clock.get();
+        self.next = 0;
+        self.band_next = None;
+        Ok(0)
+    }
+    fn read_row(&mut self, out: &mut [u16]) -> Result<(), ()> {
+        match self.band_next {
+            Some(i) => {
+                out.copy_from_slice(self.band.get(i).ok_or(())?);
+                self.band_next = Some(i + 1);
+            }
+            None => self.ring_row(out),
+        }
+        Ok(())
+    }
+    fn dropped_rows(&self) -> u32 {
+        self.lost
+    }
+    fn capture_band_rows(&self) -> u16 {
+        self.band_rows
+    }
+    fn start_band(&mut self, first: u16, rows: u16, scratch: &mut [u16]) -> Result<(), ()> {
+        if self.band_rows >= self.height() {
+            // No band buffer: the rows are read straight from the ring.
+            for _ in 0..first {
+                self.ring_row(scratch);
+            }
+            return Ok(());
+        }
+        for _ in 0..first {
+            self.ring_row(scratch);
+        }
+        self.band.clear();
+        for _ in 0..rows {
+            self.ring_row(scratch);
+            self.band.push(scratch.to_vec());
+        }
+        self.band_next = Some(0);
+        Ok(())
+    }
+}
+
+/// Captures with a `RingCam` of `band_rows` over the slow link, the link
+/// buffer draining every other poll: the assembled image, the camera, and
+/// the messages.
+fn ring_capture(band_rows: u16) -> (Vec<Option<u16>>, RingCam, Vec<DeviceMsg>) {
+    let (mut h, l) = head();
+    let clock = Rc::new(Cell::new(0u64));
+    let mut cam = RingCam::new(band_rows, &clock, &l);
+    let mut out = Vec::new();
+    h.handle(cmd(7, HostMsg::CaptureImage(0b101)), 0, &cam, &mut |m| out.push(m.clone()));
+    let mut image = vec![None; 752 * 480];
+    for poll in 0..200 {
+        let mut sent = 0u64;
+        h.poll(clock.get(), &mut cam, &mut || 0, &mut |m| {
+            if let DeviceMsg::RawRows(r) = m {
+                // 1 µs per byte on the wire (data and framing).
+                sent += r.data.len() as u64 + 16;
+                clock.set(clock.get() + r.data.len() as u64 + 16);
+                for (k, px) in r.data.chunks_exact(2).enumerate() {
+                    let i = usize::from(r.first_row) * 752 + r.offset as usize / 2 + k;
+                    image[i] = Some(u16::from_le_bytes([px[0], px[1]]));
+                }
+            }
+            out.push(m.clone());
+        });
+        // Every other poll the link buffer still holds what went out.
+        h.set_link_backlog(if poll % 2 == 0 { sent as u32 } else { 0 });
+        if image.iter().all(Option::is_some) {
+            break;
+        }
+    }
+    (image, cam, out)
+}
+
+/// A full-frame capture on a head whose camera holds 8 rows: band by
+/// band, one exposure each, every band sent before the next exposure, the
+/// lasers lit for the exposures only — and the image is exactly the scene.
+/// The same camera read straight from its ring while the slow link sends
+/// (the way a capture worked before bands) loses most rows.
+#[test]
+fn capture_in_bands_survives_a_small_ring_and_a_slow_link() {
+    let (image, cam, out) = ring_capture(32);
+    assert!(!out.iter().any(|m| matches!(m, DeviceMsg::Error { .. })), "{:?}", &out[..3]);
+    assert_eq!(cam.lost, 0);
+    assert_eq!(cam.exposures, 480 / 32);
+    assert_eq!(cam.lit, vec![0b101; 15], "each band's exposure with the capture's lasers");
+    assert_eq!(cam.lasers.now(), 0);
+    let lit_switches = cam.lasers.0.borrow().iter().filter(|&&m| m != 0).count();
+    assert_eq!(lit_switches, 15, "lit once per band, off in between");
+    for r in 0..480u16 {
+        for c in 0..752 {
+            assert_eq!(image[usize::from(r) * 752 + c], Some(RingCam::pixel(r, c)), "row {r} col {c}");
+        }
+    }
+    // Straight from the ring: rows lost (zeros in the image), counted.
+    let (image, cam, ..) = ring_capture(480);
+    assert_eq!(cam.exposures, 1);
+    assert!(cam.lost > 400, "{} rows lost", cam.lost);
+    assert!(image.iter().flatten().filter(|&&p| p == 0).count() > 400 * 700);
+}
+
+/// While a band waits for the link, nothing is exposed; `Stop` cancels the
+/// capture; a second capture while one is under way is refused (Busy).
+#[test]
+fn a_banded_capture_waits_for_the_link_and_stop_cancels_it() {
+    let (mut h, l) = head();
+    let clock = Rc::new(Cell::new(0u64));
+    let mut cam = RingCam::new(32, &clock, &l);
+    let mut out = Vec::new();
+    h.handle(cmd(1, HostMsg::CaptureImage(0b010)), 0, &cam, &mut |m| out.push(m.clone()));
+    h.poll(0, &mut cam, &mut || 0, &mut |_| {});
+    assert_eq!(cam.exposures, 1);
+    h.set_link_backlog(20_000);
+    for t in 1..50 {
+        h.poll(t * 1000, &mut cam, &mut || 0, &mut |_| {});
+    }
+    assert_eq!(cam.exposures, 1, "no exposure while the link holds the last band");
+    out.clear();
+    h.handle(cmd(2, HostMsg::CaptureImage(0b010)), 0, &cam, &mut |m| out.push(m.clone()));
+    assert_eq!(out, vec![DeviceMsg::Error { seq: Some(2), code: ErrorCode::Busy }]);
+    h.set_link_backlog(0);
+    h.poll(60_000, &mut cam, &mut || 0, &mut |_| {});
+    assert_eq!(cam.exposures, 2);
+    h.handle(cmd(3, HostMsg::Stop), 61_000, &cam, &mut |_| {});
+    for t in 0..20 {
+        h.poll(70_000 + t * 1000, &mut cam, &mut || 0, &mut |_| {});
+    }
+    assert_eq!(cam.exposures, 2, "Stop cancelled the capture");
+    assert_eq!(l.now(), 0);
+}
