@@ -24,6 +24,21 @@
 //! used). A record that decodes but whose content the head refuses (a
 //! calibration that does not triangulate) is the caller's to report.
 //!
+//! # A read that faults (STM32H7 flash ECC)
+//! The H7 programs flash in 256-bit words with ECC. A power cut while a word
+//! is being programmed can leave it failing its ECC, and **reading it raises
+//! a bus fault** instead of returning bytes: the CRC never gets a say. The
+//! head's fault handler parks and the watchdog resets it — and the next boot
+//! would read the same word again, forever. So every slot read is bracketed
+//! by a [`ReadMark`], a word that survives the reset (not a power cycle):
+//! "reading slot i" before, cleared after. A boot that finds the mark set
+//! after a fault reset tells the store that slot i is unreadable
+//! ([`Slots::with_mark`]); it is then taken as `Damaged` without being read,
+//! the other slot is used and the load says `Recovered`, and the next save
+//! erases exactly that slot (it never holds the newest valid record) and makes
+//! it readable again. Tested with a flash model whose damaged word "faults"
+//! (`tests/tests/persist.rs`).
+//!
 //! # Cost
 //! One erase (128 KB sector on the STM32H743: about 1–2 s, done while the
 //! lasers are off and streaming is stopped) and a write of a few hundred
@@ -153,11 +168,29 @@ pub fn newer(a: u32, b: u32) -> bool {
     (a.wrapping_sub(b) as i32) > 0
 }
 
+/// Where a slot read that may fault leaves its trace (module docs): set to
+/// `Some(slot)` before the slot's flash is read and to `None` after.
+pub trait ReadMark {
+    /// Records the slot being read, or that none is.
+    fn set(&mut self, slot: Option<usize>);
+}
+
+/// No mark: for flash whose reads cannot fault.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct NoMark;
+
+impl ReadMark for NoMark {
+    fn set(&mut self, _slot: Option<usize>) {}
+}
+
 /// Two slots of a NOR flash.
-pub struct Slots<F> {
+pub struct Slots<F, M = NoMark> {
     flash: F,
     base: [u32; 2],
     size: u32,
+    mark: M,
+    /// Slots whose read faulted before (module docs): not read until rewritten.
+    unreadable: [bool; 2],
 }
 
 fn flash_err<E: NorFlashError>(e: E) -> PersistError {
@@ -184,12 +217,33 @@ impl<F: NorFlash> Slots<F> {
         if size == 0 || !aligned(size) || !base.iter().all(|&b| aligned(b) && fits(b)) || !apart || !units {
             return Err(PersistError::Layout);
         }
-        Ok(Slots { flash, base, size })
+        Ok(Slots { flash, base, size, mark: NoMark, unreadable: [false; 2] })
+    }
+}
+
+impl<F: NorFlash, M: ReadMark> Slots<F, M> {
+    /// The same slots, every read bracketed by `mark`; `faulted`: the slot
+    /// whose read the mark says was under way when the head last reset on a
+    /// fault (taken as damaged, not read, until a save rewrites it).
+    pub fn with_mark<N: ReadMark>(self, mark: N, faulted: Option<usize>) -> Slots<F, N> {
+        let mut unreadable = self.unreadable;
+        if let Some(i) = faulted.filter(|&i| i < 2) {
+            unreadable[i] = true;
+        }
+        Slots { flash: self.flash, base: self.base, size: self.size, mark, unreadable }
     }
 
     /// The flash back (for a test's "power cycle").
     pub fn into_inner(self) -> F {
         self.flash
+    }
+
+    /// Reads the first `buf.len()` bytes of slot `i`, under the mark.
+    fn read_marked(&mut self, i: usize, buf: &mut [u8]) -> Result<(), PersistError> {
+        self.mark.set(Some(i));
+        let r = self.flash.read(self.base[i], buf).map_err(flash_err);
+        self.mark.set(None);
+        r
     }
 
     /// Reads slot `i`'s record into `buf`: its state and, when valid, the
@@ -199,7 +253,10 @@ impl<F: NorFlash> Slots<F> {
         if buf.len() < head {
             return Err(PersistError::BufferTooSmall);
         }
-        self.flash.read(self.base[i], &mut buf[..head]).map_err(flash_err)?;
+        if self.unreadable[i] {
+            return Ok((SlotState::Damaged, 0));
+        }
+        self.read_marked(i, &mut buf[..head])?;
         if buf[..HEADER].iter().all(|&b| b == 0xFF) {
             return Ok((SlotState::Empty, 0));
         }
@@ -212,7 +269,7 @@ impl<F: NorFlash> Slots<F> {
         if total > buf.len() {
             return Ok((SlotState::Damaged, 0));
         }
-        self.flash.read(self.base[i], &mut buf[..total]).map_err(flash_err)?;
+        self.read_marked(i, &mut buf[..total])?;
         let mut digest = CRC.digest();
         digest.update(&buf[..12]);
         digest.update(&buf[HEADER..HEADER + len]);
@@ -292,6 +349,8 @@ impl<F: NorFlash> Slots<F> {
         buf[HEADER + len..total].fill(0xFF);
         let at = self.base[target];
         self.flash.erase(at, at + self.size).map_err(flash_err)?;
+        // Erased: whatever faulted in it is gone.
+        self.unreadable[target] = false;
         self.flash.write(at, &buf[..total]).map_err(flash_err)?;
         match self.inspect(target, buf)? {
             (SlotState::Valid { seq: s }, _) if s == seq => Ok(seq),

@@ -211,7 +211,12 @@ async fn main(spawner: Spawner) {
     };
     head.set_cpu_hz(sysclk);
     let mut store = match store::Store::new(embassy_stm32::flash::Flash::new_blocking(p.FLASH)) {
-        Ok(s) => Some(s),
+        Ok(s) => {
+            if let Some(i) = s.faulted {
+                warn!("flash: reading slot {} faulted before the last reset (ECC); not read until rewritten", i);
+            }
+            Some(s)
+        }
         Err(e) => {
             error!("flash slots: {}", e);
             None
