@@ -604,12 +604,14 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
     }
 
     /// One band of an image capture (the whole image for a camera that
-    /// holds a frame): when the previous band has left the link buffer and
-    /// the duty limit allows the exposure, expose with the capture's lasers
-    /// lit for the exposure only, then send the band's rows as `RawRows`
-    /// chunks. Until then the job waits, lasers off, for a later poll;
-    /// `Stop` cancels it. Only the first band fails on the duty limit (as a
-    /// capture always did); later ones wait for it, as they wait for the link.
+    /// holds a frame): when the link buffer is empty (the previous band, or
+    /// for the first band whatever streaming left in it, has gone out: a
+    /// band is sized to fit an empty buffer, not a part-full one) and the
+    /// duty limit allows the exposure, expose with the capture's lasers lit
+    /// for the exposure only, then send the band's rows as `RawRows` chunks.
+    /// Until then the job waits, lasers off, for a later poll; `Stop`
+    /// cancels it. Only the first band fails on the duty limit (as a capture
+    /// always did); later ones wait for it, as they wait for the link.
     fn capture_band<C: Camera>(
         &mut self,
         mut job: CaptureJob,
@@ -619,7 +621,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
     ) {
         let (width, height, bits) = (camera.width(), camera.height(), camera.bits());
         let first = job.next_row == 0;
-        if !first && self.link_backlog > 0 {
+        if self.link_backlog > 0 {
             self.capture = Some(job);
             return;
         }

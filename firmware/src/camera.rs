@@ -34,10 +34,10 @@
 //! after the exposure (lasers off again) [`Camera::start_band`] waits past
 //! the rows above the band and copies the band's rows out of the ring as
 //! they arrive (a 188-word copy per 32 µs row), and `read_row` then serves
-//! them from [`BAND_BYTES`] of band buffer while the head sends them. The
-//! next band is exposed only once the link has sent this one (the head
-//! waits for an empty link buffer), so a band must fit in it (checked at
-//! compile time). A capture assumes a still scene: each band is its own
+//! them from [`BAND_BYTES`] of band buffer while the head sends them. A
+//! band is exposed only once the link has sent the one before (for the
+//! first, whatever streaming left): the head waits for an empty link
+//! buffer, so a band must fit in it (checked at compile time). A capture assumes a still scene: each band is its own
 //! exposure with the same lasers, exposure and gain. 15 bands of 32 rows
 //! cost 15 frame times plus 15 × 25 KB on the link: about 0.7 s.
 //!

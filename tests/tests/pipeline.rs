@@ -822,16 +822,23 @@ fn capture_in_bands_survives_a_small_ring_and_a_slow_link() {
     assert!(image.iter().flatten().filter(|&&p| p == 0).count() > 400 * 700);
 }
 
-/// While a band waits for the link, nothing is exposed; `Stop` cancels the
-/// capture; a second capture while one is under way is refused (Busy).
+/// While a band (the first one too) waits for the link, nothing is
+/// exposed; `Stop` cancels the capture; a second capture while one is under
+/// way is refused (Busy).
 #[test]
 fn a_banded_capture_waits_for_the_link_and_stop_cancels_it() {
     let (mut h, l) = head();
     let clock = Rc::new(Cell::new(0u64));
     let mut cam = RingCam::new(32, &clock, &l);
     let mut out = Vec::new();
+    // What streaming left in the link buffer goes out before the first band.
+    h.set_link_backlog(90_000);
     h.handle(cmd(1, HostMsg::CaptureImage(0b010)), 0, &cam, &mut |m| out.push(m.clone()));
     h.poll(0, &mut cam, &mut || 0, &mut |_| {});
+    assert_eq!(cam.exposures, 0, "no first band into a part-full link buffer");
+    assert_eq!(l.now(), 0);
+    h.set_link_backlog(0);
+    h.poll(500, &mut cam, &mut || 0, &mut |_| {});
     assert_eq!(cam.exposures, 1);
     h.set_link_backlog(20_000);
     for t in 1..50 {
