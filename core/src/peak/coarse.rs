@@ -259,14 +259,10 @@ fn scan3(v: &[i32], pre: impl Fn(i32, i32, i32) -> bool, mut f: impl FnMut(usize
     let mut chunks = v[2..].chunks_exact(4);
     for ch in &mut chunks {
         let (c0, c1, c2, c3) = (ch[0], ch[1], ch[2], ch[3]);
-        if pre(a, b, c0) || pre(b, c0, c1) || pre(c0, c1, c2) || pre(c1, c2, c3) {
-            // Rare: one call site for `f` keeps the code small.
-            let w = [a, b, c0, c1, c2, c3];
-            for (j, t) in w.windows(3).enumerate() {
-                if pre(t[0], t[1], t[2]) && !f(i + j, t[0], t[1], t[2]) {
-                    return;
-                }
-            }
+        if (pre(a, b, c0) || pre(b, c0, c1) || pre(c0, c1, c2) || pre(c1, c2, c3))
+            && !scan3_hits(&[a, b, c0, c1, c2, c3], i, &pre, &mut f)
+        {
+            return;
         }
         (a, b) = (c2, c3);
         i += 4;
@@ -278,6 +274,24 @@ fn scan3(v: &[i32], pre: impl Fn(i32, i32, i32) -> bool, mut f: impl FnMut(usize
         (a, b) = (b, c);
         i += 1;
     }
+}
+
+/// [`scan3`]'s rare path, out of line so that the fast loop keeps its
+/// window in registers: the four windows of `w` from index `i`; false when
+/// `f` says stop.
+#[inline(never)]
+fn scan3_hits(
+    w: &[i32; 6],
+    i: usize,
+    pre: &impl Fn(i32, i32, i32) -> bool,
+    f: &mut impl FnMut(usize, i32, i32, i32) -> bool,
+) -> bool {
+    for (j, t) in w.windows(3).enumerate() {
+        if pre(t[0], t[1], t[2]) && !f(i + j, t[0], t[1], t[2]) {
+            return false;
+        }
+    }
+    true
 }
 
 /// Local maxima of `r` above `threshold`, the strongest `MAX_CANDIDATES`.

@@ -47,10 +47,12 @@ pub fn response_q8(x: &[i32], c: usize, k: usize) -> i64 {
     let l = h.len() - 1;
     let mut acc = h[0] as i64 * x[c] as i64;
     if c >= l && c + l < n {
-        let right = x[c + 1..=c + l].iter();
-        let left = x[c - l..c].iter().rev();
-        for ((&w, &a), &b) in h[1..].iter().zip(left).zip(right) {
-            acc += w as i64 * (a + b) as i64;
+        // Plain indices over slices of the kernel's length: one counter and
+        // no bounds checks (a zip with a reversed iterator tests both ends
+        // at every tap).
+        let (left, right) = (&x[c - l..c], &x[c + 1..=c + l]);
+        for (m, (&w, &b)) in h[1..].iter().zip(right).enumerate() {
+            acc += w as i64 * (left[l - 1 - m] + b) as i64;
         }
     } else {
         for (m, &w) in h.iter().enumerate().skip(1) {
@@ -70,13 +72,17 @@ pub fn slope_at(x: &[i32], k: isize, p: usize, d: &[i16]) -> i64 {
     let mut acc = 0i64;
     if k - reach >= 0 && k + reach < n {
         let k = k as usize;
+        // The taps within the table: m·P − p ≤ len − 1 on the right,
+        // m·P + p ≤ len − 1 on the left (both inside the row here).
+        let last = d.len() - 1;
+        let (right, left) = ((last + p) / PHASES, (last - p) / PHASES + 1);
         // right: i = k + m, m ≥ 1, table index m·P − p
-        for (&a, &w) in x[k + 1..].iter().zip(d[PHASES - p..].iter().step_by(PHASES)) {
-            acc += a as i64 * w as i64;
+        for (m, &a) in (1..).zip(&x[k + 1..=k + right]) {
+            acc += a as i64 * d[m * PHASES - p] as i64;
         }
         // left: i = k − m, m ≥ 0, table index m·P + p
-        for (&a, &w) in x[..=k].iter().rev().zip(d[p..].iter().step_by(PHASES)) {
-            acc -= a as i64 * w as i64;
+        for (m, &a) in (0..).zip(x[k + 1 - left..=k].iter().rev()) {
+            acc -= a as i64 * d[m * PHASES + p] as i64;
         }
     } else {
         let at = |i: isize| x[i.clamp(0, n - 1) as usize] as i64;
@@ -283,4 +289,62 @@ pub(crate) fn confirm(v: &RowView<'_>, c0: usize) -> Option<Confirmed> {
         flags.insert(Flags::LOW_CONFIDENCE);
     }
     Some(Confirmed { c, kb, dk_q16, width, amplitude, flags })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A row with structure and noise (xorshift), values up to 16 bits.
+    fn row(n: usize, seed: u64) -> [i32; 160] {
+        let mut s = seed | 1;
+        core::array::from_fn(|i| {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            let bump = if (i as isize - n as isize / 2).abs() < 6 { 40_000 } else { 0 };
+            ((s % 25_000) as i32 + bump).min(65_535)
+        })
+    }
+
+    /// Both by definition: every tap, indices clamped to the row.
+    #[test]
+    fn response_and_slope_match_direct_sums() {
+        for seed in 1..4u64 {
+            for n in [20usize, 97, 160] {
+                let full = row(n, seed);
+                let x = &full[..n];
+                let at = |i: isize| x[i.clamp(0, n as isize - 1) as usize] as i64;
+                for k in [0, 3, 6, 9] {
+                    let h = kernels::ricker(k);
+                    let d = kernels::deriv(k);
+                    for c in 0..n {
+                        let sum: i64 = (-(h.len() as isize - 1)..h.len() as isize)
+                            .map(|m| h[m.unsigned_abs()] as i64 * at(c as isize + m))
+                            .sum();
+                        assert_eq!(response_q8(x, c, k), (sum * RUNGS[k].norm) >> NORM_SHIFT, "k {k} c {c} n {n}");
+                        for p in [0, 1, 7, PHASES - 1] {
+                            // Σ x[i] D(i − (c + p/P)), D odd: table index |i − c|·P ∓ p.
+                            let mut s = 0i64;
+                            for m in 1.. {
+                                let j = m * PHASES - p;
+                                if j >= d.len() {
+                                    break;
+                                }
+                                s += at(c as isize + m as isize) * d[j] as i64;
+                            }
+                            for m in 0.. {
+                                let j = m * PHASES + p;
+                                if j >= d.len() {
+                                    break;
+                                }
+                                s -= at(c as isize - m as isize) * d[j] as i64;
+                            }
+                            assert_eq!(slope_at(x, c as isize, p, d), s, "k {k} c {c} p {p} n {n}");
+                        }
+                    }
+                }
+            }
+        }
+    }
 }
