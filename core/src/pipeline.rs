@@ -454,6 +454,10 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 if self.capture.is_some() {
                     return self.fail(ErrorCode::Busy, Some(seq), reply);
                 }
+                // The rows go through the head's row buffer, as for Start.
+                if camera.width() as usize > W {
+                    return self.fail(ErrorCode::SensorFault, Some(seq), reply);
+                }
                 self.capture = Some(CaptureJob { seq, mask, next_row: 0 });
                 reply(&DeviceMsg::Ack(seq));
             }

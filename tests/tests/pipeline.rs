@@ -858,3 +858,19 @@ fn a_banded_capture_waits_for_the_link_and_stop_cancels_it() {
     assert_eq!(cam.exposures, 2, "Stop cancelled the capture");
     assert_eq!(l.now(), 0);
 }
+
+/// A camera wider than the head's row buffer: a capture is refused as a
+/// sensor fault (as `Start` is), not a panic, and the lasers stay off.
+#[test]
+fn a_capture_from_a_camera_wider_than_the_head_is_refused() {
+    let l = Lasers::default();
+    let mut h: Head<640, Lasers> =
+        Head::new(l.clone(), default_detector(), Identity { firmware: "t", board: "t" }).unwrap();
+    let mut cam = Cam::new(); // 752 px
+    let mut out = Vec::new();
+    h.handle(cmd(5, HostMsg::CaptureImage(0b001)), 0, &cam, &mut |m| out.push(m.clone()));
+    h.poll(0, &mut cam, &mut || 0, &mut |m| out.push(m.clone()));
+    assert_eq!(out, vec![DeviceMsg::Error { seq: Some(5), code: ErrorCode::SensorFault }]);
+    assert_eq!(cam.exposures, 0);
+    assert_eq!(l.now(), 0);
+}
