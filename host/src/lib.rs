@@ -5,7 +5,9 @@
 //! process:
 //!
 //! * [`analyze`] — `cms-host analyze`: a recording stitched along the track and judged by the rail standards.
+//! * [`board`] — the checkerboard target and its pose (shared by calibration and the simulator).
 //! * [`calib`] — `cms-host calibrate`: camera and laser-plane calibration, the calibration file, upload.
+//! * [`camera`] — the `f64` camera model: pinhole, skew, Brown–Conrady distortion (OpenCV's), and its `f32` copy for the head.
 //! * [`capture`] — `cms-host capture`: one full frame from a head as a PNG.
 //! * [`closed_loop`] — corrugation measured through the simulated head against its truth (the paper's Table 5 cases).
 //! * [`corrugation`] — the lines of one image together: head frame, surface normal (paper §2.2), joint sine fit.
@@ -21,7 +23,9 @@
 //! * [`standards`] — rail-standard analysis of a longitudinal profile: EN 13231-3 bands, EN 15610 roughness.
 
 pub mod analyze;
+pub mod board;
 pub mod calib;
+pub mod camera;
 pub mod capture;
 pub mod closed_loop;
 pub mod corrugation;

@@ -42,8 +42,9 @@ use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, SMatrix, SymmetricEigen, Ve
 
 use super::board::{CornerError, find_corners};
 use super::file::CalibrationFile;
-use super::{Board, BoardPose, Intrinsics};
 use crate::CliError;
+use crate::board::{Board, BoardPose};
+use crate::camera::Intrinsics;
 
 /// What [`calibrate`] estimates.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -393,12 +394,12 @@ impl Layout {
     fn pack(&self, k: &Intrinsics) -> Vec<f64> {
         let mut v = Vec::with_capacity(self.n());
         match self.aspect {
-            Some(_) => v.push(k.fy),
-            None => v.extend([k.fx, k.fy]),
+            Some(_) => v.push(k.fy_px),
+            None => v.extend([k.fx_px, k.fy_px]),
         }
-        v.extend([k.cx, k.cy]);
+        v.extend([k.cx_px, k.cy_px]);
         if !self.fix_skew {
-            v.push(k.skew);
+            v.push(k.skew_px);
         }
         v.extend([k.k1, k.k2, k.p1, k.p2, k.k3]);
         v
@@ -418,13 +419,13 @@ impl Layout {
             v[i - 1]
         };
         Intrinsics {
-            width: self.width,
-            height: self.height,
-            fx,
-            fy,
-            cx,
-            cy,
-            skew,
+            width_px: self.width,
+            height_px: self.height,
+            fx_px: fx,
+            fy_px: fy,
+            cx_px: cx,
+            cy_px: cy,
+            skew_px: skew,
             k1: v[i],
             k2: v[i + 1],
             p1: v[i + 2],
@@ -539,20 +540,20 @@ fn calibrate_subset(
         fy = f;
     }
     let k0 = Intrinsics {
-        width,
-        height,
-        fx,
-        fy,
-        cx,
-        cy,
-        skew: if opts.fix_skew { 0.0 } else { skew },
+        width_px: width,
+        height_px: height,
+        fx_px: fx,
+        fy_px: fy,
+        cx_px: cx,
+        cy_px: cy,
+        skew_px: if opts.fix_skew { 0.0 } else { skew },
         k1: 0.0,
         k2: 0.0,
         p1: 0.0,
         p2: 0.0,
         k3: 0.0,
     };
-    let kmat = Matrix3::new(k0.fx, k0.skew, k0.cx, 0.0, k0.fy, k0.cy, 0.0, 0.0, 1.0);
+    let kmat = Matrix3::new(k0.fx_px, k0.skew_px, k0.cx_px, 0.0, k0.fy_px, k0.cy_px, 0.0, 0.0, 1.0);
     let layout = Layout { fix_skew: opts.fix_skew, aspect: opts.fix_aspect, width, height };
     let ni = layout.n();
     let mut x = layout.pack(&k0);
@@ -605,7 +606,7 @@ pub fn board_pose(intr: &Intrinsics, board: &Board, corners: &[[f64; 2]]) -> Res
     if corners.len() != obj.len() {
         return Err(CalibError::CornerCount { view: 0, got: corners.len(), expected: obj.len() });
     }
-    if !(intr.fx > 0.0 && intr.fy > 0.0 && corners.iter().all(|p| p[0].is_finite() && p[1].is_finite())) {
+    if !(intr.fx_px > 0.0 && intr.fy_px > 0.0 && corners.iter().all(|p| p[0].is_finite() && p[1].is_finite())) {
         return Err(CalibError::Degenerate("bad intrinsics or corners"));
     }
     let plane: Vec<[f64; 2]> = obj.iter().map(|p| [p[0], p[1]]).collect();
@@ -753,11 +754,11 @@ pub fn run(args: &CameraArgs) -> Result<(), CliError> {
         out,
         "{} views, {w} x {h}: fx {:.3} fy {:.3} cx {:.3} cy {:.3} skew {:.4} px; k1 {:.5} k2 {:.5} p1 {:.6} p2 {:.6} k3 {:.5}; RMS {:.4} px",
         cal.views_used.len(),
-        k.fx,
-        k.fy,
-        k.cx,
-        k.cy,
-        k.skew,
+        k.fx_px,
+        k.fy_px,
+        k.cx_px,
+        k.cy_px,
+        k.skew_px,
         k.k1,
         k.k2,
         k.p1,

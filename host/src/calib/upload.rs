@@ -63,7 +63,7 @@ pub fn run(args: &UploadArgs) -> Result<(), CliError> {
                 info.protocol
             )));
         }
-        let (w, h) = (file.camera.width, file.camera.height);
+        let (w, h) = (file.camera.intrinsics.width_px, file.camera.intrinsics.height_px);
         if (u32::from(info.sensor_width), u32::from(info.sensor_height)) != (w, h) {
             return Err(CliError::Usage(format!(
                 "{} is for a {w}×{h} camera; the head on {port} has {}×{}",
