@@ -18,6 +18,7 @@
 //! * [`listen`] — `cms-host listen`: handshake, stream, record and show a sensor head's profiles.
 //! * [`qemu`] — the emulated head on QEMU: `cms-host listen qemu`, `cms-host bench qemu`.
 //! * [`link`] — the serial port (open by path, reconnect) and frame splitting.
+//! * [`lm`] — Levenberg–Marquardt, the one nonlinear least-squares solver (fits, calibration).
 //! * [`measure`] — `cms-host measure`: per image or recorded frame, each laser's profile and fit, the joint result, plots.
 //! * [`record`] — the recording format, `cms-host export` and `cms-host info`.
 //! * [`standards`] — rail-standard analysis of a longitudinal profile: EN 13231-3 bands, EN 15610 roughness.
@@ -34,6 +35,7 @@ pub mod fit;
 pub mod input;
 pub mod link;
 pub mod listen;
+pub mod lm;
 pub mod measure;
 pub mod plot;
 pub mod qemu;
