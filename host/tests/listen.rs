@@ -40,7 +40,7 @@ use cms_core::protocol::{
 };
 use cms_host::listen::{ListenError, ListenOptions, Progress, Summary, listen_with};
 use cms_host::record;
-use cms_tests::{Gauss, Rng, clean_row, quantise};
+use cms_study::{Gauss, Rng, clean_row, quantise};
 
 // ------------------------------------------------------------------ device
 
