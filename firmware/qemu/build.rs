@@ -7,7 +7,7 @@
 //!   link if a `memory.x` other than this crate's was picked up
 //!   (firmware/README.md, "The emulated head").
 //! * Link arguments go to the binaries only (`rustc-link-arg-bins`), never
-//!   through `rustflags` (notes §5).
+//!   through `rustflags` (docs/reference.md §5).
 //! * The benchmark's rows and detector configurations: `cms-host bench
 //!   speed`'s own (`cms_tests::montecarlo::speed_rows` / `speed_config`,
 //!   seed 1, 64 distinct 12-bit rows of 752 px with 1 and 3 stripes), so the

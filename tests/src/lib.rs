@@ -1,7 +1,7 @@
 //! Shared helpers for the behaviour tests of `cms-core`: synthetic rows with
 //! known truth, the Cramér–Rao bound, and a small deterministic RNG.
 //!
-//! The noise model is the one of notes §1: `y_i = A·exp(−(i − x0)²/(2σ²)) + b
+//! The noise model is the one of docs/reference.md §1: `y_i = A·exp(−(i − x0)²/(2σ²)) + b
 //! + n_i` with white Gaussian `n_i`, quantised to the sensor's bit depth.
 
 /// xoshiro256** seeded by splitmix64: deterministic, dependency-free.
@@ -47,7 +47,7 @@ impl Rng {
 }
 
 /// Cramér–Rao bound of the position of a sampled Gaussian stripe in white
-/// noise (notes §1): `(σn/A)·sqrt(2σ/√π)` px.
+/// noise (docs/reference.md §1): `(σn/A)·sqrt(2σ/√π)` px.
 pub fn crlb(sigma: f64, amplitude: f64, noise: f64) -> f64 {
     noise / amplitude * (2.0 * sigma / std::f64::consts::PI.sqrt()).sqrt()
 }

@@ -1,7 +1,7 @@
 //! `cms-host analyze RECORDING [--report DIR] [--json]`: a recording's
 //! calibrated frames placed along the track by their odometer, stitched into
 //! one longitudinal profile per laser line ([`stitch`]), and judged as a rail
-//! engineer expects (reference notes §2): the EN 13231-3 wavelength bands
+//! engineer expects (docs/reference.md §2): the EN 13231-3 wavelength bands
 //! and the EN 15610 one-third-octave roughness spectrum against the ISO 3095
 //! limit ([`crate::standards`]). A summary goes to stdout (or one JSON
 //! object with `--json`); `--report DIR` writes a Markdown and a
