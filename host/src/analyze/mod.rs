@@ -15,7 +15,7 @@
 //! not be evaluated and why, and gives the rest.
 //!
 //! Cost: reading is the recording's decoding (about 2 000 frames/s, see
-//! README); stitching `O(P log P)` in the points; the standards `O(N log N)`
+//! docs/link-and-recordings.md); stitching `O(P log P)` in the points; the standards `O(N log N)`
 //! in the samples. A 3 m sim recording (90 frames, 130 000 points) is
 //! analysed in well under a second, plots included.
 
