@@ -5,9 +5,9 @@
 //!   `link.x` includes `memory.x` and `device.x` (generated here: the
 //!   interrupt handlers are bound in `src/vectors.rs`). `guard.x` fails the
 //!   link if a `memory.x` other than this crate's was picked up
-//!   (firmware/README.md, "The emulated head").
+//!   (docs/firmware.md, "The linker script").
 //! * Link arguments go to the binaries only (`rustc-link-arg-bins`), never
-//!   through `rustflags` (notes §5).
+//!   through `rustflags` (docs/reference.md §5).
 //! * The benchmark's rows and detector configurations: `cms-host bench
 //!   speed`'s own (`cms_study::montecarlo::speed_rows` / `speed_config`,
 //!   seed 1, 64 distinct 12-bit rows of 752 px with 1 and 3 stripes), so the

@@ -1,7 +1,7 @@
 //! `cms-host bench`: how accurate and how fast the detection methods are.
 //!
 //! * `bench accuracy` — Monte-Carlo study of every method against the
-//!   Cramér–Rao bound (notes §1), plus the paper's own synthetic protocol
+//!   Cramér–Rao bound (docs/reference.md §1), plus the paper's own synthetic protocol
 //!   (§6.2, Table 3) beside random sub-pixel offsets. Writes `accuracy.csv`,
 //!   `accuracy.svg`, `paper_protocol.csv` and `accuracy.md` (the printed
 //!   report). The simulation is `cms_study::montecarlo`, shared with the tests.

@@ -33,7 +33,7 @@
 //! **Start values.** ω from an interpolated DFT peak (profile resampled on a
 //! uniform grid — the head's profiles are nearly uniform —, detrended,
 //! zero-padded ×8, parabolic interpolation of the magnitude) and from the
-//! paper's ellipse method on the differenced profile (notes §3, lag ≈ λ/4 from
+//! paper's ellipse method on the differenced profile (docs/reference.md §3, lag ≈ λ/4 from
 //! the DFT estimate), and Jacquelin's non-iterative estimate (below). Each
 //! start runs the plain IEEE 1057 four-parameter
 //! iteration. That iteration can diverge (it does on the 15-point public test
@@ -69,7 +69,7 @@
 //! ([`jacquelin`]: three linear steps, no start value, no iteration), given
 //! as is; it is also one more start value of the least-squares fit.
 //!
-//! **The public test vector (notes §3).** Its ω = 2.02074 is Jacquelin's
+//! **The public test vector (docs/reference.md §3).** Its ω = 2.02074 is Jacquelin's
 //! non-iterative estimate, which [`jacquelin`] reproduces (ω₁ = 2.32536 from
 //! the integral equation, ω₂ = 2.02074 from the sawtooth step, offset
 //! −0.405617, coefficients 1.27520 and −0.577491), not the least-squares
@@ -436,7 +436,7 @@ pub struct Jacquelin {
 ///
 /// ω₂ is *not* the least-squares ω (the residual is generally lower nearby;
 /// [`fit`] uses it as one more start value and refines). On the public test
-/// vector of notes §3 it gives ω = 2.02074, offset −0.405617, coefficients
+/// vector of docs/reference.md §3 it gives ω = 2.02074, offset −0.405617, coefficients
 /// 1.27520 and −0.577491. Its weakness is step 1's numerical integration: it
 /// needs several points per period (ω₁ is biased by about 1/n² at n points
 /// per period on uniform data), which step 2 largely removes.
@@ -588,7 +588,7 @@ pub fn dft_omega(x: &[f64], z: &[f64]) -> Option<f64> {
     (omega.is_finite() && omega > 0.0).then_some(omega)
 }
 
-/// The paper's ellipse method (notes §3): on the uniformly resampled,
+/// The paper's ellipse method (docs/reference.md §3): on the uniformly resampled,
 /// differenced profile `d[n] = y[n+k] − y[n]` (which removes the rotation's
 /// trend), the points `(d[n], d[n+k])` lie on the ellipse
 /// `u² − 2uv·cos(ωk) + v² = const`; a linear least-squares fit of that

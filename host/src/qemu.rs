@@ -646,7 +646,7 @@ pub fn bench_table(r: &BenchReport, clock_mhz: u32) -> String {
     s
 }
 
-/// 12345678 → "12 345 678" (the README's thin grouping).
+/// 12345678 → "12 345 678" (the thin grouping of the docs' tables).
 fn group(v: u64) -> String {
     let d = v.to_string();
     let mut out = String::new();

@@ -1,7 +1,7 @@
 //! `cms-host analyze RECORDING [--report DIR] [--json]`: a recording's
 //! calibrated frames placed along the track by their odometer, stitched into
 //! one longitudinal profile per laser line ([`stitch`]), and judged as a rail
-//! engineer expects (reference notes §2): the EN 13231-3 wavelength bands
+//! engineer expects (docs/reference.md §2): the EN 13231-3 wavelength bands
 //! and the EN 15610 one-third-octave roughness spectrum against the ISO 3095
 //! limit ([`crate::standards`]). A summary goes to stdout (or one JSON
 //! object with `--json`); `--report DIR` writes a Markdown and a
@@ -15,7 +15,7 @@
 //! not be evaluated and why, and gives the rest.
 //!
 //! Cost: reading is the recording's decoding (about 2 000 frames/s, see
-//! README); stitching `O(P log P)` in the points; the standards `O(N log N)`
+//! docs/link-and-recordings.md); stitching `O(P log P)` in the points; the standards `O(N log N)`
 //! in the samples. A 3 m sim recording (90 frames, 130 000 points) is
 //! analysed in well under a second, plots included.
 
