@@ -80,14 +80,9 @@
 //! start.
 
 use std::fmt;
-use std::io::{self, BufWriter, Write};
-use std::path::PathBuf;
 
-use clap::{Args, ValueEnum};
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix4, Vector3, Vector4};
 use serde::Serialize;
-
-use crate::CliError;
 
 /// Most Levenberg–Marquardt iterations of the joint refinement.
 pub const MAX_ITERATIONS: usize = 200;
@@ -153,7 +148,7 @@ impl fmt::Display for FitError {
 impl std::error::Error for FitError {}
 
 /// The fitted model.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Model {
     /// The paper's sine in a frame rotated by the unknown sensor rotation.
@@ -178,7 +173,7 @@ pub enum Start {
 }
 
 /// How `cms-host fit` estimates the parameters: [`fit`] or [`fit_jacquelin`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
     /// Least squares: the best of several starts refined by Levenberg–Marquardt (the default).
@@ -1073,108 +1068,6 @@ fn report(
         iterations,
         converged,
     }
-}
-
-// ---------------------------------------------------------------------------
-// `cms-host fit`
-
-/// Arguments of `cms-host fit`.
-#[derive(Args, Debug, Clone)]
-pub struct FitArgs {
-    /// `rotated`: the paper's sine with the sensor rotation as an unknown; `sine`: IEEE 1057 four-parameter sine.
-    #[arg(long, value_enum, default_value_t = Model::Rotated)]
-    pub model: Model,
-
-    /// Number of sine components (1..=8), dominant first.
-    #[arg(long, default_value = "1", value_name = "N", value_parser = clap::value_parser!(u8).range(1..=8))]
-    pub components: u8,
-
-    /// `lsq` (default): least squares, the best of the DFT, ellipse, Jacquelin and scan starts refined by
-    /// Levenberg–Marquardt; `jacquelin`: Jacquelin's non-iterative integral-equation estimate as is, not the
-    /// least-squares optimum (needs `--model sine` and one component).
-    #[arg(long, value_enum, default_value_t = Method::Lsq)]
-    pub method: Method,
-
-    /// One JSON object on stdout instead of text.
-    #[arg(long)]
-    pub json: bool,
-
-    /// CSV with columns x_mm,z_mm (header optional).
-    #[arg(value_name = "PROFILE.csv")]
-    pub profile: PathBuf,
-}
-
-/// Runs `cms-host fit`.
-pub fn run(args: &FitArgs) -> Result<(), CliError> {
-    let path = args.profile.display();
-    let bytes = std::fs::read(&args.profile).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
-    let profile =
-        parse_profile(&String::from_utf8_lossy(&bytes)).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
-    let opts = Options { model: args.model, components: usize::from(args.components) };
-    let fit = match args.method {
-        Method::Lsq => fit(&profile.x_mm, &profile.z_mm, &opts),
-        Method::Jacquelin if args.model != Model::Sine || args.components != 1 => {
-            return Err(CliError::Usage("--method jacquelin needs --model sine and --components 1".into()));
-        }
-        Method::Jacquelin => fit_jacquelin(&profile.x_mm, &profile.z_mm),
-    }
-    .map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
-    let mut out = BufWriter::new(io::stdout().lock());
-    if args.json {
-        serde_json::to_writer(&mut out, &fit).map_err(io::Error::from)?;
-        writeln!(out)?;
-    } else {
-        write_text(&mut out, &fit)?;
-    }
-    out.flush()?;
-    Ok(())
-}
-
-/// The human-readable report.
-pub fn write_text(out: &mut impl Write, f: &Fit) -> io::Result<()> {
-    let pm = |s: Option<f64>| s.map_or_else(String::new, |s| format!(" ± {s:.3e}"));
-    let model = match f.model {
-        Model::Rotated => "rotated sine",
-        Model::Sine => "sine (IEEE 1057)",
-    };
-    let method = match f.method {
-        Method::Lsq => "least squares",
-        Method::Jacquelin => "Jacquelin (non-iterative)",
-    };
-    writeln!(out, "model        {model}, {method}, {} points, {} component(s)", f.points, f.components.len())?;
-    let d = &f.components[0];
-    writeln!(out, "omega        {:.6} rad/mm", d.omega_rad_per_mm)?;
-    writeln!(out, "wavelength   {:.6} mm{}", f.wavelength_mm, pm(f.wavelength_sigma_mm))?;
-    writeln!(out, "amplitude    {:.6} mm{}", f.amplitude_mm, pm(f.amplitude_sigma_mm))?;
-    writeln!(out, "phase        {:.6} rad{}", f.phase_rad, pm(f.phase_sigma_rad))?;
-    writeln!(out, "sin, cos     {:.6} mm, {:.6} mm", d.sin_mm, d.cos_mm)?;
-    writeln!(out, "offset       {:.6} mm{}", f.offset_mm, pm(f.offset_sigma_mm))?;
-    writeln!(out, "rotation     {:.6} rad{}", f.rotation_rad, pm(f.rotation_sigma_rad))?;
-    writeln!(out, "rms residual {:.6} mm", f.rms_residual_mm)?;
-    for (i, c) in f.components.iter().enumerate().skip(1) {
-        writeln!(
-            out,
-            "component {}  wavelength {:.6} mm{}, amplitude {:.6} mm{}, phase {:.6} rad",
-            i + 1,
-            c.wavelength_mm,
-            pm(c.wavelength_sigma_mm),
-            c.amplitude_mm,
-            pm(c.amplitude_sigma_mm),
-            c.phase_rad
-        )?;
-    }
-    let start = match f.start {
-        Start::Dft => "DFT peak",
-        Start::Ellipse => "ellipse method",
-        Start::Scan => "residual scan",
-        Start::Jacquelin => "Jacquelin's estimate",
-    };
-    writeln!(
-        out,
-        "iterations   {} ({}), start: {start}",
-        f.iterations,
-        if f.converged { "converged" } else { "not converged" }
-    )
 }
 
 #[cfg(test)]

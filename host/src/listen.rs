@@ -43,7 +43,7 @@ use cms_core::protocol::{
 };
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-use crate::CliError;
+use crate::Error;
 use crate::analyze::live::LiveEstimate;
 use crate::link::{Counters, Deframer, Link, LinkError};
 use crate::record::{self, FrameCounter, RecordError, Recorder};
@@ -179,15 +179,6 @@ impl fmt::Display for ListenError {
 }
 
 impl std::error::Error for ListenError {}
-
-impl From<ListenError> for CliError {
-    fn from(e: ListenError) -> Self {
-        match e {
-            ListenError::Output(e) => CliError::Output(e),
-            e => CliError::Usage(e.to_string()),
-        }
-    }
-}
 
 /// What a listening session did.
 #[derive(Clone, Debug, Default)]
@@ -939,9 +930,9 @@ pub fn print_summary(sum: &Summary) {
 }
 
 /// `cms-host listen` on a device path.
-pub fn run(args: &ListenArgs) -> Result<(), CliError> {
+pub fn run(args: &ListenArgs) -> Result<(), Error> {
     if args.port == "sim" {
-        return Err(CliError::Usage(
+        return Err(Error::Input(
             "`listen sim` needs the simulated head, which this build does not have; give a device path".to_string(),
         ));
     }

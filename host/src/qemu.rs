@@ -42,8 +42,6 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
 
-use crate::CliError;
-
 /// The emulator.
 pub const QEMU: &str = "qemu-system-arm";
 /// The head's image (a binary of `firmware/qemu`).
@@ -143,12 +141,6 @@ impl fmt::Display for QemuError {
 }
 
 impl std::error::Error for QemuError {}
-
-impl From<QemuError> for CliError {
-    fn from(e: QemuError) -> Self {
-        CliError::Usage(e.to_string())
-    }
-}
 
 /// The `firmware/qemu` source directory of the tree this program was built from.
 pub fn source_dir() -> PathBuf {
