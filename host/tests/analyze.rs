@@ -13,7 +13,7 @@ use cms_host::analyze::stitch::{self, Direction, FramePoints, Options, Registrat
 use cms_host::calib::truth::truth;
 use cms_host::record;
 use cms_host::sim::Scene;
-use cms_host::simulate::{SimulateArgs, parse_corrugation, sim_config};
+use cms_host::simulate::{HeadOptions, parse_corrugation, sim_config};
 
 fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_cms-host")
@@ -277,14 +277,14 @@ fn bad_input_is_one_line_and_exit_2() {
 // ------------------------------------------------------------ the sim
 
 /// The simulated head's options of the recording test.
-fn sim_args(state: &Path) -> SimulateArgs {
-    SimulateArgs {
+fn sim_args(state: &Path) -> HeadOptions {
+    HeadOptions {
         speed_mm_s: Some(SIM_SPEED_MM_S),
         corrugation: vec![parse_corrugation("50:30").unwrap()],
         roughness_um: Some(1.0),
         rate: 1000,
         state: Some(state.to_path_buf()),
-        ..SimulateArgs::default()
+        ..HeadOptions::default()
     }
 }
 

@@ -199,7 +199,7 @@ fn truth_errors(p: &Profile) -> Errors {
     use std::sync::OnceLock;
     static SCENE: OnceLock<Scene> = OnceLock::new();
     let scene = SCENE.get_or_init(|| {
-        let args = cms_host::simulate::SimulateArgs { seed: 1, ..Default::default() };
+        let args = cms_host::simulate::HeadOptions { seed: 1, ..Default::default() };
         Scene::new(cms_host::simulate::sim_config(&args).unwrap()).unwrap()
     });
     let shot = Shot {
@@ -409,7 +409,7 @@ fn bad_options_exit_2_with_one_line() {
 
 #[test]
 fn in_process_head_serves_through_its_pty() {
-    let (path, handle) = cms_host::simulate::spawn_on_pty(&cms_host::simulate::SimulateArgs::default()).unwrap();
+    let (path, handle) = cms_host::simulate::spawn_on_pty(&cms_host::simulate::HeadOptions::default()).unwrap();
     assert!(handle.is_running());
     let port = OpenOptions::new().read(true).write(true).custom_flags(nix::libc::O_NOCTTY).open(&path).unwrap();
     let mut t = tcgetattr(port.as_fd()).unwrap();

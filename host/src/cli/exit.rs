@@ -22,6 +22,11 @@ use cms_host::{Class, Error};
 #[error("{0}")]
 pub struct Usage(pub String);
 
+/// A bad input, as the command line's error (exit status 2).
+pub fn input(msg: String) -> anyhow::Error {
+    Error::Input(msg).into()
+}
+
 /// The exit status of a failure.
 pub fn status(e: &anyhow::Error) -> u8 {
     for cause in e.chain() {
