@@ -508,35 +508,3 @@ fn listen_sim_crosses_the_pty() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).starts_with("error: --sim-seed"));
 }
-
-/// Throughput figures (not a pass/fail test): `cargo test --release -p
-/// cms-host --test simulate throughput -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn throughput() {
-    for rate in [30u16, 200] {
-        let r = rate.to_string();
-        let mut sim = Sim::spawn(&["--rate", &r]);
-        sim.start(rate, LaserPattern::Simultaneous);
-        sim.profiles(5); // warm up
-        let t0 = Instant::now();
-        let mut ps = Vec::new();
-        while t0.elapsed() < Duration::from_secs(5) {
-            ps.extend(sim.profiles(1));
-        }
-        let dt = t0.elapsed().as_secs_f64();
-        let points: usize = ps.iter().map(|p| p.lasers.iter().map(|l| l.points.len()).sum::<usize>()).sum();
-        let mut scratch = vec![0u8; MAX_FRAME];
-        let mut out = vec![0u8; MAX_FRAME];
-        let bytes = encode(&DeviceMsg::Profile(ps[0].clone()), &mut scratch, &mut out).unwrap().len();
-        let skipped = ps.last().unwrap().seq - ps[0].seq + 1 - ps.len() as u32;
-        let (_, err) = sim.terminate();
-        eprintln!(
-            "rate {rate}: {:.1} frames/s received, {} points/frame, {} B/frame encoded, {skipped} seq gaps\n  {}",
-            ps.len() as f64 / dt,
-            points / ps.len(),
-            bytes,
-            err.lines().last().unwrap_or("")
-        );
-    }
-}

@@ -147,18 +147,3 @@ fn cli_refuses_bad_arguments() {
         r => panic!("{r:?}"),
     }
 }
-
-/// The paper head's images (4752 × 3168): cost of one, and the lasers on
-/// the board. `cargo test --release --test render -- --ignored` (seconds).
-#[test]
-#[ignore]
-fn paper_preset_cost() {
-    let scene = Scene::new(SimConfig::paper()).unwrap();
-    let r = BoardRenderer::new(&scene, RenderOptions::default());
-    let brd = board::board_for(scene.config());
-    let pose = board::calibration_poses(&scene, &brd, 1, 1)[0];
-    let t = std::time::Instant::now();
-    let img = r.render(&brd, &pose, scene.all_lasers_mask(), 0);
-    eprintln!("paper image: {:.0} ms", t.elapsed().as_secs_f64() * 1e3);
-    assert_eq!((img.width, img.height), (4752, 3168));
-}
