@@ -11,39 +11,25 @@
 //! 16-bit grey shifted left to fill 16 bits (`v << (16 − bits)`: exact and
 //! reversible, and viewers show it at the right brightness).
 
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use cms_core::protocol::{DeviceInfo, DeviceMsg, HostMsg, LASERS, PROTOCOL_VERSION, RawRows};
+use cms_core::protocol::{DeviceInfo, DeviceMsg, HostMsg, PROTOCOL_VERSION, RawRows};
 
-use crate::CliError;
+use crate::Error;
 use crate::link::{Deframer, Link};
-use crate::simulate::{self, SimPortArgs};
 
 /// Longest silence from the head before the capture is abandoned.
 const SILENCE: Duration = Duration::from_secs(10);
 
-/// Arguments of `capture`.
-#[derive(clap::Args, Debug, Clone)]
-pub struct CaptureArgs {
-    /// Serial port of the head (`/dev/ttyACM0`), or `sim` for the simulated head.
-    #[arg(value_name = "PORT")]
-    pub port: String,
-    /// Where to write the image (PNG).
-    #[arg(long, value_name = "FILE.png")]
-    pub out: PathBuf,
-    /// Lasers lit during the exposure, as a bit mask (0 = none, 7 = all three).
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u8).range(0..(1 << LASERS)))]
+/// What to capture, and how to reach the head.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Lasers lit during the exposure, as a bit mask.
     pub lasers: u8,
-    /// Exposure, µs (default: the head's own).
-    #[arg(long, value_name = "US")]
+    /// Exposure, µs (`None`: the head's own).
     pub exposure: Option<u32>,
     /// Baud rate (ignored by USB CDC heads).
-    #[arg(long, default_value_t = 115_200)]
     pub baud: u32,
-    #[command(flatten)]
-    #[allow(missing_docs)]
-    pub sim: SimPortArgs,
 }
 
 /// A captured frame.
@@ -59,31 +45,9 @@ pub struct Frame {
     pub pixels: Vec<u16>,
 }
 
-/// Runs `capture`.
-pub fn run(args: &CaptureArgs) -> Result<(), CliError> {
-    if args.out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() != Some("png") {
-        return Err(CliError::Usage(format!(
-            "--out {}: the image is written as PNG; name it *.png",
-            args.out.display()
-        )));
-    }
-    let frame = simulate::with_port(&args.port, &args.sim, |port| capture(port, args))
-        .map_err(|e| CliError::Usage(e.to_string()))??;
-    save_png(&frame, &args.out)?;
-    println!(
-        "{}: {}×{} px, {} bit, lasers {:#05b}",
-        args.out.display(),
-        frame.width,
-        frame.height,
-        frame.bits,
-        args.lasers
-    );
-    Ok(())
-}
-
 /// Writes the frame as PNG (see the module docs for the bit depth).
-pub fn save_png(frame: &Frame, path: &std::path::Path) -> Result<(), CliError> {
-    let err = |e: image::ImageError| CliError::Usage(format!("{}: {e}", path.display()));
+pub fn save_png(frame: &Frame, path: &std::path::Path) -> Result<(), Error> {
+    let err = |e: image::ImageError| Error::Input(format!("{}: {e}", path.display()));
     if frame.bits <= 8 {
         let data = frame.pixels.iter().map(|&p| p as u8).collect();
         let img = image::GrayImage::from_raw(frame.width, frame.height, data).expect("size checked when assembled");
@@ -105,12 +69,12 @@ struct Session {
 }
 
 impl Session {
-    fn send(&mut self, msg: HostMsg) -> Result<u16, CliError> {
+    fn send(&mut self, msg: HostMsg) -> Result<u16, Error> {
         self.seq = self.seq.wrapping_add(1).max(1);
         match self.link.send(self.seq, msg) {
             Ok(true) => Ok(self.seq),
-            Ok(false) => Err(CliError::Usage(format!("{}: the head does not read its commands", self.link.path()))),
-            Err(e) => Err(CliError::Usage(e.to_string())),
+            Ok(false) => Err(Error::Input(format!("{}: the head does not read its commands", self.link.path()))),
+            Err(e) => Err(Error::Input(e.to_string())),
         }
     }
 
@@ -119,15 +83,15 @@ impl Session {
     fn until<T>(
         &mut self,
         what: &str,
-        mut take: impl FnMut(DeviceMsg) -> Result<Option<T>, CliError>,
-    ) -> Result<T, CliError> {
+        mut take: impl FnMut(DeviceMsg) -> Result<Option<T>, Error>,
+    ) -> Result<T, Error> {
         let mut heard = Instant::now();
         loop {
-            let n = self.link.read(&mut self.buf).map_err(|e| CliError::Usage(e.to_string()))?;
+            let n = self.link.read(&mut self.buf).map_err(|e| Error::Input(e.to_string()))?;
             if n > 0 {
                 heard = Instant::now();
             } else if heard.elapsed() > SILENCE {
-                return Err(CliError::Usage(format!(
+                return Err(Error::Input(format!(
                     "{}: no answer to {what} within {} s",
                     self.link.path(),
                     SILENCE.as_secs()
@@ -146,14 +110,14 @@ impl Session {
     }
 }
 
-/// The conversation on an open port.
-fn capture(port: &str, args: &CaptureArgs) -> Result<Frame, CliError> {
-    let link = Link::open(port, args.baud).map_err(|e| CliError::Usage(e.to_string()))?;
+/// One frame from the head on `port`: the conversation of the module docs.
+pub fn capture(port: &str, args: &Options) -> Result<Frame, Error> {
+    let link = Link::open(port, args.baud).map_err(|e| Error::Input(e.to_string()))?;
     let mut s = Session { link, frames: Deframer::new(), buf: vec![0; 64 * 1024], seq: 0 };
     s.send(HostMsg::GetInfo)?;
     let info: DeviceInfo = s.until("GetInfo", |m| Ok(if let DeviceMsg::Hello(i) = m { Some(i) } else { None }))?;
     if info.protocol != PROTOCOL_VERSION {
-        return Err(CliError::Usage(format!(
+        return Err(Error::Input(format!(
             "the head on {port} speaks protocol version {}; this cms-host speaks {PROTOCOL_VERSION}",
             info.protocol
         )));
@@ -169,7 +133,7 @@ fn capture(port: &str, args: &CaptureArgs) -> Result<Frame, CliError> {
     s.until("the image data", |m| match m {
         DeviceMsg::RawRows(r) if r.capture == seq => asm.add(&r).map(|done| done.then_some(())),
         DeviceMsg::Error { seq: Some(q), code } if q == seq => {
-            Err(CliError::Usage(format!("{port}: the head refused the capture: {code}")))
+            Err(Error::Input(format!("{port}: the head refused the capture: {code}")))
         }
         _ => Ok(None),
     })?;
@@ -177,11 +141,11 @@ fn capture(port: &str, args: &CaptureArgs) -> Result<Frame, CliError> {
 }
 
 /// An `Ack` of `seq` → done; its `Error` → the refusal in words.
-fn answer(m: DeviceMsg, seq: u16, what: &str) -> Result<Option<()>, CliError> {
+fn answer(m: DeviceMsg, seq: u16, what: &str) -> Result<Option<()>, Error> {
     match m {
         DeviceMsg::Ack(q) if q == seq => Ok(Some(())),
         DeviceMsg::Error { seq: Some(q), code } if q == seq => {
-            Err(CliError::Usage(format!("the head refused {what}: {code}")))
+            Err(Error::Input(format!("the head refused {what}: {code}")))
         }
         _ => Ok(None),
     }
@@ -209,10 +173,10 @@ impl Assembly {
     }
 
     /// Takes one chunk; `Ok(true)` once every byte has arrived.
-    fn add(&mut self, r: &RawRows) -> Result<bool, CliError> {
+    fn add(&mut self, r: &RawRows) -> Result<bool, Error> {
         let f = &mut self.frame;
         if (u32::from(r.width), u32::from(r.height), r.bits) != (f.width, f.height, f.bits) {
-            return Err(CliError::Usage(format!(
+            return Err(Error::Input(format!(
                 "the head sent a {}×{} {}-bit chunk for a {}×{} {}-bit sensor",
                 r.width, r.height, r.bits, f.width, f.height, f.bits
             )));
@@ -221,7 +185,7 @@ impl Assembly {
         let start = r.first_row as usize * row_bytes + r.offset as usize;
         let end = start + r.data.len();
         if end > self.got.len() || !start.is_multiple_of(self.bpp) || !r.data.len().is_multiple_of(self.bpp) {
-            return Err(CliError::Usage(format!(
+            return Err(Error::Input(format!(
                 "the head sent a chunk outside the image (row {}, offset {}, {} bytes)",
                 r.first_row,
                 r.offset,

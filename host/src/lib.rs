@@ -1,27 +1,37 @@
-//! `cms-host`: host-side tools of the rail corrugation measurement system.
+//! `cms-host`: the host side of the rail corrugation measurement system, as
+//! a library. It knows no command line: the `cms-host` binary's `cli` layer
+//! (clap arguments, printing, progress, exit statuses) sits on top of it and
+//! passes plain options in. Modules, from the wire up:
 //!
-//! The binary (`src/main.rs`) is a thin `clap` dispatcher; each subcommand
-//! lives in its own module here so that it can be tested without spawning a
-//! process:
-//!
-//! * [`analyze`] — `cms-host analyze`: a recording stitched along the track and judged by the rail standards.
-//! * [`board`] — the checkerboard target and its pose (shared by calibration and the simulator).
-//! * [`calib`] — `cms-host calibrate`: camera and laser-plane calibration, the calibration file, upload.
-//! * [`camera`] — the `f64` camera model: pinhole, skew, Brown–Conrady distortion (OpenCV's), and its `f32` copy for the head.
-//! * [`capture`] — `cms-host capture`: one full frame from a head as a PNG.
-//! * [`closed_loop`] — corrugation measured through the simulated head against its truth (the paper's Table 5 cases).
-//! * [`corrugation`] — the lines of one image together: head frame, surface normal (paper §2.2), joint sine fit.
-//! * [`detect`] — `cms-host detect`: laser-stripe positions of image rows as CSV.
-//! * [`fit`] — `cms-host fit`: IEEE 1057 and the paper's rotated sine fits of a profile.
-//! * [`input`] — reading grayscale PNG/TIFF images and CSV rows.
-//! * [`plot`] — SVG and PNG plots with an embedded font.
-//! * [`listen`] — `cms-host listen`: handshake, stream, record and show a sensor head's profiles.
-//! * [`qemu`] — the emulated head on QEMU: `cms-host listen qemu`, `cms-host bench qemu`.
+//! **Talking to a head**
 //! * [`link`] — the serial port (open by path, reconnect) and frame splitting.
+//! * [`listen`] — a streaming session: handshake, start, profiles, heartbeat, recording, summary.
+//! * [`capture`] — one full frame from a head (what the sensor sees).
+//! * [`simulate`] — the simulated head: `cms_core::pipeline::Head` on a pseudo-terminal, fed by [`sim`].
+//! * [`qemu`] — the emulated head: the firmware's `Head` on QEMU's Cortex-M boards, and its benchmark.
+//!
+//! **Data**
+//! * [`record`] — the recording format, its reader, export and `info`.
+//! * [`input`] — grayscale PNG/TIFF images and CSV rows.
+//! * [`detect`] — laser-stripe positions of image rows, as CSV.
+//!
+//! **Models**
+//! * [`camera`] — the `f64` camera model: pinhole, skew, Brown–Conrady distortion (OpenCV's), and its one conversion to the head's `f32` model.
+//! * [`board`] — the checkerboard target and its pose, shared by calibration and the simulator.
 //! * [`lm`] — Levenberg–Marquardt, the one nonlinear least-squares solver (fits, calibration).
-//! * [`measure`] — `cms-host measure`: per image or recorded frame, each laser's profile and fit, the joint result, plots.
-//! * [`record`] — the recording format, `cms-host export` and `cms-host info`.
-//! * [`standards`] — rail-standard analysis of a longitudinal profile: EN 13231-3 bands, EN 15610 roughness.
+//! * [`sim`] — the scene: rail, lasers, camera and sensor noise, rendered row by row with its truth.
+//! * [`calib`] — checkerboard corners, camera and laser-plane calibration, the calibration file, upload.
+//! * [`fit`] — IEEE 1057 and the paper's rotated sine fits of a profile.
+//! * [`corrugation`] — the lines of one frame together: head frame, surface normal (paper §2.2), joint fit.
+//! * [`measure`] — per image or recorded frame: each laser's profile and fit, the joint result, plots.
+//! * [`closed_loop`] — corrugation measured through the simulated head against its truth (`bench corrugation`, tests).
+//!
+//! **Judging the rail**
+//! * [`standards`] — EN 13231-3 wavelength bands, EN 15610 roughness.
+//! * [`analyze`] — a recording stitched along the track, judged by the standards; the report.
+//! * [`plot`] — SVG and PNG plots with an embedded font.
+//!
+//! * [`error`] — the library's error and what kind of failure each is.
 
 pub mod analyze;
 pub mod board;
@@ -31,6 +41,7 @@ pub mod capture;
 pub mod closed_loop;
 pub mod corrugation;
 pub mod detect;
+pub mod error;
 pub mod fit;
 pub mod input;
 pub mod link;
@@ -44,56 +55,4 @@ pub mod sim;
 pub mod simulate;
 pub mod standards;
 
-use std::fmt;
-use std::io::Write as _;
-use std::process::ExitCode;
-
-/// Why a subcommand failed, and so how the process exits.
-#[derive(Debug)]
-pub enum CliError {
-    /// A bad option value or a bad input file: exit status 2.
-    Usage(String),
-    /// Writing the output failed: exit status 1 (a closed pipe exits quietly
-    /// with status 0, see [`CliError::report`]).
-    Output(std::io::Error),
-}
-
-impl fmt::Display for CliError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            CliError::Usage(m) => f.write_str(m),
-            CliError::Output(e) => write!(f, "writing output: {e}"),
-        }
-    }
-}
-
-impl From<input::InputError> for CliError {
-    fn from(e: input::InputError) -> Self {
-        CliError::Usage(e.to_string())
-    }
-}
-
-impl From<std::io::Error> for CliError {
-    fn from(e: std::io::Error) -> Self {
-        CliError::Output(e)
-    }
-}
-
-impl CliError {
-    /// Prints the error as one `error: ` line on stderr (nothing for a closed
-    /// output pipe) and returns the exit status.
-    pub fn report(&self) -> ExitCode {
-        if let CliError::Output(e) = self
-            && e.kind() == std::io::ErrorKind::BrokenPipe
-        {
-            return ExitCode::SUCCESS;
-        }
-        let msg = input::one_line(&self.to_string(), 2000);
-        // Not eprintln!: it panics if stderr is closed.
-        let _ = writeln!(std::io::stderr(), "error: {msg}");
-        match self {
-            CliError::Usage(_) => ExitCode::from(2),
-            CliError::Output(_) => ExitCode::from(1),
-        }
-    }
-}
+pub use error::{Class, Error};

@@ -24,26 +24,3 @@ pub mod lasers;
 pub mod render;
 pub mod truth;
 pub mod upload;
-
-/// `cms-host calibrate …`
-#[derive(clap::Subcommand, Debug, Clone)]
-pub enum CalibrateCmd {
-    /// Camera intrinsics and distortion from checkerboard photographs.
-    Camera(camera::CameraArgs),
-    /// Laser planes from laser-on/laser-off image pairs of the board.
-    Lasers(lasers::LasersArgs),
-    /// Send a calibration file to a sensor head (or `sim`).
-    Upload(upload::UploadArgs),
-    /// Render calibration images from the simulated head, with the truth.
-    Render(render::RenderArgs),
-}
-
-/// Runs one `calibrate` subcommand.
-pub fn run(cmd: &CalibrateCmd) -> Result<(), crate::CliError> {
-    match cmd {
-        CalibrateCmd::Camera(a) => camera::run(a),
-        CalibrateCmd::Lasers(a) => lasers::run(a),
-        CalibrateCmd::Upload(a) => upload::run(a),
-        CalibrateCmd::Render(a) => render::run(a),
-    }
-}

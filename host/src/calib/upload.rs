@@ -16,56 +16,54 @@ use cms_core::pipeline::triangulator;
 use cms_core::protocol::{DeviceInfo, DeviceMsg, ErrorCode, HostMsg, PROTOCOL_VERSION};
 
 use super::file::CalibrationFile;
-use crate::CliError;
+use crate::Error;
 use crate::link::{Deframer, Link};
-use crate::simulate::{self, SimPortArgs};
+use crate::simulate::{self, SimPort};
 
 /// How long to wait for each answer.
 const ANSWER_TIMEOUT: Duration = Duration::from_secs(2);
 
-/// Arguments of `calibrate upload`.
-#[derive(clap::Args, Debug, Clone)]
-pub struct UploadArgs {
+/// What to upload, and where.
+#[derive(Debug, Clone)]
+pub struct Options {
     /// The calibration file (from `calibrate lasers`).
-    #[arg(value_name = "CAL.toml")]
     pub file: PathBuf,
-    /// Serial port of the head (`/dev/ttyACM0`), or `sim` for the simulated head.
-    #[arg(value_name = "PORT")]
+    /// Serial port of the head, or `sim`.
     pub port: String,
     /// Baud rate (ignored by USB CDC heads).
-    #[arg(long, default_value_t = 115_200)]
     pub baud: u32,
-    #[command(flatten)]
-    #[allow(missing_docs)]
-    pub sim: SimPortArgs,
+    /// The simulated head's options, for PORT `sim`.
+    pub sim: SimPort,
 }
 
-/// Runs `calibrate upload`.
-pub fn run(args: &UploadArgs) -> Result<(), CliError> {
+/// `calibrate upload`: sends the calibration (and the detector's scale
+/// range of its `[head]` section) and checks that the head took it; returns
+/// the line to tell the user.
+pub fn upload(args: &Options) -> Result<String, Error> {
     let file = CalibrationFile::load(&args.file)?;
-    let cal = file.to_head().map_err(|e| CliError::Usage(format!("{}: {e}", args.file.display())))?;
+    let cal = file.to_head().map_err(|e| Error::Input(format!("{}: {e}", args.file.display())))?;
     // The head would refuse it; say why here, in words.
     let tri = triangulator(&cal)
-        .map_err(|e| CliError::Usage(format!("{}: the head would refuse it: {e}", args.file.display())))?;
+        .map_err(|e| Error::Input(format!("{}: the head would refuse it: {e}", args.file.display())))?;
     let scales = match file.head {
         Some(h) => Some(
             tri.scale_range(h.laser_diameter_mm, (h.range_min_mm, h.range_max_mm))
-                .map_err(|e| CliError::Usage(format!("{}: [head]: {e}", args.file.display())))?,
+                .map_err(|e| Error::Input(format!("{}: [head]: {e}", args.file.display())))?,
         ),
         None => None,
     };
-    let r = simulate::with_port(&args.port, &args.sim, |port| -> Result<String, CliError> {
+    let r = simulate::with_port(&args.port, &args.sim, |port| -> Result<String, Error> {
         let mut s = Session::open(port, args.baud)?;
         let info = s.info()?;
         if info.protocol != PROTOCOL_VERSION {
-            return Err(CliError::Usage(format!(
+            return Err(Error::Input(format!(
                 "the head on {port} speaks protocol version {}; this cms-host speaks {PROTOCOL_VERSION}",
                 info.protocol
             )));
         }
         let (w, h) = (file.camera.intrinsics.width_px, file.camera.intrinsics.height_px);
         if (u32::from(info.sensor_width), u32::from(info.sensor_height)) != (w, h) {
-            return Err(CliError::Usage(format!(
+            return Err(Error::Input(format!(
                 "{} is for a {w}×{h} camera; the head on {port} has {}×{}",
                 args.file.display(),
                 info.sensor_width,
@@ -82,16 +80,15 @@ pub fn run(args: &UploadArgs) -> Result<(), CliError> {
         }
         let after = s.info()?;
         if after.calibration_id != cal.id {
-            return Err(CliError::Usage(format!(
+            return Err(Error::Input(format!(
                 "the head on {port} acknowledged the calibration but reports id {:#010x}, not {:#010x}",
                 after.calibration_id, cal.id
             )));
         }
         Ok(format!("calibration {:#010x} loaded by the head on {port}{note}", cal.id))
     })
-    .map_err(|e| CliError::Usage(e.to_string()))??;
-    println!("{r}");
-    Ok(())
+    .map_err(|e| Error::Input(e.to_string()))??;
+    Ok(r)
 }
 
 /// A request/answer conversation with a head.
@@ -103,25 +100,25 @@ struct Session {
 }
 
 impl Session {
-    fn open(port: &str, baud: u32) -> Result<Session, CliError> {
-        let link = Link::open(port, baud).map_err(|e| CliError::Usage(e.to_string()))?;
+    fn open(port: &str, baud: u32) -> Result<Session, Error> {
+        let link = Link::open(port, baud).map_err(|e| Error::Input(e.to_string()))?;
         Ok(Session { link, frames: Deframer::new(), seq: 0, buf: vec![0; 4096] })
     }
 
-    fn send(&mut self, msg: HostMsg) -> Result<u16, CliError> {
+    fn send(&mut self, msg: HostMsg) -> Result<u16, Error> {
         self.seq = self.seq.wrapping_add(1).max(1);
         match self.link.send(self.seq, msg) {
             Ok(true) => Ok(self.seq),
-            Ok(false) => Err(CliError::Usage(format!("{}: the head does not read its commands", self.link.path()))),
-            Err(e) => Err(CliError::Usage(e.to_string())),
+            Ok(false) => Err(Error::Input(format!("{}: the head does not read its commands", self.link.path()))),
+            Err(e) => Err(Error::Input(e.to_string())),
         }
     }
 
     /// Waits for the first message `pick` takes.
-    fn wait<T>(&mut self, what: &str, mut pick: impl FnMut(DeviceMsg) -> Option<T>) -> Result<T, CliError> {
+    fn wait<T>(&mut self, what: &str, mut pick: impl FnMut(DeviceMsg) -> Option<T>) -> Result<T, Error> {
         let deadline = Instant::now() + ANSWER_TIMEOUT;
         while Instant::now() < deadline {
-            let n = self.link.read(&mut self.buf).map_err(|e| CliError::Usage(e.to_string()))?;
+            let n = self.link.read(&mut self.buf).map_err(|e| Error::Input(e.to_string()))?;
             let mut got = None;
             self.frames.feed(&self.buf[..n], |r, _| {
                 if got.is_none()
@@ -134,10 +131,10 @@ impl Session {
                 return Ok(v);
             }
         }
-        Err(CliError::Usage(format!("{}: no answer to {what} within {} s", self.link.path(), ANSWER_TIMEOUT.as_secs())))
+        Err(Error::Input(format!("{}: no answer to {what} within {} s", self.link.path(), ANSWER_TIMEOUT.as_secs())))
     }
 
-    fn info(&mut self) -> Result<DeviceInfo, CliError> {
+    fn info(&mut self) -> Result<DeviceInfo, Error> {
         self.send(HostMsg::GetInfo)?;
         self.wait("GetInfo", |m| match m {
             DeviceMsg::Hello(i) => Some(i),
@@ -145,13 +142,13 @@ impl Session {
         })
     }
 
-    fn command(&mut self, msg: HostMsg, what: &str) -> Result<(), CliError> {
+    fn command(&mut self, msg: HostMsg, what: &str) -> Result<(), Error> {
         let seq = self.send(msg)?;
         let r: Result<(), ErrorCode> = self.wait(what, |m| match m {
             DeviceMsg::Ack(s) if s == seq => Some(Ok(())),
             DeviceMsg::Error { seq: Some(s), code } if s == seq => Some(Err(code)),
             _ => None,
         })?;
-        r.map_err(|code| CliError::Usage(format!("{}: the head refused {what}: {code:?}", self.link.path())))
+        r.map_err(|code| Error::Input(format!("{}: the head refused {what}: {code:?}", self.link.path())))
     }
 }

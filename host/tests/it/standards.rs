@@ -1,5 +1,5 @@
 //! Rail-standard analysis (`cms_host::standards`): the EN 15610 check value
-//! of the reference notes §2, spike removal, curvature processing, the
+//! of docs/reference.md §2, spike removal, curvature processing, the
 //! EN 13231-3 band split and peak-to-peak criteria, short-record errors, and
 //! no panic on any finite profile.
 
@@ -248,7 +248,7 @@ proptest! {
 /// pad differently.
 #[test]
 fn band_filter_matches_scipy_in_the_interior() {
-    let text = include_str!("data/standards/band_30_100.csv");
+    let text = include_str!("../data/standards/band_30_100.csv");
     let (mut z, mut reference) = (Vec::new(), Vec::new());
     for line in text.lines().filter(|l| !l.starts_with('#') && !l.starts_with('x')) {
         let f: Vec<&str> = line.split(',').collect();

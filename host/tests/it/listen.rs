@@ -23,6 +23,7 @@
 //! other end. (On a real unplug the frame in flight is lost; it arrives
 //! truncated or not at all, and is counted or simply absent.)
 
+use crate::common::bin;
 use std::fs::File;
 use std::io::{self, Read, Write};
 use std::os::fd::{AsFd, AsRawFd, OwnedFd};
@@ -40,7 +41,7 @@ use cms_core::protocol::{
 };
 use cms_host::listen::{ListenError, ListenOptions, Progress, Summary, listen_with};
 use cms_host::record;
-use cms_tests::{Gauss, Rng, clean_row, quantise};
+use cms_study::{Gauss, Rng, clean_row, quantise};
 
 // ------------------------------------------------------------------ device
 
@@ -636,7 +637,7 @@ fn measure(replay: bool, json: bool, record: bool, want: u64) -> String {
 /// listener's CPU time per frame: with the head pipeline running the
 /// detector on every row, and with frames replayed as fast as the pty takes
 /// them (the link's and listener's own capacity). Prints the figures:
-/// `cargo test --release -p cms-host --test listen throughput -- --nocapture --test-threads 1`.
+/// `cargo test --release -p cms-host --test it listen::throughput -- --nocapture --test-threads 1`.
 #[test]
 fn throughput_through_the_pty() {
     let n = if cfg!(debug_assertions) { 20 } else { 300 };
@@ -676,10 +677,6 @@ fn a_silent_port_gives_no_hello() {
 }
 
 // ------------------------------------------------------------------ CLI
-
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_cms-host")
-}
 
 /// The device on a thread, served until dropped.
 struct Served {
