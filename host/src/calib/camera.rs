@@ -51,7 +51,7 @@ pub struct CalibOptions {
     /// After a first fit, drop views whose RMS error exceeds this (px) and
     /// fit again.
     pub max_view_rms_px: Option<f64>,
-    /// Levenberg–Marquardt iteration limit.
+    /// Levenberg–Marquardt limit on trial steps (accepted or not).
     pub max_iterations: usize,
 }
 
@@ -77,7 +77,7 @@ pub struct CameraCalibration {
     pub per_view_rms_px: Vec<f64>,
     /// Board pose of each view used.
     pub poses: Vec<BoardPose>,
-    /// Levenberg–Marquardt iterations of the last fit.
+    /// Levenberg–Marquardt trial steps (accepted or not) of the last fit.
     pub iterations: usize,
 }
 
