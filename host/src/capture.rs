@@ -218,13 +218,13 @@ impl Assembly {
             )));
         }
         let row_bytes = f.width as usize * self.bpp;
-        let start = r.first_row as usize * row_bytes + r.offset as usize;
+        let start = r.first_row as usize * row_bytes + r.offset_bytes as usize;
         let end = start + r.data.len();
         if end > self.got.len() || !start.is_multiple_of(self.bpp) || !r.data.len().is_multiple_of(self.bpp) {
             return Err(CliError::Usage(format!(
                 "the head sent a chunk outside the image (row {}, offset {}, {} bytes)",
                 r.first_row,
-                r.offset,
+                r.offset_bytes,
                 r.data.len()
             )));
         }
@@ -261,11 +261,11 @@ mod tests {
         }
     }
 
-    fn chunk(first_row: u16, offset: u32, data: &[u8]) -> RawRows {
+    fn chunk(first_row: u16, offset_bytes: u32, data: &[u8]) -> RawRows {
         RawRows {
             capture: 1,
             first_row,
-            offset,
+            offset_bytes,
             width: 3,
             height: 2,
             bits: 12,

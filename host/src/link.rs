@@ -286,7 +286,7 @@ mod tests {
             state: HeadState::Streaming,
             lasers_on: 7,
             frames,
-            frame_rate_mhz: 0,
+            frame_rate_millihz: 0,
             rows_per_s: 0,
             dropped_frames: 0,
             ns_per_row: 0,

@@ -87,7 +87,7 @@ fn status() -> DeviceMsg {
         state: HeadState::Streaming,
         lasers_on: 7,
         frames: 3,
-        frame_rate_mhz: 30_000,
+        frame_rate_millihz: 30_000,
         rows_per_s: 14_400,
         dropped_frames: 2,
         ns_per_row: 900,

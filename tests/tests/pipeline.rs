@@ -780,7 +780,7 @@ fn ring_capture(band_rows: u16) -> (Vec<Option<u16>>, RingCam, Vec<DeviceMsg>) {
                 sent += r.data.len() as u64 + 16;
                 clock.set(clock.get() + r.data.len() as u64 + 16);
                 for (k, px) in r.data.chunks_exact(2).enumerate() {
-                    let i = usize::from(r.first_row) * 752 + r.offset as usize / 2 + k;
+                    let i = usize::from(r.first_row) * 752 + r.offset_bytes as usize / 2 + k;
                     image[i] = Some(u16::from_le_bytes([px[0], px[1]]));
                 }
             }

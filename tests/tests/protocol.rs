@@ -75,7 +75,7 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
                 state: HeadState::Streaming,
                 lasers_on: 7,
                 frames: 1000,
-                frame_rate_mhz: 30_000,
+                frame_rate_millihz: 30_000,
                 rows_per_s: 14_400,
                 dropped_frames: 0,
                 ns_per_row: 52_000,
@@ -94,7 +94,7 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
             frame(&DeviceMsg::RawRows(RawRows {
                 capture: 9,
                 first_row: 2,
-                offset: 0,
+                offset_bytes: 0,
                 width: 4,
                 height: 3,
                 bits: 8,
@@ -202,7 +202,7 @@ fn encoded_sizes_are_bounded() {
     let raw_rows = DeviceMsg::RawRows(RawRows {
         capture: u16::MAX,
         first_row: u16::MAX,
-        offset: u32::MAX,
+        offset_bytes: u32::MAX,
         width: u16::MAX,
         height: u16::MAX,
         bits: 16,
