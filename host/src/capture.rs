@@ -12,12 +12,12 @@
 //! reversible, and viewers show it at the right brightness).
 
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use cms_core::protocol::{DeviceInfo, DeviceMsg, HostMsg, LASERS, PROTOCOL_VERSION, RawRows};
+use cms_core::protocol::{DeviceInfo, DeviceMsg, HostMsg, LASERS, RawRows};
 
 use crate::CliError;
-use crate::link::{Deframer, Link};
+use crate::link::{Client, ClientError, Handshake, Wait};
 use crate::simulate::{self, SimPortArgs};
 
 /// Longest silence from the head before the capture is abandoned.
@@ -97,76 +97,23 @@ pub fn save_png(frame: &Frame, path: &std::path::Path) -> Result<(), CliError> {
     }
 }
 
-struct Session {
-    link: Link,
-    frames: Deframer,
-    buf: Vec<u8>,
-    seq: u16,
-}
-
-impl Session {
-    fn send(&mut self, msg: HostMsg) -> Result<u16, CliError> {
-        self.seq = self.seq.wrapping_add(1).max(1);
-        match self.link.send(self.seq, msg) {
-            Ok(true) => Ok(self.seq),
-            Ok(false) => Err(CliError::Usage(format!("{}: the head does not read its commands", self.link.path()))),
-            Err(e) => Err(CliError::Usage(e.to_string())),
-        }
-    }
-
-    /// Feeds what arrives to `take` until it returns `Some` or the head has
-    /// been silent for [`SILENCE`]; every message is offered.
-    fn until<T>(
-        &mut self,
-        what: &str,
-        mut take: impl FnMut(DeviceMsg) -> Result<Option<T>, CliError>,
-    ) -> Result<T, CliError> {
-        let mut heard = Instant::now();
-        loop {
-            let n = self.link.read(&mut self.buf).map_err(|e| CliError::Usage(e.to_string()))?;
-            if n > 0 {
-                heard = Instant::now();
-            } else if heard.elapsed() > SILENCE {
-                return Err(CliError::Usage(format!(
-                    "{}: no answer to {what} within {} s",
-                    self.link.path(),
-                    SILENCE.as_secs()
-                )));
-            }
-            let mut out = Ok(None);
-            self.frames.feed(&self.buf[..n], |r, _| {
-                if let (Ok(None), Ok(m)) = (&out, r) {
-                    out = take(m);
-                }
-            });
-            if let Some(v) = out? {
-                return Ok(v);
-            }
-        }
-    }
-}
-
 /// The conversation on an open port.
 fn capture(port: &str, args: &CaptureArgs) -> Result<Frame, CliError> {
-    let link = Link::open(port, args.baud).map_err(|e| CliError::Usage(e.to_string()))?;
-    let mut s = Session { link, frames: Deframer::new(), buf: vec![0; 64 * 1024], seq: 0 };
-    s.send(HostMsg::GetInfo)?;
-    let info: DeviceInfo = s.until("GetInfo", |m| Ok(if let DeviceMsg::Hello(i) = m { Some(i) } else { None }))?;
-    if info.protocol != PROTOCOL_VERSION {
-        return Err(CliError::Usage(format!(
-            "the head on {port} speaks protocol version {}; this cms-host speaks {PROTOCOL_VERSION}",
-            info.protocol
-        )));
-    }
+    let mut client = Client::open(port, args.baud).map_err(ClientError::from)?;
+    // Every wait is for the head's silence: the image comes in many frames
+    // and may take longer in all than any fixed limit over a slow UART.
+    let info = client.handshake(Handshake { tries: 1, wait: Wait::Silence(SILENCE) })?;
     if let Some(us) = args.exposure {
-        let seq = s.send(HostMsg::SetExposure(us))?;
-        s.until("SetExposure", |m| answer(m, seq, "--exposure"))?;
+        client.request(HostMsg::SetExposure(us), "SetExposure", Wait::Silence(SILENCE)).map_err(|e| match e {
+            ClientError::Refused { code, .. } => CliError::Usage(format!("the head refused --exposure: {code}")),
+            e => e.into(),
+        })?;
     }
-    let seq = s.send(HostMsg::CaptureImage(args.lasers))?;
+    let seq = client.send(HostMsg::CaptureImage(args.lasers))?;
     // The Ack and the first chunks may come in one read: one loop takes
     // both (the Ack is implied by the data; a refusal is an Error).
     let mut asm = Assembly::new(&info);
-    s.until("the image data", |m| match m {
+    client.until("the image data", Wait::Silence(SILENCE), |m| match m {
         DeviceMsg::RawRows(r) if r.capture == seq => asm.add(&r).map(|done| done.then_some(())),
         DeviceMsg::Error { seq: Some(q), code } if q == seq => {
             Err(CliError::Usage(format!("{port}: the head refused the capture: {code}")))
@@ -174,17 +121,6 @@ fn capture(port: &str, args: &CaptureArgs) -> Result<Frame, CliError> {
         _ => Ok(None),
     })?;
     Ok(asm.frame)
-}
-
-/// An `Ack` of `seq` → done; its `Error` → the refusal in words.
-fn answer(m: DeviceMsg, seq: u16, what: &str) -> Result<Option<()>, CliError> {
-    match m {
-        DeviceMsg::Ack(q) if q == seq => Ok(Some(())),
-        DeviceMsg::Error { seq: Some(q), code } if q == seq => {
-            Err(CliError::Usage(format!("the head refused {what}: {code}")))
-        }
-        _ => Ok(None),
-    }
 }
 
 /// A frame being put together from chunks (which may come in any order).
@@ -246,6 +182,7 @@ impl Assembly {
 mod tests {
     use super::*;
     use cms_core::pipeline::default_detector;
+    use cms_core::protocol::PROTOCOL_VERSION;
 
     fn info(w: u16, h: u16, bits: u8) -> DeviceInfo {
         DeviceInfo {

@@ -67,6 +67,12 @@ impl From<input::InputError> for CliError {
     }
 }
 
+impl From<link::ClientError> for CliError {
+    fn from(e: link::ClientError) -> Self {
+        CliError::Usage(e.to_string())
+    }
+}
+
 impl From<std::io::Error> for CliError {
     fn from(e: std::io::Error) -> Self {
         CliError::Output(e)
