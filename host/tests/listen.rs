@@ -841,6 +841,48 @@ fn cli_closed_stdout_ends_quietly() {
     assert_eq!(report.end, Some((HeadState::Idle, 0)));
 }
 
+/// An installed `cms-host` (a copy outside the checkout, run from outside
+/// it) finds the emulated head's image beside itself or through
+/// `CMS_QEMU_IMAGE`, and without one says in one line what to do.
+#[test]
+fn cli_qemu_image_outside_the_checkout() {
+    let dir = tempfile::tempdir().unwrap();
+    let installed = dir.path().join("cms-host");
+    std::fs::copy(bin(), &installed).unwrap();
+    let run = |env: Option<&Path>| {
+        let mut cmd = Process::new(&installed);
+        cmd.args(["listen", "qemu", "--frames", "1", "--reconnect-timeout", "1"])
+            .current_dir(dir.path())
+            .env_remove("CMS_QEMU_IMAGE");
+        if let Some(p) = env {
+            cmd.env("CMS_QEMU_IMAGE", p);
+        }
+        let out = cmd.stdin(Stdio::null()).output().unwrap();
+        (out.status.code(), String::from_utf8_lossy(&out.stderr).into_owned())
+    };
+    let (code, stderr) = run(None);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.contains("no emulated head image cms-qemu-head: give --qemu-image FILE, set CMS_QEMU_IMAGE"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("`cd firmware/qemu && cargo build --release`"), "{stderr}");
+
+    let missing = dir.path().join("nowhere.elf");
+    let (code, stderr) = run(Some(&missing));
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(stderr.contains(&format!("emulated head image {} does not exist", missing.display())), "{stderr}");
+
+    // Not an image QEMU can run: what matters is that it was found (QEMU
+    // then fails, or is not installed), not the old "no image" error.
+    std::fs::write(dir.path().join("cms-qemu-head"), b"not an ELF").unwrap();
+    let (code, stderr) = run(None);
+    assert_ne!(code, Some(0), "{stderr}");
+    assert!(!stderr.contains("no emulated head image"), "the image beside the binary is used: {stderr}");
+    assert!(stderr.contains("qemu"), "{stderr}");
+}
+
 fn cobs_decode(f: &[u8]) -> Vec<u8> {
     let mut out = Vec::new();
     let mut i = 0;
