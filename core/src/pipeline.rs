@@ -409,7 +409,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 reply(&DeviceMsg::Ack(seq));
                 reply(&DeviceMsg::Status(self.status(now_us)));
             }
-            HostMsg::SetExposure(us) => {
+            HostMsg::SetExposure { exposure_us: us } => {
                 let period_us = 1_000_000 / self.start.rate_hz as u64;
                 let streaming = self.state == HeadState::Streaming;
                 if !(EXPOSURE_RANGE_US.0..=EXPOSURE_RANGE_US.1).contains(&us)

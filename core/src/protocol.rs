@@ -363,8 +363,12 @@ pub enum HostMsg {
     Start(Start),
     /// Stop streaming (lasers off).
     Stop,
-    /// Exposure time, µs.
-    SetExposure(u32),
+    /// Exposure time (postcard encodes a one-field struct variant as it
+    /// did the newtype variant this was: the wire bytes are the same).
+    SetExposure {
+        /// Exposure, µs.
+        exposure_us: u32,
+    },
     /// New detector configuration (validated by the head).
     SetDetector(Config),
     /// New calibration.

@@ -36,8 +36,8 @@ pub struct CaptureArgs {
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u8).range(0..(1 << LASERS)))]
     pub lasers: u8,
     /// Exposure, µs (default: the head's own).
-    #[arg(long, value_name = "US")]
-    pub exposure: Option<u32>,
+    #[arg(long = "exposure", value_name = "US")]
+    pub exposure_us: Option<u32>,
     /// Baud rate (ignored by USB CDC heads).
     #[arg(long, default_value_t = 115_200)]
     pub baud: u32,
@@ -103,11 +103,13 @@ fn capture(port: &str, args: &CaptureArgs) -> Result<Frame, CliError> {
     // Every wait is for the head's silence: the image comes in many frames
     // and may take longer in all than any fixed limit over a slow UART.
     let info = client.handshake(Handshake { tries: 1, wait: Wait::Silence(SILENCE) })?;
-    if let Some(us) = args.exposure {
-        client.request(HostMsg::SetExposure(us), "SetExposure", Wait::Silence(SILENCE)).map_err(|e| match e {
-            ClientError::Refused { code, .. } => CliError::Usage(format!("the head refused --exposure: {code}")),
-            e => e.into(),
-        })?;
+    if let Some(us) = args.exposure_us {
+        client.request(HostMsg::SetExposure { exposure_us: us }, "SetExposure", Wait::Silence(SILENCE)).map_err(
+            |e| match e {
+                ClientError::Refused { code, .. } => CliError::Usage(format!("the head refused --exposure: {code}")),
+                e => e.into(),
+            },
+        )?;
     }
     let seq = client.send(HostMsg::CaptureImage(args.lasers))?;
     // The Ack and the first chunks may come in one read: one loop takes

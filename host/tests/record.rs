@@ -510,7 +510,7 @@ fn fuzz_frame_readers_bounded() {
             frame(&DeviceMsg::Ack(3)),
             frame(&DeviceMsg::Error { seq: None, code: cms_core::protocol::ErrorCode::HeartbeatLost }),
             frame(&Command { seq: 1, msg: HostMsg::GetInfo }),
-            frame(&Command { seq: 2, msg: HostMsg::SetExposure(150) }),
+            frame(&Command { seq: 2, msg: HostMsg::SetExposure { exposure_us: 150 } }),
         ];
         let budget: usize = if cfg!(debug_assertions) { 4 << 20 } else { 32 << 20 };
         let mut total = 0usize;

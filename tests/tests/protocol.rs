@@ -109,7 +109,7 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
             }),
         ),
         ("stop", frame(&Command { seq: 2, msg: HostMsg::Stop })),
-        ("exposure", frame(&Command { seq: 3, msg: HostMsg::SetExposure(250) })),
+        ("exposure", frame(&Command { seq: 3, msg: HostMsg::SetExposure { exposure_us: 250 } })),
         ("detector", frame(&Command { seq: 4, msg: HostMsg::SetDetector(default_detector()) })),
         (
             "calibration",
@@ -224,7 +224,7 @@ fn encoded_sizes_are_bounded() {
     det.saturation = u16::MAX;
     let det = Command { seq: u16::MAX, msg: HostMsg::SetDetector(det) };
     let trig = Command { seq: u16::MAX, msg: HostMsg::SetTrigger(Trigger::Distance { every_um: u32::MAX }) };
-    for c in [cal, det, trig, Command { seq: u16::MAX, msg: HostMsg::SetExposure(u32::MAX) }] {
+    for c in [cal, det, trig, Command { seq: u16::MAX, msg: HostMsg::SetExposure { exposure_us: u32::MAX } }] {
         let len = frame(&c).len();
         assert!(len <= MAX_COMMAND_FRAME, "{c:?}: {len}");
     }
@@ -335,7 +335,7 @@ proptest! {
     fn commands_round_trip(seq in any::<u16>(), rate in any::<u16>(), mask in any::<u8>(), exp in any::<u32>(), which in 0u8..7) {
         let msg = match which {
             0 => HostMsg::Start(Start { rate_hz: rate, laser_mask: mask, pattern: LaserPattern::Simultaneous }),
-            1 => HostMsg::SetExposure(exp),
+            1 => HostMsg::SetExposure { exposure_us: exp },
             2 => HostMsg::CaptureImage(mask),
             3 => HostMsg::Stop,
             4 => HostMsg::Heartbeat,
