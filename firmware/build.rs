@@ -6,7 +6,7 @@
 //!   working directory of the build.
 //! * The linker scripts are passed here with `rustc-link-arg-bins`, never
 //!   through a `rustflags` entry: a root `rustflags = ["-Tdefmt.x"]` would
-//!   break every binary that does not link defmt (notes §5).
+//!   break every binary that does not link defmt (docs/reference.md §5).
 //! * `DEFMT_LOG` defaults to `info` for this crate when the caller does not
 //!   set it, so `cd firmware && cargo build` and `cargo fw` (root alias)
 //!   produce the same logs.

@@ -5,11 +5,11 @@
 //!   `link.x` includes `memory.x` and `device.x` (generated here: the
 //!   interrupt handlers are bound in `src/vectors.rs`). `guard.x` fails the
 //!   link if a `memory.x` other than this crate's was picked up
-//!   (firmware/README.md, "The emulated head").
+//!   (docs/firmware.md, "The linker script").
 //! * Link arguments go to the binaries only (`rustc-link-arg-bins`), never
-//!   through `rustflags` (notes §5).
+//!   through `rustflags` (docs/reference.md §5).
 //! * The benchmark's rows and detector configurations: `cms-host bench
-//!   speed`'s own (`cms_tests::montecarlo::speed_rows` / `speed_config`,
+//!   speed`'s own (`cms_study::montecarlo::speed_rows` / `speed_config`,
 //!   seed 1, 64 distinct 12-bit rows of 752 px with 1 and 3 stripes), so the
 //!   instruction counts on thumbv7em and callgrind's on x86-64
 //!   (scripts/instructions.sh) are of the same rows. Written as raw
@@ -22,7 +22,7 @@ use std::fs;
 use std::path::PathBuf;
 
 use cms_core::peak::Method;
-use cms_tests::montecarlo::{speed_config, speed_rows};
+use cms_study::montecarlo::{speed_config, speed_rows};
 
 /// Row length of the benchmark (the MT9V034's).
 const LEN: usize = 752;

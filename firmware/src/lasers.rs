@@ -9,7 +9,7 @@
 //! | 1     | PD13 | P8                   | TIM4_CH2 (AF2)               |
 //! | 2     | PD14 | P9                   | TIM4_CH3 (AF2)               |
 //!
-//! None of them is a DCMI pin (notes §5: D0–D7 = PC6 PC7 PE0 PE1 PE4 PB6 PE5
+//! None of them is a DCMI pin (docs/reference.md §5: D0–D7 = PC6 PC7 PE0 PE1 PE4 PB6 PE5
 //! PE6, VSYNC PB7, HSYNC PA4, PIXCLK PA6), nor USB (PA11/PA12), SWD or the
 //! camera's I2C (PB8/PB9).
 //!

@@ -2,7 +2,7 @@
 //!
 //! The row imitates one MT9V034 row (752 px, 12 bits) crossing the three laser
 //! lines: three Gaussian stripes at sub-pixel positions that are neither whole
-//! nor half pixels (notes §1: never test only at .0 or .5), on a sloping
+//! nor half pixels (docs/reference.md §1: never test only at .0 or .5), on a sloping
 //! background with a little deterministic noise. Everything is integer math:
 //! `exp(−t)` comes from a 16-entry table of `e^(−n)` and a degree-6 Taylor
 //! polynomial for the fractional part, all in Q16.

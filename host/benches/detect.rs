@@ -1,13 +1,13 @@
 //! Time per row of every detection method: 640-, 752- and 1280-px 12-bit rows
 //! with 1 and 3 stripes (σ = 2.5 px, 30 dB measured over the row), the same
-//! rows as `cms-host bench speed` (`cms_tests::montecarlo::speed_rows`).
+//! rows as `cms-host bench speed` (`cms_study::montecarlo::speed_rows`).
 //!
 //! `cargo bench -p cms-host --bench detect` (criterion; filter with e.g.
 //! `-- 1280x3`). Each iteration detects one row, cycling through 64 distinct
 //! rows so branch predictors do not learn one row.
 
 use cms_core::peak::{Detector, Method, Stripes};
-use cms_tests::montecarlo::{SPEED_LENGTHS, SPEED_MAX_LEN, SPEED_STRIPES, speed_config, speed_rows};
+use cms_study::montecarlo::{SPEED_LENGTHS, SPEED_MAX_LEN, SPEED_STRIPES, speed_config, speed_rows};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use std::hint::black_box;
 use std::time::Duration;

@@ -17,7 +17,7 @@ use cms_core::pipeline::{Camera, Head, Identity, LaserDriver, default_detector};
 use cms_core::protocol::{
     Calibration, Command, DeviceMsg, HostMsg, LaserPattern, MAX_FRAME, PROTOCOL_VERSION, Start, Trigger, encode,
 };
-use cms_tests::{Gauss, Rng, clean_row, quantise};
+use cms_study::{Gauss, Rng, clean_row, quantise};
 
 struct Cam {
     rows: Vec<Vec<u16>>,

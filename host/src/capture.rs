@@ -16,7 +16,7 @@ use std::time::Duration;
 
 use cms_core::protocol::{DeviceInfo, DeviceMsg, HostMsg, LASERS, RawRows};
 
-use crate::CliError;
+use crate::Error;
 use crate::link::{Client, ClientError, Handshake, Wait};
 use crate::simulate::{self, SimPortArgs};
 
@@ -60,15 +60,12 @@ pub struct Frame {
 }
 
 /// Runs `capture`.
-pub fn run(args: &CaptureArgs) -> Result<(), CliError> {
+pub fn run(args: &CaptureArgs) -> Result<(), Error> {
     if args.out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() != Some("png") {
-        return Err(CliError::Usage(format!(
-            "--out {}: the image is written as PNG; name it *.png",
-            args.out.display()
-        )));
+        return Err(Error::Input(format!("--out {}: the image is written as PNG; name it *.png", args.out.display())));
     }
     let frame = simulate::with_port(&args.port, &args.sim, |port| capture(port, args))
-        .map_err(|e| CliError::Usage(e.to_string()))??;
+        .map_err(|e| Error::Input(e.to_string()))??;
     save_png(&frame, &args.out)?;
     println!(
         "{}: {}×{} px, {} bit, lasers {:#05b}",
@@ -82,8 +79,8 @@ pub fn run(args: &CaptureArgs) -> Result<(), CliError> {
 }
 
 /// Writes the frame as PNG (see the module docs for the bit depth).
-pub fn save_png(frame: &Frame, path: &std::path::Path) -> Result<(), CliError> {
-    let err = |e: image::ImageError| CliError::Usage(format!("{}: {e}", path.display()));
+pub fn save_png(frame: &Frame, path: &std::path::Path) -> Result<(), Error> {
+    let err = |e: image::ImageError| Error::Input(format!("{}: {e}", path.display()));
     if frame.bits <= 8 {
         let data = frame.pixels.iter().map(|&p| p as u8).collect();
         let img = image::GrayImage::from_raw(frame.width, frame.height, data).expect("size checked when assembled");
@@ -98,7 +95,7 @@ pub fn save_png(frame: &Frame, path: &std::path::Path) -> Result<(), CliError> {
 }
 
 /// The conversation on an open port.
-fn capture(port: &str, args: &CaptureArgs) -> Result<Frame, CliError> {
+fn capture(port: &str, args: &CaptureArgs) -> Result<Frame, Error> {
     let mut client = Client::open(port, args.baud).map_err(ClientError::from)?;
     // Every wait is for the head's silence: the image comes in many frames
     // and may take longer in all than any fixed limit over a slow UART.
@@ -106,7 +103,7 @@ fn capture(port: &str, args: &CaptureArgs) -> Result<Frame, CliError> {
     if let Some(us) = args.exposure_us {
         client.request(HostMsg::SetExposure { exposure_us: us }, "SetExposure", Wait::Silence(SILENCE)).map_err(
             |e| match e {
-                ClientError::Refused { code, .. } => CliError::Usage(format!("the head refused --exposure: {code}")),
+                ClientError::Refused { code, .. } => Error::Input(format!("the head refused --exposure: {code}")),
                 e => e.into(),
             },
         )?;
@@ -118,7 +115,7 @@ fn capture(port: &str, args: &CaptureArgs) -> Result<Frame, CliError> {
     client.until("the image data", Wait::Silence(SILENCE), |m| match m {
         DeviceMsg::RawRows(r) if r.capture == seq => asm.add(&r).map(|done| done.then_some(())),
         DeviceMsg::Error { seq: Some(q), code } if q == seq => {
-            Err(CliError::Usage(format!("{port}: the head refused the capture: {code}")))
+            Err(Error::Input(format!("{port}: the head refused the capture: {code}")))
         }
         _ => Ok(None),
     })?;
@@ -147,10 +144,10 @@ impl Assembly {
     }
 
     /// Takes one chunk; `Ok(true)` once every byte has arrived.
-    fn add(&mut self, r: &RawRows) -> Result<bool, CliError> {
+    fn add(&mut self, r: &RawRows) -> Result<bool, Error> {
         let f = &mut self.frame;
         if (u32::from(r.width), u32::from(r.height), r.bits) != (f.width, f.height, f.bits) {
-            return Err(CliError::Usage(format!(
+            return Err(Error::Input(format!(
                 "the head sent a {}×{} {}-bit chunk for a {}×{} {}-bit sensor",
                 r.width, r.height, r.bits, f.width, f.height, f.bits
             )));
@@ -159,7 +156,7 @@ impl Assembly {
         let start = r.first_row as usize * row_bytes + r.offset_bytes as usize;
         let end = start + r.data.len();
         if end > self.got.len() || !start.is_multiple_of(self.bpp) || !r.data.len().is_multiple_of(self.bpp) {
-            return Err(CliError::Usage(format!(
+            return Err(Error::Input(format!(
                 "the head sent a chunk outside the image (row {}, offset {}, {} bytes)",
                 r.first_row,
                 r.offset_bytes,

@@ -1,5 +1,5 @@
-//! `cms-host detect`: the laser stripes of every row of one or more images,
-//! as CSV on stdout.
+//! Laser-stripe detection of image rows, as CSV: the work of `cms-host
+//! detect` (the command line parses the options and owns stdout).
 //!
 //! ```text
 //! source,row,stripe,position_px,strength,width_px,flags
@@ -7,26 +7,22 @@
 //! ```
 //!
 //! One line per stripe; `row` is the 0-based row (the column with
-//! `--axis columns`), `stripe` the 0-based index in ascending position,
+//! [`Axis::Columns`]), `stripe` the 0-based index in ascending position,
 //! positions and widths in pixels with 5 decimals, `strength` in counts above
 //! the background, `flags` a `|`-joined subset of `saturated`, `clipped`,
 //! `low-confidence`. A row without stripe prints nothing.
 //!
-//! Inputs are processed in order; the first bad one stops the run with a
-//! one-line `error: ` message naming it and exit status 2 (lines already
-//! printed for earlier inputs stay). Each input is read and checked whole
-//! before any of its lines is printed.
+//! Inputs are processed in order; the first bad one stops the run with an
+//! error naming it (lines already written for earlier inputs stay). Each
+//! input is read and checked whole before any of its lines is written.
 
-use std::io::{self, BufWriter, Write};
+use std::io::Write;
 use std::path::PathBuf;
 
-use clap::builder::{PossibleValuesParser, TypedValueParser};
-use clap::{Args, ValueEnum};
-use cms_core::fixed::Px;
 use cms_core::optics::ScaleRange;
 use cms_core::peak::{Config, Detector, Error as DetectError, Flags, Method, Select, Stripes};
 
-use crate::CliError;
+use crate::Error;
 use crate::input::{self, Row};
 
 /// Longest row the detector takes, pixels.
@@ -36,70 +32,29 @@ pub const MAX_STRIPES: usize = 16;
 /// The CSV header.
 pub const HEADER: &str = "source,row,stripe,position_px,strength,width_px,flags";
 
-/// Arguments of `cms-host detect`.
-#[derive(Args, Debug, Clone)]
-pub struct DetectArgs {
+/// What to detect, and in which inputs.
+#[derive(Clone, Debug)]
+pub struct Options {
     /// Sub-pixel estimator.
-    #[arg(long, default_value = "cwt", value_parser = method_parser())]
     pub method: Method,
-
-    /// Stripe widths to look for (Gaussian σ, px), as MIN:MAX with 1 ≤ MIN < MAX ≤ 24.
-    #[arg(long, default_value = "1.5:4", value_name = "MIN:MAX", value_parser = parse_scales)]
+    /// Stripe widths to look for (Gaussian σ, px).
     pub scales: ScaleRange,
-
-    /// Most stripes reported per row (1..=16).
-    #[arg(long, default_value = "3", value_name = "N", value_parser = parse_stripes)]
+    /// Most stripes reported per row (1..=[`MAX_STRIPES`]).
     pub stripes: u8,
-
-    /// Which stripes a row reports when it has more than N (`all`: up to 16).
-    #[arg(long, value_enum, default_value_t = SelectArg::Strongest)]
-    pub select: SelectArg,
-
-    /// Detect along image rows, or along columns (each column is a row).
-    #[arg(long, value_enum, default_value_t = Axis::Rows)]
+    /// Which stripes a row reports when it has more.
+    pub select: Select,
+    /// Along image rows or columns.
     pub axis: Axis,
-
-    /// Bit depth of the pixels, 8..=16 (sets the saturation level 2^B − 1).
-    /// Default: 8 or 16 for an image (its container), for CSV the smallest of
-    /// 8, 10, 12, 14, 16 that holds the file's largest value.
-    #[arg(long, value_name = "B", value_parser = clap::value_parser!(u8).range(8..=16))]
+    /// Bit depth of the pixels (`None`: the input's own).
     pub bits: Option<u8>,
-
-    /// Detection threshold in multiples of the robust noise σ (0 < SIGMA < 256).
-    #[arg(long, default_value = "6", value_name = "SIGMA", value_parser = parse_threshold)]
-    pub threshold: Threshold,
-
-    /// Grayscale PNG or TIFF (8 or 16 bit), or CSV of rows (.csv).
-    #[arg(required = true, value_name = "INPUT")]
+    /// Detection threshold in multiples of the robust noise σ, Q8 (1/256 σ).
+    pub threshold_sigma_q8: u16,
+    /// Grayscale PNG or TIFF images, or CSV files of rows.
     pub inputs: Vec<PathBuf>,
 }
 
-/// `--select`.
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SelectArg {
-    /// The N strongest.
-    Strongest,
-    /// The N nearest the row's start.
-    First,
-    /// The N nearest the row's end.
-    Last,
-    /// Every stripe (up to 16; the strongest if more).
-    All,
-}
-
-impl From<SelectArg> for Select {
-    fn from(s: SelectArg) -> Select {
-        match s {
-            SelectArg::Strongest => Select::Strongest,
-            SelectArg::First => Select::First,
-            SelectArg::Last => Select::Last,
-            SelectArg::All => Select::All,
-        }
-    }
-}
-
-/// `--axis`.
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+/// Which way of an image is a detector row.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Axis {
     /// Each image row is a detector row.
     Rows,
@@ -107,61 +62,14 @@ pub enum Axis {
     Columns,
 }
 
-/// `--threshold`, in multiples of the noise σ, Q8.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Threshold(pub u16);
-
-fn method_parser() -> impl TypedValueParser<Value = Method> {
-    PossibleValuesParser::new(Method::ALL.map(Method::name))
-        .try_map(|s| Method::from_name(&s).ok_or_else(|| format!("unknown method `{s}`")))
-}
-
-/// Parses `MIN:MAX` (stripe σ, px) into a scale range the detector accepts.
-pub fn parse_scales(s: &str) -> Result<ScaleRange, String> {
-    let usage = || format!("expected MIN:MAX, two positive numbers of pixels such as 1.5:4, got `{s}`");
-    let (a, b) = s.split_once(':').ok_or_else(usage)?;
-    let min: f64 = a.trim().parse().map_err(|_| usage())?;
-    let max: f64 = b.trim().parse().map_err(|_| usage())?;
-    if !(min.is_finite() && max.is_finite() && min > 0.0 && max > 0.0) {
-        return Err(usage());
-    }
-    if Px::from_f64(min).0 <= 0 {
-        return Err(format!("MIN {min} px is below the detector's resolution (1/65536 px)"));
-    }
-    let range = ScaleRange::new(Px::from_f64(min), Px::from_f64(max)).map_err(|e| e.to_string())?;
-    // The scale limits (1..=24 px) are the detector's: ask it.
-    Detector::<{ cms_core::peak::MIN_ROW }>::new(Config::new(16, range)).map_err(|e| e.to_string())?;
-    Ok(range)
-}
-
-fn parse_stripes(s: &str) -> Result<u8, String> {
-    let n: u64 = s.trim().parse().map_err(|_| format!("expected a whole number of stripes, got `{s}`"))?;
-    match n {
-        0 => Err("at least 1 stripe per row".into()),
-        n if n > MAX_STRIPES as u64 => {
-            Err(format!("at most {MAX_STRIPES} stripes per row (the output's capacity), got {n}"))
-        }
-        n => Ok(n as u8),
-    }
-}
-
-fn parse_threshold(s: &str) -> Result<Threshold, String> {
-    let v: f64 = s.trim().parse().map_err(|_| format!("expected a number of noise σ, got `{s}`"))?;
-    let q8 = (v * 256.0).round();
-    if !(v.is_finite() && v > 0.0 && (1.0..=u16::MAX as f64).contains(&q8)) {
-        return Err(format!("threshold must be above 0 and below 256 σ, got {s}"));
-    }
-    Ok(Threshold(q8 as u16))
-}
-
-impl DetectArgs {
+impl Options {
     /// The detector configuration for pixels `bits` deep.
     pub fn config(&self, bits: u8) -> Config {
         let mut cfg = Config::new(bits, self.scales);
         cfg.method = self.method;
-        cfg.select = self.select.into();
+        cfg.select = self.select;
         cfg.max_stripes = self.stripes;
-        cfg.threshold_sigma_q8 = self.threshold.0;
+        cfg.threshold_sigma_q8 = self.threshold_sigma_q8;
         cfg
     }
 }
@@ -177,11 +85,11 @@ fn option_of(e: &DetectError) -> &'static str {
     }
 }
 
-fn detector(args: &DetectArgs, bits: u8) -> Result<Box<Detector<MAX_ROW>>, CliError> {
+fn detector(args: &Options, bits: u8) -> Result<Box<Detector<MAX_ROW>>, Error> {
     // Detector<8192> holds 128 KiB of buffers: build it on the heap.
     Detector::<MAX_ROW>::new(args.config(bits))
         .map(Box::new)
-        .map_err(|e| CliError::Usage(format!("invalid {}: {e}", option_of(&e))))
+        .map_err(|e| Error::Input(format!("invalid {}: {e}", option_of(&e))))
 }
 
 /// The flag names, `|`-joined (empty for none).
@@ -201,19 +109,9 @@ pub fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n', '\r']) { format!("\"{}\"", s.replace('"', "\"\"")) } else { s.to_string() }
 }
 
-/// Runs `cms-host detect` with stdout as the output.
-pub fn run(args: &DetectArgs) -> Result<(), CliError> {
-    let stdout = io::stdout();
-    let mut out = BufWriter::new(stdout.lock());
-    let r = run_to(args, &mut out, &mut io::stderr());
-    // Flush what the good inputs produced even if a later one failed.
-    let flushed = out.flush();
-    r?;
-    flushed.map_err(CliError::Output)
-}
-
-/// Runs `cms-host detect`, writing the CSV to `out` and warnings to `warn`.
-pub fn run_to(args: &DetectArgs, out: &mut impl Write, warn: &mut impl Write) -> Result<(), CliError> {
+/// Detects the stripes of every input, writing the CSV to `out` and
+/// warnings to `warn`.
+pub fn write_csv(args: &Options, out: &mut impl Write, warn: &mut impl Write) -> Result<(), Error> {
     // Refuse a bad configuration before reading any input.
     detector(args, args.bits.unwrap_or(16))?;
     let mut stripes: Stripes<MAX_STRIPES> = Stripes::new();
@@ -230,7 +128,7 @@ pub fn run_to(args: &DetectArgs, out: &mut impl Write, warn: &mut impl Write) ->
                 Axis::Rows => "rows",
                 Axis::Columns => "columns",
             };
-            return Err(CliError::Usage(format!(
+            return Err(Error::Input(format!(
                 "{name}: {what} of {} px exceed the detector's {MAX_ROW} px",
                 rows.width()
             )));
@@ -256,7 +154,7 @@ pub fn run_to(args: &DetectArgs, out: &mut impl Write, warn: &mut impl Write) ->
                 Row::U8(r) => det.detect(r, &mut stripes),
                 Row::U16(r) => det.detect(r, &mut stripes),
             };
-            r.map_err(|e| CliError::Usage(format!("{name}: row {i}: {e}")))?;
+            r.map_err(|e| Error::Input(format!("{name}: row {i}: {e}")))?;
             for (k, s) in stripes.iter().enumerate() {
                 writeln!(out, "{source},{i},{k},{},{},{},{}", s.position, s.strength, s.width, flag_names(s.flags))?;
             }
@@ -282,32 +180,5 @@ mod tests {
         assert_eq!(csv_field("a/b.png"), "a/b.png");
         assert_eq!(csv_field("a,b.png"), "\"a,b.png\"");
         assert_eq!(csv_field("a\"b.png"), "\"a\"\"b.png\"");
-    }
-
-    #[test]
-    fn scales() {
-        let r = parse_scales("1.5:4").unwrap();
-        assert_eq!((r.min(), r.max()), (Px::from_f64(1.5), Px::from_f64(4.0)));
-        assert!(parse_scales("4:1.5").unwrap_err().contains("s_min must be below s_max"));
-        assert!(parse_scales("2:2").is_err());
-        assert!(parse_scales("0.5:4").unwrap_err().contains("at least 1 px"));
-        assert!(parse_scales("2:30").unwrap_err().contains("at most 24 px"));
-        assert!(parse_scales("1e-9:4").is_err());
-        for bad in ["", "1.5", "a:b", "1:", ":4", "-1:4", "nan:4", "1:inf", "1:4:5"] {
-            assert!(parse_scales(bad).is_err(), "{bad}");
-        }
-    }
-
-    #[test]
-    fn stripes_and_threshold() {
-        assert_eq!(parse_stripes("16"), Ok(16));
-        assert!(parse_stripes("17").unwrap_err().contains("at most 16"));
-        assert!(parse_stripes("0").is_err());
-        assert!(parse_stripes("-1").is_err());
-        assert_eq!(parse_threshold("6"), Ok(Threshold(1536)));
-        assert_eq!(parse_threshold("2.5"), Ok(Threshold(640)));
-        for bad in ["0", "-1", "256", "nan", "inf", "x", "0.001"] {
-            assert!(parse_threshold(bad).is_err(), "{bad}");
-        }
     }
 }

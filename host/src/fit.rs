@@ -33,7 +33,7 @@
 //! **Start values.** ω from an interpolated DFT peak (profile resampled on a
 //! uniform grid — the head's profiles are nearly uniform —, detrended,
 //! zero-padded ×8, parabolic interpolation of the magnitude) and from the
-//! paper's ellipse method on the differenced profile (notes §3, lag ≈ λ/4 from
+//! paper's ellipse method on the differenced profile (docs/reference.md §3, lag ≈ λ/4 from
 //! the DFT estimate), and Jacquelin's non-iterative estimate (below). Each
 //! start runs the plain IEEE 1057 four-parameter
 //! iteration. That iteration can diverge (it does on the 15-point public test
@@ -69,7 +69,7 @@
 //! ([`jacquelin`]: three linear steps, no start value, no iteration), given
 //! as is; it is also one more start value of the least-squares fit.
 //!
-//! **The public test vector (notes §3).** Its ω = 2.02074 is Jacquelin's
+//! **The public test vector (docs/reference.md §3).** Its ω = 2.02074 is Jacquelin's
 //! non-iterative estimate, which [`jacquelin`] reproduces (ω₁ = 2.32536 from
 //! the integral equation, ω₂ = 2.02074 from the sawtooth step, offset
 //! −0.405617, coefficients 1.27520 and −0.577491), not the least-squares
@@ -80,14 +80,9 @@
 //! start.
 
 use std::fmt;
-use std::io::{self, BufWriter, Write};
-use std::path::PathBuf;
 
-use clap::{Args, ValueEnum};
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix4, Vector3, Vector4};
 use serde::Serialize;
-
-use crate::CliError;
 
 /// Most Levenberg–Marquardt iterations of the joint refinement.
 pub const MAX_ITERATIONS: usize = 200;
@@ -153,7 +148,7 @@ impl fmt::Display for FitError {
 impl std::error::Error for FitError {}
 
 /// The fitted model.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Model {
     /// The paper's sine in a frame rotated by the unknown sensor rotation.
@@ -178,7 +173,7 @@ pub enum Start {
 }
 
 /// How `cms-host fit` estimates the parameters: [`fit`] or [`fit_jacquelin`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
     /// Least squares: the best of several starts refined by Levenberg–Marquardt (the default).
@@ -436,7 +431,7 @@ pub struct Jacquelin {
 ///
 /// ω₂ is *not* the least-squares ω (the residual is generally lower nearby;
 /// [`fit`] uses it as one more start value and refines). On the public test
-/// vector of notes §3 it gives ω = 2.02074, offset −0.405617, coefficients
+/// vector of docs/reference.md §3 it gives ω = 2.02074, offset −0.405617, coefficients
 /// 1.27520 and −0.577491. Its weakness is step 1's numerical integration: it
 /// needs several points per period (ω₁ is biased by about 1/n² at n points
 /// per period on uniform data), which step 2 largely removes.
@@ -588,7 +583,7 @@ pub fn dft_omega(x: &[f64], z: &[f64]) -> Option<f64> {
     (omega.is_finite() && omega > 0.0).then_some(omega)
 }
 
-/// The paper's ellipse method (notes §3): on the uniformly resampled,
+/// The paper's ellipse method (docs/reference.md §3): on the uniformly resampled,
 /// differenced profile `d[n] = y[n+k] − y[n]` (which removes the rotation's
 /// trend), the points `(d[n], d[n+k])` lie on the ellipse
 /// `u² − 2uv·cos(ωk) + v² = const`; a linear least-squares fit of that
@@ -1073,108 +1068,6 @@ fn report(
         iterations,
         converged,
     }
-}
-
-// ---------------------------------------------------------------------------
-// `cms-host fit`
-
-/// Arguments of `cms-host fit`.
-#[derive(Args, Debug, Clone)]
-pub struct FitArgs {
-    /// `rotated`: the paper's sine with the sensor rotation as an unknown; `sine`: IEEE 1057 four-parameter sine.
-    #[arg(long, value_enum, default_value_t = Model::Rotated)]
-    pub model: Model,
-
-    /// Number of sine components (1..=8), dominant first.
-    #[arg(long, default_value = "1", value_name = "N", value_parser = clap::value_parser!(u8).range(1..=8))]
-    pub components: u8,
-
-    /// `lsq` (default): least squares, the best of the DFT, ellipse, Jacquelin and scan starts refined by
-    /// Levenberg–Marquardt; `jacquelin`: Jacquelin's non-iterative integral-equation estimate as is, not the
-    /// least-squares optimum (needs `--model sine` and one component).
-    #[arg(long, value_enum, default_value_t = Method::Lsq)]
-    pub method: Method,
-
-    /// One JSON object on stdout instead of text.
-    #[arg(long)]
-    pub json: bool,
-
-    /// CSV with columns x_mm,z_mm (header optional).
-    #[arg(value_name = "PROFILE.csv")]
-    pub profile: PathBuf,
-}
-
-/// Runs `cms-host fit`.
-pub fn run(args: &FitArgs) -> Result<(), CliError> {
-    let path = args.profile.display();
-    let bytes = std::fs::read(&args.profile).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
-    let profile =
-        parse_profile(&String::from_utf8_lossy(&bytes)).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
-    let opts = Options { model: args.model, components: usize::from(args.components) };
-    let fit = match args.method {
-        Method::Lsq => fit(&profile.x_mm, &profile.z_mm, &opts),
-        Method::Jacquelin if args.model != Model::Sine || args.components != 1 => {
-            return Err(CliError::Usage("--method jacquelin needs --model sine and --components 1".into()));
-        }
-        Method::Jacquelin => fit_jacquelin(&profile.x_mm, &profile.z_mm),
-    }
-    .map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
-    let mut out = BufWriter::new(io::stdout().lock());
-    if args.json {
-        serde_json::to_writer(&mut out, &fit).map_err(io::Error::from)?;
-        writeln!(out)?;
-    } else {
-        write_text(&mut out, &fit)?;
-    }
-    out.flush()?;
-    Ok(())
-}
-
-/// The human-readable report.
-pub fn write_text(out: &mut impl Write, f: &Fit) -> io::Result<()> {
-    let pm = |s: Option<f64>| s.map_or_else(String::new, |s| format!(" ± {s:.3e}"));
-    let model = match f.model {
-        Model::Rotated => "rotated sine",
-        Model::Sine => "sine (IEEE 1057)",
-    };
-    let method = match f.method {
-        Method::Lsq => "least squares",
-        Method::Jacquelin => "Jacquelin (non-iterative)",
-    };
-    writeln!(out, "model        {model}, {method}, {} points, {} component(s)", f.points, f.components.len())?;
-    let d = &f.components[0];
-    writeln!(out, "omega        {:.6} rad/mm", d.omega_rad_per_mm)?;
-    writeln!(out, "wavelength   {:.6} mm{}", f.wavelength_mm, pm(f.wavelength_sigma_mm))?;
-    writeln!(out, "amplitude    {:.6} mm{}", f.amplitude_mm, pm(f.amplitude_sigma_mm))?;
-    writeln!(out, "phase        {:.6} rad{}", f.phase_rad, pm(f.phase_sigma_rad))?;
-    writeln!(out, "sin, cos     {:.6} mm, {:.6} mm", d.sin_mm, d.cos_mm)?;
-    writeln!(out, "offset       {:.6} mm{}", f.offset_mm, pm(f.offset_sigma_mm))?;
-    writeln!(out, "rotation     {:.6} rad{}", f.rotation_rad, pm(f.rotation_sigma_rad))?;
-    writeln!(out, "rms residual {:.6} mm", f.rms_residual_mm)?;
-    for (i, c) in f.components.iter().enumerate().skip(1) {
-        writeln!(
-            out,
-            "component {}  wavelength {:.6} mm{}, amplitude {:.6} mm{}, phase {:.6} rad",
-            i + 1,
-            c.wavelength_mm,
-            pm(c.wavelength_sigma_mm),
-            c.amplitude_mm,
-            pm(c.amplitude_sigma_mm),
-            c.phase_rad
-        )?;
-    }
-    let start = match f.start {
-        Start::Dft => "DFT peak",
-        Start::Ellipse => "ellipse method",
-        Start::Scan => "residual scan",
-        Start::Jacquelin => "Jacquelin's estimate",
-    };
-    writeln!(
-        out,
-        "iterations   {} ({}), start: {start}",
-        f.iterations,
-        if f.converged { "converged" } else { "not converged" }
-    )
 }
 
 #[cfg(test)]

@@ -9,6 +9,7 @@
 //! * [`capture`] — `cms-host capture`: one full frame from a head as a PNG.
 //! * [`closed_loop`] — corrugation measured through the simulated head against its truth (the paper's Table 5 cases).
 //! * [`corrugation`] — the lines of one image together: head frame, surface normal (paper §2.2), joint sine fit.
+//! * [`error`] — the library's error and what kind of failure each is (the exit status is the command line's).
 //! * [`detect`] — `cms-host detect`: laser-stripe positions of image rows as CSV.
 //! * [`fit`] — `cms-host fit`: IEEE 1057 and the paper's rotated sine fits of a profile.
 //! * [`input`] — reading grayscale PNG/TIFF images and CSV rows.
@@ -26,6 +27,7 @@ pub mod capture;
 pub mod closed_loop;
 pub mod corrugation;
 pub mod detect;
+pub mod error;
 pub mod fit;
 pub mod input;
 pub mod link;
@@ -38,62 +40,4 @@ pub mod sim;
 pub mod simulate;
 pub mod standards;
 
-use std::fmt;
-use std::io::Write as _;
-use std::process::ExitCode;
-
-/// Why a subcommand failed, and so how the process exits.
-#[derive(Debug)]
-pub enum CliError {
-    /// A bad option value or a bad input file: exit status 2.
-    Usage(String),
-    /// Writing the output failed: exit status 1 (a closed pipe exits quietly
-    /// with status 0, see [`CliError::report`]).
-    Output(std::io::Error),
-}
-
-impl fmt::Display for CliError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            CliError::Usage(m) => f.write_str(m),
-            CliError::Output(e) => write!(f, "writing output: {e}"),
-        }
-    }
-}
-
-impl From<input::InputError> for CliError {
-    fn from(e: input::InputError) -> Self {
-        CliError::Usage(e.to_string())
-    }
-}
-
-impl From<link::ClientError> for CliError {
-    fn from(e: link::ClientError) -> Self {
-        CliError::Usage(e.to_string())
-    }
-}
-
-impl From<std::io::Error> for CliError {
-    fn from(e: std::io::Error) -> Self {
-        CliError::Output(e)
-    }
-}
-
-impl CliError {
-    /// Prints the error as one `error: ` line on stderr (nothing for a closed
-    /// output pipe) and returns the exit status.
-    pub fn report(&self) -> ExitCode {
-        if let CliError::Output(e) = self
-            && e.kind() == std::io::ErrorKind::BrokenPipe
-        {
-            return ExitCode::SUCCESS;
-        }
-        let msg = input::one_line(&self.to_string(), 2000);
-        // Not eprintln!: it panics if stderr is closed.
-        let _ = writeln!(std::io::stderr(), "error: {msg}");
-        match self {
-            CliError::Usage(_) => ExitCode::from(2),
-            CliError::Output(_) => ExitCode::from(1),
-        }
-    }
-}
+pub use error::{Class, Error};

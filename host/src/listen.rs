@@ -49,7 +49,7 @@ use cms_core::protocol::{
 };
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-use crate::CliError;
+use crate::Error;
 use crate::analyze::live::LiveEstimate;
 use crate::link::{Client, ClientError, Counters, Greeting, Handshake, LinkError, Outbox, Wait, check_version};
 use crate::record::{self, FrameCounter, RecordError, Recorder};
@@ -180,15 +180,6 @@ impl ListenError {
         match e {
             ClientError::Version { port, theirs } => ListenError::Version { port, theirs },
             _ => ListenError::NoHello { port: port.to_string() },
-        }
-    }
-}
-
-impl From<ListenError> for CliError {
-    fn from(e: ListenError) -> Self {
-        match e {
-            ListenError::Output(e) => CliError::Output(e),
-            e => CliError::Usage(e.to_string()),
         }
     }
 }
@@ -905,9 +896,9 @@ pub fn print_summary(sum: &Summary) {
 }
 
 /// `cms-host listen` on a device path.
-pub fn run(args: &ListenArgs) -> Result<(), CliError> {
+pub fn run(args: &ListenArgs) -> Result<(), Error> {
     if args.port == "sim" {
-        return Err(CliError::Usage(
+        return Err(Error::Input(
             "`listen sim` needs the simulated head, which this build does not have; give a device path".to_string(),
         ));
     }

@@ -37,7 +37,7 @@ use cms_core::protocol::{DeviceMsg, LASERS, Profile};
 use cms_core::triangulation::Triangulator;
 use serde::Serialize;
 
-use crate::CliError;
+use crate::Error;
 use crate::calib::file::CalibrationFile;
 use crate::corrugation::{Corrected, HeadFrame, Joint, Line, joint_fit};
 use crate::detect::MAX_ROW;
@@ -239,12 +239,12 @@ fn is_recording(path: &Path) -> bool {
 }
 
 /// Runs `cms-host measure`.
-pub fn run(args: &MeasureArgs) -> Result<(), CliError> {
+pub fn run(args: &MeasureArgs) -> Result<(), Error> {
     let cal_name = args.calibration.display();
-    let cal = CalibrationFile::load(&args.calibration).map_err(|e| CliError::Usage(format!("{cal_name}: {e}")))?;
-    let m = Measurer::new(&cal).map_err(|e| CliError::Usage(format!("{cal_name}: {e}")))?;
+    let cal = CalibrationFile::load(&args.calibration).map_err(|e| Error::Input(format!("{cal_name}: {e}")))?;
+    let m = Measurer::new(&cal).map_err(|e| Error::Input(format!("{cal_name}: {e}")))?;
     if let Some(dir) = &args.plot {
-        std::fs::create_dir_all(dir).map_err(|e| CliError::Usage(format!("--plot {}: {e}", dir.display())))?;
+        std::fs::create_dir_all(dir).map_err(|e| Error::Input(format!("--plot {}: {e}", dir.display())))?;
     }
     let mut out = BufWriter::new(io::stdout().lock());
     for path in &args.inputs {
@@ -269,14 +269,14 @@ pub fn run(args: &MeasureArgs) -> Result<(), CliError> {
                 }
                 Ok(())
             })
-            .map_err(|e| CliError::Usage(format!("{name}: {e}")))?;
+            .map_err(|e| Error::Input(format!("{name}: {e}")))?;
             if results.is_empty() {
-                return Err(CliError::Usage(format!("{name}: no complete frame in the recording")));
+                return Err(Error::Input(format!("{name}: no complete frame in the recording")));
             }
             results
         } else {
             let rows = input::read_rows(path)?;
-            let (profiles, skipped) = m.image_profiles(&rows).map_err(|e| CliError::Usage(format!("{name}: {e}")))?;
+            let (profiles, skipped) = m.image_profiles(&rows).map_err(|e| Error::Input(format!("{name}: {e}")))?;
             let mut r = m.measure(&name, &profiles);
             r.rows_skipped = Some(skipped);
             vec![r]
@@ -294,7 +294,7 @@ pub fn run(args: &MeasureArgs) -> Result<(), CliError> {
                     Some(seq) => format!("{stem}-frame{seq}"),
                     None => stem,
                 };
-                plot(&dir.join(stem), r).map_err(|e| CliError::Usage(format!("--plot: {e}")))?;
+                plot(&dir.join(stem), r).map_err(|e| Error::Input(format!("--plot: {e}")))?;
             }
         }
     }

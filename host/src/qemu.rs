@@ -54,8 +54,6 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
 
-use crate::CliError;
-
 /// The emulator.
 pub const QEMU: &str = "qemu-system-arm";
 /// The head's image (a binary of `firmware/qemu`).
@@ -152,12 +150,6 @@ fn no_source(bin: &str) -> String {
          (build it in a checkout of the source: `{BUILD_COMMAND}`, or run cms-host from the checkout)",
         image_env(bin)
     )
-}
-
-impl From<QemuError> for CliError {
-    fn from(e: QemuError) -> Self {
-        CliError::Usage(e.to_string())
-    }
 }
 
 /// The `firmware/qemu` directory of the checkout this is run from, found
@@ -673,7 +665,7 @@ pub fn bench_table(r: &BenchReport, clock_mhz: u32) -> String {
     s
 }
 
-/// 12345678 → "12 345 678" (the README's thin grouping).
+/// 12345678 → "12 345 678" (the thin grouping of the docs' tables).
 fn group(v: u64) -> String {
     let d = v.to_string();
     let mut out = String::new();

@@ -53,7 +53,7 @@ use cms_core::protocol::{DeviceInfo, DeviceMsg, ErrorCode, LASERS, PROTOCOL_VERS
 use serde::Serialize;
 use serde::ser::{SerializeSeq, SerializeStruct, Serializer};
 
-use crate::CliError;
+use crate::Error;
 use crate::link::{Counters, Deframer};
 
 /// The first 8 bytes of a recording.
@@ -134,15 +134,6 @@ impl fmt::Display for RecordError {
 }
 
 impl std::error::Error for RecordError {}
-
-impl From<RecordError> for CliError {
-    fn from(e: RecordError) -> Self {
-        match e {
-            RecordError::Output(e) => CliError::Output(e),
-            e => CliError::Usage(e.to_string()),
-        }
-    }
-}
 
 // ------------------------------------------------------------------ writer
 
@@ -539,7 +530,7 @@ pub fn export_to(path: &Path, format: ExportFormat, out: &mut dyn Write) -> Resu
 }
 
 /// `cms-host export`.
-pub fn export(args: &ExportArgs) -> Result<(), CliError> {
+pub fn export(args: &ExportArgs) -> Result<(), Error> {
     // Validate the recording before creating the output file.
     let f = File::open(&args.file).map_err(|source| RecordError::Io {
         path: args.file.clone(),
@@ -555,13 +546,13 @@ pub fn export(args: &ExportArgs) -> Result<(), CliError> {
     parse_header(&h).map_err(|why| RecordError::Format { path: args.file.clone(), why })?;
     let stats = match &args.out {
         Some(o) if same_file(o, &args.file) => {
-            return Err(CliError::Usage(format!(
+            return Err(Error::Input(format!(
                 "--out {} is the recording itself; refusing to overwrite it",
                 o.display()
             )));
         }
         Some(o) => {
-            let f = File::create(o).map_err(|e| CliError::Usage(format!("cannot create {}: {e}", o.display())))?;
+            let f = File::create(o).map_err(|e| Error::Input(format!("cannot create {}: {e}", o.display())))?;
             export_to(&args.file, args.format, &mut BufWriter::new(f))?
         }
         None => {
@@ -759,7 +750,7 @@ impl Info {
 }
 
 /// `cms-host info`.
-pub fn info(args: &InfoArgs) -> Result<(), CliError> {
+pub fn info(args: &InfoArgs) -> Result<(), Error> {
     let info = Info::of_file(&args.file)?;
     let mut out = io::stdout().lock();
     out.write_all(info.report(&args.file).as_bytes())?;

@@ -1,4 +1,4 @@
-//! `cms_host::fit` and `cms-host fit`: the public test vector of notes §3,
+//! `cms_host::fit` and `cms-host fit`: the public test vector of docs/reference.md §3,
 //! agreement with scipy's general least-squares solver on noisy rotated
 //! profiles (`tests/scripts/fit_reference.py`, checked-in data), the command
 //! line, and properties (no panic on any input).

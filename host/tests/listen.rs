@@ -48,7 +48,7 @@ use cms_core::protocol::{
 };
 use cms_host::listen::{ListenError, ListenOptions, Progress, Summary, listen_with};
 use cms_host::record;
-use cms_tests::{Gauss, Rng, clean_row, quantise};
+use cms_study::{Gauss, Rng, clean_row, quantise};
 
 // ------------------------------------------------------------------ device
 
@@ -944,7 +944,8 @@ fn cli_qemu_image_outside_the_checkout() {
         (out.status.code(), String::from_utf8_lossy(&out.stderr).into_owned())
     };
     let (code, stderr) = run(None);
-    assert_eq!(code, Some(2), "{stderr}");
+    // Which failure status is the command line's (cli::exit); not success.
+    assert!(code.is_some_and(|c| c != 0), "{code:?}: {stderr}");
     assert_eq!(stderr.lines().count(), 1, "{stderr}");
     assert!(
         stderr.contains("no emulated head image cms-qemu-head: give --qemu-image FILE, set CMS_QEMU_IMAGE"),
@@ -954,7 +955,8 @@ fn cli_qemu_image_outside_the_checkout() {
 
     let missing = dir.path().join("nowhere.elf");
     let (code, stderr) = run(Some(&missing));
-    assert_eq!(code, Some(2), "{stderr}");
+    // Which failure status is the command line's (cli::exit); not success.
+    assert!(code.is_some_and(|c| c != 0), "{code:?}: {stderr}");
     assert!(stderr.contains(&format!("emulated head image {} does not exist", missing.display())), "{stderr}");
 
     // Not an image QEMU can run: what matters is that it was found (QEMU

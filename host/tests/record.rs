@@ -15,7 +15,7 @@ use cms_core::protocol::{
 };
 use cms_host::link::Deframer;
 use cms_host::record::{self, HEADER_LEN, Info, Recorder, ScanStats};
-use cms_tests::Rng;
+use cms_study::Rng;
 use proptest::prelude::*;
 
 /// Runs `f` on a thread with a 64 MB stack. Decoding one `DeviceMsg` (46 KB

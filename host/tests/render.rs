@@ -5,7 +5,7 @@
 use cms_core::fixed::Px;
 use cms_core::optics::ScaleRange;
 use cms_core::peak::{Config, Detector, Stripes};
-use cms_host::CliError;
+use cms_host::Error;
 use cms_host::calib::render::{RenderArgs, run};
 use cms_host::sim::board::{self, BoardRenderer, RenderOptions};
 use cms_host::sim::{NoiseModel, Scene, SimConfig};
@@ -136,14 +136,14 @@ fn cli_refuses_bad_arguments() {
     let dir = tempfile::tempdir().unwrap();
     for n in [0, 101] {
         match run(&args(dir.path(), n)) {
-            Err(CliError::Usage(m)) => assert!(m.contains("--poses"), "{m}"),
+            Err(Error::Input(m)) => assert!(m.contains("--poses"), "{m}"),
             r => panic!("{n} poses: {r:?}"),
         }
     }
     let file = dir.path().join("file");
     std::fs::write(&file, "x").unwrap();
     match run(&args(&file, 1)) {
-        Err(CliError::Usage(m)) => assert!(m.contains("not a directory") && !m.contains('\n'), "{m}"),
+        Err(Error::Input(m)) => assert!(m.contains("not a directory") && !m.contains('\n'), "{m}"),
         r => panic!("{r:?}"),
     }
 }

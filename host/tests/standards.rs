@@ -1,5 +1,5 @@
 //! Rail-standard analysis (`cms_host::standards`): the EN 15610 check value
-//! of the reference notes §2, spike removal, curvature processing, the
+//! of docs/reference.md §2, spike removal, curvature processing, the
 //! EN 13231-3 band split and peak-to-peak criteria, short-record errors, and
 //! no panic on any finite profile.
 

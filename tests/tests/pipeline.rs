@@ -618,7 +618,7 @@ fn status_carries_cycles_dropped_rows_backlog_and_duty() {
 
 /// The link budget's input: the encoded size of one full 752 × 480 frame of
 /// three stripes, uncalibrated and calibrated (`--nocapture` prints it; the
-/// firmware README's link budget quotes it).
+/// link budget in docs/firmware.md quotes it).
 #[test]
 fn encoded_frame_sizes_for_the_link_budget() {
     let mut sizes = Vec::new();

@@ -5,7 +5,7 @@
 //! (the paper's synthetic test: 5..=15, 11 scales) and every position within
 //! ±2 s_max of the candidate. The coefficients above a hard threshold
 //! `T = ½ max W` (Eq. 12; "the energy of the laser Gaussian pattern" is not
-//! specified further, notes §1 use half the maximum) are averaged with their
+//! specified further, docs/reference.md §1 uses half the maximum) are averaged with their
 //! values as weights (Eq. 13): `t = Σ t₀ W / Σ W`.
 //!
 //! Kept for reproduction and comparison: it locks onto pixels (measured in

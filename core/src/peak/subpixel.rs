@@ -4,7 +4,7 @@
 //! Each Table 2 formula is a pure function of the brightest pixel `b` and its
 //! neighbours `a` (left) and `c` (right), returning the offset δ from `b`
 //! (Q16.16 px). The text of Table 2 lost its brackets; the intended formulas
-//! (notes §1) are implemented:
+//! (docs/reference.md §1) are implemented:
 //!
 //! | estimator | δ |
 //! |---|---|

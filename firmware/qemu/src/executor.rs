@@ -2,7 +2,7 @@
 //!
 //! embassy's stock Cortex-M executor sleeps with WFE and wakes on SEV; QEMU
 //! does not implement WFE as a sleep and spins at 100 % host CPU instead
-//! (notes §5). This one runs embassy's `raw::Executor` and sleeps with WFI,
+//! (docs/reference.md §5). This one runs embassy's `raw::Executor` and sleeps with WFI,
 //! which QEMU does honour (the vCPU halts until an interrupt). The race
 //! between "nothing to do" and "an interrupt just woke a task" is closed by
 //! deciding to sleep with interrupts masked: WFI still wakes on a pending

@@ -1,7 +1,7 @@
 //! `cms-host analyze RECORDING [--report DIR] [--json]`: a recording's
 //! calibrated frames placed along the track by their odometer, stitched into
 //! one longitudinal profile per laser line ([`stitch`]), and judged as a rail
-//! engineer expects (reference notes §2): the EN 13231-3 wavelength bands
+//! engineer expects (docs/reference.md §2): the EN 13231-3 wavelength bands
 //! and the EN 15610 one-third-octave roughness spectrum against the ISO 3095
 //! limit ([`crate::standards`]). A summary goes to stdout (or one JSON
 //! object with `--json`); `--report DIR` writes a Markdown and a
@@ -15,7 +15,7 @@
 //! not be evaluated and why, and gives the rest.
 //!
 //! Cost: reading is the recording's decoding (about 2 000 frames/s, see
-//! README); stitching `O(P log P)` in the points; the standards `O(N log N)`
+//! docs/link-and-recordings.md); stitching `O(P log P)` in the points; the standards `O(N log N)`
 //! in the samples. A 3 m sim recording (90 frames, 130 000 points) is
 //! analysed in well under a second, plots included.
 
@@ -31,7 +31,7 @@ use clap::{Args, ValueEnum};
 use cms_core::protocol::DeviceMsg;
 use serde_json::{Value, json};
 
-use crate::CliError;
+use crate::Error;
 use crate::calib::file::CalibrationFile;
 use crate::corrugation::Across;
 use crate::measure::{Measurer, Profiles};
@@ -167,7 +167,7 @@ impl Recording {
 }
 
 /// Reads a recording's calibrated frames.
-pub fn read_recording(path: &Path) -> Result<Recording, CliError> {
+pub fn read_recording(path: &Path) -> Result<Recording, Error> {
     let mut rec = Recording::default();
     let mut asm = FrameAssembler::default();
     let stats = record::scan_file(path, |msg| {
@@ -183,17 +183,17 @@ pub fn read_recording(path: &Path) -> Result<Recording, CliError> {
         }
         Ok(())
     })
-    .map_err(|e| CliError::Usage(e.to_string()))?;
+    .map_err(|e| Error::Input(e.to_string()))?;
     rec.frames.extend(asm.finish());
     rec.calibrated_points = asm.calibrated_points;
     rec.uncalibrated_points = asm.uncalibrated_points;
     rec.stats = stats;
     let name = path.display();
     if rec.profiles == 0 {
-        return Err(CliError::Usage(format!("{name}: the recording holds no profiles")));
+        return Err(Error::Input(format!("{name}: the recording holds no profiles")));
     }
     if rec.frames.is_empty() {
-        return Err(CliError::Usage(format!(
+        return Err(Error::Input(format!(
             "{name}: no calibrated points in {} profiles (the head had no calibration loaded: see cms-host calibrate upload)",
             rec.profiles
         )));
@@ -566,23 +566,23 @@ pub fn to_json(path: &Path, rec: &Recording, a: &Analysis) -> Value {
 }
 
 /// Runs `cms-host analyze`.
-pub fn run(args: &AnalyzeArgs) -> Result<(), CliError> {
+pub fn run(args: &AnalyzeArgs) -> Result<(), Error> {
     let mut rec = read_recording(&args.recording)?;
     if let Some(path) = &args.calibration {
         let name = path.display();
-        let file = CalibrationFile::load(path).map_err(|e| CliError::Usage(format!("{name}: {e}")))?;
-        let id = file.to_head().map_err(|e| CliError::Usage(format!("{name}: {e}")))?.id;
+        let file = CalibrationFile::load(path).map_err(|e| Error::Input(format!("{name}: {e}")))?;
+        let id = file.to_head().map_err(|e| Error::Input(format!("{name}: {e}")))?.id;
         if let Some(rid) = rec.calibration_id.filter(|&r| r != id) {
-            return Err(CliError::Usage(format!(
+            return Err(Error::Input(format!(
                 "{name} is calibration {id:#010x}, but {} was recorded with calibration {rid:#010x}",
                 args.recording.display()
             )));
         }
-        let m = Measurer::new(&file).map_err(|e| CliError::Usage(format!("{name}: {e}")))?;
+        let m = Measurer::new(&file).map_err(|e| Error::Input(format!("{name}: {e}")))?;
         rec.slid_across = Some((slide_frames(&mut rec.frames, &m), path.clone()));
     }
     let opts = args.options();
-    let a = analyze(&rec.frames, &opts).map_err(|e| CliError::Usage(format!("{}: {e}", args.recording.display())))?;
+    let a = analyze(&rec.frames, &opts).map_err(|e| Error::Input(format!("{}: {e}", args.recording.display())))?;
     let text = summary(&args.recording, &rec, &a);
     if let Some(dir) = &args.report {
         report::write(dir, &args.recording, &rec, &a, &text)?;

@@ -27,7 +27,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::{Analysis, Recording};
-use crate::CliError;
+use crate::Error;
 use crate::plot::{self, Figure, err};
 use crate::standards::{en13231, en15610};
 
@@ -320,10 +320,10 @@ fn html_escape(s: &str) -> String {
 }
 
 /// Writes the report into `dir`.
-pub fn write(dir: &Path, recording: &Path, rec: &Recording, a: &Analysis, summary: &str) -> Result<(), CliError> {
-    let out_err = |what: &str, e: String| CliError::Output(std::io::Error::other(format!("{what}: {e}")));
+pub fn write(dir: &Path, recording: &Path, rec: &Recording, a: &Analysis, summary: &str) -> Result<(), Error> {
+    let out_err = |what: &str, e: String| Error::Output(std::io::Error::other(format!("{what}: {e}")));
     std::fs::create_dir_all(dir)
-        .map_err(|e| CliError::Usage(format!("cannot create report directory {}: {e}", dir.display())))?;
+        .map_err(|e| Error::Input(format!("cannot create report directory {}: {e}", dir.display())))?;
     let put = |name: &str, text: &str| {
         let p = dir.join(name);
         std::fs::write(&p, text).map_err(|e| out_err(&p.display().to_string(), e.to_string()))

@@ -43,7 +43,7 @@ use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, SMatrix, SymmetricEigen, Ve
 use super::board::{CornerError, find_corners};
 use super::file::CalibrationFile;
 use super::{Board, BoardPose, Intrinsics};
-use crate::CliError;
+use crate::Error;
 
 /// What [`calibrate`] estimates.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -690,23 +690,23 @@ pub fn load_gray(path: &Path) -> Result<(Vec<f32>, u32, u32), String> {
 }
 
 /// Runs the subcommand.
-pub fn run(args: &CameraArgs) -> Result<(), CliError> {
-    let board = parse_board(&args.board, args.square_mm).map_err(CliError::Usage)?;
+pub fn run(args: &CameraArgs) -> Result<(), Error> {
+    let board = parse_board(&args.board, args.square_mm).map_err(Error::Input)?;
     if let Some(m) = args.max_view_rms
         && !(m.is_finite() && m > 0.0)
     {
-        return Err(CliError::Usage(format!("--max-view-rms {m}: must be a positive number of pixels")));
+        return Err(Error::Input(format!("--max-view-rms {m}: must be a positive number of pixels")));
     }
     let mut out = std::io::stdout().lock();
     let mut views = Vec::new();
     let mut names = Vec::new();
     let mut size: Option<(u32, u32, &Path)> = None;
     for path in &args.images {
-        let (px, w, h) = load_gray(path).map_err(CliError::Usage)?;
+        let (px, w, h) = load_gray(path).map_err(Error::Input)?;
         match size {
             None => size = Some((w, h, path)),
             Some((w0, h0, first)) if (w0, h0) != (w, h) => {
-                return Err(CliError::Usage(format!(
+                return Err(Error::Input(format!(
                     "{}: {w} x {h}, but {} is {w0} x {h0}; all images must come from one camera mode",
                     path.display(),
                     first.display()
@@ -722,12 +722,12 @@ pub fn run(args: &CameraArgs) -> Result<(), CliError> {
             Err(e @ (CornerError::Incomplete { .. } | CornerError::Inconsistent)) => {
                 writeln!(out, "{}: rejected: {e}", path.display())?;
             }
-            Err(e) => return Err(CliError::Usage(format!("{}: {e}", path.display()))),
+            Err(e) => return Err(Error::Input(format!("{}: {e}", path.display()))),
         }
     }
-    let Some((w, h, _)) = size else { return Err(CliError::Usage("no images".into())) };
+    let Some((w, h, _)) = size else { return Err(Error::Input("no images".into())) };
     if views.len() < 3 {
-        return Err(CliError::Usage(format!(
+        return Err(Error::Input(format!(
             "the board ({}x{}) was found in {} of {} images; calibration needs at least 3",
             board.cols,
             board.rows,
@@ -741,7 +741,7 @@ pub fn run(args: &CameraArgs) -> Result<(), CliError> {
         max_view_rms_px: args.max_view_rms,
         ..CalibOptions::default()
     };
-    let cal = calibrate(&board, &views, w, h, &opts).map_err(|e| CliError::Usage(e.to_string()))?;
+    let cal = calibrate(&board, &views, w, h, &opts).map_err(|e| Error::Input(e.to_string()))?;
     for &(v, e) in &cal.views_rejected {
         writeln!(out, "{}: rejected: RMS {e:.3} px > {:.3} px", names[v], args.max_view_rms.unwrap_or(0.0))?;
     }

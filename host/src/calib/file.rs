@@ -194,9 +194,9 @@ impl fmt::Display for FileError {
 
 impl std::error::Error for FileError {}
 
-impl From<FileError> for crate::CliError {
+impl From<FileError> for crate::Error {
     fn from(e: FileError) -> Self {
-        crate::CliError::Usage(e.0)
+        crate::Error::Input(e.0)
     }
 }
 
@@ -278,11 +278,11 @@ impl CalibrationFile {
 
     /// Writes the file (to a temporary beside it, then renamed, so a
     /// failure never leaves half a file).
-    pub fn save(&self, path: &Path) -> Result<(), crate::CliError> {
+    pub fn save(&self, path: &Path) -> Result<(), crate::Error> {
         let tmp = path.with_extension("toml.partial");
         std::fs::write(&tmp, self.to_toml())
             .and_then(|()| std::fs::rename(&tmp, path))
-            .map_err(|e| crate::CliError::Usage(format!("writing {}: {e}", path.display())))
+            .map_err(|e| crate::Error::Input(format!("writing {}: {e}", path.display())))
     }
 
     /// Checks every value, and renormalises the plane normals.

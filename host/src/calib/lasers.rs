@@ -45,7 +45,7 @@ use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
 use super::file::{CalibrationFile, HeadSection, LaserSection, PlaneSection};
 use super::{Board, BoardPose, Intrinsics};
-use crate::CliError;
+use crate::Error;
 use crate::input::{Pixels, Rows, read_rows};
 
 /// Widest image the row detector takes.
@@ -436,8 +436,8 @@ fn pair_of(s: &str, what: &str) -> Result<(f64, f64), String> {
 }
 
 /// Runs `calibrate lasers`.
-pub fn run(args: &LasersArgs) -> Result<(), CliError> {
-    let usage = CliError::Usage;
+pub fn run(args: &LasersArgs) -> Result<(), Error> {
+    let usage = Error::Input;
     let mut file = CalibrationFile::load(&args.camera)?;
     let board = match (&args.board, args.square_mm, file.board()) {
         (Some(b), Some(s), _) => super::camera::parse_board(b, s).map_err(usage)?,

@@ -189,7 +189,7 @@ pub enum CalibrateCmd {
 }
 
 /// Runs one `calibrate` subcommand.
-pub fn run(cmd: &CalibrateCmd) -> Result<(), crate::CliError> {
+pub fn run(cmd: &CalibrateCmd) -> Result<(), crate::Error> {
     match cmd {
         CalibrateCmd::Camera(a) => camera::run(a),
         CalibrateCmd::Lasers(a) => lasers::run(a),

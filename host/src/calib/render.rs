@@ -30,7 +30,7 @@ use std::path::{Path, PathBuf};
 
 use serde_json::json;
 
-use crate::CliError;
+use crate::Error;
 use crate::sim::board::{self, BoardImage, BoardRenderer, RenderOptions};
 use crate::sim::{NoiseModel, Scene, SimConfig};
 use crate::simulate::Preset;
@@ -79,7 +79,7 @@ pub fn config(args: &RenderArgs) -> SimConfig {
     cfg
 }
 
-fn write_png(path: &Path, img: &BoardImage) -> Result<(), CliError> {
+fn write_png(path: &Path, img: &BoardImage) -> Result<(), Error> {
     let (w, h) = (img.width as u32, img.height as u32);
     let r = if img.bits <= 8 {
         let data: Vec<u8> = img.pixels.iter().map(|&v| v.min(255) as u8).collect();
@@ -90,23 +90,23 @@ fn write_png(path: &Path, img: &BoardImage) -> Result<(), CliError> {
     };
     match r {
         Some(Ok(())) => Ok(()),
-        Some(Err(image::ImageError::IoError(e))) => Err(CliError::Output(e)),
-        Some(Err(e)) => Err(CliError::Output(std::io::Error::other(format!("{}: {e}", path.display())))),
-        None => Err(CliError::Output(std::io::Error::other("image buffer size mismatch"))),
+        Some(Err(image::ImageError::IoError(e))) => Err(Error::Output(e)),
+        Some(Err(e)) => Err(Error::Output(std::io::Error::other(format!("{}: {e}", path.display())))),
+        None => Err(Error::Output(std::io::Error::other("image buffer size mismatch"))),
     }
 }
 
 /// Runs `cms-host calibrate render`.
-pub fn run(args: &RenderArgs) -> Result<(), CliError> {
+pub fn run(args: &RenderArgs) -> Result<(), Error> {
     if !(1..=MAX_POSES).contains(&args.poses) {
-        return Err(CliError::Usage(format!("--poses must be in 1..={MAX_POSES}, got {}", args.poses)));
+        return Err(Error::Input(format!("--poses must be in 1..={MAX_POSES}, got {}", args.poses)));
     }
     if args.out.exists() && !args.out.is_dir() {
-        return Err(CliError::Usage(format!("--out {}: exists and is not a directory", args.out.display())));
+        return Err(Error::Input(format!("--out {}: exists and is not a directory", args.out.display())));
     }
-    let scene = Scene::new(config(args)).map_err(|e| CliError::Usage(format!("simulated head: {e}")))?;
+    let scene = Scene::new(config(args)).map_err(|e| Error::Input(format!("simulated head: {e}")))?;
     std::fs::create_dir_all(&args.out)
-        .map_err(|e| CliError::Usage(format!("--out {}: cannot create: {e}", args.out.display())))?;
+        .map_err(|e| Error::Input(format!("--out {}: cannot create: {e}", args.out.display())))?;
     let opts = RenderOptions::default();
     let renderer = BoardRenderer::new(&scene, opts);
     let cfg = scene.config();
@@ -154,7 +154,7 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
         "lasers": lasers,
         "poses": pose_json,
     });
-    let text = serde_json::to_string_pretty(&truth).map_err(|e| CliError::Output(std::io::Error::other(e)))?;
+    let text = serde_json::to_string_pretty(&truth).map_err(|e| Error::Output(std::io::Error::other(e)))?;
     std::fs::write(args.out.join("truth.json"), text + "\n")?;
     Ok(())
 }

@@ -16,7 +16,7 @@ use cms_core::pipeline::triangulator;
 use cms_core::protocol::HostMsg;
 
 use super::file::CalibrationFile;
-use crate::CliError;
+use crate::Error;
 use crate::link::{Client, ClientError, Handshake, Wait};
 use crate::simulate::{self, SimPortArgs};
 
@@ -41,25 +41,25 @@ pub struct UploadArgs {
 }
 
 /// Runs `calibrate upload`.
-pub fn run(args: &UploadArgs) -> Result<(), CliError> {
+pub fn run(args: &UploadArgs) -> Result<(), Error> {
     let file = CalibrationFile::load(&args.file)?;
-    let cal = file.to_head().map_err(|e| CliError::Usage(format!("{}: {e}", args.file.display())))?;
+    let cal = file.to_head().map_err(|e| Error::Input(format!("{}: {e}", args.file.display())))?;
     // The head would refuse it; say why here, in words.
     let tri = triangulator(&cal)
-        .map_err(|e| CliError::Usage(format!("{}: the head would refuse it: {e}", args.file.display())))?;
+        .map_err(|e| Error::Input(format!("{}: the head would refuse it: {e}", args.file.display())))?;
     let scales = match file.head {
         Some(h) => Some(
             tri.scale_range(h.laser_diameter_mm, (h.range_min_mm, h.range_max_mm))
-                .map_err(|e| CliError::Usage(format!("{}: [head]: {e}", args.file.display())))?,
+                .map_err(|e| Error::Input(format!("{}: [head]: {e}", args.file.display())))?,
         ),
         None => None,
     };
-    let r = simulate::with_port(&args.port, &args.sim, |port| -> Result<String, CliError> {
+    let r = simulate::with_port(&args.port, &args.sim, |port| -> Result<String, Error> {
         let mut client = Client::open(port, args.baud).map_err(ClientError::from)?;
         let info = client.handshake(Handshake { tries: 1, wait: Wait::Within(ANSWER_TIMEOUT) })?;
         let (w, h) = (file.camera.width, file.camera.height);
         if (u32::from(info.sensor_width), u32::from(info.sensor_height)) != (w, h) {
-            return Err(CliError::Usage(format!(
+            return Err(Error::Input(format!(
                 "{} is for a {w}×{h} camera; the head on {port} has {}×{}",
                 args.file.display(),
                 info.sensor_width,
@@ -76,25 +76,23 @@ pub fn run(args: &UploadArgs) -> Result<(), CliError> {
         }
         let after = client.info(Wait::Within(ANSWER_TIMEOUT))?;
         if after.calibration_id != cal.id {
-            return Err(CliError::Usage(format!(
+            return Err(Error::Input(format!(
                 "the head on {port} acknowledged the calibration but reports id {:#010x}, not {:#010x}",
                 after.calibration_id, cal.id
             )));
         }
         Ok(format!("calibration {:#010x} loaded by the head on {port}{note}", cal.id))
     })
-    .map_err(|e| CliError::Usage(e.to_string()))??;
+    .map_err(|e| Error::Input(e.to_string()))??;
     println!("{r}");
     Ok(())
 }
 
 /// `msg`, and its `Ack` within [`ANSWER_TIMEOUT`]; a refusal names the
 /// head's code as this command always has (`InvalidConfig`, …).
-fn command(client: &mut Client, msg: HostMsg, what: &str) -> Result<(), CliError> {
+fn command(client: &mut Client, msg: HostMsg, what: &str) -> Result<(), Error> {
     client.request(msg, what, Wait::Within(ANSWER_TIMEOUT)).map_err(|e| match e {
-        ClientError::Refused { port, what, code } => {
-            CliError::Usage(format!("{port}: the head refused {what}: {code:?}"))
-        }
+        ClientError::Refused { port, what, code } => Error::Input(format!("{port}: the head refused {what}: {code:?}")),
         e => e.into(),
     })
 }

@@ -2,7 +2,7 @@
 //! one-third-octave roughness spectrum and its comparison with the ISO 3095
 //! limit spectrum.
 //!
-//! # Processing (as the reference notes §2 describe it)
+//! # Processing (as docs/reference.md §2 describes it)
 //!
 //! 1. **Spikes** ([`remove_spikes`]): a sample is a spike candidate when the
 //!    second derivative is below −1e7 µm/m² and the first derivative changes

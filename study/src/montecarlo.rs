@@ -84,7 +84,7 @@ impl Levels {
 /// How the true centre of each trial is chosen.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Placement {
-    /// Always here (the paper's 107.5: a symmetry point, see notes §1).
+    /// Always here (the paper's 107.5: a symmetry point, see docs/reference.md §1).
     Fixed(f64),
     /// Uniform over `[lo, hi)`.
     Uniform(f64, f64),

@@ -1,10 +1,10 @@
 //! `cms-host bench`: how accurate and how fast the detection methods are.
 //!
 //! * `bench accuracy` — Monte-Carlo study of every method against the
-//!   Cramér–Rao bound (notes §1), plus the paper's own synthetic protocol
+//!   Cramér–Rao bound (docs/reference.md §1), plus the paper's own synthetic protocol
 //!   (§6.2, Table 3) beside random sub-pixel offsets. Writes `accuracy.csv`,
 //!   `accuracy.svg`, `paper_protocol.csv` and `accuracy.md` (the printed
-//!   report). The simulation is `cms_tests::montecarlo`, shared with the tests.
+//!   report). The simulation is `cms_study::montecarlo`, shared with the tests.
 //! * `bench speed` — nanoseconds per row of every method on 640-, 752- and
 //!   1280-px 12-bit rows with 1 and 3 stripes, and the ratio `cwt` / `cog`
 //!   measured in the same run. `cargo bench -p cms-host --bench detect` times
@@ -18,7 +18,7 @@
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand, ValueEnum};
 use cms_core::peak::{Detector, Method, Stripes};
-use cms_tests::montecarlo::{self as mc, CellStats, Levels, SIGMAS, SNRS_DB, Study};
+use cms_study::montecarlo::{self as mc, CellStats, Levels, SIGMAS, SNRS_DB, Study};
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};

@@ -1,0 +1,95 @@
+//! The command line: clap arguments, printing, progress bars and exit
+//! statuses over the `cms_host` library, which knows none of them (as
+//! stabilizer keeps `bin/` over `hardware/`). One module per subcommand;
+//! [`exit`] maps failures to statuses in one place.
+
+pub mod bench;
+pub mod detect;
+pub mod exit;
+pub mod fit;
+
+use std::process::ExitCode;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+use cms_host::analyze;
+use cms_host::calib;
+use cms_host::capture;
+use cms_host::measure;
+use cms_host::qemu;
+use cms_host::simulate;
+use cms_host::{listen, record};
+
+/// Host tools of the rail corrugation measurement system.
+#[derive(Parser, Debug)]
+#[command(name = "cms-host", version, about, propagate_version = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Find the laser stripes of every image row and print them as CSV.
+    Detect(detect::DetectArgs),
+    /// Accuracy and speed of the detection methods.
+    #[command(subcommand)]
+    Bench(bench::BenchCmd),
+    /// Stream profiles from a sensor head: live status, --json, --record.
+    Listen {
+        #[command(flatten)]
+        args: listen::ListenArgs,
+        #[command(flatten)]
+        sim: simulate::SimPortArgs,
+        #[command(flatten)]
+        qemu: qemu::QemuPortArgs,
+    },
+    /// Export the profiles of a recording as CSV or JSON lines.
+    Export(record::ExportArgs),
+    /// Describe a recording: frames, time and distance spans, lasers, device, damage.
+    Info(record::InfoArgs),
+    /// Simulated sensor head on a pseudo-terminal (prints its path first).
+    Simulate(simulate::SimulateArgs),
+    /// Fit a sine (the paper's rotated sine by default) to a profile x_mm,z_mm.
+    Fit(fit::FitArgs),
+    /// Stitch a recording along the track; EN 13231-3 bands, EN 15610 roughness; --report DIR.
+    Analyze(analyze::AnalyzeArgs),
+    /// One full frame from a sensor head (or `sim`) as a PNG: what the sensor sees.
+    Capture(capture::CaptureArgs),
+    /// Corrugation per image or recorded frame: each laser's profile and rotated-sine fit, the joint fit of the
+    /// three lines with the surface-normal correction, optional plots.
+    Measure(measure::MeasureArgs),
+    /// Camera and laser-plane calibration; upload to a head.
+    #[command(subcommand)]
+    Calibrate(calib::CalibrateCmd),
+}
+
+/// Parses the command line, runs the subcommand and reports its failure.
+pub fn main() -> ExitCode {
+    match dispatch(Cli::parse().command) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => exit::report(&e),
+    }
+}
+
+fn dispatch(command: Command) -> Result<()> {
+    match command {
+        Command::Detect(args) => detect::run(&args),
+        // PORT `sim` starts the simulated head on a pty of this process,
+        // PORT `qemu` the emulated one in QEMU.
+        Command::Listen { args, sim, qemu } => Ok(qemu::with_port(&args.port, &qemu, |port| {
+            simulate::with_port(port, &sim, |port| {
+                listen::run(&listen::ListenArgs { port: port.to_string(), ..args.clone() })
+            })
+        })???),
+        Command::Export(args) => Ok(record::export(&args)?),
+        Command::Info(args) => Ok(record::info(&args)?),
+        Command::Bench(cmd) => bench::run(cmd),
+        Command::Simulate(args) => Ok(simulate::run(&args)?),
+        Command::Fit(args) => fit::run(&args),
+        Command::Analyze(args) => Ok(analyze::run(&args)?),
+        Command::Capture(args) => Ok(capture::run(&args)?),
+        Command::Measure(args) => Ok(measure::run(&args)?),
+        Command::Calibrate(cmd) => Ok(calib::run(&cmd)?),
+    }
+}
