@@ -260,7 +260,6 @@ impl Greeting {
 }
 
 /// A conversation with one head on one port path (see the module docs).
-#[derive(Debug)]
 pub struct Client {
     path: String,
     baud: u32,
@@ -270,6 +269,17 @@ pub struct Client {
     out: Outbox,
     heartbeat: Option<Duration>,
     last_heartbeat: Option<Instant>,
+}
+
+impl std::fmt::Debug for Client {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Client")
+            .field("path", &self.path)
+            .field("open", &self.is_open())
+            .field("queued", &self.out.len())
+            .field("counters", &self.counters())
+            .finish_non_exhaustive()
+    }
 }
 
 impl Client {
