@@ -9,22 +9,15 @@
 
 use cms_host::analyze::live::LiveEstimate;
 use cms_host::analyze::stitch::FramePoints;
+use cms_study::Rng;
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
 use std::time::Duration;
 
 fn window() -> LiveEstimate {
-    let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-    let mut noise = move || {
-        // xorshift64*, two uniforms summed: a bounded, roughly normal noise.
-        let mut u = || {
-            seed ^= seed >> 12;
-            seed ^= seed << 25;
-            seed ^= seed >> 27;
-            (seed.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
-        };
-        2.0 * (u() + u() - 1.0) * 6f64.sqrt() / 2.0
-    };
+    // The studies' seeded generator: 2 µm RMS of Gaussian noise per point.
+    let mut rng = Rng::new(0x9e37_79b9_7f4a_7c15);
+    let mut noise = move || 2.0 * rng.normal();
     let mut live = LiveEstimate::default();
     for i in 0..40u32 {
         let o = 33.3 * i as f64;

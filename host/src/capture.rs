@@ -11,39 +11,25 @@
 //! 16-bit grey shifted left to fill 16 bits (`v << (16 − bits)`: exact and
 //! reversible, and viewers show it at the right brightness).
 
-use std::path::PathBuf;
 use std::time::Duration;
 
-use cms_core::protocol::{DeviceInfo, DeviceMsg, HostMsg, LASERS, RawRows};
+use cms_core::protocol::{DeviceInfo, DeviceMsg, HostMsg, RawRows};
 
 use crate::Error;
 use crate::link::{Client, ClientError, Handshake, Wait};
-use crate::simulate::{self, SimPortArgs};
 
 /// Longest silence from the head before the capture is abandoned.
 const SILENCE: Duration = Duration::from_secs(10);
 
-/// Arguments of `capture`.
-#[derive(clap::Args, Debug, Clone)]
-pub struct CaptureArgs {
-    /// Serial port of the head (`/dev/ttyACM0`), or `sim` for the simulated head.
-    #[arg(value_name = "PORT")]
-    pub port: String,
-    /// Where to write the image (PNG).
-    #[arg(long, value_name = "FILE.png")]
-    pub out: PathBuf,
-    /// Lasers lit during the exposure, as a bit mask (0 = none, 7 = all three).
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u8).range(0..(1 << LASERS)))]
+/// What to capture, and how to reach the head.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Lasers lit during the exposure, as a bit mask.
     pub lasers: u8,
-    /// Exposure, µs (default: the head's own).
-    #[arg(long = "exposure", value_name = "US")]
+    /// Exposure, µs (`None`: the head's own).
     pub exposure_us: Option<u32>,
     /// Baud rate (ignored by USB CDC heads).
-    #[arg(long, default_value_t = 115_200)]
     pub baud: u32,
-    #[command(flatten)]
-    #[allow(missing_docs)]
-    pub sim: SimPortArgs,
 }
 
 /// A captured frame.
@@ -57,25 +43,6 @@ pub struct Frame {
     pub bits: u8,
     /// Row-major pixels.
     pub pixels: Vec<u16>,
-}
-
-/// Runs `capture`.
-pub fn run(args: &CaptureArgs) -> Result<(), Error> {
-    if args.out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() != Some("png") {
-        return Err(Error::Input(format!("--out {}: the image is written as PNG; name it *.png", args.out.display())));
-    }
-    let frame = simulate::with_port(&args.port, &args.sim, |port| capture(port, args))
-        .map_err(|e| Error::Input(e.to_string()))??;
-    save_png(&frame, &args.out)?;
-    println!(
-        "{}: {}×{} px, {} bit, lasers {:#05b}",
-        args.out.display(),
-        frame.width,
-        frame.height,
-        frame.bits,
-        args.lasers
-    );
-    Ok(())
 }
 
 /// Writes the frame as PNG (see the module docs for the bit depth).
@@ -94,8 +61,8 @@ pub fn save_png(frame: &Frame, path: &std::path::Path) -> Result<(), Error> {
     }
 }
 
-/// The conversation on an open port.
-fn capture(port: &str, args: &CaptureArgs) -> Result<Frame, Error> {
+/// One frame from the head on `port`: the conversation of the module docs.
+pub fn capture(port: &str, args: &Options) -> Result<Frame, Error> {
     let mut client = Client::open(port, args.baud).map_err(ClientError::from)?;
     // Every wait is for the head's silence: the image comes in many frames
     // and may take longer in all than any fixed limit over a slow UART.

@@ -99,16 +99,41 @@ impl Error {
                 _ => Class::Device,
             },
             Error::Record(e) => record_class(e),
-            Error::Qemu(e) => match e {
-                QemuError::Usage(_) => Class::Input,
-                QemuError::Build { .. } | QemuError::Io(..) | QemuError::Bench(_) => Class::Other,
-                _ => Class::Device,
-            },
-            Error::Simulate(e) => match e {
-                SimulateError::Usage(_) => Class::Input,
-                _ => Class::Other,
-            },
+            Error::Qemu(e) => qemu_class(e),
+            Error::Simulate(e) => simulate_class(e),
         }
+    }
+
+    /// The class of any error of this library, found by its type: an
+    /// [`Error`] or one of the module errors it unites (the command line
+    /// passes them on as they come). `None` for another crate's error.
+    pub fn class_of(e: &(dyn std::error::Error + 'static)) -> Option<Class> {
+        if let Some(e) = e.downcast_ref::<Error>() {
+            return Some(e.class());
+        }
+        if e.is::<InputError>() {
+            return Some(Class::Input);
+        }
+        if e.is::<LinkError>() {
+            return Some(Class::Device);
+        }
+        if let Some(l) = e.downcast_ref::<ListenError>() {
+            return Some(match l {
+                ListenError::Output(_) => Class::Output,
+                ListenError::Record(r) => record_class(r),
+                _ => Class::Device,
+            });
+        }
+        if let Some(r) = e.downcast_ref::<RecordError>() {
+            return Some(record_class(r));
+        }
+        if let Some(q) = e.downcast_ref::<QemuError>() {
+            return Some(qemu_class(q));
+        }
+        if let Some(s) = e.downcast_ref::<SimulateError>() {
+            return Some(simulate_class(s));
+        }
+        None
     }
 
     /// Whether this is a write to a closed pipe (`cms-host export … | head`),
@@ -119,6 +144,21 @@ impl Error {
             _ => return false,
         };
         io.kind() == io::ErrorKind::BrokenPipe
+    }
+}
+
+fn qemu_class(e: &QemuError) -> Class {
+    match e {
+        QemuError::Usage(_) => Class::Input,
+        QemuError::Build { .. } | QemuError::Io(..) | QemuError::Bench(_) => Class::Other,
+        _ => Class::Device,
+    }
+}
+
+fn simulate_class(e: &SimulateError) -> Class {
+    match e {
+        SimulateError::Usage(_) => Class::Input,
+        _ => Class::Other,
     }
 }
 
@@ -146,5 +186,9 @@ mod tests {
         assert!(pipe.is_broken_pipe());
         assert_eq!(pipe.class(), Class::Output);
         assert!(!Error::Input("x".into()).is_broken_pipe());
+        let bare = RecordError::Format { path: "a.cmsrec".into(), why: "not a CMS recording".into() };
+        assert_eq!(Error::class_of(&bare), Some(Class::Input));
+        assert_eq!(Error::class_of(&SimulateError::Usage("x".into())), Some(Class::Input));
+        assert_eq!(Error::class_of(&io::Error::other("x")), None);
     }
 }

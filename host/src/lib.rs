@@ -1,25 +1,34 @@
-//! `cms-host`: host-side tools of the rail corrugation measurement system.
+//! `cms-host`: the host side of the rail corrugation measurement system, as
+//! a library. It knows no command line: the `cms-host` binary's `cli` layer
+//! (clap arguments, printing, progress, exit statuses) sits on top of it and
+//! passes plain options in. Modules, from the wire up:
 //!
-//! The binary (`src/main.rs`) is a thin `clap` dispatcher; each subcommand
-//! lives in its own module here so that it can be tested without spawning a
-//! process:
-//!
-//! * [`analyze`] — `cms-host analyze`: a recording stitched along the track and judged by the rail standards.
-//! * [`calib`] — `cms-host calibrate`: camera and laser-plane calibration, the calibration file, upload.
-//! * [`capture`] — `cms-host capture`: one full frame from a head as a PNG.
-//! * [`closed_loop`] — corrugation measured through the simulated head against its truth (the paper's Table 5 cases).
-//! * [`corrugation`] — the lines of one image together: head frame, surface normal (paper §2.2), joint sine fit.
-//! * [`error`] — the library's error and what kind of failure each is (the exit status is the command line's).
-//! * [`detect`] — `cms-host detect`: laser-stripe positions of image rows as CSV.
-//! * [`fit`] — `cms-host fit`: IEEE 1057 and the paper's rotated sine fits of a profile.
-//! * [`input`] — reading grayscale PNG/TIFF images and CSV rows.
-//! * [`plot`] — SVG and PNG plots with an embedded font.
-//! * [`listen`] — `cms-host listen`: handshake, stream, record and show a sensor head's profiles.
-//! * [`qemu`] — the emulated head on QEMU: `cms-host listen qemu`, `cms-host bench qemu`.
+//! **Talking to a head**
 //! * [`link`] — the serial port (open by path, reconnect) and frame splitting.
-//! * [`measure`] — `cms-host measure`: per image or recorded frame, each laser's profile and fit, the joint result, plots.
-//! * [`record`] — the recording format, `cms-host export` and `cms-host info`.
-//! * [`standards`] — rail-standard analysis of a longitudinal profile: EN 13231-3 bands, EN 15610 roughness.
+//! * [`listen`] — a streaming session: handshake, start, profiles, heartbeat, recording, summary.
+//! * [`capture`] — one full frame from a head (what the sensor sees).
+//! * [`simulate`] — the simulated head: `cms_core::pipeline::Head` on a pseudo-terminal, fed by [`sim`].
+//! * [`qemu`] — the emulated head: the firmware's `Head` on QEMU's Cortex-M boards, and its benchmark.
+//!
+//! **Data**
+//! * [`record`] — the recording format, its reader, export and `info`.
+//! * [`input`] — grayscale PNG/TIFF images and CSV rows.
+//! * [`detect`] — laser-stripe positions of image rows, as CSV.
+//!
+//! **Models**
+//! * [`sim`] — the scene: rail, lasers, camera and sensor noise, rendered row by row with its truth.
+//! * [`calib`] — checkerboard corners, camera and laser-plane calibration, the calibration file, upload.
+//! * [`fit`] — IEEE 1057 and the paper's rotated sine fits of a profile.
+//! * [`corrugation`] — the lines of one frame together: head frame, surface normal (paper §2.2), joint fit.
+//! * [`measure`] — per image or recorded frame: each laser's profile and fit, the joint result, plots.
+//! * [`closed_loop`] — corrugation measured through the simulated head against its truth (`bench corrugation`, tests).
+//!
+//! **Judging the rail**
+//! * [`standards`] — EN 13231-3 wavelength bands, EN 15610 roughness.
+//! * [`analyze`] — a recording stitched along the track, judged by the standards; the report.
+//! * [`plot`] — SVG and PNG plots with an embedded font.
+//!
+//! * [`error`] — the library's error and what kind of failure each is.
 
 pub mod analyze;
 pub mod calib;

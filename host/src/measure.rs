@@ -27,10 +27,9 @@
 //! image or frame whose lines cannot be fitted is reported as such and the
 //! run goes on.
 
-use std::io::{self, BufWriter, Write};
-use std::path::{Path, PathBuf};
+use std::io::{self, Write};
+use std::path::Path;
 
-use clap::Args;
 use cms_core::peak::{Config, Detector, Select, Stripes};
 use cms_core::pipeline::triangulator;
 use cms_core::protocol::{DeviceMsg, LASERS, Profile};
@@ -44,26 +43,6 @@ use crate::detect::MAX_ROW;
 use crate::fit::{self, Fit, Options};
 use crate::input::{self, Row, Rows};
 use crate::record::{self, FrameCounter};
-
-/// Arguments of `cms-host measure`.
-#[derive(Args, Debug, Clone)]
-pub struct MeasureArgs {
-    /// Calibration file (camera, datum, three lasers, and [head] for images).
-    #[arg(long, value_name = "cal.toml")]
-    pub calibration: PathBuf,
-
-    /// One JSON object per image or frame per line on stdout, with the profiles.
-    #[arg(long)]
-    pub json: bool,
-
-    /// Write NAME.svg and NAME.png per image or frame into DIR (created if needed).
-    #[arg(long, value_name = "DIR")]
-    pub plot: Option<PathBuf>,
-
-    /// Images (PNG, TIFF, JPEG, CSV rows) or recordings (.cmsrec).
-    #[arg(required = true, value_name = "INPUT")]
-    pub inputs: Vec<PathBuf>,
-}
 
 /// Per laser, its profile points `(along_mm, height_mm)`.
 pub type Profiles = [Vec<(f64, f64)>; LASERS];
@@ -232,74 +211,53 @@ impl Measurer {
     }
 }
 
+/// Every complete frame of a recording, measured (`name` labels the
+/// results).
+pub fn measure_recording(m: &Measurer, path: &Path, name: &str) -> Result<Vec<Measurement>, Error> {
+    let mut parts: Vec<Profile> = Vec::new();
+    let mut counter = FrameCounter::default();
+    let mut results = Vec::new();
+    record::scan_file(path, |msg| {
+        if let DeviceMsg::Profile(p) = msg {
+            if p.part == 0 {
+                parts.clear();
+            }
+            parts.push(p.clone());
+            if counter.profile(p) {
+                let mut r = m.measure(name, &m.frame_profiles(&parts));
+                r.seq = Some(p.seq);
+                r.odometer_mm = Some(parts[0].odometer_um as f64 * 1e-3);
+                results.push(r);
+                parts.clear();
+            }
+        }
+        Ok(())
+    })
+    .map_err(|e| Error::Input(format!("{name}: {e}")))?;
+    if results.is_empty() {
+        return Err(Error::Input(format!("{name}: no complete frame in the recording")));
+    }
+    Ok(results)
+}
+
+/// An image (or CSV rows) measured, or a recording's frames: whichever the
+/// file is (a recording is known by its header).
+pub fn measure_file(m: &Measurer, path: &Path) -> Result<Vec<Measurement>, Error> {
+    let name = path.display().to_string();
+    if is_recording(path) {
+        return measure_recording(m, path, &name);
+    }
+    let rows = input::read_rows(path)?;
+    let (profiles, skipped) = m.image_profiles(&rows).map_err(|e| Error::Input(format!("{name}: {e}")))?;
+    let mut r = m.measure(&name, &profiles);
+    r.rows_skipped = Some(skipped);
+    Ok(vec![r])
+}
+
 /// Whether `path` is a recording (by its header).
 fn is_recording(path: &Path) -> bool {
     let mut h = [0u8; 8];
     std::fs::File::open(path).and_then(|mut f| io::Read::read_exact(&mut f, &mut h)).is_ok() && h == record::MAGIC
-}
-
-/// Runs `cms-host measure`.
-pub fn run(args: &MeasureArgs) -> Result<(), Error> {
-    let cal_name = args.calibration.display();
-    let cal = CalibrationFile::load(&args.calibration).map_err(|e| Error::Input(format!("{cal_name}: {e}")))?;
-    let m = Measurer::new(&cal).map_err(|e| Error::Input(format!("{cal_name}: {e}")))?;
-    if let Some(dir) = &args.plot {
-        std::fs::create_dir_all(dir).map_err(|e| Error::Input(format!("--plot {}: {e}", dir.display())))?;
-    }
-    let mut out = BufWriter::new(io::stdout().lock());
-    for path in &args.inputs {
-        let name = path.display().to_string();
-        let results = if is_recording(path) {
-            let mut parts: Vec<Profile> = Vec::new();
-            let mut counter = FrameCounter::default();
-            let mut results = Vec::new();
-            record::scan_file(path, |msg| {
-                if let DeviceMsg::Profile(p) = msg {
-                    if p.part == 0 {
-                        parts.clear();
-                    }
-                    parts.push(p.clone());
-                    if counter.profile(p) {
-                        let mut r = m.measure(&name, &m.frame_profiles(&parts));
-                        r.seq = Some(p.seq);
-                        r.odometer_mm = Some(parts[0].odometer_um as f64 * 1e-3);
-                        results.push(r);
-                        parts.clear();
-                    }
-                }
-                Ok(())
-            })
-            .map_err(|e| Error::Input(format!("{name}: {e}")))?;
-            if results.is_empty() {
-                return Err(Error::Input(format!("{name}: no complete frame in the recording")));
-            }
-            results
-        } else {
-            let rows = input::read_rows(path)?;
-            let (profiles, skipped) = m.image_profiles(&rows).map_err(|e| Error::Input(format!("{name}: {e}")))?;
-            let mut r = m.measure(&name, &profiles);
-            r.rows_skipped = Some(skipped);
-            vec![r]
-        };
-        for r in &results {
-            if args.json {
-                serde_json::to_writer(&mut out, r).map_err(io::Error::from)?;
-                writeln!(out)?;
-            } else {
-                write_text(&mut out, r)?;
-            }
-            if let Some(dir) = &args.plot {
-                let stem = path.file_stem().map_or_else(|| "input".into(), |s| s.to_string_lossy().into_owned());
-                let stem = match r.seq {
-                    Some(seq) => format!("{stem}-frame{seq}"),
-                    None => stem,
-                };
-                plot(&dir.join(stem), r).map_err(|e| Error::Input(format!("--plot: {e}")))?;
-            }
-        }
-    }
-    out.flush()?;
-    Ok(())
 }
 
 /// The text report of one measurement.

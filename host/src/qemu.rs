@@ -52,8 +52,6 @@ use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use clap::{Args, ValueEnum};
-
 /// The emulator.
 pub const QEMU: &str = "qemu-system-arm";
 /// The head's image (a binary of `firmware/qemu`).
@@ -74,7 +72,7 @@ pub const START_TIMEOUT: Duration = Duration::from_secs(10);
 pub const BENCH_TIMEOUT: Duration = Duration::from_secs(600);
 
 /// The emulated board.
-#[derive(ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Machine {
     /// mps2-an386: Cortex-M4F.
     #[default]
@@ -222,15 +220,13 @@ pub fn image(bin: &'static str, explicit: Option<&Path>) -> Result<PathBuf, Qemu
     if built.is_file() { Ok(built) } else { Err(QemuError::NoImage(built)) }
 }
 
-/// The emulated head's options inside `cms-host listen` (flatten into the
-/// listener's arguments).
-#[derive(Args, Clone, Debug, Default)]
-pub struct QemuPortArgs {
+/// The emulated head's options of `cms-host listen` (they apply only to PORT
+/// `qemu`).
+#[derive(Clone, Debug, Default)]
+pub struct QemuPort {
     /// With PORT `qemu`: the emulated board.
-    #[arg(long = "qemu-machine", value_enum)]
     pub qemu_machine: Option<Machine>,
-    /// With PORT `qemu`: the head's image [default: $CMS_QEMU_IMAGE, cms-qemu-head beside cms-host, or built in the checkout run from].
-    #[arg(long = "qemu-image", value_name = "FILE")]
+    /// With PORT `qemu`: the head's image (`None`: found as [`image`] says).
     pub qemu_image: Option<PathBuf>,
 }
 
@@ -439,7 +435,7 @@ fn pty_of(line: &str) -> Option<PathBuf> {
 
 /// Starts the emulated head for `cms-host listen qemu`: the image, QEMU
 /// paused, the pty opened, then running. Returns QEMU (drop it to end it).
-pub fn start_head(args: &QemuPortArgs) -> Result<Qemu, QemuError> {
+pub fn start_head(args: &QemuPort) -> Result<Qemu, QemuError> {
     let image = image(HEAD_BIN, args.qemu_image.as_deref())?;
     let mut q = Qemu::start(args.qemu_machine.unwrap_or_default(), &image)?;
     q.resume()?;
@@ -449,16 +445,19 @@ pub fn start_head(args: &QemuPortArgs) -> Result<Qemu, QemuError> {
 /// Runs `f` on the device path of a `listen` PORT: `qemu` starts the
 /// emulated head (and ends it afterwards, with a `qemu:` line on stderr);
 /// anything else is passed through (the `--qemu-*` options then are an error).
-pub fn with_port<T>(port: &str, args: &QemuPortArgs, f: impl FnOnce(&str) -> T) -> Result<T, QemuError> {
+/// `stop` is the Ctrl-C flag: set while QEMU starts, it abandons the start.
+pub fn with_port<T>(
+    port: &str,
+    args: &QemuPort,
+    stop: &std::sync::atomic::AtomicBool,
+    f: impl FnOnce(&str) -> T,
+) -> Result<T, QemuError> {
     if port != "qemu" {
         if args.qemu_machine.is_some() || args.qemu_image.is_some() {
             return Err(QemuError::Usage("--qemu-machine and --qemu-image need PORT `qemu`".into()));
         }
         return Ok(f(port));
     }
-    // Ctrl-C from here on stops the listener (and then QEMU) instead of
-    // ending this process with QEMU left running in its own process group.
-    let stop = crate::listen::interrupt_flag();
     let mut q = start_head(args)?;
     if stop.load(std::sync::atomic::Ordering::SeqCst) {
         q.stop();
@@ -482,16 +481,13 @@ pub fn with_port<T>(port: &str, args: &QemuPortArgs, f: impl FnOnce(&str) -> T) 
 // ------------------------------------------------------------- bench qemu
 
 /// Options of `cms-host bench qemu`.
-#[derive(Args, Debug, Clone, Default)]
-pub struct BenchQemuArgs {
+#[derive(Debug, Clone, Default)]
+pub struct BenchOptions {
     /// The emulated board.
-    #[arg(long, value_enum, default_value_t = Machine::An386)]
     pub machine: Machine,
-    /// The benchmark's image [default: $CMS_QEMU_BENCH_IMAGE, cms-qemu-bench beside cms-host, or built in the checkout run from].
-    #[arg(long, value_name = "FILE")]
+    /// The benchmark's image (`None`: found as [`image`] says).
     pub image: Option<PathBuf>,
     /// Clock of the implied rows per second, MHz (1 instruction per cycle).
-    #[arg(long, value_name = "MHZ", default_value_t = 480, value_parser = clap::value_parser!(u32).range(1..=10_000))]
     pub clock_mhz: u32,
 }
 
@@ -679,7 +675,7 @@ fn group(v: u64) -> String {
 }
 
 /// `cms-host bench qemu`: the table on stdout.
-pub fn bench(a: &BenchQemuArgs) -> Result<String, QemuError> {
+pub fn bench(a: &BenchOptions) -> Result<String, QemuError> {
     let image = image(BENCH_BIN, a.image.as_deref())?;
     let out = run_bench_image(a.machine, &image)?;
     let report = parse_bench(&out)?;

@@ -48,12 +48,10 @@ use std::io::{self, BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use clap::{Args, ValueEnum};
 use cms_core::protocol::{DeviceInfo, DeviceMsg, ErrorCode, LASERS, PROTOCOL_VERSION, Profile, WireError};
 use serde::Serialize;
 use serde::ser::{SerializeSeq, SerializeStruct, Serializer};
 
-use crate::Error;
 use crate::link::{Counters, Deframer};
 
 /// The first 8 bytes of a recording.
@@ -490,8 +488,8 @@ pub fn write_csv(out: &mut dyn Write, p: &Profile) -> io::Result<()> {
 
 // ------------------------------------------------------------------ export
 
-/// `--format` of `cms-host export`.
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+/// What [`export_to`] writes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ExportFormat {
     /// One line per point: `seq,part,timestamp_us,odometer_mm,laser,row,position_px,strength,width_px,flags,along_mm,height_um`.
     Csv,
@@ -499,18 +497,30 @@ pub enum ExportFormat {
     Jsonl,
 }
 
-/// Arguments of `cms-host export`.
-#[derive(Args, Debug, Clone)]
-pub struct ExportArgs {
-    /// A recording made by `cms-host listen --record`.
-    #[arg(value_name = "FILE")]
-    pub file: PathBuf,
-    /// Output format.
-    #[arg(long, value_enum)]
-    pub format: ExportFormat,
-    /// Write here instead of stdout.
-    #[arg(long, value_name = "OUT")]
-    pub out: Option<PathBuf>,
+/// Opens a recording and checks its header (before an export creates its
+/// output, say).
+pub fn check_header(path: &Path) -> Result<Header, RecordError> {
+    let f = File::open(path).map_err(|source| RecordError::Io {
+        path: path.to_path_buf(),
+        what: "cannot open recording",
+        source,
+    })?;
+    let mut h = Vec::new();
+    f.take(HEADER_LEN as u64).read_to_end(&mut h).map_err(|source| RecordError::Io {
+        path: path.to_path_buf(),
+        what: "cannot read",
+        source,
+    })?;
+    parse_header(&h).map_err(|why| RecordError::Format { path: path.to_path_buf(), why })
+}
+
+/// Whether two paths name the same existing file.
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt as _;
+    match (std::fs::metadata(a), std::fs::metadata(b)) {
+        (Ok(x), Ok(y)) => x.dev() == y.dev() && x.ino() == y.ino(),
+        _ => false,
+    }
 }
 
 /// Exports the profiles of a recording to `out`; returns what reading found.
@@ -529,61 +539,7 @@ pub fn export_to(path: &Path, format: ExportFormat, out: &mut dyn Write) -> Resu
     Ok(stats)
 }
 
-/// `cms-host export`.
-pub fn export(args: &ExportArgs) -> Result<(), Error> {
-    // Validate the recording before creating the output file.
-    let f = File::open(&args.file).map_err(|source| RecordError::Io {
-        path: args.file.clone(),
-        what: "cannot open recording",
-        source,
-    })?;
-    let mut h = Vec::new();
-    f.take(HEADER_LEN as u64).read_to_end(&mut h).map_err(|source| RecordError::Io {
-        path: args.file.clone(),
-        what: "cannot read",
-        source,
-    })?;
-    parse_header(&h).map_err(|why| RecordError::Format { path: args.file.clone(), why })?;
-    let stats = match &args.out {
-        Some(o) if same_file(o, &args.file) => {
-            return Err(Error::Input(format!(
-                "--out {} is the recording itself; refusing to overwrite it",
-                o.display()
-            )));
-        }
-        Some(o) => {
-            let f = File::create(o).map_err(|e| Error::Input(format!("cannot create {}: {e}", o.display())))?;
-            export_to(&args.file, args.format, &mut BufWriter::new(f))?
-        }
-        None => {
-            let stdout = io::stdout();
-            export_to(&args.file, args.format, &mut BufWriter::new(stdout.lock()))?
-        }
-    };
-    for w in warnings(&args.file, &stats) {
-        let _ = writeln!(io::stderr(), "{w}");
-    }
-    Ok(())
-}
-
-/// Whether two paths name the same existing file.
-fn same_file(a: &Path, b: &Path) -> bool {
-    use std::os::unix::fs::MetadataExt as _;
-    match (std::fs::metadata(a), std::fs::metadata(b)) {
-        (Ok(x), Ok(y)) => x.dev() == y.dev() && x.ino() == y.ino(),
-        _ => false,
-    }
-}
-
 // ------------------------------------------------------------------ info
-
-/// Arguments of `cms-host info`.
-#[derive(Args, Debug, Clone)]
-pub struct InfoArgs {
-    /// A recording made by `cms-host listen --record`.
-    #[arg(value_name = "FILE")]
-    pub file: PathBuf,
-}
 
 /// What `cms-host info` reports.
 #[derive(Clone, Debug, Default)]
@@ -747,15 +703,6 @@ impl Info {
         let _ = writeln!(s, "truncated bytes at the end: {}", self.scan.truncated_tail);
         s
     }
-}
-
-/// `cms-host info`.
-pub fn info(args: &InfoArgs) -> Result<(), Error> {
-    let info = Info::of_file(&args.file)?;
-    let mut out = io::stdout().lock();
-    out.write_all(info.report(&args.file).as_bytes())?;
-    out.flush()?;
-    Ok(())
 }
 
 #[cfg(test)]

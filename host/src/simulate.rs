@@ -18,12 +18,9 @@ pub mod worker;
 
 use std::io::{self, Write as _};
 use std::path::PathBuf;
-use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
-
-use clap::{Args, ValueEnum};
 
 pub use scene::SceneCamera;
 pub use server::{MAX_WIDTH, Pty, RowRenderer, ServeOptions, Summary, serve};
@@ -50,23 +47,8 @@ impl std::fmt::Display for SimulateError {
 
 impl std::error::Error for SimulateError {}
 
-impl SimulateError {
-    /// Prints one `error: ` line on stderr and returns the exit status.
-    pub fn report(&self) -> ExitCode {
-        let _ = writeln!(io::stderr(), "error: {}", one_line(&self.to_string()));
-        match self {
-            SimulateError::Usage(_) => ExitCode::from(2),
-            SimulateError::Io(..) => ExitCode::from(1),
-        }
-    }
-}
-
-fn one_line(s: &str) -> String {
-    s.chars().flat_map(|c| if c.is_control() { c.escape_default().collect() } else { vec![c] }).collect()
-}
-
 /// Camera and head geometry presets.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Preset {
     /// The reference head: 752 × 480 global-shutter sensor, 8 bits.
     #[default]
@@ -77,7 +59,7 @@ pub enum Preset {
 
 /// One corrugation component, `WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct CorrugationArg {
+pub struct CorrugationSpec {
     /// Wavelength along the rail, mm.
     pub wavelength_mm: f64,
     /// Amplitude (half peak-to-peak), µm.
@@ -94,7 +76,7 @@ fn finite(s: &str, what: &str) -> Result<f64, String> {
 }
 
 /// Parses `--corrugation`.
-pub fn parse_corrugation(s: &str) -> Result<CorrugationArg, String> {
+pub fn parse_corrugation(s: &str) -> Result<CorrugationSpec, String> {
     let parts: Vec<&str> = s.split(':').collect();
     if !(2..=3).contains(&parts.len()) {
         return Err("expected WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG], e.g. 50:30 or 50:30:90".into());
@@ -108,7 +90,7 @@ pub fn parse_corrugation(s: &str) -> Result<CorrugationArg, String> {
     if !(0.0..=10_000.0).contains(&amplitude_um) {
         return Err(format!("amplitude must be in 0..=10000 µm, got {amplitude_um}"));
     }
-    Ok(CorrugationArg { wavelength_mm, amplitude_um, phase_deg })
+    Ok(CorrugationSpec { wavelength_mm, amplitude_um, phase_deg })
 }
 
 /// Parses `--laser-gain a,b,c`.
@@ -127,90 +109,45 @@ pub fn parse_gains(s: &str) -> Result<[f64; 3], String> {
     Ok(g)
 }
 
-fn non_negative(s: &str) -> Result<f64, String> {
-    let v = finite(s, "value")?;
-    if v < 0.0 {
-        return Err(format!("must be ≥ 0, got {v}"));
-    }
-    Ok(v)
-}
-
-fn fraction(s: &str) -> Result<f64, String> {
-    let v = finite(s, "fraction")?;
-    if !(0.0..=0.1).contains(&v) {
-        return Err(format!("must be in 0..=0.1, got {v}"));
-    }
-    Ok(v)
-}
-
-fn speed(s: &str) -> Result<f64, String> {
-    let v = finite(s, "speed")?;
-    if v.abs() > 100_000.0 {
-        return Err(format!("speed must be within ±100000 mm/s, got {v}"));
-    }
-    Ok(v)
-}
-
-fn bits(s: &str) -> Result<u8, String> {
-    match s.trim() {
-        "8" => Ok(8),
-        "10" => Ok(10),
-        "12" => Ok(12),
-        _ => Err(format!("bit depth must be 8, 10 or 12, got {s:?}")),
-    }
-}
-
-/// Options of `cms-host simulate` (and the scene part of `listen sim`).
-/// `Default` is the command line without options.
-#[derive(Args, Clone, Debug)]
-pub struct SimulateArgs {
+/// The simulated head: its scene, camera and state directory (`cms-host
+/// simulate`, and the scene part of `listen sim`). `Default` is the command
+/// line without options; `None` keeps the preset's value.
+#[derive(Clone, Debug)]
+pub struct HeadOptions {
     /// Camera and head geometry.
-    #[arg(long, value_enum, default_value_t = Preset::Reference)]
     pub preset: Preset,
     /// Seed of every random part of the scene (roughness, noise, hot pixels).
-    #[arg(long, value_name = "S", default_value_t = 1)]
     pub seed: u64,
     /// The camera's highest frame rate, Hz: the host's `Start` picks the
     /// rate, and one above this is refused (out of range).
-    #[arg(long, value_name = "HZ", default_value_t = 30, value_parser = clap::value_parser!(u16).range(1..=1000))]
     pub rate: u16,
     /// Travel speed along the rail, mm/s.
-    #[arg(long = "speed-mm-s", value_name = "V", value_parser = speed)]
     pub speed_mm_s: Option<f64>,
     /// A corrugation component (repeat for several).
-    #[arg(long, value_name = "WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG]", value_parser = parse_corrugation)]
-    pub corrugation: Vec<CorrugationArg>,
+    pub corrugation: Vec<CorrugationSpec>,
     /// RMS random roughness of the running surface, µm.
-    #[arg(long = "roughness-um", value_name = "R", value_parser = non_negative)]
     pub roughness_um: Option<f64>,
     /// Random (read) noise, RMS counts.
-    #[arg(long, value_name = "COUNTS", value_parser = non_negative)]
     pub noise: Option<f64>,
     /// Fraction of hot pixels (fixed pattern), 0..=0.1.
-    #[arg(long = "hot-pixels", value_name = "FRACTION", value_parser = fraction)]
     pub hot_pixels: Option<f64>,
     /// Row banding, RMS counts.
-    #[arg(long, value_name = "COUNTS", value_parser = non_negative)]
     pub banding: Option<f64>,
     /// Ambient light, counts.
-    #[arg(long, value_name = "COUNTS", value_parser = non_negative)]
     pub ambient: Option<f64>,
     /// Output bit depth (8, 10 or 12).
-    #[arg(long, value_name = "8|10|12", value_parser = bits)]
     pub bits: Option<u8>,
     /// Relative power of the three lasers (multiplies the preset's).
-    #[arg(long = "laser-gain", value_name = "A,B,C", value_parser = parse_gains)]
     pub laser_gain: Option<[f64; 3]>,
     /// Directory where the head keeps its calibration across restarts
     /// [default: $CMS_SIM_STATE, else $XDG_STATE_HOME/cms-host/sim-head, else
     /// ~/.local/state/cms-host/sim-head].
-    #[arg(long, value_name = "DIR")]
     pub state: Option<PathBuf>,
 }
 
-impl Default for SimulateArgs {
+impl Default for HeadOptions {
     fn default() -> Self {
-        SimulateArgs {
+        HeadOptions {
             preset: Preset::Reference,
             seed: 1,
             rate: 30,
@@ -228,33 +165,28 @@ impl Default for SimulateArgs {
     }
 }
 
-/// Runs `cms-host simulate`.
-pub fn run(args: &SimulateArgs) -> Result<(), SimulateError> {
+/// `cms-host simulate`: serves the head described by `args` on a new pty
+/// until `stop` is set. `on_open` gets the pty's slave path first (the
+/// command prints it as the first line of stdout).
+pub fn serve_on_new_pty(
+    args: &HeadOptions,
+    stop: &AtomicBool,
+    on_open: impl FnOnce(&std::path::Path) -> io::Result<()>,
+) -> Result<Summary, SimulateError> {
     let built = scene::build(args)?;
     let pty = Pty::open()?;
-    {
-        let mut out = io::stdout().lock();
-        writeln!(out, "{}", pty.path().display())
-            .and_then(|_| out.flush())
-            .map_err(|e| SimulateError::Io("printing the pty path", e))?;
-    }
-    let stop = Arc::new(AtomicBool::new(false));
-    let flag = stop.clone();
-    ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed))
-        .map_err(|e| SimulateError::Io("installing the SIGINT/SIGTERM handler", io::Error::other(e)))?;
+    on_open(pty.path()).map_err(|e| SimulateError::Io("printing the pty path", e))?;
     let opts = ServeOptions {
         max_rate_hz: built.max_rate_hz,
         exposure_us: Some(built.exposure_us),
         calibration_file: calibration_file(args),
         ..ServeOptions::default()
     };
-    let summary = serve(pty, built.renderer, built.detector, &stop, &opts)?;
-    let _ = writeln!(io::stderr(), "simulate: {summary}");
-    Ok(())
+    serve(pty, built.renderer, built.detector, stop, &opts)
 }
 
 /// Where the head described by `args` keeps its calibration.
-fn calibration_file(args: &SimulateArgs) -> Option<PathBuf> {
+fn calibration_file(args: &HeadOptions) -> Option<PathBuf> {
     args.state.clone().or_else(stored::default_dir).map(|d| d.join(stored::FILE_NAME))
 }
 
@@ -296,7 +228,7 @@ impl Drop for SimHandle {
 /// Starts the simulated head described by `args` on a new pty, served by a
 /// thread of this process (laser changes are not logged). Returns the pty's
 /// slave path — open it like a serial port — and the handle that stops it.
-pub fn spawn_on_pty(args: &SimulateArgs) -> Result<(PathBuf, SimHandle), SimulateError> {
+pub fn spawn_on_pty(args: &HeadOptions) -> Result<(PathBuf, SimHandle), SimulateError> {
     let built = scene::build(args)?;
     let pty = Pty::open()?;
     let path = pty.path().to_path_buf();
@@ -317,33 +249,27 @@ pub fn spawn_on_pty(args: &SimulateArgs) -> Result<(PathBuf, SimHandle), Simulat
     Ok((path, SimHandle { stop, thread: Some(thread) }))
 }
 
-/// The simulated head's options inside `cms-host listen` (flatten into the
-/// listener's arguments).
-#[derive(Args, Clone, Debug, Default)]
-pub struct SimPortArgs {
+/// The simulated head's options where a command takes a PORT (`listen`,
+/// `capture`, `calibrate upload`): they apply only to PORT `sim`.
+#[derive(Clone, Debug, Default)]
+pub struct SimPort {
     /// With PORT `sim`: seed of the simulated scene.
-    #[arg(long = "sim-seed", value_name = "S")]
     pub sim_seed: Option<u64>,
     /// With PORT `sim`: camera and head geometry of the simulated head.
-    #[arg(long = "sim-preset", value_enum)]
     pub sim_preset: Option<Preset>,
     /// With PORT `sim`: the simulated head's state directory (its kept calibration).
-    #[arg(long = "sim-state", value_name = "DIR")]
     pub sim_state: Option<PathBuf>,
     /// With PORT `sim`: travel speed of the simulated head along the rail, mm/s.
-    #[arg(long = "sim-speed-mm-s", value_name = "V", value_parser = speed)]
     pub sim_speed_mm_s: Option<f64>,
     /// With PORT `sim`: a corrugation component of the simulated rail (repeat for several).
-    #[arg(long = "sim-corrugation", value_name = "WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG]", value_parser = parse_corrugation)]
-    pub sim_corrugation: Vec<CorrugationArg>,
+    pub sim_corrugation: Vec<CorrugationSpec>,
     /// With PORT `sim`: RMS random roughness of the simulated rail, µm.
-    #[arg(long = "sim-roughness-um", value_name = "R", value_parser = non_negative)]
     pub sim_roughness_um: Option<f64>,
 }
 
-impl SimPortArgs {
+impl SimPort {
     /// Whether any option was given (they all need PORT `sim`).
-    fn any(&self) -> bool {
+    pub fn any(&self) -> bool {
         self.sim_seed.is_some()
             || self.sim_preset.is_some()
             || self.sim_state.is_some()
@@ -356,7 +282,7 @@ impl SimPortArgs {
 /// A `listen` PORT: `sim` starts the simulated head on a new pty and returns
 /// its slave path with the handle that keeps it running; anything else is
 /// a device path, returned as it is.
-pub fn resolve_port(port: &str, sim: &SimPortArgs) -> Result<(PathBuf, Option<SimHandle>), SimulateError> {
+pub fn resolve_port(port: &str, sim: &SimPort) -> Result<(PathBuf, Option<SimHandle>), SimulateError> {
     if port != "sim" {
         if sim.any() {
             return Err(SimulateError::Usage("--sim-seed, --sim-preset, --sim-state, --sim-speed-mm-s, --sim-corrugation and --sim-roughness-um need PORT `sim`".into()));
@@ -364,7 +290,7 @@ pub fn resolve_port(port: &str, sim: &SimPortArgs) -> Result<(PathBuf, Option<Si
         return Ok((PathBuf::from(port), None));
     }
     // The listener's `--rate` decides: the camera allows up to 1000 Hz.
-    let args = SimulateArgs {
+    let args = HeadOptions {
         seed: sim.sim_seed.unwrap_or(1),
         preset: sim.sim_preset.unwrap_or(Preset::Reference),
         rate: 1000,
@@ -372,7 +298,7 @@ pub fn resolve_port(port: &str, sim: &SimPortArgs) -> Result<(PathBuf, Option<Si
         speed_mm_s: sim.sim_speed_mm_s,
         corrugation: sim.sim_corrugation.clone(),
         roughness_um: sim.sim_roughness_um,
-        ..SimulateArgs::default()
+        ..HeadOptions::default()
     };
     let (path, handle) = spawn_on_pty(&args)?;
     Ok((path, Some(handle)))
@@ -381,7 +307,7 @@ pub fn resolve_port(port: &str, sim: &SimPortArgs) -> Result<(PathBuf, Option<Si
 /// Runs `f` on the device path of a `listen` PORT (see [`resolve_port`]);
 /// a simulated head is stopped afterwards (lasers off) and its summary
 /// printed as one `sim:` line on stderr.
-pub fn with_port<T>(port: &str, sim: &SimPortArgs, f: impl FnOnce(&str) -> T) -> Result<T, SimulateError> {
+pub fn with_port<T>(port: &str, sim: &SimPort, f: impl FnOnce(&str) -> T) -> Result<T, SimulateError> {
     let (path, head) = resolve_port(port, sim)?;
     let Some(path) = path.to_str() else {
         return Err(SimulateError::Usage(format!("port path {path:?} is not UTF-8")));
@@ -403,7 +329,7 @@ pub fn with_port<T>(port: &str, sim: &SimPortArgs, f: impl FnOnce(&str) -> T) ->
 /// The scene's configuration these options describe: the preset, then
 /// every option given on top of it. Values are checked here and by
 /// [`Scene::new`].
-pub fn sim_config(args: &SimulateArgs) -> Result<SimConfig, SimulateError> {
+pub fn sim_config(args: &HeadOptions) -> Result<SimConfig, SimulateError> {
     let mut cfg = match args.preset {
         Preset::Reference => SimConfig::reference(),
         Preset::Paper => SimConfig::paper(),
@@ -462,7 +388,7 @@ pub fn sim_config(args: &SimulateArgs) -> Result<SimConfig, SimulateError> {
 /// The scene behind the simulated camera.
 mod scene {
     use super::worker::Threaded;
-    use super::{RowRenderer, SimulateArgs, SimulateError, sim_config};
+    use super::{HeadOptions, RowRenderer, SimulateError, sim_config};
     use crate::sim::{Scene, Shot};
     use cms_core::peak::{Config, Select};
     use cms_core::protocol::LASERS;
@@ -476,7 +402,7 @@ mod scene {
         pub exposure_us: u32,
     }
 
-    pub(super) fn build(args: &SimulateArgs) -> Result<Built, SimulateError> {
+    pub(super) fn build(args: &HeadOptions) -> Result<Built, SimulateError> {
         let cfg = sim_config(args)?;
         let scene = Scene::new(cfg).map_err(|e| SimulateError::Usage(format!("scene: {e}")))?;
         if scene.laser_count() != LASERS {
@@ -552,20 +478,18 @@ mod tests {
         for bad in ["1,2", "1,2,3,4", "1,x,1", "1,-1,1", "1,nan,1"] {
             assert!(parse_gains(bad).is_err(), "{bad}");
         }
-        assert!(bits("10").is_ok() && bits("9").is_err() && bits("16").is_err());
-        assert!(fraction("0.01").is_ok() && fraction("0.2").is_err());
     }
 
     #[test]
     fn counts_are_codes_at_the_chosen_depth() {
-        let args = SimulateArgs {
+        let args = HeadOptions {
             bits: Some(12),
             noise: Some(2.0),
             banding: Some(1.0),
             ambient: Some(40.0),
             laser_gain: Some([1.0, 1.0, 0.5]),
             corrugation: vec![parse_corrugation("60:25:180").unwrap()],
-            ..SimulateArgs::default()
+            ..HeadOptions::default()
         };
         let cfg = sim_config(&args).unwrap();
         let g = cfg.camera.gain_e_per_dn();
@@ -578,14 +502,14 @@ mod tests {
         assert_eq!(cfg.rail.corrugation.len(), 1);
         assert!((cfg.rail.corrugation[0].phase_rad - std::f64::consts::PI).abs() < 1e-12);
         // Unset options keep the preset's values.
-        let plain = sim_config(&SimulateArgs::default()).unwrap();
+        let plain = sim_config(&HeadOptions::default()).unwrap();
         assert_eq!(plain.noise, preset.noise);
         assert_eq!(plain.rail, preset.rail);
     }
 
     #[test]
     fn threaded_rendering_equals_inline() {
-        let scene = Scene::new(sim_config(&SimulateArgs::default()).unwrap()).unwrap();
+        let scene = Scene::new(sim_config(&HeadOptions::default()).unwrap()).unwrap();
         let mut inline = SceneCamera::new(scene.clone());
         let mut threaded = worker::Threaded::new(SceneCamera::new(scene)).unwrap();
         assert_eq!(threaded.size(), (752, 480));

@@ -35,15 +35,11 @@
 //! Euclidean reprojection distance, overall and per view.
 
 use std::fmt;
-use std::io::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, SMatrix, SymmetricEigen, Vector3};
 
-use super::board::{CornerError, find_corners};
-use super::file::CalibrationFile;
 use super::{Board, BoardPose, Intrinsics};
-use crate::Error;
 
 /// What [`calibrate`] estimates.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -634,33 +630,6 @@ pub fn board_pose(intr: &Intrinsics, board: &Board, corners: &[[f64; 2]]) -> Res
 // ---------------------------------------------------------------------------
 // The command.
 
-/// `cms-host calibrate camera`: intrinsics and distortion from photographs
-/// of a checkerboard.
-#[derive(clap::Args, Debug, Clone)]
-pub struct CameraArgs {
-    /// Inner corners of the board, COLSxROWS (e.g. 9x6).
-    #[arg(long, value_name = "COLSxROWS")]
-    pub board: String,
-    /// Side of a board square, mm.
-    #[arg(long, value_name = "MM")]
-    pub square_mm: f64,
-    /// The calibration file to write (TOML).
-    #[arg(long, value_name = "FILE")]
-    pub out: PathBuf,
-    /// Keep fx = fy (OpenCV's CALIB_FIX_ASPECT_RATIO at 1).
-    #[arg(long)]
-    pub fix_aspect: bool,
-    /// Estimate the skew too (fixed at 0 by default).
-    #[arg(long)]
-    pub free_skew: bool,
-    /// Drop views whose RMS reprojection error exceeds this many pixels, and fit again.
-    #[arg(long, value_name = "PX")]
-    pub max_view_rms: Option<f64>,
-    /// Photographs of the board (PNG, JPEG, TIFF; 8 or 16 bits).
-    #[arg(required = true, value_name = "IMAGES")]
-    pub images: Vec<PathBuf>,
-}
-
 /// Parses `COLSxROWS`.
 pub fn parse_board(s: &str, square_mm: f64) -> Result<Board, String> {
     let bad = || format!("--board {s:?}: expected COLSxROWS inner corners, e.g. 9x6");
@@ -687,85 +656,4 @@ pub fn load_gray(path: &Path) -> Result<(Vec<f32>, u32, u32), String> {
     let g = img.to_luma32f();
     let (w, h) = g.dimensions();
     Ok((g.into_raw(), w, h))
-}
-
-/// Runs the subcommand.
-pub fn run(args: &CameraArgs) -> Result<(), Error> {
-    let board = parse_board(&args.board, args.square_mm).map_err(Error::Input)?;
-    if let Some(m) = args.max_view_rms
-        && !(m.is_finite() && m > 0.0)
-    {
-        return Err(Error::Input(format!("--max-view-rms {m}: must be a positive number of pixels")));
-    }
-    let mut out = std::io::stdout().lock();
-    let mut views = Vec::new();
-    let mut names = Vec::new();
-    let mut size: Option<(u32, u32, &Path)> = None;
-    for path in &args.images {
-        let (px, w, h) = load_gray(path).map_err(Error::Input)?;
-        match size {
-            None => size = Some((w, h, path)),
-            Some((w0, h0, first)) if (w0, h0) != (w, h) => {
-                return Err(Error::Input(format!(
-                    "{}: {w} x {h}, but {} is {w0} x {h0}; all images must come from one camera mode",
-                    path.display(),
-                    first.display()
-                )));
-            }
-            Some(_) => {}
-        }
-        match find_corners(&px, w as usize, h as usize, &board) {
-            Ok(c) => {
-                views.push(c);
-                names.push(path.display().to_string());
-            }
-            Err(e @ (CornerError::Incomplete { .. } | CornerError::Inconsistent)) => {
-                writeln!(out, "{}: rejected: {e}", path.display())?;
-            }
-            Err(e) => return Err(Error::Input(format!("{}: {e}", path.display()))),
-        }
-    }
-    let Some((w, h, _)) = size else { return Err(Error::Input("no images".into())) };
-    if views.len() < 3 {
-        return Err(Error::Input(format!(
-            "the board ({}x{}) was found in {} of {} images; calibration needs at least 3",
-            board.cols,
-            board.rows,
-            views.len(),
-            args.images.len()
-        )));
-    }
-    let opts = CalibOptions {
-        fix_skew: !args.free_skew,
-        fix_aspect: args.fix_aspect.then_some(1.0),
-        max_view_rms_px: args.max_view_rms,
-        ..CalibOptions::default()
-    };
-    let cal = calibrate(&board, &views, w, h, &opts).map_err(|e| Error::Input(e.to_string()))?;
-    for &(v, e) in &cal.views_rejected {
-        writeln!(out, "{}: rejected: RMS {e:.3} px > {:.3} px", names[v], args.max_view_rms.unwrap_or(0.0))?;
-    }
-    for (&v, e) in cal.views_used.iter().zip(&cal.per_view_rms_px) {
-        writeln!(out, "{}: RMS {e:.3} px", names[v])?;
-    }
-    let k = &cal.intrinsics;
-    writeln!(
-        out,
-        "{} views, {w} x {h}: fx {:.3} fy {:.3} cx {:.3} cy {:.3} skew {:.4} px; k1 {:.5} k2 {:.5} p1 {:.6} p2 {:.6} k3 {:.5}; RMS {:.4} px",
-        cal.views_used.len(),
-        k.fx,
-        k.fy,
-        k.cx,
-        k.cy,
-        k.skew,
-        k.k1,
-        k.k2,
-        k.p1,
-        k.p2,
-        k.k3,
-        cal.rms_px
-    )?;
-    CalibrationFile::camera_only(&cal.intrinsics, cal.rms_px, Some(&board)).save(&args.out)?;
-    writeln!(out, "wrote {}", args.out.display())?;
-    Ok(())
 }

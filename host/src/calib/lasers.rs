@@ -34,62 +34,20 @@
 //! through the point where the middle laser's plane crosses it (a head
 //! mounted square to the rail, paper §2.2).
 
-use std::fmt::Write as _;
-use std::path::PathBuf;
-
 use cms_core::fixed::Px;
 use cms_core::optics::ScaleRange;
 use cms_core::peak::{Config, Detector, Select, Stripes};
 use cms_core::protocol::LASERS;
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
-use super::file::{CalibrationFile, HeadSection, LaserSection, PlaneSection};
 use super::{Board, BoardPose, Intrinsics};
-use crate::Error;
-use crate::input::{Pixels, Rows, read_rows};
+use crate::input::{Pixels, Rows};
 
 /// Widest image the row detector takes.
 const MAX_WIDTH: usize = 8192;
 
 /// Points a laser needs from a pose for the pose to count for it.
 const MIN_POINTS_PER_POSE: usize = 10;
-
-/// Arguments of `calibrate lasers`.
-#[derive(clap::Args, Debug, Clone)]
-pub struct LasersArgs {
-    /// The camera calibration (from `calibrate camera`).
-    #[arg(long, value_name = "CAM.toml")]
-    pub camera: PathBuf,
-    /// Where to write the full calibration.
-    #[arg(long, value_name = "CAL.toml")]
-    pub out: PathBuf,
-    /// Inner corners of the board, COLSxROWS [default: the camera file's [board]].
-    #[arg(long, value_name = "COLSxROWS")]
-    pub board: Option<String>,
-    /// Side of a square, mm [default: the camera file's [board]].
-    #[arg(long = "square-mm", value_name = "S")]
-    pub square_mm: Option<f64>,
-    /// The pair (1-based) whose board plane is the rail-top datum.
-    #[arg(long = "datum-pose", value_name = "K")]
-    pub datum_pose: Option<usize>,
-    /// Stripe σ range the detector searches on the board, px.
-    #[arg(long, value_name = "MIN:MAX", default_value = "1:16")]
-    pub scales: String,
-    /// Largest acceptable RMS distance of a laser's points from its plane, mm.
-    #[arg(long = "max-rms-mm", value_name = "MM", default_value_t = 0.1)]
-    pub max_rms_mm: f64,
-    /// Laser sheet thickness, mm: with --range-mm, adds the [head] section
-    /// (the detector's scale range, paper Eq. 10–11).
-    #[arg(long = "laser-diameter-mm", value_name = "D", requires = "range_mm")]
-    pub laser_diameter_mm: Option<f64>,
-    /// Working range, mm.
-    #[arg(long = "range-mm", value_name = "MIN:MAX", requires = "laser_diameter_mm")]
-    pub range_mm: Option<String>,
-    /// Image pairs of the board at each pose: lasers off, then lasers on
-    /// (PNG, TIFF or JPEG, same camera), e.g. board-00.png lasers-00.png board-01.png …
-    #[arg(value_name = "OFF ON", required = true)]
-    pub images: Vec<PathBuf>,
-}
 
 /// Options of [`calibrate_lasers`].
 #[derive(Clone, Copy, Debug)]
@@ -423,109 +381,6 @@ pub fn calibrate_lasers(
         }
     };
     Ok(LaserCalibration { planes, datum, poses })
-}
-
-fn pair_of(s: &str, what: &str) -> Result<(f64, f64), String> {
-    let (a, b) = s.split_once(':').ok_or_else(|| format!("{what} {s:?}: expected MIN:MAX"))?;
-    let p = |t: &str| t.trim().parse::<f64>().map_err(|_| format!("{what} {s:?}: {t:?} is not a number"));
-    let (a, b) = (p(a)?, p(b)?);
-    if !(a.is_finite() && b.is_finite() && a > 0.0 && b > a) {
-        return Err(format!("{what} {s:?}: need 0 < MIN < MAX"));
-    }
-    Ok((a, b))
-}
-
-/// Runs `calibrate lasers`.
-pub fn run(args: &LasersArgs) -> Result<(), Error> {
-    let usage = Error::Input;
-    let mut file = CalibrationFile::load(&args.camera)?;
-    let board = match (&args.board, args.square_mm, file.board()) {
-        (Some(b), Some(s), _) => super::camera::parse_board(b, s).map_err(usage)?,
-        (None, None, Some(b)) => b,
-        (None, None, None) => {
-            return Err(usage(format!("{} has no [board]: give --board and --square-mm", args.camera.display())));
-        }
-        _ => return Err(usage("--board and --square-mm go together".into())),
-    };
-    let scales = pair_of(&args.scales, "--scales").map_err(usage)?;
-    if !(args.max_rms_mm.is_finite() && args.max_rms_mm > 0.0) {
-        return Err(usage(format!("--max-rms-mm {}: must be > 0", args.max_rms_mm)));
-    }
-    let head = match (args.laser_diameter_mm, &args.range_mm) {
-        (Some(d), Some(r)) => {
-            let (lo, hi) = pair_of(r, "--range-mm").map_err(usage)?;
-            if !(d.is_finite() && d > 0.0) {
-                return Err(usage(format!("--laser-diameter-mm {d}: must be > 0")));
-            }
-            Some(HeadSection { laser_diameter_mm: d, range_min_mm: lo, range_max_mm: hi })
-        }
-        _ => None,
-    };
-    if !args.images.len().is_multiple_of(2) || args.images.len() < 6 {
-        return Err(usage(format!(
-            "{} images: give pairs (lasers off, lasers on) of at least 3 poses",
-            args.images.len()
-        )));
-    }
-    let mut pairs = Vec::new();
-    for ch in args.images.chunks(2) {
-        let off = read_rows(&ch[0])?;
-        let on = read_rows(&ch[1])?;
-        pairs.push(Pair { off, on, name: format!("{} + {}", ch[0].display(), ch[1].display()) });
-    }
-    let opts = LaserOptions { scales, max_rms_mm: args.max_rms_mm, datum_pose: args.datum_pose.map(|k| k.max(1) - 1) };
-    if args.datum_pose == Some(0) {
-        return Err(usage("--datum-pose counts from 1".into()));
-    }
-    let intr = file.intrinsics();
-    let cal = calibrate_lasers(&intr, &board, &pairs, &opts).map_err(usage)?;
-    let mut report = String::new();
-    for (i, p) in cal.poses.iter().enumerate() {
-        let _ = match p {
-            Ok(r) => writeln!(
-                report,
-                "pose {:>2}: board {:.3} px RMS at {:.0} mm; points per laser {:?}; {} stripes not assigned",
-                i + 1,
-                r.board_rms_px,
-                r.pose.t_mm[2],
-                r.points,
-                r.ambiguous_rows
-            ),
-            Err(e) => writeln!(report, "pose {:>2}: rejected: {e}", i + 1),
-        };
-    }
-    for (k, l) in cal.planes.iter().enumerate() {
-        let _ = writeln!(
-            report,
-            "laser {k}: n = ({:+.6}, {:+.6}, {:+.6}), d = {:.4} mm, RMS {:.4} mm over {} points from {} poses ({} outliers)",
-            l.normal[0], l.normal[1], l.normal[2], l.d_mm, l.rms_mm, l.points, l.poses, l.outliers
-        );
-    }
-    file.datum = Some(PlaneSection { nx: cal.datum.0[0], ny: cal.datum.0[1], nz: cal.datum.0[2], d_mm: cal.datum.1 });
-    file.lasers = cal
-        .planes
-        .iter()
-        .enumerate()
-        .map(|(k, l)| LaserSection {
-            id: k as u32,
-            nx: l.normal[0],
-            ny: l.normal[1],
-            nz: l.normal[2],
-            d_mm: l.d_mm,
-            rms_mm: l.rms_mm,
-            points: Some(l.points as u64),
-        })
-        .collect();
-    if head.is_some() {
-        file.head = head;
-    }
-    // The head would refuse a calibration its triangulation cannot use: say so now.
-    let msg = file.to_head().map_err(|e| usage(e.to_string()))?;
-    cms_core::pipeline::triangulator(&msg).map_err(|e| usage(format!("the fitted planes are unusable: {e}")))?;
-    file.save(&args.out)?;
-    print!("{report}");
-    println!("wrote {}", args.out.display());
-    Ok(())
 }
 
 #[cfg(test)]

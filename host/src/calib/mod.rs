@@ -174,26 +174,3 @@ impl BoardPose {
         (n, n[0] * self.t_mm[0] + n[1] * self.t_mm[1] + n[2] * self.t_mm[2])
     }
 }
-
-/// `cms-host calibrate …`
-#[derive(clap::Subcommand, Debug, Clone)]
-pub enum CalibrateCmd {
-    /// Camera intrinsics and distortion from checkerboard photographs.
-    Camera(camera::CameraArgs),
-    /// Laser planes from laser-on/laser-off image pairs of the board.
-    Lasers(lasers::LasersArgs),
-    /// Send a calibration file to a sensor head (or `sim`).
-    Upload(upload::UploadArgs),
-    /// Render calibration images from the simulated head, with the truth.
-    Render(render::RenderArgs),
-}
-
-/// Runs one `calibrate` subcommand.
-pub fn run(cmd: &CalibrateCmd) -> Result<(), crate::Error> {
-    match cmd {
-        CalibrateCmd::Camera(a) => camera::run(a),
-        CalibrateCmd::Lasers(a) => lasers::run(a),
-        CalibrateCmd::Upload(a) => upload::run(a),
-        CalibrateCmd::Render(a) => render::run(a),
-    }
-}

@@ -38,24 +38,19 @@ use crate::simulate::Preset;
 /// Most poses (two-digit file names).
 pub const MAX_POSES: usize = 100;
 
-/// Arguments of `cms-host calibrate render`.
-#[derive(clap::Args, Debug, Clone)]
-pub struct RenderArgs {
+/// What `cms-host calibrate render` renders, and where.
+#[derive(Debug, Clone)]
+pub struct Options {
     /// The simulated head.
-    #[arg(long, value_enum, default_value_t = Preset::Reference)]
     pub preset: Preset,
     /// Number of board poses, 1..=100.
-    #[arg(long, value_name = "N", default_value_t = 12)]
     pub poses: usize,
     /// Seed of the poses, the sensor's pattern and the images' noise.
-    #[arg(long, value_name = "S", default_value_t = 1)]
     pub seed: u64,
     /// No random noise (read, shot, banding): the images differ from the
     /// model only by quantisation and the sensor's fixed pattern.
-    #[arg(long)]
     pub noiseless: bool,
     /// Output directory (created if missing).
-    #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
 }
 
@@ -67,7 +62,7 @@ fn preset_name(p: Preset) -> &'static str {
 }
 
 /// The simulated head's configuration for the arguments.
-pub fn config(args: &RenderArgs) -> SimConfig {
+pub fn config(args: &Options) -> SimConfig {
     let mut cfg = match args.preset {
         Preset::Reference => SimConfig::reference(),
         Preset::Paper => SimConfig::paper(),
@@ -96,8 +91,8 @@ fn write_png(path: &Path, img: &BoardImage) -> Result<(), Error> {
     }
 }
 
-/// Runs `cms-host calibrate render`.
-pub fn run(args: &RenderArgs) -> Result<(), Error> {
+/// `cms-host calibrate render`: the board images and `truth.json`.
+pub fn render(args: &Options) -> Result<(), Error> {
     if !(1..=MAX_POSES).contains(&args.poses) {
         return Err(Error::Input(format!("--poses must be in 1..={MAX_POSES}, got {}", args.poses)));
     }

@@ -18,30 +18,28 @@ use cms_core::protocol::HostMsg;
 use super::file::CalibrationFile;
 use crate::Error;
 use crate::link::{Client, ClientError, Handshake, Wait};
-use crate::simulate::{self, SimPortArgs};
+use crate::simulate::{self, SimPort};
 
 /// How long to wait for each answer.
 const ANSWER_TIMEOUT: Duration = Duration::from_secs(2);
 
-/// Arguments of `calibrate upload`.
-#[derive(clap::Args, Debug, Clone)]
-pub struct UploadArgs {
+/// What to upload, and where.
+#[derive(Debug, Clone)]
+pub struct Options {
     /// The calibration file (from `calibrate lasers`).
-    #[arg(value_name = "CAL.toml")]
     pub file: PathBuf,
-    /// Serial port of the head (`/dev/ttyACM0`), or `sim` for the simulated head.
-    #[arg(value_name = "PORT")]
+    /// Serial port of the head, or `sim`.
     pub port: String,
     /// Baud rate (ignored by USB CDC heads).
-    #[arg(long, default_value_t = 115_200)]
     pub baud: u32,
-    #[command(flatten)]
-    #[allow(missing_docs)]
-    pub sim: SimPortArgs,
+    /// The simulated head's options, for PORT `sim`.
+    pub sim: SimPort,
 }
 
-/// Runs `calibrate upload`.
-pub fn run(args: &UploadArgs) -> Result<(), Error> {
+/// `calibrate upload`: sends the calibration (and the detector's scale
+/// range of its `[head]` section) and checks that the head took it; returns
+/// the line to tell the user.
+pub fn upload(args: &Options) -> Result<String, Error> {
     let file = CalibrationFile::load(&args.file)?;
     let cal = file.to_head().map_err(|e| Error::Input(format!("{}: {e}", args.file.display())))?;
     // The head would refuse it; say why here, in words.
@@ -84,8 +82,7 @@ pub fn run(args: &UploadArgs) -> Result<(), Error> {
         Ok(format!("calibration {:#010x} loaded by the head on {port}{note}", cal.id))
     })
     .map_err(|e| Error::Input(e.to_string()))??;
-    println!("{r}");
-    Ok(())
+    Ok(r)
 }
 
 /// `msg`, and its `Ack` within [`ANSWER_TIMEOUT`]; a refusal names the

@@ -33,7 +33,7 @@ pub enum BenchCmd {
     /// Nanoseconds per row of every method (640/752/1280 px, 1 and 3 stripes).
     Speed(SpeedArgs),
     /// Instructions per row of every method on the emulated Cortex-M (QEMU -icount).
-    Qemu(cms_host::qemu::BenchQemuArgs),
+    Qemu(super::qemu::BenchQemuArgs),
     /// Corrugation through the simulated head (paper geometry, 30 dB): wavelength and amplitude errors of the
     /// paper's four samples over runs; writes corrugation.md, corrugation.csv and a plot of one frame.
     Corrugation(CorrugationArgs),
@@ -143,7 +143,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
     let text = match cmd {
         BenchCmd::Accuracy(a) => accuracy(&a)?,
         BenchCmd::Speed(s) => speed(&s)?,
-        BenchCmd::Qemu(q) => cms_host::qemu::bench(&q)?,
+        BenchCmd::Qemu(q) => cms_host::qemu::bench(&q.options())?,
         BenchCmd::Corrugation(c) => corrugation(&c)?,
     };
     let mut out = std::io::stdout().lock();

@@ -7,9 +7,10 @@
 //! | 3 | the device or the link failed |
 //! | 1 | anything else (writing an output, a system call, a build) |
 //!
-//! The status comes from the first [`cms_host::Error`] or [`Usage`] in the
-//! error's chain (the command line wraps library errors in context, never
-//! the other way round); an error with neither is "anything else".
+//! The status comes from the first error of the `cms_host` library (its
+//! [`cms_host::Error`] or a module's error: [`Error::class_of`]) or [`Usage`]
+//! in the error's chain (the command line wraps library errors in context,
+//! never the other way round); an error with neither is "anything else".
 
 use std::io::Write as _;
 use std::process::ExitCode;
@@ -22,14 +23,19 @@ use cms_host::{Class, Error};
 #[error("{0}")]
 pub struct Usage(pub String);
 
+/// A bad input, as the command line's error (exit status 2).
+pub fn input(msg: String) -> anyhow::Error {
+    Error::Input(msg).into()
+}
+
 /// The exit status of a failure.
 pub fn status(e: &anyhow::Error) -> u8 {
     for cause in e.chain() {
         if cause.is::<Usage>() {
             return 2;
         }
-        if let Some(e) = cause.downcast_ref::<Error>() {
-            return match e.class() {
+        if let Some(class) = Error::class_of(cause) {
+            return match class {
                 Class::Input => 2,
                 Class::Device => 3,
                 _ => 1,
@@ -60,7 +66,11 @@ pub fn message(e: &anyhow::Error) -> String {
 /// Prints the failure as one `error: ` line on stderr (nothing for a closed
 /// output pipe) and returns its exit status.
 pub fn report(e: &anyhow::Error) -> ExitCode {
-    if e.chain().any(|c| c.downcast_ref::<Error>().is_some_and(Error::is_broken_pipe)) {
+    let broken_pipe = |c: &(dyn std::error::Error + 'static)| {
+        c.downcast_ref::<Error>().is_some_and(Error::is_broken_pipe)
+            || c.downcast_ref::<std::io::Error>().is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe)
+    };
+    if e.chain().any(broken_pipe) {
         return ExitCode::SUCCESS;
     }
     // Not eprintln!: it panics if stderr is closed.

@@ -3,22 +3,23 @@
 //! stabilizer keeps `bin/` over `hardware/`). One module per subcommand;
 //! [`exit`] maps failures to statuses in one place.
 
+pub mod analyze;
 pub mod bench;
+pub mod calibrate;
+pub mod capture;
 pub mod detect;
 pub mod exit;
 pub mod fit;
+pub mod listen;
+pub mod measure;
+pub mod qemu;
+pub mod record;
+pub mod simulate;
 
 use std::process::ExitCode;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
-use cms_host::analyze;
-use cms_host::calib;
-use cms_host::capture;
-use cms_host::measure;
-use cms_host::qemu;
-use cms_host::simulate;
-use cms_host::{listen, record};
 
 /// Host tools of the rail corrugation measurement system.
 #[derive(Parser, Debug)]
@@ -61,7 +62,7 @@ enum Command {
     Measure(measure::MeasureArgs),
     /// Camera and laser-plane calibration; upload to a head.
     #[command(subcommand)]
-    Calibrate(calib::CalibrateCmd),
+    Calibrate(calibrate::CalibrateCmd),
 }
 
 /// Parses the command line, runs the subcommand and reports its failure.
@@ -77,19 +78,24 @@ fn dispatch(command: Command) -> Result<()> {
         Command::Detect(args) => detect::run(&args),
         // PORT `sim` starts the simulated head on a pty of this process,
         // PORT `qemu` the emulated one in QEMU.
-        Command::Listen { args, sim, qemu } => Ok(qemu::with_port(&args.port, &qemu, |port| {
-            simulate::with_port(port, &sim, |port| {
-                listen::run(&listen::ListenArgs { port: port.to_string(), ..args.clone() })
-            })
-        })???),
-        Command::Export(args) => Ok(record::export(&args)?),
-        Command::Info(args) => Ok(record::info(&args)?),
+        Command::Listen { args, sim, qemu } => {
+            // Ctrl-C from here on stops the listener (and then QEMU) instead of
+            // ending this process with QEMU left running in its own process group.
+            let stop = listen::interrupt_flag();
+            Ok(cms_host::qemu::with_port(&args.port, &qemu.options(), stop, |port| {
+                cms_host::simulate::with_port(port, &sim.options(), |port| {
+                    listen::run(&listen::ListenArgs { port: port.to_string(), ..args.clone() })
+                })
+            })???)
+        }
+        Command::Export(args) => record::export(&args),
+        Command::Info(args) => record::info(&args),
         Command::Bench(cmd) => bench::run(cmd),
-        Command::Simulate(args) => Ok(simulate::run(&args)?),
+        Command::Simulate(args) => simulate::run(&args),
         Command::Fit(args) => fit::run(&args),
-        Command::Analyze(args) => Ok(analyze::run(&args)?),
-        Command::Capture(args) => Ok(capture::run(&args)?),
-        Command::Measure(args) => Ok(measure::run(&args)?),
-        Command::Calibrate(cmd) => Ok(calib::run(&cmd)?),
+        Command::Analyze(args) => analyze::run(&args),
+        Command::Capture(args) => capture::run(&args),
+        Command::Measure(args) => measure::run(&args),
+        Command::Calibrate(cmd) => calibrate::run(&cmd),
     }
 }

@@ -133,7 +133,7 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
 
 #[test]
 fn goldens_match_the_reference_encoder() {
-    let want = include_str!("../golden/frames.txt");
+    let want = include_str!("../../golden/frames.txt");
     let got: std::vec::Vec<_> = goldens().into_iter().map(|(name, bytes)| format!("{name}: {}", hex(&bytes))).collect();
     let want: std::vec::Vec<_> = want.lines().map(str::to_owned).collect();
     assert_eq!(got.len(), 16, "one golden per message kind");

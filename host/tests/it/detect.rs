@@ -546,15 +546,3 @@ mod random_files {
         }
     }
 }
-
-#[test]
-#[ignore = "prints the messages of every bad-input case; run with --ignored --nocapture"]
-fn show_bad_input_messages() {
-    let dir = tempfile::tempdir().unwrap();
-    for c in bad_cases() {
-        let path = write_case(dir.path(), &c);
-        let mut args: Vec<OsArg> = c.opts.iter().map(OsArg::from).collect();
-        args.push(path.into());
-        eprint!("{}", String::from_utf8_lossy(&detect(&args).stderr));
-    }
-}

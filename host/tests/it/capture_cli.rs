@@ -2,15 +2,7 @@
 //! whole frame arrives, the chosen laser shows, and bad arguments are refused
 //! in one line.
 
-use std::process::{Command, Output};
-
-fn run(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cms-host"))
-        .args(args)
-        .env("CMS_SIM_STATE", "/nonexistent/never-used")
-        .output()
-        .unwrap()
-}
+use crate::common::run;
 
 /// The PNG as 16-bit grey, checking its depth against the head's.
 fn load(path: &std::path::Path, bits: u8) -> image::ImageBuffer<image::Luma<u16>, Vec<u16>> {

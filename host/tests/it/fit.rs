@@ -3,8 +3,8 @@
 //! profiles (`tests/scripts/fit_reference.py`, checked-in data), the command
 //! line, and properties (no panic on any input).
 
+use crate::common::cms_host;
 use std::path::PathBuf;
-use std::process::Command;
 
 use cms_host::fit::{self, Model, Options, Start};
 use proptest::prelude::*;
@@ -190,10 +190,6 @@ fn agrees_with_scipy() {
         assert!(sl > 0.0 && sl < 0.1, "{sl}");
         assert!(f.start != Start::Scan || f.converged);
     }
-}
-
-fn cms_host(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_cms-host")).args(args).output().unwrap()
 }
 
 #[test]

@@ -199,7 +199,7 @@ fn truth_errors(p: &Profile) -> Errors {
     use std::sync::OnceLock;
     static SCENE: OnceLock<Scene> = OnceLock::new();
     let scene = SCENE.get_or_init(|| {
-        let args = cms_host::simulate::SimulateArgs { seed: 1, ..Default::default() };
+        let args = cms_host::simulate::HeadOptions { seed: 1, ..Default::default() };
         Scene::new(cms_host::simulate::sim_config(&args).unwrap()).unwrap()
     });
     let shot = Shot {
@@ -409,7 +409,7 @@ fn bad_options_exit_2_with_one_line() {
 
 #[test]
 fn in_process_head_serves_through_its_pty() {
-    let (path, handle) = cms_host::simulate::spawn_on_pty(&cms_host::simulate::SimulateArgs::default()).unwrap();
+    let (path, handle) = cms_host::simulate::spawn_on_pty(&cms_host::simulate::HeadOptions::default()).unwrap();
     assert!(handle.is_running());
     let port = OpenOptions::new().read(true).write(true).custom_flags(nix::libc::O_NOCTTY).open(&path).unwrap();
     let mut t = tcgetattr(port.as_fd()).unwrap();
@@ -507,36 +507,4 @@ fn listen_sim_crosses_the_pty() {
     let out = Process::new(BIN).args(["listen", "/dev/null", "--sim-seed", "3"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).starts_with("error: --sim-seed"));
-}
-
-/// Throughput figures (not a pass/fail test): `cargo test --release -p
-/// cms-host --test simulate throughput -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn throughput() {
-    for rate in [30u16, 200] {
-        let r = rate.to_string();
-        let mut sim = Sim::spawn(&["--rate", &r]);
-        sim.start(rate, LaserPattern::Simultaneous);
-        sim.profiles(5); // warm up
-        let t0 = Instant::now();
-        let mut ps = Vec::new();
-        while t0.elapsed() < Duration::from_secs(5) {
-            ps.extend(sim.profiles(1));
-        }
-        let dt = t0.elapsed().as_secs_f64();
-        let points: usize = ps.iter().map(|p| p.lasers.iter().map(|l| l.points.len()).sum::<usize>()).sum();
-        let mut scratch = vec![0u8; MAX_FRAME];
-        let mut out = vec![0u8; MAX_FRAME];
-        let bytes = encode(&DeviceMsg::Profile(ps[0].clone()), &mut scratch, &mut out).unwrap().len();
-        let skipped = ps.last().unwrap().seq - ps[0].seq + 1 - ps.len() as u32;
-        let (_, err) = sim.terminate();
-        eprintln!(
-            "rate {rate}: {:.1} frames/s received, {} points/frame, {} B/frame encoded, {skipped} seq gaps\n  {}",
-            ps.len() as f64 / dt,
-            points / ps.len(),
-            bytes,
-            err.lines().last().unwrap_or("")
-        );
-    }
 }

@@ -2,8 +2,8 @@
 //! recording of its detected peaks, with the head's true calibration; JSON,
 //! text and plots; one-line refusals of bad inputs.
 
+use crate::common::cms_host;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use cms_core::peak::{Config, Detector, Select, Stripes};
 use cms_core::protocol::{DeviceMsg, LASERS, LaserPoints, MAX_FRAME, Metric, Point, Profile, encode};
@@ -19,10 +19,6 @@ fn config() -> SimConfig {
     cfg.rail.corrugation = vec![Corrugation { wavelength_mm: LAMBDA_MM, amplitude_um: AMP_UM, phase_rad: 0.4 }];
     cfg.rail.roughness_rms_um = 0.0;
     cfg
-}
-
-fn cms_host(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_cms-host")).args(args).output().unwrap()
 }
 
 /// Frame 0 as an 8-bit PNG and the true calibration as a file.

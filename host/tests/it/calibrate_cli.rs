@@ -1,29 +1,12 @@
 //! `cms-host calibrate upload|lasers` from the command line, and the
 //! calibration file's parser under arbitrary input.
 
-use std::process::{Command, Output};
+use crate::common::{one_line_error, run};
 
 use cms_host::calib::file::CalibrationFile;
 use cms_host::calib::truth::truth;
 use cms_host::sim::{Scene, SimConfig};
 use proptest::prelude::*;
-
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_cms-host")
-}
-
-fn run(args: &[&str]) -> Output {
-    Command::new(bin()).args(args).env("CMS_SIM_STATE", "/nonexistent/never-used").output().unwrap()
-}
-
-fn one_line_error(o: &Output) -> String {
-    assert_eq!(o.status.code(), Some(2), "{o:?}");
-    let e = String::from_utf8_lossy(&o.stderr).to_string();
-    let lines: Vec<&str> = e.lines().filter(|l| !l.starts_with("info:") && !l.starts_with("sim: ")).collect();
-    assert_eq!(lines.len(), 1, "{e}");
-    assert!(lines[0].starts_with("error: "), "{e}");
-    lines[0].to_string()
-}
 
 /// Upload to the simulated head, which keeps it: a new head on the same
 /// state directory streams triangulated points at once, on the rail

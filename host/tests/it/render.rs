@@ -6,13 +6,13 @@ use cms_core::fixed::Px;
 use cms_core::optics::ScaleRange;
 use cms_core::peak::{Config, Detector, Stripes};
 use cms_host::Error;
-use cms_host::calib::render::{RenderArgs, run};
+use cms_host::calib::render::{self, Options};
 use cms_host::sim::board::{self, BoardRenderer, RenderOptions};
 use cms_host::sim::{NoiseModel, Scene, SimConfig};
 use cms_host::simulate::Preset;
 
-fn args(out: &std::path::Path, poses: usize) -> RenderArgs {
-    RenderArgs { preset: Preset::Reference, poses, seed: 3, noiseless: false, out: out.to_path_buf() }
+fn args(out: &std::path::Path, poses: usize) -> Options {
+    Options { preset: Preset::Reference, poses, seed: 3, noiseless: false, out: out.to_path_buf() }
 }
 
 /// On a noiseless laser-on minus laser-off difference, the detector's
@@ -91,7 +91,7 @@ fn laser_stripes_where_the_planes_cut_the_board() {
 fn cli_writes_images_and_truth() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("render");
-    run(&args(&out, 2)).unwrap();
+    render::render(&args(&out, 2)).unwrap();
     for k in 0..2 {
         for name in [format!("board-{k:02}.png"), format!("lasers-{k:02}.png")] {
             let img = image::open(out.join(&name)).unwrap();
@@ -135,30 +135,15 @@ fn cli_writes_images_and_truth() {
 fn cli_refuses_bad_arguments() {
     let dir = tempfile::tempdir().unwrap();
     for n in [0, 101] {
-        match run(&args(dir.path(), n)) {
+        match render::render(&args(dir.path(), n)) {
             Err(Error::Input(m)) => assert!(m.contains("--poses"), "{m}"),
             r => panic!("{n} poses: {r:?}"),
         }
     }
     let file = dir.path().join("file");
     std::fs::write(&file, "x").unwrap();
-    match run(&args(&file, 1)) {
+    match render::render(&args(&file, 1)) {
         Err(Error::Input(m)) => assert!(m.contains("not a directory") && !m.contains('\n'), "{m}"),
         r => panic!("{r:?}"),
     }
-}
-
-/// The paper head's images (4752 × 3168): cost of one, and the lasers on
-/// the board. `cargo test --release --test render -- --ignored` (seconds).
-#[test]
-#[ignore]
-fn paper_preset_cost() {
-    let scene = Scene::new(SimConfig::paper()).unwrap();
-    let r = BoardRenderer::new(&scene, RenderOptions::default());
-    let brd = board::board_for(scene.config());
-    let pose = board::calibration_poses(&scene, &brd, 1, 1)[0];
-    let t = std::time::Instant::now();
-    let img = r.render(&brd, &pose, scene.all_lasers_mask(), 0);
-    eprintln!("paper image: {:.0} ms", t.elapsed().as_secs_f64() * 1e3);
-    assert_eq!((img.width, img.height), (4752, 3168));
 }

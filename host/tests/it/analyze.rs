@@ -3,8 +3,8 @@
 //! simulated head against its true rail; records too short for the
 //! standards; bad input.
 
+use crate::common::{one_line_error, run};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use cms_core::fixed::Px;
 use cms_core::peak::Flags;
@@ -13,23 +13,7 @@ use cms_host::analyze::stitch::{self, Direction, FramePoints, Options, Registrat
 use cms_host::calib::truth::truth;
 use cms_host::record;
 use cms_host::sim::Scene;
-use cms_host::simulate::{SimulateArgs, parse_corrugation, sim_config};
-
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_cms-host")
-}
-
-fn run(args: &[&str]) -> Output {
-    Command::new(bin()).args(args).env("CMS_SIM_STATE", "/nonexistent/never-used").output().unwrap()
-}
-
-fn one_line_error(o: &Output) -> String {
-    assert_eq!(o.status.code(), Some(2), "{o:?}");
-    let e = String::from_utf8_lossy(&o.stderr).to_string();
-    assert_eq!(e.lines().count(), 1, "{e}");
-    assert!(e.starts_with("error: "), "{e}");
-    e
-}
+use cms_host::simulate::{HeadOptions, parse_corrugation, sim_config};
 
 /// A small deterministic generator (xorshift64*), uniform and normal.
 struct Rng(u64);
@@ -277,14 +261,14 @@ fn bad_input_is_one_line_and_exit_2() {
 // ------------------------------------------------------------ the sim
 
 /// The simulated head's options of the recording test.
-fn sim_args(state: &Path) -> SimulateArgs {
-    SimulateArgs {
+fn sim_args(state: &Path) -> HeadOptions {
+    HeadOptions {
         speed_mm_s: Some(SIM_SPEED_MM_S),
         corrugation: vec![parse_corrugation("50:30").unwrap()],
         roughness_um: Some(1.0),
         rate: 1000,
         state: Some(state.to_path_buf()),
-        ..SimulateArgs::default()
+        ..HeadOptions::default()
     }
 }
 

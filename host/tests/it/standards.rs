@@ -248,7 +248,7 @@ proptest! {
 /// pad differently.
 #[test]
 fn band_filter_matches_scipy_in_the_interior() {
-    let text = include_str!("data/standards/band_30_100.csv");
+    let text = include_str!("../data/standards/band_30_100.csv");
     let (mut z, mut reference) = (Vec::new(), Vec::new());
     for line in text.lines().filter(|l| !l.starts_with('#') && !l.starts_with('x')) {
         let f: Vec<&str> = line.split(',').collect();

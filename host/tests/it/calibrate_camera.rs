@@ -13,8 +13,8 @@
 //! without them (`--max-view-rms 0.45`) OpenCV gives fx = fy = 533.609,
 //! cx = 342.560, cy = 234.111 — the reference the tight checks use.
 
+use crate::common::cms_host;
 use std::path::PathBuf;
-use std::process::Command;
 
 use cms_host::calib::board::{CornerError, find_corners};
 use cms_host::calib::camera::{CalibOptions, board_pose, calibrate};
@@ -329,10 +329,6 @@ fn no_board_is_an_error_naming_the_count() {
 
 // ---------------------------------------------------------------------------
 // The command line.
-
-fn cms_host(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_cms-host")).args(args).output().expect("run cms-host")
-}
 
 fn assert_usage_error(out: &std::process::Output, needle: &str) {
     let stderr = String::from_utf8_lossy(&out.stderr);

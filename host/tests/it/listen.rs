@@ -31,6 +31,7 @@
 //! left are the head's own clock while nothing is connected to it, and the
 //! listener's protocol timeouts the tests are about.
 
+use crate::common::bin;
 use std::fs::File;
 use std::io::{self, Read, Write};
 use std::os::fd::{AsFd, OwnedFd};
@@ -719,7 +720,7 @@ fn measure(replay: bool, json: bool, record: bool, want: u64) -> String {
 /// listener's CPU time per frame: with the head pipeline running the
 /// detector on every row, and with frames replayed as fast as the pty takes
 /// them (the link's and listener's own capacity). Prints the figures:
-/// `cargo test --release -p cms-host --test listen throughput -- --nocapture --test-threads 1`.
+/// `cargo test --release -p cms-host --test it listen::throughput -- --nocapture --test-threads 1`.
 #[test]
 fn throughput_through_the_pty() {
     let n = if cfg!(debug_assertions) { 20 } else { 300 };
@@ -759,10 +760,6 @@ fn a_silent_port_gives_no_hello() {
 }
 
 // ------------------------------------------------------------------ CLI
-
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_cms-host")
-}
 
 /// The device on a thread, served until dropped.
 struct Served {

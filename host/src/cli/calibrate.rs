@@ -1,0 +1,341 @@
+//! `cms-host calibrate camera|lasers|upload|render`: their arguments and
+//! what they print. The work is `cms_host::calib`'s.
+
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use cms_host::Error;
+use cms_host::calib::board::{CornerError, find_corners};
+use cms_host::calib::camera::{CalibOptions, calibrate};
+use cms_host::calib::file::{CalibrationFile, HeadSection, LaserSection, PlaneSection};
+use cms_host::calib::lasers::{LaserOptions, Pair, calibrate_lasers};
+use cms_host::calib::{self, render, upload};
+use cms_host::input::read_rows;
+
+use super::exit::input;
+use super::simulate::{PresetArg, SimPortArgs};
+
+/// `cms-host calibrate …`
+#[derive(clap::Subcommand, Debug, Clone)]
+pub enum CalibrateCmd {
+    /// Camera intrinsics and distortion from checkerboard photographs.
+    Camera(CameraArgs),
+    /// Laser planes from laser-on/laser-off image pairs of the board.
+    Lasers(LasersArgs),
+    /// Send a calibration file to a sensor head (or `sim`).
+    Upload(UploadArgs),
+    /// Render calibration images from the simulated head, with the truth.
+    Render(RenderArgs),
+}
+
+/// Runs one `calibrate` subcommand.
+pub fn run(cmd: &CalibrateCmd) -> anyhow::Result<()> {
+    match cmd {
+        CalibrateCmd::Camera(a) => camera(a),
+        CalibrateCmd::Lasers(a) => lasers(a),
+        CalibrateCmd::Upload(a) => {
+            let opts =
+                upload::Options { file: a.file.clone(), port: a.port.clone(), baud: a.baud, sim: a.sim.options() };
+            println!("{}", upload::upload(&opts)?);
+            Ok(())
+        }
+        CalibrateCmd::Render(a) => {
+            let opts = render::Options {
+                preset: a.preset.into(),
+                poses: a.poses,
+                seed: a.seed,
+                noiseless: a.noiseless,
+                out: a.out.clone(),
+            };
+            Ok(render::render(&opts)?)
+        }
+    }
+}
+
+/// `cms-host calibrate camera`: intrinsics and distortion from photographs
+/// of a checkerboard.
+#[derive(clap::Args, Debug, Clone)]
+pub struct CameraArgs {
+    /// Inner corners of the board, COLSxROWS (e.g. 9x6).
+    #[arg(long, value_name = "COLSxROWS")]
+    pub board: String,
+    /// Side of a board square, mm.
+    #[arg(long, value_name = "MM")]
+    pub square_mm: f64,
+    /// The calibration file to write (TOML).
+    #[arg(long, value_name = "FILE")]
+    pub out: PathBuf,
+    /// Keep fx = fy (OpenCV's CALIB_FIX_ASPECT_RATIO at 1).
+    #[arg(long)]
+    pub fix_aspect: bool,
+    /// Estimate the skew too (fixed at 0 by default).
+    #[arg(long)]
+    pub free_skew: bool,
+    /// Drop views whose RMS reprojection error exceeds this many pixels, and fit again.
+    #[arg(long, value_name = "PX")]
+    pub max_view_rms: Option<f64>,
+    /// Photographs of the board (PNG, JPEG, TIFF; 8 or 16 bits).
+    #[arg(required = true, value_name = "IMAGES")]
+    pub images: Vec<PathBuf>,
+}
+
+/// Runs `calibrate camera`.
+pub fn camera(args: &CameraArgs) -> anyhow::Result<()> {
+    let board = calib::camera::parse_board(&args.board, args.square_mm).map_err(Error::Input)?;
+    if let Some(m) = args.max_view_rms
+        && !(m.is_finite() && m > 0.0)
+    {
+        return Err(input(format!("--max-view-rms {m}: must be a positive number of pixels")));
+    }
+    let mut out = std::io::stdout().lock();
+    let mut views = Vec::new();
+    let mut names = Vec::new();
+    let mut size: Option<(u32, u32, &Path)> = None;
+    for path in &args.images {
+        let (px, w, h) = calib::camera::load_gray(path).map_err(Error::Input)?;
+        match size {
+            None => size = Some((w, h, path)),
+            Some((w0, h0, first)) if (w0, h0) != (w, h) => {
+                return Err(input(format!(
+                    "{}: {w} x {h}, but {} is {w0} x {h0}; all images must come from one camera mode",
+                    path.display(),
+                    first.display()
+                )));
+            }
+            Some(_) => {}
+        }
+        match find_corners(&px, w as usize, h as usize, &board) {
+            Ok(c) => {
+                views.push(c);
+                names.push(path.display().to_string());
+            }
+            Err(e @ (CornerError::Incomplete { .. } | CornerError::Inconsistent)) => {
+                writeln!(out, "{}: rejected: {e}", path.display()).map_err(Error::Output)?;
+            }
+            Err(e) => return Err(input(format!("{}: {e}", path.display()))),
+        }
+    }
+    let Some((w, h, _)) = size else { return Err(input("no images".into())) };
+    if views.len() < 3 {
+        return Err(input(format!(
+            "the board ({}x{}) was found in {} of {} images; calibration needs at least 3",
+            board.cols,
+            board.rows,
+            views.len(),
+            args.images.len()
+        )));
+    }
+    let opts = CalibOptions {
+        fix_skew: !args.free_skew,
+        fix_aspect: args.fix_aspect.then_some(1.0),
+        max_view_rms_px: args.max_view_rms,
+        ..CalibOptions::default()
+    };
+    let cal = calibrate(&board, &views, w, h, &opts).map_err(|e| Error::Input(e.to_string()))?;
+    for &(v, e) in &cal.views_rejected {
+        writeln!(out, "{}: rejected: RMS {e:.3} px > {:.3} px", names[v], args.max_view_rms.unwrap_or(0.0))
+            .map_err(Error::Output)?;
+    }
+    for (&v, e) in cal.views_used.iter().zip(&cal.per_view_rms_px) {
+        writeln!(out, "{}: RMS {e:.3} px", names[v]).map_err(Error::Output)?;
+    }
+    let k = &cal.intrinsics;
+    writeln!(
+        out,
+        "{} views, {w} x {h}: fx {:.3} fy {:.3} cx {:.3} cy {:.3} skew {:.4} px; k1 {:.5} k2 {:.5} p1 {:.6} p2 {:.6} k3 {:.5}; RMS {:.4} px",
+        cal.views_used.len(),
+        k.fx,
+        k.fy,
+        k.cx,
+        k.cy,
+        k.skew,
+        k.k1,
+        k.k2,
+        k.p1,
+        k.p2,
+        k.k3,
+        cal.rms_px
+    )
+    .map_err(Error::Output)?;
+    CalibrationFile::camera_only(&cal.intrinsics, cal.rms_px, Some(&board)).save(&args.out)?;
+    writeln!(out, "wrote {}", args.out.display()).map_err(Error::Output)?;
+    Ok(())
+}
+/// Arguments of `calibrate lasers`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct LasersArgs {
+    /// The camera calibration (from `calibrate camera`).
+    #[arg(long, value_name = "CAM.toml")]
+    pub camera: PathBuf,
+    /// Where to write the full calibration.
+    #[arg(long, value_name = "CAL.toml")]
+    pub out: PathBuf,
+    /// Inner corners of the board, COLSxROWS [default: the camera file's [board]].
+    #[arg(long, value_name = "COLSxROWS")]
+    pub board: Option<String>,
+    /// Side of a square, mm [default: the camera file's [board]].
+    #[arg(long = "square-mm", value_name = "S")]
+    pub square_mm: Option<f64>,
+    /// The pair (1-based) whose board plane is the rail-top datum.
+    #[arg(long = "datum-pose", value_name = "K")]
+    pub datum_pose: Option<usize>,
+    /// Stripe σ range the detector searches on the board, px.
+    #[arg(long, value_name = "MIN:MAX", default_value = "1:16")]
+    pub scales: String,
+    /// Largest acceptable RMS distance of a laser's points from its plane, mm.
+    #[arg(long = "max-rms-mm", value_name = "MM", default_value_t = 0.1)]
+    pub max_rms_mm: f64,
+    /// Laser sheet thickness, mm: with --range-mm, adds the [head] section
+    /// (the detector's scale range, paper Eq. 10–11).
+    #[arg(long = "laser-diameter-mm", value_name = "D", requires = "range_mm")]
+    pub laser_diameter_mm: Option<f64>,
+    /// Working range, mm.
+    #[arg(long = "range-mm", value_name = "MIN:MAX", requires = "laser_diameter_mm")]
+    pub range_mm: Option<String>,
+    /// Image pairs of the board at each pose: lasers off, then lasers on
+    /// (PNG, TIFF or JPEG, same camera), e.g. board-00.png lasers-00.png board-01.png …
+    #[arg(value_name = "OFF ON", required = true)]
+    pub images: Vec<PathBuf>,
+}
+
+fn pair_of(s: &str, what: &str) -> Result<(f64, f64), String> {
+    let (a, b) = s.split_once(':').ok_or_else(|| format!("{what} {s:?}: expected MIN:MAX"))?;
+    let p = |t: &str| t.trim().parse::<f64>().map_err(|_| format!("{what} {s:?}: {t:?} is not a number"));
+    let (a, b) = (p(a)?, p(b)?);
+    if !(a.is_finite() && b.is_finite() && a > 0.0 && b > a) {
+        return Err(format!("{what} {s:?}: need 0 < MIN < MAX"));
+    }
+    Ok((a, b))
+}
+
+/// Runs `calibrate lasers`.
+pub fn lasers(args: &LasersArgs) -> anyhow::Result<()> {
+    let usage = input;
+    let mut file = CalibrationFile::load(&args.camera)?;
+    let board = match (&args.board, args.square_mm, file.board()) {
+        (Some(b), Some(s), _) => calib::camera::parse_board(b, s).map_err(usage)?,
+        (None, None, Some(b)) => b,
+        (None, None, None) => {
+            return Err(usage(format!("{} has no [board]: give --board and --square-mm", args.camera.display())));
+        }
+        _ => return Err(usage("--board and --square-mm go together".into())),
+    };
+    let scales = pair_of(&args.scales, "--scales").map_err(usage)?;
+    if !(args.max_rms_mm.is_finite() && args.max_rms_mm > 0.0) {
+        return Err(usage(format!("--max-rms-mm {}: must be > 0", args.max_rms_mm)));
+    }
+    let head = match (args.laser_diameter_mm, &args.range_mm) {
+        (Some(d), Some(r)) => {
+            let (lo, hi) = pair_of(r, "--range-mm").map_err(usage)?;
+            if !(d.is_finite() && d > 0.0) {
+                return Err(usage(format!("--laser-diameter-mm {d}: must be > 0")));
+            }
+            Some(HeadSection { laser_diameter_mm: d, range_min_mm: lo, range_max_mm: hi })
+        }
+        _ => None,
+    };
+    if !args.images.len().is_multiple_of(2) || args.images.len() < 6 {
+        return Err(usage(format!(
+            "{} images: give pairs (lasers off, lasers on) of at least 3 poses",
+            args.images.len()
+        )));
+    }
+    let mut pairs = Vec::new();
+    for ch in args.images.chunks(2) {
+        let off = read_rows(&ch[0])?;
+        let on = read_rows(&ch[1])?;
+        pairs.push(Pair { off, on, name: format!("{} + {}", ch[0].display(), ch[1].display()) });
+    }
+    let opts = LaserOptions { scales, max_rms_mm: args.max_rms_mm, datum_pose: args.datum_pose.map(|k| k.max(1) - 1) };
+    if args.datum_pose == Some(0) {
+        return Err(usage("--datum-pose counts from 1".into()));
+    }
+    let intr = file.intrinsics();
+    let cal = calibrate_lasers(&intr, &board, &pairs, &opts).map_err(usage)?;
+    let mut report = String::new();
+    for (i, p) in cal.poses.iter().enumerate() {
+        let _ = match p {
+            Ok(r) => writeln!(
+                report,
+                "pose {:>2}: board {:.3} px RMS at {:.0} mm; points per laser {:?}; {} stripes not assigned",
+                i + 1,
+                r.board_rms_px,
+                r.pose.t_mm[2],
+                r.points,
+                r.ambiguous_rows
+            ),
+            Err(e) => writeln!(report, "pose {:>2}: rejected: {e}", i + 1),
+        };
+    }
+    for (k, l) in cal.planes.iter().enumerate() {
+        let _ = writeln!(
+            report,
+            "laser {k}: n = ({:+.6}, {:+.6}, {:+.6}), d = {:.4} mm, RMS {:.4} mm over {} points from {} poses ({} outliers)",
+            l.normal[0], l.normal[1], l.normal[2], l.d_mm, l.rms_mm, l.points, l.poses, l.outliers
+        );
+    }
+    file.datum = Some(PlaneSection { nx: cal.datum.0[0], ny: cal.datum.0[1], nz: cal.datum.0[2], d_mm: cal.datum.1 });
+    file.lasers = cal
+        .planes
+        .iter()
+        .enumerate()
+        .map(|(k, l)| LaserSection {
+            id: k as u32,
+            nx: l.normal[0],
+            ny: l.normal[1],
+            nz: l.normal[2],
+            d_mm: l.d_mm,
+            rms_mm: l.rms_mm,
+            points: Some(l.points as u64),
+        })
+        .collect();
+    if head.is_some() {
+        file.head = head;
+    }
+    // The head would refuse a calibration its triangulation cannot use: say so now.
+    let msg = file.to_head().map_err(|e| usage(e.to_string()))?;
+    cms_core::pipeline::triangulator(&msg).map_err(|e| usage(format!("the fitted planes are unusable: {e}")))?;
+    file.save(&args.out)?;
+    print!("{report}");
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+/// Arguments of `calibrate upload`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct UploadArgs {
+    /// The calibration file (from `calibrate lasers`).
+    #[arg(value_name = "CAL.toml")]
+    pub file: PathBuf,
+    /// Serial port of the head (`/dev/ttyACM0`), or `sim` for the simulated head.
+    #[arg(value_name = "PORT")]
+    pub port: String,
+    /// Baud rate (ignored by USB CDC heads).
+    #[arg(long, default_value_t = 115_200)]
+    pub baud: u32,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub sim: SimPortArgs,
+}
+
+/// Arguments of `cms-host calibrate render`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct RenderArgs {
+    /// The simulated head.
+    #[arg(long, value_enum, default_value_t = PresetArg::Reference)]
+    pub preset: PresetArg,
+    /// Number of board poses, 1..=100.
+    #[arg(long, value_name = "N", default_value_t = 12)]
+    pub poses: usize,
+    /// Seed of the poses, the sensor's pattern and the images' noise.
+    #[arg(long, value_name = "S", default_value_t = 1)]
+    pub seed: u64,
+    /// No random noise (read, shot, banding): the images differ from the
+    /// model only by quantisation and the sensor's fixed pattern.
+    #[arg(long)]
+    pub noiseless: bool,
+    /// Output directory (created if missing).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+}

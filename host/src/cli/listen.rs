@@ -1,0 +1,143 @@
+//! `cms-host listen`: its arguments, Ctrl-C, and the summary on stderr.
+
+use std::io::{self, Write as _};
+use std::path::PathBuf;
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use clap::{Args, ValueEnum};
+use cms_core::protocol::{LASERS, LaserPattern, Start};
+use cms_host::listen::{self, ListenOptions, Progress, Summary};
+
+use super::exit::Usage;
+
+/// `--pattern`.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PatternArg {
+    /// All lasers of the mask in every frame.
+    Simultaneous,
+    /// One laser per frame, in turn.
+    Sequential,
+}
+
+/// Arguments of `cms-host listen`.
+#[derive(Args, Debug, Clone)]
+pub struct ListenArgs {
+    /// The head's serial port: a device path such as /dev/ttyACM0 (or `sim`
+    /// for the simulated head, `qemu` for the emulated one).
+    #[arg(value_name = "PORT")]
+    pub port: String,
+    /// Stop after N complete frames.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub frames: Option<u64>,
+    /// Stop after SECS seconds.
+    #[arg(long, value_name = "SECS", value_parser = parse_secs)]
+    pub duration: Option<Duration>,
+    /// Record every frame into FILE (appends to an existing recording).
+    #[arg(long, value_name = "FILE")]
+    pub record: Option<PathBuf>,
+    /// Print one JSON object per received profile on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Baud rate of a UART link (a USB head ignores it).
+    #[arg(long, value_name = "B", default_value_t = 115_200, value_parser = clap::value_parser!(u32).range(1..))]
+    pub baud: u32,
+    /// Frames per second, 1..=1000.
+    #[arg(long = "rate", value_name = "HZ", default_value_t = 30, value_parser = clap::value_parser!(u16).range(1..=1000))]
+    pub rate_hz: u16,
+    /// Lasers to light, a bit mask 1..=7 (decimal, 0b… or 0x…).
+    #[arg(long, value_name = "MASK", default_value = "7", value_parser = parse_mask)]
+    pub lasers: u8,
+    /// How the lasers are lit.
+    #[arg(long, value_enum, default_value_t = PatternArg::Simultaneous)]
+    pub pattern: PatternArg,
+    /// Exposure time to set before starting, µs (1..=1000000).
+    #[arg(long = "exposure", value_name = "US", value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+    pub exposure_us: Option<u32>,
+    /// How long a lost port may stay away before giving up, seconds.
+    #[arg(long, value_name = "SECS", default_value = "30", value_parser = parse_secs)]
+    pub reconnect_timeout: Duration,
+}
+
+fn parse_secs(s: &str) -> Result<Duration, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("`{s}` is not a number of seconds"))?;
+    if !(v.is_finite() && v > 0.0 && v <= 1e9) {
+        return Err(format!("`{s}`: seconds must be positive and at most 1e9"));
+    }
+    Ok(Duration::from_secs_f64(v))
+}
+
+fn parse_mask(s: &str) -> Result<u8, String> {
+    let t = s.trim();
+    let v = if let Some(b) = t.strip_prefix("0b") {
+        u8::from_str_radix(b, 2)
+    } else if let Some(h) = t.strip_prefix("0x") {
+        u8::from_str_radix(h, 16)
+    } else {
+        t.parse()
+    };
+    match v {
+        Ok(m) if m != 0 && m < (1 << LASERS) => Ok(m),
+        _ => Err(format!("`{s}`: a laser mask is 1..={} (bit k lights laser k)", (1 << LASERS) - 1)),
+    }
+}
+
+impl ListenArgs {
+    /// The options these arguments ask for.
+    pub fn options(&self) -> ListenOptions {
+        ListenOptions {
+            frames: self.frames,
+            duration: self.duration,
+            record: self.record.clone(),
+            json: self.json,
+            baud: self.baud,
+            start: Start {
+                rate_hz: self.rate_hz,
+                laser_mask: self.lasers,
+                pattern: match self.pattern {
+                    PatternArg::Simultaneous => LaserPattern::Simultaneous,
+                    PatternArg::Sequential => LaserPattern::Sequential,
+                },
+            },
+            exposure_us: self.exposure_us,
+            reconnect_timeout: self.reconnect_timeout,
+            progress: Progress::Auto,
+        }
+    }
+}
+
+/// The flag Ctrl-C sets (installed on first use). A second Ctrl-C while
+/// stopping exits at once with status 130.
+pub fn interrupt_flag() -> &'static AtomicBool {
+    static FLAG: AtomicBool = AtomicBool::new(false);
+    static INSTALLED: OnceLock<()> = OnceLock::new();
+    INSTALLED.get_or_init(|| {
+        let _ = ctrlc::set_handler(|| {
+            if FLAG.swap(true, Ordering::SeqCst) {
+                std::process::exit(130);
+            }
+        });
+    });
+    &FLAG
+}
+
+/// Prints the summary on stderr, one `listen:` block.
+pub fn print_summary(sum: &Summary) {
+    let mut err = io::stderr().lock();
+    for line in sum.to_string().lines() {
+        let _ = writeln!(err, "listen: {line}");
+    }
+}
+
+/// `cms-host listen` on a device path.
+pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
+    if args.port == "sim" {
+        anyhow::bail!(Usage(
+            "`listen sim` needs the simulated head, which this build does not have; give a device path".to_string(),
+        ));
+    }
+    let sum = listen::listen(&args.port, &args.options(), interrupt_flag())?;
+    print_summary(&sum);
+    Ok(())
+}

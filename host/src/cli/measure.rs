@@ -1,0 +1,61 @@
+//! `cms-host measure`: its arguments, and each result as text or JSON.
+
+use std::io::{self, BufWriter, Write};
+use std::path::PathBuf;
+
+use clap::Args;
+use cms_host::Error;
+use cms_host::calib::file::CalibrationFile;
+use cms_host::measure::{self, Measurer};
+
+/// Arguments of `cms-host measure`.
+#[derive(Args, Debug, Clone)]
+pub struct MeasureArgs {
+    /// Calibration file (camera, datum, three lasers, and [head] for images).
+    #[arg(long, value_name = "cal.toml")]
+    pub calibration: PathBuf,
+
+    /// One JSON object per image or frame per line on stdout, with the profiles.
+    #[arg(long)]
+    pub json: bool,
+
+    /// Write NAME.svg and NAME.png per image or frame into DIR (created if needed).
+    #[arg(long, value_name = "DIR")]
+    pub plot: Option<PathBuf>,
+
+    /// Images (PNG, TIFF, JPEG, CSV rows) or recordings (.cmsrec).
+    #[arg(required = true, value_name = "INPUT")]
+    pub inputs: Vec<PathBuf>,
+}
+
+/// Runs `cms-host measure`.
+pub fn run(args: &MeasureArgs) -> anyhow::Result<()> {
+    let cal_name = args.calibration.display();
+    let cal = CalibrationFile::load(&args.calibration).map_err(|e| Error::Input(format!("{cal_name}: {e}")))?;
+    let m = Measurer::new(&cal).map_err(|e| Error::Input(format!("{cal_name}: {e}")))?;
+    if let Some(dir) = &args.plot {
+        std::fs::create_dir_all(dir).map_err(|e| Error::Input(format!("--plot {}: {e}", dir.display())))?;
+    }
+    let mut out = BufWriter::new(io::stdout().lock());
+    for path in &args.inputs {
+        let results = measure::measure_file(&m, path)?;
+        for r in &results {
+            if args.json {
+                serde_json::to_writer(&mut out, r).map_err(|e| Error::Output(e.into()))?;
+                writeln!(out).map_err(Error::Output)?;
+            } else {
+                measure::write_text(&mut out, r).map_err(Error::Output)?;
+            }
+            if let Some(dir) = &args.plot {
+                let stem = path.file_stem().map_or_else(|| "input".into(), |s| s.to_string_lossy().into_owned());
+                let stem = match r.seq {
+                    Some(seq) => format!("{stem}-frame{seq}"),
+                    None => stem,
+                };
+                measure::plot(&dir.join(stem), r).map_err(|e| Error::Input(format!("--plot: {e}")))?;
+            }
+        }
+    }
+    out.flush().map_err(Error::Output)?;
+    Ok(())
+}

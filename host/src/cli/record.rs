@@ -1,0 +1,83 @@
+//! `cms-host export` and `cms-host info`: their arguments and output.
+
+use std::fs::File;
+use std::io::{self, BufWriter, Write as _};
+use std::path::PathBuf;
+
+use clap::{Args, ValueEnum};
+use cms_host::Error;
+use cms_host::record::{self, ExportFormat};
+
+use super::exit::Usage;
+
+/// `--format` of `cms-host export`.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FormatArg {
+    /// One line per point: `seq,part,timestamp_us,odometer_mm,laser,row,position_px,strength,width_px,flags,along_mm,height_um`.
+    Csv,
+    /// One JSON object per profile message, as `listen --json`.
+    Jsonl,
+}
+
+impl From<FormatArg> for ExportFormat {
+    fn from(f: FormatArg) -> ExportFormat {
+        match f {
+            FormatArg::Csv => ExportFormat::Csv,
+            FormatArg::Jsonl => ExportFormat::Jsonl,
+        }
+    }
+}
+
+/// Arguments of `cms-host export`.
+#[derive(Args, Debug, Clone)]
+pub struct ExportArgs {
+    /// A recording made by `cms-host listen --record`.
+    #[arg(value_name = "FILE")]
+    pub file: PathBuf,
+    /// Output format.
+    #[arg(long, value_enum)]
+    pub format: FormatArg,
+    /// Write here instead of stdout.
+    #[arg(long, value_name = "OUT")]
+    pub out: Option<PathBuf>,
+}
+
+/// `cms-host export`.
+pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
+    // Validate the recording before creating the output file.
+    record::check_header(&args.file)?;
+    let stats = match &args.out {
+        Some(o) if record::same_file(o, &args.file) => {
+            anyhow::bail!(Usage(format!("--out {} is the recording itself; refusing to overwrite it", o.display())));
+        }
+        Some(o) => {
+            let f = File::create(o).map_err(|e| Error::Input(format!("cannot create {}: {e}", o.display())))?;
+            record::export_to(&args.file, args.format.into(), &mut BufWriter::new(f))?
+        }
+        None => {
+            let stdout = io::stdout();
+            record::export_to(&args.file, args.format.into(), &mut BufWriter::new(stdout.lock()))?
+        }
+    };
+    for w in record::warnings(&args.file, &stats) {
+        let _ = writeln!(io::stderr(), "{w}");
+    }
+    Ok(())
+}
+
+/// Arguments of `cms-host info`.
+#[derive(Args, Debug, Clone)]
+pub struct InfoArgs {
+    /// A recording made by `cms-host listen --record`.
+    #[arg(value_name = "FILE")]
+    pub file: PathBuf,
+}
+
+/// `cms-host info`.
+pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
+    let info = record::Info::of_file(&args.file)?;
+    let mut out = io::stdout().lock();
+    out.write_all(info.report(&args.file).as_bytes()).map_err(Error::Output)?;
+    out.flush().map_err(Error::Output)?;
+    Ok(())
+}

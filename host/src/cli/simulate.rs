@@ -1,0 +1,207 @@
+//! `cms-host simulate`: its arguments, the pty path on stdout and the
+//! summary on stderr; and the `--sim-…` options of the commands that take a
+//! PORT.
+
+use std::io::{self, Write as _};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use clap::{Args, ValueEnum};
+use cms_host::simulate::{
+    self, CorrugationSpec, HeadOptions, Preset, SimPort, SimulateError, parse_corrugation, parse_gains,
+};
+
+/// `--preset`: camera and head geometry.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ValueEnum)]
+pub enum PresetArg {
+    /// The reference head: 752 × 480 global-shutter sensor, 8 bits.
+    #[default]
+    Reference,
+    /// The geometry of the paper's Table 4 (4752 × 3168).
+    Paper,
+}
+
+impl From<PresetArg> for Preset {
+    fn from(p: PresetArg) -> Preset {
+        match p {
+            PresetArg::Reference => Preset::Reference,
+            PresetArg::Paper => Preset::Paper,
+        }
+    }
+}
+
+fn finite(s: &str, what: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        _ => Err(format!("{what} {s:?} is not a finite number")),
+    }
+}
+
+fn non_negative(s: &str) -> Result<f64, String> {
+    let v = finite(s, "value")?;
+    if v < 0.0 {
+        return Err(format!("must be ≥ 0, got {v}"));
+    }
+    Ok(v)
+}
+
+fn fraction(s: &str) -> Result<f64, String> {
+    let v = finite(s, "fraction")?;
+    if !(0.0..=0.1).contains(&v) {
+        return Err(format!("must be in 0..=0.1, got {v}"));
+    }
+    Ok(v)
+}
+
+fn speed(s: &str) -> Result<f64, String> {
+    let v = finite(s, "speed")?;
+    if v.abs() > 100_000.0 {
+        return Err(format!("speed must be within ±100000 mm/s, got {v}"));
+    }
+    Ok(v)
+}
+
+fn bits(s: &str) -> Result<u8, String> {
+    match s.trim() {
+        "8" => Ok(8),
+        "10" => Ok(10),
+        "12" => Ok(12),
+        _ => Err(format!("bit depth must be 8, 10 or 12, got {s:?}")),
+    }
+}
+
+/// Arguments of `cms-host simulate`.
+#[derive(Args, Clone, Debug)]
+pub struct SimulateArgs {
+    /// Camera and head geometry.
+    #[arg(long, value_enum, default_value_t = PresetArg::Reference)]
+    pub preset: PresetArg,
+    /// Seed of every random part of the scene (roughness, noise, hot pixels).
+    #[arg(long, value_name = "S", default_value_t = 1)]
+    pub seed: u64,
+    /// The camera's highest frame rate, Hz: the host's `Start` picks the
+    /// rate, and one above this is refused (out of range).
+    #[arg(long, value_name = "HZ", default_value_t = 30, value_parser = clap::value_parser!(u16).range(1..=1000))]
+    pub rate: u16,
+    /// Travel speed along the rail, mm/s.
+    #[arg(long = "speed-mm-s", value_name = "V", value_parser = speed)]
+    pub speed_mm_s: Option<f64>,
+    /// A corrugation component (repeat for several).
+    #[arg(long, value_name = "WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG]", value_parser = parse_corrugation)]
+    pub corrugation: Vec<CorrugationSpec>,
+    /// RMS random roughness of the running surface, µm.
+    #[arg(long = "roughness-um", value_name = "R", value_parser = non_negative)]
+    pub roughness_um: Option<f64>,
+    /// Random (read) noise, RMS counts.
+    #[arg(long, value_name = "COUNTS", value_parser = non_negative)]
+    pub noise: Option<f64>,
+    /// Fraction of hot pixels (fixed pattern), 0..=0.1.
+    #[arg(long = "hot-pixels", value_name = "FRACTION", value_parser = fraction)]
+    pub hot_pixels: Option<f64>,
+    /// Row banding, RMS counts.
+    #[arg(long, value_name = "COUNTS", value_parser = non_negative)]
+    pub banding: Option<f64>,
+    /// Ambient light, counts.
+    #[arg(long, value_name = "COUNTS", value_parser = non_negative)]
+    pub ambient: Option<f64>,
+    /// Output bit depth (8, 10 or 12).
+    #[arg(long, value_name = "8|10|12", value_parser = bits)]
+    pub bits: Option<u8>,
+    /// Relative power of the three lasers (multiplies the preset's).
+    #[arg(long = "laser-gain", value_name = "A,B,C", value_parser = parse_gains)]
+    pub laser_gain: Option<[f64; 3]>,
+    /// Directory where the head keeps its calibration across restarts
+    /// [default: $CMS_SIM_STATE, else $XDG_STATE_HOME/cms-host/sim-head, else
+    /// ~/.local/state/cms-host/sim-head].
+    #[arg(long, value_name = "DIR")]
+    pub state: Option<PathBuf>,
+}
+
+impl SimulateArgs {
+    /// The simulated head these arguments describe.
+    pub fn options(&self) -> HeadOptions {
+        HeadOptions {
+            preset: self.preset.into(),
+            seed: self.seed,
+            rate: self.rate,
+            speed_mm_s: self.speed_mm_s,
+            corrugation: self.corrugation.clone(),
+            roughness_um: self.roughness_um,
+            noise: self.noise,
+            hot_pixels: self.hot_pixels,
+            banding: self.banding,
+            ambient: self.ambient,
+            bits: self.bits,
+            laser_gain: self.laser_gain,
+            state: self.state.clone(),
+        }
+    }
+}
+
+/// Runs `cms-host simulate`: the pty's path as the first line of stdout,
+/// served until SIGINT/SIGTERM, a summary on stderr.
+pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed))
+        .map_err(|e| SimulateError::Io("installing the SIGINT/SIGTERM handler", io::Error::other(e)))?;
+    let summary = simulate::serve_on_new_pty(&args.options(), &stop, |path| {
+        let mut out = io::stdout().lock();
+        writeln!(out, "{}", path.display())?;
+        out.flush()
+    })?;
+    let _ = writeln!(io::stderr(), "simulate: {summary}");
+    Ok(())
+}
+
+/// The simulated head's options inside `cms-host listen` (flatten into the
+/// listener's arguments).
+#[derive(Args, Clone, Debug, Default)]
+pub struct SimPortArgs {
+    /// With PORT `sim`: seed of the simulated scene.
+    #[arg(long = "sim-seed", value_name = "S")]
+    pub sim_seed: Option<u64>,
+    /// With PORT `sim`: camera and head geometry of the simulated head.
+    #[arg(long = "sim-preset", value_enum)]
+    pub sim_preset: Option<PresetArg>,
+    /// With PORT `sim`: the simulated head's state directory (its kept calibration).
+    #[arg(long = "sim-state", value_name = "DIR")]
+    pub sim_state: Option<PathBuf>,
+    /// With PORT `sim`: travel speed of the simulated head along the rail, mm/s.
+    #[arg(long = "sim-speed-mm-s", value_name = "V", value_parser = speed)]
+    pub sim_speed_mm_s: Option<f64>,
+    /// With PORT `sim`: a corrugation component of the simulated rail (repeat for several).
+    #[arg(long = "sim-corrugation", value_name = "WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG]", value_parser = parse_corrugation)]
+    pub sim_corrugation: Vec<CorrugationSpec>,
+    /// With PORT `sim`: RMS random roughness of the simulated rail, µm.
+    #[arg(long = "sim-roughness-um", value_name = "R", value_parser = non_negative)]
+    pub sim_roughness_um: Option<f64>,
+}
+
+impl SimPortArgs {
+    /// The library's options.
+    pub fn options(&self) -> SimPort {
+        SimPort {
+            sim_seed: self.sim_seed,
+            sim_preset: self.sim_preset.map(Into::into),
+            sim_state: self.sim_state.clone(),
+            sim_speed_mm_s: self.sim_speed_mm_s,
+            sim_corrugation: self.sim_corrugation.clone(),
+            sim_roughness_um: self.sim_roughness_um,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn option_values_parse_or_explain() {
+        assert!(bits("10").is_ok() && bits("9").is_err() && bits("16").is_err());
+        assert!(fraction("0.01").is_ok() && fraction("0.2").is_err());
+        assert!(non_negative("0").is_ok() && non_negative("-1").is_err());
+        assert!(speed("-500").is_ok() && speed("1e9").is_err());
+    }
+}

@@ -1,0 +1,21 @@
+//! Behaviour tests of `cms-host`, one test binary (linking one binary, not
+//! one per file, is what keeps `cargo test` fast). One module per area;
+//! [`common`] holds what they share.
+
+mod analyze;
+mod calibrate_camera;
+mod calibrate_cli;
+mod calibrate_sim;
+mod capture_cli;
+mod common;
+mod corrugation_sim;
+mod detect;
+mod fit;
+mod input_props;
+mod listen;
+mod measure;
+mod record;
+mod render;
+mod simulate;
+mod standards;
+mod triangulate_sim;
