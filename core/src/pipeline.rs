@@ -409,7 +409,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 reply(&DeviceMsg::Ack(seq));
                 reply(&DeviceMsg::Status(self.status(now_us)));
             }
-            HostMsg::SetExposure(us) => {
+            HostMsg::SetExposure { exposure_us: us } => {
                 let period_us = 1_000_000 / self.start.rate_hz as u64;
                 let streaming = self.state == HeadState::Streaming;
                 if !(EXPOSURE_RANGE_US.0..=EXPOSURE_RANGE_US.1).contains(&us)
@@ -651,13 +651,22 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 return self.fail(ErrorCode::SensorFault, Some(job.seq), reply);
             }
             let seq = job.seq;
-            let mut chunk = RawRows { capture: seq, first_row: r, offset: 0, width, height, bits, data: Vec::new() };
+            let mut chunk =
+                RawRows { capture: seq, first_row: r, offset_bytes: 0, width, height, bits, data: Vec::new() };
             for (i, &p) in self.row[..width as usize].iter().enumerate() {
                 if chunk.data.len() + bpp > RAW_CHUNK_BYTES {
                     let next = (i * bpp) as u32;
                     let full = core::mem::replace(
                         &mut chunk,
-                        RawRows { capture: seq, first_row: r, offset: next, width, height, bits, data: Vec::new() },
+                        RawRows {
+                            capture: seq,
+                            first_row: r,
+                            offset_bytes: next,
+                            width,
+                            height,
+                            bits,
+                            data: Vec::new(),
+                        },
                     );
                     reply(&DeviceMsg::RawRows(full));
                 }
@@ -684,7 +693,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             state: self.state,
             lasers_on: if streaming { self.start.laser_mask } else { 0 },
             frames: self.frames,
-            frame_rate_mhz: ((self.window_frames as u64 * 1_000_000_000) / span_us) as u32,
+            frame_rate_millihz: ((self.window_frames as u64 * 1_000_000_000) / span_us) as u32,
             rows_per_s: ((self.window_rows as u64 * 1_000_000) / span_us) as u32,
             dropped_frames: self.dropped,
             ns_per_row: ns_per_row.min(u32::MAX as u64) as u32,

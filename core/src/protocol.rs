@@ -195,7 +195,7 @@ pub struct Status {
     /// Frames sent since start.
     pub frames: u32,
     /// Frame rate, millihertz.
-    pub frame_rate_mhz: u32,
+    pub frame_rate_millihz: u32,
     /// Rows processed per second.
     pub rows_per_s: u32,
     /// Frames dropped (processing or link too slow, trigger faster than
@@ -269,7 +269,7 @@ pub struct RawRows {
     /// First row in this chunk.
     pub first_row: u16,
     /// Byte offset within the first row where this chunk starts.
-    pub offset: u32,
+    pub offset_bytes: u32,
     /// Image width, px.
     pub width: u16,
     /// Image height, px.
@@ -363,8 +363,12 @@ pub enum HostMsg {
     Start(Start),
     /// Stop streaming (lasers off).
     Stop,
-    /// Exposure time, µs.
-    SetExposure(u32),
+    /// Exposure time (postcard encodes a one-field struct variant as it
+    /// did the newtype variant this was: the wire bytes are the same).
+    SetExposure {
+        /// Exposure, µs.
+        exposure_us: u32,
+    },
     /// New detector configuration (validated by the head).
     SetDetector(Config),
     /// New calibration.

@@ -292,7 +292,7 @@ async fn main(spawner: Spawner) {
             info!(
                 "status: {} frames, {} mHz, {} ns/row ({} cycles), dropped {} frames {} rows, backlog {} B, duty {} permille",
                 s.frames,
-                s.frame_rate_mhz,
+                s.frame_rate_millihz,
                 s.ns_per_row,
                 s.cycles_per_row,
                 s.dropped_frames,

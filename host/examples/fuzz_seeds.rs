@@ -104,7 +104,7 @@ fn run(dir: &Path) -> Result<usize, String> {
     };
     let commands = [
         HostMsg::GetInfo,
-        HostMsg::SetExposure(300),
+        HostMsg::SetExposure { exposure_us: 300 },
         HostMsg::SetDetector(default_detector()),
         HostMsg::SetCalibration(calibration),
         HostMsg::SetTrigger(Trigger::Distance { every_um: 5_000 }),

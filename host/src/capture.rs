@@ -11,12 +11,12 @@
 //! 16-bit grey shifted left to fill 16 bits (`v << (16 − bits)`: exact and
 //! reversible, and viewers show it at the right brightness).
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use cms_core::protocol::{DeviceInfo, DeviceMsg, HostMsg, PROTOCOL_VERSION, RawRows};
+use cms_core::protocol::{DeviceInfo, DeviceMsg, HostMsg, RawRows};
 
 use crate::Error;
-use crate::link::{Deframer, Link};
+use crate::link::{Client, ClientError, Handshake, Wait};
 
 /// Longest silence from the head before the capture is abandoned.
 const SILENCE: Duration = Duration::from_secs(10);
@@ -27,7 +27,7 @@ pub struct Options {
     /// Lasers lit during the exposure, as a bit mask.
     pub lasers: u8,
     /// Exposure, µs (`None`: the head's own).
-    pub exposure: Option<u32>,
+    pub exposure_us: Option<u32>,
     /// Baud rate (ignored by USB CDC heads).
     pub baud: u32,
 }
@@ -61,76 +61,25 @@ pub fn save_png(frame: &Frame, path: &std::path::Path) -> Result<(), Error> {
     }
 }
 
-struct Session {
-    link: Link,
-    frames: Deframer,
-    buf: Vec<u8>,
-    seq: u16,
-}
-
-impl Session {
-    fn send(&mut self, msg: HostMsg) -> Result<u16, Error> {
-        self.seq = self.seq.wrapping_add(1).max(1);
-        match self.link.send(self.seq, msg) {
-            Ok(true) => Ok(self.seq),
-            Ok(false) => Err(Error::Input(format!("{}: the head does not read its commands", self.link.path()))),
-            Err(e) => Err(Error::Input(e.to_string())),
-        }
-    }
-
-    /// Feeds what arrives to `take` until it returns `Some` or the head has
-    /// been silent for [`SILENCE`]; every message is offered.
-    fn until<T>(
-        &mut self,
-        what: &str,
-        mut take: impl FnMut(DeviceMsg) -> Result<Option<T>, Error>,
-    ) -> Result<T, Error> {
-        let mut heard = Instant::now();
-        loop {
-            let n = self.link.read(&mut self.buf).map_err(|e| Error::Input(e.to_string()))?;
-            if n > 0 {
-                heard = Instant::now();
-            } else if heard.elapsed() > SILENCE {
-                return Err(Error::Input(format!(
-                    "{}: no answer to {what} within {} s",
-                    self.link.path(),
-                    SILENCE.as_secs()
-                )));
-            }
-            let mut out = Ok(None);
-            self.frames.feed(&self.buf[..n], |r, _| {
-                if let (Ok(None), Ok(m)) = (&out, r) {
-                    out = take(m);
-                }
-            });
-            if let Some(v) = out? {
-                return Ok(v);
-            }
-        }
-    }
-}
-
 /// One frame from the head on `port`: the conversation of the module docs.
 pub fn capture(port: &str, args: &Options) -> Result<Frame, Error> {
-    let link = Link::open(port, args.baud).map_err(|e| Error::Input(e.to_string()))?;
-    let mut s = Session { link, frames: Deframer::new(), buf: vec![0; 64 * 1024], seq: 0 };
-    s.send(HostMsg::GetInfo)?;
-    let info: DeviceInfo = s.until("GetInfo", |m| Ok(if let DeviceMsg::Hello(i) = m { Some(i) } else { None }))?;
-    if info.protocol != PROTOCOL_VERSION {
-        return Err(Error::Input(format!(
-            "the head on {port} speaks protocol version {}; this cms-host speaks {PROTOCOL_VERSION}",
-            info.protocol
-        )));
+    let mut client = Client::open(port, args.baud).map_err(ClientError::from)?;
+    // Every wait is for the head's silence: the image comes in many frames
+    // and may take longer in all than any fixed limit over a slow UART.
+    let info = client.handshake(Handshake { tries: 1, wait: Wait::Silence(SILENCE) })?;
+    if let Some(us) = args.exposure_us {
+        client.request(HostMsg::SetExposure { exposure_us: us }, "SetExposure", Wait::Silence(SILENCE)).map_err(
+            |e| match e {
+                ClientError::Refused { code, .. } => Error::Input(format!("the head refused --exposure: {code}")),
+                e => e.into(),
+            },
+        )?;
     }
-    if let Some(us) = args.exposure {
-        let seq = s.send(HostMsg::SetExposure(us))?;
-        s.until("SetExposure", |m| answer(m, seq, "--exposure"))?;
-    }
-    let seq = s.send(HostMsg::CaptureImage(args.lasers))?;
+    let seq = client.send(HostMsg::CaptureImage(args.lasers))?;
     // The Ack and the first chunks may come in one read: one loop takes
     // both (the Ack is implied by the data; a refusal is an Error).
     let mut asm = Assembly::new(&info);
-    s.until("the image data", |m| match m {
+    client.until("the image data", Wait::Silence(SILENCE), |m| match m {
         DeviceMsg::RawRows(r) if r.capture == seq => asm.add(&r).map(|done| done.then_some(())),
         DeviceMsg::Error { seq: Some(q), code } if q == seq => {
             Err(Error::Input(format!("{port}: the head refused the capture: {code}")))
@@ -138,17 +87,6 @@ pub fn capture(port: &str, args: &Options) -> Result<Frame, Error> {
         _ => Ok(None),
     })?;
     Ok(asm.frame)
-}
-
-/// An `Ack` of `seq` → done; its `Error` → the refusal in words.
-fn answer(m: DeviceMsg, seq: u16, what: &str) -> Result<Option<()>, Error> {
-    match m {
-        DeviceMsg::Ack(q) if q == seq => Ok(Some(())),
-        DeviceMsg::Error { seq: Some(q), code } if q == seq => {
-            Err(Error::Input(format!("the head refused {what}: {code}")))
-        }
-        _ => Ok(None),
-    }
 }
 
 /// A frame being put together from chunks (which may come in any order).
@@ -182,13 +120,13 @@ impl Assembly {
             )));
         }
         let row_bytes = f.width as usize * self.bpp;
-        let start = r.first_row as usize * row_bytes + r.offset as usize;
+        let start = r.first_row as usize * row_bytes + r.offset_bytes as usize;
         let end = start + r.data.len();
         if end > self.got.len() || !start.is_multiple_of(self.bpp) || !r.data.len().is_multiple_of(self.bpp) {
             return Err(Error::Input(format!(
                 "the head sent a chunk outside the image (row {}, offset {}, {} bytes)",
                 r.first_row,
-                r.offset,
+                r.offset_bytes,
                 r.data.len()
             )));
         }
@@ -210,6 +148,7 @@ impl Assembly {
 mod tests {
     use super::*;
     use cms_core::pipeline::default_detector;
+    use cms_core::protocol::PROTOCOL_VERSION;
 
     fn info(w: u16, h: u16, bits: u8) -> DeviceInfo {
         DeviceInfo {
@@ -225,11 +164,11 @@ mod tests {
         }
     }
 
-    fn chunk(first_row: u16, offset: u32, data: &[u8]) -> RawRows {
+    fn chunk(first_row: u16, offset_bytes: u32, data: &[u8]) -> RawRows {
         RawRows {
             capture: 1,
             first_row,
-            offset,
+            offset_bytes,
             width: 3,
             height: 2,
             bits: 12,

@@ -1,7 +1,7 @@
 //! The host library's error, and what kind of failure each one is.
 //!
 //! Each domain module has its own typed error ([`crate::input::InputError`],
-//! [`crate::link::LinkError`], [`crate::listen::ListenError`],
+//! [`crate::link::LinkError`], [`crate::link::ClientError`], [`crate::listen::ListenError`],
 //! [`crate::record::RecordError`], [`crate::qemu::QemuError`],
 //! [`crate::simulate::SimulateError`], …); [`Error`] is their union plus the
 //! two kinds of plain message that the command-level functions produce (a bad
@@ -16,7 +16,7 @@
 use std::io;
 
 use crate::input::InputError;
-use crate::link::LinkError;
+use crate::link::{ClientError, LinkError};
 use crate::listen::ListenError;
 use crate::qemu::QemuError;
 use crate::record::RecordError;
@@ -59,6 +59,9 @@ pub enum Error {
     /// The serial link.
     #[error(transparent)]
     Link(#[from] LinkError),
+    /// A conversation with a head (`capture`, `calibrate upload`).
+    #[error(transparent)]
+    Client(#[from] ClientError),
     /// A listening session.
     #[error(transparent)]
     Listen(#[from] ListenError),
@@ -85,6 +88,10 @@ impl Error {
         match self {
             Error::Input(_) | Error::Read(_) => Class::Input,
             Error::Device(_) | Error::Link(_) => Class::Device,
+            // As `capture` and `calibrate upload` have always exited (2),
+            // their port and head failures included; making them device
+            // failures (3), as listen's are, is this match's one line.
+            Error::Client(_) => Class::Input,
             Error::Output(_) => Class::Output,
             Error::Listen(e) => match e {
                 ListenError::Output(_) => Class::Output,

@@ -13,10 +13,18 @@
 //! source of the link counters: frames, CRC errors, decode errors, overflows)
 //! and hands every frame's result together with the exact bytes it came from,
 //! delimiter included.
+//!
+//! [`Client`] (in `link/client.rs`) is the conversation built on both that
+//! `listen`, `capture` and `calibrate upload` share: sequence numbers, the
+//! handshake and its version check, heartbeats, request/response with
+//! timeouts.
 
 use std::fmt;
 use std::io::{self, Read, Write};
 use std::time::Duration;
+
+mod client;
+pub use client::{Client, ClientError, Greeting, Handshake, Outbox, Wait, check_version};
 
 use cms_core::protocol::{
     Command, DeviceMsg, FrameReader, HostMsg, LinkStats, MAX_COMMAND_FRAME, MAX_FRAME, WireError, encode,
@@ -29,35 +37,34 @@ pub const READ_TIMEOUT: Duration = Duration::from_millis(20);
 /// rows; a head that does not read for this long is treated as not answering).
 pub const WRITE_TIMEOUT: Duration = Duration::from_millis(200);
 
-/// Why the link failed.
-#[derive(Debug)]
+/// Why the port failed. The operating system's error is the [`source`]
+/// (`std::error::Error::source`); the message repeats it, as `cms-host`
+/// has always printed it, so a caller printing the whole chain should
+/// print only this one.
+///
+/// [`source`]: std::error::Error::source
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum LinkError {
     /// The port could not be opened.
+    #[error("cannot open {port}: {source}")]
     Open {
         /// The path.
         port: String,
         /// Why.
+        #[source]
         source: serialport::Error,
     },
     /// The port failed or closed after opening (unplugged, end of file).
+    #[error("{port} failed: {source}")]
     Gone {
         /// The path.
         port: String,
         /// What the operating system said.
+        #[source]
         source: io::Error,
     },
 }
-
-impl fmt::Display for LinkError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            LinkError::Open { port, source } => write!(f, "cannot open {port}: {source}"),
-            LinkError::Gone { port, source } => write!(f, "{port} failed: {source}"),
-        }
-    }
-}
-
-impl std::error::Error for LinkError {}
 
 /// An open serial port to the head.
 pub struct Link {
@@ -286,7 +293,7 @@ mod tests {
             state: HeadState::Streaming,
             lasers_on: 7,
             frames,
-            frame_rate_mhz: 0,
+            frame_rate_millihz: 0,
             rows_per_s: 0,
             dropped_frames: 0,
             ns_per_row: 0,

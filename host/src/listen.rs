@@ -2,6 +2,12 @@
 //! stream profiles, show the link's health, record and print what arrives.
 //!
 //! # The conversation
+//! The port, the sequence numbers, the handshake's state machine and the
+//! heartbeats are [`link::Client`](crate::link::Client)'s, the same client
+//! `capture` and `calibrate upload` use; this module drives it in its own
+//! loop (see the client's docs for why) and adds the recording, the
+//! reconnects and the display.
+//!
 //! 1. **Handshake**: `GetInfo`, and wait for `Hello` (2 s, three tries); the
 //!    head's protocol version must be this build's. Then `SetExposure` (if
 //!    asked for) and `Start`, acknowledged by `Ack`.
@@ -42,13 +48,15 @@ use cms_core::protocol::{
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::analyze::live::LiveEstimate;
-use crate::link::{Counters, Deframer, Link, LinkError};
+use crate::link::{Client, ClientError, Counters, Greeting, Handshake, LinkError, Outbox, Wait, check_version};
 use crate::record::{self, FrameCounter, RecordError, Recorder};
 
 /// How long to wait for `Hello` after each `GetInfo`.
 pub const HELLO_TIMEOUT: Duration = Duration::from_secs(2);
 /// `GetInfo` requests before giving up.
 pub const HELLO_TRIES: u32 = 3;
+/// The handshake: [`HELLO_TRIES`] `GetInfo` requests [`HELLO_TIMEOUT`] apart.
+pub const HANDSHAKE: Handshake = Handshake { tries: HELLO_TRIES, wait: Wait::Within(HELLO_TIMEOUT) };
 /// How long to wait for the `Ack` of `Start`.
 pub const START_TIMEOUT: Duration = Duration::from_secs(2);
 /// Interval of heartbeats (the head's timeout is 1 s).
@@ -113,16 +121,22 @@ impl Default for ListenOptions {
 }
 
 /// Why listening failed.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum ListenError {
     /// The port could not be opened at all.
+    #[error(transparent)]
     Open(LinkError),
     /// The head never answered `GetInfo`.
+    #[error(
+        "no answer from {port}: no Hello after {HELLO_TRIES} GetInfo requests {} s apart (is it a CMS sensor head, and is the baud rate right?)",
+        HELLO_TIMEOUT.as_secs()
+    )]
     NoHello {
         /// The port.
         port: String,
     },
     /// The head speaks another protocol version.
+    #[error("the head on {port} speaks protocol version {theirs}; this cms-host speaks version {PROTOCOL_VERSION}")]
     Version {
         /// The port.
         port: String,
@@ -130,6 +144,7 @@ pub enum ListenError {
         theirs: u8,
     },
     /// The head refused a command of the handshake.
+    #[error("the head refused {command}: {code}")]
     Refused {
         /// The command.
         command: &'static str,
@@ -138,6 +153,7 @@ pub enum ListenError {
     },
     /// The port went away (or the head stopped answering) and did not come
     /// back in time.
+    #[error("lost {port} and it did not come back within {} s ({why})", after.as_secs_f64())]
     Lost {
         /// The port.
         port: String,
@@ -147,35 +163,23 @@ pub enum ListenError {
         why: String,
     },
     /// The recording failed.
-    Record(RecordError),
+    #[error("recording: {0}")]
+    Record(#[source] RecordError),
     /// Writing the JSON output failed (not a closed pipe, which just stops).
-    Output(io::Error),
+    #[error("writing output: {0}")]
+    Output(#[source] io::Error),
 }
 
-impl fmt::Display for ListenError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            ListenError::Open(e) => write!(f, "{e}"),
-            ListenError::NoHello { port } => write!(
-                f,
-                "no answer from {port}: no Hello after {HELLO_TRIES} GetInfo requests {} s apart (is it a CMS sensor head, and is the baud rate right?)",
-                HELLO_TIMEOUT.as_secs()
-            ),
-            ListenError::Version { port, theirs } => write!(
-                f,
-                "the head on {port} speaks protocol version {theirs}; this cms-host speaks version {PROTOCOL_VERSION}"
-            ),
-            ListenError::Refused { command, code } => write!(f, "the head refused {command}: {code}"),
-            ListenError::Lost { port, after, why } => {
-                write!(f, "lost {port} and it did not come back within {} s ({why})", after.as_secs_f64())
-            }
-            ListenError::Record(e) => write!(f, "recording: {e}"),
-            ListenError::Output(e) => write!(f, "writing output: {e}"),
+impl ListenError {
+    /// The listener's words for a handshake that failed before the head
+    /// was ever greeted.
+    fn from_handshake(e: ClientError, port: &str) -> ListenError {
+        match e {
+            ClientError::Version { port, theirs } => ListenError::Version { port, theirs },
+            _ => ListenError::NoHello { port: port.to_string() },
         }
     }
 }
-
-impl std::error::Error for ListenError {}
 
 /// What a listening session did.
 #[derive(Clone, Debug, Default)]
@@ -288,9 +292,15 @@ pub fn telemetry(s: &Status) -> String {
     )
 }
 
+#[derive(Clone, Copy, Debug, Default)]
+struct WindowRates {
+    frames_per_s: f64,
+    points_per_frame: f64,
+}
+
 enum Phase {
-    /// `GetInfo` sent `tries` times, the last at `sent`.
-    Hello { tries: u32, sent: Instant },
+    /// `GetInfo` sent, waiting for `Hello`.
+    Hello(Greeting),
     /// `Start` sent.
     Starting { sent: Instant },
     /// Streaming.
@@ -306,21 +316,16 @@ struct Session<'a> {
     sum: Summary,
     counter: FrameCounter,
     phase: Phase,
-    next_seq: u16,
     start_seq: Option<u16>,
     exposure_seq: Option<u16>,
     stop_seq: Option<u16>,
-    outbox: Vec<(u16, HostMsg)>,
     /// When the stop began (and so when to give up waiting for its Ack).
     stopping: Option<Instant>,
     /// A `Status` arrived after the `Ack` of `Stop`.
     stop_reported: bool,
     fatal: Option<ListenError>,
-    /// Protocol version of frames that failed the version check.
-    foreign_version: Option<u8>,
     greeted: bool,
     last_rx: Instant,
-    last_heartbeat: Instant,
     /// Since when the link has been in trouble (lost, silent, not started).
     trouble: Option<(Instant, String)>,
     first_profile: Option<Instant>,
@@ -330,33 +335,22 @@ struct Session<'a> {
     window_start: Instant,
     window_frames: u64,
     window_points: u64,
-    rate: (f64, f64),
+    /// Frames per second and points per frame over the last window.
+    window_rates: WindowRates,
     /// The recent calibrated frames, for the corrugation estimate.
     live: LiveEstimate,
 }
 
 impl Session<'_> {
-    fn seq(&mut self) -> u16 {
-        self.next_seq = self.next_seq.wrapping_add(1);
-        self.next_seq
+    fn hello(&mut self, out: &mut Outbox, now: Instant) {
+        self.phase = Phase::Hello(Greeting::begin(HANDSHAKE, out, now));
     }
 
-    fn send(&mut self, msg: HostMsg) -> u16 {
-        let seq = self.seq();
-        self.outbox.push((seq, msg));
-        seq
-    }
-
-    fn hello(&mut self, now: Instant, tries: u32) {
-        self.send(HostMsg::GetInfo);
-        self.phase = Phase::Hello { tries, sent: now };
-    }
-
-    fn start(&mut self, now: Instant) {
+    fn start(&mut self, out: &mut Outbox, now: Instant) {
         if let Some(us) = self.opts.exposure_us {
-            self.exposure_seq = Some(self.send(HostMsg::SetExposure(us)));
+            self.exposure_seq = Some(out.push(HostMsg::SetExposure { exposure_us: us }));
         }
-        self.start_seq = Some(self.send(HostMsg::Start(self.opts.start)));
+        self.start_seq = Some(out.push(HostMsg::Start(self.opts.start)));
         self.phase = Phase::Starting { sent: now };
     }
 
@@ -367,14 +361,17 @@ impl Session<'_> {
         }
     }
 
-    fn on_frame(&mut self, r: Result<DeviceMsg, WireError>, raw: &[u8]) {
+    fn on_frame(&mut self, r: Result<DeviceMsg, WireError>, raw: &[u8], out: &mut Outbox) {
         let msg = match r {
             Ok(m) => m,
-            Err(WireError::Version(v)) => {
-                self.foreign_version = Some(v);
+            Err(e) => {
+                // A frame of another version is how such a head's Hello
+                // shows: the handshake names it if it gives up.
+                if let Phase::Hello(g) = &mut self.phase {
+                    g.on_frame(self.port, &Err(e));
+                }
                 return;
             }
-            Err(_) => return,
         };
         if self.fatal.is_some() || (self.stopping.is_some() && matches!(msg, DeviceMsg::Profile(_))) {
             // Past the requested end: profiles still in flight are dropped.
@@ -393,18 +390,18 @@ impl Session<'_> {
         let now = Instant::now();
         match msg {
             DeviceMsg::Hello(info) => {
-                if info.protocol != PROTOCOL_VERSION {
-                    self.fatal = Some(ListenError::Version { port: self.port.to_string(), theirs: info.protocol });
+                if let Err(e) = check_version(self.port, &info) {
+                    self.fatal = Some(ListenError::from_handshake(e, self.port));
                     return;
                 }
                 self.greeted = true;
                 self.sum.device = Some(info);
                 match self.phase {
-                    Phase::Hello { .. } if self.stopping.is_none() => self.start(now),
+                    Phase::Hello(_) if self.stopping.is_none() => self.start(out, now),
                     // An unsolicited Hello while streaming: the head restarted.
                     Phase::Streaming if self.stopping.is_none() => {
                         self.sum.head_restarts += 1;
-                        self.start(now);
+                        self.start(out, now);
                     }
                     _ => {}
                 }
@@ -422,7 +419,7 @@ impl Session<'_> {
                 if s.state != HeadState::Streaming && matches!(self.phase, Phase::Streaming) && self.stopping.is_none()
                 {
                     self.sum.head_restarts += 1;
-                    self.start(now);
+                    self.start(out, now);
                 }
             }
             DeviceMsg::Ack(seq) => {
@@ -478,13 +475,9 @@ impl Session<'_> {
         }
     }
 
-    /// Timeouts of the handshake and the stream. Returns true when the port
-    /// should be closed and reopened.
-    fn timers(&mut self, now: Instant) -> bool {
-        if now.duration_since(self.last_heartbeat) >= HEARTBEAT_INTERVAL {
-            self.last_heartbeat = now;
-            self.send(HostMsg::Heartbeat);
-        }
+    /// Timeouts of the handshake and the stream (the heartbeats are the
+    /// client's). Returns true when the port should be closed and reopened.
+    fn timers(&mut self, now: Instant, out: &mut Outbox) -> bool {
         if self.stopping.is_some() {
             return false;
         }
@@ -499,28 +492,23 @@ impl Session<'_> {
             });
             return false;
         }
-        match self.phase {
-            Phase::Hello { tries, sent } if now.duration_since(sent) >= HELLO_TIMEOUT => {
-                if tries < HELLO_TRIES {
-                    self.hello(now, tries + 1);
-                } else if !self.greeted {
-                    self.fatal = Some(match self.foreign_version {
-                        Some(v) => ListenError::Version { port: self.port.to_string(), theirs: v },
-                        None => ListenError::NoHello { port: self.port.to_string() },
-                    });
-                } else {
+        match &mut self.phase {
+            Phase::Hello(g) => match g.poll(self.port, now, self.last_rx, out) {
+                Ok(()) => {}
+                Err(e) if !self.greeted => self.fatal = Some(ListenError::from_handshake(e, self.port)),
+                Err(_) => {
                     self.trouble(now, "no Hello after the head went silent".to_string());
                     return true;
                 }
-            }
-            Phase::Starting { sent } if now.duration_since(sent) >= START_TIMEOUT => {
+            },
+            Phase::Starting { sent } if now.duration_since(*sent) >= START_TIMEOUT => {
                 self.trouble(now, "Start was not acknowledged".to_string());
-                self.hello(now, 1);
+                self.hello(out, now);
             }
             Phase::Streaming if now.duration_since(self.last_rx) >= STALL_TIMEOUT => {
                 self.sum.stalls += 1;
                 self.trouble(now, format!("no bytes for {} s", STALL_TIMEOUT.as_secs()));
-                self.hello(now, 1);
+                self.hello(out, now);
             }
             _ => {}
         }
@@ -531,7 +519,7 @@ impl Session<'_> {
         let dt = now.duration_since(self.window_start).as_secs_f64();
         if dt >= 1.0 {
             let ppf = if self.window_frames > 0 { self.window_points as f64 / self.window_frames as f64 } else { 0.0 };
-            self.rate = (self.window_frames as f64 / dt, ppf);
+            self.window_rates = WindowRates { frames_per_s: self.window_frames as f64 / dt, points_per_frame: ppf };
             self.window_start = now;
             self.window_frames = 0;
             self.window_points = 0;
@@ -540,7 +528,7 @@ impl Session<'_> {
             "reconnecting"
         } else {
             match self.phase {
-                Phase::Hello { .. } => "handshake",
+                Phase::Hello(_) => "handshake",
                 Phase::Starting { .. } => "starting",
                 Phase::Streaming => "streaming",
             }
@@ -560,8 +548,8 @@ impl Session<'_> {
         };
         format!(
             "{state}: {:.1} frames/s, {:.0} points/frame, {} frames, CRC errors {}, resyncs {}, dropped {}, reconnects {}, lasers {lasers}{head}{}{corrugation}",
-            self.rate.0,
-            self.rate.1,
+            self.window_rates.frames_per_s,
+            self.window_rates.points_per_frame,
             self.sum.frames,
             self.sum.link.crc_errors,
             self.sum.link.resyncs(),
@@ -653,7 +641,7 @@ pub fn listen_with(
         Some(path) => Some(Recorder::open(path).map_err(ListenError::Record)?),
         None => None,
     };
-    let mut link = Some(Link::open(port, opts.baud).map_err(ListenError::Open)?);
+    let mut client = Client::open(port, opts.baud).map_err(ListenError::Open)?.with_heartbeat(HEARTBEAT_INTERVAL);
     let mut s = Session {
         opts,
         port,
@@ -662,19 +650,15 @@ pub fn listen_with(
         recorder,
         sum: Summary::default(),
         counter: FrameCounter::default(),
-        phase: Phase::Hello { tries: 1, sent: t0 },
-        next_seq: 0,
+        phase: Phase::Hello(Greeting::begin(HANDSHAKE, client.outbox(), t0)),
         start_seq: None,
         exposure_seq: None,
         stop_seq: None,
-        outbox: Vec::new(),
         stopping: None,
         stop_reported: false,
         fatal: None,
-        foreign_version: None,
         greeted: false,
         last_rx: t0,
-        last_heartbeat: t0,
         trouble: Some((t0, "never started".to_string())),
         first_profile: None,
         last_profile: None,
@@ -682,14 +666,11 @@ pub fn listen_with(
         window_start: t0,
         window_frames: 0,
         window_points: 0,
-        rate: (0.0, 0.0),
+        window_rates: WindowRates::default(),
         live: LiveEstimate::default(),
     };
     let mut display = Display::new(opts);
-    let mut deframer = Deframer::new();
-    let mut buf = vec![0u8; 64 << 10];
     let mut last_open_try = t0;
-    s.hello(t0, 1);
     let result = loop {
         let now = Instant::now();
         if let Some(e) = s.fatal.take() {
@@ -703,73 +684,60 @@ pub fn listen_with(
         }
         if let Some(since) = s.stopping {
             if s.stop_seq.is_none() {
-                if s.start_seq.is_none() || link.is_none() {
+                if s.start_seq.is_none() || !client.is_open() {
                     break Ok(());
                 }
-                s.stop_seq = Some(s.send(HostMsg::Stop));
+                s.stop_seq = Some(client.outbox().push(HostMsg::Stop));
             }
             // The head answers Stop with Ack and then a Status (lasers off).
-            if s.stop_reported || link.is_none() || now.duration_since(since) >= STOP_ACK_TIMEOUT {
+            if s.stop_reported || !client.is_open() || now.duration_since(since) >= STOP_ACK_TIMEOUT {
                 break Ok(());
             }
         }
-        match &mut link {
-            Some(l) => match l.read(&mut buf) {
+        if client.is_open() {
+            // A failed port is closed by the client (the frame in progress
+            // and the queued commands dropped).
+            match client.receive(|r, raw, out| s.on_frame(r, raw, out)) {
                 Ok(0) => {}
-                Ok(n) => {
+                Ok(_) => {
                     s.last_rx = Instant::now();
-                    deframer.feed(&buf[..n], |r, raw| s.on_frame(r, raw));
-                    s.sum.link = deframer.counters();
+                    s.sum.link = client.counters();
                 }
-                Err(e) => {
-                    s.trouble(now, e.to_string());
-                    link = None;
-                    deframer.restart();
-                    s.outbox.clear();
-                }
-            },
-            None => {
-                if now.duration_since(last_open_try) >= REOPEN_INTERVAL {
-                    last_open_try = now;
-                    if let Ok(l) = Link::open(port, opts.baud) {
-                        link = Some(l);
-                        s.sum.reconnects += 1;
-                        s.last_rx = now;
-                        s.hello(now, 1);
-                    }
-                } else {
-                    std::thread::sleep(Duration::from_millis(20));
-                }
-                if link.is_none()
-                    && let Some((since, why)) = &s.trouble
-                    && now.duration_since(*since) > opts.reconnect_timeout
-                {
-                    break Err(ListenError::Lost {
-                        port: port.to_string(),
-                        after: opts.reconnect_timeout,
-                        why: why.clone(),
-                    });
-                }
-            }
-        }
-        if link.is_some() && s.timers(now) {
-            // The head stays silent: close the port and open it again.
-            link = None;
-            deframer.restart();
-            s.outbox.clear();
-            last_open_try = now;
-        }
-        if let Some(l) = &mut link {
-            for (seq, msg) in std::mem::take(&mut s.outbox) {
-                if let Err(e) = l.send(seq, msg) {
-                    s.trouble(now, e.to_string());
-                    link = None;
-                    deframer.restart();
-                    break;
-                }
+                Err(e) => s.trouble(now, e.to_string()),
             }
         } else {
-            s.outbox.clear();
+            if now.duration_since(last_open_try) >= REOPEN_INTERVAL {
+                last_open_try = now;
+                if client.reopen().is_ok() {
+                    s.sum.reconnects += 1;
+                    s.last_rx = now;
+                    s.hello(client.outbox(), now);
+                }
+            } else {
+                // A device path coming back gives no event to wait on; the
+                // loop also watches Ctrl-C and redraws the status meanwhile.
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            if !client.is_open()
+                && let Some((since, why)) = &s.trouble
+                && now.duration_since(*since) > opts.reconnect_timeout
+            {
+                break Err(ListenError::Lost {
+                    port: port.to_string(),
+                    after: opts.reconnect_timeout,
+                    why: why.clone(),
+                });
+            }
+        }
+        if client.is_open() && s.timers(now, client.outbox()) {
+            // The head stays silent: close the port and open it again.
+            client.close();
+            last_open_try = now;
+        }
+        // Commands the head did not take are lost: the heartbeats and the
+        // handshake's retries cover them.
+        if let Err(e) = client.transmit(now) {
+            s.trouble(now, e.to_string());
         }
         if let Some(rec) = &mut s.recorder
             && let Err(e) = rec.tick()
@@ -777,19 +745,17 @@ pub fn listen_with(
             s.fatal = Some(ListenError::Record(e));
         }
         if display.due(now) {
-            let line = s.status_line(now, link.is_some());
+            let line = s.status_line(now, client.is_open());
             display.show(now, line);
         }
     };
     // Whatever happened, the lasers go off: a last Stop if the port is open
     // (without waiting), and the head's own 1 s heartbeat rule otherwise.
-    if result.is_err()
-        && let Some(l) = &mut link
-        && s.start_seq.is_some()
-        && s.stop_seq.is_none()
-    {
-        let seq = s.seq();
-        let _ = l.send(seq, HostMsg::Stop);
+    // Commands still queued (decided on the last frames) are dropped first.
+    if result.is_err() && client.is_open() && s.start_seq.is_some() && s.stop_seq.is_none() {
+        client.outbox().clear();
+        client.outbox().push(HostMsg::Stop);
+        let _ = client.transmit(Instant::now());
     }
     display.finish();
     let flushed = match &mut s.recorder {
@@ -798,7 +764,7 @@ pub fn listen_with(
     };
     result?;
     flushed?;
-    s.sum.link = deframer.counters();
+    s.sum.link = client.counters();
     s.sum.elapsed = t0.elapsed();
     if let (Some(a), Some(b)) = (s.first_profile, s.last_profile) {
         s.sum.streaming = b.duration_since(a);

@@ -5,9 +5,21 @@
 //! This module finds or builds its images, starts `qemu-system-arm`, and
 //! hands the listener a serial port:
 //!
-//! 1. **Image**: `--qemu-image FILE`, or else the one built from this
-//!    source tree's `firmware/qemu` — `cargo build --release` is run there
-//!    each time (a no-op when nothing changed), so the image is never stale.
+//! 1. **Image** ([`image`]), the first of:
+//!    * `--qemu-image FILE` (`bench qemu --image FILE`);
+//!    * the environment variable [`HEAD_IMAGE_ENV`] (`CMS_QEMU_IMAGE`;
+//!      [`BENCH_IMAGE_ENV`], `CMS_QEMU_BENCH_IMAGE`, for the benchmark);
+//!    * `cms-qemu-head` (`cms-qemu-bench`) in the directory of the running
+//!      `cms-host`, for an installed copy;
+//!    * built in the checkout this is run from: the first of the current
+//!      directory, the binary's directory and their parents that holds
+//!      `firmware/qemu/Cargo.toml`. `cargo build --release` is run there
+//!      each time (a no-op when nothing changed), so the image is never
+//!      stale.
+//!
+//!    Nothing about the checkout is compiled into the binary, so an
+//!    installed `cms-host` works anywhere given an image, and says in one
+//!    line how to get one when it has none.
 //! 2. **Start paused**: `qemu-system-arm -machine mps2-an386 -display none
 //!    -nodefaults -nic none -S -monitor stdio -serial pty -semihosting-config
 //!    enable=on,target=native -kernel IMAGE`. QEMU prints the pseudo-terminal
@@ -48,6 +60,12 @@ pub const HEAD_BIN: &str = "cms-qemu-head";
 pub const BENCH_BIN: &str = "cms-qemu-bench";
 /// The firmware's target.
 pub const TARGET: &str = "thumbv7em-none-eabihf";
+/// The environment variable naming the head's image.
+pub const HEAD_IMAGE_ENV: &str = "CMS_QEMU_IMAGE";
+/// The environment variable naming the benchmark's image.
+pub const BENCH_IMAGE_ENV: &str = "CMS_QEMU_BENCH_IMAGE";
+/// How to build the images, in a checkout.
+pub const BUILD_COMMAND: &str = "cd firmware/qemu && cargo build --release";
 /// How long QEMU may take to print its pseudo-terminal.
 pub const START_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long the benchmark may run.
@@ -74,18 +92,23 @@ impl Machine {
 }
 
 /// Why the emulated head could not run.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum QemuError {
     /// `qemu-system-arm` is not on PATH.
+    #[error("{QEMU} not found on PATH: install it (Debian/Ubuntu: apt-get install qemu-system-arm)")]
     NotInstalled,
-    /// No image given and no `firmware/qemu` source to build one from.
+    /// No image given, none beside the binary, and not run from a
+    /// checkout to build one in.
+    #[error("{}", no_source(bin))]
     NoSource {
-        /// Where the source was looked for.
-        dir: PathBuf,
+        /// The image's name.
+        bin: &'static str,
     },
     /// The given or built image does not exist.
+    #[error("emulated head image {} does not exist", .0.display())]
     NoImage(PathBuf),
     /// `cargo build` of the image failed.
+    #[error("building the emulated head failed ({why}); run `{command}`")]
     Build {
         /// The command that failed, to run by hand.
         command: String,
@@ -93,13 +116,16 @@ pub enum QemuError {
         why: String,
     },
     /// A system call failed.
-    Io(&'static str, io::Error),
+    #[error("{0}: {1}")]
+    Io(&'static str, #[source] io::Error),
     /// QEMU did not print a pseudo-terminal.
+    #[error("{QEMU} printed no pseudo-terminal within {} s: {output}", START_TIMEOUT.as_secs())]
     NoPty {
         /// The end of what it printed.
         output: String,
     },
     /// QEMU exited unexpectedly.
+    #[error("{QEMU} exited ({status}): {stderr}")]
     Exited {
         /// Its status.
         status: ExitStatus,
@@ -107,56 +133,57 @@ pub enum QemuError {
         stderr: String,
     },
     /// The benchmark's output was not as expected.
+    #[error("qemu benchmark: {0}")]
     Bench(String),
     /// Options that do not go together.
+    #[error("{0}")]
     Usage(String),
 }
 
-impl fmt::Display for QemuError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            QemuError::NotInstalled => {
-                write!(f, "{QEMU} not found on PATH: install it (Debian/Ubuntu: apt-get install qemu-system-arm)")
-            }
-            QemuError::NoSource { dir } => write!(
-                f,
-                "no emulated head image: {} is missing; give --qemu-image FILE (built by `cargo build --release` in firmware/qemu)",
-                dir.display()
-            ),
-            QemuError::NoImage(p) => write!(f, "emulated head image {} does not exist", p.display()),
-            QemuError::Build { command, why } => {
-                write!(f, "building the emulated head failed ({why}); run `{command}`")
-            }
-            QemuError::Io(what, e) => write!(f, "{what}: {e}"),
-            QemuError::NoPty { output } => {
-                write!(f, "{QEMU} printed no pseudo-terminal within {} s: {output}", START_TIMEOUT.as_secs())
-            }
-            QemuError::Exited { status, stderr } => write!(f, "{QEMU} exited ({status}): {stderr}"),
-            QemuError::Bench(m) => write!(f, "qemu benchmark: {m}"),
-            QemuError::Usage(m) => f.write_str(m),
-        }
-    }
+/// What to do without an image, in one line.
+fn no_source(bin: &str) -> String {
+    let flag = if bin == BENCH_BIN { "--image" } else { "--qemu-image" };
+    format!(
+        "no emulated head image {bin}: give {flag} FILE, set {}, or put {bin} beside cms-host \
+         (build it in a checkout of the source: `{BUILD_COMMAND}`, or run cms-host from the checkout)",
+        image_env(bin)
+    )
 }
 
-impl std::error::Error for QemuError {}
-
-/// The `firmware/qemu` source directory of the tree this program was built from.
-pub fn source_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("firmware").join("qemu")
+/// The `firmware/qemu` directory of the checkout this is run from, found
+/// at run time: the first of the current directory, the running binary's
+/// directory and their parents that holds `firmware/qemu/Cargo.toml`.
+pub fn checkout_source() -> Option<PathBuf> {
+    let exe_dir = std::env::current_exe().ok().and_then(|e| e.parent().map(Path::to_path_buf));
+    let starts = [std::env::current_dir().ok(), exe_dir];
+    starts.into_iter().flatten().find_map(|start| {
+        start.ancestors().map(|d| d.join("firmware").join("qemu")).find(|d| d.join("Cargo.toml").is_file())
+    })
 }
 
-/// The image `bin` of `firmware/qemu`: `explicit` if given (it must exist),
-/// otherwise built (or found up to date) by cargo in the source tree. Cargo's
-/// messages go to stderr.
-pub fn image(bin: &str, explicit: Option<&Path>) -> Result<PathBuf, QemuError> {
-    if let Some(p) = explicit {
-        return if p.is_file() { Ok(p.to_path_buf()) } else { Err(QemuError::NoImage(p.to_path_buf())) };
+/// The environment variable naming `bin`'s image.
+fn image_env(bin: &str) -> &'static str {
+    if bin == BENCH_BIN { BENCH_IMAGE_ENV } else { HEAD_IMAGE_ENV }
+}
+
+/// The image `bin` of `firmware/qemu`, found as the module docs say:
+/// `explicit` if given, the environment variable, beside the binary, or
+/// built (or found up to date) by cargo in the checkout (cargo's messages
+/// go to stderr). A named image must exist.
+pub fn image(bin: &'static str, explicit: Option<&Path>) -> Result<PathBuf, QemuError> {
+    let named = explicit
+        .map(Path::to_path_buf)
+        .or_else(|| std::env::var_os(image_env(bin)).filter(|v| !v.is_empty()).map(PathBuf::from));
+    if let Some(p) = named {
+        return if p.is_file() { Ok(p) } else { Err(QemuError::NoImage(p)) };
     }
-    let dir = source_dir();
-    let manifest = dir.join("Cargo.toml");
-    if !manifest.is_file() {
-        return Err(QemuError::NoSource { dir });
+    let beside = std::env::current_exe().ok().and_then(|e| Some(e.parent()?.join(bin)));
+    if let Some(p) = beside.filter(|p| p.is_file()) {
+        return Ok(p);
     }
+    let Some(dir) = checkout_source() else {
+        return Err(QemuError::NoSource { bin });
+    };
     let dir = dir.canonicalize().map_err(|e| QemuError::Io("resolving firmware/qemu", e))?;
     let target_dir = dir.join("target");
     let built = target_dir.join(TARGET).join("release").join(bin);
@@ -199,7 +226,7 @@ pub fn image(bin: &str, explicit: Option<&Path>) -> Result<PathBuf, QemuError> {
 pub struct QemuPort {
     /// With PORT `qemu`: the emulated board.
     pub qemu_machine: Option<Machine>,
-    /// With PORT `qemu`: the head's image [default: built from firmware/qemu].
+    /// With PORT `qemu`: the head's image (`None`: found as [`image`] says).
     pub qemu_image: Option<PathBuf>,
 }
 
@@ -458,7 +485,7 @@ pub fn with_port<T>(
 pub struct BenchOptions {
     /// The emulated board.
     pub machine: Machine,
-    /// The benchmark's image [default: built from firmware/qemu].
+    /// The benchmark's image (`None`: found as [`image`] says).
     pub image: Option<PathBuf>,
     /// Clock of the implied rows per second, MHz (1 instruction per cycle).
     pub clock_mhz: u32,

@@ -9,15 +9,15 @@
 //! last `GetInfo` to see the head report the new calibration's id.
 
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use cms_core::fixed::Px;
 use cms_core::pipeline::triangulator;
-use cms_core::protocol::{DeviceInfo, DeviceMsg, ErrorCode, HostMsg, PROTOCOL_VERSION};
+use cms_core::protocol::HostMsg;
 
 use super::file::CalibrationFile;
 use crate::Error;
-use crate::link::{Deframer, Link};
+use crate::link::{Client, ClientError, Handshake, Wait};
 use crate::simulate::{self, SimPort};
 
 /// How long to wait for each answer.
@@ -53,14 +53,8 @@ pub fn upload(args: &Options) -> Result<String, Error> {
         None => None,
     };
     let r = simulate::with_port(&args.port, &args.sim, |port| -> Result<String, Error> {
-        let mut s = Session::open(port, args.baud)?;
-        let info = s.info()?;
-        if info.protocol != PROTOCOL_VERSION {
-            return Err(Error::Input(format!(
-                "the head on {port} speaks protocol version {}; this cms-host speaks {PROTOCOL_VERSION}",
-                info.protocol
-            )));
-        }
+        let mut client = Client::open(port, args.baud).map_err(ClientError::from)?;
+        let info = client.handshake(Handshake { tries: 1, wait: Wait::Within(ANSWER_TIMEOUT) })?;
         let (w, h) = (file.camera.intrinsics.width_px, file.camera.intrinsics.height_px);
         if (u32::from(info.sensor_width), u32::from(info.sensor_height)) != (w, h) {
             return Err(Error::Input(format!(
@@ -70,15 +64,15 @@ pub fn upload(args: &Options) -> Result<String, Error> {
                 info.sensor_height
             )));
         }
-        s.command(HostMsg::SetCalibration(cal), "the calibration")?;
+        command(&mut client, HostMsg::SetCalibration(cal), "the calibration")?;
         let mut note = String::new();
         if let Some(sr) = scales {
             let mut det = info.detector;
             det.scales = sr;
-            s.command(HostMsg::SetDetector(det), "the detector's scale range")?;
+            command(&mut client, HostMsg::SetDetector(det), "the detector's scale range")?;
             note = format!(", detector scales {:.2}–{:.2} px", Px::to_f64(sr.min()), Px::to_f64(sr.max()));
         }
-        let after = s.info()?;
+        let after = client.info(Wait::Within(ANSWER_TIMEOUT))?;
         if after.calibration_id != cal.id {
             return Err(Error::Input(format!(
                 "the head on {port} acknowledged the calibration but reports id {:#010x}, not {:#010x}",
@@ -91,64 +85,11 @@ pub fn upload(args: &Options) -> Result<String, Error> {
     Ok(r)
 }
 
-/// A request/answer conversation with a head.
-struct Session {
-    link: Link,
-    frames: Deframer,
-    seq: u16,
-    buf: Vec<u8>,
-}
-
-impl Session {
-    fn open(port: &str, baud: u32) -> Result<Session, Error> {
-        let link = Link::open(port, baud).map_err(|e| Error::Input(e.to_string()))?;
-        Ok(Session { link, frames: Deframer::new(), seq: 0, buf: vec![0; 4096] })
-    }
-
-    fn send(&mut self, msg: HostMsg) -> Result<u16, Error> {
-        self.seq = self.seq.wrapping_add(1).max(1);
-        match self.link.send(self.seq, msg) {
-            Ok(true) => Ok(self.seq),
-            Ok(false) => Err(Error::Input(format!("{}: the head does not read its commands", self.link.path()))),
-            Err(e) => Err(Error::Input(e.to_string())),
-        }
-    }
-
-    /// Waits for the first message `pick` takes.
-    fn wait<T>(&mut self, what: &str, mut pick: impl FnMut(DeviceMsg) -> Option<T>) -> Result<T, Error> {
-        let deadline = Instant::now() + ANSWER_TIMEOUT;
-        while Instant::now() < deadline {
-            let n = self.link.read(&mut self.buf).map_err(|e| Error::Input(e.to_string()))?;
-            let mut got = None;
-            self.frames.feed(&self.buf[..n], |r, _| {
-                if got.is_none()
-                    && let Ok(m) = r
-                {
-                    got = pick(m);
-                }
-            });
-            if let Some(v) = got {
-                return Ok(v);
-            }
-        }
-        Err(Error::Input(format!("{}: no answer to {what} within {} s", self.link.path(), ANSWER_TIMEOUT.as_secs())))
-    }
-
-    fn info(&mut self) -> Result<DeviceInfo, Error> {
-        self.send(HostMsg::GetInfo)?;
-        self.wait("GetInfo", |m| match m {
-            DeviceMsg::Hello(i) => Some(i),
-            _ => None,
-        })
-    }
-
-    fn command(&mut self, msg: HostMsg, what: &str) -> Result<(), Error> {
-        let seq = self.send(msg)?;
-        let r: Result<(), ErrorCode> = self.wait(what, |m| match m {
-            DeviceMsg::Ack(s) if s == seq => Some(Ok(())),
-            DeviceMsg::Error { seq: Some(s), code } if s == seq => Some(Err(code)),
-            _ => None,
-        })?;
-        r.map_err(|code| Error::Input(format!("{}: the head refused {what}: {code:?}", self.link.path())))
-    }
+/// `msg`, and its `Ack` within [`ANSWER_TIMEOUT`]; a refusal names the
+/// head's code as this command always has (`InvalidConfig`, …).
+fn command(client: &mut Client, msg: HostMsg, what: &str) -> Result<(), Error> {
+    client.request(msg, what, Wait::Within(ANSWER_TIMEOUT)).map_err(|e| match e {
+        ClientError::Refused { port, what, code } => Error::Input(format!("{port}: the head refused {what}: {code:?}")),
+        e => e.into(),
+    })
 }

@@ -23,8 +23,8 @@ pub struct CaptureArgs {
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u8).range(0..(1 << LASERS)))]
     pub lasers: u8,
     /// Exposure, µs (default: the head's own).
-    #[arg(long, value_name = "US")]
-    pub exposure: Option<u32>,
+    #[arg(long = "exposure", value_name = "US")]
+    pub exposure_us: Option<u32>,
     /// Baud rate (ignored by USB CDC heads).
     #[arg(long, default_value_t = 115_200)]
     pub baud: u32,
@@ -38,7 +38,7 @@ pub fn run(args: &CaptureArgs) -> anyhow::Result<()> {
     if args.out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() != Some("png") {
         anyhow::bail!(Usage(format!("--out {}: the image is written as PNG; name it *.png", args.out.display())));
     }
-    let opts = Options { lasers: args.lasers, exposure: args.exposure, baud: args.baud };
+    let opts = Options { lasers: args.lasers, exposure_us: args.exposure_us, baud: args.baud };
     let frame = simulate::with_port(&args.port, &args.sim.options(), |port| capture::capture(port, &opts))??;
     capture::save_png(&frame, &args.out)?;
     println!(

@@ -44,8 +44,8 @@ pub struct ListenArgs {
     #[arg(long, value_name = "B", default_value_t = 115_200, value_parser = clap::value_parser!(u32).range(1..))]
     pub baud: u32,
     /// Frames per second, 1..=1000.
-    #[arg(long, value_name = "HZ", default_value_t = 30, value_parser = clap::value_parser!(u16).range(1..=1000))]
-    pub rate: u16,
+    #[arg(long = "rate", value_name = "HZ", default_value_t = 30, value_parser = clap::value_parser!(u16).range(1..=1000))]
+    pub rate_hz: u16,
     /// Lasers to light, a bit mask 1..=7 (decimal, 0b… or 0x…).
     #[arg(long, value_name = "MASK", default_value = "7", value_parser = parse_mask)]
     pub lasers: u8,
@@ -53,8 +53,8 @@ pub struct ListenArgs {
     #[arg(long, value_enum, default_value_t = PatternArg::Simultaneous)]
     pub pattern: PatternArg,
     /// Exposure time to set before starting, µs (1..=1000000).
-    #[arg(long, value_name = "US", value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
-    pub exposure: Option<u32>,
+    #[arg(long = "exposure", value_name = "US", value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+    pub exposure_us: Option<u32>,
     /// How long a lost port may stay away before giving up, seconds.
     #[arg(long, value_name = "SECS", default_value = "30", value_parser = parse_secs)]
     pub reconnect_timeout: Duration,
@@ -93,14 +93,14 @@ impl ListenArgs {
             json: self.json,
             baud: self.baud,
             start: Start {
-                rate_hz: self.rate,
+                rate_hz: self.rate_hz,
                 laser_mask: self.lasers,
                 pattern: match self.pattern {
                     PatternArg::Simultaneous => LaserPattern::Simultaneous,
                     PatternArg::Sequential => LaserPattern::Sequential,
                 },
             },
-            exposure_us: self.exposure,
+            exposure_us: self.exposure_us,
             reconnect_timeout: self.reconnect_timeout,
             progress: Progress::Auto,
         }

@@ -31,7 +31,7 @@ pub struct QemuPortArgs {
     /// With PORT `qemu`: the emulated board.
     #[arg(long = "qemu-machine", value_enum)]
     pub qemu_machine: Option<MachineArg>,
-    /// With PORT `qemu`: the head's image [default: built from firmware/qemu].
+    /// With PORT `qemu`: the head's image [default: $CMS_QEMU_IMAGE, cms-qemu-head beside cms-host, or built in the checkout run from].
     #[arg(long = "qemu-image", value_name = "FILE")]
     pub qemu_image: Option<PathBuf>,
 }
@@ -49,7 +49,7 @@ pub struct BenchQemuArgs {
     /// The emulated board.
     #[arg(long, value_enum, default_value_t = MachineArg::An386)]
     pub machine: MachineArg,
-    /// The benchmark's image [default: built from firmware/qemu].
+    /// The benchmark's image [default: $CMS_QEMU_BENCH_IMAGE, cms-qemu-bench beside cms-host, or built in the checkout run from].
     #[arg(long, value_name = "FILE")]
     pub image: Option<PathBuf>,
     /// Clock of the implied rows per second, MHz (1 instruction per cycle).

@@ -478,7 +478,7 @@ pub fn serve<R: RowRenderer>(
     if let Some(us) = opts.exposure_us {
         // The head has no exposure setting but the command's: give it the
         // camera's nominal exposure as a host would (the Ack goes nowhere).
-        head.handle(Command { seq: 0, msg: HostMsg::SetExposure(us) }, 0, &camera, &mut |_| {});
+        head.handle(Command { seq: 0, msg: HostMsg::SetExposure { exposure_us: us } }, 0, &camera, &mut |_| {});
     }
     if let Some(path) = &opts.calibration_file {
         match stored::load(path) {

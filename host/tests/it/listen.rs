@@ -14,29 +14,37 @@
 //! listener never sees a half-made link). To the listener it is one path that
 //! disappears and comes back, as `/dev/ttyACM0` does on a USB replug.
 //!
-//! Before unplugging, the device waits until the listener has read every byte
-//! written so far (`FIONREAD` on the device's own slave descriptor, which
-//! shares the terminal's input queue, staying 0 for 100 ms: written bytes
-//! reach that queue through the kernel's flip buffer a moment after the
-//! write): the frames "in the cable" at the moment of the unplug are then
-//! none, and every frame the device wrote intact can be required at the
-//! other end. (On a real unplug the frame in flight is lost; it arrives
-//! truncated or not at all, and is counted or simply absent.)
+//! Before unplugging, the device waits until the listener has handed on
+//! every frame it wrote intact (the listener's `observe` callback counts
+//! them into a [`Tally`] the device waits on): the frames "in the cable" at
+//! the moment of the unplug are then none, and every frame the device wrote
+//! intact can be required at the other end. (On a real unplug the frame in
+//! flight is lost; it arrives truncated or not at all, and is counted or
+//! simply absent.)
+//!
+//! **No sleeps.** Every wait is for an event, with a deadline: the device
+//! blocks in `poll(2)` on its pty (for a command, or room to write) with
+//! the head's frame tick as the timeout; the test waits for the listener's
+//! messages on the tally's condition variable and for the device's first
+//! plug on a channel; the unplug lasts until the head has turned its lasers
+//! off, the silence until the listener asks again. The only timed waits
+//! left are the head's own clock while nothing is connected to it, and the
+//! listener's protocol timeouts the tests are about.
 
 use crate::common::bin;
 use std::fs::File;
 use std::io::{self, Read, Write};
-use std::os::fd::{AsFd, AsRawFd, OwnedFd};
+use std::os::fd::{AsFd, OwnedFd};
 use std::path::{Path, PathBuf};
 use std::process::{Command as Process, Stdio};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Condvar, Mutex, mpsc};
 use std::thread;
 use std::time::{Duration, Instant};
 
 use cms_core::pipeline::{Camera, Head, Identity, LaserDriver, default_detector};
 use cms_core::protocol::{
-    Command, DeviceMsg, ErrorCode, FrameReader, HeadState, LaserPattern, MAX_COMMAND_FRAME, MAX_FRAME,
+    Command, DeviceMsg, ErrorCode, FrameReader, HeadState, HostMsg, LaserPattern, MAX_COMMAND_FRAME, MAX_FRAME,
     PROTOCOL_VERSION, Start, WireError, encode,
 };
 use cms_host::listen::{ListenError, ListenOptions, Progress, Summary, listen_with};
@@ -128,11 +136,13 @@ enum Damage {
 #[derive(Clone, Debug, Default)]
 struct Plan {
     damage: Vec<(u64, Damage)>,
-    /// Unplug after this many profiles, for this long.
-    unplug: Option<(u64, Duration)>,
-    /// Go silent (neither read nor write nor run the head) after this many
-    /// profiles, for this long.
-    silence: Option<(u64, Duration)>,
+    /// Unplug after this many profiles, until the head has turned its
+    /// lasers off for want of heartbeats.
+    unplug: Option<u64>,
+    /// Go silent (neither answer nor run the head; the commands are kept
+    /// for later) after this many profiles, until the listener asks again
+    /// with `GetInfo`.
+    silence: Option<u64>,
     rate_hz: u16,
     width: u16,
     height: u16,
@@ -162,10 +172,57 @@ struct Report {
     /// Commands the head received, and link errors it saw.
     commands: u64,
     bad_commands: u64,
+    /// How long the silence lasted.
+    silence: Option<Duration>,
 }
+
+/// What the listener has handed on so far, for the threads that wait for it.
+#[derive(Default)]
+struct Tally {
+    seen: Mutex<Seen>,
+    changed: Condvar,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct Seen {
+    /// Messages handed to `observe`.
+    messages: u64,
+    /// Of which profiles.
+    profiles: u64,
+    /// The listener returned.
+    done: bool,
+}
+
+impl Tally {
+    fn update(&self, f: impl FnOnce(&mut Seen)) {
+        f(&mut self.seen.lock().unwrap());
+        self.changed.notify_all();
+    }
+
+    /// Waits until `cond` holds or `deadline` passes; returns what was seen.
+    fn wait_until(&self, deadline: Instant, cond: impl Fn(&Seen) -> bool) -> Seen {
+        let timeout = deadline.saturating_duration_since(Instant::now());
+        let guard = self.seen.lock().unwrap();
+        *self.changed.wait_timeout_while(guard, timeout, |s| !cond(s)).unwrap().0
+    }
+}
+
+/// What the device tells the test, and what it waits on.
+struct Hooks {
+    /// Sent once the link exists.
+    plugged: mpsc::Sender<()>,
+    /// The listener's tally, for an unplug that loses nothing in the cable.
+    listener: Option<Arc<Tally>>,
+}
+
+/// How often the head runs while it has nothing to read: its frame clock
+/// (1 ms is the finest `poll(2)` timeout; the fastest plan is 1000 Hz).
+const TICK: Duration = Duration::from_millis(1);
 
 struct Pty {
     master: File,
+    /// Held open so that the master never sees a hang-up (and reads never
+    /// fail with EIO) before the listener has opened the path.
     slave: OwnedFd,
 }
 
@@ -188,12 +245,16 @@ fn plug(link: &Path) -> Pty {
     Pty { master: File::from(p.master), slave: p.slave }
 }
 
-/// Bytes written to the terminal that its readers have not read yet.
-fn unread(slave: &OwnedFd) -> i32 {
-    let mut n: nix::libc::c_int = 0;
-    // SAFETY: FIONREAD writes one c_int through the pointer, which is valid.
-    let r = unsafe { nix::libc::ioctl(slave.as_raw_fd(), nix::libc::FIONREAD, &mut n as *mut nix::libc::c_int) };
-    if r < 0 { -1 } else { n }
+/// Waits until `fd` has one of `events` (or a hang-up) or `timeout` passes;
+/// returns what it has.
+fn wait_for(fd: &impl AsFd, events: nix::poll::PollFlags, timeout: Duration) -> nix::poll::PollFlags {
+    use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
+    let mut fds = [PollFd::new(fd.as_fd(), events)];
+    let timeout = PollTimeout::try_from(timeout.max(Duration::from_millis(1))).unwrap_or(PollTimeout::MAX);
+    match poll(&mut fds, timeout) {
+        Ok(_) => fds[0].revents().unwrap_or(PollFlags::empty()),
+        Err(_) => PollFlags::empty(), // EINTR: the caller looks again
+    }
 }
 
 fn write_all(master: &mut File, mut bytes: &[u8]) -> io::Result<()> {
@@ -202,10 +263,12 @@ fn write_all(master: &mut File, mut bytes: &[u8]) -> io::Result<()> {
         match master.write(bytes) {
             Ok(n) => bytes = &bytes[n..],
             Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
-                if Instant::now() > deadline {
+                let left = deadline.saturating_duration_since(Instant::now());
+                if left.is_zero() {
                     return Err(io::Error::new(io::ErrorKind::TimedOut, "nobody reads the pty"));
                 }
-                thread::sleep(Duration::from_micros(100));
+                // Until the listener has read enough to make room.
+                wait_for(master, nix::poll::PollFlags::POLLOUT, left);
             }
             Err(e) => return Err(e),
         }
@@ -215,7 +278,7 @@ fn write_all(master: &mut File, mut bytes: &[u8]) -> io::Result<()> {
 
 /// The head on the master side of a pty reached through `link`, until
 /// `stop`. Writes its frames through the injector of `plan`.
-fn device(link: PathBuf, plan: Plan, stop: Arc<AtomicBool>) -> Report {
+fn device(link: PathBuf, plan: Plan, stop: Arc<AtomicBool>, hooks: Hooks) -> Report {
     let lasers = Lasers::default();
     let log = lasers.0.clone();
     let identity = Identity { firmware: "0.1.0-test", board: "test-pty" };
@@ -224,6 +287,7 @@ fn device(link: PathBuf, plan: Plan, stop: Arc<AtomicBool>) -> Report {
     let mut rng = Rng::new(99);
     let epoch = Instant::now();
     let mut pty = Some(plug(&link));
+    let _ = hooks.plugged.send(());
     let mut cmd_reader: Box<FrameReader<MAX_COMMAND_FRAME>> = Box::new(FrameReader::new());
     let mut scratch = vec![0u8; MAX_FRAME];
     let mut frame = vec![0u8; MAX_FRAME];
@@ -234,6 +298,8 @@ fn device(link: PathBuf, plan: Plan, stop: Arc<AtomicBool>) -> Report {
     let mut cmds: Vec<Result<Command, WireError>> = Vec::new();
     let mut clock_ns = move || epoch.elapsed().as_nanos() as u64;
     let mut silenced = false;
+    // Frames written whole and undamaged (what the listener must hand on).
+    let mut intact_frames: u64 = 0;
     let mut last_command: Option<Instant> = None;
     let mut template: Option<cms_core::protocol::Profile> = None;
     let mut unplugged = false;
@@ -325,52 +391,66 @@ fn device(link: PathBuf, plan: Plan, stop: Arc<AtomicBool>) -> Report {
                 if ok && intact {
                     report.sent.push(seq);
                     report.frame_bytes.push(bytes.len());
+                    intact_frames += 1;
                 }
             } else {
                 ok = write_all(&mut p.master, &bytes).is_ok();
+                intact_frames += u64::from(ok);
             }
             if !ok {
                 // The listener is gone: stop writing.
                 stop.store(true, Ordering::SeqCst);
             }
         }
-        if let Some((after, dur)) = plan.silence
+        if let Some(after) = plan.silence
             && !silenced
             && produced >= after
+            && let Some(p) = &mut pty
         {
             silenced = true;
-            thread::sleep(dur);
+            // Silent until the listener, hearing nothing, asks again: the
+            // commands meanwhile (heartbeats, the GetInfo) are kept and
+            // handled afterwards, as a head that stalled would.
+            let t = Instant::now();
+            let deadline = t + Duration::from_secs(10);
+            let mut asked = false;
+            while !asked && Instant::now() < deadline {
+                wait_for(&p.master, nix::poll::PollFlags::POLLIN, deadline.saturating_duration_since(Instant::now()));
+                while let Ok(n @ 1..) = p.master.read(&mut rbuf) {
+                    cmd_reader.feed(&rbuf[..n], |r: Result<Command, WireError>| {
+                        asked |= matches!(r, Ok(Command { msg: HostMsg::GetInfo, .. }));
+                        cmds.push(r);
+                    });
+                }
+            }
+            report.silence = Some(t.elapsed());
         }
-        if let Some((after, dur)) = plan.unplug
+        if let Some(after) = plan.unplug
             && !unplugged
             && produced >= after
             && let Some(p) = pty.take()
         {
             unplugged = true;
-            // Let the listener read everything first: no frame in the cable.
-            // Written bytes reach the terminal's input queue (which FIONREAD
-            // counts) through the kernel's flip buffer a moment later, so
-            // the queue must stay empty for a while.
-            let t = Instant::now();
-            let mut empty_since = Instant::now();
-            while t.elapsed() < Duration::from_secs(5) {
-                if unread(&p.slave) != 0 {
-                    empty_since = Instant::now();
-                } else if empty_since.elapsed() >= Duration::from_millis(100) {
-                    break;
-                }
-                thread::sleep(Duration::from_millis(2));
-            }
+            // Let the listener hand on everything first: no frame in the cable.
+            let tally = hooks.listener.as_ref().expect("an unplug needs the listener's tally");
+            let seen = tally.wait_until(Instant::now() + Duration::from_secs(5), |s| s.messages >= intact_frames);
+            assert!(seen.messages >= intact_frames, "the listener handed on {seen:?} of {intact_frames} frames");
             let _ = std::fs::remove_file(&link);
             drop(p);
-            report.unplugged = Some(Instant::now());
+            let t = Instant::now();
+            report.unplugged = Some(t);
             report.last_heard = last_command;
-            // Unplugged: the head runs on, hears nothing, and must turn its
-            // lasers off after 1 s; whatever it says is lost.
-            while report.unplugged.is_some_and(|u| u.elapsed() < dur) && !stop.load(Ordering::SeqCst) {
+            // Unplugged: the head runs on its clock, hears nothing, and must
+            // turn its lasers off after 1 s; whatever it says is lost. Plugged
+            // back once it has (or after 5 s, which the test then reports).
+            while t.elapsed() < Duration::from_secs(5)
+                && !(head.state() == HeadState::Fault && head.lasers_on() == 0)
+                && !stop.load(Ordering::SeqCst)
+            {
                 let now_us = epoch.elapsed().as_micros() as u64;
                 head.poll(now_us, &mut camera, &mut clock_ns, &mut |_m: &DeviceMsg| {});
-                thread::sleep(Duration::from_millis(1));
+                // Nothing is connected: nothing to wait on but the clock.
+                thread::sleep(TICK);
             }
             report.before_replug = Some((head.state(), head.lasers_on()));
             *cmd_reader = FrameReader::new();
@@ -378,8 +458,9 @@ fn device(link: PathBuf, plan: Plan, stop: Arc<AtomicBool>) -> Report {
             report.replugged = Some(Instant::now());
             continue;
         }
-        if idle {
-            thread::sleep(Duration::from_micros(300));
+        if idle && let Some(p) = &pty {
+            // Until a command arrives, or the head's next tick.
+            wait_for(&p.master, nix::poll::PollFlags::POLLIN, TICK);
         }
     }
     report.end = Some((head.state(), head.lasers_on()));
@@ -415,20 +496,18 @@ fn thread_cpu_s() -> f64 {
 fn run(dir: &Path, plan: Plan, mut opts: ListenOptions, want: u64, limit: Duration) -> Run {
     let link = dir.join("ttyCMS");
     let dev_stop = Arc::new(AtomicBool::new(false));
+    let tally = Arc::new(Tally::default());
+    let (plugged, is_plugged) = mpsc::channel();
     let dev = {
         let (link, stop) = (link.clone(), dev_stop.clone());
-        thread::Builder::new().stack_size(16 << 20).spawn(move || device(link, plan, stop)).unwrap()
+        let hooks = Hooks { plugged, listener: Some(tally.clone()) };
+        thread::Builder::new().stack_size(16 << 20).spawn(move || device(link, plan, stop, hooks)).unwrap()
     };
-    // The device creates the link.
-    let t = Instant::now();
-    while std::fs::symlink_metadata(&link).is_err() && t.elapsed() < Duration::from_secs(10) {
-        thread::sleep(Duration::from_millis(5));
-    }
+    is_plugged.recv_timeout(Duration::from_secs(10)).expect("the device creates the link");
     opts.progress = Progress::Quiet;
     let stop = Arc::new(AtomicBool::new(false));
-    let count = Arc::new(AtomicU64::new(0));
     let listener = {
-        let (stop, count, port) = (stop.clone(), count.clone(), link.to_string_lossy().into_owned());
+        let (stop, tally, port) = (stop.clone(), tally.clone(), link.to_string_lossy().into_owned());
         thread::Builder::new()
             .stack_size(16 << 20)
             .spawn(move || {
@@ -439,22 +518,24 @@ fn run(dir: &Path, plan: Plan, mut opts: ListenOptions, want: u64, limit: Durati
                 let summary = listen_with(&port, &opts, &stop, &mut json, &mut |m| {
                     if let DeviceMsg::Profile(p) = m {
                         seen.push(p.seq);
-                        count.fetch_add(1, Ordering::SeqCst);
                     }
+                    let profile = matches!(m, DeviceMsg::Profile(_));
+                    tally.update(|s| {
+                        s.messages += 1;
+                        s.profiles += u64::from(profile);
+                    });
                 });
                 let cpu = thread_cpu_s() - c0;
+                tally.update(|s| s.done = true);
                 (summary, seen, json, cpu, t0.elapsed().as_secs_f64())
             })
             .unwrap()
     };
-    let t = Instant::now();
-    while count.load(Ordering::SeqCst) < want && t.elapsed() < limit && !listener.is_finished() {
-        thread::sleep(Duration::from_millis(10));
-    }
+    tally.wait_until(Instant::now() + limit, |s| s.profiles >= want || s.done);
     stop.store(true, Ordering::SeqCst);
     let (summary, seen, json, cpu_s, wall_s) = listener.join().expect("the listener panicked");
-    // Let the head see the Stop's aftermath, then end the device.
-    thread::sleep(Duration::from_millis(100));
+    // The listener has waited for the head's Ack of its Stop and the Status
+    // after it, so the head's state is final: end the device.
     dev_stop.store(true, Ordering::SeqCst);
     let report = dev.join().expect("the device panicked");
     Run { summary, seen, json, report, cpu_s, wall_s }
@@ -502,7 +583,7 @@ fn survives_garbage_flips_truncation_and_replug() {
         (41, Damage::Truncate),
         (47, Damage::Flip),
     ];
-    plan.unplug = Some((25, Duration::from_millis(1500)));
+    plan.unplug = Some(25);
     let opts = ListenOptions {
         record: Some(rec.clone()),
         json: true,
@@ -576,13 +657,13 @@ fn survives_garbage_flips_truncation_and_replug() {
     assert_eq!(seqs, r.seen);
 }
 
-/// A head that goes silent for 2.5 s: the listener asks again (GetInfo,
+/// A head that goes silent: after 2 s the listener asks again (GetInfo,
 /// Start) and the stream resumes without losing an intact frame.
 #[test]
 fn a_silent_head_is_asked_again() {
     let dir = tempfile::tempdir().unwrap();
     let mut plan = small_plan();
-    plan.silence = Some((10, Duration::from_millis(2500)));
+    plan.silence = Some(10);
     let opts = ListenOptions {
         start: Start { rate_hz: plan.rate_hz, laser_mask: 0b101, pattern: LaserPattern::Sequential },
         ..ListenOptions::default()
@@ -592,6 +673,8 @@ fn a_silent_head_is_asked_again() {
     assert!(r.seen.len() >= 40);
     assert_eq!(r.seen[..], r.report.sent[..r.seen.len()]);
     assert_eq!(sum.stalls, 1, "{sum}");
+    let silence = r.report.silence.expect("the head went silent");
+    assert!(silence >= Duration::from_secs(2) && silence < Duration::from_secs(4), "asked again after {silence:?}");
     assert_eq!(sum.reconnects, 0);
     assert_eq!(sum.link.damaged(), 0);
     // Sequential pattern: lasers 0 and 2 in turn, never together.
@@ -689,19 +772,19 @@ impl Served {
     fn new(dir: &Path) -> Served {
         let link = dir.join("ttyCLI");
         let stop = Arc::new(AtomicBool::new(false));
+        let (plugged, is_plugged) = mpsc::channel();
         let dev = {
             let (link, stop) = (link.clone(), stop.clone());
-            thread::Builder::new().stack_size(16 << 20).spawn(move || device(link, small_plan(), stop)).unwrap()
+            let hooks = Hooks { plugged, listener: None };
+            thread::Builder::new().stack_size(16 << 20).spawn(move || device(link, small_plan(), stop, hooks)).unwrap()
         };
-        let t = Instant::now();
-        while std::fs::symlink_metadata(&link).is_err() && t.elapsed() < Duration::from_secs(10) {
-            thread::sleep(Duration::from_millis(5));
-        }
+        is_plugged.recv_timeout(Duration::from_secs(10)).expect("the device creates the link");
         Served { stop, dev: Some(dev), link }
     }
 
+    /// Ends the device once the listener process has exited (having had
+    /// its Stop acknowledged, which the tests check on its stderr).
     fn finish(mut self) -> Report {
-        thread::sleep(Duration::from_millis(100));
         self.stop.store(true, Ordering::SeqCst);
         self.dev.take().unwrap().join().expect("device panicked")
     }
@@ -838,6 +921,50 @@ fn cli_closed_stdout_ends_quietly() {
     assert_eq!(report.end, Some((HeadState::Idle, 0)));
 }
 
+/// An installed `cms-host` (a copy outside the checkout, run from outside
+/// it) finds the emulated head's image beside itself or through
+/// `CMS_QEMU_IMAGE`, and without one says in one line what to do.
+#[test]
+fn cli_qemu_image_outside_the_checkout() {
+    let dir = tempfile::tempdir().unwrap();
+    let installed = dir.path().join("cms-host");
+    std::fs::copy(bin(), &installed).unwrap();
+    let run = |env: Option<&Path>| {
+        let mut cmd = Process::new(&installed);
+        cmd.args(["listen", "qemu", "--frames", "1", "--reconnect-timeout", "1"])
+            .current_dir(dir.path())
+            .env_remove("CMS_QEMU_IMAGE");
+        if let Some(p) = env {
+            cmd.env("CMS_QEMU_IMAGE", p);
+        }
+        let out = cmd.stdin(Stdio::null()).output().unwrap();
+        (out.status.code(), String::from_utf8_lossy(&out.stderr).into_owned())
+    };
+    let (code, stderr) = run(None);
+    // Which failure status is the command line's (cli::exit); not success.
+    assert!(code.is_some_and(|c| c != 0), "{code:?}: {stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.contains("no emulated head image cms-qemu-head: give --qemu-image FILE, set CMS_QEMU_IMAGE"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("`cd firmware/qemu && cargo build --release`"), "{stderr}");
+
+    let missing = dir.path().join("nowhere.elf");
+    let (code, stderr) = run(Some(&missing));
+    // Which failure status is the command line's (cli::exit); not success.
+    assert!(code.is_some_and(|c| c != 0), "{code:?}: {stderr}");
+    assert!(stderr.contains(&format!("emulated head image {} does not exist", missing.display())), "{stderr}");
+
+    // Not an image QEMU can run: what matters is that it was found (QEMU
+    // then fails, or is not installed), not the old "no image" error.
+    std::fs::write(dir.path().join("cms-qemu-head"), b"not an ELF").unwrap();
+    let (code, stderr) = run(None);
+    assert_ne!(code, Some(0), "{stderr}");
+    assert!(!stderr.contains("no emulated head image"), "the image beside the binary is used: {stderr}");
+    assert!(stderr.contains("qemu"), "{stderr}");
+}
+
 fn cobs_decode(f: &[u8]) -> Vec<u8> {
     let mut out = Vec::new();
     let mut i = 0;
@@ -878,7 +1005,7 @@ fn cobs_encode(raw: &[u8]) -> Vec<u8> {
 fn another_protocol_version_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("ttyV2");
-    let mut pty = plug(&link);
+    let pty = plug(&link);
     // A Hello framed as the next protocol version (CRC recomputed).
     let mut info = None;
     let head: Head<W, Lasers> =
@@ -896,25 +1023,30 @@ fn another_protocol_version_is_refused() {
     raw[n..].copy_from_slice(&crc.to_le_bytes());
     let mut v2 = cobs_encode(&raw);
     v2.push(0);
-    let stop = Arc::new(AtomicBool::new(false));
-    let answer = {
-        let stop = stop.clone();
-        thread::spawn(move || {
-            let mut buf = [0u8; 256];
-            while !stop.load(Ordering::SeqCst) {
-                if let Ok(n) = pty.master.read(&mut buf)
-                    && buf[..n].contains(&0)
-                {
-                    let _ = write_all(&mut pty.master, &v2);
-                }
-                thread::sleep(Duration::from_millis(2));
+    // The answering thread blocks on the master until a command arrives, and
+    // ends at the hang-up when the last slave descriptor closes: the
+    // listener's, then this test's own (kept until the listener is done, so
+    // the master never hangs up before the listener has opened the path).
+    let Pty { mut master, slave } = pty;
+    let answer = thread::spawn(move || {
+        use nix::poll::PollFlags;
+        let mut buf = [0u8; 256];
+        loop {
+            let ev = wait_for(&master, PollFlags::POLLIN, Duration::from_secs(60));
+            if ev.intersects(PollFlags::POLLHUP | PollFlags::POLLERR) || ev.is_empty() {
+                break;
             }
-        })
-    };
+            if let Ok(n) = master.read(&mut buf)
+                && buf[..n].contains(&0)
+            {
+                let _ = write_all(&mut master, &v2);
+            }
+        }
+    });
     let opts = ListenOptions { progress: Progress::Quiet, ..ListenOptions::default() };
     let e =
         listen_with(link.to_str().unwrap(), &opts, &AtomicBool::new(false), &mut io::sink(), &mut |_| {}).unwrap_err();
-    stop.store(true, Ordering::SeqCst);
+    drop(slave);
     answer.join().unwrap();
     assert!(matches!(e, ListenError::Version { theirs, .. } if theirs == PROTOCOL_VERSION + 1), "{e}");
     let want =

@@ -87,7 +87,7 @@ fn status() -> DeviceMsg {
         state: HeadState::Streaming,
         lasers_on: 7,
         frames: 3,
-        frame_rate_mhz: 30_000,
+        frame_rate_millihz: 30_000,
         rows_per_s: 14_400,
         dropped_frames: 2,
         ns_per_row: 900,
@@ -510,7 +510,7 @@ fn fuzz_frame_readers_bounded() {
             frame(&DeviceMsg::Ack(3)),
             frame(&DeviceMsg::Error { seq: None, code: cms_core::protocol::ErrorCode::HeartbeatLost }),
             frame(&Command { seq: 1, msg: HostMsg::GetInfo }),
-            frame(&Command { seq: 2, msg: HostMsg::SetExposure(150) }),
+            frame(&Command { seq: 2, msg: HostMsg::SetExposure { exposure_us: 150 } }),
         ];
         let budget: usize = if cfg!(debug_assertions) { 4 << 20 } else { 32 << 20 };
         let mut total = 0usize;

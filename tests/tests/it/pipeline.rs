@@ -202,7 +202,9 @@ fn heartbeat_loss_turns_the_lasers_off() {
 
 #[test]
 fn any_error_while_streaming_stops_with_lasers_off() {
-    for bad in [HostMsg::SetDetector(default_detector()), HostMsg::SetExposure(0), HostMsg::CaptureImage(1)] {
+    for bad in
+        [HostMsg::SetDetector(default_detector()), HostMsg::SetExposure { exposure_us: 0 }, HostMsg::CaptureImage(1)]
+    {
         let (mut h, l) = head();
         let mut cam = Cam::watching(&l);
         let mut ns = || 0u64;
@@ -409,12 +411,12 @@ fn exposure_times_rate_over_the_duty_limit_is_refused() {
     let (mut h, l) = head();
     let mut cam = Cam::watching(&l);
     // 30 ms at 10 Hz is 30 %: over the 25 % limit.
-    h.handle(cmd(1, HostMsg::SetExposure(30_000)), 0, &cam, &mut |_| {});
+    h.handle(cmd(1, HostMsg::SetExposure { exposure_us: 30_000 }), 0, &cam, &mut |_| {});
     let out = collect(|r| h.handle(cmd(2, start(0b111, LaserPattern::Simultaneous)), 0, &cam, &mut |m| r(m)));
     assert_eq!(out, vec![DeviceMsg::Error { seq: Some(2), code: ErrorCode::OutOfRange }]);
     assert_eq!(h.state(), HeadState::Idle);
     // 25 ms at 10 Hz is exactly the limit: accepted, and strobed 25 % of the time.
-    h.handle(cmd(3, HostMsg::SetExposure(25_000)), 0, &cam, &mut |_| {});
+    h.handle(cmd(3, HostMsg::SetExposure { exposure_us: 25_000 }), 0, &cam, &mut |_| {});
     h.handle(cmd(4, start(0b111, LaserPattern::Simultaneous)), 0, &cam, &mut |_| {});
     assert_eq!(h.state(), HeadState::Streaming);
     let mut status = None;
@@ -432,7 +434,8 @@ fn exposure_times_rate_over_the_duty_limit_is_refused() {
     assert_eq!(status.unwrap().laser_duty_permille, 250);
     assert_eq!(status.unwrap().dropped_frames, 0);
     // Raising the exposure while streaming past the limit is a fault: lasers off.
-    let out = collect(|r| h.handle(cmd(6, HostMsg::SetExposure(26_000)), 2_000_000, &cam, &mut |m| r(m)));
+    let out =
+        collect(|r| h.handle(cmd(6, HostMsg::SetExposure { exposure_us: 26_000 }), 2_000_000, &cam, &mut |m| r(m)));
     assert!(out.contains(&DeviceMsg::Error { seq: Some(6), code: ErrorCode::OutOfRange }));
     assert_eq!(h.state(), HeadState::Fault);
     assert_eq!(l.now(), 0);
@@ -553,14 +556,14 @@ fn settings_changes_ask_to_be_stored_and_restore_reports_what_it_refused() {
     assert_eq!(h.take_store_request(), None, "nothing changed");
     assert_eq!(h.info(&cam).store, StoreHealth::Volatile);
     h.handle(cmd(1, HostMsg::SetCalibration(calibration(7))), 0, &cam, &mut |_| {});
-    h.handle(cmd(2, HostMsg::SetExposure(300)), 0, &cam, &mut |_| {});
+    h.handle(cmd(2, HostMsg::SetExposure { exposure_us: 300 }), 0, &cam, &mut |_| {});
     let s = h.take_store_request().expect("changed");
     assert_eq!(s.calibration, Some(calibration(7)));
     assert_eq!(s.exposure_us, 300);
     assert_eq!(h.take_store_request(), None, "asked once");
     // Not while streaming (a flash erase stalls the bus for a second).
     h.handle(cmd(3, start(0b001, LaserPattern::Simultaneous)), 0, &cam, &mut |_| {});
-    h.handle(cmd(4, HostMsg::SetExposure(200)), 0, &cam, &mut |_| {});
+    h.handle(cmd(4, HostMsg::SetExposure { exposure_us: 200 }), 0, &cam, &mut |_| {});
     assert_eq!(h.take_store_request(), None);
     h.handle(cmd(5, HostMsg::Stop), 0, &cam, &mut |_| {});
     assert_eq!(h.take_store_request().map(|s| s.exposure_us), Some(200));
@@ -780,7 +783,7 @@ fn ring_capture(band_rows: u16) -> (Vec<Option<u16>>, RingCam, Vec<DeviceMsg>) {
                 sent += r.data.len() as u64 + 16;
                 clock.set(clock.get() + r.data.len() as u64 + 16);
                 for (k, px) in r.data.chunks_exact(2).enumerate() {
-                    let i = usize::from(r.first_row) * 752 + r.offset as usize / 2 + k;
+                    let i = usize::from(r.first_row) * 752 + r.offset_bytes as usize / 2 + k;
                     image[i] = Some(u16::from_le_bytes([px[0], px[1]]));
                 }
             }

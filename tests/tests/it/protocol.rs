@@ -75,7 +75,7 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
                 state: HeadState::Streaming,
                 lasers_on: 7,
                 frames: 1000,
-                frame_rate_mhz: 30_000,
+                frame_rate_millihz: 30_000,
                 rows_per_s: 14_400,
                 dropped_frames: 0,
                 ns_per_row: 52_000,
@@ -94,7 +94,7 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
             frame(&DeviceMsg::RawRows(RawRows {
                 capture: 9,
                 first_row: 2,
-                offset: 0,
+                offset_bytes: 0,
                 width: 4,
                 height: 3,
                 bits: 8,
@@ -109,7 +109,7 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
             }),
         ),
         ("stop", frame(&Command { seq: 2, msg: HostMsg::Stop })),
-        ("exposure", frame(&Command { seq: 3, msg: HostMsg::SetExposure(250) })),
+        ("exposure", frame(&Command { seq: 3, msg: HostMsg::SetExposure { exposure_us: 250 } })),
         ("detector", frame(&Command { seq: 4, msg: HostMsg::SetDetector(default_detector()) })),
         (
             "calibration",
@@ -202,7 +202,7 @@ fn encoded_sizes_are_bounded() {
     let raw_rows = DeviceMsg::RawRows(RawRows {
         capture: u16::MAX,
         first_row: u16::MAX,
-        offset: u32::MAX,
+        offset_bytes: u32::MAX,
         width: u16::MAX,
         height: u16::MAX,
         bits: 16,
@@ -224,7 +224,7 @@ fn encoded_sizes_are_bounded() {
     det.saturation = u16::MAX;
     let det = Command { seq: u16::MAX, msg: HostMsg::SetDetector(det) };
     let trig = Command { seq: u16::MAX, msg: HostMsg::SetTrigger(Trigger::Distance { every_um: u32::MAX }) };
-    for c in [cal, det, trig, Command { seq: u16::MAX, msg: HostMsg::SetExposure(u32::MAX) }] {
+    for c in [cal, det, trig, Command { seq: u16::MAX, msg: HostMsg::SetExposure { exposure_us: u32::MAX } }] {
         let len = frame(&c).len();
         assert!(len <= MAX_COMMAND_FRAME, "{c:?}: {len}");
     }
@@ -335,7 +335,7 @@ proptest! {
     fn commands_round_trip(seq in any::<u16>(), rate in any::<u16>(), mask in any::<u8>(), exp in any::<u32>(), which in 0u8..7) {
         let msg = match which {
             0 => HostMsg::Start(Start { rate_hz: rate, laser_mask: mask, pattern: LaserPattern::Simultaneous }),
-            1 => HostMsg::SetExposure(exp),
+            1 => HostMsg::SetExposure { exposure_us: exp },
             2 => HostMsg::CaptureImage(mask),
             3 => HostMsg::Stop,
             4 => HostMsg::Heartbeat,

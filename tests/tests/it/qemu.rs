@@ -16,14 +16,14 @@
 
 use std::sync::Mutex;
 use std::sync::atomic::AtomicBool;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use cms_core::pipeline::{Head, Identity, LaserDriver, default_detector};
 use cms_core::protocol::{
     Command, DeviceInfo, DeviceMsg, HeadState, HostMsg, LaserPattern, PROTOCOL_VERSION, Profile, Start, Status,
 };
 use cms_core::synthetic::{Scene, SceneCamera, SceneConfig};
-use cms_host::link::{Deframer, Link};
+use cms_host::link::{Client, ClientError, Wait};
 use cms_host::listen::{ListenOptions, Progress, Summary, listen_with};
 use cms_host::qemu::{self, Machine, Qemu};
 
@@ -87,21 +87,19 @@ fn listen_to_qemu(machine: Machine, start: Start, frames: u64) -> Session {
 
 /// Sends `Stop` and returns the `Status` that follows its `Ack`.
 fn status_after_stop(port: &str) -> Status {
-    let mut link = Link::open(port, 115_200).expect("the pty opens again");
-    let seq = 0x7fff;
-    assert!(link.send(seq, HostMsg::Stop).expect("Stop is sent"), "the head takes a Stop");
-    let mut deframer = Deframer::new();
-    let (mut acked, mut status) = (false, None);
-    let mut buf = vec![0u8; 1 << 16];
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while status.is_none() && Instant::now() < deadline {
-        let n = link.read(&mut buf).expect("the pty stays open");
-        deframer.feed(&buf[..n], |r, _| match r {
-            Ok(DeviceMsg::Ack(s)) if s == seq => acked = true,
-            Ok(DeviceMsg::Status(st)) if acked => status = Some(st),
-            _ => {}
-        });
-    }
+    let mut client = Client::open(port, 115_200).expect("the pty opens again");
+    let seq = client.send(HostMsg::Stop).expect("the head takes a Stop");
+    let mut acked = false;
+    let status = client.until("Stop", Wait::Within(Duration::from_secs(30)), |m| {
+        Ok::<_, ClientError>(match m {
+            DeviceMsg::Ack(s) if s == seq => {
+                acked = true;
+                None
+            }
+            DeviceMsg::Status(st) if acked => Some(st),
+            _ => None,
+        })
+    });
     status.expect("a Status after the Ack of Stop within 30 s")
 }
 
