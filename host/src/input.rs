@@ -174,6 +174,12 @@ pub struct InputError {
     pub kind: InputErrorKind,
 }
 
+impl crate::error::Classify for InputError {
+    fn class(&self) -> crate::Class {
+        crate::Class::Input
+    }
+}
+
 impl fmt::Display for InputError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{}: {}", self.path.display(), self.kind)
