@@ -26,6 +26,17 @@
 //! section needed) stops the run with a one-line error and exit status 2; an
 //! image or frame whose lines cannot be fitted is reported as such and the
 //! run goes on.
+//!
+//! **Inputs that must belong together** are checked before anything is
+//! measured: an image of another size than the calibration's camera, a
+//! recording whose `Hello` names another calibration id or sensor size, or
+//! whose points lie outside the camera's image, is refused
+//! ([`CalibrationFile::check_image`], [`CalibrationFile::check_recording`],
+//! the same check `analyze --calibration` makes). That costs one extra read
+//! of a recording (decoding only, ~2 000 frames/s) so that a wrong pairing
+//! fails at once rather than after the whole measurement. Damaged frames and
+//! profile messages present twice are skipped and said on stderr
+//! ([`record::warnings`]).
 
 use std::io::{self, Write};
 use std::path::Path;

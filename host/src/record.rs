@@ -39,6 +39,12 @@
 //! the operating system to commit (`fsync`) at least every second, and
 //! flushes and commits at exit.
 //!
+//! **Duplicates.** A profile message present twice in one session (the same
+//! `seq` and `part` since the last `Hello`: a frame written twice) is read
+//! once; readers count and report the copies ([`ScanStats::duplicates`],
+//! [`warnings`]), so `info`, `export`, `measure` and `analyze` neither count
+//! nor use a frame twice.
+//!
 //! There is no host time stamp: profiles carry the head's exposure time
 //! (`timestamp_us`) and odometer, which is what every analysis uses.
 

@@ -810,6 +810,22 @@ rms_mm = 0.003
     }
 
     #[test]
+    fn camera_sigma_round_trips_and_old_files_still_load() {
+        // FULL is a file of before [camera_sigma] and the laser spread.
+        let mut f = CalibrationFile::parse(FULL, "cal.toml").unwrap();
+        assert!(f.camera_sigma.is_none());
+        f.camera_sigma = Some(SigmaSection { fx_px: Some(0.23), k1: Some(1.5e-3), ..SigmaSection::default() });
+        f.lasers[1].spread_mm = Some(12.5);
+        let text = f.to_toml();
+        assert!(text.contains("[camera_sigma]\nfx_px = 0.23\nk1 = 0.0015\n"), "{text}");
+        assert_eq!(CalibrationFile::parse(&text, "again").unwrap(), f);
+        let e = err(&text.replace("fx_px = 0.23", "fx_px = -1.0"));
+        assert_eq!(e, "cal.toml: camera_sigma.fx_px = -1 must be a finite number ≥ 0");
+        let e = err(&text.replace("spread_mm = 12.5", "spread_mm = nan"));
+        assert!(e.contains("laser 1: spread_mm = NaN"), "{e}");
+    }
+
+    #[test]
     fn normals_are_renormalised() {
         let f = CalibrationFile::parse(&FULL.replace("nz = -1.0", "nz = -1.0005"), "cal.toml").unwrap();
         assert_eq!(f.datum.unwrap().nz, -1.0);
