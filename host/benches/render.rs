@@ -1,11 +1,13 @@
-//! Cost of one calibration image of the paper's head (4752 × 3168, the
-//! board with every laser on): what `cms-host calibrate render --preset
+//! What the simulator costs: one camera frame of the reference head (752 ×
+//! 480, all lasers) and of the paper's head (4752 × 3168), with and without
+//! noise, its truth alone; and one calibration image of the paper's head
+//! (the board with every laser on), what `cms-host calibrate render --preset
 //! paper` spends per pose.
 //!
 //! `cargo bench -p cms-host --bench render`.
 
 use cms_host::sim::board::{self, BoardRenderer, RenderOptions};
-use cms_host::sim::{Scene, SimConfig};
+use cms_host::sim::{NoiseModel, Scene, SimConfig};
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
 use std::time::Duration;
@@ -27,5 +29,31 @@ fn paper_board_image(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, paper_board_image);
+fn frames(c: &mut Criterion) {
+    let quiet = |mut cfg: SimConfig| {
+        cfg.noise = NoiseModel { read_noise_e: 0.0, shot_noise: false, row_banding_e: 0.0, ..cfg.noise };
+        cfg
+    };
+    let mut g = c.benchmark_group("sim frame");
+    g.sample_size(10);
+    for (name, cfg) in [
+        ("reference", SimConfig::reference()),
+        ("reference, noise-free", quiet(SimConfig::reference())),
+        ("paper", SimConfig::paper()),
+    ] {
+        let mut scene = Scene::new(cfg).expect("the presets are valid");
+        let mut img = vec![0u16; scene.width() * scene.height()];
+        let mut i = 0u64;
+        g.bench_function(format!("{name}: render_frame"), |b| {
+            b.iter(|| {
+                i += 1;
+                black_box(scene.render_frame(i, 0b111, &mut img))
+            })
+        });
+        g.bench_function(format!("{name}: frame_truth"), |b| b.iter(|| black_box(scene.frame_truth(1, 0b111))));
+    }
+    g.finish();
+}
+
+criterion_group!(benches, frames, paper_board_image);
 criterion_main!(benches);

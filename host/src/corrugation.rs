@@ -55,7 +55,7 @@
 //! first, see "Lateral slope" below, so they agree); each line's own fit is
 //! reported beside it, so a rail whose corrugation really differs across the band
 //! shows up as disagreeing lines. Linear in all but ω and κ; refined by
-//! `fit`'s Levenberg–Marquardt from start values taken per line (a quadratic
+//! the Levenberg–Marquardt of [`crate::lm`] from start values taken per line (a quadratic
 //! trend, then on what is left `fit`'s sine for the longest line and the
 //! linear fit at its ω for the others; κ from the lines' phases against
 //! their lateral positions). With one line κ is fixed at 0.
@@ -103,6 +103,7 @@ use serde::Serialize;
 use cms_core::triangulation::Triangulator;
 
 use crate::fit::{self, FitError, Options};
+use crate::lm;
 
 type V3 = [f64; 3];
 
@@ -548,13 +549,24 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
     // inflates its scatter (1.5× at 100 mm on the paper's frame).
     let fixed = |i: usize| (i == KAPPA && !several) || i == LINES + 1;
     let simple: Vec<usize> = (0..p0.len()).filter(|&i| !fixed(i) && i != CURVE && (i < LINES || i % 2 == 0)).collect();
-    let lm = fit::levenberg_marquardt(p0, &simple, |p| evaluate(&s, p, &simple))
-        .ok_or(FitError::Degenerate("the joint model cannot be evaluated"))?;
+    let lm = lm::levenberg_marquardt(
+        p0,
+        &simple,
+        fit::MAX_ITERATIONS,
+        &mut lm::Joint::new(|p: &[f64]| evaluate(&s, p, &simple)),
+    )
+    .ok_or(FitError::Degenerate("the joint model cannot be evaluated"))?;
     let trend: Vec<usize> = (0..lm.p.len()).filter(|&i| !fixed(i)).collect();
     let extra = trend.len() - simple.len();
     let n_all = s.x.len();
     let simple_len = simple.len();
-    let (lm, free) = match fit::levenberg_marquardt(lm.p.clone(), &trend, |p| evaluate(&s, p, &trend)) {
+    let joint = lm::levenberg_marquardt(
+        lm.p.clone(),
+        &trend,
+        fit::MAX_ITERATIONS,
+        &mut lm::Joint::new(|p: &[f64]| evaluate(&s, p, &trend)),
+    );
+    let (lm, free) = match joint {
         Some(full) if n_all > trend.len() && full.rss < lm.rss => {
             let f = ((lm.rss - full.rss) / extra as f64) / (full.rss / (n_all - trend.len()) as f64);
             if f > F_TREND { (full, trend) } else { (lm, simple) }

@@ -44,7 +44,7 @@
 //! wins. For the rotated model, θ starts from the slope of a straight-line
 //! fit, the points are rotated by it and the sine start is found on those.
 //!
-//! **Refinement.** Levenberg–Marquardt (Marquardt's diagonal scaling) on all
+//! **Refinement.** Levenberg–Marquardt ([`crate::lm`], Marquardt's diagonal scaling) on all
 //! parameters jointly; it only accepts steps that lower the residual, so it
 //! cannot diverge. Components beyond the first are started by fitting the
 //! residual of the previous ones (dominant first), then refined jointly.
@@ -59,7 +59,8 @@
 //! # Cost
 //!
 //! n points, k components: each LM iteration O(n·(3k+2)²) plus 2–3 Newton
-//! steps per point; the DFT O(M²) on the resampled profile (M ≤ 2048 points);
+//! steps per point; the zero-padded FFT (`rustfft`) O(M log M) on the resampled profile
+//! (M ≤ 2048 points);
 //! the fallback scan O(n·G) with G ≤ 4096 grid points. A 400-point profile
 //! fits in milliseconds (the whole `cms-host fit` run: ~50 ms).
 //!
@@ -82,7 +83,11 @@
 use std::fmt;
 
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix4, Vector3, Vector4};
+use rustfft::FftPlanner;
+use rustfft::num_complex::Complex;
 use serde::Serialize;
+
+use crate::lm;
 
 /// Most Levenberg–Marquardt iterations of the joint refinement.
 pub const MAX_ITERATIONS: usize = 200;
@@ -553,23 +558,16 @@ pub fn dft_omega(x: &[f64], z: &[f64]) -> Option<f64> {
         *v -= icpt + slope * i as f64;
     }
     let m = v.len() as f64;
-    // Frequencies in cycles per record: 0.5 .. m/2 in steps of 1/8.
+    // Zero-padded ×8: bin j of the 8M-point FFT is j/8 cycles per record;
+    // bins 4..=4M are 0.5 .. M/2 cycles per record in steps of 1/8.
+    let len = 8 * v.len();
+    let mut buf = vec![Complex::new(0.0, 0.0); len];
+    for (b, &v) in buf.iter_mut().zip(&v) {
+        b.re = v;
+    }
+    FftPlanner::<f64>::new().plan_fft_forward(len).process(&mut buf);
     let bins: Vec<f64> = (4..=(4 * v.len())).map(|j| j as f64 / 8.0).collect();
-    let mag: Vec<f64> = bins
-        .iter()
-        .map(|f| {
-            let w = 2.0 * std::f64::consts::PI * f / m;
-            let (sw, cw) = w.sin_cos();
-            let (mut re, mut im, mut c, mut s) = (0.0, 0.0, 1.0, 0.0);
-            for &v in &v {
-                re += v * c;
-                im -= v * s;
-                // Rotate the phasor: a recurrence, not sin/cos per sample.
-                (c, s) = (c * cw - s * sw, s * cw + c * sw);
-            }
-            re.hypot(im)
-        })
-        .collect();
+    let mag: Vec<f64> = buf[4..=(4 * v.len())].iter().map(|c| c.norm()).collect();
     let k = (0..mag.len()).max_by(|&a, &b| mag[a].total_cmp(&mag[b]))?;
     let mut f = bins[k];
     if k > 0 && k + 1 < mag.len() {
@@ -799,83 +797,13 @@ struct Refined {
 /// Levenberg–Marquardt on the model of [`evaluate`].
 fn refine(x: &[f64], z: &[f64], p0: Params, fit_rotation: bool) -> Option<Refined> {
     let free: Vec<usize> = (0..p0.0.len()).filter(|&i| fit_rotation || i != 1).collect();
-    levenberg_marquardt(p0.0, &free, |p| evaluate(x, z, &Params(p.to_vec()), fit_rotation, true)).map(|o| Refined {
+    let mut problem = lm::Joint::new(|p: &[f64]| evaluate(x, z, &Params(p.to_vec()), fit_rotation, true));
+    lm::levenberg_marquardt(p0.0, &free, MAX_ITERATIONS, &mut problem).map(|o| Refined {
         p: Params(o.p),
         rss: o.rss,
         iterations: o.iterations,
         converged: o.converged,
     })
-}
-
-/// Outcome of [`levenberg_marquardt`].
-pub(crate) struct Lm {
-    /// The parameters.
-    pub p: Vec<f64>,
-    /// Residual sum of squares at `p`.
-    pub rss: f64,
-    /// Iterations made.
-    pub iterations: usize,
-    /// Whether the convergence test was met.
-    pub converged: bool,
-}
-
-/// Levenberg–Marquardt with Marquardt's scaling: steps that do not lower the
-/// residual are rejected (damping ×4), accepted ones relax it (÷3), so it
-/// cannot diverge. `eval(p)` returns the residuals and their Jacobian, whose
-/// column k is the derivative by `p[free[k]]` (the other parameters stay
-/// fixed); `None` where the model is undefined (the step is rejected).
-pub(crate) fn levenberg_marquardt(
-    p0: Vec<f64>,
-    free: &[usize],
-    eval: impl Fn(&[f64]) -> Option<(DVector<f64>, DMatrix<f64>)>,
-) -> Option<Lm> {
-    let (mut r, mut j) = eval(&p0)?;
-    let mut p = p0;
-    let mut rss = r.norm_squared();
-    let mut mu = 1e-3;
-    for it in 1..=MAX_ITERATIONS {
-        let jtj = j.tr_mul(&j);
-        let g = j.tr_mul(&r);
-        let floor = jtj.diagonal().max() * 1e-15 + f64::MIN_POSITIVE;
-        let mut a = jtj.clone();
-        for k in 0..a.nrows() {
-            a[(k, k)] += mu * jtj[(k, k)].max(floor);
-        }
-        let Some(chol) = a.cholesky() else {
-            mu *= 4.0;
-            continue;
-        };
-        let delta = -chol.solve(&g);
-        let mut trial = p.clone();
-        for (k, d) in delta.iter().enumerate() {
-            trial[free[k]] += d;
-        }
-        let small = delta.iter().enumerate().all(|(k, d)| d.abs() <= 1e-11 * (p[free[k]].abs() + 1e-9));
-        match eval(&trial) {
-            Some((r2, j2)) if r2.norm_squared() < rss => {
-                let new = r2.norm_squared();
-                let tiny = rss - new <= 1e-14 * rss;
-                (p, r, j, rss) = (trial, r2, j2, new);
-                mu = (mu / 3.0).max(1e-12);
-                if small || tiny {
-                    return Some(Lm { p, rss, iterations: it, converged: true });
-                }
-            }
-            _ => {
-                // At the minimum, round-off rejects every step: a negligible
-                // step or gradient then means converged.
-                // (A small step under heavy damping proves nothing.)
-                if (small && mu <= 1.0) || g.norm() <= 1e-12 * (jtj.norm() * rss).sqrt() {
-                    return Some(Lm { p, rss, iterations: it, converged: true });
-                }
-                mu *= 4.0;
-                if mu > 1e20 {
-                    return Some(Lm { p, rss, iterations: it, converged: false });
-                }
-            }
-        }
-    }
-    Some(Lm { p, rss, iterations: MAX_ITERATIONS, converged: false })
 }
 
 // ---------------------------------------------------------------------------

@@ -16,6 +16,9 @@
 //! * [`detect`] — laser-stripe positions of image rows, as CSV.
 //!
 //! **Models**
+//! * [`camera`] — the `f64` camera model: pinhole, skew, Brown–Conrady distortion (OpenCV's), and its one conversion to the head's `f32` model.
+//! * [`board`] — the checkerboard target and its pose, shared by calibration and the simulator.
+//! * [`lm`] — Levenberg–Marquardt, the one nonlinear least-squares solver (fits, calibration).
 //! * [`sim`] — the scene: rail, lasers, camera and sensor noise, rendered row by row with its truth.
 //! * [`calib`] — checkerboard corners, camera and laser-plane calibration, the calibration file, upload.
 //! * [`fit`] — IEEE 1057 and the paper's rotated sine fits of a profile.
@@ -31,7 +34,9 @@
 //! * [`error`] — the library's error and what kind of failure each is.
 
 pub mod analyze;
+pub mod board;
 pub mod calib;
+pub mod camera;
 pub mod capture;
 pub mod closed_loop;
 pub mod corrugation;
@@ -41,6 +46,7 @@ pub mod fit;
 pub mod input;
 pub mod link;
 pub mod listen;
+pub mod lm;
 pub mod measure;
 pub mod plot;
 pub mod qemu;

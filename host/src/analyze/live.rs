@@ -19,8 +19,8 @@
 //! per update here, so the live estimate is the short path of the same
 //! module: the profile detrended (a straight line takes the sensor's
 //! rotation), ω from the interpolated peak of an FFT of the 1 mm samples
-//! (zero-padded ×8, gaps as zeros; [`fit::dft_omega`]'s plain DFT alone
-//! cost 10 ms per laser), then
+//! (zero-padded ×8, gaps as zeros, where [`fit::dft_omega`] resamples the
+//! profile first), then
 //! the IEEE 1057 four-parameter iteration ([`fit::four_param_ieee`]),
 //! falling back to the three-parameter fit at the DFT's ω if the iteration
 //! breaks down or wanders more than 20 % away. Cost per update: the

@@ -56,7 +56,7 @@
 use std::collections::{HashMap, HashSet};
 use std::fmt;
 
-use super::Board;
+use crate::board::Board;
 
 /// Why a board's corners were not found.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -16,20 +16,18 @@
 //! image centre, focal lengths by linear least squares on the same
 //! constraints. Distortion starts at zero.
 //!
-//! **Refinement.** One dense Levenberg–Marquardt over the free intrinsics
-//! (`fx, fy, cx, cy`, optionally the skew — fixed at 0 by default, as in
-//! OpenCV — `k1, k2, p1, p2, k3`) and six parameters per view (Rodrigues
-//! vector, translation), minimising the squared pixel reprojection error.
-//! With a fixed aspect ratio (OpenCV's `CALIB_FIX_ASPECT_RATIO`) `fx = a·fy`
-//! and only `fy` is free. The Jacobian is by central differences (the model
-//! is smooth and cheap: 13 views × 54 corners is 88 unknowns and 1404
-//! residuals, a few ms per iteration); damping is Marquardt's `λ·diag(JᵀJ)`,
-//! which makes the step invariant to each parameter's units. The
-//! `levenberg-marquardt` crate was not used: its current release needs
-//! nalgebra 0.34 and the workspace is on 0.33 (two nalgebras would be built),
-//! and a 60-line solver with this problem's scaling is easier to audit.
-//! Block-sparse normal equations (Schur complement on the poses) would matter
-//! only beyond ~100 views.
+//! **Refinement.** One dense Levenberg–Marquardt ([`crate::lm`]) over the
+//! free intrinsics (`fx, fy, cx, cy`, optionally the skew — fixed at 0 by
+//! default, as in OpenCV — `k1, k2, p1, p2, k3`) and six parameters per view
+//! (Rodrigues vector, translation), minimising the squared pixel
+//! reprojection error. With a fixed aspect ratio (OpenCV's
+//! `CALIB_FIX_ASPECT_RATIO`) `fx = a·fy` and only `fy` is free. The Jacobian
+//! is by central differences ([`lm::CentralDifferences`]: the model is
+//! smooth and cheap, 13 views × 54 corners is 88 unknowns and 1404
+//! residuals, a few ms per Jacobian); Marquardt's `μ·diag(JᵀJ)` damping
+//! makes the step invariant to each parameter's units. Block-sparse normal
+//! equations (Schur complement on the poses) would matter only beyond ~100
+//! views.
 //!
 //! **Errors** are reported as OpenCV does: the RMS over corners of the
 //! Euclidean reprojection distance, overall and per view.
@@ -39,7 +37,9 @@ use std::path::Path;
 
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, SMatrix, SymmetricEigen, Vector3};
 
-use super::{Board, BoardPose, Intrinsics};
+use crate::board::{Board, BoardPose};
+use crate::camera::Intrinsics;
+use crate::lm;
 
 /// What [`calibrate`] estimates.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -51,7 +51,7 @@ pub struct CalibOptions {
     /// After a first fit, drop views whose RMS error exceeds this (px) and
     /// fit again.
     pub max_view_rms_px: Option<f64>,
-    /// Levenberg–Marquardt iteration limit.
+    /// Levenberg–Marquardt limit on trial steps (accepted or not).
     pub max_iterations: usize,
 }
 
@@ -77,7 +77,7 @@ pub struct CameraCalibration {
     pub per_view_rms_px: Vec<f64>,
     /// Board pose of each view used.
     pub poses: Vec<BoardPose>,
-    /// Levenberg–Marquardt iterations of the last fit.
+    /// Levenberg–Marquardt trial steps (accepted or not) of the last fit.
     pub iterations: usize,
 }
 
@@ -302,74 +302,6 @@ fn focal_only(hs: &[Matrix3<f64>], aspect: Option<f64>) -> Option<(f64, f64)> {
 }
 
 // ---------------------------------------------------------------------------
-// Levenberg–Marquardt.
-
-/// Minimises `|r(x)|²` from `x`; returns the iterations taken. `r` writes
-/// the residuals into its second argument.
-fn levenberg_marquardt<F>(x: &mut [f64], n_res: usize, max_iter: usize, mut r: F) -> usize
-where
-    F: FnMut(&[f64], &mut [f64]),
-{
-    let n = x.len();
-    let mut res = vec![0.0; n_res];
-    r(x, &mut res);
-    let mut cost: f64 = res.iter().map(|v| v * v).sum();
-    let mut lambda = 1e-3;
-    let mut jac = DMatrix::<f64>::zeros(n_res, n);
-    let (mut rp, mut rm) = (vec![0.0; n_res], vec![0.0; n_res]);
-    let mut xt = x.to_vec();
-    let mut iterations = 0;
-    while iterations < max_iter {
-        iterations += 1;
-        for k in 0..n {
-            let h = 1e-6 * x[k].abs().max(1e-2);
-            xt.copy_from_slice(x);
-            xt[k] = x[k] + h;
-            r(&xt, &mut rp);
-            xt[k] = x[k] - h;
-            r(&xt, &mut rm);
-            for i in 0..n_res {
-                jac[(i, k)] = (rp[i] - rm[i]) / (2.0 * h);
-            }
-        }
-        let jtj = jac.transpose() * &jac;
-        let g = jac.transpose() * DVector::from_column_slice(&res);
-        let mut improved = false;
-        while lambda < 1e16 {
-            let mut a = jtj.clone();
-            for k in 0..n {
-                a[(k, k)] += lambda * jtj[(k, k)].max(1e-12);
-            }
-            let Some(chol) = a.cholesky() else {
-                lambda *= 10.0;
-                continue;
-            };
-            let step = chol.solve(&(-&g));
-            for k in 0..n {
-                xt[k] = x[k] + step[k];
-            }
-            r(&xt, &mut rp);
-            let new_cost: f64 = rp.iter().map(|v| v * v).sum();
-            if new_cost.is_finite() && new_cost <= cost {
-                let small = step.norm() <= 1e-12 * (1.0 + x.iter().map(|v| v * v).sum::<f64>().sqrt());
-                let rel = (cost - new_cost) / cost.max(1e-300);
-                x.copy_from_slice(&xt);
-                res.copy_from_slice(&rp);
-                cost = new_cost;
-                lambda = (lambda / 10.0).max(1e-12);
-                improved = !(small || rel < 1e-14);
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !improved {
-            break;
-        }
-    }
-    iterations
-}
-
-// ---------------------------------------------------------------------------
 // Calibration.
 
 /// The free intrinsic parameters and how they map to [`Intrinsics`].
@@ -389,12 +321,12 @@ impl Layout {
     fn pack(&self, k: &Intrinsics) -> Vec<f64> {
         let mut v = Vec::with_capacity(self.n());
         match self.aspect {
-            Some(_) => v.push(k.fy),
-            None => v.extend([k.fx, k.fy]),
+            Some(_) => v.push(k.fy_px),
+            None => v.extend([k.fx_px, k.fy_px]),
         }
-        v.extend([k.cx, k.cy]);
+        v.extend([k.cx_px, k.cy_px]);
         if !self.fix_skew {
-            v.push(k.skew);
+            v.push(k.skew_px);
         }
         v.extend([k.k1, k.k2, k.p1, k.p2, k.k3]);
         v
@@ -414,13 +346,13 @@ impl Layout {
             v[i - 1]
         };
         Intrinsics {
-            width: self.width,
-            height: self.height,
-            fx,
-            fy,
-            cx,
-            cy,
-            skew,
+            width_px: self.width,
+            height_px: self.height,
+            fx_px: fx,
+            fy_px: fy,
+            cx_px: cx,
+            cy_px: cy,
+            skew_px: skew,
             k1: v[i],
             k2: v[i + 1],
             p1: v[i + 2],
@@ -535,20 +467,20 @@ fn calibrate_subset(
         fy = f;
     }
     let k0 = Intrinsics {
-        width,
-        height,
-        fx,
-        fy,
-        cx,
-        cy,
-        skew: if opts.fix_skew { 0.0 } else { skew },
+        width_px: width,
+        height_px: height,
+        fx_px: fx,
+        fy_px: fy,
+        cx_px: cx,
+        cy_px: cy,
+        skew_px: if opts.fix_skew { 0.0 } else { skew },
         k1: 0.0,
         k2: 0.0,
         p1: 0.0,
         p2: 0.0,
         k3: 0.0,
     };
-    let kmat = Matrix3::new(k0.fx, k0.skew, k0.cx, 0.0, k0.fy, k0.cy, 0.0, 0.0, 1.0);
+    let kmat = Matrix3::new(k0.fx_px, k0.skew_px, k0.cx_px, 0.0, k0.fy_px, k0.cy_px, 0.0, 0.0, 1.0);
     let layout = Layout { fix_skew: opts.fix_skew, aspect: opts.fix_aspect, width, height };
     let ni = layout.n();
     let mut x = layout.pack(&k0);
@@ -566,7 +498,11 @@ fn calibrate_subset(
             view_residuals(&k, pose, &obj, &views[v], &mut out[2 * npts * n..2 * npts * (n + 1)]);
         }
     };
-    let iterations = levenberg_marquardt(&mut x, n_res, opts.max_iterations, residuals);
+    let free: Vec<usize> = (0..x.len()).collect();
+    let fit =
+        lm::levenberg_marquardt(x, &free, opts.max_iterations, &mut lm::CentralDifferences::new(n_res, residuals))
+            .ok_or(CalibError::Degenerate("the fit diverged"))?;
+    let (x, iterations) = (fit.p, fit.iterations);
     let mut res = vec![0.0; n_res];
     residuals(&x, &mut res);
     if !res.iter().all(|v| v.is_finite()) {
@@ -601,7 +537,7 @@ pub fn board_pose(intr: &Intrinsics, board: &Board, corners: &[[f64; 2]]) -> Res
     if corners.len() != obj.len() {
         return Err(CalibError::CornerCount { view: 0, got: corners.len(), expected: obj.len() });
     }
-    if !(intr.fx > 0.0 && intr.fy > 0.0 && corners.iter().all(|p| p[0].is_finite() && p[1].is_finite())) {
+    if !(intr.fx_px > 0.0 && intr.fy_px > 0.0 && corners.iter().all(|p| p[0].is_finite() && p[1].is_finite())) {
         return Err(CalibError::Degenerate("bad intrinsics or corners"));
     }
     let plane: Vec<[f64; 2]> = obj.iter().map(|p| [p[0], p[1]]).collect();
@@ -614,10 +550,12 @@ pub fn board_pose(intr: &Intrinsics, board: &Board, corners: &[[f64; 2]]) -> Res
         .collect();
     let hm = homography(&plane, &norm)?;
     let (r, t) = pose_from_homography(&Matrix3::identity(), &hm)?;
-    let mut x: Vec<f64> = r.into_iter().chain(t).collect();
+    let x0: Vec<f64> = r.into_iter().chain(t).collect();
     let n_res = 2 * obj.len();
     let residuals = |x: &[f64], out: &mut [f64]| view_residuals(intr, x, &obj, corners, out);
-    levenberg_marquardt(&mut x, n_res, 100, residuals);
+    let x = lm::levenberg_marquardt(x0, &[0, 1, 2, 3, 4, 5], 100, &mut lm::CentralDifferences::new(n_res, residuals))
+        .ok_or(CalibError::Degenerate("the pose fit diverged"))?
+        .p;
     let mut res = vec![0.0; n_res];
     residuals(&x, &mut res);
     let rms = rms_of(&res);

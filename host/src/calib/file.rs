@@ -54,9 +54,12 @@ use std::fmt;
 use std::path::Path;
 
 use cms_core::protocol::{Calibration, LASERS};
-use serde::{Deserialize, Serialize};
+use serde::de::{self, MapAccess, Visitor};
+use serde::ser::SerializeStruct;
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-use super::{Board, Intrinsics};
+use crate::board::Board;
+use crate::camera::Intrinsics;
 
 /// The file format version this build reads and writes.
 pub const FILE_VERSION: u32 = 1;
@@ -91,36 +94,107 @@ pub struct CalibrationFile {
     pub lasers: Vec<LaserSection>,
 }
 
-/// `[camera]`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// `[camera]`: the camera model (its keys are [`Intrinsics`]'s) and how
+/// well it was fitted.
+///
+/// One flat TOML table holds both. Its serde impls are written out rather
+/// than derived with `#[serde(flatten)]` over [`Intrinsics`]: flatten
+/// buffers the table, which loses toml's spans (errors would name the
+/// `[camera]` line, not the bad key's) and `deny_unknown_fields`.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CameraSection {
-    /// Image width, px.
-    pub width: u32,
-    /// Image height, px.
-    pub height: u32,
-    /// Focal length along x, px.
-    pub fx: f64,
-    /// Focal length along y, px.
-    pub fy: f64,
-    /// Principal point column, px.
-    pub cx: f64,
-    /// Principal point row, px.
-    pub cy: f64,
-    /// Skew, px.
-    pub skew: f64,
-    /// Radial r².
-    pub k1: f64,
-    /// Radial r⁴.
-    pub k2: f64,
-    /// Tangential p1.
-    pub p1: f64,
-    /// Tangential p2.
-    pub p2: f64,
-    /// Radial r⁶.
-    pub k3: f64,
+    /// Image size, intrinsics and distortion.
+    pub intrinsics: Intrinsics,
     /// RMS reprojection error of the calibration, px.
     pub rms_px: f64,
+}
+
+/// The keys of `[camera]`, in the order they are written.
+const CAMERA_KEYS: [&str; 13] =
+    ["width", "height", "fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3", "rms_px"];
+
+impl Serialize for CameraSection {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let i = &self.intrinsics;
+        let mut t = s.serialize_struct("CameraSection", CAMERA_KEYS.len())?;
+        t.serialize_field("width", &i.width_px)?;
+        t.serialize_field("height", &i.height_px)?;
+        for (k, v) in CAMERA_KEYS[2..].iter().zip([
+            i.fx_px,
+            i.fy_px,
+            i.cx_px,
+            i.cy_px,
+            i.skew_px,
+            i.k1,
+            i.k2,
+            i.p1,
+            i.p2,
+            i.k3,
+            self.rms_px,
+        ]) {
+            t.serialize_field(k, &v)?;
+        }
+        t.end()
+    }
+}
+
+impl<'de> Deserialize<'de> for CameraSection {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        /// A key of `[camera]`: deserialised as an identifier, so that an
+        /// unknown key is reported at its own span.
+        struct Key(usize);
+        impl<'de> Deserialize<'de> for Key {
+            fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+                struct KeyVisitor;
+                impl Visitor<'_> for KeyVisitor {
+                    type Value = Key;
+                    fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                        f.write_str("a [camera] key")
+                    }
+                    fn visit_str<E: de::Error>(self, v: &str) -> Result<Key, E> {
+                        CAMERA_KEYS
+                            .iter()
+                            .position(|k| *k == v)
+                            .map(Key)
+                            .ok_or_else(|| E::unknown_field(v, &CAMERA_KEYS))
+                    }
+                }
+                d.deserialize_identifier(KeyVisitor)
+            }
+        }
+        struct SectionVisitor;
+        impl<'de> Visitor<'de> for SectionVisitor {
+            type Value = CameraSection;
+            fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str("the [camera] table")
+            }
+            fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<CameraSection, A::Error> {
+                let mut size: [Option<u32>; 2] = [None; 2];
+                let mut num: [Option<f64>; 11] = [None; 11];
+                while let Some(Key(k)) = map.next_key()? {
+                    let taken = match k {
+                        0 | 1 => size[k].replace(map.next_value()?).is_some(),
+                        _ => num[k - 2].replace(map.next_value()?).is_some(),
+                    };
+                    if taken {
+                        return Err(de::Error::duplicate_field(CAMERA_KEYS[k]));
+                    }
+                }
+                let missing = |k: usize| de::Error::missing_field(CAMERA_KEYS[k]);
+                let width_px = size[0].ok_or_else(|| missing(0))?;
+                let height_px = size[1].ok_or_else(|| missing(1))?;
+                let mut v = [0.0; 11];
+                for (k, (slot, got)) in v.iter_mut().zip(num).enumerate() {
+                    *slot = got.ok_or_else(|| missing(k + 2))?;
+                }
+                let [fx_px, fy_px, cx_px, cy_px, skew_px, k1, k2, p1, p2, k3, rms_px] = v;
+                let intrinsics =
+                    Intrinsics { width_px, height_px, fx_px, fy_px, cx_px, cy_px, skew_px, k1, k2, p1, p2, k3 };
+                Ok(CameraSection { intrinsics, rms_px })
+            }
+        }
+        d.deserialize_struct("CameraSection", &CAMERA_KEYS, SectionVisitor)
+    }
 }
 
 /// `[board]`.
@@ -233,7 +307,7 @@ impl CalibrationFile {
         CalibrationFile {
             version: FILE_VERSION,
             id: None,
-            camera: CameraSection::from_intrinsics(intr, rms_px),
+            camera: CameraSection { intrinsics: *intr, rms_px },
             board: board.map(|b| BoardSection { cols: b.cols as u32, rows: b.rows as u32, square_mm: b.square_mm }),
             datum: None,
             head: None,
@@ -296,25 +370,23 @@ impl CalibrationFile {
         if self.id == Some(0) {
             return Err("id must be non-zero".into());
         }
-        let c = &self.camera;
-        if c.width == 0 || c.width > u16::MAX as u32 {
-            return Err(format!("camera.width = {} must be in 1..=65535", c.width));
+        let (c, rms_px) = (&self.camera.intrinsics, self.camera.rms_px);
+        if c.width_px == 0 || c.width_px > u16::MAX as u32 {
+            return Err(format!("camera.width = {} must be in 1..=65535", c.width_px));
         }
-        if c.height == 0 || c.height > u16::MAX as u32 {
-            return Err(format!("camera.height = {} must be in 1..=65535", c.height));
+        if c.height_px == 0 || c.height_px > u16::MAX as u32 {
+            return Err(format!("camera.height = {} must be in 1..=65535", c.height_px));
         }
-        positive("camera.fx", c.fx)?;
-        positive("camera.fy", c.fy)?;
-        for (k, v) in [("cx", c.cx), ("cy", c.cy), ("skew", c.skew), ("k1", c.k1), ("k2", c.k2)].into_iter().chain([
-            ("p1", c.p1),
-            ("p2", c.p2),
-            ("k3", c.k3),
-            ("rms_px", c.rms_px),
-        ]) {
+        positive("camera.fx", c.fx_px)?;
+        positive("camera.fy", c.fy_px)?;
+        for (k, v) in [("cx", c.cx_px), ("cy", c.cy_px), ("skew", c.skew_px), ("k1", c.k1), ("k2", c.k2)]
+            .into_iter()
+            .chain([("p1", c.p1), ("p2", c.p2), ("k3", c.k3), ("rms_px", rms_px)])
+        {
             finite(&format!("camera.{k}"), v)?;
         }
-        if c.rms_px < 0.0 {
-            return Err(format!("camera.rms_px = {} must be ≥ 0", c.rms_px));
+        if rms_px < 0.0 {
+            return Err(format!("camera.rms_px = {rms_px} must be ≥ 0"));
         }
         if let Some(b) = &self.board {
             if b.cols < 2 || b.rows < 2 {
@@ -369,7 +441,7 @@ impl CalibrationFile {
 
     /// The camera's intrinsics.
     pub fn intrinsics(&self) -> Intrinsics {
-        self.camera.intrinsics()
+        self.camera.intrinsics
     }
 
     /// The board, if the file names one.
@@ -398,57 +470,18 @@ impl CalibrationFile {
                 self.lasers.len()
             )));
         }
-        let c = &self.camera;
+        let camera = self.camera.intrinsics.to_core();
         let mut planes = [[0.0f32; 4]; LASERS];
         for l in &self.lasers {
             planes[l.id as usize] = [l.nx as f32, l.ny as f32, l.nz as f32, l.d_mm as f32];
         }
         Ok(Calibration {
             id: self.head_id(),
-            intrinsics: [c.fx as f32, c.fy as f32, c.cx as f32, c.cy as f32, c.skew as f32],
-            distortion: [c.k1 as f32, c.k2 as f32, c.p1 as f32, c.p2 as f32, c.k3 as f32],
+            intrinsics: [camera.fx, camera.fy, camera.cx, camera.cy, camera.skew],
+            distortion: [camera.k1, camera.k2, camera.p1, camera.p2, camera.k3],
             planes,
             datum: [datum.nx as f32, datum.ny as f32, datum.nz as f32, datum.d_mm as f32],
         })
-    }
-}
-
-impl CameraSection {
-    /// From calibrated intrinsics.
-    pub fn from_intrinsics(i: &Intrinsics, rms_px: f64) -> CameraSection {
-        CameraSection {
-            width: i.width,
-            height: i.height,
-            fx: i.fx,
-            fy: i.fy,
-            cx: i.cx,
-            cy: i.cy,
-            skew: i.skew,
-            k1: i.k1,
-            k2: i.k2,
-            p1: i.p1,
-            p2: i.p2,
-            k3: i.k3,
-            rms_px,
-        }
-    }
-
-    /// The intrinsics.
-    pub fn intrinsics(&self) -> Intrinsics {
-        Intrinsics {
-            width: self.width,
-            height: self.height,
-            fx: self.fx,
-            fy: self.fy,
-            cx: self.cx,
-            cy: self.cy,
-            skew: self.skew,
-            k1: self.k1,
-            k2: self.k2,
-            p1: self.p1,
-            p2: self.p2,
-            k3: self.k3,
-        }
     }
 }
 

@@ -40,7 +40,8 @@ use cms_core::peak::{Config, Detector, Select, Stripes};
 use cms_core::protocol::LASERS;
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
-use super::{Board, BoardPose, Intrinsics};
+use crate::board::{Board, BoardPose};
+use crate::camera::Intrinsics;
 use crate::input::{Pixels, Rows};
 
 /// Widest image the row detector takes.
@@ -145,8 +146,8 @@ fn pose_points(
     if (pair.on.width(), pair.on.height()) != (w, h) {
         return Err(format!("the lasers-on image is {}×{}, the lasers-off {w}×{h}", pair.on.width(), pair.on.height()));
     }
-    if (w as u32, h as u32) != (intr.width, intr.height) {
-        return Err(format!("{w}×{h} images; the camera was calibrated at {}×{}", intr.width, intr.height));
+    if (w as u32, h as u32) != (intr.width_px, intr.height_px) {
+        return Err(format!("{w}×{h} images; the camera was calibrated at {}×{}", intr.width_px, intr.height_px));
     }
     let corners = super::board::find_corners(&gray(&pair.off), w, h, board).map_err(|e| format!("board: {e}"))?;
     let (pose, board_rms_px) =

@@ -124,7 +124,7 @@ pub fn render(args: &Options) -> Result<(), Error> {
             "t_mm": pose.t_mm,
         }));
     }
-    let i = board::camera_intrinsics(&cfg.camera);
+    let i = &cfg.camera.intrinsics;
     let lasers: Vec<_> = scene
         .laser_planes()
         .iter()
@@ -136,11 +136,8 @@ pub fn render(args: &Options) -> Result<(), Error> {
         "preset": preset_name(args.preset),
         "seed": args.seed,
         "noiseless": args.noiseless,
-        "image": { "width": i.width, "height": i.height, "bits": cfg.camera.bits },
-        "intrinsics": {
-            "width": i.width, "height": i.height, "fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy,
-            "skew": i.skew, "k1": i.k1, "k2": i.k2, "p1": i.p1, "p2": i.p2, "k3": i.k3,
-        },
+        "image": { "width": i.width_px, "height": i.height_px, "bits": cfg.camera.bits },
+        "intrinsics": i,
         "board": { "cols": brd.cols, "rows": brd.rows, "square_mm": brd.square_mm, "margin_squares": opts.margin_squares },
         "render": {
             "psf_sigma_px": opts.psf_sigma_px, "white": opts.white, "black": opts.black,

@@ -4,7 +4,6 @@
 
 use super::file::{CalibrationFile, FILE_VERSION, LaserSection, PlaneSection};
 use crate::sim::Scene;
-use crate::sim::board::camera_intrinsics;
 use crate::sim::geom::Plane;
 
 /// A plane as `[[laser]]`/`[datum]` numbers, oriented so that `d < 0` (the
@@ -22,7 +21,7 @@ pub fn truth(scene: &Scene) -> CalibrationFile {
     let rail_top = Plane { normal: [0.0, 0.0, 1.0], d_mm: 0.0 };
     let datum = scene.camera_pose().plane_to_cam(&rail_top);
     let (n, d_mm) = oriented(&datum);
-    let mut f = CalibrationFile::camera_only(&camera_intrinsics(scene.camera()), 0.0, None);
+    let mut f = CalibrationFile::camera_only(&scene.camera().intrinsics, 0.0, None);
     f.version = FILE_VERSION;
     f.datum = Some(PlaneSection { nx: n[0], ny: n[1], nz: n[2], d_mm });
     f.head = Some(super::file::HeadSection {

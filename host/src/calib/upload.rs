@@ -55,7 +55,7 @@ pub fn upload(args: &Options) -> Result<String, Error> {
     let r = simulate::with_port(&args.port, &args.sim, |port| -> Result<String, Error> {
         let mut client = Client::open(port, args.baud).map_err(ClientError::from)?;
         let info = client.handshake(Handshake { tries: 1, wait: Wait::Within(ANSWER_TIMEOUT) })?;
-        let (w, h) = (file.camera.width, file.camera.height);
+        let (w, h) = (file.camera.intrinsics.width_px, file.camera.intrinsics.height_px);
         if (u32::from(info.sensor_width), u32::from(info.sensor_height)) != (w, h) {
             return Err(Error::Input(format!(
                 "{} is for a {w}×{h} camera; the head on {port} has {}×{}",

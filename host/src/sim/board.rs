@@ -8,7 +8,7 @@
 //! # The board
 //!
 //! [`Board`] counts inner corners; corner `(i, j)` is at `(i·S, j·S, 0)` in
-//! the board frame (see [`crate::calib`]). The printed board has
+//! the board frame (see [`crate::board`]). The printed board has
 //! `(cols + 1) × (rows + 1)` squares — square `(a, b)` covers
 //! `[a·S, (a+1)·S] × [b·S, (b+1)·S]`, `a` in `-1..cols`, `b` in `-1..rows`,
 //! black when `a + b` is even (so square `(-1, -1)` at the first corner is
@@ -61,7 +61,7 @@
 use super::geom::{Vec3, dot, mat_t_vec, sub};
 use super::noise::{Rng, SensorPattern, ziggurat};
 use super::{Camera, Plane, Scene, SimConfig};
-use crate::calib::{Board, BoardPose, Intrinsics};
+use crate::board::{Board, BoardPose};
 
 /// Stream of the board images' noise.
 const BOARD_NOISE_STREAM: u64 = 0x424f_4152;
@@ -121,24 +121,6 @@ pub struct BoardImage {
     pub pixels: Vec<u16>,
 }
 
-/// The sim's camera as calibration intrinsics (same model, same convention).
-pub fn camera_intrinsics(cam: &Camera) -> Intrinsics {
-    Intrinsics {
-        width: cam.width_px as u32,
-        height: cam.height_px as u32,
-        fx: cam.fx_px,
-        fy: cam.fy_px,
-        cx: cam.cx_px,
-        cy: cam.cy_px,
-        skew: cam.skew_px,
-        k1: cam.k1,
-        k2: cam.k2,
-        p1: cam.p1,
-        p2: cam.p2,
-        k3: cam.k3,
-    }
-}
-
 /// The calibration board for a head: 9 × 6 inner corners (10 × 7 squares;
 /// odd × even, so its orientation is unambiguous) with squares such that
 /// the 10 squares span about 2/3 of the image width at the near end of the
@@ -151,7 +133,7 @@ pub fn camera_intrinsics(cam: &Camera) -> Intrinsics {
 ///   mm; 200–314 px a square).
 pub fn board_for(cfg: &SimConfig) -> Board {
     let cam = &cfg.camera;
-    let near_width_mm = cam.width_px as f64 / cam.fx_px * cfg.head.working_range_mm[0];
+    let near_width_mm = cam.width_px() as f64 / cam.intrinsics.fx_px * cfg.head.working_range_mm[0];
     let square_mm = ((near_width_mm * 2.0 / 3.0 / 10.0) * 2.0).round().max(1.0) / 2.0;
     Board { cols: 9, rows: 6, square_mm }
 }
@@ -168,7 +150,7 @@ fn normalize(a: Vec3) -> Vec3 {
 /// The camera-frame point of the board plane that pixel `(u, v)` sees,
 /// `None` if its ray misses the plane (parallel or behind the camera).
 fn ray_on_board(cam: &Camera, pose: &BoardPose, u: f64, v: f64) -> Option<Vec3> {
-    let ray = cam.unproject(u, v);
+    let ray = cam.intrinsics.unproject(u, v);
     let (n, d) = pose.plane();
     let den = dot(n, ray);
     if den.abs() < 1e-12 {
@@ -200,7 +182,7 @@ fn plane_distance_at(cam: &Camera, pose: &BoardPose, plane: &Plane, u: f64, v: f
 /// question ([`board_point`]).
 pub fn laser_column(cam: &Camera, plane: &Plane, pose: &BoardPose, row: f64) -> Option<f64> {
     let f = |u: f64| plane_distance_at(cam, pose, plane, u, row);
-    let (lo, hi) = (-0.5, cam.width_px as f64 - 0.5);
+    let (lo, hi) = (-0.5, cam.width_px() as f64 - 0.5);
     let step = 8.0;
     let mut a = lo;
     let mut fa = f(a);
@@ -303,7 +285,7 @@ impl BoardRenderer {
             sheet_sigma_mm.push(sigma);
         }
         let cam = &cfg.camera;
-        let sensor = SensorPattern::new(&cfg.noise, cam.width_px, cam.height_px, cfg.seed);
+        let sensor = SensorPattern::new(&cfg.noise, cam.width_px(), cam.height_px(), cfg.seed);
         BoardRenderer { cfg, planes, beams, sheet_sigma_mm, rail_incidence, sensor, opts }
     }
 
@@ -373,7 +355,7 @@ impl BoardRenderer {
     /// `laser_mask`.
     pub fn signal_e(&self, board: &Board, pose: &BoardPose, laser_mask: u8) -> Vec<f32> {
         let cam = &self.cfg.camera;
-        let (w, h) = (cam.width_px, cam.height_px);
+        let (w, h) = (cam.width_px(), cam.height_px());
         let lasers = self.lasers_for(pose, laser_mask);
         let nl = lasers.len();
         let stride = 3 + nl;
@@ -383,7 +365,7 @@ impl BoardRenderer {
         let corner_row = |v: f64, out: &mut Vec<f64>| {
             out.clear();
             for j in 0..=w {
-                let ray = cam.unproject(j as f64 - 0.5, v);
+                let ray = cam.intrinsics.unproject(j as f64 - 0.5, v);
                 let den = dot(nb, ray);
                 let s = if den.abs() < 1e-12 { f64::NAN } else { db / den };
                 if !(s > 0.0 && s.is_finite()) {
@@ -504,7 +486,7 @@ impl BoardRenderer {
     pub fn read_out(&self, signal: &[f32], shot: u64) -> BoardImage {
         let cam = &self.cfg.camera;
         let nm = &self.cfg.noise;
-        let (w, h) = (cam.width_px, cam.height_px);
+        let (w, h) = (cam.width_px(), cam.height_px());
         assert_eq!(signal.len(), w * h, "read_out: the signal must hold width × height pixels");
         let exposure = cam.exposure_us;
         let gain = cam.gain_e_per_dn();
@@ -519,9 +501,9 @@ impl BoardRenderer {
         let mut pixels = vec![0u16; w * h];
         let mut buf = vec![0.0f64; w];
         for r in 0..h {
-            let base = a0 * (1.0 + nm.ambient_gradient_per_px[1] * (r as f64 - cam.cy_px));
+            let base = a0 * (1.0 + nm.ambient_gradient_per_px[1] * (r as f64 - cam.intrinsics.cy_px));
             for (i, (b, &s)) in buf.iter_mut().zip(&signal[r * w..(r + 1) * w]).enumerate() {
-                *b = (base + slope * (i as f64 - cam.cx_px)).max(0.0) + s as f64;
+                *b = (base + slope * (i as f64 - cam.intrinsics.cx_px)).max(0.0) + s as f64;
             }
             for &(c, e) in self.sensor.hot_in_row(r) {
                 buf[c as usize] += e * exposure;
@@ -704,13 +686,13 @@ fn pose_quality(r: &BoardRenderer, board: &Board, pose: &BoardPose) -> Option<f6
     let [zmin, zmax] = r.cfg.head.working_range_mm;
     let s = board.square_mm;
     let (wx, wy) = ((board.cols - 1) as f64 * s, (board.rows - 1) as f64 * s);
-    let margin = 0.02 * cam.width_px as f64;
+    let margin = 0.02 * cam.width_px() as f64;
     let inside = |p: [f64; 3]| {
-        cam.project(p).is_some_and(|uv| {
+        cam.intrinsics.project(p).is_some_and(|uv| {
             uv[0] >= margin
-                && uv[0] <= cam.width_px as f64 - 1.0 - margin
+                && uv[0] <= cam.width_px() as f64 - 1.0 - margin
                 && uv[1] >= margin
-                && uv[1] <= cam.height_px as f64 - 1.0 - margin
+                && uv[1] <= cam.height_px() as f64 - 1.0 - margin
         })
     };
     // Every inner corner in the working range and in the image; the outer
@@ -824,14 +806,14 @@ fn pose_k(r: &BoardRenderer, board: &Board, k: usize, n: usize, seed: u64, (phi,
     let gamma = (12.0 * (2.0 * frac(0.1 + kf * 0.414_213_562) - 1.0) + jit(2.0)).to_radians();
     let q = (frac(0.5 + kf * 0.618_033_989) + jit(0.5 / n.max(1) as f64)).clamp(0.0, 1.0);
     let target = [
-        (0.2 + 0.6 * frac(0.3 + kf * 0.324_717_957 + jit(0.05))) * (cam.width_px - 1) as f64,
-        (0.2 + 0.6 * frac(0.7 + kf * 0.732_050_808 + jit(0.05))) * (cam.height_px - 1) as f64,
+        (0.2 + 0.6 * frac(0.3 + kf * 0.324_717_957 + jit(0.05))) * (cam.width_px() - 1) as f64,
+        (0.2 + 0.6 * frac(0.7 + kf * 0.732_050_808 + jit(0.05))) * (cam.height_px() - 1) as f64,
     ];
     let s = board.square_mm;
     let centre_b = [0.5 * (board.cols - 1) as f64 * s, 0.5 * (board.rows - 1) as f64 * s, 0.0];
     let axis = [phi.cos(), phi.sin(), 0.0];
     let rz = rot_axis([0.0, 0.0, 1.0], gamma);
-    let diag = ((cam.width_px * cam.width_px + cam.height_px * cam.height_px) as f64).sqrt();
+    let diag = ((cam.width_px() * cam.width_px() + cam.height_px() * cam.height_px()) as f64).sqrt();
     let mut theta = theta0;
     loop {
         let rot = mat_mul3(&rot_axis(axis, theta.to_radians()), &rz);
@@ -852,9 +834,9 @@ fn pose_k(r: &BoardRenderer, board: &Board, k: usize, n: usize, seed: u64, (phi,
             let (nx, ny) = (48, 24);
             for iy in 0..=ny {
                 for ix in 0..=nx {
-                    let u = (ix as f64 / nx as f64) * (cam.width_px - 1) as f64;
-                    let v = (iy as f64 / ny as f64) * (cam.height_px - 1) as f64;
-                    let ray = cam.unproject(u, v);
+                    let u = (ix as f64 / nx as f64) * (cam.width_px() - 1) as f64;
+                    let v = (iy as f64 / ny as f64) * (cam.height_px() - 1) as f64;
+                    let ray = cam.intrinsics.unproject(u, v);
                     let c = [ray[0] * zc, ray[1] * zc, zc];
                     let off = rc([0.0, 0.0, 0.0]);
                     let pose = BoardPose { rot, t_mm: [c[0] + off[0], c[1] + off[1], c[2] + off[2]] };
@@ -891,13 +873,7 @@ mod tests {
     }
 
     #[test]
-    fn intrinsics_project_as_the_camera() {
-        let cam = Camera::reference();
-        let i = camera_intrinsics(&cam);
-        for p in [[10.0, -5.0, 200.0], [-40.0, 30.0, 170.0], [0.3, 0.2, 230.0]] {
-            let (a, b) = (cam.project(p).unwrap(), i.project(p).unwrap());
-            assert!((a[0] - b[0]).abs() < 1e-12 && (a[1] - b[1]).abs() < 1e-12);
-        }
+    fn boards_for_the_presets() {
         assert_eq!(board_for(&SimConfig::reference()), Board { cols: 9, rows: 6, square_mm: 6.0 });
         assert_eq!(board_for(&SimConfig::paper()), Board { cols: 9, rows: 6, square_mm: 21.5 });
     }
@@ -926,7 +902,7 @@ mod tests {
             // Laser order: left to right along a middle row of the board.
             let cam = scene.camera();
             let mid = p.to_camera(c);
-            let row = cam.project(mid).unwrap()[1];
+            let row = cam.intrinsics.project(mid).unwrap()[1];
             let cols: Vec<f64> = scene.laser_planes().iter().map(|pl| laser_column(cam, pl, p, row).unwrap()).collect();
             assert!(cols.windows(2).all(|w| w[0] < w[1]), "pose {k}: {cols:?}");
         }
@@ -959,11 +935,11 @@ mod tests {
         let sig = r.signal_e(&board, &pose, 0);
         let cam = scene.camera();
         let lamp = opts.lamp_fraction * cam.full_well_e;
-        let w = cam.width_px;
+        let w = cam.width_px();
         let n = 32;
         let (mut worst, mut count) = (0.0f64, 0);
         for q in board.object_points().iter().step_by(5) {
-            let uv = cam.project(pose.to_camera(*q)).unwrap();
+            let uv = cam.intrinsics.project(pose.to_camera(*q)).unwrap();
             for dv in -2..=2 {
                 for du in -2..=2 {
                     let (pu, pv) = (uv[0].round() as i64 + du, uv[1].round() as i64 + dv);
@@ -1037,8 +1013,8 @@ mod tests {
             let sig = r.signal_e(&board, &pose, 0);
             eprintln!("reference signal: {:.1} ms", t.elapsed().as_secs_f64() * 1e3);
             for q in board.object_points() {
-                let uv = cam.project(pose.to_camera(q)).unwrap();
-                let got = refine_corner(&sig, cam.width_px, [uv[0] + 0.6, uv[1] - 0.4], 8);
+                let uv = cam.intrinsics.project(pose.to_camera(q)).unwrap();
+                let got = refine_corner(&sig, cam.width_px(), [uv[0] + 0.6, uv[1] - 0.4], 8);
                 errs.push((got[0] - uv[0]).hypot(got[1] - uv[1]));
                 sum[0] += got[0] - uv[0];
                 sum[1] += got[1] - uv[1];

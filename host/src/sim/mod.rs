@@ -5,7 +5,7 @@
 //! # The model
 //!
 //! * A **camera** ([`Camera`]): pinhole with skew and Brown–Conrady distortion
-//!   (OpenCV convention), bit depth, exposure, full well.
+//!   ([`crate::camera::Intrinsics`], OpenCV's convention), bit depth, exposure, full well.
 //! * A **head** ([`HeadGeometry`]): the camera looks down at the rail head
 //!   with image rows across the rail, so each row sees one position along
 //!   the rail; the [`Laser`]s' planes contain the rail direction, make the
@@ -270,7 +270,7 @@ impl SimConfig {
     /// margin): `optics().scale_range()` is the detector's scale range.
     pub fn optics(&self) -> cms_core::optics::Optics {
         cms_core::optics::Optics {
-            fx_px: self.camera.fx_px,
+            fx_px: self.camera.intrinsics.fx_px,
             laser_diameter_mm: self.head.laser_diameter_mm,
             alpha_deg: self.head.alpha_deg,
             r_min_mm: self.head.working_range_mm[0],
@@ -281,7 +281,8 @@ impl SimConfig {
 
     /// Stripe σ at the standoff, px (Eq. 10–11).
     pub fn nominal_sigma_px(&self) -> f64 {
-        self.camera.fx_px * self.head.laser_diameter_mm * self.head.alpha_deg.to_radians().sin() / self.head.standoff_mm
+        self.camera.intrinsics.fx_px * self.head.laser_diameter_mm * self.head.alpha_deg.to_radians().sin()
+            / self.head.standoff_mm
     }
 
     /// Odometer of a frame, mm.
@@ -435,12 +436,12 @@ impl Scene {
         let planes_cam: Vec<Plane> = cfg.lasers.iter().map(|l| cfg.head.laser_plane_cam(l.offset_mm)).collect();
         let planes_rail: Vec<Plane> = planes_cam.iter().map(|p| pose.plane_to_rail(p)).collect();
         let cam = &cfg.camera;
-        let sensor = SensorPattern::new(&cfg.noise, cam.width_px, cam.height_px, cfg.seed);
+        let sensor = SensorPattern::new(&cfg.noise, cam.width_px(), cam.height_px(), cfg.seed);
         let mut scene = Scene {
             gain_e_per_dn: cam.gain_e_per_dn(),
             sigma0_px: cfg.nominal_sigma_px(),
             sin_alpha: cfg.head.alpha_deg.to_radians().sin(),
-            row_buf: vec![0.0; cam.width_px],
+            row_buf: vec![0.0; cam.width_px()],
             cfg,
             surface,
             pose,
@@ -463,7 +464,7 @@ impl Scene {
             let b = 10.0 / (v1 - v0);
             scene.guess.push((-5.0 - b * v0, b));
         }
-        let mid = (scene.cfg.camera.height_px as f64 - 1.0) / 2.0;
+        let mid = (scene.cfg.camera.height_px() as f64 - 1.0) / 2.0;
         for k in 0..scene.planes_rail.len() {
             if scene.solve(k, None, mid, 1.0).is_none() {
                 return Err(SimError::LaserOutOfView { laser: k });
@@ -484,12 +485,12 @@ impl Scene {
 
     /// Image width, px.
     pub fn width(&self) -> usize {
-        self.cfg.camera.width_px
+        self.cfg.camera.width_px()
     }
 
     /// Image height, px.
     pub fn height(&self) -> usize {
-        self.cfg.camera.height_px
+        self.cfg.camera.height_px()
     }
 
     /// Bit depth.
@@ -675,7 +676,7 @@ impl Scene {
     /// parallel or behind the camera). `Scene::camera_pose` maps it onto the rail.
     pub fn triangulate(&self, laser: usize, u: f64, v: f64) -> Option<Vec3> {
         let p = self.planes_cam.get(laser)?;
-        let ray = self.cfg.camera.unproject(u, v);
+        let ray = self.cfg.camera.intrinsics.unproject(u, v);
         let den = geom::dot(p.normal, ray);
         if den.abs() < 1e-12 {
             return None;
@@ -732,7 +733,7 @@ impl Scene {
     fn eval(&self, k: usize, s: f64, h_mm: f64) -> Option<Eval> {
         let p = self.point_on_laser(k, s, h_mm)?;
         let pc = self.pose.rail_to_cam(p);
-        let uv = self.cfg.camera.project(pc)?;
+        let uv = self.cfg.camera.intrinsics.project(pc)?;
         Some(Eval { p, pc, uv, h_mm })
     }
 
@@ -767,7 +768,7 @@ impl Scene {
             return None;
         }
         let cam = &self.cfg.camera;
-        let sigma_px = cam.fx_px * self.cfg.head.laser_diameter_mm * self.sin_alpha / eb.pc[2];
+        let sigma_px = cam.intrinsics.fx_px * self.cfg.head.laser_diameter_mm * self.sin_alpha / eb.pc[2];
         let l = &self.cfg.lasers[k];
         let peak_e = self.cfg.signal_e_per_mw_us
             * l.power_mw
@@ -793,10 +794,10 @@ impl Scene {
         let cam = &self.cfg.camera;
         let nm = &self.cfg.noise;
         let a0 = nm.ambient_e_per_us * exposure_us;
-        let base = a0 * (1.0 + nm.ambient_gradient_per_px[1] * (row as f64 - cam.cy_px));
+        let base = a0 * (1.0 + nm.ambient_gradient_per_px[1] * (row as f64 - cam.intrinsics.cy_px));
         let slope = a0 * nm.ambient_gradient_per_px[0];
         for (i, b) in buf.iter_mut().enumerate() {
-            *b = (base + slope * (i as f64 - cam.cx_px)).max(0.0);
+            *b = (base + slope * (i as f64 - cam.intrinsics.cx_px)).max(0.0);
         }
         for &(c, e) in self.sensor.hot_in_row(row) {
             buf[c as usize] += e * exposure_us;

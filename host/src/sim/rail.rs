@@ -8,10 +8,13 @@
 //! * `h(x) = Σ A_i·sin(2π·x/λ_i + φ_i) + r(x)`: the corrugation components
 //!   and a band-limited random roughness `r` (seeded; flat amplitude
 //!   spectrum between two wavelengths with random phases, scaled to the
-//!   requested RMS, tabulated over a long period and interpolated with a C¹
-//!   cubic);
+//!   requested RMS, tabulated over a long period by one inverse FFT
+//!   (`rustfft`) and interpolated with a C¹ cubic);
 //! * `crown(y) = −(R − sqrt(R² − y²))` for a crown radius `R` (≈ −y²/2R), 0
 //!   without one.
+
+use rustfft::FftPlanner;
+use rustfft::num_complex::Complex;
 
 use super::noise::Rng;
 use super::{SimError, check};
@@ -134,19 +137,14 @@ impl Surface {
                 });
             }
             let mut rng = Rng::for_stream(seed, 0x524f_5547, 0, 0);
-            let mut re = vec![0.0; n];
-            let mut im = vec![0.0; n];
-            for k in k_lo..=k_hi {
-                let (s, c) = (std::f64::consts::TAU * rng.uniform()).sin_cos();
-                re[k] = c;
-                im[k] = s;
+            let mut spectrum = vec![Complex::new(0.0, 0.0); n];
+            for c in &mut spectrum[k_lo..=k_hi] {
+                let (s, co) = (std::f64::consts::TAU * rng.uniform()).sin_cos();
+                *c = Complex::new(co, s);
             }
-            // Inverse DFT (conjugate trick: forward FFT of the conjugate); the
-            // real part is Σ cos(2π·k·i/n + φ_k).
-            for v in im.iter_mut() {
-                *v = -*v;
-            }
-            fft(&mut re, &mut im);
+            // Unnormalised inverse DFT: the real part is Σ cos(2π·k·i/n + φ_k).
+            FftPlanner::<f64>::new().plan_fft_inverse(n).process(&mut spectrum);
+            let re: Vec<f64> = spectrum.iter().map(|c| c.re).collect();
             let rms = (re.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
             let k = rail.roughness_rms_um * 1e-3 / rms;
             rough = re.into_iter().map(|v| v * k).collect();
@@ -202,67 +200,9 @@ impl Surface {
     }
 }
 
-/// In-place iterative radix-2 complex FFT (forward, unnormalised); the
-/// length must be a power of two.
-pub(crate) fn fft(re: &mut [f64], im: &mut [f64]) {
-    let n = re.len();
-    debug_assert!(n.is_power_of_two() && im.len() == n);
-    let mut j = 0;
-    for i in 1..n {
-        let mut bit = n >> 1;
-        while j & bit != 0 {
-            j ^= bit;
-            bit >>= 1;
-        }
-        j |= bit;
-        if i < j {
-            re.swap(i, j);
-            im.swap(i, j);
-        }
-    }
-    let mut len = 2;
-    while len <= n {
-        let ang = -std::f64::consts::TAU / len as f64;
-        let half = len / 2;
-        // Twiddles computed directly (no recurrence drift over long tables).
-        let tw: Vec<(f64, f64)> = (0..half).map(|k| (ang * k as f64).sin_cos()).map(|(s, c)| (c, s)).collect();
-        for start in (0..n).step_by(len) {
-            for (k, &(wr, wi)) in tw.iter().enumerate() {
-                let a = start + k;
-                let b = a + half;
-                let xr = re[b] * wr - im[b] * wi;
-                let xi = re[b] * wi + im[b] * wr;
-                re[b] = re[a] - xr;
-                im[b] = im[a] - xi;
-                re[a] += xr;
-                im[a] += xi;
-            }
-        }
-        len <<= 1;
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn fft_matches_dft() {
-        let n = 16;
-        let mut re: Vec<f64> = (0..n).map(|i| ((i * 7 + 3) % 5) as f64 - 2.0).collect();
-        let mut im: Vec<f64> = (0..n).map(|i| ((i * 3 + 1) % 4) as f64 * 0.5).collect();
-        let (r0, i0) = (re.clone(), im.clone());
-        fft(&mut re, &mut im);
-        for k in 0..n {
-            let (mut sr, mut si) = (0.0, 0.0);
-            for t in 0..n {
-                let a = -std::f64::consts::TAU * (k * t) as f64 / n as f64;
-                sr += r0[t] * a.cos() - i0[t] * a.sin();
-                si += r0[t] * a.sin() + i0[t] * a.cos();
-            }
-            assert!((sr - re[k]).abs() < 1e-9 && (si - im[k]).abs() < 1e-9);
-        }
-    }
 
     #[test]
     fn roughness_rms_band_and_period() {

@@ -16,7 +16,7 @@ fn quiet(mut cfg: SimConfig) -> SimConfig {
 }
 
 fn no_distortion(mut cfg: SimConfig) -> SimConfig {
-    let c = &mut cfg.camera;
+    let c = &mut cfg.camera.intrinsics;
     (c.k1, c.k2, c.p1, c.p2, c.k3) = (0.0, 0.0, 0.0, 0.0, 0.0);
     cfg
 }
@@ -154,8 +154,11 @@ fn flat_rail_gives_constant_columns() {
         let bend = cols.iter().fold(f64::MIN, |a, &c| a.max(c)) - cols.iter().fold(f64::MAX, |a, &c| a.min(c));
         bends.push(bend);
         assert!(bend < 1.0, "laser {k}: distortion bends the stripe by {bend} px");
-        let und: Vec<f64> =
-            cols.iter().enumerate().map(|(r, &u)| cam.unproject(u, r as f64)[0] * cam.fx_px + cam.cx_px).collect();
+        let und: Vec<f64> = cols
+            .iter()
+            .enumerate()
+            .map(|(r, &u)| cam.intrinsics.unproject(u, r as f64)[0] * cam.intrinsics.fx_px + cam.intrinsics.cx_px)
+            .collect();
         let spread = und.iter().fold(f64::MIN, |a, &c| a.max(c)) - und.iter().fold(f64::MAX, |a, &c| a.min(c));
         assert!(spread < 1e-6, "laser {k}: {spread}");
     }
@@ -187,18 +190,18 @@ fn corrugation_shift_matches_triangulation_closed_form() {
     let mut worst_linear: f64 = 0.0;
     for k in 0..3 {
         let yk = cfg.lasers[k].offset_mm;
-        let u_flat = cam.fx_px * yk / z0 + cam.cx_px;
+        let u_flat = cam.intrinsics.fx_px * yk / z0 + cam.intrinsics.cx_px;
         for r in (0..scene.height()).step_by(7) {
             let mut z = 0.0;
             for _ in 0..50 {
-                z = h(odo + (r as f64 - cam.cy_px) * (z0 - z) / cam.fy_px);
+                z = h(odo + (r as f64 - cam.intrinsics.cy_px) * (z0 - z) / cam.intrinsics.fy_px);
             }
-            let u = cam.fx_px * (yk - z * tan_a) / (z0 - z) + cam.cx_px;
+            let u = cam.intrinsics.fx_px * (yk - z * tan_a) / (z0 - z) + cam.intrinsics.cx_px;
             let t = scene.stripe_truth(frame, r, k).unwrap();
             worst_exact = worst_exact.max((t.column_px - u).abs());
             assert!((t.height_um - z * 1e3).abs() < 1e-6);
             // First order: Δu = fx·Δz·(y_k − Z0·tan α)/Z0².
-            let du = cam.fx_px * z * (yk - z0 * tan_a) / (z0 * z0);
+            let du = cam.intrinsics.fx_px * z * (yk - z0 * tan_a) / (z0 * z0);
             worst_linear = worst_linear.max((t.column_px - u_flat - du).abs() / (a_um * 1e-3 * 4.9));
         }
     }
@@ -237,7 +240,7 @@ fn corrugation_shift_matches_direct_projection_with_distortion() {
                 y -= g / dg;
             }
             let crown = (300.0f64 * 300.0 - y * y).sqrt() - 300.0;
-            let uv = cam.project(pose.rail_to_cam([x0, y, dz + crown])).unwrap();
+            let uv = cam.intrinsics.project(pose.rail_to_cam([x0, y, dz + crown])).unwrap();
             // The raised point images a fraction of a row off r: follow the stripe there.
             let t = bumpy.stripe_truth(frame, r, k).unwrap();
             let slope = (bumpy.stripe_truth(frame, r + 1, k).unwrap().column_px
@@ -513,7 +516,7 @@ fn misaligned_head_still_renders_consistent_truth() {
             let p = [t.x_mm - truth.odometer_mm, t.y_mm, t.height_um * 1e-3];
             let pc = pose.rail_to_cam(p);
             assert!(plane.distance_mm(pc).abs() < 1e-9);
-            let uv = scene.camera().project(pc).unwrap();
+            let uv = scene.camera().intrinsics.project(pc).unwrap();
             assert!((uv[0] - t.column_px).abs() < 1e-6 && (uv[1] - r as f64).abs() < 1e-6);
             let crown = (300.0f64 * 300.0 - t.y_mm * t.y_mm).sqrt() - 300.0;
             assert!((t.height_um - t.profile_um - crown * 1e3).abs() < 1e-6);
@@ -562,7 +565,7 @@ fn rejects_bad_configurations() {
         f(&mut c);
         Scene::new(c).unwrap_err()
     };
-    let e = err(|c| c.camera.fx_px = -1.0);
+    let e = err(|c| c.camera.intrinsics.fx_px = -1.0);
     assert!(matches!(e, SimError::Field { field: "camera.fx_px", .. }), "{e}");
     assert_eq!(e.to_string(), "camera.fx_px = -1 must be finite and > 0");
     assert_eq!(err(|c| c.camera.bits = 7), SimError::Bits(7));
@@ -575,48 +578,9 @@ fn rejects_bad_configurations() {
     assert!(matches!(err(|c| c.head.alpha_deg = 0.0), SimError::Field { field: "head.alpha_deg", .. }));
     assert!(matches!(err(|c| c.noise.read_noise_e = -1.0), SimError::Field { .. }));
     assert!(matches!(err(|c| c.rail.roughness_min_wavelength_mm = 0.001), SimError::RoughnessBand { .. }));
-    assert_eq!(err(|c| c.camera.k1 = -3.0), SimError::Distortion);
-    assert!(matches!(err(|c| c.camera.width_px = 2), SimError::ImageSize { .. }));
+    assert_eq!(err(|c| c.camera.intrinsics.k1 = -3.0), SimError::Distortion);
+    assert!(matches!(err(|c| c.camera.intrinsics.width_px = 2), SimError::ImageSize { .. }));
     for e in [SimError::Distortion, SimError::LaserOutOfView { laser: 1 }, SimError::LaserCount(0)] {
         assert!(!e.to_string().is_empty());
-    }
-}
-
-/// Render time per frame: `cargo test --release -p cms-host sim::tests::render_time -- --ignored --nocapture`.
-/// Reports the median and the fastest frame (the machine may be shared).
-#[test]
-#[ignore]
-fn render_time() {
-    for (name, cfg, frames) in [
-        ("reference", SimConfig::default(), 200u64),
-        ("reference, noise-free", quiet(SimConfig::default()), 200),
-        ("paper", SimConfig::paper(), 4),
-    ] {
-        let t0 = std::time::Instant::now();
-        let mut scene = Scene::new(cfg).unwrap();
-        let setup = t0.elapsed().as_secs_f64();
-        let mut img = vec![0u16; scene.width() * scene.height()];
-        let time = |f: &mut dyn FnMut(u64)| {
-            let mut t: Vec<f64> = (0..frames)
-                .map(|i| {
-                    let t0 = std::time::Instant::now();
-                    f(i);
-                    t0.elapsed().as_secs_f64() * 1e3
-                })
-                .collect();
-            t.sort_by(f64::total_cmp);
-            (t[t.len() / 2], t[0])
-        };
-        let (render, render_min) = time(&mut |i| {
-            std::hint::black_box(scene.render_frame(i, 0b111, &mut img));
-        });
-        let (truth, truth_min) = time(&mut |i| {
-            std::hint::black_box(scene.frame_truth(i, 0b111));
-        });
-        println!(
-            "{name}: Scene::new {:.1} ms; render_frame median {render:.2} ms (fastest {render_min:.2}); \
-             truth alone {truth:.2} ms ({truth_min:.2})",
-            setup * 1e3
-        );
     }
 }

@@ -16,9 +16,10 @@
 use crate::common::cms_host;
 use std::path::PathBuf;
 
+use cms_host::board::{Board, BoardPose};
 use cms_host::calib::board::{CornerError, find_corners};
 use cms_host::calib::camera::{CalibOptions, board_pose, calibrate};
-use cms_host::calib::{Board, BoardPose, Intrinsics};
+use cms_host::camera::Intrinsics;
 use nalgebra::{Rotation3, Vector3};
 
 const PHOTOS: [u32; 13] = [1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 13, 14];
@@ -50,18 +51,18 @@ fn photographs_calibrate_like_opencv() {
     let cal = calibrate(&OPENCV_BOARD, &views, 640, 480, &opts).expect("calibration");
     let k = cal.intrinsics;
     println!("detect {t_detect:?}, total {:?}, {} LM iterations", t0.elapsed(), cal.iterations);
-    println!("fx {:.3} fy {:.3} cx {:.3} cy {:.3} rms {:.4} px", k.fx, k.fy, k.cx, k.cy, cal.rms_px);
+    println!("fx {:.3} fy {:.3} cx {:.3} cy {:.3} rms {:.4} px", k.fx_px, k.fy_px, k.cx_px, k.cy_px, cal.rms_px);
     println!("k1 {:.5} k2 {:.5} p1 {:.6} p2 {:.6} k3 {:.5}", k.k1, k.k2, k.p1, k.p2, k.k3);
     println!("per view {:?}", cal.per_view_rms_px.iter().map(|e| (e * 1e3).round() / 1e3).collect::<Vec<_>>());
-    assert_eq!(k.fx, k.fy, "fixed aspect ratio");
-    assert_eq!(k.skew, 0.0, "skew fixed at 0 by default");
+    assert_eq!(k.fx_px, k.fy_px, "fixed aspect ratio");
+    assert_eq!(k.skew_px, 0.0, "skew fixed at 0 by default");
     let rel = |a: f64, b: f64| (a - b).abs() / b;
     // OpenCV on the views its own corners are sound in (see the module docs).
-    for (name, ours, cv) in [("fx", k.fx, 533.609), ("cx", k.cx, 342.560), ("cy", k.cy, 234.111)] {
+    for (name, ours, cv) in [("fx", k.fx_px, 533.609), ("cx", k.cx_px, 342.560), ("cy", k.cy_px, 234.111)] {
         assert!(rel(ours, cv) < 0.005, "{name} {ours:.3} vs OpenCV's {cv:.3}");
     }
     // The checked-in OpenCV result, which includes its two bad views.
-    for (name, ours, cv) in [("fx", k.fx, 535.9157), ("cx", k.cx, 342.2832), ("cy", k.cy, 235.5708)] {
+    for (name, ours, cv) in [("fx", k.fx_px, 535.9157), ("cx", k.cx_px, 342.2832), ("cy", k.cy_px, 235.5708)] {
         assert!(rel(ours, cv) < 0.0075, "{name} {ours:.3} vs left_intrinsics.yml's {cv:.3}");
     }
     // Strong barrel distortion, as OpenCV finds.
@@ -113,7 +114,7 @@ impl Noise {
 /// margin, grey beyond) through `intr` at `pose`: `ss × ss` samples a pixel,
 /// then a Gaussian blur of `blur_px` and noise of `noise` (of a 0..1 range).
 fn render(intr: &Intrinsics, pose: &BoardPose, board: &Board, ss: usize, blur_px: f64, noise: f64) -> Vec<f32> {
-    let (w, h) = (intr.width as usize, intr.height as usize);
+    let (w, h) = (intr.width_px as usize, intr.height_px as usize);
     let (n, d) = pose.plane();
     let s = board.square_mm;
     let mut img = vec![0.0f32; w * h];
@@ -173,13 +174,13 @@ fn render(intr: &Intrinsics, pose: &BoardPose, board: &Board, ss: usize, blur_px
 
 fn synthetic_camera() -> Intrinsics {
     Intrinsics {
-        width: 640,
-        height: 480,
-        fx: 610.0,
-        fy: 605.0,
-        cx: 327.5,
-        cy: 236.0,
-        skew: 0.0,
+        width_px: 640,
+        height_px: 480,
+        fx_px: 610.0,
+        fy_px: 605.0,
+        cx_px: 327.5,
+        cy_px: 236.0,
+        skew_px: 0.0,
         k1: -0.22,
         k2: 0.08,
         p1: 0.0008,
@@ -261,10 +262,10 @@ fn synthetic_views_recover_the_camera() {
     println!("{k:?} rms {:.4} px", cal.rms_px);
     assert!(cal.rms_px < 0.05, "RMS {} px", cal.rms_px);
     for (name, got, want, tol) in [
-        ("fx", k.fx, intr.fx, 0.5),
-        ("fy", k.fy, intr.fy, 0.5),
-        ("cx", k.cx, intr.cx, 0.5),
-        ("cy", k.cy, intr.cy, 0.5),
+        ("fx", k.fx_px, intr.fx_px, 0.5),
+        ("fy", k.fy_px, intr.fy_px, 0.5),
+        ("cx", k.cx_px, intr.cx_px, 0.5),
+        ("cy", k.cy_px, intr.cy_px, 0.5),
         ("k1", k.k1, intr.k1, 0.01),
         ("p1", k.p1, intr.p1, 3e-4),
         ("p2", k.p2, intr.p2, 3e-4),

@@ -5,11 +5,12 @@
 //! true intrinsics and laser planes. The done-when: intrinsics within 0.2 %,
 //! each plane's normal within 0.02° and offset within 0.02 mm.
 
+use cms_host::board::Board;
+use cms_host::calib::board::find_corners;
 use cms_host::calib::camera::{CalibOptions, calibrate};
 use cms_host::calib::lasers::{LaserOptions, Pair, calibrate_lasers};
-use cms_host::calib::{Board, board::find_corners};
 use cms_host::input::Rows;
-use cms_host::sim::board::{BoardImage, board_for, calibration_poses, camera_intrinsics, render_board};
+use cms_host::sim::board::{BoardImage, board_for, calibration_poses, render_board};
 use cms_host::sim::{Scene, SimConfig};
 
 fn rows(img: BoardImage) -> Rows {
@@ -31,7 +32,7 @@ fn calibration_from_simulated_images_matches_the_truth() {
     let scene = Scene::new(SimConfig::reference()).unwrap();
     let board: Board = board_for(scene.config());
     let poses = calibration_poses(&scene, &board, 24, 1);
-    let truth = camera_intrinsics(scene.camera());
+    let truth = scene.camera().intrinsics;
     let mut views = Vec::new();
     let mut pairs = Vec::new();
     for (k, pose) in poses.iter().enumerate() {
@@ -41,10 +42,11 @@ fn calibration_from_simulated_images_matches_the_truth() {
         views.push(find_corners(&gray, off.width, off.height, &board).unwrap());
         pairs.push(Pair { off: rows(off), on: rows(on), name: format!("pose {k}") });
     }
-    let cam = calibrate(&board, &views, truth.width, truth.height, &CalibOptions::default()).unwrap();
+    let cam = calibrate(&board, &views, truth.width_px, truth.height_px, &CalibOptions::default()).unwrap();
     let i = &cam.intrinsics;
     let rel = |got: f64, want: f64| (got - want) / want * 100.0;
-    let errs = [rel(i.fx, truth.fx), rel(i.fy, truth.fy), rel(i.cx, truth.cx), rel(i.cy, truth.cy)];
+    let errs =
+        [rel(i.fx_px, truth.fx_px), rel(i.fy_px, truth.fy_px), rel(i.cx_px, truth.cx_px), rel(i.cy_px, truth.cy_px)];
     println!(
         "intrinsics: fx {:+.4} %, fy {:+.4} %, cx {:+.4} %, cy {:+.4} %; RMS {:.4} px",
         errs[0], errs[1], errs[2], errs[3], cam.rms_px

@@ -27,7 +27,7 @@ fn laser_stripes_where_the_planes_cut_the_board() {
     let r = BoardRenderer::new(&scene, opts);
     let brd = board::board_for(scene.config());
     let cam = *scene.camera();
-    let (w, h) = (cam.width_px, cam.height_px);
+    let (w, h) = (cam.width_px(), cam.height_px());
     let scales = ScaleRange::new(Px::from_f64(1.5), Px::from_f64(8.0)).unwrap();
     let mut det = Box::new(Detector::<1024>::new(Config::new(8, scales)).unwrap());
     let mut out: Stripes<8> = Stripes::new();
