@@ -1,26 +1,23 @@
 //! The host library's error, and what kind of failure each one is.
 //!
 //! Each domain module has its own typed error ([`crate::input::InputError`],
-//! [`crate::link::LinkError`], [`crate::link::ClientError`], [`crate::listen::ListenError`],
-//! [`crate::record::RecordError`], [`crate::qemu::QemuError`],
-//! [`crate::simulate::SimulateError`], …); [`Error`] is their union plus the
-//! two kinds of plain message that the command-level functions produce (a bad
-//! input, a device that misbehaves). The library never decides an exit
-//! status: it says what *kind* of failure an error is ([`Error::class`]) and
-//! the command line maps classes to statuses in one place (`cli::exit`).
+//! [`crate::link::LinkError`], [`crate::link::ClientError`],
+//! [`crate::listen::ListenError`], [`crate::record::RecordError`],
+//! [`crate::qemu::QemuError`], [`crate::simulate::SimulateError`], …) and
+//! says what [`Class`] of failure each of its variants is ([`Classify`]).
+//! [`Error`] holds any of them ([`Error::Module`]) or one of the plain
+//! messages the command-level functions produce (a bad input, a device that
+//! misbehaves). The library never decides an exit status: the command line
+//! maps classes to statuses in one place (`cli::exit`).
+//!
+//! This module imports no other host module (they all import it): the
+//! classes live with the errors, so the layers have no cycle.
 //!
 //! Messages are one line, name what was wrong, and do not repeat their
 //! source's text when the source is attached (the command line prints the
 //! chain).
 
 use std::io;
-
-use crate::input::InputError;
-use crate::link::{ClientError, LinkError};
-use crate::listen::ListenError;
-use crate::qemu::QemuError;
-use crate::record::RecordError;
-use crate::simulate::SimulateError;
 
 /// What kind of failure an error is: the user's to fix, the device's, or
 /// anything else.
@@ -33,11 +30,43 @@ pub enum Class {
     /// that does not answer, refuses or speaks another protocol, the
     /// emulated head that cannot start.
     Device,
-    /// Writing an output failed (a closed pipe included: see
-    /// [`Error::is_broken_pipe`]).
+    /// Writing an output failed (a closed pipe included).
     Output,
     /// Anything else (a failed build of the emulated head, a system call).
     Other,
+}
+
+/// A module's error that knows its class.
+pub trait Classify: std::error::Error + Send + Sync + 'static {
+    /// What kind of failure this is.
+    fn class(&self) -> Class;
+}
+
+/// A module's error inside [`Error`]: shown as itself, its class kept.
+#[derive(Debug)]
+pub struct ModuleError {
+    class: Class,
+    inner: Box<dyn std::error::Error + Send + Sync>,
+}
+
+impl ModuleError {
+    /// The module's error itself (to downcast to its type).
+    pub fn inner(&self) -> &(dyn std::error::Error + Send + Sync + 'static) {
+        &*self.inner
+    }
+}
+
+impl std::fmt::Display for ModuleError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.inner.fmt(f)
+    }
+}
+
+impl std::error::Error for ModuleError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        // Transparent: the module's error is this one, its source is ours.
+        self.inner.source()
+    }
 }
 
 /// Why a host operation failed.
@@ -53,27 +82,9 @@ pub enum Error {
     /// Writing an output failed.
     #[error("writing output: {0}")]
     Output(#[source] io::Error),
-    /// Reading an image or rows.
+    /// A module's own error ([`Classify`]).
     #[error(transparent)]
-    Read(#[from] InputError),
-    /// The serial link.
-    #[error(transparent)]
-    Link(#[from] LinkError),
-    /// A conversation with a head (`capture`, `calibrate upload`).
-    #[error(transparent)]
-    Client(#[from] ClientError),
-    /// A listening session.
-    #[error(transparent)]
-    Listen(#[from] ListenError),
-    /// A recording.
-    #[error(transparent)]
-    Record(#[from] RecordError),
-    /// The emulated head.
-    #[error(transparent)]
-    Qemu(#[from] QemuError),
-    /// The simulated head.
-    #[error(transparent)]
-    Simulate(#[from] SimulateError),
+    Module(ModuleError),
 }
 
 impl From<io::Error> for Error {
@@ -82,91 +93,29 @@ impl From<io::Error> for Error {
     }
 }
 
+impl<E: Classify> From<E> for Error {
+    fn from(e: E) -> Self {
+        Error::Module(ModuleError { class: e.class(), inner: Box::new(e) })
+    }
+}
+
 impl Error {
     /// What kind of failure this is.
     pub fn class(&self) -> Class {
         match self {
-            Error::Input(_) | Error::Read(_) => Class::Input,
-            Error::Device(_) | Error::Link(_) => Class::Device,
-            // As `capture` and `calibrate upload` have always exited (2),
-            // their port and head failures included; making them device
-            // failures (3), as listen's are, is this match's one line.
-            Error::Client(_) => Class::Input,
+            Error::Input(_) => Class::Input,
+            Error::Device(_) => Class::Device,
             Error::Output(_) => Class::Output,
-            Error::Listen(e) => match e {
-                ListenError::Output(_) => Class::Output,
-                ListenError::Record(r) => record_class(r),
-                _ => Class::Device,
-            },
-            Error::Record(e) => record_class(e),
-            Error::Qemu(e) => qemu_class(e),
-            Error::Simulate(e) => simulate_class(e),
+            Error::Module(m) => m.class,
         }
     }
 
-    /// The class of any error of this library, found by its type: an
-    /// [`Error`] or one of the module errors it unites (the command line
-    /// passes them on as they come). `None` for another crate's error.
-    pub fn class_of(e: &(dyn std::error::Error + 'static)) -> Option<Class> {
-        if let Some(e) = e.downcast_ref::<Error>() {
-            return Some(e.class());
+    /// The module's error of [`Error::Module`], as its type `E`.
+    pub fn downcast_ref<E: std::error::Error + 'static>(&self) -> Option<&E> {
+        match self {
+            Error::Module(m) => m.inner().downcast_ref(),
+            _ => None,
         }
-        if e.is::<InputError>() {
-            return Some(Class::Input);
-        }
-        if e.is::<LinkError>() {
-            return Some(Class::Device);
-        }
-        if let Some(l) = e.downcast_ref::<ListenError>() {
-            return Some(match l {
-                ListenError::Output(_) => Class::Output,
-                ListenError::Record(r) => record_class(r),
-                _ => Class::Device,
-            });
-        }
-        if let Some(r) = e.downcast_ref::<RecordError>() {
-            return Some(record_class(r));
-        }
-        if let Some(q) = e.downcast_ref::<QemuError>() {
-            return Some(qemu_class(q));
-        }
-        if let Some(s) = e.downcast_ref::<SimulateError>() {
-            return Some(simulate_class(s));
-        }
-        None
-    }
-
-    /// Whether this is a write to a closed pipe (`cms-host export … | head`),
-    /// which ends a command quietly and successfully.
-    pub fn is_broken_pipe(&self) -> bool {
-        let io = match self {
-            Error::Output(e) | Error::Listen(ListenError::Output(e)) | Error::Record(RecordError::Output(e)) => e,
-            _ => return false,
-        };
-        io.kind() == io::ErrorKind::BrokenPipe
-    }
-}
-
-fn qemu_class(e: &QemuError) -> Class {
-    match e {
-        QemuError::Usage(_) => Class::Input,
-        QemuError::Build { .. } | QemuError::Io(..) | QemuError::Bench(_) => Class::Other,
-        _ => Class::Device,
-    }
-}
-
-fn simulate_class(e: &SimulateError) -> Class {
-    match e {
-        SimulateError::Usage(_) => Class::Input,
-        _ => Class::Other,
-    }
-}
-
-fn record_class(e: &RecordError) -> Class {
-    match e {
-        RecordError::Output(_) => Class::Output,
-        // A recording that cannot be opened or read is a bad input file.
-        RecordError::Io { .. } | RecordError::Format { .. } => Class::Input,
     }
 }
 
@@ -174,21 +123,25 @@ fn record_class(e: &RecordError) -> Class {
 mod tests {
     use super::*;
 
+    #[derive(Debug, thiserror::Error)]
+    #[error("the head went away")]
+    struct Gone;
+
+    impl Classify for Gone {
+        fn class(&self) -> Class {
+            Class::Device
+        }
+    }
+
     #[test]
-    fn classes() {
+    fn classes_and_the_module_error_inside() {
         assert_eq!(Error::Input("x".into()).class(), Class::Input);
         assert_eq!(Error::Device("x".into()).class(), Class::Device);
-        let gone = LinkError::Gone { port: "/dev/ttyACM0".into(), source: io::Error::other("unplugged") };
-        assert_eq!(Error::from(gone).class(), Class::Device);
-        assert_eq!(Error::from(QemuError::NotInstalled).class(), Class::Device);
-        assert_eq!(Error::from(QemuError::Usage("x".into())).class(), Class::Input);
-        let pipe = Error::from(io::Error::from(io::ErrorKind::BrokenPipe));
-        assert!(pipe.is_broken_pipe());
-        assert_eq!(pipe.class(), Class::Output);
-        assert!(!Error::Input("x".into()).is_broken_pipe());
-        let bare = RecordError::Format { path: "a.cmsrec".into(), why: "not a CMS recording".into() };
-        assert_eq!(Error::class_of(&bare), Some(Class::Input));
-        assert_eq!(Error::class_of(&SimulateError::Usage("x".into())), Some(Class::Input));
-        assert_eq!(Error::class_of(&io::Error::other("x")), None);
+        assert_eq!(Error::from(io::Error::from(io::ErrorKind::BrokenPipe)).class(), Class::Output);
+        let e = Error::from(Gone);
+        assert_eq!(e.class(), Class::Device);
+        assert_eq!(e.to_string(), "the head went away");
+        assert!(e.downcast_ref::<Gone>().is_some());
+        assert!(std::error::Error::source(&e).is_none(), "transparent: Gone itself has no source");
     }
 }

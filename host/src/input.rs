@@ -174,13 +174,26 @@ pub struct InputError {
     pub kind: InputErrorKind,
 }
 
+impl crate::error::Classify for InputError {
+    fn class(&self) -> crate::Class {
+        crate::Class::Input
+    }
+}
+
 impl fmt::Display for InputError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{}: {}", self.path.display(), self.kind)
     }
 }
 
-impl std::error::Error for InputError {}
+impl std::error::Error for InputError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match &self.kind {
+            InputErrorKind::Io(e) => Some(e),
+            _ => None,
+        }
+    }
+}
 
 /// What went wrong reading an input.
 #[derive(Debug)]

@@ -66,6 +66,12 @@ pub enum LinkError {
     },
 }
 
+impl crate::error::Classify for LinkError {
+    fn class(&self) -> crate::Class {
+        crate::Class::Device
+    }
+}
+
 /// An open serial port to the head.
 pub struct Link {
     port: Box<dyn serialport::SerialPort>,

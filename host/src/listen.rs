@@ -170,6 +170,16 @@ pub enum ListenError {
     Output(#[source] io::Error),
 }
 
+impl crate::error::Classify for ListenError {
+    fn class(&self) -> crate::Class {
+        match self {
+            ListenError::Output(_) => crate::Class::Output,
+            ListenError::Record(r) => crate::error::Classify::class(r),
+            _ => crate::Class::Device,
+        }
+    }
+}
+
 impl ListenError {
     /// The listener's words for a handshake that failed before the head
     /// was ever greeted.

@@ -140,6 +140,16 @@ pub enum QemuError {
     Usage(String),
 }
 
+impl crate::error::Classify for QemuError {
+    fn class(&self) -> crate::Class {
+        match self {
+            QemuError::Usage(_) => crate::Class::Input,
+            QemuError::Build { .. } | QemuError::Io(..) | QemuError::Bench(_) => crate::Class::Other,
+            _ => crate::Class::Device,
+        }
+    }
+}
+
 /// What to do without an image, in one line.
 fn no_source(bin: &str) -> String {
     let flag = if bin == BENCH_BIN { "--image" } else { "--qemu-image" };

@@ -42,7 +42,6 @@
 //! There is no host time stamp: profiles carry the head's exposure time
 //! (`timestamp_us`) and odometer, which is what every analysis uses.
 
-use std::fmt;
 use std::fs::{File, OpenOptions};
 use std::io::{self, BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
@@ -99,9 +98,10 @@ pub fn parse_header(h: &[u8]) -> Result<Header, String> {
 }
 
 /// Why a recording could not be written or read.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum RecordError {
     /// Opening, reading or writing the file failed.
+    #[error("{what} {}: {source}", path.display())]
     Io {
         /// The file.
         path: PathBuf,
@@ -111,6 +111,7 @@ pub enum RecordError {
         source: io::Error,
     },
     /// The file is not a recording this build can read.
+    #[error("{}: {why}", path.display())]
     Format {
         /// The file.
         path: PathBuf,
@@ -118,20 +119,19 @@ pub enum RecordError {
         why: String,
     },
     /// Writing the export failed.
-    Output(io::Error),
+    #[error("writing output: {0}")]
+    Output(#[source] io::Error),
 }
 
-impl fmt::Display for RecordError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+impl crate::error::Classify for RecordError {
+    fn class(&self) -> crate::Class {
         match self {
-            RecordError::Io { path, what, source } => write!(f, "{what} {}: {source}", path.display()),
-            RecordError::Format { path, why } => write!(f, "{}: {why}", path.display()),
-            RecordError::Output(e) => write!(f, "writing output: {e}"),
+            RecordError::Output(_) => crate::Class::Output,
+            // A recording that cannot be opened or read is a bad input file.
+            RecordError::Io { .. } | RecordError::Format { .. } => crate::Class::Input,
         }
     }
 }
-
-impl std::error::Error for RecordError {}
 
 // ------------------------------------------------------------------ writer
 

@@ -28,24 +28,24 @@ pub use server::{MAX_WIDTH, Pty, RowRenderer, ServeOptions, Summary, serve};
 use crate::sim::{Corrugation, SimConfig};
 
 /// Why the simulated head could not start or stopped.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum SimulateError {
     /// A bad option (exit status 2).
+    #[error("{0}")]
     Usage(String),
     /// A system call on the pty or the terminal failed (exit status 1).
-    Io(&'static str, io::Error),
+    #[error("{0}: {1}")]
+    Io(&'static str, #[source] io::Error),
 }
 
-impl std::fmt::Display for SimulateError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+impl crate::error::Classify for SimulateError {
+    fn class(&self) -> crate::Class {
         match self {
-            SimulateError::Usage(m) => f.write_str(m),
-            SimulateError::Io(what, e) => write!(f, "{what}: {e}"),
+            SimulateError::Usage(_) => crate::Class::Input,
+            _ => crate::Class::Other,
         }
     }
 }
-
-impl std::error::Error for SimulateError {}
 
 /// Camera and head geometry presets.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

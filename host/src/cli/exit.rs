@@ -8,7 +8,7 @@
 //! | 1 | anything else (writing an output, a system call, a build) |
 //!
 //! The status comes from the first error of the `cms_host` library (its
-//! [`cms_host::Error`] or a module's error: [`Error::class_of`]) or [`Usage`]
+//! [`cms_host::Error`] or a module's error: `class_of`) or [`Usage`]
 //! in the error's chain (the command line wraps library errors in context,
 //! never the other way round); an error with neither is "anything else".
 
@@ -34,7 +34,7 @@ pub fn status(e: &anyhow::Error) -> u8 {
         if cause.is::<Usage>() {
             return 2;
         }
-        if let Some(class) = Error::class_of(cause) {
+        if let Some(class) = class_of(cause) {
             return match class {
                 Class::Input => 2,
                 Class::Device => 3,
@@ -43,6 +43,33 @@ pub fn status(e: &anyhow::Error) -> u8 {
         }
     }
     1
+}
+
+/// The class of an error of the `cms_host` library, found by its type: an
+/// [`Error`], or a module's error passed on bare. `None` for another
+/// crate's error.
+fn class_of(e: &(dyn std::error::Error + 'static)) -> Option<Class> {
+    use cms_host::error::Classify;
+    if let Some(e) = e.downcast_ref::<Error>() {
+        return Some(e.class());
+    }
+    macro_rules! classed {
+        ($($t:ty),*) => {$(
+            if let Some(x) = e.downcast_ref::<$t>() {
+                return Some(x.class());
+            }
+        )*};
+    }
+    classed!(
+        cms_host::input::InputError,
+        cms_host::link::LinkError,
+        cms_host::link::ClientError,
+        cms_host::listen::ListenError,
+        cms_host::record::RecordError,
+        cms_host::qemu::QemuError,
+        cms_host::simulate::SimulateError
+    );
+    None
 }
 
 /// The whole chain as one line: each cause's text, skipping a cause whose
@@ -67,8 +94,7 @@ pub fn message(e: &anyhow::Error) -> String {
 /// output pipe) and returns its exit status.
 pub fn report(e: &anyhow::Error) -> ExitCode {
     let broken_pipe = |c: &(dyn std::error::Error + 'static)| {
-        c.downcast_ref::<Error>().is_some_and(Error::is_broken_pipe)
-            || c.downcast_ref::<std::io::Error>().is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe)
+        c.downcast_ref::<std::io::Error>().is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe)
     };
     if e.chain().any(broken_pipe) {
         return ExitCode::SUCCESS;

@@ -106,6 +106,14 @@ pub enum ClientError {
     },
 }
 
+impl crate::error::Classify for ClientError {
+    /// Every failure of a conversation with a head is the device's or the
+    /// link's (exit status 3).
+    fn class(&self) -> crate::Class {
+        crate::Class::Device
+    }
+}
+
 /// How long a blocking call waits for its answer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Wait {
