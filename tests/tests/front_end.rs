@@ -237,28 +237,31 @@ proptest! {
 
     /// The screen's responses, their σ and its candidates equal the
     /// definitions, for every block width and row length it accepts, both
-    /// pixel types.
+    /// pixel types, with two pixels per word (pixels below 2^15) and without.
     #[test]
     fn screen_matches(x in depth().prop_flat_map(row), log2_b in 1u32..=5, frac in 0.0f64..1.2) {
         prop_assume!(screen::screens(x.len(), log2_b));
-        let row: Vec<u16> = x.iter().map(|&v| v as u16).collect();
-        let want = screen_ref(&x, log2_b);
-        let mut got = vec![0; x.len()];
-        let m = screen::responses(&row, log2_b, &mut got);
-        prop_assert_eq!(&got[..m], &want[..]);
-        prop_assert_eq!(screen::sigma_q8(&mut got[..m]), screen_sigma_ref(&want));
-        let top = want.iter().copied().max().unwrap_or(0);
-        let mut cands = heapless::Vec::new();
-        for thr in [((top as f64 * frac) as i32).max(1), 1, i32::MIN + 1] {
-            screen::candidates(&row, log2_b, thr, &mut cands);
+        let narrow_x: Vec<i32> = x.iter().map(|&v| v & 0x7fff).collect();
+        for (narrow, x) in [(false, &x), (true, &narrow_x)] {
+            let row: Vec<u16> = x.iter().map(|&v| v as u16).collect();
+            let want = screen_ref(x, log2_b);
+            let mut got = vec![0; x.len()];
+            let m = screen::responses(&row, log2_b, narrow, &mut got);
+            prop_assert_eq!(&got[..m], &want[..]);
+            prop_assert_eq!(screen::sigma_q8(&mut got[..m]), screen_sigma_ref(&want));
+            let top = want.iter().copied().max().unwrap_or(0);
+            let mut cands = heapless::Vec::new();
+            for thr in [((top as f64 * frac) as i32).max(1), 1, i32::MIN + 1] {
+                screen::candidates(&row, log2_b, narrow, thr, &mut cands);
+                let got: Vec<(usize, i32)> = cands.iter().map(|c| (c.pos, c.resp)).collect();
+                prop_assert_eq!(got, screen_candidates_ref(x, log2_b, thr));
+            }
+            let bytes: Vec<u8> = x.iter().map(|&v| v.min(255) as u8).collect();
+            let x8: Vec<i32> = bytes.iter().map(|&v| v as i32).collect();
+            screen::candidates(&bytes, log2_b, narrow, 1, &mut cands);
             let got: Vec<(usize, i32)> = cands.iter().map(|c| (c.pos, c.resp)).collect();
-            prop_assert_eq!(got, screen_candidates_ref(&x, log2_b, thr));
+            prop_assert_eq!(got, screen_candidates_ref(&x8, log2_b, 1));
         }
-        let bytes: Vec<u8> = x.iter().map(|&v| v.min(255) as u8).collect();
-        let x8: Vec<i32> = bytes.iter().map(|&v| v as i32).collect();
-        screen::candidates(&bytes, log2_b, 1, &mut cands);
-        let got: Vec<(usize, i32)> = cands.iter().map(|c| (c.pos, c.resp)).collect();
-        prop_assert_eq!(got, screen_candidates_ref(&x8, log2_b, 1));
     }
 
     /// The fused coarse pass equals three box passes and a second

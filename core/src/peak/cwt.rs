@@ -245,15 +245,20 @@ pub(crate) fn refine(v: &RowView<'_>, c0: usize) -> Result<Option<Stripe>, Wider
     // pixels (measured against the f64 reference: 3.7 % of its RMS error).
     let d = kernels::deriv(j);
     let reach = d.half_len();
-    // The slope's bracket moves up to 3 px from `c`, its taps reach one
-    // more than the kernel.
-    if !v.fits(c, reach + 5) {
-        return Err(Wider);
-    }
     if v.clipped(c, reach) {
         flags.insert(Flags::CLIPPED);
     }
-    let found = slope_zero_near(x, c, guess, d).or_else(|| slope_zero(x, c, d));
+    // The search from the guess stays within a pixel of `c`, and its taps
+    // reach one more than the kernel; the whole-pixel bracket (if the guess
+    // was poor) moves up to 3 px more.
+    if !v.fits(c, reach + 2) {
+        return Err(Wider);
+    }
+    let found = match slope_zero_near(x, c, guess, d) {
+        Some(p) => Some(p),
+        None if !v.fits(c, reach + 5) => return Err(Wider),
+        None => slope_zero(x, c, d),
+    };
     let position = match found {
         Some(p) => p,
         None => {
@@ -272,13 +277,13 @@ pub(crate) fn refine(v: &RowView<'_>, c0: usize) -> Result<Option<Stripe>, Wider
 /// their sub-pixel estimate.
 ///
 /// # Cost
-/// Both maxima are found by climbing, not by search: the scale from the
-/// coarse rung up or down the ladder while the response grows (a Gaussian
-/// stripe's response is unimodal in scale: `∝ σ s^(3/2) / (s² + σ²)^(3/2)`),
-/// then the position by single pixels while it grows, then the scale again
-/// only if the position moved. From the brightest pixel of the candidate's
-/// block a typical stripe takes 5–6 Ricker responses (it took 10–18 over the
-/// whole scale range). The climb stays within the width limits' rungs, so a
+/// The scale is found by climbing, not by search: from the coarse rung up
+/// or down the ladder while the response grows (a Gaussian stripe's
+/// response is unimodal in scale: `∝ σ s^(3/2) / (s² + σ²)^(3/2)`), at the
+/// candidate's brightest pixel: three Ricker responses for a typical stripe
+/// (it took 10–18 over the whole scale range, and a climb in position). A
+/// stripe of 4 px or wider climbs in position too, then in scale again if
+/// it moved. The climb stays within the width limits' rungs, so a
 /// stripe (or glow) wider or narrower than the range is measured there and
 /// rejected rather than clamped to the range's edge.
 pub(crate) fn confirm(v: &RowView<'_>, c0: usize) -> Result<Option<Confirmed>, Wider> {
@@ -286,58 +291,49 @@ pub(crate) fn confirm(v: &RowView<'_>, c0: usize) -> Result<Option<Confirmed>, W
     let n = x.len();
     let (k_lo, k_hi) = (v.plan.k_lo, v.plan.k_hi);
     let (w_lo, w_hi) = (v.plan.k_width_lo, v.plan.k_width_hi);
-    let mut resp = [i64::MIN; kernels::LADDER_LEN];
-    // Climb in scale from rung `k0` at position `c`; leaves the responses of
-    // the best rung and of both its neighbours (within the limits) in `resp`.
-    let climb_scale = |c: usize, k0: usize, resp: &mut [i64; kernels::LADDER_LEN]| {
+    // Climb in scale from rung `k0` at position `c`: the best rung and the
+    // responses at it and at both its neighbours (`i64::MIN` where not
+    // evaluated: beyond the width limits).
+    let climb_scale = |c: usize, k0: usize| -> (usize, [i64; 3]) {
         let mut k = k0;
-        resp[k] = response_q8(x, c, k);
+        let mut here = response_q8(x, c, k);
+        let (mut below, mut above) = (i64::MIN, i64::MIN);
         while k < w_hi {
-            resp[k + 1] = response_q8(x, c, k + 1);
-            if resp[k + 1] <= resp[k] {
+            let r = response_q8(x, c, k + 1);
+            if r <= here {
+                above = r;
                 break;
             }
+            (below, here) = (here, r);
             k += 1;
         }
         if k == k0 {
             while k > w_lo {
-                resp[k - 1] = response_q8(x, c, k - 1);
-                if resp[k - 1] <= resp[k] {
+                let r = response_q8(x, c, k - 1);
+                if r <= here {
+                    below = r;
                     break;
                 }
+                (above, here) = (here, r);
                 k -= 1;
             }
         }
-        k
+        (k, [below, here, above])
     };
     let mut c = c0;
     let k_start = v.plan.k_coarse.clamp(k_lo, k_hi);
-    let mut kb = climb_scale(c, k_start, &mut resp);
-    // Pixel level: climb to the integer maximum of the best scale's response.
-    let here = resp[kb];
-    let mut best = here;
-    let mut left = if c > 0 { response_q8(x, c - 1, kb) } else { i64::MIN };
-    let mut right = if c + 1 < n { response_q8(x, c + 1, kb) } else { i64::MIN };
-    let mut moved = 0;
-    while moved < 6 {
-        if right > best && right >= left {
-            c += 1;
-            (left, best) = (best, right);
-            right = if c + 1 < n { response_q8(x, c + 1, kb) } else { i64::MIN };
-        } else if left > best {
-            c -= 1;
-            (right, best) = (best, left);
-            left = if c > 0 { response_q8(x, c - 1, kb) } else { i64::MIN };
-        } else {
-            break;
-        }
-        moved += 1;
-    }
-    // The vertex of the parabola through the three responses, as a first
-    // guess for the sub-pixel search: (l − r) / (2 (l − 2b + r)), in phases.
-    let guess = if left != i64::MIN && right != i64::MIN {
-        let den = left - 2 * best + right;
-        let num = left - right;
+    let (mut kb, mut resp) = climb_scale(c, k_start);
+    // Pixel level. A stripe narrower than 4 px: its brightest pixel (where
+    // the candidate starts) is within a pixel of the response's maximum, and
+    // the parabola through the three pixels (its vertex does not see a
+    // constant background) is the first guess of the sub-pixel search,
+    // which finds the maximum from there. A wider one: climb to the integer
+    // maximum of the best scale's response (its top is flat, the brightest
+    // pixel can be several pixels off), and take the guess from the
+    // parabola through the responses at c − 1, c, c + 1.
+    let vertex = |l: i64, m: i64, r: i64| -> i32 {
+        // (l − r) / (2 (l − 2m + r)) in phases, when the three bend down.
+        let (den, num) = (l - 2 * m + r, l - r);
         if den < 0 && num.unsigned_abs() < den.unsigned_abs() {
             // |δ| · 16 = |num| / |den| · 8; δ has the sign of r − l.
             let q = ratio_q(num.abs(), -den, 3) as i32;
@@ -345,24 +341,44 @@ pub(crate) fn confirm(v: &RowView<'_>, c0: usize) -> Result<Option<Confirmed>, W
         } else {
             0
         }
-    } else {
-        0
     };
-    if moved > 0 {
-        resp = [i64::MIN; kernels::LADDER_LEN];
-        kb = climb_scale(c, kb, &mut resp);
-    }
+    let guess = if RUNGS[kb].scale_q16 < 4 << 16 {
+        if c > 0 && c + 1 < n { vertex(x[c - 1] as i64, x[c] as i64, x[c + 1] as i64) } else { 0 }
+    } else {
+        let mut best = resp[1];
+        let mut left = if c > 0 { response_q8(x, c - 1, kb) } else { i64::MIN };
+        let mut right = if c + 1 < n { response_q8(x, c + 1, kb) } else { i64::MIN };
+        let mut moved = 0;
+        while moved < 6 {
+            if right > best && right >= left {
+                c += 1;
+                (left, best) = (best, right);
+                right = if c + 1 < n { response_q8(x, c + 1, kb) } else { i64::MIN };
+            } else if left > best {
+                c -= 1;
+                (right, best) = (best, left);
+                left = if c > 0 { response_q8(x, c - 1, kb) } else { i64::MIN };
+            } else {
+                break;
+            }
+            moved += 1;
+        }
+        if moved > 0 {
+            (kb, resp) = climb_scale(c, kb);
+        }
+        if left != i64::MIN && right != i64::MIN { vertex(left, best, right) } else { 0 }
+    };
     // The responses read `half_len` of the widest rung evaluated each side.
     if !v.fits(c, RUNGS[(kb + 1).min(w_hi)].half_len + 1) {
         return Err(Wider);
     }
-    let r0 = resp[kb];
+    let r0 = resp[1];
     if r0 <= 0 {
         return Ok(None);
     }
     let mut flags = Flags::NONE;
     // Width: parabola through the neighbouring rungs (log-scale axis).
-    let (rm, rp) = (resp[kb.saturating_sub(1)], resp[(kb + 1).min(kernels::LADDER_LEN - 1)]);
+    let [rm, _, rp] = resp;
     let dk_q16: i64 = if kb > 0 && rm != i64::MIN && rp != i64::MIN {
         let (den, num) = (rm - 2 * r0 + rp, rm - rp);
         // (rm − rp) / (2 den) in Q16, |·| ≤ ½: a 32-bit division (`ratio_q`).

@@ -63,6 +63,13 @@ pub const MIN_ROW: usize = 5;
 pub trait Pixel: Copy {
     /// The pixel's value.
     fn value(self) -> i32;
+
+    /// The sum of four pixels that are all below 2^15 (the screen's block
+    /// sums on rows of up to 15 bits; any sum the type allows otherwise).
+    #[inline(always)]
+    fn sum4_narrow(q: &[Self; 4]) -> i32 {
+        (q[0].value() + q[1].value()) + (q[2].value() + q[3].value())
+    }
 }
 impl Pixel for u8 {
     fn value(self) -> i32 {
@@ -72,6 +79,17 @@ impl Pixel for u8 {
 impl Pixel for u16 {
     fn value(self) -> i32 {
         self as i32
+    }
+
+    /// Two pixels per 32-bit word: the two words added lane by lane (no
+    /// carry between the lanes while each pixel is below 2^15), then the
+    /// lanes: two loads and three operations instead of four and three.
+    #[inline(always)]
+    fn sum4_narrow(q: &[u16; 4]) -> i32 {
+        let lo = u32::from(q[0]) | (u32::from(q[1]) << 16);
+        let hi = u32::from(q[2]) | (u32::from(q[3]) << 16);
+        let s = lo.wrapping_add(hi);
+        ((s & 0xffff) + (s >> 16)) as i32
     }
 }
 
@@ -423,12 +441,13 @@ impl Plan {
             _ => base_reach,
         };
         let reach_px = cwt_reach.max(method_reach_px + 6);
-        // The first window: a stripe up to one rung above the middle of the
-        // scale range (its fit rung is 2–3 rungs above it; the slope's
-        // bracket moves up to 3 px and reads one more). Wider ones ask for
-        // the full reach, at the price of a second copy.
+        // The first window: a stripe up to the middle of the scale range
+        // (its fit rung is 2–3 rungs above it; the sub-pixel search stays
+        // within a pixel and reads one more). Wider ones, and a search that
+        // has to fall back to the whole-pixel bracket, ask for the full
+        // reach, at the price of a second copy.
         let k_mid = (k_lo + k_hi).div_ceil(2);
-        let typ_reach_px = (rung_half(k_mid + 4) + 5).max(method_reach_px + 6).min(reach_px);
+        let typ_reach_px = (rung_half(k_mid + 3) + 2).max(method_reach_px + 6).min(reach_px);
         Ok(Plan {
             smin_floor_px: ((smin.0 as usize) >> 16).max(1),
             block_log2: screen::block_log2(geo as i32),
@@ -496,9 +515,10 @@ impl RowView<'_> {
 
 /// Rows between two refreshes of the noise estimates (pixel noise and the
 /// screen's σ): they are stationary within a frame, so measuring them on
-/// one row in 16 (and on the first row after [`Detector::refresh_noise`])
-/// costs a sixteenth of a median per row.
-pub const NOISE_ROWS: u16 = 16;
+/// one row in 32 (and on the first row after [`Detector::refresh_noise`],
+/// which the sensor head calls at every frame) costs a thirty-second of two
+/// medians per row.
+pub const NOISE_ROWS: u16 = 32;
 
 /// The screen's threshold as a fraction of the detection threshold, Q8
 /// (0.6): the screen only nominates; the multi-scale test at the candidate
@@ -575,10 +595,11 @@ impl<const W: usize> Detector<W> {
         let sat = self.cfg.saturation as i32;
         let lb = self.plan.block_log2;
         let screened = screen::screens(n, lb);
+        let narrow = self.cfg.bits <= 15;
         if self.refresh_in == 0 || self.noise_len != n {
             self.noise_q8 = screen::pixel_noise_q8(row, sat, &mut self.s[..n]);
             self.screen_sigma_q8 = if screened {
-                let m = screen::responses(row, lb, &mut self.s[..n]);
+                let m = screen::responses(row, lb, narrow, &mut self.s[..n]);
                 screen::sigma_q8(&mut self.s[..m])
             } else {
                 0
@@ -595,15 +616,17 @@ impl<const W: usize> Detector<W> {
                 (self.screen_sigma_q8 as i64 * self.cfg.threshold_sigma_q8 as i64 * SCREEN_FRACTION_Q8) >> 24;
             let thr_abs = self.cfg.min_amplitude as i64 * self.plan.smin_floor_px as i64;
             let threshold = thr_noise.max(thr_abs).max(1).min(i32::MAX as i64) as i32;
-            screen::candidates(row, lb, threshold, &mut cands);
+            screen::candidates(row, lb, narrow, threshold, &mut cands);
         } else {
             // Too short to screen: the whole row is one candidate.
             let _ = cands.push(Candidate { pos: n / 2, resp: 0 });
         }
         self.stats.candidates = cands.len() as u16;
 
+        // A candidate's stripe peaks within its response's centre window,
+        // ±B of the block boundary: the brightest pixel is sought there.
         let block = 1usize << lb;
-        let near = block + block / 2;
+        let near = block + 1;
         let needs_g = matches!(self.cfg.method, Method::CogFiltered | Method::FirZero);
         let mut found: Vec<Stripe, MAX_CANDIDATES> = Vec::new();
         let mut runs_used: Vec<(usize, usize), MAX_CANDIDATES> = Vec::new();

@@ -7,21 +7,28 @@
 //! instructions per 752-px row at the sensor's 28 800 rows/s and 480 MHz):
 //!
 //! * **Blocks.** The row is cut into blocks of `B` pixels (a power of two,
-//!   [`block_log2`]: about 1.6 × the scale range's geometric mean, so about
-//!   2 σ of the stripe it is tuned for) and each block summed — one load and
-//!   one add per pixel, read straight from the sensor's `u8`/`u16` row, no
-//!   copy. The last block is aligned to the row's end (it overlaps the one
-//!   before when the length is not a multiple of `B`).
+//!   [`block_log2`]) and each block summed — one load and one add per pixel
+//!   (two pixels per load on rows of up to 15 bits), read straight from the
+//!   sensor's `u8`/`u16` row, no copy. The last block is aligned to the row's
+//!   end (it overlaps the one before when the length is not a multiple of
+//!   `B`).
 //! * **Difference of boxes at the stripe's scale.** With `S[j]` the block sums,
 //!   `R[j] = S[j] + S[j+1] − S[j−1] − S[j+2]`: the `2B` pixels of blocks `j`,
 //!   `j+1` minus the `B` on each side, a zero-sum, symmetric band-pass (a
 //!   crude Ricker): constant and linear backgrounds give exactly zero, and so
 //!   does an even/odd column offset (each block holds as many even as odd
-//!   columns). For a stripe of σ = B/2 centred on a block boundary it gives
-//!   about 2.0·A·σ; half a block off, about 73 % of that (the worst phase).
-//!   Three additions and one compare per block, in registers. Past the row's
-//!   ends the blocks are `B` × the edge pixel, so a stripe at the edge is
-//!   screened too.
+//!   columns) and a ripple whose period divides `2B`. Three additions and
+//!   one compare per block, in registers. Past the row's ends the blocks
+//!   are `B` × the edge pixel, so a stripe at the edge is screened too.
+//! * **Block width.** For a Gaussian stripe of σ, with `u = B/σ`, the
+//!   response over its noise is `∝ √σ · F/√u`, where `F` is the fraction of
+//!   the box difference the stripe fills. The worst case is a stripe centred
+//!   mid-block (both windows see it `B/2` off centre): `F/√u` = 0.34, 0.45,
+//!   0.50, 0.50, 0.48 at `u` = 1.07, 1.6, 2.4, 3.2, 4 (aligned on a boundary:
+//!   0.62 at 1.6, 0.56 at 3.2). So `B` ≈ 2.8 × the scale range's geometric
+//!   mean, rounded to a power of two: over the default range 1.25–3.75 px
+//!   that is 8 px, whose worst case across the range (0.40 at σ = 1.25) beats
+//!   4 px's (0.34 at σ = 3.75), at half the blocks.
 //! * **Threshold.** `R` above a constant-false-alarm threshold: a multiple of
 //!   the robust σ of `R` itself (1.4826 · median |R|, which includes the fixed
 //!   pattern — banding and ripple — as well as the noise), measured on the
@@ -32,19 +39,19 @@
 //!   accurate to about ±B px: the candidate's own stage finds the pixel.
 //!
 //! # Cost
-//! On thumbv7em about 4 instructions per pixel plus a few per block; the
-//! refresh rows add a median of the `n/B` responses.
+//! On thumbv7em about 2 instructions per pixel (the block sums) and about 6
+//! per block; the refresh rows add a median of the `n/B` responses.
 
 use super::median::Histogram;
 use super::{Candidate, MAX_CANDIDATES, Pixel};
 use heapless::Vec;
 
 /// log2 of the block width for a coarse scale of `s_q16` (Q16.16 px): the
-/// power of two nearest to 1.6 s (on a log axis), at least 2 px, at most
-/// 32 px.
+/// power of two nearest to 2.8 s (on a log axis; see the module doc), at
+/// least 2 px, at most 32 px.
 pub fn block_log2(s_q16: i32) -> u32 {
-    // 1.6 s in Q16, then the nearest power of two: compare with 2^(k + ½).
-    let target = (s_q16 as i64 * 16 / 10).max(1);
+    // 2.8 s in Q16, then the nearest power of two: compare with 2^(k + ½).
+    let target = (s_q16 as i64 * 28 / 10).max(1);
     let mut k = 1u32;
     // 2^(k+½) in Q16 = 2^k · 92682 (√2 · 65536).
     while k < 5 && target > ((1i64 << k) * 92_682) {
@@ -54,14 +61,19 @@ pub fn block_log2(s_q16: i32) -> u32 {
 }
 
 /// The sum of one block, four pixels at a time written out (the compiler
-/// keeps a loop over `[P; 4]` otherwise: 5 instructions a pixel instead of 2).
+/// keeps a loop over `[P; 4]` otherwise: 5 instructions a pixel instead of
+/// 2), two per word when every pixel is below 2^15 (`NARROW`).
 #[inline(always)]
-fn block_sum<P: Pixel, const B: usize>(ch: &[P; B]) -> i32 {
+fn block_sum<P: Pixel, const B: usize, const NARROW: bool>(ch: &[P; B]) -> i32 {
     let (quads, rest) = ch.as_chunks::<4>();
-    let mut s = 0;
-    for q in quads {
-        s += (q[0].value() + q[1].value()) + (q[2].value() + q[3].value());
-    }
+    let sum4 = |q: &[P; 4]| {
+        if NARROW { P::sum4_narrow(q) } else { (q[0].value() + q[1].value()) + (q[2].value() + q[3].value()) }
+    };
+    // Two quads written out too (8-px blocks: a loop of two is kept as a loop).
+    let mut s = match quads {
+        [a, b] => sum4(a) + sum4(b),
+        _ => quads.iter().map(sum4).sum(),
+    };
     for p in rest {
         s += p.value();
     }
@@ -137,26 +149,32 @@ impl<'a> Peaks<'a> {
 /// The scan for blocks of `B`: block sums in registers, three blocks per
 /// iteration so that the window of sums slides without moves, one compare
 /// per block on the fast path.
-fn scan_b<P: Pixel, const B: usize>(row: &[P], log2_b: u32, threshold: i32, out: &mut Vec<Candidate, MAX_CANDIDATES>) {
+fn scan_b<P: Pixel, const B: usize, const NARROW: bool>(
+    row: &[P],
+    log2_b: u32,
+    threshold: i32,
+    out: &mut Vec<Candidate, MAX_CANDIDATES>,
+) {
     let n = row.len();
     let (chunks, tail) = row.as_chunks::<B>();
     let mut pk = Peaks::new(out, log2_b, n);
     // S[−1] (B × the edge pixel), S[0], S[1].
-    let (mut s0, mut s1, mut s2) = (B as i32 * row[0].value(), block_sum(&chunks[0]), block_sum(&chunks[1]));
+    let (mut s0, mut s1, mut s2) =
+        (B as i32 * row[0].value(), block_sum::<P, B, NARROW>(&chunks[0]), block_sum::<P, B, NARROW>(&chunks[1]));
     let mut j = 0usize;
     let (triples, rest) = chunks[2..].as_chunks::<3>();
     for t in triples {
-        let n0 = block_sum(&t[0]);
+        let n0 = block_sum::<P, B, NARROW>(&t[0]);
         let r = s1 + s2 - s0 - n0;
         if r > threshold {
             pk.hit(j, r);
         }
-        let n1 = block_sum(&t[1]);
+        let n1 = block_sum::<P, B, NARROW>(&t[1]);
         let r = s2 + n0 - s1 - n1;
         if r > threshold {
             pk.hit(j + 1, r);
         }
-        let n2 = block_sum(&t[2]);
+        let n2 = block_sum::<P, B, NARROW>(&t[2]);
         let r = n0 + n1 - s2 - n2;
         if r > threshold {
             pk.hit(j + 2, r);
@@ -173,7 +191,7 @@ fn scan_b<P: Pixel, const B: usize>(row: &[P], log2_b: u32, threshold: i32, out:
         j += 1;
     };
     for ch in rest {
-        step(block_sum(ch));
+        step(block_sum::<P, B, NARROW>(ch));
     }
     if !tail.is_empty() {
         step(row[n - B..].iter().map(|p| p.value()).sum());
@@ -182,10 +200,11 @@ fn scan_b<P: Pixel, const B: usize>(row: &[P], log2_b: u32, threshold: i32, out:
     pk.finish();
 }
 
-fn responses_b<P: Pixel, const B: usize>(row: &[P], out: &mut [i32]) -> usize {
+fn responses_b<P: Pixel, const B: usize, const NARROW: bool>(row: &[P], out: &mut [i32]) -> usize {
     let n = row.len();
     let (chunks, tail) = row.as_chunks::<B>();
-    let (mut s0, mut s1, mut s2) = (B as i32 * row[0].value(), block_sum(&chunks[0]), block_sum(&chunks[1]));
+    let (mut s0, mut s1, mut s2) =
+        (B as i32 * row[0].value(), block_sum::<P, B, NARROW>(&chunks[0]), block_sum::<P, B, NARROW>(&chunks[1]));
     let mut m = 0;
     let mut step = |s: i32| {
         if let Some(d) = out.get_mut(m) {
@@ -195,7 +214,7 @@ fn responses_b<P: Pixel, const B: usize>(row: &[P], out: &mut [i32]) -> usize {
         (s0, s1, s2) = (s1, s2, s);
     };
     for ch in &chunks[2..] {
-        step(block_sum(ch));
+        step(block_sum::<P, B, NARROW>(ch));
     }
     if !tail.is_empty() {
         step(row[n - B..].iter().map(|p| p.value()).sum());
@@ -206,13 +225,17 @@ fn responses_b<P: Pixel, const B: usize>(row: &[P], out: &mut [i32]) -> usize {
 
 /// Dispatches to the block width's monomorphic scan.
 macro_rules! by_block {
-    ($log2_b:expr, $f:ident, $($arg:expr),*) => {
-        match $log2_b {
-            1 => $f::<P, 2>($($arg),*),
-            2 => $f::<P, 4>($($arg),*),
-            3 => $f::<P, 8>($($arg),*),
-            4 => $f::<P, 16>($($arg),*),
-            _ => $f::<P, 32>($($arg),*),
+    ($log2_b:expr, $narrow:expr, $f:ident, $($arg:expr),*) => {
+        match ($log2_b, $narrow) {
+            (1, _) => $f::<P, 2, false>($($arg),*),
+            (2, false) => $f::<P, 4, false>($($arg),*),
+            (2, true) => $f::<P, 4, true>($($arg),*),
+            (3, false) => $f::<P, 8, false>($($arg),*),
+            (3, true) => $f::<P, 8, true>($($arg),*),
+            (4, false) => $f::<P, 16, false>($($arg),*),
+            (4, true) => $f::<P, 16, true>($($arg),*),
+            (_, false) => $f::<P, 32, false>($($arg),*),
+            (_, true) => $f::<P, 32, true>($($arg),*),
         }
     };
 }
@@ -225,15 +248,27 @@ pub fn screens(n: usize, log2_b: u32) -> bool {
 /// The candidates of `row`: local maxima of the block response above
 /// `threshold` (see the module doc), strongest [`MAX_CANDIDATES`], each at
 /// its block boundary, into `out` (cleared first). `row` must pass [`screens`].
+///
+/// `narrow`: every pixel is below 2^15 (a sensor of up to 15 bits), so the
+/// block sums may add two pixels per word; a pixel above that in a narrow
+/// row can only misplace that block's response (the screen nominates, the
+/// window clamps and decides).
 #[inline(never)]
-pub fn candidates<P: Pixel>(row: &[P], log2_b: u32, threshold: i32, out: &mut Vec<Candidate, MAX_CANDIDATES>) {
-    by_block!(log2_b, scan_b, row, log2_b, threshold, out)
+pub fn candidates<P: Pixel>(
+    row: &[P],
+    log2_b: u32,
+    narrow: bool,
+    threshold: i32,
+    out: &mut Vec<Candidate, MAX_CANDIDATES>,
+) {
+    by_block!(log2_b, narrow, scan_b, row, log2_b, threshold, out)
 }
 
 /// Every block response `R[0..]` of `row` into `out` (as many as fit);
-/// returns how many. `row` must pass [`screens`].
-pub fn responses<P: Pixel>(row: &[P], log2_b: u32, out: &mut [i32]) -> usize {
-    by_block!(log2_b, responses_b, row, out)
+/// returns how many. `row` must pass [`screens`]; `narrow` as for
+/// [`candidates`].
+pub fn responses<P: Pixel>(row: &[P], log2_b: u32, narrow: bool, out: &mut [i32]) -> usize {
+    by_block!(log2_b, narrow, responses_b, row, out)
 }
 
 /// Robust σ of the block responses (Q8): 1.4826 · median |R| (380/256).
@@ -282,10 +317,12 @@ mod tests {
     #[test]
     fn block_width_follows_the_scale() {
         let px = |v: f64| (v * 65536.0) as i32;
-        assert_eq!(block_log2(px(1.0)), 1);
-        assert_eq!(block_log2(px(2.45)), 2); // 3.9 px → 4
-        assert_eq!(block_log2(px(5.0)), 3); // 8
-        assert_eq!(block_log2(px(15.0)), 5); // 24 → 32 (nearest on the log axis: 2^4.58)
+        assert_eq!(block_log2(px(0.5)), 1);
+        assert_eq!(block_log2(px(1.0)), 1); // 2.8 px → 2 (2^1.49)
+        assert_eq!(block_log2(px(1.1)), 2); // 3.1 px → 4 (2^1.62)
+        assert_eq!(block_log2(px(2.17)), 3); // 6.1 px → 8 (2^2.6)
+        assert_eq!(block_log2(px(5.0)), 4); // 14 → 16
+        assert_eq!(block_log2(px(15.0)), 5); // 42 → 32, the largest
         assert_eq!(block_log2(px(40.0)), 5);
     }
 
@@ -293,15 +330,15 @@ mod tests {
     fn constant_and_sloped_rows_give_zero_response() {
         let flat = [700u16; 64];
         let mut r = [1i32; 16];
-        let m = responses(&flat, 2, &mut r);
+        let m = responses(&flat, 2, true, &mut r);
         assert_eq!(m, 15);
         assert!(r[..m].iter().all(|&v| v == 0));
         // A slope: zero everywhere but at the ends, where the virtual edge blocks replicate.
         let ramp: [u16; 64] = core::array::from_fn(|i| 100 + 3 * i as u16);
-        let m = responses(&ramp, 2, &mut r);
+        let m = responses(&ramp, 2, true, &mut r);
         assert!(r[1..m - 1].iter().all(|&v| v == 0), "{:?}", &r[..m]);
         let mut c = Vec::new();
-        candidates(&ramp, 2, 1, &mut c);
+        candidates(&ramp, 2, true, 1, &mut c);
         assert!(c.iter().all(|c| c.pos < 8 || c.pos > 56), "{c:?}");
     }
 
@@ -316,7 +353,7 @@ mod tests {
                 }
             }
             let mut c = Vec::new();
-            candidates(&row, 2, 50, &mut c);
+            candidates(&row, 2, true, 50, &mut c);
             assert_eq!(c.len(), 1, "centre {centre}: {c:?}");
             assert!(c[0].pos.abs_diff(centre) <= 4, "centre {centre}: {c:?}");
         }

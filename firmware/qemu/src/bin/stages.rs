@@ -91,19 +91,19 @@ fn main() -> ! {
         let refresh = per_call(|i| {
             let row = black_box(&rows[i][..]);
             black_box(screen::pixel_noise_q8(row, sat, r));
-            let m = screen::responses(row, lb, r);
+            let m = screen::responses(row, lb, true, r);
             black_box(screen::sigma_q8(&mut r[..m]));
         });
         let noise_q8 = screen::pixel_noise_q8(&rows[0][..], sat, r);
-        let m = screen::responses(&rows[0][..], lb, r);
+        let m = screen::responses(&rows[0][..], lb, true, r);
         let sigma_q8 = screen::sigma_q8(&mut r[..m]);
         let threshold = ((sigma_q8 as i64 * cfg.threshold_sigma_q8 as i64 * 154) >> 24).max(1) as i32;
         let mut cands = heapless::Vec::new();
         let candidates = per_call(|i| {
-            screen::candidates(black_box(&rows[i][..]), lb, threshold, &mut cands);
+            screen::candidates(black_box(&rows[i][..]), lb, true, threshold, &mut cands);
             black_box(cands.len());
         });
-        screen::candidates(&rows[0][..], lb, threshold, &mut cands);
+        screen::candidates(&rows[0][..], lb, true, threshold, &mut cands);
         let c0 = cands.first().map_or(N / 2, |c| c.pos);
         let (lo, hi) = (c0.saturating_sub(WINDOW / 2), (c0 + WINDOW / 2).min(N));
         let level = coarse::spike_screen_level(noise_q8);
