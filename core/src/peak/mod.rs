@@ -633,10 +633,18 @@ impl<const W: usize> Detector<W> {
         let level = coarse::spike_screen_level(noise_q8);
         let mut hits: Vec<usize, { coarse::MAX_SPIKES }> = Vec::new();
         for c in &cands {
-            let mut reach = self.plan.typ_reach_px + near;
+            // The first window is centred on the brightest pixel of the raw
+            // row where the screen responded: the estimators start there, so
+            // it needs their reach only (a stuck pixel there moves it; the
+            // start is sought again after the repair, and a window that is
+            // then too short asks for the wide one).
+            let (a0, b0) = (c.pos.saturating_sub(near), (c.pos + near).min(n - 1));
+            let bright = if screened { argmax_raw(&row[a0..=b0]) + a0 } else { n / 2 };
+            let mut centre = bright;
+            let mut reach = self.plan.typ_reach_px;
             let stripe = loop {
                 let (lo, hi) =
-                    if screened { (c.pos.saturating_sub(reach), (c.pos + reach + 1).min(n)) } else { (0, n) };
+                    if screened { (centre.saturating_sub(reach), (centre + reach + 1).min(n)) } else { (0, n) };
                 let w = hi - lo;
                 let x = &mut self.x[..w];
                 coarse::load_window(&row[lo..hi], sat, level, x, &mut hits);
@@ -649,12 +657,14 @@ impl<const W: usize> Detector<W> {
                 // The brightest pixel where the screen responded (after the
                 // repair, so a stuck pixel does not pull the start away from
                 // a stripe beside it).
-                let (a, b) = if screened {
-                    ((c.pos - lo).saturating_sub(near), (c.pos - lo + near).min(w - 1))
+                let start = if screened && spikes == 0 && (lo..hi).contains(&bright) {
+                    // Nothing repaired: the same pixel (up to ties among
+                    // values above saturation, which the copy clamps).
+                    bright - lo
                 } else {
-                    (0, w - 1)
+                    let (a, b) = if screened { (a0.max(lo) - lo, b0.min(hi - 1) - lo) } else { (0, w - 1) };
+                    argmax(&x[a..=b]) + a
                 };
-                let start = argmax(&x[a..=b]) + a;
                 let view = RowView {
                     x,
                     g: if needs_g { &self.g[..w] } else { &[] },
@@ -680,7 +690,9 @@ impl<const W: usize> Detector<W> {
                     None => refine(&view, start),
                 };
                 match got {
-                    Err(cwt::Wider) if reach < self.plan.reach_px + near => reach = self.plan.reach_px + near,
+                    Err(cwt::Wider) if reach < self.plan.reach_px + near => {
+                        (centre, reach) = (c.pos, self.plan.reach_px + near);
+                    }
                     got => {
                         self.stats.spikes = self.stats.spikes.saturating_add(spikes);
                         break got.ok().flatten().map(|mut s| {
@@ -700,6 +712,17 @@ impl<const W: usize> Detector<W> {
         select(&mut found, &self.cfg, out);
         Ok(())
     }
+}
+
+/// Index of the first maximum of a slice of pixels (0 if empty).
+fn argmax_raw<P: Pixel>(x: &[P]) -> usize {
+    let (mut best, mut top) = (0, i32::MIN);
+    for (i, p) in x.iter().enumerate() {
+        if p.value() > top {
+            (best, top) = (i, p.value());
+        }
+    }
+    best
 }
 
 /// Index of the first maximum of a slice (0 if empty).
