@@ -113,47 +113,61 @@ fn repair_ref(x: &mut [i32], hits: &[usize], noise_q8: i32, k_q16: i64) -> u16 {
     let d = |x: &[i32], i: usize| 2 * v(x, i) - v(x, i - 1) - v(x, i + 1);
     let bg =
         |x: &[i32], lo: usize, hi: usize| *x[lo.saturating_sub(3)..=(hi + 3).min(n - 1)].iter().min().unwrap() as i64;
-    let mut count = 0;
-    for &i in hits {
+    // One pixel's tests: the pixels repaired, if any.
+    let test = |x: &mut [i32], i: usize| -> Option<(usize, usize)> {
         if i == 0 || i + 1 >= n || d(x, i) <= level {
-            continue;
+            return None;
         }
         let side = if i >= 2 && i + 2 < n { d(x, i - 1) + d(x, i + 1) } else { i64::MIN };
         if side > level {
-            continue;
+            return None;
         }
         let (a, b, c) = (v(x, i - 1), v(x, i), v(x, i + 1));
+        // The pair with the brighter neighbour first, then the pixel alone.
+        let j = if c >= a { i } else { i - 1 };
+        if j >= 1 && j + 2 < n {
+            let (pa, p, q, pc) = (v(x, j - 1), v(x, j), v(x, j + 1), v(x, j + 2));
+            let outer_ok = if j >= 2 && j + 3 < n {
+                d(x, j - 1) + d(x, j + 2) < level - (d(x, j) + d(x, j + 1)) / 4
+            } else {
+                true
+            };
+            if p.min(q) > pa.max(pc) && outer_ok {
+                let g = bg(x, j, j + 1);
+                let top = (p - g - margin).max(0) * (q - g - margin).max(0);
+                if top > (k2 * ((pa - g + margin) * (pc - g + margin))) >> 16 {
+                    let (ua, uc) = ((pa - g).max(0) as u64, (pc - g).max(0) as u64);
+                    let mid = (ua * uc).isqrt();
+                    x[j] = (g + (ua * mid).isqrt() as i64) as i32;
+                    x[j + 1] = (g + (uc * mid).isqrt() as i64) as i32;
+                    return Some((j, j + 1));
+                }
+            }
+        }
         if side < level - d(x, i) / 4 && b > a && b > c {
             let g = bg(x, i, i);
             let top = (b - g - margin).max(0);
             if top * top > (k_q16 * ((a - g + margin) * (c - g + margin))) >> 16 {
                 x[i] = (g + (((a - g).max(0) * (c - g).max(0)) as u64).isqrt() as i64) as i32;
-                count += 1;
-                continue;
+                return Some((i, i));
             }
         }
-        let j = if c >= a { i } else { i - 1 };
-        if j == 0 || j + 2 >= n {
-            continue;
-        }
-        let (a, p, q, c) = (v(x, j - 1), v(x, j), v(x, j + 1), v(x, j + 2));
-        if p.min(q) <= a.max(c) {
-            continue;
-        }
-        if j >= 2 && j + 3 < n {
-            let inner = d(x, j) + d(x, j + 1);
-            if d(x, j - 1) + d(x, j + 2) >= level - inner / 4 {
-                continue;
+        None
+    };
+    // Each hit, then the pixels beside each repair that now pass the first
+    // test (last in, first out).
+    let mut count = 0;
+    for &h in hits {
+        let mut todo = vec![h];
+        while let Some(i) = todo.pop() {
+            if let Some((lo, hi)) = test(x, i) {
+                count += (hi - lo + 1) as u16;
+                for q in [lo.wrapping_sub(1), hi + 1] {
+                    if (1..n - 1).contains(&q) && d(x, q) > level && todo.len() < 8 {
+                        todo.push(q);
+                    }
+                }
             }
-        }
-        let g = bg(x, j, j + 1);
-        let top = (p - g - margin).max(0) * (q - g - margin).max(0);
-        if top > (k2 * ((a - g + margin) * (c - g + margin))) >> 16 {
-            let (ua, uc) = ((a - g).max(0) as u64, (c - g).max(0) as u64);
-            let mid = (ua * uc).isqrt();
-            x[j] = (g + (ua * mid).isqrt() as i64) as i32;
-            x[j + 1] = (g + (uc * mid).isqrt() as i64) as i32;
-            count += 2;
         }
     }
     count

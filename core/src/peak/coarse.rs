@@ -149,22 +149,89 @@ pub fn repair_spikes(x: &mut [i32], hits: &[usize], noise_q8: i32, k_q16: i64) -
     if n < 3 {
         return 0;
     }
-    let sigma = (noise_q8 as i64 + 128) >> 8;
-    let level = spike_screen_level(noise_q8) as i64;
-    let margin = 3 * sigma;
-    let k2_q16 = (k_q16 * k_q16) >> 16;
-    let bg_near = |x: &[i32], lo: usize, hi: usize| {
-        x[lo.saturating_sub(3)..=(hi + 3).min(n - 1)].iter().copied().min().unwrap_or(0) as i64
+    let t = SpikeTest {
+        margin: 3 * ((noise_q8 as i64 + 128) >> 8),
+        level: spike_screen_level(noise_q8) as i64,
+        k_q16,
+        k2_q16: (k_q16 * k_q16) >> 16,
     };
     let mut count = 0u16;
-    for &i in hits {
-        if i == 0 || i + 1 >= n {
+    for &h in hits {
+        // Most hits are a stripe's top, rejected at once.
+        if !t.worth_testing(x, h) {
             continue;
         }
+        let Some(first) = t.repair(x, h) else {
+            continue;
+        };
+        // A repair can unmask a neighbour (a hot pixel beside a stuck one
+        // was no local maximum before): the pixels beside a repair are
+        // tested again, a few at most.
+        let mut todo: Vec<usize, 8> = Vec::new();
+        let mut done = Some(first);
+        loop {
+            if let Some((lo, hi)) = done {
+                count += (hi - lo + 1) as u16;
+                for q in [lo.wrapping_sub(1), hi + 1] {
+                    if (1..n - 1).contains(&q) && peak_at(x, q) > t.level {
+                        let _ = todo.push(q);
+                    }
+                }
+            }
+            let Some(i) = todo.pop() else {
+                break;
+            };
+            done = t.repair(x, i);
+        }
+    }
+    count
+}
+
+/// `2x[i] − x[i−1] − x[i+1]` (minus the second difference), `0 < i < n − 1`.
+fn peak_at(x: &[i32], i: usize) -> i64 {
+    2 * x[i] as i64 - x[i - 1] as i64 - x[i + 1] as i64
+}
+
+/// The constants of [`repair_spikes`]'s tests.
+struct SpikeTest {
+    /// 3 σ, counts.
+    margin: i64,
+    /// The first test's threshold (7 σ√6), counts.
+    level: i64,
+    /// `K = e^(1/σ_min²)` and `K²`, Q16.
+    k_q16: i64,
+    k2_q16: i64,
+}
+
+impl SpikeTest {
+    /// The cheap part of [`SpikeTest::repair`]: whether pixel `i` still
+    /// passes the first test and is not a stripe's top (see below).
+    #[inline(always)]
+    fn worth_testing(&self, x: &[i32], i: usize) -> bool {
+        match x.get(i.wrapping_sub(2)..i + 3) {
+            Some(&[l2, l1, m, r1, r2]) => {
+                (2 * m - l1 - r1) as i64 > self.level && ((2 * (l1 + r1 - m) - l2 - r2) as i64) <= self.level
+            }
+            _ => true,
+        }
+    }
+
+    /// Tests the pair of pixel `i` and its brighter neighbour, then pixel `i`
+    /// alone; repairs and returns the pixels `lo..=hi` it found hot or stuck.
+    #[inline(never)]
+    fn repair(&self, x: &mut [i32], i: usize) -> Option<(usize, usize)> {
+        let n = x.len();
+        if i == 0 || i + 1 >= n {
+            return None;
+        }
+        let (level, margin) = (self.level, self.margin);
+        let bg_near = |x: &[i32], lo: usize, hi: usize| {
+            x[lo.saturating_sub(3)..=(hi + 3).min(n - 1)].iter().copied().min().unwrap_or(0) as i64
+        };
         let (a, b, c) = (x[i - 1] as i64, x[i] as i64, x[i + 1] as i64);
         let d0 = 2 * b - a - c;
         if d0 <= level {
-            continue; // a neighbour was repaired meanwhile
+            return None; // a neighbour was repaired meanwhile
         }
         // D(i−1) + D(i+1) = 2(a + c − b) − x[i−2] − x[i+2] (pixels are ≤ 16
         // bits: i32 holds it). Clearly positive — curved down on both sides,
@@ -175,52 +242,49 @@ pub fn repair_spikes(x: &mut [i32], hits: &[usize], noise_q8: i32, k_q16: i64) -
             _ => i64::MIN,
         };
         if side > level {
-            continue;
+            return None;
+        }
+        // The pair with the brighter neighbour first, (j, j + 1): a hot
+        // pixel beside a stuck one is a pair, and repairing the stuck one
+        // alone would take the hot one for its flank.
+        let j = if c >= a { i } else { i - 1 };
+        if j >= 1 && j + 2 < n {
+            let (pa, p, q, pc) = (x[j - 1] as i64, x[j] as i64, x[j + 1] as i64, x[j + 2] as i64);
+            let pair_like = p.min(q) > pa.max(pc)
+                && match x.get(j.wrapping_sub(2)..j + 4) {
+                    // inner = D(j) + D(j+1) = p + q − a − c; outer = D(j−1) +
+                    // D(j+2) = 2(a + c) − x[j−2] − x[j+3] − p − q.
+                    Some(&[l2, a, p, q, c, r2]) => {
+                        let inner = (p + q - a - c) as i64;
+                        ((2 * (a + c) - l2 - r2 - p - q) as i64) < level - inner / 4
+                    }
+                    _ => true,
+                };
+            if pair_like {
+                let bg = bg_near(x, j, j + 1);
+                let (ua, up, uq, uc) = (pa - bg, p - bg, q - bg, pc - bg);
+                let top = (up - margin).max(0) * (uq - margin).max(0);
+                if top > (self.k2_q16 * ((ua + margin) * (uc + margin))) >> 16 {
+                    let (ua, uc) = (ua.max(0) as u64, uc.max(0) as u64);
+                    let mid = (ua * uc).isqrt();
+                    x[j] = (bg + (ua * mid).isqrt() as i64) as i32;
+                    x[j + 1] = (bg + (uc * mid).isqrt() as i64) as i32;
+                    return Some((j, j + 1));
+                }
+            }
         }
         let single_like = side < level - d0 / 4;
         if single_like && b > a && b > c {
             let bg = bg_near(x, i, i);
             let (ua, ub, uc) = (a - bg, b - bg, c - bg);
             let top = (ub - margin).max(0);
-            if top * top > (k_q16 * ((ua + margin) * (uc + margin))) >> 16 {
+            if top * top > (self.k_q16 * ((ua + margin) * (uc + margin))) >> 16 {
                 x[i] = (bg + ((ua.max(0) * uc.max(0)) as u64).isqrt() as i64) as i32;
-                count += 1;
-                continue;
+                return Some((i, i));
             }
         }
-        // A pair with the brighter neighbour: (j, j + 1).
-        let j = if c >= a { i } else { i - 1 };
-        if j == 0 || j + 2 >= n {
-            continue;
-        }
-        let (a, p, q, c) = (x[j - 1] as i64, x[j] as i64, x[j + 1] as i64, x[j + 2] as i64);
-        if p.min(q) <= a.max(c) {
-            continue;
-        }
-        let pair_like = match x.get(j.wrapping_sub(2)..j + 4) {
-            // inner = D(j) + D(j+1) = p + q − a − c; outer = D(j−1) + D(j+2) =
-            // 2(a + c) − x[j−2] − x[j+3] − p − q.
-            Some(&[l2, a, p, q, c, r2]) => {
-                let inner = (p + q - a - c) as i64;
-                ((2 * (a + c) - l2 - r2 - p - q) as i64) < level - inner / 4
-            }
-            _ => true,
-        };
-        if !pair_like {
-            continue;
-        }
-        let bg = bg_near(x, j, j + 1);
-        let (ua, up, uq, uc) = (a - bg, p - bg, q - bg, c - bg);
-        let top = (up - margin).max(0) * (uq - margin).max(0);
-        if top > (k2_q16 * ((ua + margin) * (uc + margin))) >> 16 {
-            let (ua, uc) = (ua.max(0) as u64, uc.max(0) as u64);
-            let mid = (ua * uc).isqrt();
-            x[j] = (bg + (ua * mid).isqrt() as i64) as i32;
-            x[j + 1] = (bg + (uc * mid).isqrt() as i64) as i32;
-            count += 2;
-        }
+        None
     }
-    count
 }
 
 /// `dst[lo..hi]` of one box pass of half-width `h` over `src`, edges
