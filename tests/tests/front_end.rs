@@ -260,7 +260,7 @@ proptest! {
             let row: Vec<u16> = x.iter().map(|&v| v as u16).collect();
             let want = screen_ref(x, log2_b);
             let mut got = vec![0; x.len()];
-            let m = screen::responses(&row, log2_b, narrow, &mut got);
+            let m = screen::responses(&row, log2_b, &mut got);
             prop_assert_eq!(&got[..m], &want[..]);
             prop_assert_eq!(screen::sigma_q8(&mut got[..m]), screen_sigma_ref(&want));
             let top = want.iter().copied().max().unwrap_or(0);

@@ -599,7 +599,7 @@ impl<const W: usize> Detector<W> {
         if self.refresh_in == 0 || self.noise_len != n {
             self.noise_q8 = screen::pixel_noise_q8(row, sat, &mut self.s[..n]);
             self.screen_sigma_q8 = if screened {
-                let m = screen::responses(row, lb, narrow, &mut self.s[..n]);
+                let m = screen::responses(row, lb, &mut self.s[..n]);
                 screen::sigma_q8(&mut self.s[..m])
             } else {
                 0

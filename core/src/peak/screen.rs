@@ -147,8 +147,8 @@ impl<'a> Peaks<'a> {
 }
 
 /// The scan for blocks of `B`: block sums in registers, three blocks per
-/// iteration so that the window of sums slides without moves, one compare
-/// per block on the fast path.
+/// iteration (on the narrow path) so that the window of sums slides without
+/// moves, one compare per block on the fast path.
 fn scan_b<P: Pixel, const B: usize, const NARROW: bool>(
     row: &[P],
     log2_b: u32,
@@ -162,7 +162,9 @@ fn scan_b<P: Pixel, const B: usize, const NARROW: bool>(
     let (mut s0, mut s1, mut s2) =
         (B as i32 * row[0].value(), block_sum::<P, B, NARROW>(&chunks[0]), block_sum::<P, B, NARROW>(&chunks[1]));
     let mut j = 0usize;
-    let (triples, rest) = chunks[2..].as_chunks::<3>();
+    // Three blocks per iteration on the fast path (4- and 8-px blocks of
+    // rows up to 15 bits); elsewhere one, for flash.
+    let (triples, rest) = if NARROW { chunks[2..].as_chunks::<3>() } else { (&[][..], &chunks[2..]) };
     for t in triples {
         let n0 = block_sum::<P, B, NARROW>(&t[0]);
         let r = s1 + s2 - s0 - n0;
@@ -200,29 +202,6 @@ fn scan_b<P: Pixel, const B: usize, const NARROW: bool>(
     pk.finish();
 }
 
-fn responses_b<P: Pixel, const B: usize, const NARROW: bool>(row: &[P], out: &mut [i32]) -> usize {
-    let n = row.len();
-    let (chunks, tail) = row.as_chunks::<B>();
-    let (mut s0, mut s1, mut s2) =
-        (B as i32 * row[0].value(), block_sum::<P, B, NARROW>(&chunks[0]), block_sum::<P, B, NARROW>(&chunks[1]));
-    let mut m = 0;
-    let mut step = |s: i32| {
-        if let Some(d) = out.get_mut(m) {
-            *d = s1 + s2 - s0 - s;
-            m += 1;
-        }
-        (s0, s1, s2) = (s1, s2, s);
-    };
-    for ch in &chunks[2..] {
-        step(block_sum::<P, B, NARROW>(ch));
-    }
-    if !tail.is_empty() {
-        step(row[n - B..].iter().map(|p| p.value()).sum());
-    }
-    step(B as i32 * row[n - 1].value());
-    m
-}
-
 /// Dispatches to the block width's monomorphic scan.
 macro_rules! by_block {
     ($log2_b:expr, $narrow:expr, $f:ident, $($arg:expr),*) => {
@@ -232,10 +211,10 @@ macro_rules! by_block {
             (2, true) => $f::<P, 4, true>($($arg),*),
             (3, false) => $f::<P, 8, false>($($arg),*),
             (3, true) => $f::<P, 8, true>($($arg),*),
-            (4, false) => $f::<P, 16, false>($($arg),*),
-            (4, true) => $f::<P, 16, true>($($arg),*),
-            (_, false) => $f::<P, 32, false>($($arg),*),
-            (_, true) => $f::<P, 32, true>($($arg),*),
+            // 16- and 32-px blocks (wide stripes) take the plain sums: the
+            // pair-per-word code is not worth its flash there.
+            (4, _) => $f::<P, 16, false>($($arg),*),
+            (_, _) => $f::<P, 32, false>($($arg),*),
         }
     };
 }
@@ -265,10 +244,32 @@ pub fn candidates<P: Pixel>(
 }
 
 /// Every block response `R[0..]` of `row` into `out` (as many as fit);
-/// returns how many. `row` must pass [`screens`]; `narrow` as for
-/// [`candidates`].
-pub fn responses<P: Pixel>(row: &[P], log2_b: u32, narrow: bool, out: &mut [i32]) -> usize {
-    by_block!(log2_b, narrow, responses_b, row, out)
+/// returns how many. `row` must pass [`screens`].
+///
+/// This runs on the rows that refresh the noise estimates only (one in
+/// `NOISE_ROWS`): one loop for every block width, not a scan per width,
+/// for flash.
+pub fn responses<P: Pixel>(row: &[P], log2_b: u32, out: &mut [i32]) -> usize {
+    let (n, b) = (row.len(), 1usize << log2_b);
+    let sum = |lo: usize| row[lo..lo + b].iter().map(|p| p.value()).sum::<i32>();
+    let (mut s0, mut s1, mut s2) = (b as i32 * row[0].value(), sum(0), sum(b));
+    let mut m = 0;
+    let mut step = |s: i32| {
+        if let Some(d) = out.get_mut(m) {
+            *d = s1 + s2 - s0 - s;
+            m += 1;
+        }
+        (s0, s1, s2) = (s1, s2, s);
+    };
+    let full = n / b;
+    for j in 2..full {
+        step(sum(j * b));
+    }
+    if full * b < n {
+        step(sum(n - b));
+    }
+    step(b as i32 * row[n - 1].value());
+    m
 }
 
 /// Robust σ of the block responses (Q8): 1.4826 · median |R| (380/256).
@@ -330,12 +331,12 @@ mod tests {
     fn constant_and_sloped_rows_give_zero_response() {
         let flat = [700u16; 64];
         let mut r = [1i32; 16];
-        let m = responses(&flat, 2, true, &mut r);
+        let m = responses(&flat, 2, &mut r);
         assert_eq!(m, 15);
         assert!(r[..m].iter().all(|&v| v == 0));
         // A slope: zero everywhere but at the ends, where the virtual edge blocks replicate.
         let ramp: [u16; 64] = core::array::from_fn(|i| 100 + 3 * i as u16);
-        let m = responses(&ramp, 2, true, &mut r);
+        let m = responses(&ramp, 2, &mut r);
         assert!(r[1..m - 1].iter().all(|&v| v == 0), "{:?}", &r[..m]);
         let mut c = Vec::new();
         candidates(&ramp, 2, true, 1, &mut c);

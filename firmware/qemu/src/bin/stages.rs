@@ -91,11 +91,11 @@ fn main() -> ! {
         let refresh = per_call(|i| {
             let row = black_box(&rows[i][..]);
             black_box(screen::pixel_noise_q8(row, sat, r));
-            let m = screen::responses(row, lb, true, r);
+            let m = screen::responses(row, lb, r);
             black_box(screen::sigma_q8(&mut r[..m]));
         });
         let noise_q8 = screen::pixel_noise_q8(&rows[0][..], sat, r);
-        let m = screen::responses(&rows[0][..], lb, true, r);
+        let m = screen::responses(&rows[0][..], lb, r);
         let sigma_q8 = screen::sigma_q8(&mut r[..m]);
         let threshold = ((sigma_q8 as i64 * cfg.threshold_sigma_q8 as i64 * 154) >> 24).max(1) as i32;
         let mut cands = heapless::Vec::new();
