@@ -5,8 +5,9 @@
 //! For a candidate at pixel `c`:
 //!
 //! 1. **Best-matching scale** (pixel level, paper §5): the Ricker response
-//!    `R(c, s) = s^(−3/2) Σ x[i] ψ((i − c)/s)` on every ladder rung of the
-//!    scale range, with a hill-climb in position. For a Gaussian stripe of
+//!    `R(c, s) = s^(−3/2) Σ x[i] ψ((i − c)/s)`, climbing the ladder of rungs
+//!    from the scale range's middle at the candidate's brightest pixel (and,
+//!    for stripes of 4 px or wider, climbing in position too). For a Gaussian stripe of
 //!    width σ, `R(s) ∝ σ s^(3/2) / (s² + σ²)^(3/2)` peaks at s = σ under this
 //!    normalisation (with Eq. 2's `s^(−1/2)` it would peak at s = √5 σ ≈ 2.24 σ,
 //!    and with `s^(−1)` at s = √2 σ). A parabola through the three best
@@ -16,7 +17,10 @@
 //!    `s_fit ≈ 1.5 σ̂`. `D` is tabulated at 1/16-px phases (`build.rs`), so
 //!    `∂R/∂t` is evaluated exactly at phase points — no interpolation of the
 //!    response between pixels, hence no pixel locking — and the last 1/16 px
-//!    is a secant step on a function that is linear there to < 10⁻⁵ px.
+//!    is a secant step on a function that is linear there to < 10⁻⁵ px. The
+//!    search starts at the vertex of a parabola (through the three brightest
+//!    pixels, or through the responses) and steps phase by phase to the sign
+//!    change; the whole-pixel bracket is the fallback.
 //!
 //! # Why this estimator
 //! The zero of `Σ x[i] D(i − t)` for an odd kernel is an M-estimator whose
@@ -31,9 +35,12 @@
 //! of order `e^(−2π² s²)`.
 //!
 //! # Cost
-//! Per candidate: one Ricker evaluation per rung (2·ceil(5 s)+1 taps) twice
-//! at most, and 4–6 derivative evaluations of 2·ceil(5 s_fit)+1 taps each:
-//! for σ = 2.5 px about 400 multiply-adds, independent of row length.
+//! Per candidate: three Ricker evaluations for a typical stripe (ceil(5 s)
+//! symmetric taps each; five more for a wide one, whose position climbs),
+//! and two derivative evaluations of 2·ceil(5 s_fit)+1 taps from a good
+//! guess (four by the whole-pixel bracket): for σ = 2.5 px about 120
+//! multiply-adds, independent of row length. The derivative tables are
+//! stored phase-major, so an evaluation reads two contiguous runs.
 
 use super::kernels::{self, Deriv, NORM_SHIFT, PHASES, RUNGS};
 use super::{Flags, RowView, Stripe};
