@@ -291,3 +291,26 @@ fn stripe_at_the_row_edge_is_flagged_clipped() {
     // biased; the flag says so. It is still found within half a pixel.
     assert!((out[0].position.to_f64() - 3.3).abs() < 0.5, "{}", out[0].position);
 }
+
+/// A short row (120 px, 15 screen blocks) with two stripes: the stripes'
+/// responses are a good part of the blocks, and must not raise the screen's
+/// threshold above them (its σ is capped by the pixel noise's).
+#[test]
+fn short_rows_with_two_stripes() {
+    let mut rng = Rng::new(16);
+    let cfg = Config::new(8, ScaleRange::new(Px::from_f64(1.5), Px::from_f64(4.0)).unwrap());
+    let mut det = Detector::<120>::new(cfg).unwrap();
+    for row_i in 0..100 {
+        let truth = [
+            Gauss { x0: 38.0 + rng.uniform(), sigma: 2.0, amplitude: 150.0 },
+            Gauss { x0: 82.0 + rng.uniform(), sigma: 2.5, amplitude: 90.0 },
+        ];
+        let row = quantise(&clean_row(120, 20.0, &truth), 1.5, 8, &mut rng);
+        let mut out: Stripes<4> = Stripes::new();
+        det.detect(&row, &mut out).unwrap();
+        assert_eq!(out.len(), 2, "row {row_i}: {out:?}");
+        for (s, t) in out.iter().zip(&truth) {
+            assert!((s.position.to_f64() - t.x0).abs() < 0.1, "row {row_i}: {} vs {}", s.position, t.x0);
+        }
+    }
+}

@@ -354,6 +354,8 @@ pub(crate) struct Plan {
     pub smin_floor_px: usize,
     /// log2 of the screen's block width, px ([`screen::block_log2`]).
     pub block_log2: u32,
+    /// √(4B), Q8: the screen response's σ per count of white pixel noise.
+    pub screen_white_q8: i64,
     /// How far from its start pixel a candidate's estimators read, px, at
     /// most (stripes up to the width limit) and for stripes up to the scale
     /// range's top: the window first copied is the second, plus the screen's
@@ -451,6 +453,7 @@ impl Plan {
         Ok(Plan {
             smin_floor_px: ((smin.0 as usize) >> 16).max(1),
             block_log2: screen::block_log2(geo as i32),
+            screen_white_q8: (((4u64 << screen::block_log2(geo as i32)) << 16).isqrt()) as i64,
             reach_px,
             typ_reach_px,
             method_reach_px,
@@ -600,7 +603,13 @@ impl<const W: usize> Detector<W> {
             self.noise_q8 = screen::pixel_noise_q8(row, sat, &mut self.s[..n]);
             self.screen_sigma_q8 = if screened {
                 let m = screen::responses(row, lb, &mut self.s[..n]);
-                screen::sigma_q8(&mut self.s[..m])
+                // A short row has few blocks, and its stripes' responses can
+                // be most of them: the median is then the stripes', not the
+                // noise's. So at most twice what white noise of the pixels'
+                // σ gives (`R` sums 4B pixels of weight ±1: σ·√(4B)); fixed
+                // pattern that the difference of boxes passes stays in.
+                let white_q8 = (self.noise_q8 as i64 * self.plan.screen_white_q8) >> 8;
+                (screen::sigma_q8(&mut self.s[..m]) as i64).min(2 * white_q8).clamp(0, i32::MAX as i64) as i32
             } else {
                 0
             };
