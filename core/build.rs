@@ -15,6 +15,8 @@
 //! * `DERIV`: `D(t) = −ψ′(t/s) = (3u − u³)·e^(−u²/2)` at sub-pixel offsets
 //!   `t = j/PHASES`, `j = 0..=ceil(5 s)·PHASES` (one half; the kernel is odd,
 //!   so antisymmetry is exact by construction), peak scaled to `DERIV_ONE`.
+//!   Stored phase-major (all taps of phase 0, then of phase 1/PHASES, …) so
+//!   that one evaluation at a phase reads two contiguous runs.
 //!   Truncation at 5 s leaves |D| < 4·10⁻⁴ of its peak at the cut.
 //! * `PAPER`: Eq. (2)+(4) of the paper for integer scales 1..=45 px:
 //!   `s^(−1/2)·(1 − u²)·e^(−u²/2)`, `u = m/s`, the same constant for all scales
@@ -109,9 +111,16 @@ fn main() {
         // Derivative kernel at sub-pixel phases.
         let d_off = deriv_all.len();
         let dmax = deriv(3f64.sqrt() * (1.0 - (2.0f64 / 3.0).sqrt()).sqrt()); // u* ≈ 0.742
-        for j in 0..=l * PHASES {
-            let u = j as f64 / PHASES as f64 / s;
-            deriv_all.push((DERIV_ONE * deriv(u) / dmax).round() as i64);
+        // Stored phase by phase (residue r = j mod PHASES, then j / PHASES),
+        // so that the taps one slope evaluation reads are contiguous: phase 0
+        // holds l + 1 taps, phases 1.. hold l each.
+        let tap = |j: usize| (DERIV_ONE * deriv(j as f64 / PHASES as f64 / s) / dmax).round() as i64;
+        for r in 0..PHASES {
+            let mut j = r;
+            while j <= l * PHASES {
+                deriv_all.push(tap(j));
+                j += PHASES;
+            }
         }
         // Coarse box cascade: three boxes of width w = 2h+1 have variance
         // 3(w²−1)/12; choose the odd w closest to that of a Gaussian of σ = s.

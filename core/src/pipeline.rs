@@ -568,6 +568,9 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         self.profile.exposure_us = self.exposure_us;
         self.profile.laser_mask = mask;
         let t0 = clock_ns();
+        // A new frame (exposure and lasers may have changed): the detector
+        // measures the noise afresh on its first row.
+        self.detector.refresh_noise();
         let lit = mask.count_ones() as usize;
         for part in 0..parts {
             self.profile.part = part;

@@ -1,5 +1,10 @@
-//! The shared front end: robust noise, hot pixels, the coarse Ricker pass and
-//! its candidates.
+//! A candidate's window: its copy with hot and stuck pixels repaired, the
+//! saturated run in it, and the box-cascade low-pass the FIR baselines use.
+//!
+//! The detector copies only the pixels around a candidate of the screen
+//! ([`super::screen`]), and only there looks for defects: the copy and the
+//! spike screen's first test are one pass ([`load_window`]); the few pixels
+//! that pass go to [`repair_spikes`].
 //!
 //! The coarse pass approximates the Ricker response at one scale `s` (the
 //! geometric mean of the scale range) without a multiply: three box filters of
@@ -10,127 +15,276 @@
 //! Edges replicate the first and last pixel, so a constant row gives exactly
 //! zero response.
 
+use super::Pixel;
 use super::kernels::Rung;
-use super::median::Histogram;
-use super::{Candidate, MAX_CANDIDATES, Pixel};
 use core::cell::Cell;
 use heapless::Vec;
 
-/// Most hot-pixel candidates examined per row (the first ones in the row).
+/// Most hot-pixel candidates examined per window (the first ones in it).
 pub const MAX_SPIKES: usize = 64;
 
-/// Robust white-noise σ of the pixels (counts × 256) from the median
-/// absolute second difference: for white noise `x[i−1] − 2x[i] + x[i+1]` has
-/// σ√6, and median |·| = 0.6745 σ√6, so σ = 1.4826 / √6 · median = 0.6053 ·
-/// median (155/256). Stripes, hot pixels and edges are a minority of the row
-/// and do not move the median.
-///
-/// Every `NOISE_STRIDE`-th value is used: the median of 250 samples of a 752-px
-/// row has a relative standard error of about 8 %, ample for a threshold, at a
-/// third of the selection cost.
-#[inline(never)]
-pub fn pixel_noise_q8(x: &[i32], scratch: &mut [i32]) -> i32 {
-    let mut h = Histogram::new();
-    let mut m = 0;
-    // The windows at 0, 3, 6, … are the row's exact chunks of three.
-    for (s, &[a, b, c]) in scratch.iter_mut().zip(x.as_chunks::<NOISE_STRIDE>().0) {
-        let v = (a - 2 * b + c).abs();
-        *s = v;
-        h.add(v);
-        m += 1;
-    }
-    h.set_total(m);
-    h.kth(&mut scratch[..m], m / 2).saturating_mul(155)
+/// The spike screen's first test, `2x₀ − x₋ − x₊ > 7 σ√6` (8.6 σ above the
+/// neighbours' mean): its threshold for a pixel noise of `noise_q8`
+/// (counts × 256).
+pub fn spike_screen_level(noise_q8: i32) -> i32 {
+    ((noise_q8 as i64 * 7 * 627) >> 16).clamp(1, i32::MAX as i64) as i32 // 627/256 = √6
 }
 
-/// Copies `row` into `x` (which must be as long), values above `sat`
-/// clamped to it, and returns [`pixel_noise_q8`] of the copy: one pass
-/// instead of two. `scratch` needs a third of the row.
+/// Copies `row` into `x` (as long), values above `sat` clamped, and lists
+/// in `hits` (the first [`MAX_SPIKES`]) the pixels `i` in `1..n − 1` with
+/// `2x[i] − x[i−1] − x[i+1] > level` ([`spike_screen_level`]): the copy
+/// and the spike screen in one pass, the window in registers, four pixels
+/// per iteration (a pixel costs a load, a store, the test and its share of
+/// one branch).
 #[inline(never)]
-pub fn load_row<P: Pixel>(row: &[P], sat: i32, x: &mut [i32], scratch: &mut [i32]) -> i32 {
-    let mut h = Histogram::new();
-    let mut m = 0;
-    let (xs, x_rest) = x.as_chunks_mut::<NOISE_STRIDE>();
-    let (ps, p_rest) = row.as_chunks::<NOISE_STRIDE>();
-    for ((d, &[a, b, c]), s) in xs.iter_mut().zip(ps).zip(scratch.iter_mut()) {
-        let (a, b, c) = (a.value(), b.value(), c.value());
-        // Pixels are non-negative, so `a | b | c` bounds all three: one test
-        // instead of three clamps on rows within the bit depth.
-        let (a, b, c) = if (a | b | c) > sat { (a.min(sat), b.min(sat), c.min(sat)) } else { (a, b, c) };
-        *d = [a, b, c];
-        let v = (a - 2 * b + c).abs();
-        *s = v;
-        h.add(v);
-        m += 1;
+pub fn load_window<P: Pixel>(row: &[P], sat: i32, level: i32, x: &mut [i32], hits: &mut Vec<usize, MAX_SPIKES>) {
+    let n = row.len().min(x.len());
+    let (row, x) = (&row[..n], &mut x[..n]);
+    hits.clear();
+    let pre = |a: i32, b: i32, c: i32| 2 * b - a - c > level;
+    if n < 6 {
+        for (d, p) in x.iter_mut().zip(row) {
+            *d = p.value().min(sat);
+        }
+        for i in 1..n.saturating_sub(1) {
+            if pre(x[i - 1], x[i], x[i + 1]) && hits.push(i).is_err() {
+                break;
+            }
+        }
+        return;
+    }
+    let (x0, x1) = (row[0].value().min(sat), row[1].value().min(sat));
+    x[0] = x0;
+    x[1] = x1;
+    let (mut a, mut b) = (x0, x1);
+    // `b` is pixel `i`.
+    let mut i = 1;
+    let (xs, x_rest) = x[2..].as_chunks_mut::<4>();
+    let (ps, p_rest) = row[2..].as_chunks::<4>();
+    for (d, p) in xs.iter_mut().zip(ps) {
+        // Scalars, not an array: an array here is kept on the stack.
+        let (v0, v1, v2, v3) = (p[0].value(), p[1].value(), p[2].value(), p[3].value());
+        // Pixels are non-negative: `|` bounds all four, one test for four clamps.
+        let (v0, v1, v2, v3) = if (v0 | v1 | v2 | v3) > sat {
+            (v0.min(sat), v1.min(sat), v2.min(sat), v3.min(sat))
+        } else {
+            (v0, v1, v2, v3)
+        };
+        d[0] = v0;
+        d[1] = v1;
+        d[2] = v2;
+        d[3] = v3;
+        if pre(a, b, v0) | pre(b, v0, v1) | pre(v0, v1, v2) | pre(v1, v2, v3) {
+            push_hits(&[a, b, v0, v1, v2, v3], i, level, hits);
+        }
+        (a, b) = (v2, v3);
+        i += 4;
     }
     for (d, p) in x_rest.iter_mut().zip(p_rest) {
-        *d = p.value().min(sat);
+        let c = p.value().min(sat);
+        *d = c;
+        if pre(a, b, c) {
+            let _ = hits.push(i);
+        }
+        (a, b) = (b, c);
+        i += 1;
     }
-    h.set_total(m);
-    h.kth(&mut scratch[..m], m / 2).saturating_mul(155)
 }
 
-/// Decimation of the robust noise estimates (see [`pixel_noise_q8`]).
-pub const NOISE_STRIDE: usize = 3;
-
-/// Robust σ (Q8) of a zero-mean response: 1.4826 · median |r| (380/256).
-/// Every `NOISE_STRIDE`-th value is used, as in [`pixel_noise_q8`].
+/// [`load_window`]'s rare path, out of line: the windows of `w` from pixel `i`.
 #[inline(never)]
-pub fn abs_median_sigma_q8(r: &[i32], scratch: &mut [i32]) -> i32 {
-    let mut h = Histogram::new();
-    let mut m = 0;
-    for (s, c) in scratch.iter_mut().zip(r.chunks(NOISE_STRIDE)) {
-        let v = c[0].saturating_abs();
-        *s = v;
-        h.add(v);
-        m += 1;
+fn push_hits(w: &[i32; 6], i: usize, level: i32, hits: &mut Vec<usize, MAX_SPIKES>) {
+    for (j, t) in w.windows(3).enumerate() {
+        if 2 * t[1] - t[0] - t[2] > level {
+            let _ = hits.push(i + j);
+        }
     }
-    h.set_total(m);
-    h.kth(&mut scratch[..m], m / 2).saturating_mul(380)
 }
 
-/// Replaces isolated hot pixels in place; returns how many.
+/// Replaces hot and stuck pixels — single pixels and adjacent pairs, at any
+/// level up to full scale — in place; returns how many pixels. Screens the
+/// whole of `x` first ([`load_window`] does that while copying; see
+/// [`repair_spikes`] for the tests).
+pub fn remove_spikes(x: &mut [i32], noise_q8: i32, k_q16: i64) -> u16 {
+    let level = spike_screen_level(noise_q8);
+    let mut hits: Vec<usize, MAX_SPIKES> = Vec::new();
+    scan3(x, |a, b, c| 2 * b - a - c > level, |i, _, _, _| hits.push(i).is_ok());
+    repair_spikes(x, &hits, noise_q8, k_q16)
+}
+
+/// Repairs the hot and stuck pixels among `hits` (pixels that passed the
+/// screen's first test, ascending); returns how many pixels.
 ///
-/// A pixel is hot when it is a strict local maximum below saturation, its
-/// excess over the mean of its neighbours exceeds 8.6 σ (`2x₀ − x₋ − x₊ >
-/// 7 σ√6`), and, after subtracting the local background (the minimum over
-/// ±3 px), `(u₀ − 3σ)² > K · (u₋ + 3σ)(u₊ + 3σ)` with `K = e^(1/σ_min²)`: no
-/// Gaussian of width ≥ σ_min is that peaked anywhere on its profile, because
-/// a sampled Gaussian has `u₀² = e^(1/σ²) u₋ u₊` exactly. The 3 σ allowances
-/// keep noise from tipping the test.
-#[inline(never)]
-pub fn remove_spikes(x: &mut [i32], noise_q8: i32, k_q16: i64, sat: i32) -> u16 {
+/// After subtracting the local background (the minimum over ±3 px of the
+/// pixel or pair):
+///
+/// * **single** (a strict local maximum): hot when `(u₀ − 3σ)² > K · (u₋ +
+///   3σ)(u₊ + 3σ)` with `K = e^(1/σ_min²)`: no Gaussian of width ≥ σ_min
+///   is that peaked anywhere on its profile, because a sampled Gaussian has
+///   `u₀² = e^(1/σ²) u₋ u₊` exactly. Replaced by the geometric mean of its
+///   neighbours (exact on a Gaussian's flank).
+/// * **pair** `p, q` (the hit and its brighter neighbour, both above both
+///   outer neighbours `a`, `c`): stuck when `(u_p − 3σ)(u_q − 3σ) > K² ·
+///   (u_a + 3σ)(u_c + 3σ)`: a sampled Gaussian has `u_p u_q = e^(2/σ²) u_a
+///   u_c` exactly, at any offset (the log of a Gaussian is a parabola).
+///   Replaced by the log-linear interpolation between `a` and `c` (at ¼ and
+///   ¾ of the way).
+///
+/// A saturated pixel is tested like any other: clipping only lowers `u₀`,
+/// so a pixel found too peaked at its clipped value is too peaked at its
+/// true one. This is what keeps a stuck pixel at full scale from passing
+/// for a saturated stripe: a stripe is known by its width. The 3 σ
+/// allowances keep noise from tipping the tests.
+///
+/// # Cost
+/// The top of every bright stripe passes the first test, so each test is
+/// preceded by a cheap necessary condition on the second differences
+/// `D(i) = 2x[i] − x[i−1] − x[i+1]` beside it: a spike of height `h` has
+/// `D = 2h` and `−h` on either side (a pair: `h, h` and `−h` outside), a
+/// Gaussian top of σ ≳ 1 px has positive ones there. A candidate goes on
+/// to the background and products only when the flanks' sum is below
+/// `level − D/4` (`level` the first test's threshold).
+pub fn repair_spikes(x: &mut [i32], hits: &[usize], noise_q8: i32, k_q16: i64) -> u16 {
     let n = x.len();
     if n < 3 {
         return 0;
     }
-    let sigma = (noise_q8 as i64 + 128) >> 8;
-    let lin = ((noise_q8 as i64 * 7 * 627) >> 16).max(1); // 7 σ √6 (627/256 = √6)
-    let margin = 3 * sigma;
-    // Read-only screen first: strict local maxima standing out by more than
-    // the noise allows. Almost every pixel stops here.
-    let lin32 = lin.min(i32::MAX as i64) as i32;
-    let mut hits: Vec<usize, MAX_SPIKES> = Vec::new();
-    scan3(x, |a, b, c| 2 * b - a - c > lin32, |i, a, b, c| !(b > a && b > c && b < sat && hits.push(i).is_err()));
+    let t = SpikeTest {
+        margin: 3 * ((noise_q8 as i64 + 128) >> 8),
+        level: spike_screen_level(noise_q8) as i64,
+        k_q16,
+        k2_q16: (k_q16 * k_q16) >> 16,
+    };
     let mut count = 0u16;
-    for &i in &hits {
-        let (a, b, c) = (x[i - 1] as i64, x[i] as i64, x[i + 1] as i64);
-        if b <= a || b <= c {
-            continue; // a neighbour was repaired meanwhile
+    for &h in hits {
+        // Most hits are a stripe's top, rejected at once.
+        if !t.worth_testing(x, h) {
+            continue;
         }
-        let lo = i.saturating_sub(3);
-        let hi = (i + 3).min(n - 1);
-        let bg = x[lo..=hi].iter().copied().min().unwrap_or(0) as i64;
-        let (ua, ub, uc) = (a - bg, b - bg, c - bg);
-        let top = (ub - margin).max(0);
-        let lhs = top * top;
-        let rhs = (k_q16 * ((ua + margin) * (uc + margin))) >> 16;
-        if lhs > rhs {
-            x[i] = (bg + ((ua.max(0) * uc.max(0)) as u64).isqrt() as i64) as i32;
-            count += 1;
+        let Some(first) = t.repair(x, h) else {
+            continue;
+        };
+        // A repair can unmask a neighbour (a hot pixel beside a stuck one
+        // was no local maximum before): the pixels beside a repair are
+        // tested again, a few at most.
+        let mut todo: Vec<usize, 8> = Vec::new();
+        let mut done = Some(first);
+        loop {
+            if let Some((lo, hi)) = done {
+                count += (hi - lo + 1) as u16;
+                for q in [lo.wrapping_sub(1), hi + 1] {
+                    if (1..n - 1).contains(&q) && peak_at(x, q) > t.level {
+                        let _ = todo.push(q);
+                    }
+                }
+            }
+            let Some(i) = todo.pop() else {
+                break;
+            };
+            done = t.repair(x, i);
         }
     }
     count
+}
+
+/// `2x[i] − x[i−1] − x[i+1]` (minus the second difference), `0 < i < n − 1`.
+fn peak_at(x: &[i32], i: usize) -> i64 {
+    2 * x[i] as i64 - x[i - 1] as i64 - x[i + 1] as i64
+}
+
+/// The constants of [`repair_spikes`]'s tests.
+struct SpikeTest {
+    /// 3 σ, counts.
+    margin: i64,
+    /// The first test's threshold (7 σ√6), counts.
+    level: i64,
+    /// `K = e^(1/σ_min²)` and `K²`, Q16.
+    k_q16: i64,
+    k2_q16: i64,
+}
+
+impl SpikeTest {
+    /// The cheap part of [`SpikeTest::repair`]: whether pixel `i` still
+    /// passes the first test and is not a stripe's top (see below).
+    #[inline(always)]
+    fn worth_testing(&self, x: &[i32], i: usize) -> bool {
+        match x.get(i.wrapping_sub(2)..i + 3) {
+            Some(&[l2, l1, m, r1, r2]) => {
+                (2 * m - l1 - r1) as i64 > self.level && ((2 * (l1 + r1 - m) - l2 - r2) as i64) <= self.level
+            }
+            _ => true,
+        }
+    }
+
+    /// Tests the pair of pixel `i` and its brighter neighbour, then pixel `i`
+    /// alone; repairs and returns the pixels `lo..=hi` it found hot or stuck.
+    #[inline(never)]
+    fn repair(&self, x: &mut [i32], i: usize) -> Option<(usize, usize)> {
+        let n = x.len();
+        if i == 0 || i + 1 >= n {
+            return None;
+        }
+        let (level, margin) = (self.level, self.margin);
+        let bg_near = |x: &[i32], lo: usize, hi: usize| {
+            x[lo.saturating_sub(3)..=(hi + 3).min(n - 1)].iter().copied().min().unwrap_or(0) as i64
+        };
+        let (a, b, c) = (x[i - 1] as i64, x[i] as i64, x[i + 1] as i64);
+        let d0 = 2 * b - a - c;
+        if d0 <= level {
+            return None; // a neighbour was repaired meanwhile
+        }
+        // D(i−1) + D(i+1) = 2(a + c − b) − x[i−2] − x[i+2] (pixels are ≤ 16
+        // bits: i32 holds it). Clearly positive — curved down on both sides,
+        // a Gaussian's top — rules out a single spike (−2h) and a pair (≈ 0)
+        // at once.
+        let side = match x.get(i.wrapping_sub(2)..i + 3) {
+            Some(&[l2, l1, m, r1, r2]) => (2 * (l1 + r1 - m) - l2 - r2) as i64,
+            _ => i64::MIN,
+        };
+        if side > level {
+            return None;
+        }
+        // The pair with the brighter neighbour first, (j, j + 1): a hot
+        // pixel beside a stuck one is a pair, and repairing the stuck one
+        // alone would take the hot one for its flank.
+        let j = if c >= a { i } else { i - 1 };
+        if j >= 1 && j + 2 < n {
+            let (pa, p, q, pc) = (x[j - 1] as i64, x[j] as i64, x[j + 1] as i64, x[j + 2] as i64);
+            let pair_like = p.min(q) > pa.max(pc)
+                && match x.get(j.wrapping_sub(2)..j + 4) {
+                    // inner = D(j) + D(j+1) = p + q − a − c; outer = D(j−1) +
+                    // D(j+2) = 2(a + c) − x[j−2] − x[j+3] − p − q.
+                    Some(&[l2, a, p, q, c, r2]) => {
+                        let inner = (p + q - a - c) as i64;
+                        ((2 * (a + c) - l2 - r2 - p - q) as i64) < level - inner / 4
+                    }
+                    _ => true,
+                };
+            if pair_like {
+                let bg = bg_near(x, j, j + 1);
+                let (ua, up, uq, uc) = (pa - bg, p - bg, q - bg, pc - bg);
+                let top = (up - margin).max(0) * (uq - margin).max(0);
+                if top > (self.k2_q16 * ((ua + margin) * (uc + margin))) >> 16 {
+                    let (ua, uc) = (ua.max(0) as u64, uc.max(0) as u64);
+                    let mid = (ua * uc).isqrt();
+                    x[j] = (bg + (ua * mid).isqrt() as i64) as i32;
+                    x[j + 1] = (bg + (uc * mid).isqrt() as i64) as i32;
+                    return Some((j, j + 1));
+                }
+            }
+        }
+        let single_like = side < level - d0 / 4;
+        if single_like && b > a && b > c {
+            let bg = bg_near(x, i, i);
+            let (ua, ub, uc) = (a - bg, b - bg, c - bg);
+            let top = (ub - margin).max(0);
+            if top * top > (self.k_q16 * ((ua + margin) * (uc + margin))) >> 16 {
+                x[i] = (bg + ((ua.max(0) * uc.max(0)) as u64).isqrt() as i64) as i32;
+                return Some((i, i));
+            }
+        }
+        None
+    }
 }
 
 /// `dst[lo..hi]` of one box pass of half-width `h` over `src`, edges
@@ -294,44 +448,6 @@ fn scan3_hits(
     true
 }
 
-/// Local maxima of `r` above `threshold`, the strongest `MAX_CANDIDATES`.
-#[inline(never)]
-pub fn candidates(r: &[i32], threshold: i32) -> Vec<Candidate, MAX_CANDIDATES> {
-    let mut out: Vec<Candidate, MAX_CANDIDATES> = Vec::new();
-    let n = r.len();
-    let mut push = |pos: usize, resp: i32| {
-        let c = Candidate { pos, resp };
-        if out.push(c).is_err() {
-            // Full: replace the weakest if this one is stronger.
-            if let Some((j, w)) = out.iter().enumerate().min_by_key(|(_, c)| c.resp)
-                && w.resp < resp
-            {
-                out[j] = c;
-            }
-        }
-    };
-    if n == 0 {
-        return Vec::new();
-    }
-    if (n == 1 || r[0] >= r[1]) && r[0] > threshold {
-        push(0, r[0]);
-    }
-    scan3(
-        r,
-        |_, b, _| b > threshold,
-        |i, a, b, c| {
-            if b > a && b >= c {
-                push(i, b);
-            }
-            true
-        },
-    );
-    if n > 1 && r[n - 1] > r[n - 2] && r[n - 1] > threshold {
-        push(n - 1, r[n - 1]);
-    }
-    out
-}
-
 /// The saturated run within `reach` of `pos`, if any: `(first, last)` index.
 pub fn saturated_run(x: &[i32], pos: usize, reach: usize, sat: i32) -> Option<(usize, usize)> {
     let n = x.len();
@@ -393,7 +509,7 @@ mod tests {
         let mut x = [100i32; 16];
         x[8] = 900;
         let k = (core::f64::consts::E * 65536.0) as i64; // σ_min = 1
-        assert_eq!(remove_spikes(&mut x, 256, k, 4095), 1);
+        assert_eq!(remove_spikes(&mut x, 256, k), 1);
         assert!(x[8] < 110);
         // Gaussians of σ = 1.05 … 4 at any sub-pixel offset are untouched,
         // even 20 times above the noise.
@@ -404,16 +520,28 @@ mod tests {
                     let t = i as f64 - 20.0 - tenth as f64 / 10.0;
                     (100.0 + 3000.0 * std::primitive::f64::exp(-t * t / (2.0 * sigma * sigma))) as i32
                 });
-                assert_eq!(remove_spikes(&mut g, 256, k, 4095), 0, "σ {sigma}");
+                assert_eq!(remove_spikes(&mut g, 256, k), 0, "σ {sigma}");
             }
         }
     }
 
     #[test]
-    fn noise_of_alternating_pattern() {
-        // ±2 alternation: second difference is ±8 everywhere, median 8 → σ_q8 = 8·155.
-        let x: [i32; 10] = core::array::from_fn(|i| if i % 2 == 0 { 102 } else { 98 });
-        let mut s = [0i32; 10];
-        assert_eq!(pixel_noise_q8(&x, &mut s), 8 * 155);
+    fn stuck_pixels_and_pairs_at_full_scale_are_repaired() {
+        let k = (core::f64::consts::E * 65536.0) as i64; // σ_min = 1
+        // A single pixel and a pair at full scale on a flat background.
+        let mut x = [100i32; 24];
+        x[6] = 4095;
+        x[15] = 4095;
+        x[16] = 4095;
+        assert_eq!(remove_spikes(&mut x, 256, k), 3);
+        assert!(x.iter().all(|&v| v < 110), "{x:?}");
+        // The same copied by load_window, clamped to a lower saturation.
+        let row: [u16; 24] = core::array::from_fn(|i| if i == 9 { 4095 } else { 100 });
+        let (mut y, mut hits) = ([0i32; 24], Vec::new());
+        load_window(&row, 1000, spike_screen_level(256), &mut y, &mut hits);
+        assert_eq!(y[9], 1000);
+        assert_eq!(&hits[..], &[9]);
+        assert_eq!(repair_spikes(&mut y, &hits, 256, k), 1);
+        assert!(y[9] < 110);
     }
 }

@@ -5,8 +5,9 @@
 //! For a candidate at pixel `c`:
 //!
 //! 1. **Best-matching scale** (pixel level, paper §5): the Ricker response
-//!    `R(c, s) = s^(−3/2) Σ x[i] ψ((i − c)/s)` on every ladder rung of the
-//!    scale range, with a hill-climb in position. For a Gaussian stripe of
+//!    `R(c, s) = s^(−3/2) Σ x[i] ψ((i − c)/s)`, climbing the ladder of rungs
+//!    from the scale range's middle at the candidate's brightest pixel (and,
+//!    for stripes of 4 px or wider, climbing in position too). For a Gaussian stripe of
 //!    width σ, `R(s) ∝ σ s^(3/2) / (s² + σ²)^(3/2)` peaks at s = σ under this
 //!    normalisation (with Eq. 2's `s^(−1/2)` it would peak at s = √5 σ ≈ 2.24 σ,
 //!    and with `s^(−1)` at s = √2 σ). A parabola through the three best
@@ -16,7 +17,10 @@
 //!    `s_fit ≈ 1.5 σ̂`. `D` is tabulated at 1/16-px phases (`build.rs`), so
 //!    `∂R/∂t` is evaluated exactly at phase points — no interpolation of the
 //!    response between pixels, hence no pixel locking — and the last 1/16 px
-//!    is a secant step on a function that is linear there to < 10⁻⁵ px.
+//!    is a secant step on a function that is linear there to < 10⁻⁵ px. The
+//!    search starts at the vertex of a parabola (through the three brightest
+//!    pixels, or through the responses) and steps phase by phase to the sign
+//!    change; the whole-pixel bracket is the fallback.
 //!
 //! # Why this estimator
 //! The zero of `Σ x[i] D(i − t)` for an odd kernel is an M-estimator whose
@@ -31,11 +35,14 @@
 //! of order `e^(−2π² s²)`.
 //!
 //! # Cost
-//! Per candidate: one Ricker evaluation per rung (2·ceil(5 s)+1 taps) twice
-//! at most, and 4–6 derivative evaluations of 2·ceil(5 s_fit)+1 taps each:
-//! for σ = 2.5 px about 400 multiply-adds, independent of row length.
+//! Per candidate: three Ricker evaluations for a typical stripe (ceil(5 s)
+//! symmetric taps each; five more for a wide one, whose position climbs),
+//! and two derivative evaluations of 2·ceil(5 s_fit)+1 taps from a good
+//! guess (four by the whole-pixel bracket): for σ = 2.5 px about 120
+//! multiply-adds, independent of row length. The derivative tables are
+//! stored phase-major, so an evaluation reads two contiguous runs.
 
-use super::kernels::{self, NORM_SHIFT, PHASES, RUNGS};
+use super::kernels::{self, Deriv, NORM_SHIFT, PHASES, RUNGS};
 use super::{Flags, RowView, Stripe};
 use crate::fixed::Px;
 
@@ -66,30 +73,34 @@ pub fn response_q8(x: &[i32], c: usize, k: usize) -> i64 {
 
 /// `Σ x[i] D(i − (k + p/PHASES))` on derivative table `d`: positive left of
 /// the response's maximum, negative right of it. Edge pixels replicate.
-pub fn slope_at(x: &[i32], k: isize, p: usize, d: &[i16]) -> i64 {
+///
+/// With `i = k + m`: right of `k` (`m ≥ 1`) the offset is `m − p/P`, on
+/// phase `P − p` (phase 0 from its second tap when `p = 0`); left (`m ≥ 0`,
+/// offset `−(m + p/P)`, `D` odd) on phase `p`. Both runs are contiguous in
+/// the table ([`Deriv`]), so the inner loops are a load, a load and a
+/// multiply-accumulate per tap.
+pub fn slope_at(x: &[i32], k: isize, p: usize, d: Deriv) -> i64 {
     let n = x.len() as isize;
-    let reach = ((d.len() - 1) / PHASES) as isize + 1;
+    let (right, left) = (d.right(p), d.left(p));
     let mut acc = 0i64;
-    if k - reach >= 0 && k + reach < n {
+    if k + 1 >= left.len() as isize && k + (right.len() as isize) < n {
         let k = k as usize;
-        // The taps within the table: m·P − p ≤ len − 1 on the right,
-        // m·P + p ≤ len − 1 on the left (both inside the row here).
-        let last = d.len() - 1;
-        let (right, left) = ((last + p) / PHASES, (last - p) / PHASES + 1);
-        // right: i = k + m, m ≥ 1, table index m·P − p
-        for (m, &a) in (1..).zip(&x[k + 1..=k + right]) {
-            acc += a as i64 * d[m * PHASES - p] as i64;
+        // Two accumulators, subtracted once: `acc -= a·w` in the loop is a
+        // multiply and a 64-bit subtract, `+=` one multiply-accumulate.
+        let (mut r_acc, mut l_acc) = (0i64, 0i64);
+        for (&a, &w) in x[k + 1..=k + right.len()].iter().zip(right) {
+            r_acc += a as i64 * w as i64;
         }
-        // left: i = k − m, m ≥ 0, table index m·P + p
-        for (m, &a) in (0..).zip(x[k + 1 - left..=k].iter().rev()) {
-            acc -= a as i64 * d[m * PHASES + p] as i64;
+        for (&a, &w) in x[k + 1 - left.len()..=k].iter().rev().zip(left) {
+            l_acc += a as i64 * w as i64;
         }
+        acc = r_acc - l_acc;
     } else {
         let at = |i: isize| x[i.clamp(0, n - 1) as usize] as i64;
-        for (m, &w) in d[PHASES - p..].iter().step_by(PHASES).enumerate() {
+        for (m, &w) in right.iter().enumerate() {
             acc += at(k + 1 + m as isize) * w as i64;
         }
-        for (m, &w) in d[p..].iter().step_by(PHASES).enumerate() {
+        for (m, &w) in left.iter().enumerate() {
             acc -= at(k - m as isize) * w as i64;
         }
     }
@@ -98,7 +109,7 @@ pub fn slope_at(x: &[i32], k: isize, p: usize, d: &[i16]) -> i64 {
 
 /// Sub-pixel zero of the slope near `c` on derivative table `d`, Q16.16 px.
 /// `None` when no sign change is found within ±3 px.
-pub fn slope_zero(x: &[i32], c: usize, d: &[i16]) -> Option<Px> {
+pub fn slope_zero(x: &[i32], c: usize, d: Deriv) -> Option<Px> {
     let n = x.len() as isize;
     let mut k = c as isize;
     let mut f_k = slope_at(x, k, 0, d);
@@ -132,7 +143,7 @@ pub fn slope_zero(x: &[i32], c: usize, d: &[i16]) -> Option<Px> {
         }
     };
     // First guess by linear interpolation, then the enclosing phase interval.
-    let guess = ((f_lo * PHASES as i64) / (f_lo - f_hi)) as usize;
+    let guess = ratio_q(f_lo, f_lo - f_hi, PHASES.trailing_zeros()) as usize;
     let mut p = guess.min(PHASES - 1);
     let eval = |p: usize| match p {
         0 => f_lo,
@@ -152,8 +163,54 @@ pub fn slope_zero(x: &[i32], c: usize, d: &[i16]) -> Option<Px> {
         fb = eval(p + 1);
     }
     const STEP: i64 = 65536 / PHASES as i64;
-    let frac = (fa * STEP) / (fa - fb).max(1);
+    let frac = ratio_q(fa.max(0), (fa - fb).max(1), STEP.trailing_zeros());
     Some(Px(((lo as i64) * 65536 + p as i64 * STEP + frac) as i32))
+}
+
+/// Sub-pixel zero of the slope starting from the guess `c + guess/PHASES`
+/// (Q16.16 px): the slope at the guess's phase, then phase by phase towards
+/// the sign change, at most 8 steps (half a pixel); `None` if it is not
+/// found there. A good guess (the responses' parabola) needs two
+/// evaluations where the whole-pixel bracket of [`slope_zero`] needs four;
+/// the zero is the same, the one in the enclosing phase interval.
+pub fn slope_zero_near(x: &[i32], c: usize, guess: i32, d: Deriv) -> Option<Px> {
+    let n = x.len() as isize;
+    let ph = PHASES as isize;
+    // Position in phases from pixel 0.
+    let mut t = c as isize * ph + guess as isize;
+    let at = |t: isize| -> Option<i64> {
+        let k = t.div_euclid(ph);
+        (0..n).contains(&k).then(|| slope_at(x, k, t.rem_euclid(ph) as usize, d))
+    };
+    let mut f = at(t)?;
+    let dir = if f > 0 { 1 } else { -1 };
+    for _ in 0..8 {
+        let f2 = at(t + dir)?;
+        if (f2 > 0) != (f > 0) {
+            // The zero is between t and t + dir: fa > 0 ≥ fb on [lo, lo + 1].
+            let (lo, fa, fb) = if dir > 0 { (t, f, f2) } else { (t - 1, f2, f) };
+            const STEP: i64 = 65536 / PHASES as i64;
+            let frac = ratio_q(fa.max(0), (fa - fb).max(1), STEP.trailing_zeros());
+            return Some(Px((lo as i64 * STEP + frac) as i32));
+        }
+        (t, f) = (t + dir, f2);
+    }
+    None
+}
+
+/// `⌊num · 2^bits / den⌋` for `0 ≤ num ≤ den`, `den > 0`, `bits ≤ 15`, by a
+/// 32-bit division: both are shifted right until `den` has `31 − bits`
+/// bits, so the quotient keeps at least `30 − bits` bits of precision —
+/// 18 bits for the 1/4096-px step, far below the estimator's noise — where
+/// a 64-bit division is a library call of ~100 instructions on the M4.
+pub fn ratio_q(num: i64, den: i64, bits: u32) -> i64 {
+    if den <= 0 {
+        return 0;
+    }
+    let num = num.clamp(0, den);
+    let sh = (64 - den.leading_zeros()).saturating_sub(31 - bits);
+    let (n, d) = ((num >> sh) as u32, ((den >> sh) as u32).max(1));
+    ((n << bits) / d) as i64
 }
 
 /// A candidate confirmed as a stripe by the multi-scale test.
@@ -170,27 +227,53 @@ pub(crate) struct Confirmed {
     pub amplitude: i64,
     /// Flags so far (weak, width at the range's edge).
     pub flags: Flags,
+    /// Where the maximum lies from `c`, 1/PHASES px: the vertex of the
+    /// parabola through the responses at `c − 1, c, c + 1` (a first guess
+    /// for the sub-pixel search, within ±PHASES/2).
+    pub guess: i32,
 }
 
+/// The candidate's window is too short for the stripe found there: copy a
+/// wider one and ask again.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Wider;
+
 /// The CWT estimator for one candidate.
-pub(crate) fn refine(v: &RowView<'_>, c0: usize) -> Option<Stripe> {
-    let Confirmed { c, kb, dk_q16, width, amplitude, mut flags } = confirm(v, c0)?;
-    let (x, n) = (v.x, v.x.len());
+pub(crate) fn refine(v: &RowView<'_>, c0: usize) -> Result<Option<Stripe>, Wider> {
+    let Some(Confirmed { c, kb, dk_q16, width, amplitude, mut flags, guess }) = confirm(v, c0)? else {
+        return Ok(None);
+    };
+    let x = v.x;
     // Fit rung: nearest to 1.5 σ̂, i.e. kb + dk + 4·log2(1.5) (= 2.3399, Q16 153_348).
     let j = ((((kb as i64) << 16) + dk_q16 + 153_348 + 32_768) >> 16).clamp(0, kernels::LADDER_LEN as i64 - 1) as usize;
+    // The whole kernel (to 5 s): cut at 4 s, where `D` is still 1.3 % of
+    // its peak, the slope jumps as a tap enters at each whole pixel, and
+    // the secant across that jump moves the zero by ~3·10⁻⁴ px near whole
+    // pixels (measured against the f64 reference: 3.7 % of its RMS error).
     let d = kernels::deriv(j);
-    let reach = RUNGS[j].half_len;
-    if c < reach || c + reach >= n {
+    let reach = d.half_len();
+    if v.clipped(c, reach) {
         flags.insert(Flags::CLIPPED);
     }
-    let position = match slope_zero(x, c, d) {
+    // The search from the guess stays within a pixel of `c`, and its taps
+    // reach one more than the kernel; the whole-pixel bracket (if the guess
+    // was poor) moves up to 3 px more.
+    if !v.fits(c, reach + 2) {
+        return Err(Wider);
+    }
+    let found = match slope_zero_near(x, c, guess, d) {
+        Some(p) => Some(p),
+        None if !v.fits(c, reach + 5) => return Err(Wider),
+        None => slope_zero(x, c, d),
+    };
+    let position = match found {
         Some(p) => p,
         None => {
             flags.insert(Flags::LOW_CONFIDENCE);
             Px::from_int(c as i32)
         }
     };
-    Some(Stripe { position, strength: amplitude.clamp(0, u32::MAX as i64) as u32, width, flags })
+    Ok(Some(Stripe { position, strength: amplitude.clamp(0, u32::MAX as i64) as u32, width, flags }))
 }
 
 /// Pixel-level detection (paper §5): the best-matching scale, the integer
@@ -199,73 +282,119 @@ pub(crate) fn refine(v: &RowView<'_>, c0: usize) -> Option<Stripe> {
 /// `threshold ×` its own noise, the amplitude above the floor, the width in
 /// range. Every method detects through this test, so methods differ only in
 /// their sub-pixel estimate.
-pub(crate) fn confirm(v: &RowView<'_>, c0: usize) -> Option<Confirmed> {
+///
+/// # Cost
+/// The scale is found by climbing, not by search: from the coarse rung up
+/// or down the ladder while the response grows (a Gaussian stripe's
+/// response is unimodal in scale: `∝ σ s^(3/2) / (s² + σ²)^(3/2)`), at the
+/// candidate's brightest pixel: three Ricker responses for a typical stripe
+/// (it took 10–18 over the whole scale range, and a climb in position). A
+/// stripe of 4 px or wider climbs in position too, then in scale again if
+/// it moved. The climb stays within the width limits' rungs, so a
+/// stripe (or glow) wider or narrower than the range is measured there and
+/// rejected rather than clamped to the range's edge.
+pub(crate) fn confirm(v: &RowView<'_>, c0: usize) -> Result<Option<Confirmed>, Wider> {
     let x = v.x;
     let n = x.len();
     let (k_lo, k_hi) = (v.plan.k_lo, v.plan.k_hi);
     let (w_lo, w_hi) = (v.plan.k_width_lo, v.plan.k_width_hi);
-    let mut resp = [i64::MIN; kernels::LADDER_LEN];
-    // The scale range proper, then — only while the response still grows at
-    // its edge — on towards the width limits, so that a stripe (or glow)
-    // wider or narrower than the range is measured and rejected rather than
-    // clamped to the range's edge.
-    let best_scale = |c: usize, resp: &mut [i64; kernels::LADDER_LEN]| {
-        let mut best = k_lo;
-        for k in k_lo..=k_hi {
-            resp[k] = response_q8(x, c, k);
-            if resp[k] > resp[best] {
-                best = k;
-            }
-        }
-        while best >= k_hi && best < w_hi {
-            let k = best + 1;
-            resp[k] = response_q8(x, c, k);
-            if resp[k] <= resp[best] {
+    // Climb in scale from rung `k0` at position `c`: the best rung and the
+    // responses at it and at both its neighbours (`i64::MIN` where not
+    // evaluated: beyond the width limits).
+    let climb_scale = |c: usize, k0: usize| -> (usize, [i64; 3]) {
+        let mut k = k0;
+        let mut here = response_q8(x, c, k);
+        let (mut below, mut above) = (i64::MIN, i64::MIN);
+        while k < w_hi {
+            let r = response_q8(x, c, k + 1);
+            if r <= here {
+                above = r;
                 break;
             }
-            best = k;
+            (below, here) = (here, r);
+            k += 1;
         }
-        while best <= k_lo && best > w_lo {
-            let k = best - 1;
-            resp[k] = response_q8(x, c, k);
-            if resp[k] <= resp[best] {
-                break;
+        if k == k0 {
+            while k > w_lo {
+                let r = response_q8(x, c, k - 1);
+                if r <= here {
+                    below = r;
+                    break;
+                }
+                (above, here) = (here, r);
+                k -= 1;
             }
-            best = k;
         }
-        best
+        (k, [below, here, above])
     };
     let mut c = c0;
-    let mut kb = best_scale(c, &mut resp);
-    // Pixel level: climb to the integer maximum of the best scale's response.
-    let mut moved = false;
-    for _ in 0..3 {
-        let here = resp[kb];
-        let left = if c > 0 { response_q8(x, c - 1, kb) } else { i64::MIN };
-        let right = if c + 1 < n { response_q8(x, c + 1, kb) } else { i64::MIN };
-        if right > here && right >= left {
-            c += 1;
-        } else if left > here {
-            c -= 1;
+    let k_start = v.plan.k_coarse.clamp(k_lo, k_hi);
+    let (mut kb, mut resp) = climb_scale(c, k_start);
+    // Pixel level. A stripe narrower than 4 px: its brightest pixel (where
+    // the candidate starts) is within a pixel of the response's maximum, and
+    // the parabola through the three pixels (its vertex does not see a
+    // constant background) is the first guess of the sub-pixel search,
+    // which finds the maximum from there. A wider one: climb to the integer
+    // maximum of the best scale's response (its top is flat, the brightest
+    // pixel can be several pixels off), and take the guess from the
+    // parabola through the responses at c − 1, c, c + 1.
+    let vertex = |l: i64, m: i64, r: i64| -> i32 {
+        // (l − r) / (2 (l − 2m + r)) in phases, when the three bend down.
+        let (den, num) = (l - 2 * m + r, l - r);
+        if den < 0 && num.unsigned_abs() < den.unsigned_abs() {
+            // |δ| · 16 = |num| / |den| · 8; δ has the sign of r − l.
+            let q = ratio_q(num.abs(), -den, 3) as i32;
+            if num < 0 { q } else { -q }
         } else {
-            break;
+            0
         }
-        resp[kb] = right.max(left);
-        moved = true;
+    };
+    let guess = if RUNGS[kb].scale_q16 < 4 << 16 {
+        if c > 0 && c + 1 < n { vertex(x[c - 1] as i64, x[c] as i64, x[c + 1] as i64) } else { 0 }
+    } else {
+        let mut best = resp[1];
+        let mut left = if c > 0 { response_q8(x, c - 1, kb) } else { i64::MIN };
+        let mut right = if c + 1 < n { response_q8(x, c + 1, kb) } else { i64::MIN };
+        let mut moved = 0;
+        while moved < 6 {
+            if right > best && right >= left {
+                c += 1;
+                (left, best) = (best, right);
+                right = if c + 1 < n { response_q8(x, c + 1, kb) } else { i64::MIN };
+            } else if left > best {
+                c -= 1;
+                (right, best) = (best, left);
+                left = if c > 0 { response_q8(x, c - 1, kb) } else { i64::MIN };
+            } else {
+                break;
+            }
+            moved += 1;
+        }
+        if moved > 0 {
+            (kb, resp) = climb_scale(c, kb);
+        }
+        if left != i64::MIN && right != i64::MIN { vertex(left, best, right) } else { 0 }
+    };
+    // The responses read `half_len` of the widest rung evaluated each side.
+    if !v.fits(c, RUNGS[(kb + 1).min(w_hi)].half_len + 1) {
+        return Err(Wider);
     }
-    if moved {
-        kb = best_scale(c, &mut resp);
-    }
-    let r0 = resp[kb];
+    let r0 = resp[1];
     if r0 <= 0 {
-        return None;
+        return Ok(None);
     }
     let mut flags = Flags::NONE;
     // Width: parabola through the neighbouring rungs (log-scale axis).
-    let (rm, rp) = (resp[kb.saturating_sub(1)], resp[(kb + 1).min(kernels::LADDER_LEN - 1)]);
+    let [rm, _, rp] = resp;
     let dk_q16: i64 = if kb > 0 && rm != i64::MIN && rp != i64::MIN {
-        let den = rm - 2 * r0 + rp;
-        if den < 0 { (((rm - rp) << 15) / den).clamp(-32768, 32768) } else { 0 }
+        let (den, num) = (rm - 2 * r0 + rp, rm - rp);
+        // (rm − rp) / (2 den) in Q16, |·| ≤ ½: a 32-bit division (`ratio_q`).
+        if den < 0 {
+            let q = ratio_q(num.abs(), -den, 15);
+            if num < 0 { q } else { -q }
+        } else {
+            0
+        }
     } else {
         0
     };
@@ -283,12 +412,12 @@ pub(crate) fn confirm(v: &RowView<'_>, c0: usize) -> Option<Confirmed> {
     let thr = (noise_resp_q8 * v.cfg.threshold_sigma_q8 as i64) >> 8;
     let amplitude = (r0 * RUNGS[kb].amp_inv) >> 24;
     if r0 <= thr || amplitude < v.cfg.min_amplitude as i64 || width < v.cfg.min_width || width > v.cfg.max_width {
-        return None;
+        return Ok(None);
     }
     if r0 < 2 * thr {
         flags.insert(Flags::LOW_CONFIDENCE);
     }
-    Some(Confirmed { c, kb, dk_q16, width, amplitude, flags })
+    Ok(Some(Confirmed { c, kb, dk_q16, width, amplitude, flags, guess }))
 }
 
 #[cfg(test)]
@@ -331,14 +460,14 @@ mod tests {
                                 if j >= d.len() {
                                     break;
                                 }
-                                s += at(c as isize + m as isize) * d[j] as i64;
+                                s += at(c as isize + m as isize) * d.at(j) as i64;
                             }
                             for m in 0.. {
                                 let j = m * PHASES + p;
                                 if j >= d.len() {
                                     break;
                                 }
-                                s -= at(c as isize - m as isize) * d[j] as i64;
+                                s -= at(c as isize - m as isize) * d.at(j) as i64;
                             }
                             assert_eq!(slope_at(x, c as isize, p, d), s, "k {k} c {c} p {p} n {n}");
                         }

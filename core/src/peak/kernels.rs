@@ -15,7 +15,8 @@ pub struct Rung {
     pub half_len: usize,
     /// Start of this rung's half-kernel in [`RICKER`] (offsets 0..=half_len).
     pub ricker_off: usize,
-    /// Start of this rung's half-kernel in [`DERIV`] (sub-pixel offsets 0..=half_len·PHASES).
+    /// Start of this rung's half-kernel in [`DERIV`] (sub-pixel offsets
+    /// 0..=half_len·PHASES, stored phase-major: see [`Deriv`]).
     pub deriv_off: usize,
     /// Response normalisation: `R_q8 = (Σ x·ricker) · norm >> NORM_SHIFT` is
     /// the `s^(−3/2)`-normalised Ricker response in counts × 256.
@@ -44,10 +45,64 @@ pub fn ricker(k: usize) -> &'static [i16] {
     &RICKER[r.ricker_off..=r.ricker_off + r.half_len]
 }
 
+/// The odd derivative half-kernel of one rung at sub-pixel offsets
+/// `j / PHASES`, `j = 0..=half_len·PHASES`, stored phase-major: the taps of
+/// residue `r = j mod PHASES` are contiguous (`half_len + 1` of them for
+/// `r = 0`, `half_len` for the others), so an evaluation at one phase reads
+/// two contiguous runs instead of every sixteenth tap.
+#[derive(Clone, Copy, Debug)]
+pub struct Deriv {
+    taps: &'static [i16],
+    half_len: usize,
+}
+
+impl Deriv {
+    /// The taps an evaluation at `k + p/PHASES` applies right of `k` (to
+    /// `x[k+1], x[k+2], …`: offsets `m − p/PHASES`, `m ≥ 1`, to `half_len`).
+    #[inline]
+    pub fn right(self, p: usize) -> &'static [i16] {
+        if p == 0 { &self.phase(0)[1..] } else { self.phase(PHASES - p) }
+    }
+
+    /// The taps applied at and left of `k` (to `x[k], x[k−1], …`: offsets
+    /// `−(m + p/PHASES)`, `m ≥ 0`, to `half_len`), to be subtracted.
+    #[inline]
+    pub fn left(self, p: usize) -> &'static [i16] {
+        self.phase(p)
+    }
+
+    /// Half length in whole pixels (the offsets reach `half_len` px).
+    pub fn half_len(self) -> usize {
+        self.half_len
+    }
+
+    /// Number of offsets (`half_len · PHASES + 1`).
+    pub fn len(self) -> usize {
+        self.taps.len()
+    }
+
+    /// Never empty (a rung has at least one tap).
+    pub fn is_empty(self) -> bool {
+        self.taps.is_empty()
+    }
+
+    /// The taps at offsets `r/PHASES + m`, `m = 0, 1, …` (within the kernel).
+    #[inline]
+    pub fn phase(self, r: usize) -> &'static [i16] {
+        let l = self.half_len;
+        if r == 0 { &self.taps[..=l] } else { &self.taps[l + 1 + (r - 1) * l..][..l] }
+    }
+
+    /// The tap at offset `j / PHASES`.
+    pub fn at(self, j: usize) -> i16 {
+        self.phase(j % PHASES)[j / PHASES]
+    }
+}
+
 /// The odd derivative half-kernel of rung `k` at sub-pixel offsets j/PHASES.
-pub fn deriv(k: usize) -> &'static [i16] {
+pub fn deriv(k: usize) -> Deriv {
     let r = &RUNGS[k];
-    &DERIV[r.deriv_off..=r.deriv_off + r.half_len * PHASES]
+    Deriv { taps: &DERIV[r.deriv_off..=r.deriv_off + r.half_len * PHASES], half_len: r.half_len }
 }
 
 /// The paper's Eq. (2)+(4) half-kernel at integer scale `s` (1..=PAPER_MAX_SCALE).
@@ -94,11 +149,14 @@ mod tests {
     fn deriv_tables_are_odd_and_peak_at_one() {
         for k in 0..LADDER_LEN {
             let d = deriv(k);
-            assert_eq!(d[0], 0);
-            let max = d.iter().copied().max().unwrap();
+            assert_eq!(d.at(0), 0);
+            let max = (0..d.len()).map(|j| d.at(j)).max().unwrap();
             assert!((31_990..=32_000).contains(&max), "rung {k}: {max}");
             // Truncated at 5 s: the last tap is tiny.
-            assert!(d.last().unwrap().unsigned_abs() < 20, "rung {k}");
+            assert!(d.at(d.len() - 1).unsigned_abs() < 20, "rung {k}");
+            // The phases tile the offsets exactly once.
+            let total: usize = (0..PHASES).map(|r| d.phase(r).len()).sum();
+            assert_eq!(total, d.len());
         }
     }
 

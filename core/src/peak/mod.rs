@@ -6,39 +6,48 @@
 //!
 //! # Pipeline
 //! Every method shares the front end, so a comparison between methods is a
-//! comparison of sub-pixel estimators, not of detection luck:
+//! comparison of sub-pixel estimators, not of detection luck. It is built
+//! for the sensor's rate (16 667 instructions per 752-px row at 28 800
+//! rows/s and 480 MHz): the only work over every pixel is the screen; the
+//! rest is local to a candidate.
 //!
-//! 1. **Copy** the row to `i32` (values above saturation clamped) and, in the
-//!    same pass, every third absolute second difference.
-//! 2. **Noise**: a robust pixel-noise σ, the median of those ([`median`]:
-//!    counted into a log-binned histogram as they are made, then the exact
-//!    median from the one bin that holds it; O(n), no allocation).
-//! 3. **Hot pixels** (paper §4, fixed-pattern noise): a single pixel that is a
-//!    local maximum, stands > 8.6 σ above its neighbours' mean, and is more
-//!    peaked than any Gaussian of the minimum stripe width could be
-//!    (`u₀² > e^(1/σ_min²)·u₋u₊` after background removal — a Gaussian has
-//!    exactly `u₀² = e^(1/σ²)·u₋u₊` at every position, centre or flank) is
-//!    replaced by the geometric mean of its neighbours.
-//! 4. **Coarse pass** ([`coarse`]): the row smoothed by a cascade of three
-//!    box filters (integer running sums: O(1) per pixel whatever the scale)
-//!    and a second difference — a Ricker response at one scale in O(n).
-//!    Candidates are its local maxima above `threshold × robust σ` of the
-//!    response (and above the absolute floor).
-//! 5. **Refinement** of each candidate by the chosen [`Method`] in a window
-//!    of a few scales: work per row is O(n) + O(candidates × scales × kernel),
-//!    never O(n × scales × kernel).
-//! 6. **Selection**: minimum separation, then strongest / first / last / all,
+//! 1. **Noise, per frame** ([`Detector::refresh_noise`], and every
+//!    [`NOISE_ROWS`] rows): a robust pixel-noise σ (the median absolute
+//!    second difference, read straight from the row: [`screen::pixel_noise_q8`],
+//!    [`median`]) and the robust σ of the screen's response. Noise and fixed
+//!    pattern are stationary within a frame; a median per row was a fifth of
+//!    the old cost.
+//! 2. **Screen** ([`screen`]): block sums at the stripe's scale (one load and
+//!    one add per pixel, from the sensor's `u8`/`u16` row, no copy) and a
+//!    difference of boxes over them; candidates are its local maxima above a
+//!    constant-false-alarm threshold (0.6 × the detection threshold × its
+//!    robust σ, or the absolute floor).
+//! 3. **Window** ([`coarse`]): per candidate, the pixels the estimators can
+//!    read are copied (values above saturation clamped) and, in the same
+//!    pass, screened for hot and stuck pixels — single pixels and pairs at
+//!    any level up to full scale, repaired when no Gaussian of the minimum
+//!    width could be that peaked ([`coarse::repair_spikes`]). A stripe wider
+//!    than the first window asks for a wider one.
+//! 4. **Detection** at the candidate's brightest pixel (the multi-scale
+//!    test of `cwt::confirm`: scale and position by climbing, response
+//!    above `threshold ×` its noise, width in range), then the chosen
+//!    [`Method`]'s sub-pixel estimate. Work per row is O(n) for the screen
+//!    plus O(candidates × (window + scales × kernel)).
+//! 5. **Selection**: minimum separation, then strongest / first / last / all,
 //!    output in ascending position.
 //!
 //! Saturated stripes (a run of pixels at the saturation level) are one stripe
 //! whatever the method: centred on the run, refined by the interpolated
-//! crossings of the half-level on both flanks, and flagged.
+//! crossings of the half-level on both flanks, and flagged — when their width
+//! and height say they are stripes; a stuck pixel or pair at full scale is
+//! repaired before it can be taken for one.
 
 pub mod coarse;
 pub mod cwt;
 pub mod kernels;
 pub mod median;
 pub mod paper;
+pub mod screen;
 pub mod subpixel;
 
 use crate::fixed::Px;
@@ -54,6 +63,13 @@ pub const MIN_ROW: usize = 5;
 pub trait Pixel: Copy {
     /// The pixel's value.
     fn value(self) -> i32;
+
+    /// The sum of four pixels that are all below 2^15 (the screen's block
+    /// sums on rows of up to 15 bits; any sum the type allows otherwise).
+    #[inline(always)]
+    fn sum4_narrow(q: &[Self; 4]) -> i32 {
+        (q[0].value() + q[1].value()) + (q[2].value() + q[3].value())
+    }
 }
 impl Pixel for u8 {
     fn value(self) -> i32 {
@@ -63,6 +79,17 @@ impl Pixel for u8 {
 impl Pixel for u16 {
     fn value(self) -> i32 {
         self as i32
+    }
+
+    /// Two pixels per 32-bit word: the two words added lane by lane (no
+    /// carry between the lanes while each pixel is below 2^15), then the
+    /// lanes: two loads and three operations instead of four and three.
+    #[inline(always)]
+    fn sum4_narrow(q: &[u16; 4]) -> i32 {
+        let lo = u32::from(q[0]) | (u32::from(q[1]) << 16);
+        let hi = u32::from(q[2]) | (u32::from(q[3]) << 16);
+        let s = lo.wrapping_add(hi);
+        ((s & 0xffff) + (s >> 16)) as i32
     }
 }
 
@@ -322,6 +349,21 @@ pub(crate) struct Plan {
     pub spike_k_q16: i64,
     /// Largest scale rounded up, px.
     pub smax_px: usize,
+    /// Smallest scale rounded down (at least 1), px: the screen's absolute
+    /// floor is `min_amplitude` × this.
+    pub smin_floor_px: usize,
+    /// log2 of the screen's block width, px ([`screen::block_log2`]).
+    pub block_log2: u32,
+    /// √(4B), Q8: the screen response's σ per count of white pixel noise.
+    pub screen_white_q8: i64,
+    /// How far from its start pixel a candidate's estimators read, px, at
+    /// most (stripes up to the width limit) and for stripes up to the scale
+    /// range's top: the window first copied is the second, plus the screen's
+    /// uncertainty each side; a wider stripe asks for the first.
+    pub reach_px: usize,
+    pub typ_reach_px: usize,
+    /// How far a baseline estimator reads from the confirmed pixel, px.
+    pub method_reach_px: usize,
 }
 
 fn rung_floor(px: Px) -> usize {
@@ -383,7 +425,38 @@ impl Plan {
         let spike_k_q16 = (exp_small(1.0 / (w * w)) * 65536.0) as i64;
         let k_width_lo = rung_floor(cfg.min_width).saturating_sub(1).min(k_lo);
         let k_width_hi = (rung_ceil(cfg.max_width) + 1).min(kernels::LADDER_LEN - 4).max(k_hi);
+        // Reach of the estimators from the candidate's start pixel: the
+        // Ricker responses out to the width limit's rung, the position climb
+        // (3 px) and the slope's bracket (3 px more) on the widest fit rung a
+        // stripe within the width limits can get (1.5 × max_width, plus the
+        // rounding), and the baselines' own windows.
+        let rung_half = |k: usize| kernels::RUNGS[k.min(kernels::LADDER_LEN - 1)].half_len;
+        let fit_max = rung_ceil(Px(((cfg.max_width.0 as i64 * 3) / 2).min(i32::MAX as i64) as i32)) + 1;
+        let smax_px = (smax.0 as usize).div_ceil(65536);
+        let cwt_reach = rung_half(k_width_hi).max(rung_half(fit_max)) + 8;
+        let paper_reach = 2 * smax_px + kernels::PAPER_RUNGS[paper_hi.min(kernels::PAPER_MAX_SCALE) - 1].1 + 2;
+        let c = &kernels::RUNGS[k_coarse];
+        let base_reach = 4 * smax_px + 3 + 3 * c.box_half + c.lag + 2;
+        let method_reach_px = match cfg.method {
+            Method::Cwt => 0,
+            Method::CwtPaper => paper_reach,
+            _ => base_reach,
+        };
+        let reach_px = cwt_reach.max(method_reach_px + 6);
+        // The first window: a stripe up to the middle of the scale range
+        // (its fit rung is 2–3 rungs above it; the sub-pixel search stays
+        // within a pixel and reads one more). Wider ones, and a search that
+        // has to fall back to the whole-pixel bracket, ask for the full
+        // reach, at the price of a second copy.
+        let k_mid = (k_lo + k_hi).div_ceil(2);
+        let typ_reach_px = (rung_half(k_mid + 3) + 2).max(method_reach_px + 6).min(reach_px);
         Ok(Plan {
+            smin_floor_px: ((smin.0 as usize) >> 16).max(1),
+            block_log2: screen::block_log2(geo as i32),
+            screen_white_q8: (((4u64 << screen::block_log2(geo as i32)) << 16).isqrt()) as i64,
+            reach_px,
+            typ_reach_px,
+            method_reach_px,
             k_lo,
             k_hi,
             k_width_lo,
@@ -392,7 +465,7 @@ impl Plan {
             paper_lo,
             paper_hi,
             spike_k_q16,
-            smax_px: (smax.0 as usize).div_ceil(65536),
+            smax_px,
         })
     }
 }
@@ -406,20 +479,58 @@ pub struct Candidate {
     pub resp: i32,
 }
 
-/// Read-only view of one row's buffers, handed to the estimators.
+/// Read-only view of one candidate's window, handed to the estimators.
+///
+/// The window is a copy of the row around the candidate (hot and stuck
+/// pixels repaired) at row offset `off`; it reaches further than any
+/// estimator reads ([`Plan::reach_px`]), so within it every estimator sees
+/// what it would see in the whole row, except where the window ends at the
+/// row's own ends (edges replicate there, as before).
 pub(crate) struct RowView<'a> {
-    /// The row (hot pixels repaired).
+    /// The window (hot pixels repaired).
     pub x: &'a [i32],
-    /// The row low-pass filtered by the coarse box cascade.
+    /// The window low-pass filtered by the coarse box cascade (only for the
+    /// methods that use it; empty otherwise).
     pub g: &'a [i32],
     pub cfg: &'a Config,
     pub plan: &'a Plan,
     /// Robust pixel-noise σ, counts × 256.
     pub noise_q8: i32,
+    /// Row index of `x[0]`.
+    pub off: usize,
+    /// Length of the whole row.
+    pub row_len: usize,
 }
 
-/// The laser-stripe detector: configuration validated once, buffers for rows
-/// of up to `W` pixels (4 × `W` × 4 bytes).
+impl RowView<'_> {
+    /// Whether `reach` pixels either side of window index `c` run past the
+    /// row's (not the window's) ends.
+    pub fn clipped(&self, c: usize, reach: usize) -> bool {
+        c + self.off < reach || c + self.off + reach >= self.row_len
+    }
+
+    /// Whether the window holds `reach` pixels either side of `c`, or ends
+    /// where the row does on a side where it does not.
+    pub fn fits(&self, c: usize, reach: usize) -> bool {
+        (c >= reach || self.off == 0) && (c + reach < self.x.len() || self.off + self.x.len() == self.row_len)
+    }
+}
+
+/// Rows between two refreshes of the noise estimates (pixel noise and the
+/// screen's σ): they are stationary within a frame, so measuring them on
+/// one row in 32 (and on the first row after [`Detector::refresh_noise`],
+/// which the sensor head calls at every frame) costs a thirty-second of two
+/// medians per row.
+pub const NOISE_ROWS: u16 = 32;
+
+/// The screen's threshold as a fraction of the detection threshold, Q8
+/// (0.6): the screen only nominates; the multi-scale test at the candidate
+/// decides, at the full threshold.
+const SCREEN_FRACTION_Q8: i64 = 154;
+
+/// The laser-stripe detector: configuration validated once, buffers for
+/// windows of up to `W` pixels (4 × `W` × 4 bytes), and the noise
+/// estimates carried from row to row.
 pub struct Detector<const W: usize> {
     cfg: Config,
     plan: Plan,
@@ -427,6 +538,14 @@ pub struct Detector<const W: usize> {
     g: [i32; W],
     r: [i32; W],
     s: [i32; W],
+    /// Robust pixel-noise σ, counts × 256 (refreshed every [`NOISE_ROWS`]).
+    noise_q8: i32,
+    /// Robust σ of the screen's block response, counts × 256.
+    screen_sigma_q8: i32,
+    /// Rows until the next refresh (0: the next row refreshes).
+    refresh_in: u16,
+    /// Row length the estimates were made on.
+    noise_len: usize,
     stats: RowStats,
 }
 
@@ -434,7 +553,19 @@ impl<const W: usize> Detector<W> {
     /// Validates `cfg` and builds the detector.
     pub fn new(cfg: Config) -> Result<Self, Error> {
         let plan = Plan::new(&cfg)?;
-        Ok(Detector { cfg, plan, x: [0; W], g: [0; W], r: [0; W], s: [0; W], stats: RowStats::default() })
+        Ok(Detector {
+            cfg,
+            plan,
+            x: [0; W],
+            g: [0; W],
+            r: [0; W],
+            s: [0; W],
+            noise_q8: 0,
+            screen_sigma_q8: 0,
+            refresh_in: 0,
+            noise_len: 0,
+            stats: RowStats::default(),
+        })
     }
 
     /// The configuration in force.
@@ -445,6 +576,12 @@ impl<const W: usize> Detector<W> {
     /// What the front end saw in the last row.
     pub fn stats(&self) -> RowStats {
         self.stats
+    }
+
+    /// Makes the next row measure the noise afresh (a new frame, a new
+    /// exposure): the estimates otherwise last [`NOISE_ROWS`] rows.
+    pub fn refresh_noise(&mut self) {
+        self.refresh_in = 0;
     }
 
     /// Finds the stripes of `row` into `out` (cleared first), ascending position.
@@ -459,35 +596,120 @@ impl<const W: usize> Detector<W> {
             return Ok(());
         }
         let sat = self.cfg.saturation as i32;
-        let x = &mut self.x[..n];
-        // Values above the bit depth cannot come from the sensor; clamp them to
-        // the saturation level rather than let them masquerade as signal.
-        let noise_q8 = coarse::load_row(row, sat, x, &mut self.s[..n]);
+        let lb = self.plan.block_log2;
+        let screened = screen::screens(n, lb);
+        let narrow = self.cfg.bits <= 15;
+        if self.refresh_in == 0 || self.noise_len != n {
+            self.noise_q8 = screen::pixel_noise_q8(row, sat, &mut self.s[..n]);
+            self.screen_sigma_q8 = if screened {
+                let m = screen::responses(row, lb, &mut self.s[..n]);
+                // A short row has few blocks, and its stripes' responses can
+                // be most of them: the median is then the stripes', not the
+                // noise's. So at most twice what white noise of the pixels'
+                // σ gives (`R` sums 4B pixels of weight ±1: σ·√(4B)); fixed
+                // pattern that the difference of boxes passes stays in.
+                let white_q8 = (self.noise_q8 as i64 * self.plan.screen_white_q8) >> 8;
+                (screen::sigma_q8(&mut self.s[..m]) as i64).min(2 * white_q8).clamp(0, i32::MAX as i64) as i32
+            } else {
+                0
+            };
+            self.refresh_in = NOISE_ROWS;
+            self.noise_len = n;
+        }
+        self.refresh_in -= 1;
+        let noise_q8 = self.noise_q8;
         self.stats.noise_q8 = noise_q8;
-        self.stats.spikes = coarse::remove_spikes(x, noise_q8, self.plan.spike_k_q16, sat);
-        let rung = &kernels::RUNGS[self.plan.k_coarse];
-        coarse::response(x, &mut self.r[..n], &mut self.s[..n], &mut self.g[..n], rung);
-        let resp_sigma_q8 = coarse::abs_median_sigma_q8(&self.r[..n], &mut self.s[..n]);
-        let thr_noise = (resp_sigma_q8 as i64 * self.cfg.threshold_sigma_q8 as i64) >> 16;
-        let thr_abs = (self.cfg.min_amplitude as i64 * rung.coarse_gain_q8) >> 8;
-        let threshold = thr_noise.max(thr_abs).max(1).min(i32::MAX as i64) as i32;
-        let cands = coarse::candidates(&self.r[..n], threshold);
+        let mut cands: Vec<Candidate, MAX_CANDIDATES> = Vec::new();
+        if screened {
+            let thr_noise =
+                (self.screen_sigma_q8 as i64 * self.cfg.threshold_sigma_q8 as i64 * SCREEN_FRACTION_Q8) >> 24;
+            let thr_abs = self.cfg.min_amplitude as i64 * self.plan.smin_floor_px as i64;
+            let threshold = thr_noise.max(thr_abs).max(1).min(i32::MAX as i64) as i32;
+            screen::candidates(row, lb, narrow, threshold, &mut cands);
+        } else {
+            // Too short to screen: the whole row is one candidate.
+            let _ = cands.push(Candidate { pos: n / 2, resp: 0 });
+        }
         self.stats.candidates = cands.len() as u16;
 
-        let view = RowView { x: &self.x[..n], g: &self.g[..n], cfg: &self.cfg, plan: &self.plan, noise_q8 };
+        // A candidate's stripe peaks within its response's centre window,
+        // ±B of the block boundary: the brightest pixel is sought there.
+        let block = 1usize << lb;
+        let near = block + 1;
+        let needs_g = matches!(self.cfg.method, Method::CogFiltered | Method::FirZero);
         let mut found: Vec<Stripe, MAX_CANDIDATES> = Vec::new();
         let mut runs_used: Vec<(usize, usize), MAX_CANDIDATES> = Vec::new();
+        let level = coarse::spike_screen_level(noise_q8);
+        let mut hits: Vec<usize, { coarse::MAX_SPIKES }> = Vec::new();
         for c in &cands {
-            let reach = rung.lag + 3 * rung.box_half + 1;
-            let stripe = match coarse::saturated_run(view.x, c.pos, reach, sat) {
-                Some(run) => {
-                    if runs_used.contains(&run) {
-                        continue;
-                    }
-                    let _ = runs_used.push(run);
-                    saturated_stripe(&view, run, sat)
+            // The first window is centred on the brightest pixel of the raw
+            // row where the screen responded: the estimators start there, so
+            // it needs their reach only (a stuck pixel there moves it; the
+            // start is sought again after the repair, and a window that is
+            // then too short asks for the wide one).
+            let (a0, b0) = (c.pos.saturating_sub(near), (c.pos + near).min(n - 1));
+            let bright = if screened { argmax_raw(&row[a0..=b0]) + a0 } else { n / 2 };
+            let mut centre = bright;
+            let mut reach = self.plan.typ_reach_px;
+            let stripe = loop {
+                let (lo, hi) =
+                    if screened { (centre.saturating_sub(reach), (centre + reach + 1).min(n)) } else { (0, n) };
+                let w = hi - lo;
+                let x = &mut self.x[..w];
+                coarse::load_window(&row[lo..hi], sat, level, x, &mut hits);
+                let spikes = coarse::repair_spikes(x, &hits, noise_q8, self.plan.spike_k_q16);
+                if needs_g {
+                    let rung = &kernels::RUNGS[self.plan.k_coarse];
+                    coarse::response(x, &mut self.r[..w], &mut self.s[..w], &mut self.g[..w], rung);
                 }
-                None => refine(&view, *c),
+                let x = &self.x[..w];
+                // The brightest pixel where the screen responded (after the
+                // repair, so a stuck pixel does not pull the start away from
+                // a stripe beside it).
+                let start = if screened && spikes == 0 && (lo..hi).contains(&bright) {
+                    // Nothing repaired: the same pixel (up to ties among
+                    // values above saturation, which the copy clamps).
+                    bright - lo
+                } else {
+                    let (a, b) = if screened { (a0.max(lo) - lo, b0.min(hi - 1) - lo) } else { (0, w - 1) };
+                    argmax(&x[a..=b]) + a
+                };
+                let view = RowView {
+                    x,
+                    g: if needs_g { &self.g[..w] } else { &[] },
+                    cfg: &self.cfg,
+                    plan: &self.plan,
+                    noise_q8,
+                    off: lo,
+                    row_len: n,
+                };
+                // `start` is the first brightest pixel within `near`: a
+                // saturated run there includes it.
+                let run = if x[start] >= sat { coarse::saturated_run(view.x, start, near, sat) } else { None };
+                let got = match run {
+                    Some((s, e)) => {
+                        let run = (s + lo, e + lo);
+                        if runs_used.contains(&run) {
+                            Ok(None)
+                        } else {
+                            let _ = runs_used.push(run);
+                            Ok(saturated_stripe(&view, (s, e), sat))
+                        }
+                    }
+                    None => refine(&view, start),
+                };
+                match got {
+                    Err(cwt::Wider) if reach < self.plan.reach_px + near => {
+                        (centre, reach) = (c.pos, self.plan.reach_px + near);
+                    }
+                    got => {
+                        self.stats.spikes = self.stats.spikes.saturating_add(spikes);
+                        break got.ok().flatten().map(|mut s| {
+                            s.position = Px(s.position.0 + ((lo as i32) << 16));
+                            s
+                        });
+                    }
+                }
             };
             if let Some(s) = stripe
                 && (s.width >= self.cfg.min_width && s.width <= self.cfg.max_width
@@ -501,22 +723,51 @@ impl<const W: usize> Detector<W> {
     }
 }
 
-fn refine(v: &RowView<'_>, c: Candidate) -> Option<Stripe> {
-    match v.cfg.method {
-        Method::Cwt => cwt::refine(v, c.pos),
+/// Index of the first maximum of a slice of pixels (0 if empty).
+fn argmax_raw<P: Pixel>(x: &[P]) -> usize {
+    let (mut best, mut top) = (0, i32::MIN);
+    for (i, p) in x.iter().enumerate() {
+        if p.value() > top {
+            (best, top) = (i, p.value());
+        }
+    }
+    best
+}
+
+/// Index of the first maximum of a slice (0 if empty).
+fn argmax(x: &[i32]) -> usize {
+    let (mut best, mut top) = (0, i32::MIN);
+    for (i, &v) in x.iter().enumerate() {
+        if v > top {
+            (best, top) = (i, v);
+        }
+    }
+    best
+}
+
+fn refine(v: &RowView<'_>, start: usize) -> Result<Option<Stripe>, cwt::Wider> {
+    Ok(match v.cfg.method {
+        Method::Cwt => return cwt::refine(v, start),
         // The other methods detect through the same multi-scale test, then
         // apply their own sub-pixel estimate; a coarse candidate that the
         // test rejects (noise, a hot pixel, a glow) is no stripe for any.
         m => {
-            let ok = cwt::confirm(v, c.pos)?;
-            let mut s = match m {
+            let Some(ok) = cwt::confirm(v, start)? else {
+                return Ok(None);
+            };
+            if !v.fits(ok.c, v.plan.method_reach_px) {
+                return Err(cwt::Wider);
+            }
+            let Some(mut s) = (match m {
                 Method::CwtPaper => paper::refine(v, ok.c),
                 m => subpixel::refine(v, ok.c, m),
-            }?;
+            }) else {
+                return Ok(None);
+            };
             s.flags.insert(Flags(ok.flags.0 & Flags::LOW_CONFIDENCE.0));
             Some(s)
         }
-    }
+    })
 }
 
 /// One stripe from a saturated run `[s, e]`: centre of the half-level
@@ -556,19 +807,35 @@ fn saturated_stripe(v: &RowView<'_>, (s, e): (usize, usize), sat: i32) -> Option
         }
     };
     // 27_830 / 65536 = 1/2.3548: full width at half level → σ of a Gaussian
-    // (an underestimate for a strongly saturated stripe; flagged as such).
-    Some(Stripe { position, strength: (sat - bg).max(0) as u32, width, flags })
+    // (the half level is below the clipped stripe's true half maximum, so
+    // this errs wide: a stripe of σ ≥ σ_min is never measured narrower).
+    // A saturated run is a stripe only if it is one by its width and it
+    // stands out of the noise as the detection test demands of any stripe
+    // (at the pixel level: the height above the background over `threshold
+    // × σ`): a stuck pixel or pair at full scale is neither.
+    let strength = (sat - bg).max(0) as i64;
+    let floor = ((v.noise_q8 as i64 * v.cfg.threshold_sigma_q8 as i64) >> 16).max(v.cfg.min_amplitude as i64).max(1);
+    if width < v.cfg.min_width || strength < floor {
+        return None;
+    }
+    Some(Stripe { position, strength: strength as u32, width, flags })
 }
 
 /// Minimum separation, then the selection rule; output sorted by position.
 fn select<const N: usize>(found: &mut Vec<Stripe, MAX_CANDIDATES>, cfg: &Config, out: &mut Stripes<N>) {
     found.sort_unstable_by(|a, b| b.strength.cmp(&a.strength).then(a.position.cmp(&b.position)));
-    let mut kept: Vec<Stripe, MAX_CANDIDATES> = Vec::new();
-    for s in found.iter() {
-        if kept.iter().all(|k| k.position.abs_diff(s.position) >= cfg.min_separation) {
-            let _ = kept.push(*s);
+    // In place: the first `k` are the ones kept so far (no second buffer to
+    // fill and copy out).
+    let mut k = 0;
+    for i in 0..found.len() {
+        let s = found[i];
+        if found[..k].iter().all(|kept| kept.position.abs_diff(s.position) >= cfg.min_separation) {
+            found[k] = s;
+            k += 1;
         }
     }
+    found.truncate(k);
+    let kept = found;
     let limit = match cfg.select {
         Select::All => N,
         _ => (cfg.max_stripes as usize).min(N),
@@ -585,7 +852,7 @@ fn select<const N: usize>(found: &mut Vec<Stripe, MAX_CANDIDATES>, cfg: &Config,
         }
     }
     kept.sort_unstable_by_key(|s| s.position);
-    for s in kept {
-        let _ = out.push(s);
+    for s in kept.iter() {
+        let _ = out.push(*s);
     }
 }

@@ -62,7 +62,7 @@ pub(crate) fn refine(v: &RowView<'_>, c: usize) -> Option<Stripe> {
     }
     let position = Px(((stw << 16) / sw.max(1)) as i32);
     let mut flags = Flags::NONE;
-    if c < reach || c + reach >= n {
+    if v.clipped(c, reach) {
         flags.insert(Flags::CLIPPED);
     }
     // With Eq. (2)'s normalisation a Gaussian of σ responds most at s = √5 σ.

@@ -182,7 +182,7 @@ pub(crate) fn refine(v: &RowView<'_>, c: usize, method: Method) -> Option<Stripe
         return None;
     }
     let mut flags = Flags::NONE;
-    if b == 0 || b + 1 >= n {
+    if v.clipped(b, 1) {
         flags.insert(Flags::CLIPPED);
     }
     let three = |b: usize| -> Option<(i32, i32, i32)> {

@@ -1,15 +1,15 @@
-//! The detector's front end (`cms_core::peak::coarse`, `peak::median`)
-//! against straightforward references, bit for bit.
+//! The detector's front end (`cms_core::peak::screen`, `peak::coarse`,
+//! `peak::median`) against straightforward references, bit for bit.
 //!
 //! The product's stages are fused, unrolled and histogram-based for speed
-//! on the Cortex-M4 (see `coarse.rs`); these references are the plain
-//! definitions — a sort for every median, a direct sum for every box
-//! output, clamped indices everywhere — so any input on which the fast code
-//! differs from the definition fails here.
+//! on the Cortex-M4 (see `screen.rs`, `coarse.rs`); these references are
+//! the plain definitions — a sort for every median, a direct sum for every
+//! block and box output, clamped indices everywhere — so any input on which
+//! the fast code differs from the definition fails here.
 
-use cms_core::peak::coarse;
 use cms_core::peak::kernels::{LADDER_LEN, RUNGS};
 use cms_core::peak::median::Histogram;
+use cms_core::peak::{MAX_CANDIDATES, coarse, screen};
 use proptest::prelude::*;
 
 /// The `k`-th smallest by sorting.
@@ -25,10 +25,47 @@ fn pixel_noise_ref(x: &[i32]) -> i32 {
     if v.is_empty() { 0 } else { kth_sorted(&v, v.len() / 2).saturating_mul(155) }
 }
 
-/// Robust response σ: median |r| of every third value, × 380.
-fn abs_median_ref(r: &[i32]) -> i32 {
-    let v: Vec<i32> = r.iter().step_by(3).map(|v| v.saturating_abs()).collect();
+/// Robust σ of the screen's responses: median |R| of all of them, × 380.
+fn screen_sigma_ref(r: &[i32]) -> i32 {
+    let v: Vec<i32> = r.iter().map(|v| v.saturating_abs()).collect();
     if v.is_empty() { 0 } else { kth_sorted(&v, v.len() / 2).saturating_mul(380) }
+}
+
+/// The screen's block responses by definition: block sums of `B` pixels
+/// (the last block aligned to the row's end), `B` × the edge pixel past
+/// either end, `R[j] = S[j] + S[j+1] − S[j−1] − S[j+2]` for `j` in `0..=m−2`.
+fn screen_ref(row: &[i32], log2_b: u32) -> Vec<i32> {
+    let (n, b) = (row.len(), 1usize << log2_b);
+    let m = n.div_ceil(b);
+    let mut s = vec![b as i32 * row[0]];
+    s.extend((0..m).map(|j| row[(j * b).min(n - b)..][..b].iter().sum::<i32>()));
+    s.push(b as i32 * row[n - 1]);
+    // s[k] is S[k − 1].
+    (0..m - 1).map(|j| s[j + 1] + s[j + 2] - s[j] - s[j + 3]).collect()
+}
+
+/// The screen's candidates by definition: local maxima of the responses
+/// (`R[j] > R[j−1]`, `R[j] ≥ R[j+1]`, nothing past the ends) above the
+/// threshold, at `(j + 1)·B` (clamped to the row), in order, the weakest
+/// replaced when the list is full.
+fn screen_candidates_ref(row: &[i32], log2_b: u32, threshold: i32) -> Vec<(usize, i32)> {
+    let r = screen_ref(row, log2_b);
+    let mut out: Vec<(usize, i32)> = Vec::new();
+    for j in 0..r.len() {
+        let left = if j == 0 { i32::MIN } else { r[j - 1] };
+        let right = if j + 1 == r.len() { i32::MIN } else { r[j + 1] };
+        if r[j] > threshold && r[j] > left && r[j] >= right {
+            let c = (((j + 1) << log2_b).min(row.len() - 1), r[j]);
+            if out.len() < MAX_CANDIDATES {
+                out.push(c);
+            } else if let Some((k, w)) = out.iter().enumerate().min_by_key(|(_, c)| c.1)
+                && w.1 < c.1
+            {
+                out[k] = c;
+            }
+        }
+    }
+    out
 }
 
 fn clamped(v: &[i32], i: isize) -> i32 {
@@ -53,57 +90,84 @@ fn response_ref(x: &[i32], k: usize) -> (Vec<i32>, Vec<i32>) {
     (g, r)
 }
 
-/// Candidates by definition: local maxima above the threshold, in order,
-/// the weakest replaced when the list is full.
-fn candidates_ref(r: &[i32], threshold: i32) -> Vec<(usize, i32)> {
-    let n = r.len();
-    let mut out: Vec<(usize, i32)> = Vec::new();
-    for i in 0..n {
-        let left = if i == 0 { i32::MIN } else { r[i - 1] };
-        let right = if i + 1 == n { i32::MIN } else { r[i + 1] };
-        // First pixel: ≥ its right neighbour; last: > its left one; inside: > left, ≥ right.
-        let is_max = if i == 0 { n == 1 || r[0] >= r[1] } else { r[i] > left && r[i] >= right };
-        if r[i] > threshold && is_max {
-            if out.len() < cms_core::peak::MAX_CANDIDATES {
-                out.push((i, r[i]));
-            } else if let Some((j, w)) = out.iter().enumerate().min_by_key(|(_, c)| c.1)
-                && w.1 < r[i]
-            {
-                out[j] = (i, r[i]);
-            }
-        }
-    }
-    out
+/// The first test of the spike screen: `2x[i] − x[i−1] − x[i+1] > level`.
+fn spike_hits_ref(x: &[i32], level: i32) -> Vec<usize> {
+    (1..x.len().saturating_sub(1))
+        .filter(|&i| 2 * x[i] - x[i - 1] - x[i + 1] > level)
+        .take(coarse::MAX_SPIKES)
+        .collect()
 }
 
-/// The hot-pixel screen and repair by definition.
-fn remove_spikes_ref(x: &mut [i32], noise_q8: i32, k_q16: i64, sat: i32) -> u16 {
+/// The hot- and stuck-pixel repair by definition (`coarse::repair_spikes`'s
+/// documentation), with plain indices.
+fn repair_ref(x: &mut [i32], hits: &[usize], noise_q8: i32, k_q16: i64) -> u16 {
     let n = x.len();
     if n < 3 {
         return 0;
     }
     let sigma = (noise_q8 as i64 + 128) >> 8;
-    let lin = ((noise_q8 as i64 * 7 * 627) >> 16).max(1).min(i32::MAX as i64) as i32;
+    let level = coarse::spike_screen_level(noise_q8) as i64;
     let margin = 3 * sigma;
-    let hits: Vec<usize> = (1..n - 1)
-        .filter(|&i| {
-            let (a, b, c) = (x[i - 1], x[i], x[i + 1]);
-            b > a && b > c && 2 * b - a - c > lin && b < sat
-        })
-        .take(coarse::MAX_SPIKES)
-        .collect();
-    let mut count = 0;
-    for i in hits {
-        let (a, b, c) = (x[i - 1] as i64, x[i] as i64, x[i + 1] as i64);
-        if b <= a || b <= c {
-            continue;
+    let k2 = (k_q16 * k_q16) >> 16;
+    let v = |x: &[i32], i: usize| x[i] as i64;
+    let d = |x: &[i32], i: usize| 2 * v(x, i) - v(x, i - 1) - v(x, i + 1);
+    let bg =
+        |x: &[i32], lo: usize, hi: usize| *x[lo.saturating_sub(3)..=(hi + 3).min(n - 1)].iter().min().unwrap() as i64;
+    // One pixel's tests: the pixels repaired, if any.
+    let test = |x: &mut [i32], i: usize| -> Option<(usize, usize)> {
+        if i == 0 || i + 1 >= n || d(x, i) <= level {
+            return None;
         }
-        let bg = x[i.saturating_sub(3)..=(i + 3).min(n - 1)].iter().copied().min().unwrap() as i64;
-        let (ua, ub, uc) = (a - bg, b - bg, c - bg);
-        let top = (ub - margin).max(0);
-        if top * top > (k_q16 * ((ua + margin) * (uc + margin))) >> 16 {
-            x[i] = (bg + ((ua.max(0) * uc.max(0)) as u64).isqrt() as i64) as i32;
-            count += 1;
+        let side = if i >= 2 && i + 2 < n { d(x, i - 1) + d(x, i + 1) } else { i64::MIN };
+        if side > level {
+            return None;
+        }
+        let (a, b, c) = (v(x, i - 1), v(x, i), v(x, i + 1));
+        // The pair with the brighter neighbour first, then the pixel alone.
+        let j = if c >= a { i } else { i - 1 };
+        if j >= 1 && j + 2 < n {
+            let (pa, p, q, pc) = (v(x, j - 1), v(x, j), v(x, j + 1), v(x, j + 2));
+            let outer_ok = if j >= 2 && j + 3 < n {
+                d(x, j - 1) + d(x, j + 2) < level - (d(x, j) + d(x, j + 1)) / 4
+            } else {
+                true
+            };
+            if p.min(q) > pa.max(pc) && outer_ok {
+                let g = bg(x, j, j + 1);
+                let top = (p - g - margin).max(0) * (q - g - margin).max(0);
+                if top > (k2 * ((pa - g + margin) * (pc - g + margin))) >> 16 {
+                    let (ua, uc) = ((pa - g).max(0) as u64, (pc - g).max(0) as u64);
+                    let mid = (ua * uc).isqrt();
+                    x[j] = (g + (ua * mid).isqrt() as i64) as i32;
+                    x[j + 1] = (g + (uc * mid).isqrt() as i64) as i32;
+                    return Some((j, j + 1));
+                }
+            }
+        }
+        if side < level - d(x, i) / 4 && b > a && b > c {
+            let g = bg(x, i, i);
+            let top = (b - g - margin).max(0);
+            if top * top > (k_q16 * ((a - g + margin) * (c - g + margin))) >> 16 {
+                x[i] = (g + (((a - g).max(0) * (c - g).max(0)) as u64).isqrt() as i64) as i32;
+                return Some((i, i));
+            }
+        }
+        None
+    };
+    // Each hit, then the pixels beside each repair that now pass the first
+    // test (last in, first out).
+    let mut count = 0;
+    for &h in hits {
+        let mut todo = vec![h];
+        while let Some(i) = todo.pop() {
+            if let Some((lo, hi)) = test(x, i) {
+                count += (hi - lo + 1) as u16;
+                for q in [lo.wrapping_sub(1), hi + 1] {
+                    if (1..n - 1).contains(&q) && d(x, q) > level && todo.len() < 8 {
+                        todo.push(q);
+                    }
+                }
+            }
         }
     }
     count
@@ -173,20 +237,45 @@ proptest! {
         prop_assert_eq!(h.kth(&mut scratch, k), kth_sorted(&v, k));
     }
 
-    /// Copy, clamp and noise in one pass equal the plain copy and the sorted median.
+    /// The noise straight from the row equals the plain copy's sorted median.
     #[test]
-    fn load_row_and_noise_match(x in depth().prop_flat_map(row), sat in 1i32..=65535) {
+    fn pixel_noise_matches(x in depth().prop_flat_map(row), sat in 1i32..=65535) {
         let row: Vec<u16> = x.iter().map(|&v| v as u16).collect();
         let copy: Vec<i32> = x.iter().map(|&v| v.min(sat)).collect();
-        let (mut out, mut scratch) = (vec![0; x.len()], vec![0; x.len()]);
-        let noise = coarse::load_row(&row, sat, &mut out, &mut scratch);
-        prop_assert_eq!(&out, &copy);
-        prop_assert_eq!(noise, pixel_noise_ref(&copy));
-        prop_assert_eq!(coarse::pixel_noise_q8(&copy, &mut scratch), pixel_noise_ref(&copy));
+        let mut scratch = vec![0; x.len()];
+        prop_assert_eq!(screen::pixel_noise_q8(&row, sat, &mut scratch), pixel_noise_ref(&copy));
         let bytes: Vec<u8> = x.iter().map(|&v| v.min(255) as u8).collect();
         let copy8: Vec<i32> = bytes.iter().map(|&v| (v as i32).min(sat)).collect();
-        prop_assert_eq!(coarse::load_row(&bytes, sat, &mut out, &mut scratch), pixel_noise_ref(&copy8));
-        prop_assert_eq!(&out, &copy8);
+        prop_assert_eq!(screen::pixel_noise_q8(&bytes, sat, &mut scratch), pixel_noise_ref(&copy8));
+    }
+
+    /// The screen's responses, their σ and its candidates equal the
+    /// definitions, for every block width and row length it accepts, both
+    /// pixel types, with two pixels per word (pixels below 2^15) and without.
+    #[test]
+    fn screen_matches(x in depth().prop_flat_map(row), log2_b in 1u32..=5, frac in 0.0f64..1.2) {
+        prop_assume!(screen::screens(x.len(), log2_b));
+        let narrow_x: Vec<i32> = x.iter().map(|&v| v & 0x7fff).collect();
+        for (narrow, x) in [(false, &x), (true, &narrow_x)] {
+            let row: Vec<u16> = x.iter().map(|&v| v as u16).collect();
+            let want = screen_ref(x, log2_b);
+            let mut got = vec![0; x.len()];
+            let m = screen::responses(&row, log2_b, &mut got);
+            prop_assert_eq!(&got[..m], &want[..]);
+            prop_assert_eq!(screen::sigma_q8(&mut got[..m]), screen_sigma_ref(&want));
+            let top = want.iter().copied().max().unwrap_or(0);
+            let mut cands = heapless::Vec::new();
+            for thr in [((top as f64 * frac) as i32).max(1), 1, i32::MIN + 1] {
+                screen::candidates(&row, log2_b, narrow, thr, &mut cands);
+                let got: Vec<(usize, i32)> = cands.iter().map(|c| (c.pos, c.resp)).collect();
+                prop_assert_eq!(got, screen_candidates_ref(x, log2_b, thr));
+            }
+            let bytes: Vec<u8> = x.iter().map(|&v| v.min(255) as u8).collect();
+            let x8: Vec<i32> = bytes.iter().map(|&v| v as i32).collect();
+            screen::candidates(&bytes, log2_b, narrow, 1, &mut cands);
+            let got: Vec<(usize, i32)> = cands.iter().map(|c| (c.pos, c.resp)).collect();
+            prop_assert_eq!(got, screen_candidates_ref(&x8, log2_b, 1));
+        }
     }
 
     /// The fused coarse pass equals three box passes and a second
@@ -202,30 +291,28 @@ proptest! {
         prop_assert_eq!(&xm, &x);
         prop_assert_eq!(&g, &g_ref);
         prop_assert_eq!(&r, &r_ref);
-        let mut scratch = vec![0; n];
-        prop_assert_eq!(coarse::abs_median_sigma_q8(&r, &mut scratch), abs_median_ref(&r));
     }
 
-    /// Candidates equal the plain local-maximum scan, including a full list.
+    /// The window's copy and spike screen, and the repair, equal the plain
+    /// definitions (on rows with spikes and pairs at any level).
     #[test]
-    fn candidates_match(x in depth().prop_flat_map(row), k in 0..LADDER_LEN, frac in 0.0f64..1.2) {
-        let (_, r) = response_ref(&x, k);
-        let top = r.iter().copied().max().unwrap_or(0);
-        let threshold = ((top as f64 * frac) as i32).max(1);
-        for thr in [threshold, 1] {
-            let got: Vec<(usize, i32)> = coarse::candidates(&r, thr).iter().map(|c| (c.pos, c.resp)).collect();
-            prop_assert_eq!(got, candidates_ref(&r, thr));
-        }
-    }
-
-    /// The hot-pixel screen and repair equal the plain definition.
-    #[test]
-    fn remove_spikes_matches(
+    fn window_and_repair_match(
         x in depth().prop_flat_map(row), noise_q8 in 0i32..20_000, k_q16 in 65_536i64..4_000_000, sat in 1i32..=65535,
     ) {
-        let (mut a, mut b) = (x.clone(), x.clone());
-        let got = coarse::remove_spikes(&mut a, noise_q8, k_q16, sat);
-        prop_assert_eq!(got, remove_spikes_ref(&mut b, noise_q8, k_q16, sat));
-        prop_assert_eq!(a, b);
+        let row: Vec<u16> = x.iter().map(|&v| v as u16).collect();
+        let copy: Vec<i32> = x.iter().map(|&v| v.min(sat)).collect();
+        let level = coarse::spike_screen_level(noise_q8);
+        let (mut w, mut hits) = (vec![0; x.len()], heapless::Vec::new());
+        coarse::load_window(&row, sat, level, &mut w, &mut hits);
+        prop_assert_eq!(&w, &copy);
+        let want_hits = spike_hits_ref(&copy, level);
+        prop_assert_eq!(&hits[..], &want_hits[..]);
+        let mut want = copy.clone();
+        let n_want = repair_ref(&mut want, &want_hits, noise_q8, k_q16);
+        prop_assert_eq!(coarse::repair_spikes(&mut w, &hits, noise_q8, k_q16), n_want);
+        prop_assert_eq!(&w, &want);
+        let mut again = copy.clone();
+        prop_assert_eq!(coarse::remove_spikes(&mut again, noise_q8, k_q16), n_want);
+        prop_assert_eq!(again, want);
     }
 }

@@ -8,13 +8,15 @@
 //!
 //! Each stage is called alone on the same 64 rows, 64 then 64 + 256 times,
 //! and the difference / 256 is one call (the loop and timer cancel out).
-//! `load_row` is the copy with the noise samples and their median;
-//! `screen` is `remove_spikes` less a plain copy (it mutates its row, so a
-//! fresh copy precedes each call; a stand-in `k_q16`, which only the pixels
-//! that pass the screen would meet); `response` the box cascade and second
-//! difference; `sigma` the response's median; `candidates` the scan; `ricker`
-//! the eight Ricker responses of the scale range at the first candidate;
-//! `slope_zero` the sub-pixel zero at rung 8; `detect` the whole call.
+//! `refresh` is what a row that refreshes the noise estimates adds (the
+//! pixel noise and the screen's σ, one row in `NOISE_ROWS`); `candidates`
+//! the block screen over the row; `copy`, `load` and `window` the copy of
+//! one candidate's window alone, with the spike screen's first test, and
+//! with the repair (a stand-in `k_q16`); `ricker` the eight Ricker
+//! responses of the scale range at the brightest pixel of the first
+//! candidate; `slope_zero` the sub-pixel zero at rung 8 from there (by the
+//! whole-pixel bracket); `front` a `detect` call with a threshold no
+//! candidate passes; `detect` the whole call.
 
 #![no_std]
 #![no_main]
@@ -22,7 +24,7 @@
 use core::fmt::Write as _;
 use core::hint::black_box;
 
-use cms_core::peak::{Config, Detector, Stripes, coarse, cwt, kernels};
+use cms_core::peak::{Config, Detector, Stripes, coarse, cwt, kernels, screen};
 use cms_qemu::board::SYSCLK_HZ;
 use cms_qemu::{clock, uart};
 use static_cell::StaticCell;
@@ -37,8 +39,6 @@ struct Bufs {
     rows: [[u16; N]; data::DISTINCT],
     x: [i32; N],
     r: [i32; N],
-    b: [i32; N],
-    g: [i32; N],
 }
 static BUFS: StaticCell<Bufs> = StaticCell::new();
 
@@ -55,7 +55,10 @@ fn per_call(mut f: impl FnMut(usize)) -> u64 {
     (run(320) - short) / 256
 }
 
-fn copy(row: &[u16; N], x: &mut [i32; N], sat: i32) {
+/// Pixels copied around one candidate (the detector's window for these rows).
+const WINDOW: usize = 71;
+
+fn copy(row: &[u16], x: &mut [i32], sat: i32) {
     for (d, &p) in x.iter_mut().zip(row) {
         *d = (p as i32).min(sat);
     }
@@ -70,7 +73,7 @@ fn main() -> ! {
     uart::init(SYSCLK_HZ, 115_200);
     let mut w = uart::Writer;
     let _ = writeln!(w, "cms-qemu-stages");
-    let bu = BUFS.init(Bufs { rows: [[0; N]; data::DISTINCT], x: [0; N], r: [0; N], b: [0; N], g: [0; N] });
+    let bu = BUFS.init(Bufs { rows: [[0; N]; data::DISTINCT], x: [0; N], r: [0; N] });
     for set in data::SETS {
         for (i, r) in bu.rows.iter_mut().enumerate() {
             let raw = &set.rows[i * 2 * N..][..2 * N];
@@ -83,33 +86,46 @@ fn main() -> ! {
         };
         let sat = cfg.saturation as i32;
         let geo = ((cfg.scales.min().0 as u64) * (cfg.scales.max().0 as u64)).isqrt();
-        let rung = &kernels::RUNGS[kernels::nearest_rung(geo as i32)];
-        let Bufs { rows, x, r, b, g } = bu;
+        let Bufs { rows, x, r } = bu;
+        let lb = screen::block_log2(geo as i32);
+        let refresh = per_call(|i| {
+            let row = black_box(&rows[i][..]);
+            black_box(screen::pixel_noise_q8(row, sat, r));
+            let m = screen::responses(row, lb, r);
+            black_box(screen::sigma_q8(&mut r[..m]));
+        });
+        let noise_q8 = screen::pixel_noise_q8(&rows[0][..], sat, r);
+        let m = screen::responses(&rows[0][..], lb, r);
+        let sigma_q8 = screen::sigma_q8(&mut r[..m]);
+        let threshold = ((sigma_q8 as i64 * cfg.threshold_sigma_q8 as i64 * 154) >> 24).max(1) as i32;
+        let mut cands = heapless::Vec::new();
+        let candidates = per_call(|i| {
+            screen::candidates(black_box(&rows[i][..]), lb, true, threshold, &mut cands);
+            black_box(cands.len());
+        });
+        screen::candidates(&rows[0][..], lb, true, threshold, &mut cands);
+        let c0 = cands.first().map_or(N / 2, |c| c.pos);
+        let (lo, hi) = (c0.saturating_sub(WINDOW / 2), (c0 + WINDOW / 2).min(N));
+        let level = coarse::spike_screen_level(noise_q8);
+        let mut hits = heapless::Vec::<usize, { coarse::MAX_SPIKES }>::new();
         let load = per_call(|i| {
-            black_box(coarse::load_row(black_box(&rows[i][..]), sat, x, r));
+            let w = &mut x[..hi - lo];
+            coarse::load_window(black_box(&rows[i][lo..hi]), sat, level, w, &mut hits);
+            black_box(&hits);
         });
-        let plain_copy = per_call(|i| {
-            copy(black_box(&rows[i]), x, sat);
-            black_box(&x);
+        let window = per_call(|i| {
+            let w = &mut x[..hi - lo];
+            coarse::load_window(black_box(&rows[i][lo..hi]), sat, level, w, &mut hits);
+            black_box(coarse::repair_spikes(black_box(w), &hits, noise_q8, 120_000));
         });
-        let noise_q8 = coarse::pixel_noise_q8(x, r);
-        let screen = per_call(|i| {
-            copy(black_box(&rows[i]), x, sat);
-            black_box(coarse::remove_spikes(black_box(x), noise_q8, 120_000, sat));
-        }) - plain_copy;
-        let response = per_call(|_| {
-            coarse::response(black_box(x), r, b, g, rung);
+        let copy_only = per_call(|i| {
+            let w = &mut x[..hi - lo];
+            copy(black_box(&rows[i][lo..hi]), w, sat);
+            black_box(w);
         });
-        let sigma = per_call(|_| {
-            black_box(coarse::abs_median_sigma_q8(black_box(r), b));
-        });
-        coarse::response(x, r, b, g, rung);
-        let sigma_q8 = coarse::abs_median_sigma_q8(r, b);
-        let threshold = ((sigma_q8 as i64 * cfg.threshold_sigma_q8 as i64) >> 16).max(1) as i32;
-        let candidates = per_call(|_| {
-            black_box(coarse::candidates(black_box(r), threshold).len());
-        });
-        let c0 = coarse::candidates(r, threshold).first().map_or(N / 2, |c| c.pos);
+        copy(&rows[0][..], &mut x[..], sat);
+        // The brightest pixel near the candidate: where the detector starts.
+        let c0 = (c0.saturating_sub(6)..=(c0 + 6).min(N - 1)).max_by_key(|&i| (x[i], core::cmp::Reverse(i))).unwrap_or(c0);
         let ricker = per_call(|_| {
             for k in 1..=8 {
                 black_box(cwt::response_q8(black_box(x), c0, k));
@@ -126,9 +142,20 @@ fn main() -> ! {
         let detect = per_call(|i| {
             let _ = det.detect(black_box(&rows[i][..]), &mut out);
         });
+        // The front end alone: a threshold no candidate passes.
+        let mut quiet = cfg;
+        quiet.threshold_sigma_q8 = u16::MAX;
+        quiet.min_amplitude = u16::MAX;
+        let mut det = match Detector::<N>::new(quiet) {
+            Ok(d) => d,
+            Err(e) => panic!("{e}"),
+        };
+        let front = per_call(|i| {
+            let _ = det.detect(black_box(&rows[i][..]), &mut out);
+        });
         let _ = writeln!(
             w,
-            "stripes={} load_row={load} screen={screen} response={response} sigma={sigma} candidates={candidates} ricker={ricker} slope_zero={slope_zero} detect={detect}",
+            "stripes={} refresh={refresh} candidates={candidates} copy{WINDOW}={copy_only} load{WINDOW}={load} window{WINDOW}={window} ricker={ricker} slope_zero={slope_zero} front={front} detect={detect}",
             set.stripes
         );
     }
