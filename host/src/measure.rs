@@ -217,6 +217,7 @@ pub fn measure_recording(m: &Measurer, path: &Path, name: &str) -> Result<Vec<Me
     let mut parts: Vec<Profile> = Vec::new();
     let mut counter = FrameCounter::default();
     let mut results = Vec::new();
+    // The recording's errors name it already.
     record::scan_file(path, |msg| {
         if let DeviceMsg::Profile(p) = msg {
             if p.part == 0 {
@@ -232,8 +233,7 @@ pub fn measure_recording(m: &Measurer, path: &Path, name: &str) -> Result<Vec<Me
             }
         }
         Ok(())
-    })
-    .map_err(|e| Error::Input(format!("{name}: {e}")))?;
+    })?;
     if results.is_empty() {
         return Err(Error::Input(format!("{name}: no complete frame in the recording")));
     }
@@ -241,10 +241,13 @@ pub fn measure_recording(m: &Measurer, path: &Path, name: &str) -> Result<Vec<Me
 }
 
 /// An image (or CSV rows) measured, or a recording's frames: whichever the
-/// file is (a recording is known by its header).
+/// file is (a recording is known by its header, or by its `.cmsrec` name:
+/// a damaged or empty recording is then reported as such, not as an
+/// unknown image type).
 pub fn measure_file(m: &Measurer, path: &Path) -> Result<Vec<Measurement>, Error> {
     let name = path.display().to_string();
-    if is_recording(path) {
+    let named = path.extension().is_some_and(|e| e.eq_ignore_ascii_case(record::EXTENSION));
+    if named || is_recording(path) {
         return measure_recording(m, path, &name);
     }
     let rows = input::read_rows(path)?;

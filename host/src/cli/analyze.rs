@@ -111,7 +111,8 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
     let mut rec = analyze::read_recording(&args.recording)?;
     if let Some(path) = &args.calibration {
         let name = path.display();
-        let file = CalibrationFile::load(path).map_err(|e| Error::Input(format!("{name}: {e}")))?;
+        // The file's own errors name it.
+        let file = CalibrationFile::load(path).map_err(Error::from)?;
         let id = file.to_head().map_err(|e| Error::Input(format!("{name}: {e}")))?.id;
         if let Some(rid) = rec.calibration_id.filter(|&r| r != id) {
             anyhow::bail!(Error::Input(format!(
