@@ -189,7 +189,14 @@ impl fmt::Display for InputError {
     }
 }
 
-impl std::error::Error for InputError {}
+impl std::error::Error for InputError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match &self.kind {
+            InputErrorKind::Io(e) => Some(e),
+            _ => None,
+        }
+    }
+}
 
 /// What went wrong reading an input.
 #[derive(Debug)]

@@ -72,8 +72,6 @@
 //! `O(C)` per frame for C cells it covers; memory 3 × f64 per grid cell.
 //! A grid longer than [`MAX_CELLS`] is refused.
 
-use std::fmt;
-
 use cms_core::protocol::{LASERS, Profile};
 
 /// Most cells of a stitched profile (20 km at 1 mm).
@@ -188,32 +186,18 @@ impl Default for Options {
 }
 
 /// Why stitching failed.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum StitchError {
     /// The grid spacing is not a positive finite number.
+    #[error("sample spacing {0} mm is not a positive finite number")]
     BadSpacing(f64),
     /// No frame has a calibrated point.
+    #[error("no calibrated points (the head had no calibration loaded: see cms-host calibrate upload)")]
     NoPoints,
     /// The frames span more than [`MAX_CELLS`] cells.
+    #[error("the frames span {span_mm:.0} mm of track: more than {MAX_CELLS} samples at {dx_mm} mm (odometer jumps?)")]
     TooLong { span_mm: f64, dx_mm: f64 },
 }
-
-impl fmt::Display for StitchError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            StitchError::BadSpacing(dx) => write!(f, "sample spacing {dx} mm is not a positive finite number"),
-            StitchError::NoPoints => {
-                f.write_str("no calibrated points (the head had no calibration loaded: see cms-host calibrate upload)")
-            }
-            StitchError::TooLong { span_mm, dx_mm } => write!(
-                f,
-                "the frames span {span_mm:.0} mm of track: more than {MAX_CELLS} samples at {dx_mm} mm (odometer jumps?)"
-            ),
-        }
-    }
-}
-
-impl std::error::Error for StitchError {}
 
 /// A stretch of track no frame covered.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -54,15 +54,15 @@
 //! release builds.
 
 use std::collections::{HashMap, HashSet};
-use std::fmt;
 
 use crate::board::Board;
 
 /// Why a board's corners were not found.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum CornerError {
     /// The pixel buffer does not hold `width × height` pixels, or the image is
     /// too small to hold a board.
+    #[error("bad image: {len} pixels for {width} x {height}")]
     BadImage {
         /// Pixels given.
         len: usize,
@@ -72,9 +72,11 @@ pub enum CornerError {
         height: usize,
     },
     /// The board needs at least 2 × 2 inner corners.
+    #[error("a board needs at least 2 x 2 inner corners")]
     BadBoard,
     /// The largest consistent grid found had only `found` of the `expected`
     /// corners.
+    #[error("found {found} of {expected} corners")]
     Incomplete {
         /// Corners in the largest grid.
         found: usize,
@@ -83,23 +85,9 @@ pub enum CornerError {
     },
     /// A grid larger than the board, or one whose corners are not where a
     /// checkerboard's would be, was found.
+    #[error("grid not consistent")]
     Inconsistent,
 }
-
-impl fmt::Display for CornerError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match *self {
-            CornerError::BadImage { len, width, height } => {
-                write!(f, "bad image: {len} pixels for {width} x {height}")
-            }
-            CornerError::BadBoard => f.write_str("a board needs at least 2 x 2 inner corners"),
-            CornerError::Incomplete { found, expected } => write!(f, "found {found} of {expected} corners"),
-            CornerError::Inconsistent => f.write_str("grid not consistent"),
-        }
-    }
-}
-
-impl std::error::Error for CornerError {}
 
 /// A grayscale image, row-major.
 #[derive(Clone)]

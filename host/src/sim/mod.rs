@@ -104,9 +104,10 @@ const NOISE_STREAM: u64 = 0x4e4f_4953;
 
 /// Why a configuration was refused.
 #[non_exhaustive]
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum SimError {
     /// A numeric field is out of range.
+    #[error("{field} = {value} must be {expected}")]
     Field {
         /// The field, as `camera.fx_px`.
         field: &'static str,
@@ -116,6 +117,7 @@ pub enum SimError {
         expected: &'static str,
     },
     /// Image width outside 5..=65535 or height outside 1..=65535.
+    #[error("image size {width} × {height} px: width must be in 5..=65535, height in 1..=65535")]
     ImageSize {
         /// Width, px.
         width: usize,
@@ -123,17 +125,24 @@ pub enum SimError {
         height: usize,
     },
     /// Bit depth outside 8..=16.
+    #[error("camera.bits = {0} must be in 8..=16")]
     Bits(u8),
     /// The distortion folds over inside the image (not one-to-one).
+    #[error("camera distortion is not one-to-one over the image")]
     Distortion,
     /// Number of lasers outside 1..=8.
+    #[error("{0} lasers: a head has 1..={MAX_LASERS}")]
     LaserCount(usize),
     /// A laser's line misses the rail head (beyond the crown) or the image.
+    #[error("laser {laser}: its line misses the rail head or falls outside the image")]
     LaserOutOfView {
         /// Laser index.
         laser: usize,
     },
     /// The roughness band gives no component or too long a table.
+    #[error(
+        "roughness band {min_mm}–{max_mm} mm: needs at least one component and at most 2^22 samples (max/min wavelength ≤ about 6500)"
+    )]
     RoughnessBand {
         /// Shortest wavelength, mm.
         min_mm: f64,
@@ -141,30 +150,6 @@ pub enum SimError {
         max_mm: f64,
     },
 }
-
-impl fmt::Display for SimError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            SimError::Field { field, value, expected } => write!(f, "{field} = {value} must be {expected}"),
-            SimError::ImageSize { width, height } => {
-                write!(f, "image size {width} × {height} px: width must be in 5..=65535, height in 1..=65535")
-            }
-            SimError::Bits(b) => write!(f, "camera.bits = {b} must be in 8..=16"),
-            SimError::Distortion => f.write_str("camera distortion is not one-to-one over the image"),
-            SimError::LaserCount(n) => write!(f, "{n} lasers: a head has 1..={MAX_LASERS}"),
-            SimError::LaserOutOfView { laser } => {
-                write!(f, "laser {laser}: its line misses the rail head or falls outside the image")
-            }
-            SimError::RoughnessBand { min_mm, max_mm } => write!(
-                f,
-                "roughness band {min_mm}–{max_mm} mm: needs at least one component and at most 2^22 samples \
-                 (max/min wavelength ≤ about 6500)"
-            ),
-        }
-    }
-}
-
-impl std::error::Error for SimError {}
 
 /// `Ok` if `ok` and `value` is finite, else a [`SimError::Field`].
 pub(crate) fn check(field: &'static str, value: f64, ok: bool, expected: &'static str) -> Result<(), SimError> {

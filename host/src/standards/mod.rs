@@ -34,48 +34,27 @@
 pub mod en13231;
 pub mod en15610;
 
-use std::fmt;
 use std::ops::Range;
 
 /// Why an analysis could not be made.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum StandardsError {
     /// The sample spacing is not a positive finite number.
+    #[error("sample spacing {dx_mm} mm is not a positive finite number")]
     BadSampling { dx_mm: f64 },
     /// The sampling is too coarse for what is asked (`max_dx_mm` is the limit).
+    #[error("sample spacing {dx_mm} mm is too coarse for {what} (at most {max_dx_mm} mm)")]
     SamplingTooCoarse { dx_mm: f64, max_dx_mm: f64, what: String },
     /// The longest continuous run is shorter than a window the analysis needs.
+    #[error("record {} mm is too short for the {} mm window of {what}", fmt_mm(*record_mm), fmt_mm(*window_mm))]
     TooShort { record_mm: f64, window_mm: f64, what: String },
     /// Nothing finite to analyse.
+    #[error("the profile has no finite samples")]
     NoData,
     /// An option is out of its range.
+    #[error("{0}")]
     BadOption(String),
 }
-
-impl fmt::Display for StandardsError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            StandardsError::BadSampling { dx_mm } => {
-                write!(f, "sample spacing {dx_mm} mm is not a positive finite number")
-            }
-            StandardsError::SamplingTooCoarse { dx_mm, max_dx_mm, what } => {
-                write!(f, "sample spacing {dx_mm} mm is too coarse for {what} (at most {max_dx_mm} mm)")
-            }
-            StandardsError::TooShort { record_mm, window_mm, what } => {
-                write!(
-                    f,
-                    "record {} mm is too short for the {} mm window of {what}",
-                    fmt_mm(*record_mm),
-                    fmt_mm(*window_mm)
-                )
-            }
-            StandardsError::NoData => f.write_str("the profile has no finite samples"),
-            StandardsError::BadOption(m) => f.write_str(m),
-        }
-    }
-}
-
-impl std::error::Error for StandardsError {}
 
 /// A length in mm without a useless fraction ("450", "1000", "12.5").
 fn fmt_mm(v: f64) -> String {

@@ -55,8 +55,9 @@ fn bad_capture_arguments_are_refused_in_one_line() {
     assert!(e.contains("PNG"), "{e}");
     let o = run(&["capture", "sim", "--out", "/tmp/x.png", "--lasers", "9"]);
     assert_eq!(o.status.code(), Some(2), "{o:?}");
+    // A port that cannot be opened is the device's failure, not a bad argument.
     let o = run(&["capture", "/nonexistent/ttyACM9", "--out", "/tmp/x.png"]);
-    assert_eq!(o.status.code(), Some(2), "{o:?}");
+    assert_eq!(o.status.code(), Some(3), "{o:?}");
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(e.contains("/nonexistent/ttyACM9"), "{e}");
 }
