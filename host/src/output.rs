@@ -23,7 +23,8 @@
 //! would replace the node with a regular file (`--out /dev/full` did, and
 //! reported success); writing into it instead would give up atomicity and
 //! the check that the data arrived. `-` is the way to write to stdout, where
-//! a command offers it ([`write_output`]).
+//! a command offers it (`export --out -`, by [`is_stdout`]); elsewhere `-`
+//! is refused rather than taken as a file name.
 //!
 //! **Cost.** Two `fsync`s per file (the file and its directory): a few
 //! milliseconds on a disk, nothing next to the work that produced the file.
@@ -46,6 +47,10 @@ pub enum OutputError {
         /// What it is ("a directory", "a character device", …).
         what: &'static str,
     },
+    /// `-` (stdout) given for an output that cannot go there (a command whose
+    /// stdout carries its report, a binary file).
+    #[error("-: this output cannot go to stdout; give a file name")]
+    Stdout,
     /// The target's directory does not exist (or is not a directory).
     #[error("cannot write {}: {source}", path.display())]
     NoDirectory {
@@ -69,7 +74,9 @@ impl crate::error::Classify for OutputError {
     fn class(&self) -> crate::Class {
         match self {
             // The user named something that cannot be an output.
-            OutputError::NotRegular { .. } | OutputError::NoDirectory { .. } => crate::Class::Input,
+            OutputError::NotRegular { .. } | OutputError::Stdout | OutputError::NoDirectory { .. } => {
+                crate::Class::Input
+            }
             OutputError::Write { .. } => crate::Class::Output,
         }
     }
@@ -79,7 +86,7 @@ impl OutputError {
     /// The I/O error underneath, if any (a closed pipe is told by it).
     pub fn io(&self) -> Option<&io::Error> {
         match self {
-            OutputError::NotRegular { .. } => None,
+            OutputError::NotRegular { .. } | OutputError::Stdout => None,
             OutputError::NoDirectory { source, .. } | OutputError::Write { source, .. } => Some(source),
         }
     }
@@ -108,6 +115,11 @@ fn kind_of(meta: &fs::Metadata) -> &'static str {
 /// regular file (through symbolic links). Returns the path to replace (the
 /// link's target for a symbolic link).
 pub fn check_target(path: &Path) -> Result<PathBuf, OutputError> {
+    if is_stdout(path) {
+        // Not a file named `-`: a command that offers stdout (`export --out -`)
+        // tests [`is_stdout`] first.
+        return Err(OutputError::Stdout);
+    }
     let not_regular = |what| OutputError::NotRegular { path: path.to_path_buf(), what };
     match fs::symlink_metadata(path) {
         Err(e) if e.kind() == io::ErrorKind::NotFound => {}
@@ -183,21 +195,6 @@ fn sync_dir(dir: &Path) -> io::Result<()> {
     }
 }
 
-/// [`write_atomically`], or stdout when `path` is `-` (flushed, not
-/// committed: a pipe or a terminal has nothing to commit).
-pub fn write_output<F>(path: &Path, write: F) -> Result<(), OutputError>
-where
-    F: FnOnce(&mut dyn Write) -> io::Result<()>,
-{
-    if is_stdout(path) {
-        let mut out = BufWriter::new(io::stdout().lock());
-        return write(&mut out)
-            .and_then(|()| out.flush())
-            .map_err(|source| OutputError::Write { path: path.to_path_buf(), source });
-    }
-    write_atomically(path, write)
-}
-
 /// Whether `path` is `-`, stdout.
 pub fn is_stdout(path: &Path) -> bool {
     path.as_os_str() == "-"
@@ -241,6 +238,7 @@ mod tests {
         let dangling = dir.path().join("dangling");
         std::os::unix::fs::symlink(dir.path().join("nothing"), &dangling).unwrap();
         assert!(check_target(&dangling).unwrap_err().to_string().contains("a symbolic link to nothing"));
+        assert!(matches!(check_target(Path::new("-")), Err(OutputError::Stdout)));
         let e = write_atomically(&dir.path().join("no/such/dir.txt"), |w| w.write_all(b"x")).unwrap_err();
         assert!(matches!(e, OutputError::NoDirectory { .. }), "{e}");
     }

@@ -56,6 +56,9 @@ fn calibrate_refuses_to_write_over_what_is_not_a_regular_file() {
         let e = one_line_error(&lasers);
         assert!(e.ends_with(&want), "{e}");
     }
+    // `-` is stdout, which carries calibrate's report: refused, not a file named `-`.
+    let e = one_line_error(&run(&["calibrate", "camera", "--board", "9x6", "--square-mm", "6", "--out", "-", "x.png"]));
+    assert_eq!(e, "error: -: this output cannot go to stdout; give a file name");
     assert!(std::fs::metadata("/dev/full").unwrap().file_type().is_char_device());
     assert!(std::fs::symlink_metadata(&fifo).unwrap().file_type().is_fifo());
     assert!(sub.is_dir());
