@@ -26,6 +26,17 @@
 //! section needed) stops the run with a one-line error and exit status 2; an
 //! image or frame whose lines cannot be fitted is reported as such and the
 //! run goes on.
+//!
+//! **Inputs that must belong together** are checked before anything is
+//! measured: an image of another size than the calibration's camera, a
+//! recording whose `Hello` names another calibration id or sensor size, or
+//! whose points lie outside the camera's image, is refused
+//! ([`CalibrationFile::check_image`], [`CalibrationFile::check_recording`],
+//! the same check `analyze --calibration` makes). That costs one extra read
+//! of a recording (decoding only, ~2 000 frames/s) so that a wrong pairing
+//! fails at once rather than after the whole measurement. Damaged frames and
+//! profile messages present twice are skipped and said on stderr
+//! ([`record::warnings`]).
 
 use std::io::{self, Write};
 use std::path::Path;
@@ -37,7 +48,7 @@ use cms_core::triangulation::Triangulator;
 use serde::Serialize;
 
 use crate::Error;
-use crate::calib::file::CalibrationFile;
+use crate::calib::file::{CalibrationFile, RecordedHeads};
 use crate::corrugation::{Corrected, HeadFrame, Joint, Line, joint_fit};
 use crate::detect::MAX_ROW;
 use crate::fit::{self, Fit, Options};
@@ -86,6 +97,8 @@ pub struct Measurement {
 
 /// The calibration, ready to measure with.
 pub struct Measurer {
+    /// The file, for the checks of what it is paired with.
+    file: CalibrationFile,
     tri: Triangulator,
     frame: HeadFrame,
     /// Detector scale range (images), if the file has `[head]`.
@@ -104,7 +117,7 @@ impl Measurer {
             .map(|h| tri.scale_range(h.laser_diameter_mm, (h.range_min_mm, h.range_max_mm)))
             .transpose()
             .map_err(|e| format!("[head]: {e}"))?;
-        Ok(Measurer { tri, frame, scales })
+        Ok(Measurer { file: cal.clone(), tri, frame, scales })
     }
 
     /// The triangulator of the calibration.
@@ -212,13 +225,32 @@ impl Measurer {
 }
 
 /// Every complete frame of a recording, measured (`name` labels the
-/// results).
-pub fn measure_recording(m: &Measurer, path: &Path, name: &str) -> Result<Vec<Measurement>, Error> {
+/// results), and the warnings of reading it (damaged frames, duplicates).
+/// A recording of another head than the calibration's (`cal_name`) is
+/// refused ([`CalibrationFile::check_recording`], as `analyze` does).
+pub fn measure_recording(
+    m: &Measurer,
+    path: &Path,
+    name: &str,
+    cal_name: &str,
+) -> Result<(Vec<Measurement>, Vec<String>), Error> {
+    // The head first: measuring a whole recording with the wrong
+    // calibration, to refuse it at the end, would waste its time.
+    let mut heads = RecordedHeads::default();
+    record::scan_file(path, |msg| {
+        match msg {
+            DeviceMsg::Hello(info) => heads.hello(info),
+            DeviceMsg::Profile(p) => heads.profile(p),
+            _ => {}
+        }
+        Ok(())
+    })?; // the recording's errors name it already
+    m.file.check_recording(cal_name, name, &heads)?;
     let mut parts: Vec<Profile> = Vec::new();
     let mut counter = FrameCounter::default();
     let mut results = Vec::new();
     // The recording's errors name it already.
-    record::scan_file(path, |msg| {
+    let stats = record::scan_file(path, |msg| {
         if let DeviceMsg::Profile(p) = msg {
             if p.part == 0 {
                 parts.clear();
@@ -234,27 +266,32 @@ pub fn measure_recording(m: &Measurer, path: &Path, name: &str) -> Result<Vec<Me
         }
         Ok(())
     })?;
+    let warnings = record::warnings(path, &stats);
     if results.is_empty() {
-        return Err(Error::Input(format!("{name}: no complete frame in the recording")));
+        let why = warnings.iter().map(|w| w.trim_start_matches("warning: ")).collect::<Vec<_>>().join("; ");
+        let why = if why.is_empty() { String::new() } else { format!(" ({why})") };
+        return Err(Error::Input(format!("{name}: no complete frame in the recording{why}")));
     }
-    Ok(results)
+    Ok((results, warnings))
 }
 
 /// An image (or CSV rows) measured, or a recording's frames: whichever the
 /// file is (a recording is known by its header, or by its `.cmsrec` name:
 /// a damaged or empty recording is then reported as such, not as an
-/// unknown image type).
-pub fn measure_file(m: &Measurer, path: &Path) -> Result<Vec<Measurement>, Error> {
+/// unknown image type); with the warnings of reading it. An image of
+/// another size than the calibration's (`cal_name`) camera is refused.
+pub fn measure_file(m: &Measurer, path: &Path, cal_name: &str) -> Result<(Vec<Measurement>, Vec<String>), Error> {
     let name = path.display().to_string();
     let named = path.extension().is_some_and(|e| e.eq_ignore_ascii_case(record::EXTENSION));
     if named || is_recording(path) {
-        return measure_recording(m, path, &name);
+        return measure_recording(m, path, &name, cal_name);
     }
     let rows = input::read_rows(path)?;
+    m.file.check_image(cal_name, &name, rows.width(), rows.height())?;
     let (profiles, skipped) = m.image_profiles(&rows).map_err(|e| Error::Input(format!("{name}: {e}")))?;
     let mut r = m.measure(&name, &profiles);
     r.rows_skipped = Some(skipped);
-    Ok(vec![r])
+    Ok((vec![r], Vec::new()))
 }
 
 /// Whether `path` is a recording (by its header).

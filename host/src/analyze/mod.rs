@@ -53,6 +53,9 @@ pub struct Recording {
     pub uncalibrated_points: u64,
     /// Calibration id of the last `Hello`.
     pub calibration_id: Option<u32>,
+    /// The head of the recording: every `Hello`'s calibration id and
+    /// sensor size, for [`crate::calib::file::CalibrationFile::check_recording`].
+    pub heads: crate::calib::file::RecordedHeads,
     pub stats: ScanStats,
     /// Frames slid across ([`slide_frames`]) and the calibration file used.
     pub slid_across: Option<(usize, PathBuf)>,
@@ -76,11 +79,15 @@ pub fn read_recording(path: &Path) -> Result<Recording, Error> {
         match msg {
             DeviceMsg::Profile(p) => {
                 rec.profiles += 1;
+                rec.heads.profile(p);
                 if let Some(f) = asm.push(p) {
                     rec.frames.push(f);
                 }
             }
-            DeviceMsg::Hello(info) => rec.calibration_id = Some(info.calibration_id),
+            DeviceMsg::Hello(info) => {
+                rec.calibration_id = Some(info.calibration_id);
+                rec.heads.hello(info);
+            }
             _ => {}
         }
         Ok(())
@@ -456,6 +463,7 @@ pub fn to_json(path: &Path, rec: &Recording, a: &Analysis) -> Value {
         "slid_across_frames": rec.slid_across.as_ref().map(|(n, _)| n),
         "odometer_mm": [num(olo), num(ohi)],
         "damaged_frames": rec.stats.damaged,
+        "duplicate_profiles": rec.stats.duplicates,
         "direction": match a.stitching.direction { Direction::Reverse => "reverse", _ => "forward" },
         "auto_residuals_um": a.stitching.auto_residuals_um.map(|(f, r)| json!({ "forward": f, "reverse": r })),
         "registration": match a.options.stitch.registration {

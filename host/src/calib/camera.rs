@@ -31,6 +31,33 @@
 //!
 //! **Errors** are reported as OpenCV does: the RMS over corners of the
 //! Euclidean reprojection distance, overall and per view.
+//!
+//! **Checks a metrologist makes**, in this order:
+//! 1. *Distinct views.* Two views whose corners lie within
+//!    [`DUPLICATE_RMS_PX`] RMS of each other are one pose photographed twice
+//!    (the same file given twice, a head held still): they add no
+//!    information but make the fit look certain, so the later one is named
+//!    and left out ([`CameraCalibration::duplicates`]). `O(V²·N)` for `V`
+//!    views of `N` corners: nothing beside the fit.
+//! 2. *What the views can determine.* `k3` multiplies r⁶: corners that do not
+//!    reach [`MIN_RADIUS_K3`] of the focal length off the axis cannot tell it
+//!    from `k1` and `k2`, so it is fixed at 0 (OpenCV's `CALIB_FIX_K3`). After
+//!    the fit, when the uncertainty of the radial (or tangential) distortion
+//!    at the farthest corner seen exceeds [`FIX_DISTORTION_SIGMA_PX`], `k3`
+//!    (then `p1, p2`) is fixed and the fit made again. Each fixing is said
+//!    ([`CameraCalibration::fixed`]).
+//! 3. *Uncertainty.* The covariance of all the parameters is
+//!    `σ²·(JᵀJ)⁻¹` at the solution (`J` the Jacobian of the residuals, `σ²`
+//!    their sum of squares over `m − n`, OpenCV's
+//!    `stdDeviationsIntrinsics`); the standard deviation of each intrinsic
+//!    is its diagonal ([`CameraCalibration::sigma`]). One more Jacobian and a
+//!    Cholesky of the `n × n` normal matrix: ~10 ms for 24 views. The
+//!    calibration is refused ([`CalibError::Uncertain`]) when σ(fx) or σ(fy)
+//!    exceeds [`MAX_SIGMA_FOCAL`] of the focal length, σ(cx) or σ(cy)
+//!    [`MAX_SIGMA_CENTRE`] of the image side, or the distortion at the
+//!    farthest corner seen is uncertain by more than [`MAX_DISTORTION_SIGMA_PX`]:
+//!    the views do not determine the camera (too few, too alike, too little
+//!    tilt), and the message says which figure failed.
 
 use std::fmt;
 use std::path::Path;
@@ -39,7 +66,50 @@ use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, SMatrix, SymmetricEigen, Ve
 
 use crate::board::{Board, BoardPose};
 use crate::camera::Intrinsics;
-use crate::lm;
+use crate::lm::{self, Problem as _};
+
+/// Two views closer than this (RMS over corners, px) are one pose.
+pub const DUPLICATE_RMS_PX: f64 = 1.0;
+/// Farthest corner from the principal point, as a fraction of the focal
+/// length, below which `k3` is fixed at 0.
+pub const MIN_RADIUS_K3: f64 = 0.5;
+/// Uncertainty of the distortion at the farthest corner seen above which
+/// `k3`, then `p1, p2`, are fixed and the fit made again, px.
+pub const FIX_DISTORTION_SIGMA_PX: f64 = 0.5;
+/// Largest accepted σ(fx), σ(fy), as a fraction of the focal length.
+pub const MAX_SIGMA_FOCAL: f64 = 0.01;
+/// Largest accepted σ(cx), σ(cy), as a fraction of the image width, height.
+pub const MAX_SIGMA_CENTRE: f64 = 0.02;
+/// Largest accepted uncertainty of the radial or tangential distortion at
+/// the farthest corner seen, px.
+pub const MAX_DISTORTION_SIGMA_PX: f64 = 1.0;
+
+/// The intrinsics in [`Sigma`]'s order (the calibration file's keys).
+pub const INTRINSIC_NAMES: [&str; 10] = ["fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3"];
+
+/// One standard deviation of each intrinsic, in [`INTRINSIC_NAMES`] order
+/// (px for `fx … skew`); `None` for a parameter held fixed.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Sigma(pub [Option<f64>; 10]);
+
+/// The covariance of the intrinsics, in [`INTRINSIC_NAMES`] order (0 for a
+/// parameter held fixed).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Covariance(pub [[f64; 10]; 10]);
+
+impl Covariance {
+    /// Entry `(i, j)`.
+    pub fn get(&self, i: usize, j: usize) -> f64 {
+        self.0[i][j]
+    }
+}
+
+impl Sigma {
+    /// σ of the intrinsic named `name` (see [`INTRINSIC_NAMES`]).
+    pub fn get(&self, name: &str) -> Option<f64> {
+        INTRINSIC_NAMES.iter().position(|n| *n == name).and_then(|i| self.0[i])
+    }
+}
 
 /// What [`calibrate`] estimates.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -53,11 +123,22 @@ pub struct CalibOptions {
     pub max_view_rms_px: Option<f64>,
     /// Levenberg–Marquardt limit on trial steps (accepted or not).
     pub max_iterations: usize,
+    /// Keep `k3` at 0 (it is also fixed when the views cannot determine it).
+    pub fix_k3: bool,
+    /// Keep `p1, p2` at 0 (they are also fixed when the views cannot determine them).
+    pub fix_tangential: bool,
 }
 
 impl Default for CalibOptions {
     fn default() -> Self {
-        CalibOptions { fix_skew: true, fix_aspect: None, max_view_rms_px: None, max_iterations: 200 }
+        CalibOptions {
+            fix_skew: true,
+            fix_aspect: None,
+            max_view_rms_px: None,
+            max_iterations: 200,
+            fix_k3: false,
+            fix_tangential: false,
+        }
     }
 }
 
@@ -79,6 +160,19 @@ pub struct CameraCalibration {
     pub poses: Vec<BoardPose>,
     /// Levenberg–Marquardt trial steps (accepted or not) of the last fit.
     pub iterations: usize,
+    /// Views left out as near-duplicates: `(view, the earlier view it
+    /// repeats, RMS corner distance px)`.
+    pub duplicates: Vec<(usize, usize, f64)>,
+    /// Parameters fixed because the views could not determine them, each
+    /// with why.
+    pub fixed: Vec<String>,
+    /// One standard deviation of each intrinsic, from the Jacobian at the
+    /// solution.
+    pub sigma: Sigma,
+    /// The covariance of the intrinsics.
+    pub covariance: Covariance,
+    /// Farthest corner seen from the principal point, px.
+    pub max_radius_px: f64,
 }
 
 /// Why a calibration failed.
@@ -101,16 +195,19 @@ pub enum CalibError {
     /// The views do not determine the camera (collinear corners, parallel
     /// views, non-finite numbers).
     Degenerate(&'static str),
+    /// An intrinsic's uncertainty exceeds its limit: what, in words.
+    Uncertain(String),
 }
 
 impl fmt::Display for CalibError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            CalibError::TooFewViews { got } => write!(f, "{got} usable views; calibration needs at least 3"),
+            CalibError::TooFewViews { got } => write!(f, "{got} distinct usable views; calibration needs at least 3"),
             CalibError::CornerCount { view, got, expected } => {
                 write!(f, "view {view} has {got} corners, the board {expected}")
             }
             CalibError::Degenerate(why) => write!(f, "degenerate views: {why}"),
+            CalibError::Uncertain(why) => write!(f, "the views do not determine the camera: {why}"),
         }
     }
 }
@@ -305,59 +402,69 @@ fn focal_only(hs: &[Matrix3<f64>], aspect: Option<f64>) -> Option<(f64, f64)> {
 // Calibration.
 
 /// The free intrinsic parameters and how they map to [`Intrinsics`].
+#[derive(Clone, Copy)]
 struct Layout {
     fix_skew: bool,
     aspect: Option<f64>,
+    fix_k3: bool,
+    fix_tangential: bool,
     width: u32,
     height: u32,
 }
 
 impl Layout {
-    fn n(&self) -> usize {
-        // f (or fx, fy), cx, cy, [skew], k1 k2 p1 p2 k3
-        (if self.aspect.is_some() { 1 } else { 2 }) + 2 + usize::from(!self.fix_skew) + 5
-    }
-
-    fn pack(&self, k: &Intrinsics) -> Vec<f64> {
-        let mut v = Vec::with_capacity(self.n());
-        match self.aspect {
-            Some(_) => v.push(k.fy_px),
-            None => v.extend([k.fx_px, k.fy_px]),
-        }
-        v.extend([k.cx_px, k.cy_px]);
+    /// For each free parameter, its index in [`INTRINSIC_NAMES`] (`fy` for
+    /// the one focal length of a fixed aspect ratio).
+    fn names(&self) -> Vec<usize> {
+        let mut v = match self.aspect {
+            Some(_) => vec![1],
+            None => vec![0, 1],
+        };
+        v.extend([2, 3]);
         if !self.fix_skew {
-            v.push(k.skew_px);
+            v.push(4);
         }
-        v.extend([k.k1, k.k2, k.p1, k.p2, k.k3]);
+        v.extend([5, 6]);
+        if !self.fix_tangential {
+            v.extend([7, 8]);
+        }
+        if !self.fix_k3 {
+            v.push(9);
+        }
         v
     }
 
+    fn n(&self) -> usize {
+        self.names().len()
+    }
+
+    fn pack(&self, k: &Intrinsics) -> Vec<f64> {
+        let all = [k.fx_px, k.fy_px, k.cx_px, k.cy_px, k.skew_px, k.k1, k.k2, k.p1, k.p2, k.k3];
+        self.names().into_iter().map(|i| all[i]).collect()
+    }
+
     fn unpack(&self, v: &[f64]) -> Intrinsics {
-        let (fx, fy, mut i) = match self.aspect {
-            Some(a) => (a * v[0], v[0], 1),
-            None => (v[0], v[1], 2),
-        };
-        let (cx, cy) = (v[i], v[i + 1]);
-        i += 2;
-        let skew = if self.fix_skew {
-            0.0
-        } else {
-            i += 1;
-            v[i - 1]
-        };
+        let mut all = [0.0; 10];
+        for (&i, &x) in self.names().iter().zip(v) {
+            all[i] = x;
+        }
+        if let Some(a) = self.aspect {
+            all[0] = a * all[1];
+        }
+        let [fx_px, fy_px, cx_px, cy_px, skew_px, k1, k2, p1, p2, k3] = all;
         Intrinsics {
             width_px: self.width,
             height_px: self.height,
-            fx_px: fx,
-            fy_px: fy,
-            cx_px: cx,
-            cy_px: cy,
-            skew_px: skew,
-            k1: v[i],
-            k2: v[i + 1],
-            p1: v[i + 2],
-            p2: v[i + 3],
-            k3: v[i + 4],
+            fx_px,
+            fy_px,
+            cx_px,
+            cy_px,
+            skew_px,
+            k1,
+            k2,
+            p1,
+            p2,
+            k3,
         }
     }
 }
@@ -379,7 +486,9 @@ fn rms_of(res: &[f64]) -> f64 {
 }
 
 /// Calibrates a camera from views of `board`: each view the detected
-/// corners, in [`Board::object_points`] order, px.
+/// corners, in [`Board::object_points`] order, px. Near-duplicate views are
+/// left out, parameters the views cannot determine fixed, and the result
+/// refused when an intrinsic is too uncertain (see the [module](self)).
 pub fn calibrate(
     board: &Board,
     views: &[Vec<[f64; 2]>],
@@ -396,8 +505,53 @@ pub fn calibrate(
             return Err(CalibError::Degenerate("non-finite corner"));
         }
     }
-    let all: Vec<usize> = (0..views.len()).collect();
-    let mut cal = calibrate_subset(board, views, &all, width, height, opts)?;
+    let duplicates = duplicates_of(views);
+    let distinct: Vec<usize> = (0..views.len()).filter(|v| !duplicates.iter().any(|d| d.0 == *v)).collect();
+    let mut opts = *opts;
+    let mut fixed = Vec::new();
+    let mut cal = fit_rejecting(board, views, &distinct, width, height, &opts)?;
+    loop {
+        let f = cal.intrinsics.fx_px.min(cal.intrinsics.fy_px);
+        let reach = cal.max_radius_px / f;
+        let (radial, tangential) = distortion_sigma_px(&cal);
+        let why = if !opts.fix_k3 && reach < MIN_RADIUS_K3 {
+            opts.fix_k3 = true;
+            format!(
+                "k3 fixed at 0: the corners reach {reach:.2} of the focal length from the principal point, k3 needs {MIN_RADIUS_K3}"
+            )
+        } else if !opts.fix_k3 && radial > FIX_DISTORTION_SIGMA_PX {
+            opts.fix_k3 = true;
+            format!(
+                "k3 fixed at 0: with it the radial distortion at the farthest corner is uncertain by {radial:.2} px (> {FIX_DISTORTION_SIGMA_PX} px)"
+            )
+        } else if !opts.fix_tangential && tangential > FIX_DISTORTION_SIGMA_PX {
+            opts.fix_tangential = true;
+            format!(
+                "p1, p2 fixed at 0: with them the tangential distortion at the farthest corner is uncertain by {tangential:.2} px (> {FIX_DISTORTION_SIGMA_PX} px)"
+            )
+        } else {
+            break;
+        };
+        fixed.push(why);
+        cal = fit_rejecting(board, views, &distinct, width, height, &opts)?;
+    }
+    check_uncertainty(&cal)?;
+    cal.duplicates = duplicates;
+    cal.fixed = fixed;
+    Ok(cal)
+}
+
+/// One fit of the views `used`, and with `max_view_rms_px` a second without
+/// the views above it.
+fn fit_rejecting(
+    board: &Board,
+    views: &[Vec<[f64; 2]>],
+    used: &[usize],
+    width: u32,
+    height: u32,
+    opts: &CalibOptions,
+) -> Result<CameraCalibration, CalibError> {
+    let mut cal = calibrate_subset(board, views, used, width, height, opts)?;
     if let Some(limit) = opts.max_view_rms_px {
         let rejected: Vec<(usize, f64)> = cal
             .views_used
@@ -407,12 +561,115 @@ pub fn calibrate(
             .map(|(&v, &e)| (v, e))
             .collect();
         if !rejected.is_empty() {
-            let keep: Vec<usize> = all.iter().copied().filter(|v| !rejected.iter().any(|r| r.0 == *v)).collect();
+            let keep: Vec<usize> = used.iter().copied().filter(|v| !rejected.iter().any(|r| r.0 == *v)).collect();
             cal = calibrate_subset(board, views, &keep, width, height, opts)?;
             cal.views_rejected = rejected;
         }
     }
     Ok(cal)
+}
+
+/// RMS distance of two views' corners, px: in the same order, or reversed
+/// (a board symmetric under a half turn may be labelled either way).
+fn corner_rms_px(a: &[[f64; 2]], b: &[[f64; 2]]) -> f64 {
+    let rms = |it: &mut dyn Iterator<Item = (&[f64; 2], &[f64; 2])>| {
+        let (s, n) =
+            it.fold((0.0, 0usize), |(s, n), (p, q)| (s + (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2), n + 1));
+        (s / n.max(1) as f64).sqrt()
+    };
+    rms(&mut a.iter().zip(b)).min(rms(&mut a.iter().zip(b.iter().rev())))
+}
+
+/// Views within [`DUPLICATE_RMS_PX`] of an earlier view kept: `(view,
+/// earlier view, RMS px)`.
+pub fn duplicates_of(views: &[Vec<[f64; 2]>]) -> Vec<(usize, usize, f64)> {
+    let mut out: Vec<(usize, usize, f64)> = Vec::new();
+    for j in 0..views.len() {
+        let nearest = (0..j)
+            .filter(|i| !out.iter().any(|d| d.0 == *i))
+            .map(|i| (i, corner_rms_px(&views[i], &views[j])))
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        if let Some((i, d)) = nearest
+            && d < DUPLICATE_RMS_PX
+        {
+            out.push((j, i, d));
+        }
+    }
+    out
+}
+
+/// Uncertainty (one σ, px) of the radial and of the tangential distortion
+/// at the farthest corner seen: the radial displacement `f·(k1 r³ + k2 r⁵ +
+/// k3 r⁷)` with the covariance of `k1, k2, k3` (they are strongly
+/// correlated: their σ alone would overstate it), and the tangential
+/// `3 f r² · max(σ(p1), σ(p2))` (its largest term).
+fn distortion_sigma_px(cal: &CameraCalibration) -> (f64, f64) {
+    let f = cal.intrinsics.fx_px.min(cal.intrinsics.fy_px);
+    let r = cal.max_radius_px / f;
+    let g = [f * r.powi(3), f * r.powi(5), f * r.powi(7)];
+    let mut var = 0.0;
+    for (a, ga) in [5, 6, 9].iter().zip(g) {
+        for (b, gb) in [5, 6, 9].iter().zip(g) {
+            var += ga * gb * cal.covariance.get(*a, *b);
+        }
+    }
+    let p = cal.sigma.0[7].unwrap_or(0.0).max(cal.sigma.0[8].unwrap_or(0.0));
+    (var.max(0.0).sqrt(), 3.0 * f * r * r * p)
+}
+
+/// Refuses a calibration an intrinsic of which is too uncertain.
+fn check_uncertainty(cal: &CameraCalibration) -> Result<(), CalibError> {
+    let k = &cal.intrinsics;
+    let spread = orientation_spread_deg(&cal.poses);
+    let fail = |what: String| {
+        Err(CalibError::Uncertain(format!(
+            "{what} ({} views, board orientations within {spread:.1}°: add views with the board tilted differently)",
+            cal.views_used.len()
+        )))
+    };
+    for (i, v, name) in [(0, k.fx_px, "fx"), (1, k.fy_px, "fy")] {
+        if let Some(s) = cal.sigma.0[i]
+            && (s.is_nan() || s > MAX_SIGMA_FOCAL * v)
+        {
+            return fail(format!(
+                "σ({name}) = {s:.2} px is {:.2} % of {name} (limit {} %)",
+                100.0 * s / v,
+                100.0 * MAX_SIGMA_FOCAL
+            ));
+        }
+    }
+    for (i, side, name) in [(2, k.width_px, "cx"), (3, k.height_px, "cy")] {
+        if let Some(s) = cal.sigma.0[i]
+            && (s.is_nan() || s > MAX_SIGMA_CENTRE * f64::from(side))
+        {
+            return fail(format!(
+                "σ({name}) = {s:.2} px is {:.2} % of the image side (limit {} %)",
+                100.0 * s / f64::from(side),
+                100.0 * MAX_SIGMA_CENTRE
+            ));
+        }
+    }
+    let (radial, tangential) = distortion_sigma_px(cal);
+    for (s, what) in [(radial, "radial"), (tangential, "tangential")] {
+        if s.is_nan() || s > MAX_DISTORTION_SIGMA_PX {
+            return fail(format!(
+                "the {what} distortion at the farthest corner is uncertain by {s:.2} px (limit {MAX_DISTORTION_SIGMA_PX} px)"
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Largest angle between two views' board normals, degrees.
+fn orientation_spread_deg(poses: &[BoardPose]) -> f64 {
+    let mut worst: f64 = 0.0;
+    for (i, a) in poses.iter().enumerate() {
+        for b in &poses[i + 1..] {
+            let c: f64 = (0..3).map(|r| a.rot[r][2] * b.rot[r][2]).sum();
+            worst = worst.max(c.clamp(-1.0, 1.0).acos().to_degrees());
+        }
+    }
+    worst
 }
 
 fn calibrate_subset(
@@ -481,7 +738,14 @@ fn calibrate_subset(
         k3: 0.0,
     };
     let kmat = Matrix3::new(k0.fx_px, k0.skew_px, k0.cx_px, 0.0, k0.fy_px, k0.cy_px, 0.0, 0.0, 1.0);
-    let layout = Layout { fix_skew: opts.fix_skew, aspect: opts.fix_aspect, width, height };
+    let layout = Layout {
+        fix_skew: opts.fix_skew,
+        aspect: opts.fix_aspect,
+        fix_k3: opts.fix_k3,
+        fix_tangential: opts.fix_tangential,
+        width,
+        height,
+    };
     let ni = layout.n();
     let mut x = layout.pack(&k0);
     for &v in used {
@@ -516,6 +780,38 @@ fn calibrate_subset(
             pose_from([p[0], p[1], p[2]], [p[3], p[4], p[5]])
         })
         .collect();
+    // The covariance σ²·(JᵀJ)⁻¹ at the solution, σ² from the residuals.
+    let j = lm::CentralDifferences::new(n_res, residuals)
+        .jacobian(&x)
+        .ok_or(CalibError::Degenerate("the Jacobian at the solution is not finite"))?;
+    let dof = n_res.saturating_sub(x.len()).max(1);
+    let s2 = res.iter().map(|v| v * v).sum::<f64>() / dof as f64;
+    let inv = j.tr_mul(&j).cholesky().map(|c| c.inverse()).ok_or_else(|| {
+        CalibError::Uncertain("the normal matrix is singular: some parameter is not determined".into())
+    })?;
+    let names = layout.names();
+    let mut covariance = Covariance::default();
+    let mut sigma = Sigma::default();
+    for (a, &ia) in names.iter().enumerate() {
+        for (b, &ib) in names.iter().enumerate() {
+            covariance.0[ia][ib] = s2 * inv[(a, b)];
+        }
+        sigma.0[ia] = Some((s2 * inv[(a, a)]).max(0.0).sqrt());
+    }
+    if let Some(r) = layout.aspect {
+        // fx = r·fy: its σ and covariances follow fy's.
+        for i in 0..10 {
+            covariance.0[0][i] = r * covariance.0[1][i];
+            covariance.0[i][0] = r * covariance.0[i][1];
+        }
+        covariance.0[0][0] = r * r * covariance.0[1][1];
+        sigma.0[0] = sigma.0[1].map(|s| r * s);
+    }
+    let max_radius_px = used
+        .iter()
+        .flat_map(|&v| views[v].iter())
+        .map(|p| (p[0] - intrinsics.cx_px).hypot(p[1] - intrinsics.cy_px))
+        .fold(0.0, f64::max);
     Ok(CameraCalibration {
         intrinsics,
         rms_px: rms_of(&res),
@@ -524,6 +820,11 @@ fn calibrate_subset(
         per_view_rms_px,
         poses,
         iterations,
+        duplicates: Vec::new(),
+        fixed: Vec::new(),
+        sigma,
+        covariance,
+        max_radius_px,
     })
 }
 

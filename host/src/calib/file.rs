@@ -20,6 +20,16 @@
 //! k3 = 0.0
 //! rms_px = 0.08             # RMS reprojection error of the calibration
 //!
+//! [camera_sigma]            # optional: one standard deviation of each [camera] value,
+//! fx_px = 0.41              # from the Jacobian of the fit (σ²·(JᵀJ)⁻¹); a value
+//! fy_px = 0.40              # held fixed has no key
+//! cx_px = 0.35
+//! cy_px = 0.33
+//! k1 = 0.0011
+//! k2 = 0.006
+//! p1 = 0.00004
+//! p2 = 0.00005
+//!
 //! [board]                   # optional: the checkerboard used
 //! cols = 9                  # inner corners per row
 //! rows = 6                  # inner corners per column
@@ -44,11 +54,25 @@
 //! d_mm = -141.26            # n·X = d
 //! rms_mm = 0.004            # RMS distance of the fitted points from the plane
 //! points = 5120             # points the plane was fitted to
+//! spread_mm = 14.2          # optional: the points' spread across the laser line
+//!                           # (σ of their second principal direction)
+//! depth_min_mm = 160.2      # optional: the nearest and farthest point along the
+//! depth_max_mm = 241.7      # optical axis
 //! ```
 //!
 //! The camera frame is OpenCV's: `x` right, `y` down, `z` forward, mm.
 //! A file from `calibrate camera` has `[camera]` (and `[board]`) only; the
 //! head needs all of `[camera]`, `[datum]` and three `[[laser]]`s.
+//!
+//! **Validation** is what every reader needs, in one place ([`CalibrationFile::parse`]):
+//! each value, and with the datum and the lasers the head's own check of the
+//! calibration message (`cms_core::pipeline::triangulator`: the planes
+//! usable, distinct, in laser order left to right and not crossing in the
+//! working depth) and, with `[head]`, the detector's scale range from it —
+//! so a file that loads is one `measure`, `analyze` and the head accept.
+//! [`CalibrationFile::save`] parses the text it is about to write with the
+//! same code and writes nothing that would not load. Old files (without
+//! `[camera_sigma]` or the per-laser spread) load as before.
 
 use std::fmt;
 use std::path::Path;
@@ -80,6 +104,9 @@ pub struct CalibrationFile {
     pub id: Option<u32>,
     /// Camera intrinsics and distortion.
     pub camera: CameraSection,
+    /// Their standard deviations.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_sigma: Option<SigmaSection>,
     /// The checkerboard the camera was calibrated with.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub board: Option<BoardSection>,
@@ -197,6 +224,61 @@ impl<'de> Deserialize<'de> for CameraSection {
     }
 }
 
+/// `[camera_sigma]`: one standard deviation of each `[camera]` value; a
+/// value held fixed has none.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+#[allow(missing_docs)]
+pub struct SigmaSection {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fx_px: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fy_px: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cx_px: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cy_px: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub skew_px: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub k1: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub k2: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub p1: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub p2: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub k3: Option<f64>,
+}
+
+impl SigmaSection {
+    /// From σ in `calib::camera::INTRINSIC_NAMES` order.
+    pub fn from_array(v: [Option<f64>; 10]) -> SigmaSection {
+        let [fx_px, fy_px, cx_px, cy_px, skew_px, k1, k2, p1, p2, k3] = v;
+        SigmaSection { fx_px, fy_px, cx_px, cy_px, skew_px, k1, k2, p1, p2, k3 }
+    }
+
+    /// `(key, σ)` of the values present.
+    pub fn entries(&self) -> Vec<(&'static str, f64)> {
+        [
+            ("fx_px", self.fx_px),
+            ("fy_px", self.fy_px),
+            ("cx_px", self.cx_px),
+            ("cy_px", self.cy_px),
+            ("skew_px", self.skew_px),
+            ("k1", self.k1),
+            ("k2", self.k2),
+            ("p1", self.p1),
+            ("p2", self.p2),
+            ("k3", self.k3),
+        ]
+        .into_iter()
+        .filter_map(|(k, v)| v.map(|v| (k, v)))
+        .collect()
+    }
+}
+
 /// `[board]`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -254,6 +336,54 @@ pub struct LaserSection {
     /// Points the plane was fitted to.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub points: Option<u64>,
+    /// The points' spread across the laser line (σ along their second
+    /// principal direction), mm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub spread_mm: Option<f64>,
+    /// Nearest point along the optical axis, mm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth_min_mm: Option<f64>,
+    /// Farthest point along the optical axis, mm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth_max_mm: Option<f64>,
+}
+
+/// What a recording says of the head that made it: the calibration ids
+/// and sensor sizes of its `Hello`s, and the largest row and column of its
+/// points (what a recording without a `Hello` still tells of the camera).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RecordedHeads {
+    /// Distinct non-zero calibration ids of the `Hello`s, in order.
+    pub calibration_ids: Vec<u32>,
+    /// Distinct sensor sizes (width, height) of the `Hello`s, px.
+    pub sensors: Vec<(u32, u32)>,
+    /// Largest point row and column, px.
+    pub max_row_px: Option<u32>,
+    /// Largest point column, px.
+    pub max_column_px: Option<f64>,
+}
+
+impl RecordedHeads {
+    /// Notes a `Hello`.
+    pub fn hello(&mut self, info: &cms_core::protocol::DeviceInfo) {
+        let id = info.calibration_id;
+        if id != 0 && !self.calibration_ids.contains(&id) {
+            self.calibration_ids.push(id);
+        }
+        let size = (u32::from(info.sensor_width), u32::from(info.sensor_height));
+        if !self.sensors.contains(&size) {
+            self.sensors.push(size);
+        }
+    }
+
+    /// Notes a profile's points.
+    pub fn profile(&mut self, p: &cms_core::protocol::Profile) {
+        for q in p.lasers.iter().flat_map(|l| l.points.iter()) {
+            self.max_row_px = Some(self.max_row_px.map_or(u32::from(q.row), |r| r.max(u32::from(q.row))));
+            let c = q.position.to_f64();
+            self.max_column_px = Some(self.max_column_px.map_or(c, |m| m.max(c)));
+        }
+    }
 }
 
 /// What is wrong with a calibration file: one line naming the file and the key.
@@ -308,6 +438,7 @@ impl CalibrationFile {
             version: FILE_VERSION,
             id: None,
             camera: CameraSection { intrinsics: *intr, rms_px },
+            camera_sigma: None,
             board: board.map(|b| BoardSection { cols: b.cols as u32, rows: b.rows as u32, square_mm: b.square_mm }),
             datum: None,
             head: None,
@@ -348,11 +479,16 @@ impl CalibrationFile {
         )
     }
 
-    /// Writes the file atomically, and only as a regular file
+    /// Writes the file after reading its text back with
+    /// [`CalibrationFile::parse`] (what every reader would refuse is not
+    /// written), atomically and only as a regular file
     /// ([`crate::output::write_atomically`]): a failure never leaves half a
     /// file, and a device, FIFO or directory is refused, not replaced.
     pub fn save(&self, path: &Path) -> Result<(), crate::Error> {
         let text = self.to_toml();
+        let name = path.display().to_string();
+        CalibrationFile::parse(&text, &name)
+            .map_err(|e| crate::Error::Input(format!("{e}; not written: its readers would refuse it")))?;
         Ok(crate::output::write_atomically(path, |w| w.write_all(text.as_bytes()))?)
     }
 
@@ -432,6 +568,94 @@ impl CalibrationFile {
         }
         if !self.lasers.is_empty() && self.lasers.len() != LASERS {
             return Err(format!("{} [[laser]] entries; a head has {LASERS}", self.lasers.len()));
+        }
+        if let Some(sg) = &self.camera_sigma {
+            for (k, v) in sg.entries() {
+                if !(v.is_finite() && v >= 0.0) {
+                    return Err(format!("camera_sigma.{k} = {v} must be a finite number ≥ 0"));
+                }
+            }
+        }
+        for l in &self.lasers {
+            let at = format!("laser {}", l.id);
+            for (k, v) in
+                [("spread_mm", l.spread_mm), ("depth_min_mm", l.depth_min_mm), ("depth_max_mm", l.depth_max_mm)]
+            {
+                if let Some(v) = v
+                    && !(v.is_finite() && v >= 0.0)
+                {
+                    return Err(format!("{at}: {k} = {v} must be a finite number ≥ 0"));
+                }
+            }
+        }
+        self.check_head()
+    }
+
+    /// With a datum and the lasers: what the head checks of the calibration
+    /// message ([`cms_core::pipeline::triangulator`]), the laser lines apart
+    /// over the `[head]` working range too (the head checks its default
+    /// depth only: it is not told the range), and the detector's scale range
+    /// of `[head]`, as `measure` and `upload` form it.
+    fn check_head(&self) -> Result<(), String> {
+        if self.datum.is_none() || self.lasers.len() != LASERS {
+            return Ok(());
+        }
+        let msg = self.to_head().map_err(|e| e.0)?;
+        let tri = cms_core::pipeline::triangulator(&msg).map_err(|e| e.to_string())?;
+        if let Some(h) = &self.head {
+            let range = format!("range {:?}–{:?} mm", h.range_min_mm, h.range_max_mm);
+            tri.scale_range(h.laser_diameter_mm, (h.range_min_mm, h.range_max_mm)).map_err(|e| {
+                format!(
+                    "[head]: no detector scale range for laser_diameter_mm = {:?}, {range}: {e}",
+                    h.laser_diameter_mm
+                )
+            })?;
+            cms_core::pipeline::check_laser_lines(&msg, (h.range_min_mm, h.range_max_mm))
+                .map_err(|e| format!("[head] {range}: {e}"))?;
+        }
+        Ok(())
+    }
+
+    /// Refuses to pair this calibration (`cal_name`) with a recording
+    /// (`rec_name`) of another head: a `Hello` with another calibration id
+    /// (`0`, no calibration, is not another one: its raw peaks are
+    /// triangulated with this file), or another sensor size, or points
+    /// beyond this camera's image.
+    pub fn check_recording(&self, cal_name: &str, rec_name: &str, heads: &RecordedHeads) -> Result<(), crate::Error> {
+        let bad = |m: String| Err(crate::Error::Input(m));
+        let id = self.head_id();
+        if let Some(rid) = heads.calibration_ids.iter().find(|&&r| r != id) {
+            return bad(format!(
+                "{cal_name} is calibration {id:#010x}, but {rec_name} was recorded with calibration {rid:#010x}"
+            ));
+        }
+        let (w, h) = (self.camera.intrinsics.width_px, self.camera.intrinsics.height_px);
+        if let Some(&(sw, sh)) = heads.sensors.iter().find(|&&s| s != (w, h)) {
+            return bad(format!("{cal_name} is for a {w}×{h} camera, but {rec_name} was recorded by a {sw}×{sh} one"));
+        }
+        if let Some(r) = heads.max_row_px.filter(|&r| r >= h) {
+            return bad(format!("{cal_name} is for a {w}×{h} camera, but {rec_name} has points in row {r}"));
+        }
+        if let Some(c) = heads.max_column_px.filter(|&c| c > f64::from(w)) {
+            return bad(format!("{cal_name} is for a {w}×{h} camera, but {rec_name} has points at column {c:.1}"));
+        }
+        Ok(())
+    }
+
+    /// Refuses to pair this calibration (`cal_name`) with an image
+    /// (`image_name`) of another size than its camera's.
+    pub fn check_image(
+        &self,
+        cal_name: &str,
+        image_name: &str,
+        width: usize,
+        height: usize,
+    ) -> Result<(), crate::Error> {
+        let (w, h) = (self.camera.intrinsics.width_px, self.camera.intrinsics.height_px);
+        if (width, height) != (w as usize, h as usize) {
+            return Err(crate::Error::Input(format!(
+                "{image_name} is {width}×{height} px, but {cal_name} is for a {w}×{h} camera"
+            )));
         }
         Ok(())
     }
@@ -619,6 +843,22 @@ rms_mm = 0.003
         assert!(f.to_head().unwrap_err().0.contains("[datum]"));
         let two = FULL.rfind("[[laser]]").unwrap();
         assert!(err(&FULL[..two]).contains("2 [[laser]] entries"));
+    }
+
+    #[test]
+    fn camera_sigma_round_trips_and_old_files_still_load() {
+        // FULL is a file of before [camera_sigma] and the laser spread.
+        let mut f = CalibrationFile::parse(FULL, "cal.toml").unwrap();
+        assert!(f.camera_sigma.is_none());
+        f.camera_sigma = Some(SigmaSection { fx_px: Some(0.23), k1: Some(1.5e-3), ..SigmaSection::default() });
+        f.lasers[1].spread_mm = Some(12.5);
+        let text = f.to_toml();
+        assert!(text.contains("[camera_sigma]\nfx_px = 0.23\nk1 = 0.0015\n"), "{text}");
+        assert_eq!(CalibrationFile::parse(&text, "again").unwrap(), f);
+        let e = err(&text.replace("fx_px = 0.23", "fx_px = -1.0"));
+        assert_eq!(e, "cal.toml: camera_sigma.fx_px = -1 must be a finite number ≥ 0");
+        let e = err(&text.replace("spread_mm = 12.5", "spread_mm = nan"));
+        assert!(e.contains("laser 1: spread_mm = NaN"), "{e}");
     }
 
     #[test]

@@ -95,6 +95,11 @@ pub struct LaserPlane {
     pub outliers: usize,
     /// Poses that contributed.
     pub poses: usize,
+    /// The points' spread across the laser line: σ along their second
+    /// principal direction, mm (a plane needs it well above the RMS).
+    pub spread_mm: f64,
+    /// Nearest and farthest point along the optical axis, mm.
+    pub depth_mm: (f64, f64),
 }
 
 /// The result of [`calibrate_lasers`].
@@ -319,7 +324,18 @@ fn fit(k: usize, pts: &[[f64; 3]], poses: usize, max_rms_mm: f64) -> Result<Lase
             "laser {k}: its points are {rms:.3} mm RMS from their plane (limit {max_rms_mm} mm): stripes assigned to the wrong laser, or a bad camera calibration"
         ));
     }
-    Ok(LaserPlane { normal: n, d_mm: d, rms_mm: rms, points: kept.len(), outliers: pts.len() - kept.len(), poses })
+    let (_, _, _, spread_mm) = tls_plane(&kept);
+    let depth_mm = kept.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| (lo.min(p[2]), hi.max(p[2])));
+    Ok(LaserPlane {
+        normal: n,
+        d_mm: d,
+        rms_mm: rms,
+        points: kept.len(),
+        outliers: pts.len() - kept.len(),
+        poses,
+        spread_mm,
+        depth_mm,
+    })
 }
 
 /// Calibrates the laser planes from image pairs of `board` seen by a camera

@@ -35,7 +35,18 @@ pub fn truth(scene: &Scene) -> CalibrationFile {
         .enumerate()
         .map(|(k, p)| {
             let (n, d_mm) = oriented(p);
-            LaserSection { id: k as u32, nx: n[0], ny: n[1], nz: n[2], d_mm, rms_mm: 0.0, points: None }
+            LaserSection {
+                id: k as u32,
+                nx: n[0],
+                ny: n[1],
+                nz: n[2],
+                d_mm,
+                rms_mm: 0.0,
+                points: None,
+                spread_mm: None,
+                depth_min_mm: None,
+                depth_max_mm: None,
+            }
         })
         .collect();
     f

@@ -113,13 +113,7 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
         let name = path.display();
         // The file's own errors name it.
         let file = CalibrationFile::load(path).map_err(Error::from)?;
-        let id = file.to_head().map_err(|e| Error::Input(format!("{name}: {e}")))?.id;
-        if let Some(rid) = rec.calibration_id.filter(|&r| r != id) {
-            anyhow::bail!(Error::Input(format!(
-                "{name} is calibration {id:#010x}, but {} was recorded with calibration {rid:#010x}",
-                args.recording.display()
-            )));
-        }
+        file.check_recording(&name.to_string(), &args.recording.display().to_string(), &rec.heads)?;
         let m = Measurer::new(&file).map_err(|e| Error::Input(format!("{name}: {e}")))?;
         rec.slid_across = Some((analyze::slide_frames(&mut rec.frames, &m), path.clone()));
     }

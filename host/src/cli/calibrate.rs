@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use cms_host::Error;
 use cms_host::calib::board::{CornerError, find_corners};
 use cms_host::calib::camera::{CalibOptions, calibrate};
-use cms_host::calib::file::{CalibrationFile, HeadSection, LaserSection, PlaneSection};
+use cms_host::calib::file::{CalibrationFile, HeadSection, LaserSection, PlaneSection, SigmaSection};
 use cms_host::calib::lasers::{LaserOptions, Pair, calibrate_lasers};
 use cms_host::calib::{self, render, upload};
 use cms_host::input::read_rows;
@@ -134,13 +134,31 @@ pub fn camera(args: &CameraArgs) -> anyhow::Result<()> {
         max_view_rms_px: args.max_view_rms,
         ..CalibOptions::default()
     };
-    let cal = calibrate(&board, &views, w, h, &opts).map_err(|e| Error::Input(e.to_string()))?;
+    let result = calibrate(&board, &views, w, h, &opts);
+    // The views left out as duplicates are named whether or not the rest
+    // calibrate (three copies of one photograph are one view).
+    let dups = match &result {
+        Ok(cal) => cal.duplicates.clone(),
+        Err(_) => calib::camera::duplicates_of(&views),
+    };
+    for &(v, of, d) in &dups {
+        writeln!(out, "{}: left out: the same pose as {} (corners {d:.3} px RMS apart)", names[v], names[of])
+            .map_err(Error::Output)?;
+    }
+    let cal = result.map_err(|e| {
+        let dup =
+            if dups.is_empty() { String::new() } else { format!(" ({} near-duplicate views left out)", dups.len()) };
+        Error::Input(format!("{e}{dup}"))
+    })?;
     for &(v, e) in &cal.views_rejected {
         writeln!(out, "{}: rejected: RMS {e:.3} px > {:.3} px", names[v], args.max_view_rms.unwrap_or(0.0))
             .map_err(Error::Output)?;
     }
     for (&v, e) in cal.views_used.iter().zip(&cal.per_view_rms_px) {
         writeln!(out, "{}: RMS {e:.3} px", names[v]).map_err(Error::Output)?;
+    }
+    for why in &cal.fixed {
+        writeln!(out, "{why}").map_err(Error::Output)?;
     }
     let k = &cal.intrinsics;
     writeln!(
@@ -160,7 +178,20 @@ pub fn camera(args: &CameraArgs) -> anyhow::Result<()> {
         cal.rms_px
     )
     .map_err(Error::Output)?;
-    CalibrationFile::camera_only(&cal.intrinsics, cal.rms_px, Some(&board)).save(&args.out)?;
+    let sigma: Vec<String> = calib::camera::INTRINSIC_NAMES
+        .iter()
+        .zip(cal.sigma.0)
+        .map(|(n, s)| match s {
+            Some(s) if n.starts_with('k') || n.starts_with('p') => format!("{n} {s:.2e}"),
+            Some(s) => format!("{n} {s:.3}"),
+            None => format!("{n} fixed"),
+        })
+        .collect();
+    writeln!(out, "σ (one standard deviation, from the Jacobian; px for fx … skew): {}", sigma.join(", "))
+        .map_err(Error::Output)?;
+    let mut file = CalibrationFile::camera_only(&cal.intrinsics, cal.rms_px, Some(&board));
+    file.camera_sigma = Some(SigmaSection::from_array(cal.sigma.0));
+    file.save(&args.out)?;
     writeln!(out, "wrote {}", args.out.display()).map_err(Error::Output)?;
     Ok(())
 }
@@ -274,8 +305,19 @@ pub fn lasers(args: &LasersArgs) -> anyhow::Result<()> {
     for (k, l) in cal.planes.iter().enumerate() {
         let _ = writeln!(
             report,
-            "laser {k}: n = ({:+.6}, {:+.6}, {:+.6}), d = {:.4} mm, RMS {:.4} mm over {} points from {} poses ({} outliers)",
-            l.normal[0], l.normal[1], l.normal[2], l.d_mm, l.rms_mm, l.points, l.poses, l.outliers
+            "laser {k}: n = ({:+.6}, {:+.6}, {:+.6}), d = {:.4} mm, RMS {:.4} mm over {} points from {} poses ({} outliers), \
+             spread {:.2} mm across the line, depths {:.1}–{:.1} mm",
+            l.normal[0],
+            l.normal[1],
+            l.normal[2],
+            l.d_mm,
+            l.rms_mm,
+            l.points,
+            l.poses,
+            l.outliers,
+            l.spread_mm,
+            l.depth_mm.0,
+            l.depth_mm.1
         );
     }
     file.datum = Some(PlaneSection { nx: cal.datum.0[0], ny: cal.datum.0[1], nz: cal.datum.0[2], d_mm: cal.datum.1 });
@@ -291,6 +333,9 @@ pub fn lasers(args: &LasersArgs) -> anyhow::Result<()> {
             d_mm: l.d_mm,
             rms_mm: l.rms_mm,
             points: Some(l.points as u64),
+            spread_mm: Some(l.spread_mm),
+            depth_min_mm: Some(l.depth_mm.0),
+            depth_max_mm: Some(l.depth_mm.1),
         })
         .collect();
     if head.is_some() {
@@ -299,8 +344,10 @@ pub fn lasers(args: &LasersArgs) -> anyhow::Result<()> {
     // The head would refuse a calibration its triangulation cannot use: say so now.
     let msg = file.to_head().map_err(|e| usage(e.to_string()))?;
     cms_core::pipeline::triangulator(&msg).map_err(|e| usage(format!("the fitted planes are unusable: {e}")))?;
-    file.save(&args.out)?;
+    // The report first: a file refused on saving (a [head] range no
+    // detector scale fits, say) still shows what was fitted.
     print!("{report}");
+    file.save(&args.out)?;
     println!("wrote {}", args.out.display());
     Ok(())
 }

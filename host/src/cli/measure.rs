@@ -39,7 +39,11 @@ pub fn run(args: &MeasureArgs) -> anyhow::Result<()> {
     }
     let mut out = BufWriter::new(io::stdout().lock());
     for path in &args.inputs {
-        let results = measure::measure_file(&m, path)?;
+        let (results, warnings) = measure::measure_file(&m, path, &cal_name.to_string())?;
+        for w in warnings {
+            // Not eprintln!: it panics if stderr is closed.
+            let _ = writeln!(io::stderr(), "{w}");
+        }
         for r in &results {
             if args.json {
                 serde_json::to_writer(&mut out, r).map_err(|e| Error::Output(e.into()))?;

@@ -444,3 +444,33 @@ fn sim_recording_end_to_end() {
     let e = one_line_error(&run(&["analyze", rec.to_str().unwrap(), "--calibration", other.to_str().unwrap()]));
     assert!(e.contains("0x00003039") && e.contains("recorded with calibration"), "{e}");
 }
+
+/// A frame present twice is analysed once, and said (issue 16); a damaged
+/// one is said too.
+#[test]
+fn duplicated_and_damaged_frames_are_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("dup.cmsrec");
+    write_recording(&path, &frames(33.3, 4, &[], 1.0, 5), true);
+    let mut bytes = std::fs::read(&path).unwrap();
+    // Frame 3 again (a writer retrying), then one damaged frame.
+    let body = &bytes[record::HEADER_LEN..];
+    let starts: Vec<usize> =
+        std::iter::once(0).chain(body.iter().enumerate().filter(|(_, b)| **b == 0).map(|(i, _)| i + 1)).collect();
+    let last = bytes[record::HEADER_LEN + starts[3]..record::HEADER_LEN + starts[4]].to_vec();
+    bytes.extend(&last);
+    let mut broken = last.clone();
+    broken[5] ^= 0x40;
+    bytes.extend(&broken);
+    std::fs::write(&path, &bytes).unwrap();
+    let o = run(&["analyze", path.to_str().unwrap(), "--json"]);
+    assert!(o.status.success(), "{o:?}");
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(
+        (v["frames"].as_u64(), v["duplicate_profiles"].as_u64(), v["damaged_frames"].as_u64()),
+        (Some(4), Some(1), Some(1))
+    );
+    let o = run(&["analyze", path.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("1 profile messages present twice") && text.contains("1 damaged frames"), "{text}");
+}

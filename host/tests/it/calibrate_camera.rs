@@ -18,7 +18,7 @@ use std::path::PathBuf;
 
 use cms_host::board::{Board, BoardPose};
 use cms_host::calib::board::{CornerError, find_corners};
-use cms_host::calib::camera::{CalibOptions, board_pose, calibrate};
+use cms_host::calib::camera::{CalibError, CalibOptions, board_pose, calibrate};
 use cms_host::camera::Intrinsics;
 use nalgebra::{Rotation3, Vector3};
 
@@ -393,4 +393,172 @@ fn cli_writes_the_calibration_file() {
     assert_eq!(board["cols"].as_integer(), Some(9));
     assert_eq!(board["rows"].as_integer(), Some(6));
     assert_eq!(board["square_mm"].as_float(), Some(25.0));
+}
+
+// ---------------------------------------------------------------------------
+// The checks a metrologist makes (issue 16).
+
+/// One photograph given three times is one view: the copies are named and
+/// left out, and one view does not calibrate (it gave fx 1512 for 1400,
+/// exit 0). With the 13 distinct views as well, the copies change nothing.
+#[test]
+fn duplicate_views_are_named_and_left_out() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out_toml = dir.path().join("cam.toml");
+    let o = out_toml.to_str().unwrap();
+    let p1 = photo(1).display().to_string();
+    let r = cms_host(&["calibrate", "camera", "--board", "9x6", "--square-mm", "25", "--out", o, &p1, &p1, &p1]);
+    let stdout = String::from_utf8_lossy(&r.stdout);
+    assert_usage_error(&r, "1 distinct usable views; calibration needs at least 3 (2 near-duplicate views left out)");
+    assert_eq!(stdout.matches("left01.jpg: left out: the same pose as ").count(), 2, "{stdout}");
+    assert!(!out_toml.exists());
+
+    let mut views = Vec::new();
+    for n in PHOTOS {
+        let (px, w, h) = load(&photo(n));
+        views.push(find_corners(&px, w, h, &OPENCV_BOARD).expect("corners"));
+    }
+    let opts = CalibOptions { fix_aspect: Some(1.0), ..CalibOptions::default() };
+    let once = calibrate(&OPENCV_BOARD, &views, 640, 480, &opts).expect("calibration");
+    assert!(once.duplicates.is_empty(), "{:?}", once.duplicates);
+    let mut twice = views.clone();
+    twice.push(views[4].clone());
+    twice.push(views[0].clone());
+    let cal = calibrate(&OPENCV_BOARD, &twice, 640, 480, &opts).expect("calibration");
+    assert_eq!(cal.duplicates.iter().map(|d| (d.0, d.1)).collect::<Vec<_>>(), [(13, 4), (14, 0)]);
+    assert_eq!(cal.views_used.len(), 13);
+    assert_eq!(cal.intrinsics, once.intrinsics);
+}
+
+/// The standard deviation of every intrinsic, from the Jacobian: on the
+/// OpenCV photographs (printed for the record), each well inside its limit;
+/// held-fixed parameters have none.
+#[test]
+fn photographs_give_the_standard_deviation_of_every_intrinsic() {
+    let mut views = Vec::new();
+    for n in PHOTOS {
+        let (px, w, h) = load(&photo(n));
+        views.push(find_corners(&px, w, h, &OPENCV_BOARD).expect("corners"));
+    }
+    let opts = CalibOptions { fix_aspect: Some(1.0), ..CalibOptions::default() };
+    let cal = calibrate(&OPENCV_BOARD, &views, 640, 480, &opts).expect("calibration");
+    let s = cal.sigma;
+    println!(
+        "OpenCV photographs, 13 views: σ {:?}; fixed {:?}; farthest corner {:.0} px",
+        s.0, cal.fixed, cal.max_radius_px
+    );
+    let k = cal.intrinsics;
+    let fx = s.get("fx").expect("σ(fx)");
+    assert!((fx - s.get("fy").unwrap()).abs() < 1e-12, "fixed aspect: σ(fx) = σ(fy)");
+    assert!(fx > 0.0 && fx < 0.005 * k.fx_px, "σ(fx) {fx}");
+    for n in ["cx", "cy"] {
+        let v = s.get(n).unwrap();
+        assert!(v > 0.0 && v < 0.01 * 640.0, "σ({n}) {v}");
+    }
+    assert_eq!(s.get("skew"), None, "skew held fixed");
+    assert!(s.get("k1").unwrap() > 0.0 && s.get("k1").unwrap() < 0.05);
+    // σ scales with the noise: the same views with each corner moved by
+    // 0.3 px more noise give larger σ (the σ² of the residuals is in it).
+    let mut rng = Noise(11);
+    let noisy: Vec<Vec<[f64; 2]>> = views
+        .iter()
+        .map(|v| v.iter().map(|p| [p[0] + 0.3 * rng.normal(), p[1] + 0.3 * rng.normal()]).collect())
+        .collect();
+    let worse = calibrate(&OPENCV_BOARD, &noisy, 640, 480, &opts).expect("calibration");
+    assert!(worse.sigma.get("fx").unwrap() > 1.2 * fx, "{:?} vs {:?}", worse.sigma, s);
+}
+
+/// Views that do not constrain the camera are refused, saying why: five
+/// views of a board tilted about one axis, 0.6° or 2.4° apart, leave the
+/// focal length undetermined. The same board tilted by 25° between views
+/// calibrates, and its corners, reaching only 0.3 of the focal length
+/// off-axis, cannot determine k3: it is fixed at 0 and the result says so.
+#[test]
+fn views_without_diversity_are_refused_or_their_distortion_fixed() {
+    let intr = Intrinsics { k3: 0.0, ..synthetic_camera() };
+    let views_of = |poses: &[BoardPose], seed: u64| -> Vec<Vec<[f64; 2]>> {
+        let mut rng = Noise(seed);
+        poses
+            .iter()
+            .map(|p| {
+                SYNTH_BOARD
+                    .object_points()
+                    .iter()
+                    .map(|o| {
+                        let q = intr.project(p.to_camera(*o)).expect("in front");
+                        [q[0] + 0.1 * rng.normal(), q[1] + 0.1 * rng.normal()]
+                    })
+                    .collect()
+            })
+            .collect()
+    };
+    // Five views tilted about one axis, 0.6° apart: no focal length fits
+    // (Zhang's closed form and OpenCV's both degenerate).
+    let tilted = |step: f64| -> Vec<BoardPose> {
+        (0..5)
+            .map(|i| {
+                let a = step * i as f64;
+                pose([a, -a, 0.0], [-120.0 + 5.0 * i as f64, -75.0, 700.0 + 10.0 * i as f64])
+            })
+            .collect()
+    };
+    let e = calibrate(&SYNTH_BOARD, &views_of(&tilted(0.006), 3), 640, 480, &CalibOptions::default())
+        .expect_err("flat views");
+    assert!(matches!(e, CalibError::Degenerate(_)), "{e:?}");
+    // 2.4° apart (9° in all): a fit, but σ(fx) is 7 % of fx (measured): refused.
+    let e = calibrate(&SYNTH_BOARD, &views_of(&tilted(0.03), 3), 640, 480, &CalibOptions::default())
+        .expect_err("views too alike");
+    let msg = e.to_string();
+    println!("{msg}");
+    assert!(matches!(e, CalibError::Uncertain(_)), "{e:?}");
+    assert!(
+        msg.starts_with("the views do not determine the camera: σ(fx) = ")
+            && msg.contains("(limit 1 %)")
+            && msg.contains("board orientations within 9.1°"),
+        "{msg}"
+    );
+
+    // Small board far away: corners within 0.3 f of the axis, tilted views.
+    let far: Vec<BoardPose> = [
+        ([0.45, 0.10, 0.05], [-120.0, -75.0, 900.0]),
+        ([-0.40, 0.20, -0.10], [-110.0, -80.0, 860.0]),
+        ([0.10, 0.50, 0.30], [-130.0, -60.0, 950.0]),
+        ([0.05, -0.45, -0.20], [-90.0, -90.0, 900.0]),
+        ([0.30, 0.30, 1.40], [30.0, -100.0, 930.0]),
+    ]
+    .iter()
+    .map(|&(r, t)| pose(r, t))
+    .collect();
+    let cal = calibrate(&SYNTH_BOARD, &views_of(&far, 5), 640, 480, &CalibOptions::default()).expect("tilted views");
+    println!("fixed: {:?}; σ {:?}", cal.fixed, cal.sigma.0);
+    assert!(cal.fixed.iter().any(|f| f.starts_with("k3 fixed at 0: the corners reach")), "{:?}", cal.fixed);
+    assert_eq!(cal.sigma.get("k3"), None);
+    assert_eq!(cal.intrinsics.k3, 0.0);
+    assert!(
+        (cal.intrinsics.fx_px - intr.fx_px).abs() < 3.0 * cal.sigma.get("fx").unwrap() + 0.5,
+        "{:?}",
+        cal.intrinsics
+    );
+}
+
+/// The command prints every σ and writes them to `[camera_sigma]`, which
+/// loads back.
+#[test]
+fn cli_prints_and_writes_the_standard_deviations() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out_toml = dir.path().join("cam.toml");
+    let mut args: Vec<String> = ["calibrate", "camera", "--board", "9x6", "--square-mm", "25", "--fix-aspect", "--out"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    args.push(out_toml.display().to_string());
+    args.extend(PHOTOS.iter().map(|&n| photo(n).display().to_string()));
+    let r = cms_host(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    let stdout = String::from_utf8_lossy(&r.stdout);
+    assert!(r.status.success(), "{stdout} {}", String::from_utf8_lossy(&r.stderr));
+    let line = stdout.lines().find(|l| l.starts_with("σ (one standard deviation")).expect("σ line");
+    assert!(line.contains("fx ") && line.contains("skew fixed") && line.contains("k1 "), "{line}");
+    let f = cms_host::calib::file::CalibrationFile::load(&out_toml).expect("loads");
+    let s = f.camera_sigma.expect("[camera_sigma]");
+    assert!(s.fx_px.unwrap() > 0.0 && s.cy_px.unwrap() > 0.0 && s.skew_px.is_none(), "{s:?}");
 }

@@ -147,6 +147,155 @@ fn lasers_refuses_bad_arguments_in_one_line() {
     assert!(!out.exists());
 }
 
+/// The reference head's true calibration with its laser planes replaced.
+fn with_planes(planes: [([f64; 3], f64); 3]) -> CalibrationFile {
+    let mut f = truth(&Scene::new(SimConfig::reference()).unwrap());
+    for (l, (n, d)) in f.lasers.iter_mut().zip(planes) {
+        [l.nx, l.ny, l.nz] = n;
+        l.d_mm = d;
+    }
+    f
+}
+
+/// The reference head's planes: parallel, 8.2 mm apart along their normal.
+fn reference_planes() -> [([f64; 3], f64); 3] {
+    let f = truth(&Scene::new(SimConfig::reference()).unwrap());
+    std::array::from_fn(|k| ([f.lasers[k].nx, f.lasers[k].ny, f.lasers[k].nz], f.lasers[k].d_mm))
+}
+
+/// A plane turned about the camera's y axis by `deg`, about the point where
+/// it meets the optical axis.
+fn turned(p: ([f64; 3], f64), deg: f64) -> ([f64; 3], f64) {
+    let (n, d) = p;
+    let t = deg.to_radians();
+    let m = [n[0] * t.cos() + n[2] * t.sin(), n[1], -n[0] * t.sin() + n[2] * t.cos()];
+    (m, m[2] * d / n[2])
+}
+
+/// Three identical laser planes (and planes that cross, or are out of laser
+/// order, in the working depth) are refused by the file's reader — so by
+/// `measure`, `analyze`, `calibrate upload` — and by the head's own check;
+/// before, `measure` gave a 0.00 µm amplitude and `analyze` "pass yes".
+#[test]
+fn laser_planes_must_be_distinct_ordered_and_apart() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cal.toml");
+    let p = path.to_str().unwrap();
+    let r = reference_planes();
+    let write = |f: &CalibrationFile| std::fs::write(&path, f.to_toml()).unwrap();
+
+    // The reference calibration passes (the baseline of the cases below).
+    assert!(CalibrationFile::parse(&with_planes(r).to_toml(), "ok.toml").is_ok());
+
+    let same = with_planes([r[0], r[0], r[0]]);
+    let msg = same.to_head().unwrap();
+    let head = cms_core::pipeline::triangulator(&msg).unwrap_err();
+    assert!(matches!(head, cms_core::pipeline::CalibrationError::LinesTooClose { left: 0, .. }), "{head:?}");
+    write(&same);
+    let e = one_line_error(&run(&["calibrate", "upload", p, "sim"]));
+    assert!(e.contains("laser planes 0 and 1 cross, coincide or are out of laser order"), "{e}");
+    let e = one_line_error(&run(&["measure", "--calibration", p, "/nonexistent/x.png"]));
+    assert!(e.contains("cal.toml") && e.contains("laser planes 0 and 1"), "{e}");
+    let e = one_line_error(&run(&["analyze", "/nonexistent/x.cmsrec", "--calibration", p]));
+    assert!(e.contains("/nonexistent/x.cmsrec"), "the recording is read first: {e}");
+
+    // Laser 2 turned by −10° about its point on the optical axis: it crosses
+    // laser 1 at 228 mm, inside the 150–250 mm working depth (and the
+    // [head] range 170–230 mm).
+    let crossing = with_planes([r[0], r[1], turned(r[2], -10.0)]);
+    let e = CalibrationFile::parse(&crossing.to_toml(), "x.toml").unwrap_err().0;
+    assert!(e.starts_with("x.toml: ") && e.contains("laser planes 1 and 2 cross"), "{e}");
+    assert!(cms_core::pipeline::triangulator(&crossing.to_head().unwrap()).is_err());
+    // Turned by +6°: they cross at 126 mm, outside it, and are ≥ 37 px apart within.
+    let fanned = with_planes([r[0], r[1], turned(r[2], 6.0)]);
+    assert!(CalibrationFile::parse(&fanned.to_toml(), "x.toml").is_ok());
+
+    // Lasers 0 and 2 swapped: stripes are numbered left to right.
+    let swapped = with_planes([r[2], r[1], r[0]]);
+    let e = CalibrationFile::parse(&swapped.to_toml(), "x.toml").unwrap_err().0;
+    assert!(e.contains("laser planes 0 and 1") && e.contains("out of laser order"), "{e}");
+
+    // Two lines 3–5 px apart: too close to tell apart.
+    let near = with_planes([r[0], (r[1].0, r[0].1 + 0.4), r[2]]);
+    let e = CalibrationFile::parse(&near.to_toml(), "x.toml").unwrap_err().0;
+    assert!(e.contains("px apart") && e.contains("at least 8 px"), "{e}");
+}
+
+/// Every writer reads back what it writes: a `[head]` range no detector
+/// scale fits (`--range-mm 1e300:1e301` wrote a file every reader refused)
+/// is not written.
+#[test]
+fn the_writer_refuses_what_its_readers_would() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cal.toml");
+    let mut f = truth(&Scene::new(SimConfig::reference()).unwrap());
+    f.head.as_mut().unwrap().range_min_mm = 1e300;
+    f.head.as_mut().unwrap().range_max_mm = 1e301;
+    let e = f.save(&path).unwrap_err().to_string();
+    assert!(e.contains("cal.toml: [head]") && e.contains("not written"), "{e}");
+    assert!(!path.exists() && !dir.path().join("cal.toml.partial").exists());
+    // The readers refuse it too, in the same words.
+    std::fs::write(&path, f.to_toml()).unwrap();
+    let e = one_line_error(&run(&["calibrate", "upload", path.to_str().unwrap(), "sim"]));
+    assert!(e.contains("[head]: no detector scale range"), "{e}");
+}
+
+/// The whole chain from the simulated head's 24 calibration views on the
+/// command line: `calibrate camera` prints σ of every intrinsic (measured
+/// here), fixes k3 (the corners reach only 0.3 f off-axis) and writes
+/// `[camera_sigma]`; `calibrate lasers` prints each plane's residual and
+/// spread; with `--range-mm 1e300:1e301` it writes nothing.
+#[test]
+fn cli_chain_on_the_simulated_head() {
+    let dir = tempfile::tempdir().unwrap();
+    let imgs = dir.path().join("imgs");
+    let i = imgs.to_str().unwrap();
+    let r = run(&["calibrate", "render", "--poses", "24", "--seed", "1", "--out", i]);
+    assert!(r.status.success(), "{r:?}");
+    let cam = dir.path().join("cam.toml");
+    let boards: Vec<String> = (0..24).map(|k| imgs.join(format!("board-{k:02}.png")).display().to_string()).collect();
+    let mut args = vec!["calibrate", "camera", "--board", "9x6", "--square-mm", "6", "--out", cam.to_str().unwrap()];
+    args.extend(boards.iter().map(String::as_str));
+    let r = run(&args);
+    let out = String::from_utf8_lossy(&r.stdout).to_string();
+    assert!(r.status.success(), "{out} {}", String::from_utf8_lossy(&r.stderr));
+    println!("{out}");
+    assert!(out.contains("k3 fixed at 0: the corners reach"), "{out}");
+    let f = CalibrationFile::load(&cam).unwrap();
+    let s = f.camera_sigma.unwrap();
+    let fx = f.camera.intrinsics.fx_px;
+    assert!(s.fx_px.unwrap() < 0.002 * fx && s.k3.is_none(), "{s:?}");
+
+    let mut pairs = Vec::new();
+    for k in 0..24 {
+        pairs.push(imgs.join(format!("board-{k:02}.png")).display().to_string());
+        pairs.push(imgs.join(format!("lasers-{k:02}.png")).display().to_string());
+    }
+    let cal = dir.path().join("cal.toml");
+    let lasers = |extra: &[&str]| {
+        let mut a = vec!["calibrate", "lasers", "--camera", cam.to_str().unwrap(), "--out", cal.to_str().unwrap()];
+        a.extend(extra);
+        a.extend(pairs.iter().map(String::as_str));
+        run(&a)
+    };
+    let e = one_line_error(&lasers(&["--laser-diameter-mm", "0.75", "--range-mm", "1e300:1e301"]));
+    assert!(e.contains("[head]") && e.contains("not written"), "{e}");
+    assert!(!cal.exists());
+    let r = lasers(&["--laser-diameter-mm", "0.75", "--range-mm", "170:230"]);
+    let out = String::from_utf8_lossy(&r.stdout).to_string();
+    assert!(r.status.success(), "{out} {}", String::from_utf8_lossy(&r.stderr));
+    println!("{out}");
+    for k in 0..3 {
+        let line = out.lines().find(|l| l.starts_with(&format!("laser {k}: n = "))).unwrap();
+        assert!(line.contains(" mm RMS") || line.contains("RMS "), "{line}");
+        assert!(line.contains("mm across the line, depths "), "{line}");
+    }
+    let f = CalibrationFile::load(&cal).unwrap();
+    for l in &f.lasers {
+        assert!(l.spread_mm.unwrap() > 1.0 && l.depth_min_mm.unwrap() < l.depth_max_mm.unwrap(), "{l:?}");
+    }
+}
+
 fn valid() -> String {
     truth(&Scene::new(SimConfig::reference()).unwrap()).to_toml()
 }

@@ -202,3 +202,134 @@ fn bad_inputs_are_one_line_errors() {
     // No input at all: clap's usage error, exit 2.
     assert_eq!(cms_host(&["measure", "--calibration", s(&cal)]).status.code(), Some(2));
 }
+
+// ------------------------------------------------------------ inputs that do not belong together (issue 16)
+
+/// A `Hello` of the reference head (752 × 480) with calibration `id`.
+fn hello(id: u32) -> DeviceMsg {
+    DeviceMsg::Hello(cms_core::protocol::DeviceInfo {
+        firmware: heapless::String::try_from("1.0.0").unwrap(),
+        protocol: cms_core::protocol::PROTOCOL_VERSION,
+        board: heapless::String::try_from("sim").unwrap(),
+        sensor_width: 752,
+        sensor_height: 480,
+        bits: 8,
+        detector: cms_core::pipeline::default_detector(),
+        calibration_id: id,
+        store: cms_core::protocol::StoreHealth::Volatile,
+    })
+}
+
+fn wire(msg: &DeviceMsg) -> Vec<u8> {
+    let mut scratch = vec![0u8; MAX_FRAME];
+    let mut out = vec![0u8; MAX_FRAME];
+    encode(msg, &mut scratch, &mut out).unwrap().to_vec()
+}
+
+/// The two-frame recording of [`recording_metric_and_raw_frames`] with a
+/// `Hello` of calibration `id` first.
+fn recording_with_hello(dir: &Path, cal: &Path, id: u32) -> (PathBuf, Vec<u8>) {
+    let file = CalibFile::load(cal);
+    let plain = dir.join("plain.cmsrec");
+    std::thread::Builder::new()
+        .stack_size(64 << 20)
+        .spawn({
+            let plain = plain.clone();
+            move || write_recording(&plain, &file)
+        })
+        .unwrap()
+        .join()
+        .unwrap();
+    let body = std::fs::read(&plain).unwrap();
+    let mut bytes = body[..cms_host::record::HEADER_LEN].to_vec();
+    bytes.extend(wire(&hello(id)));
+    bytes.extend(&body[cms_host::record::HEADER_LEN..]);
+    let rec = dir.join(format!("hello-{id}.cmsrec"));
+    std::fs::write(&rec, &bytes).unwrap();
+    (rec, bytes)
+}
+
+/// A calibration for a camera of another size than the data's is refused:
+/// an image (752 × 480) against a 4000- or 100-px-wide camera, a recording
+/// whose `Hello` says 752 × 480 against them; the same calibration's own
+/// size is measured.
+#[test]
+fn camera_size_must_match_the_data() {
+    let dir = tempfile::tempdir().unwrap();
+    let (img, cal) = image_and_calibration(dir.path());
+    let text = std::fs::read_to_string(&cal).unwrap();
+    let id = CalibFile::load(&cal).0.head_id();
+    let (rec, _) = recording_with_hello(dir.path(), &cal, id);
+    let ok = cms_host(&["measure", "--calibration", s(&cal), s(&rec)]);
+    assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
+    for width in [4000, 100] {
+        let other = dir.path().join(format!("w{width}.toml"));
+        // The same id as the head's, so that only the size differs.
+        std::fs::write(&other, format!("id = {id}\n{}", text.replace("width = 752", &format!("width = {width}"))))
+            .unwrap();
+        let o = cms_host(&["measure", "--calibration", s(&other), s(&img)]);
+        one_line_exit_2(&o, &format!("frame.png is 752×480 px, but {} is for a {width}×480 camera", s(&other)));
+        let o = cms_host(&["measure", "--calibration", s(&other), s(&rec)]);
+        one_line_exit_2(&o, &format!("is for a {width}×480 camera, but {} was recorded by a 752×480 one", s(&rec)));
+        let o = cms_host(&["analyze", s(&rec), "--calibration", s(&other)]);
+        one_line_exit_2(&o, &format!("is for a {width}×480 camera, but {} was recorded by a 752×480 one", s(&rec)));
+    }
+}
+
+/// `measure` refuses a calibration whose id differs from the recording's
+/// (as `analyze` does, with the same check); a head without a calibration
+/// (id 0, raw peaks) is measured with it.
+#[test]
+fn calibration_id_must_match_the_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, cal) = image_and_calibration(dir.path());
+    let (rec, _) = recording_with_hello(dir.path(), &cal, 0x1234_5678);
+    let o = cms_host(&["measure", "--calibration", s(&cal), s(&rec)]);
+    one_line_exit_2(&o, "was recorded with calibration 0x12345678");
+    let (none, _) = recording_with_hello(dir.path(), &cal, 0);
+    let o = cms_host(&["measure", "--calibration", s(&cal), s(&none)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// Damaged and duplicated frames are reported by `measure` (it skipped
+/// damaged ones without a word, and measured a frame present twice twice).
+#[test]
+fn damaged_and_duplicated_frames_are_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, cal) = image_and_calibration(dir.path());
+    let id = CalibFile::load(&cal).0.head_id();
+    let (_, bytes) = recording_with_hello(dir.path(), &cal, id);
+    // The frames: header, Hello, frame 7, frame 8. Frame 8 written twice
+    // (as a writer retrying would), then frame 7's first data byte flipped.
+    let ends: Vec<usize> = bytes.iter().enumerate().filter(|(_, b)| **b == 0).map(|(i, _)| i + 1).collect();
+    let frames: Vec<usize> = ends.into_iter().filter(|&e| e > cms_host::record::HEADER_LEN).collect();
+    let (f7, f8) = (frames[0]..frames[1], frames[1]..frames[2]);
+    let mut dup = bytes.clone();
+    dup.extend_from_slice(&bytes[f8.clone()]);
+    let path = dir.path().join("dup.cmsrec");
+    std::fs::write(&path, &dup).unwrap();
+    let o = cms_host(&["measure", "--calibration", s(&cal), "--json", s(&path)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("1 profile messages present twice"), "{err}");
+    assert_eq!(String::from_utf8_lossy(&o.stdout).lines().count(), 2, "frame 8 once");
+    let mut damaged = dup.clone();
+    damaged[f7.start + 3] ^= 0x10;
+    let _ = f8;
+    let path = dir.path().join("damaged.cmsrec");
+    std::fs::write(&path, &damaged).unwrap();
+    let o = cms_host(&["measure", "--calibration", s(&cal), "--json", s(&path)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("1 damaged frames were skipped"), "{err}");
+    assert_eq!(String::from_utf8_lossy(&o.stdout).lines().count(), 1, "frame 8 only");
+    // `info` counts it once and says so; `export` writes it once and says so.
+    let o = cms_host(&["info", s(&path)]);
+    let report = String::from_utf8_lossy(&o.stdout);
+    assert!(report.contains("frames: 1 (1 profile messages)"), "{report}");
+    assert!(report.contains("duplicated profile messages (skipped): 1"), "{report}");
+    let o = cms_host(&["export", "--format", "jsonl", s(&path)]);
+    assert_eq!(String::from_utf8_lossy(&o.stdout).lines().count(), 1);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("present twice") && err.contains("damaged"), "{err}");
+}

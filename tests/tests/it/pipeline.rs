@@ -359,7 +359,13 @@ fn a_calibrated_head_triangulates_every_point_and_refuses_bad_calibrations() {
     through.planes[1][3] = 0.0;
     let mut above = calibration(6);
     above.datum = [0.0, 0.0, 1.0, 200.0];
-    for (seq, bad) in [(1, calibration(0)), (2, through), (3, above)] {
+    // Refused too (issue 16): three identical planes, and two swapped
+    // (stripes are numbered left to right), which the host refuses as well.
+    let mut same = calibration(10);
+    same.planes = [same.planes[0]; 3];
+    let mut swapped = calibration(11);
+    swapped.planes.swap(0, 2);
+    for (seq, bad) in [(1, calibration(0)), (2, through), (3, above), (8, same), (9, swapped)] {
         h.handle(cmd(seq, HostMsg::SetCalibration(bad)), 0, &cam, &mut |m| out.push(m.clone()));
         assert!(out.contains(&DeviceMsg::Error { seq: Some(seq), code: ErrorCode::InvalidConfig }), "{out:?}");
         assert!(h.calibration().is_none());
