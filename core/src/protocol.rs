@@ -16,7 +16,11 @@
 //!   delimiter: after garbage or a lost byte the reader resynchronises on the
 //!   next 0x00 and loses at most the frame it was in.
 //! * The **version byte** comes first and outside postcard, so a reader of
-//!   another version says so instead of misreading the payload.
+//!   another version says so instead of misreading the payload. The CRC
+//!   (over the version too) is checked before it: a damaged frame is a CRC
+//!   error whatever its first byte, and a version mismatch is reported only
+//!   for a frame that arrived intact. (This fixes the framing — version
+//!   first, CRC-32/ISO-HDLC last — for every future version.)
 //!
 //! # Sizes
 //! [`MAX_FRAME`] bounds any encoded frame (delimiter included); the firmware
@@ -409,9 +413,9 @@ pub enum WireError {
     Cobs,
     /// Shorter than version + CRC.
     TooShort,
-    /// Another protocol version.
+    /// Another protocol version (of an intact frame: its CRC holds).
     Version(u8),
-    /// CRC mismatch.
+    /// CRC mismatch (whatever the version byte says).
     Crc,
     /// The payload is not a valid message.
     Decode,
@@ -474,12 +478,15 @@ pub fn decode_frame<'de, T: Deserialize<'de>>(frame: &'de mut [u8]) -> Result<T,
         return Err(WireError::TooShort);
     }
     let raw = &frame[..n];
-    if raw[0] != PROTOCOL_VERSION {
-        return Err(WireError::Version(raw[0]));
-    }
+    // The CRC first: only a frame that arrived intact can say which version
+    // its sender speaks. Checked the other way round, any garbage whose
+    // first byte is not the version would read as a head of another version.
     let (body, crc) = raw.split_at(n - 4);
     if CRC.checksum(body) != u32::from_le_bytes([crc[0], crc[1], crc[2], crc[3]]) {
         return Err(WireError::Crc);
+    }
+    if raw[0] != PROTOCOL_VERSION {
+        return Err(WireError::Version(raw[0]));
     }
     let (msg, rest) = postcard::take_from_bytes(&body[1..]).map_err(|_| WireError::Decode)?;
     if !rest.is_empty() {

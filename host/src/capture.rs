@@ -45,20 +45,28 @@ pub struct Frame {
     pub pixels: Vec<u16>,
 }
 
-/// Writes the frame as PNG (see the module docs for the bit depth).
+/// Writes the frame as PNG (see the module docs for the bit depth),
+/// atomically and only as a regular file ([`crate::output`]).
 pub fn save_png(frame: &Frame, path: &std::path::Path) -> Result<(), Error> {
-    let err = |e: image::ImageError| Error::Input(format!("{}: {e}", path.display()));
+    let png = encode_png(frame).map_err(|e| Error::Output(std::io::Error::other(e)))?;
+    Ok(crate::output::write_atomically(path, |w| w.write_all(&png))?)
+}
+
+/// The frame as PNG bytes.
+fn encode_png(frame: &Frame) -> Result<Vec<u8>, image::ImageError> {
+    let mut png = std::io::Cursor::new(Vec::new());
     if frame.bits <= 8 {
         let data = frame.pixels.iter().map(|&p| p as u8).collect();
         let img = image::GrayImage::from_raw(frame.width, frame.height, data).expect("size checked when assembled");
-        img.save(path).map_err(err)
+        img.write_to(&mut png, image::ImageFormat::Png)?;
     } else {
         let shift = 16 - u32::from(frame.bits.min(16));
         let data = frame.pixels.iter().map(|&p| p << shift).collect();
         let img = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(frame.width, frame.height, data)
             .expect("size checked when assembled");
-        img.save(path).map_err(err)
+        img.write_to(&mut png, image::ImageFormat::Png)?;
     }
+    Ok(png.into_inner())
 }
 
 /// One frame from the head on `port`: the conversation of the module docs.

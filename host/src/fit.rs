@@ -133,7 +133,24 @@ pub enum FitError {
     Components(usize),
     /// The data cannot determine a sine (all x equal, flat profile, …).
     Degenerate(&'static str),
+    /// The heights span less than [`MIN_HEIGHT_TO_LENGTH`] of the length:
+    /// in the fit's common scale they are lost to rounding.
+    TooFlat {
+        /// Range of z, mm.
+        height_mm: f64,
+        /// Range of x, mm.
+        length_mm: f64,
+    },
 }
+
+/// Smallest ratio of the range of z to the range of x that the fit
+/// resolves. It scales x and z by one factor (the rotated model's rotation
+/// must stay a rotation), so z is resolved only to about `ε·range(x)`: on
+/// exact sines the rotated fit is exact down to a ratio of 2·10⁻¹³ and
+/// wrong (wavelength off by 4·10⁻⁴) at 2·10⁻¹⁴; with x near 10³⁰⁰ and z of
+/// 0.1 mm (10⁻³⁰¹) it printed a wavelength 5 times too long and a residual
+/// of 0. The limit keeps a margin of 5 below the first good ratio.
+pub const MIN_HEIGHT_TO_LENGTH: f64 = 1e-12;
 
 impl fmt::Display for FitError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -146,6 +163,12 @@ impl fmt::Display for FitError {
             }
             FitError::Components(k) => write!(f, "{k} components: expected 1..={MAX_COMPONENTS}"),
             FitError::Degenerate(why) => write!(f, "cannot fit a sine: {why}"),
+            FitError::TooFlat { height_mm, length_mm } => write!(
+                f,
+                "cannot fit a sine: z spans {height_mm:.3e} mm over {length_mm:.3e} mm of x, less than \
+                 {MIN_HEIGHT_TO_LENGTH:e} of it: too flat to resolve in double precision (check the units, or \
+                 subtract a line first)"
+            ),
         }
     }
 }
@@ -829,6 +852,10 @@ pub fn fit(x_mm: &[f64], z_mm: &[f64], opts: &Options) -> Result<Fit, FitError> 
     }
     if zs.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return Err(FitError::Degenerate("the profile is flat"));
+    }
+    if zs < MIN_HEIGHT_TO_LENGTH * xs {
+        // Ranges are doubled from halves (above), so neither overflows here.
+        return Err(FitError::TooFlat { height_mm: 2.0 * zs, length_mm: 2.0 * xs });
     }
     let s = xs.max(zs);
     let x: Vec<f64> = x_mm.iter().map(|v| (v - x0) / s).collect();

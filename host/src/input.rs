@@ -18,6 +18,9 @@ use image::{ColorType, DynamicImage, ImageDecoder, ImageFormat, ImageReader, Lim
 
 /// Largest decoded image accepted, bytes (the `image` crate's own default).
 pub const MAX_IMAGE_BYTES: u64 = 512 << 20;
+/// Largest image, CSV or profile file read, bytes: as large as the largest
+/// decoded image (an uncompressed TIFF is its pixels).
+pub const MAX_INPUT_BYTES: u64 = MAX_IMAGE_BYTES;
 
 /// The pixels of an input, row-major.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -201,6 +204,11 @@ impl std::error::Error for InputError {
 pub enum InputErrorKind {
     /// The file could not be read.
     Io(std::io::Error),
+    /// The file holds more than the cap of its kind ([`read_capped`]).
+    TooBig {
+        /// The cap, bytes.
+        max_bytes: u64,
+    },
     /// The extension is not one of the supported ones.
     UnknownExtension(Option<String>),
     /// The file has no byte (or, for CSV, only blank lines).
@@ -226,6 +234,9 @@ impl fmt::Display for InputErrorKind {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             InputErrorKind::Io(e) => write!(f, "cannot read file: {e}"),
+            InputErrorKind::TooBig { max_bytes } => {
+                write!(f, "more than {}; too big for this kind of input (a device or a wrong file?)", size(*max_bytes))
+            }
             InputErrorKind::UnknownExtension(Some(ext)) => {
                 write!(f, "unknown file type `.{}` (expected .png, .tif, .tiff or .csv)", one_line(ext, 16))
             }
@@ -236,11 +247,21 @@ impl fmt::Display for InputErrorKind {
             InputErrorKind::NotGrayscale(what) => {
                 write!(f, "{what}: only single-channel grayscale images (8 or 16 bit) are supported")
             }
-            InputErrorKind::PixelFormat(bits) => write!(
-                f,
-                "unsupported pixel format ({bits} bits per pixel, e.g. float): \
-                 only 8- or 16-bit unsigned grayscale images are supported"
-            ),
+            InputErrorKind::PixelFormat(bits) => {
+                // The decoder tells only the bits: say what they usually are.
+                let what = match bits {
+                    1..=15 => format!(
+                        "{bits} bits per pixel, packed; save {bits}-bit pixels as a 16-bit image, as the sensor's \
+                         10- and 12-bit data are"
+                    ),
+                    32 | 64 => format!("{bits} bits per pixel: float or {bits}-bit integer samples"),
+                    _ => format!("{bits} bits per pixel"),
+                };
+                write!(
+                    f,
+                    "unsupported pixel format ({what}): only 8- or 16-bit unsigned grayscale images are supported"
+                )
+            }
             InputErrorKind::Decode { format, message } => {
                 let name = match format {
                     Format::Png => "PNG",
@@ -315,13 +336,44 @@ impl fmt::Display for CsvError {
     }
 }
 
+/// A size in words: `1 MiB`, `512 MiB`, `100 bytes`.
+fn size(bytes: u64) -> String {
+    match bytes {
+        b if b >= 1 << 20 && b % (1 << 20) == 0 => format!("{} MiB", b >> 20),
+        b if b >= 1 << 10 && b % (1 << 10) == 0 => format!("{} KiB", b >> 10),
+        b => format!("{b} bytes"),
+    }
+}
+
+/// Reads the whole of `path`, refusing more than `max_bytes`.
+///
+/// The cap is checked while reading (at most `max_bytes + 1` bytes are
+/// ever read), not against the file's metadata: a device (`/dev/zero`), a
+/// FIFO or a file that grows while being read is stopped at the cap
+/// instead of filling memory. Every reader of a whole input file —
+/// images, CSV rows, profiles, calibration files, the simulated head's
+/// stored calibration — goes through here, each with the cap of its kind.
+pub fn read_capped(path: &Path, max_bytes: u64) -> Result<Vec<u8>, InputError> {
+    use std::io::Read as _;
+    let err = |kind| InputError { path: path.to_path_buf(), kind };
+    let file = std::fs::File::open(path).map_err(|e| err(InputErrorKind::Io(e)))?;
+    // A regular file's length sizes the buffer (capped: metadata may lie).
+    let hint = file.metadata().map_or(0, |m| m.len()).min(max_bytes);
+    let mut bytes = Vec::with_capacity(usize::try_from(hint).unwrap_or(0));
+    file.take(max_bytes.saturating_add(1)).read_to_end(&mut bytes).map_err(|e| err(InputErrorKind::Io(e)))?;
+    if bytes.len() as u64 > max_bytes {
+        return Err(err(InputErrorKind::TooBig { max_bytes }));
+    }
+    Ok(bytes)
+}
+
 /// Reads `path` (format by extension) into rows.
 pub fn read_rows(path: &Path) -> Result<Rows, InputError> {
     let err = |kind| InputError { path: path.to_path_buf(), kind };
     let format = Format::from_path(path).ok_or_else(|| {
         err(InputErrorKind::UnknownExtension(path.extension().map(|e| e.to_string_lossy().into_owned())))
     })?;
-    let bytes = std::fs::read(path).map_err(|e| err(InputErrorKind::Io(e)))?;
+    let bytes = read_capped(path, MAX_INPUT_BYTES)?;
     parse(&bytes, format).map_err(err)
 }
 

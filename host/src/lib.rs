@@ -30,6 +30,7 @@
 //! * [`standards`] — EN 13231-3 wavelength bands, EN 15610 roughness.
 //! * [`analyze`] — a recording stitched along the track, judged by the standards; the report.
 //! * [`plot`] — SVG and PNG plots with an embedded font.
+//! * [`output`] — every output file written atomically, and only as a regular file.
 //!
 //! * [`error`] — the library's error and what kind of failure each is.
 
@@ -48,6 +49,7 @@ pub mod link;
 pub mod listen;
 pub mod lm;
 pub mod measure;
+pub mod output;
 pub mod plot;
 pub mod qemu;
 pub mod record;

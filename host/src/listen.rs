@@ -17,8 +17,14 @@
 //!    [`FrameReader`](cms_core::protocol::FrameReader) and skipped (the
 //!    reader resynchronises on the next 0x00).
 //! 3. **Stop** (Ctrl-C, `--frames`, `--duration`, or a closed stdout): `Stop`
-//!    (lasers off), wait up to 500 ms for its `Ack`, flush the recording,
-//!    print a summary on stderr.
+//!    (lasers off), wait up to 500 ms for its `Ack`, commit the recording,
+//!    print a summary on stderr. A session that fails after greeting the head
+//!    (the port lost for good) still has its summary: [`session`] returns
+//!    both ([`Outcome`]), and the command line prints it before the error.
+//!
+//! Every intact frame is written to the recording before `--json` prints
+//! it, one write per frame ([`Recorder`]): a killed listener's file holds
+//! every frame it printed.
 //!
 //! # When the link misbehaves
 //! * The head goes silent for 2 s while streaming: handshake again
@@ -628,17 +634,38 @@ impl Display {
     }
 }
 
+/// How a session ended: what it did, and why it ended early if it did.
+/// A session that fails after streaming (the port lost for good, the
+/// recording's disk full) still has a summary worth printing.
+#[derive(Debug)]
+pub struct Outcome {
+    /// What the session did, up to its end.
+    pub summary: Summary,
+    /// The failure that ended it, if any.
+    pub result: Result<(), ListenError>,
+}
+
+impl Outcome {
+    fn failed(e: ListenError) -> Outcome {
+        Outcome { summary: Summary::default(), result: Err(e) }
+    }
+
+    /// Whether a head was ever greeted (else there is nothing to sum up).
+    pub fn greeted(&self) -> bool {
+        self.summary.device.is_some()
+    }
+}
+
 /// Listens on `port` (a device path), printing `--json` lines on stdout.
 /// Returns when `opts` says so, when `stop` becomes true (Ctrl-C), or when
 /// stdout is closed; the head is stopped first.
-pub fn listen(port: &str, opts: &ListenOptions, stop: &AtomicBool) -> Result<Summary, ListenError> {
+pub fn listen(port: &str, opts: &ListenOptions, stop: &AtomicBool) -> Outcome {
     let stdout = io::stdout();
     let mut out = stdout.lock();
-    listen_with(port, opts, stop, &mut out, &mut |_| {})
+    session(port, opts, stop, &mut out, &mut |_| {})
 }
 
-/// [`listen`] writing the JSON lines to `out`, and showing `observe` every
-/// message it keeps (the recorded ones) in order.
+/// [`session`], its summary only when it did not fail.
 pub fn listen_with(
     port: &str,
     opts: &ListenOptions,
@@ -646,12 +673,31 @@ pub fn listen_with(
     out: &mut dyn Write,
     observe: &mut dyn FnMut(&DeviceMsg),
 ) -> Result<Summary, ListenError> {
+    let o = session(port, opts, stop, out, observe);
+    o.result.map(|()| o.summary)
+}
+
+/// [`listen`] writing the JSON lines to `out`, and showing `observe` every
+/// message it keeps (the recorded ones) in order.
+pub fn session(
+    port: &str,
+    opts: &ListenOptions,
+    stop: &AtomicBool,
+    out: &mut dyn Write,
+    observe: &mut dyn FnMut(&DeviceMsg),
+) -> Outcome {
     let t0 = Instant::now();
     let recorder = match &opts.record {
-        Some(path) => Some(Recorder::open(path).map_err(ListenError::Record)?),
+        Some(path) => match Recorder::open(path) {
+            Ok(r) => Some(r),
+            Err(e) => return Outcome::failed(ListenError::Record(e)),
+        },
         None => None,
     };
-    let mut client = Client::open(port, opts.baud).map_err(ListenError::Open)?.with_heartbeat(HEARTBEAT_INTERVAL);
+    let mut client = match Client::open(port, opts.baud) {
+        Ok(c) => c.with_heartbeat(HEARTBEAT_INTERVAL),
+        Err(e) => return Outcome::failed(ListenError::Open(e)),
+    };
     let mut s = Session {
         opts,
         port,
@@ -772,12 +818,10 @@ pub fn listen_with(
         Some(rec) => rec.finish().map_err(ListenError::Record),
         None => Ok(()),
     };
-    result?;
-    flushed?;
     s.sum.link = client.counters();
     s.sum.elapsed = t0.elapsed();
     if let (Some(a), Some(b)) = (s.first_profile, s.last_profile) {
         s.sum.streaming = b.duration_since(a);
     }
-    Ok(s.sum)
+    Outcome { summary: s.sum, result: result.and(flushed) }
 }

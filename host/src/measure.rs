@@ -244,12 +244,12 @@ pub fn measure_recording(
             _ => {}
         }
         Ok(())
-    })
-    .map_err(|e| Error::Input(format!("{name}: {e}")))?;
+    })?; // the recording's errors name it already
     m.file.check_recording(cal_name, name, &heads)?;
     let mut parts: Vec<Profile> = Vec::new();
     let mut counter = FrameCounter::default();
     let mut results = Vec::new();
+    // The recording's errors name it already.
     let stats = record::scan_file(path, |msg| {
         if let DeviceMsg::Profile(p) = msg {
             if p.part == 0 {
@@ -265,8 +265,7 @@ pub fn measure_recording(
             }
         }
         Ok(())
-    })
-    .map_err(|e| Error::Input(format!("{name}: {e}")))?;
+    })?;
     let warnings = record::warnings(path, &stats);
     if results.is_empty() {
         let why = warnings.iter().map(|w| w.trim_start_matches("warning: ")).collect::<Vec<_>>().join("; ");
@@ -277,12 +276,14 @@ pub fn measure_recording(
 }
 
 /// An image (or CSV rows) measured, or a recording's frames: whichever the
-/// file is (a recording is known by its header); with the warnings of
-/// reading it. An image of another size than the calibration's (`cal_name`)
-/// camera is refused.
+/// file is (a recording is known by its header, or by its `.cmsrec` name:
+/// a damaged or empty recording is then reported as such, not as an
+/// unknown image type); with the warnings of reading it. An image of
+/// another size than the calibration's (`cal_name`) camera is refused.
 pub fn measure_file(m: &Measurer, path: &Path, cal_name: &str) -> Result<(Vec<Measurement>, Vec<String>), Error> {
     let name = path.display().to_string();
-    if is_recording(path) {
+    let named = path.extension().is_some_and(|e| e.eq_ignore_ascii_case(record::EXTENSION));
+    if named || is_recording(path) {
         return measure_recording(m, path, &name, cal_name);
     }
     let rows = input::read_rows(path)?;

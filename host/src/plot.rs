@@ -46,7 +46,7 @@ pub fn svg_and_png(base: &Path, size: (u32, u32), fig: &impl Figure) -> Result<S
         root.present().map_err(err)?;
     }
     let svg_path = base.with_extension("svg");
-    std::fs::write(&svg_path, &svg).map_err(|e| format!("{}: {e}", svg_path.display()))?;
+    crate::output::write_atomically(&svg_path, |w| w.write_all(svg.as_bytes())).map_err(|e| e.to_string())?;
     let mut rgb = vec![0u8; size.0 as usize * size.1 as usize * 3];
     {
         let root = BitMapBackend::with_buffer(&mut rgb, size).into_drawing_area();
@@ -54,8 +54,9 @@ pub fn svg_and_png(base: &Path, size: (u32, u32), fig: &impl Figure) -> Result<S
         root.present().map_err(err)?;
     }
     let png_path = base.with_extension("png");
-    image::save_buffer_with_format(
-        &png_path,
+    let mut png = std::io::Cursor::new(Vec::new());
+    image::write_buffer_with_format(
+        &mut png,
         &rgb,
         size.0,
         size.1,
@@ -63,5 +64,6 @@ pub fn svg_and_png(base: &Path, size: (u32, u32), fig: &impl Figure) -> Result<S
         image::ImageFormat::Png,
     )
     .map_err(|e| format!("{}: {e}", png_path.display()))?;
+    crate::output::write_atomically(&png_path, |w| w.write_all(png.get_ref())).map_err(|e| e.to_string())?;
     Ok(svg)
 }

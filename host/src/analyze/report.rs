@@ -324,9 +324,9 @@ pub fn write(dir: &Path, recording: &Path, rec: &Recording, a: &Analysis, summar
     let out_err = |what: &str, e: String| Error::Output(std::io::Error::other(format!("{what}: {e}")));
     std::fs::create_dir_all(dir)
         .map_err(|e| Error::Input(format!("cannot create report directory {}: {e}", dir.display())))?;
-    let put = |name: &str, text: &str| {
-        let p = dir.join(name);
-        std::fs::write(&p, text).map_err(|e| out_err(&p.display().to_string(), e.to_string()))
+    // Each file whole or not at all, and never over a device or FIFO of that name.
+    let put = |name: &str, text: &str| -> Result<(), Error> {
+        Ok(crate::output::write_atomically(&dir.join(name), |w| w.write_all(text.as_bytes()))?)
     };
     put("summary.txt", summary)?;
     put("profile.csv", &profile_csv(a))?;

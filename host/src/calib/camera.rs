@@ -886,8 +886,8 @@ pub fn parse_board(s: &str, square_mm: f64) -> Result<Board, String> {
 
 /// Reads an image as grayscale `0..1` (8- or 16-bit, colour converted by luma).
 pub fn load_gray(path: &Path) -> Result<(Vec<f32>, u32, u32), String> {
-    let img = image::ImageReader::open(path)
-        .map_err(|e| format!("{}: {e}", path.display()))?
+    let bytes = crate::input::read_capped(path, crate::input::MAX_INPUT_BYTES).map_err(|e| e.to_string())?;
+    let img = image::ImageReader::new(std::io::Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|e| format!("{}: {e}", path.display()))?
         .decode()

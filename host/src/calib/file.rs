@@ -460,14 +460,12 @@ impl CalibrationFile {
         Ok(f)
     }
 
-    /// Reads, parses and validates a file.
+    /// Reads (at most 1 MiB, counted while reading: a device or FIFO is
+    /// stopped there), parses and validates a file.
     pub fn load(path: &Path) -> Result<CalibrationFile, FileError> {
         let name = path.display().to_string();
-        let meta = std::fs::metadata(path).map_err(|e| FileError(format!("{name}: {e}")))?;
-        if meta.len() > MAX_FILE_BYTES {
-            return Err(FileError(format!("{name}: {} bytes is too big for a calibration file", meta.len())));
-        }
-        let bytes = std::fs::read(path).map_err(|e| FileError(format!("{name}: {e}")))?;
+        // The input error names the file already.
+        let bytes = crate::input::read_capped(path, MAX_FILE_BYTES).map_err(|e| FileError(e.to_string()))?;
         let text = String::from_utf8(bytes).map_err(|_| FileError(format!("{name}: not UTF-8 text")))?;
         CalibrationFile::parse(&text, &name)
     }
@@ -481,19 +479,17 @@ impl CalibrationFile {
         )
     }
 
-    /// Writes the file (to a temporary beside it, then renamed, so a
-    /// failure never leaves half a file), after reading its text back with
-    /// [`CalibrationFile::parse`]: what every reader would refuse is not
-    /// written.
+    /// Writes the file after reading its text back with
+    /// [`CalibrationFile::parse`] (what every reader would refuse is not
+    /// written), atomically and only as a regular file
+    /// ([`crate::output::write_atomically`]): a failure never leaves half a
+    /// file, and a device, FIFO or directory is refused, not replaced.
     pub fn save(&self, path: &Path) -> Result<(), crate::Error> {
         let text = self.to_toml();
         let name = path.display().to_string();
         CalibrationFile::parse(&text, &name)
             .map_err(|e| crate::Error::Input(format!("{e}; not written: its readers would refuse it")))?;
-        let tmp = path.with_extension("toml.partial");
-        std::fs::write(&tmp, text)
-            .and_then(|()| std::fs::rename(&tmp, path))
-            .map_err(|e| crate::Error::Input(format!("writing {}: {e}", path.display())))
+        Ok(crate::output::write_atomically(path, |w| w.write_all(text.as_bytes()))?)
     }
 
     /// Checks every value, and renormalises the plane normals.
@@ -687,6 +683,10 @@ impl CalibrationFile {
     }
 
     /// The calibration message for the head: needs the datum and all three lasers.
+    ///
+    /// Every value must be finite in the head's single precision too (a
+    /// `k2 = 1e300` is a finite f64 but an infinite f32): the error names
+    /// the key, which the head's own check cannot.
     pub fn to_head(&self) -> Result<Calibration, FileError> {
         let datum = self.datum.ok_or_else(|| FileError("no [datum]: run cms-host calibrate lasers".into()))?;
         if self.lasers.len() != LASERS {
@@ -695,6 +695,7 @@ impl CalibrationFile {
                 self.lasers.len()
             )));
         }
+        self.fits_single_precision()?;
         let camera = self.camera.intrinsics.to_core();
         let mut planes = [[0.0f32; 4]; LASERS];
         for l in &self.lasers {
@@ -707,6 +708,41 @@ impl CalibrationFile {
             planes,
             datum: [datum.nx as f32, datum.ny as f32, datum.nz as f32, datum.d_mm as f32],
         })
+    }
+}
+
+impl CalibrationFile {
+    /// The first value the head's `f32` cannot hold, by its key.
+    fn fits_single_precision(&self) -> Result<(), FileError> {
+        let c = &self.camera.intrinsics;
+        let mut values: Vec<(String, f64)> = [
+            ("fx", c.fx_px),
+            ("fy", c.fy_px),
+            ("cx", c.cx_px),
+            ("cy", c.cy_px),
+            ("skew", c.skew_px),
+            ("k1", c.k1),
+            ("k2", c.k2),
+            ("p1", c.p1),
+            ("p2", c.p2),
+            ("k3", c.k3),
+        ]
+        .into_iter()
+        .map(|(k, v)| (format!("camera.{k}"), v))
+        .collect();
+        if let Some(d) = &self.datum {
+            values.push(("datum.d_mm".into(), d.d_mm));
+        }
+        for (i, l) in self.lasers.iter().enumerate() {
+            values.push((format!("laser #{} (id {}) d_mm", i + 1, l.id), l.d_mm));
+        }
+        match values.into_iter().find(|(_, v)| !(*v as f32).is_finite()) {
+            Some((key, v)) => Err(FileError(format!(
+                "{key} = {v:e} is beyond the head's single precision (at most {:e} in magnitude)",
+                f32::MAX
+            ))),
+            None => Ok(()),
+        }
     }
 }
 

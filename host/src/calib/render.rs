@@ -76,16 +76,16 @@ pub fn config(args: &Options) -> SimConfig {
 
 fn write_png(path: &Path, img: &BoardImage) -> Result<(), Error> {
     let (w, h) = (img.width as u32, img.height as u32);
+    let mut png = std::io::Cursor::new(Vec::new());
     let r = if img.bits <= 8 {
         let data: Vec<u8> = img.pixels.iter().map(|&v| v.min(255) as u8).collect();
-        image::GrayImage::from_raw(w, h, data).map(|b| b.save_with_format(path, image::ImageFormat::Png))
+        image::GrayImage::from_raw(w, h, data).map(|b| b.write_to(&mut png, image::ImageFormat::Png))
     } else {
         image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(w, h, img.pixels.clone())
-            .map(|b| b.save_with_format(path, image::ImageFormat::Png))
+            .map(|b| b.write_to(&mut png, image::ImageFormat::Png))
     };
     match r {
-        Some(Ok(())) => Ok(()),
-        Some(Err(image::ImageError::IoError(e))) => Err(Error::Output(e)),
+        Some(Ok(())) => Ok(crate::output::write_atomically(path, |w| w.write_all(png.get_ref()))?),
         Some(Err(e)) => Err(Error::Output(std::io::Error::other(format!("{}: {e}", path.display())))),
         None => Err(Error::Output(std::io::Error::other("image buffer size mismatch"))),
     }
@@ -147,6 +147,7 @@ pub fn render(args: &Options) -> Result<(), Error> {
         "poses": pose_json,
     });
     let text = serde_json::to_string_pretty(&truth).map_err(|e| Error::Output(std::io::Error::other(e)))?;
-    std::fs::write(args.out.join("truth.json"), text + "\n")?;
+    let text = text + "\n";
+    crate::output::write_atomically(&args.out.join("truth.json"), |w| w.write_all(text.as_bytes()))?;
     Ok(())
 }

@@ -111,7 +111,8 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
     let mut rec = analyze::read_recording(&args.recording)?;
     if let Some(path) = &args.calibration {
         let name = path.display();
-        let file = CalibrationFile::load(path).map_err(|e| Error::Input(format!("{name}: {e}")))?;
+        // The file's own errors name it.
+        let file = CalibrationFile::load(path).map_err(Error::from)?;
         file.check_recording(&name.to_string(), &args.recording.display().to_string(), &rec.heads)?;
         let m = Measurer::new(&file).map_err(|e| Error::Input(format!("{name}: {e}")))?;
         rec.slid_across = Some((analyze::slide_frames(&mut rec.frames, &m), path.clone()));

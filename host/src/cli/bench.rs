@@ -176,14 +176,19 @@ fn corrugation(a: &CorrugationArgs) -> Result<String> {
     );
     md += &cl::markdown(&stats);
     let path = |f: &str| a.out.join(f);
-    std::fs::write(path("corrugation.md"), &md).context("writing corrugation.md")?;
-    std::fs::write(path("corrugation.csv"), cl::csv(&stats)).context("writing corrugation.csv")?;
+    put(&path("corrugation.md"), &md)?;
+    put(&path("corrugation.csv"), &cl::csv(&stats))?;
     // One measured frame: λ 50 mm, A 50 µm, run 0.
     let cfg = cl::config(PAPER_CASES[0], 0, study.roughness_um);
     let m = cl::measure_frame(&cfg, study.row_step).map_err(anyhow::Error::msg)?;
     cms_host::measure::plot(&path("frame_l50_a50"), &m).map_err(anyhow::Error::msg)?;
     md += &format!("\nPlot of one frame (λ 50 mm, A 50 µm): {} and .svg\n", path("frame_l50_a50.png").display());
     Ok(md)
+}
+
+/// Writes one of the study's files whole ([`cms_host::output`]).
+fn put(path: &Path, text: &str) -> Result<()> {
+    Ok(cms_host::output::write_atomically(path, |w| w.write_all(text.as_bytes()))?)
 }
 
 fn threads(opt: Option<u64>) -> usize {
@@ -209,9 +214,9 @@ pub fn accuracy(a: &AccuracyArgs) -> Result<String> {
 
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let csv_path = a.out.join("accuracy.csv");
-    std::fs::write(&csv_path, mc::csv(&cells)).with_context(|| format!("writing {}", csv_path.display()))?;
+    put(&csv_path, &mc::csv(&cells))?;
     let pp_path = a.out.join("paper_protocol.csv");
-    std::fs::write(&pp_path, paper_csv(&fixed, &random)).with_context(|| format!("writing {}", pp_path.display()))?;
+    put(&pp_path, &paper_csv(&fixed, &random))?;
     let svg_path = a.out.join("accuracy.svg");
     plot(&svg_path, &cells, &study).with_context(|| format!("plotting {}", svg_path.display()))?;
 
@@ -223,7 +228,7 @@ pub fn accuracy(a: &AccuracyArgs) -> Result<String> {
     }
     paper_section(&mut r, &study, &fixed, &random);
     let md_path = a.out.join("accuracy.md");
-    std::fs::write(&md_path, &r).with_context(|| format!("writing {}", md_path.display()))?;
+    put(&md_path, &r)?;
     let _ = writeln!(
         r,
         "\nWrote {}, {}, {} and {} ({} threads, {secs:.1} s).",
@@ -442,12 +447,20 @@ const COLOURS: [(u8, u8, u8); 10] = [
 
 /// RMS/CRLB against SNR, log y, one line per method, one panel per σ.
 fn plot(path: &Path, cells: &[CellStats], s: &Study) -> Result<()> {
-    use plotters::prelude::*;
     let finite = cells.iter().map(|c| c.ratio()).filter(|v| v.is_finite());
     let lo = finite.clone().fold(1.0f64, f64::min) * 0.8;
     let hi = finite.fold(1.0f64, f64::max) * 1.25;
     cms_host::plot::fonts();
-    let root = SVGBackend::new(path, (1400, 1000)).into_drawing_area();
+    // Drawn into a string, then written whole like every output.
+    let mut svg = String::new();
+    draw(&mut svg, cells, s, lo, hi)?;
+    put(path, &svg)
+}
+
+/// [`plot`]'s drawing.
+fn draw(svg: &mut String, cells: &[CellStats], s: &Study, lo: f64, hi: f64) -> Result<()> {
+    use plotters::prelude::*;
+    let root = SVGBackend::with_string(svg, (1400, 1000)).into_drawing_area();
     root.fill(&WHITE)?;
     let title = format!(
         "RMS error / CRLB, {} trials per point, {}-bit, A = {}; SNR measured over the {}-sample row (MATLAB awgn 'measured')",

@@ -63,7 +63,7 @@ pub struct CameraArgs {
     /// Side of a board square, mm.
     #[arg(long, value_name = "MM")]
     pub square_mm: f64,
-    /// The calibration file to write (TOML).
+    /// The calibration file to write (TOML): a regular file, replaced whole.
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
     /// Keep fx = fy (OpenCV's CALIB_FIX_ASPECT_RATIO at 1).
@@ -82,6 +82,8 @@ pub struct CameraArgs {
 
 /// Runs `calibrate camera`.
 pub fn camera(args: &CameraArgs) -> anyhow::Result<()> {
+    // A device, FIFO or directory as --out is refused before the work.
+    cms_host::output::check_target(&args.out)?;
     let board = calib::camera::parse_board(&args.board, args.square_mm).map_err(Error::Input)?;
     if let Some(m) = args.max_view_rms
         && !(m.is_finite() && m > 0.0)
@@ -199,7 +201,7 @@ pub struct LasersArgs {
     /// The camera calibration (from `calibrate camera`).
     #[arg(long, value_name = "CAM.toml")]
     pub camera: PathBuf,
-    /// Where to write the full calibration.
+    /// Where to write the full calibration: a regular file, replaced whole.
     #[arg(long, value_name = "CAL.toml")]
     pub out: PathBuf,
     /// Inner corners of the board, COLSxROWS [default: the camera file's [board]].
@@ -243,7 +245,8 @@ fn pair_of(s: &str, what: &str) -> Result<(f64, f64), String> {
 /// Runs `calibrate lasers`.
 pub fn lasers(args: &LasersArgs) -> anyhow::Result<()> {
     let usage = input;
-    let mut file = CalibrationFile::load(&args.camera)?;
+    cms_host::output::check_target(&args.out)?;
+    let mut file = CalibrationFile::load(&args.camera).map_err(Error::from)?;
     let board = match (&args.board, args.square_mm, file.board()) {
         (Some(b), Some(s), _) => calib::camera::parse_board(b, s).map_err(usage)?,
         (None, None, Some(b)) => b,

@@ -38,6 +38,8 @@ pub fn run(args: &CaptureArgs) -> anyhow::Result<()> {
     if args.out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() != Some("png") {
         anyhow::bail!(Usage(format!("--out {}: the image is written as PNG; name it *.png", args.out.display())));
     }
+    // Before the head lights its lasers for nothing.
+    cms_host::output::check_target(&args.out)?;
     let opts = Options { lasers: args.lasers, exposure_us: args.exposure_us, baud: args.baud };
     let frame = simulate::with_port(&args.port, &args.sim.options(), |port| capture::capture(port, &opts))??;
     capture::save_png(&frame, &args.out)?;

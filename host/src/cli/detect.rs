@@ -39,7 +39,7 @@ pub struct DetectArgs {
     #[arg(long, value_name = "B", value_parser = clap::value_parser!(u8).range(8..=16))]
     pub bits: Option<u8>,
 
-    /// Detection threshold in multiples of the robust noise σ (0 < SIGMA < 256).
+    /// Detection threshold in multiples of the robust noise σ, in steps of 1/256 (1/256 ≤ SIGMA ≤ 255.996).
     #[arg(long, default_value = "6", value_name = "SIGMA", value_parser = parse_threshold)]
     pub threshold: Threshold,
 
@@ -121,9 +121,19 @@ fn parse_stripes(s: &str) -> Result<u8, String> {
 
 fn parse_threshold(s: &str) -> Result<Threshold, String> {
     let v: f64 = s.trim().parse().map_err(|_| format!("expected a number of noise σ, got `{s}`"))?;
+    if !(v.is_finite() && v > 0.0) {
+        return Err(format!("threshold must be a positive number of noise σ, got {s}"));
+    }
+    // The detector counts the threshold in steps of 1/256 σ (Q8).
     let q8 = (v * 256.0).round();
-    if !(v.is_finite() && v > 0.0 && (1.0..=u16::MAX as f64).contains(&q8)) {
-        return Err(format!("threshold must be above 0 and below 256 σ, got {s}"));
+    if q8 < 1.0 {
+        return Err(format!(
+            "threshold {s} σ is below the detector's step of 1/256 σ ({:.4} σ), its smallest threshold",
+            1.0 / 256.0
+        ));
+    }
+    if q8 > u16::MAX as f64 {
+        return Err(format!("threshold {s} σ is above the largest, 65535/256 σ ({:.3} σ)", u16::MAX as f64 / 256.0));
     }
     Ok(Threshold(q8 as u16))
 }

@@ -66,6 +66,7 @@ fn class_of(e: &(dyn std::error::Error + 'static)) -> Option<Class> {
         cms_host::link::ClientError,
         cms_host::listen::ListenError,
         cms_host::record::RecordError,
+        cms_host::output::OutputError,
         cms_host::qemu::QemuError,
         cms_host::simulate::SimulateError
     );

@@ -66,7 +66,7 @@ pub struct FitArgs {
 /// Runs `cms-host fit`.
 pub fn run(args: &FitArgs) -> anyhow::Result<()> {
     let path = args.profile.display();
-    let bytes = std::fs::read(&args.profile).map_err(|e| Error::Input(format!("{path}: {e}")))?;
+    let bytes = cms_host::input::read_capped(&args.profile, cms_host::input::MAX_INPUT_BYTES)?;
     let profile = parse_profile(&String::from_utf8_lossy(&bytes)).map_err(|e| Error::Input(format!("{path}: {e}")))?;
     let model = args.model.into();
     let opts = Options { model, components: usize::from(args.components) };

@@ -107,17 +107,20 @@ impl ListenArgs {
     }
 }
 
-/// The flag Ctrl-C sets (installed on first use). A second Ctrl-C while
-/// stopping exits at once with status 130.
+/// The flag Ctrl-C (and SIGTERM, SIGHUP) sets, installed on first use.
+///
+/// Every press only sets it: the listener's stop is bounded (`Stop`, at
+/// most 500 ms for its `Ack`, the recording committed, the summary), so
+/// there is nothing a second press needs to cut short, and exiting from
+/// the handler would skip the summary and the last frames' commit (it
+/// once did, 0–5 ms after the first press). Ctrl-\ (SIGQUIT) still ends
+/// the process at once; even then the recording holds every frame
+/// printed, since frames are written as they arrive.
 pub fn interrupt_flag() -> &'static AtomicBool {
     static FLAG: AtomicBool = AtomicBool::new(false);
     static INSTALLED: OnceLock<()> = OnceLock::new();
     INSTALLED.get_or_init(|| {
-        let _ = ctrlc::set_handler(|| {
-            if FLAG.swap(true, Ordering::SeqCst) {
-                std::process::exit(130);
-            }
-        });
+        let _ = ctrlc::set_handler(|| FLAG.store(true, Ordering::SeqCst));
     });
     &FLAG
 }
@@ -137,7 +140,11 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
             "`listen sim` needs the simulated head, which this build does not have; give a device path".to_string(),
         ));
     }
-    let sum = listen::listen(&args.port, &args.options(), interrupt_flag())?;
-    print_summary(&sum);
-    Ok(())
+    let outcome = listen::listen(&args.port, &args.options(), interrupt_flag());
+    // A session that ends in a failure after greeting the head (the port
+    // lost for good) still says what it got, before the error line.
+    if outcome.result.is_ok() || outcome.greeted() {
+        print_summary(&outcome.summary);
+    }
+    Ok(outcome.result?)
 }

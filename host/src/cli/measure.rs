@@ -31,7 +31,8 @@ pub struct MeasureArgs {
 /// Runs `cms-host measure`.
 pub fn run(args: &MeasureArgs) -> anyhow::Result<()> {
     let cal_name = args.calibration.display();
-    let cal = CalibrationFile::load(&args.calibration).map_err(|e| Error::Input(format!("{cal_name}: {e}")))?;
+    // The file's own errors name it.
+    let cal = CalibrationFile::load(&args.calibration).map_err(Error::from)?;
     let m = Measurer::new(&cal).map_err(|e| Error::Input(format!("{cal_name}: {e}")))?;
     if let Some(dir) = &args.plot {
         std::fs::create_dir_all(dir).map_err(|e| Error::Input(format!("--plot {}: {e}", dir.display())))?;

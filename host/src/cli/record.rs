@@ -1,11 +1,11 @@
 //! `cms-host export` and `cms-host info`: their arguments and output.
 
-use std::fs::File;
 use std::io::{self, BufWriter, Write as _};
 use std::path::PathBuf;
 
 use clap::{Args, ValueEnum};
 use cms_host::Error;
+use cms_host::output;
 use cms_host::record::{self, ExportFormat};
 
 use super::exit::Usage;
@@ -37,7 +37,7 @@ pub struct ExportArgs {
     /// Output format.
     #[arg(long, value_enum)]
     pub format: FormatArg,
-    /// Write here instead of stdout.
+    /// Write here instead of stdout (`-`: stdout); a regular file, replaced whole.
     #[arg(long, value_name = "OUT")]
     pub out: Option<PathBuf>,
 }
@@ -50,11 +50,28 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
         Some(o) if record::same_file(o, &args.file) => {
             anyhow::bail!(Usage(format!("--out {} is the recording itself; refusing to overwrite it", o.display())));
         }
-        Some(o) => {
-            let f = File::create(o).map_err(|e| Error::Input(format!("cannot create {}: {e}", o.display())))?;
-            record::export_to(&args.file, args.format.into(), &mut BufWriter::new(f))?
+        Some(o) if !output::is_stdout(o) => {
+            // Written atomically: a failed export leaves no half file.
+            output::check_target(o)?;
+            let mut stats = None;
+            let mut failed = None;
+            output::write_atomically(o, |w| match record::export_to(&args.file, args.format.into(), w) {
+                Ok(s) => {
+                    stats = Some(s);
+                    Ok(())
+                }
+                Err(e) => {
+                    failed = Some(e);
+                    Err(io::Error::other("export failed"))
+                }
+            })
+            .map_err(|e| match failed.take() {
+                Some(r) => anyhow::Error::from(r),
+                None => e.into(),
+            })?;
+            stats.expect("the export ran")
         }
-        None => {
+        _ => {
             let stdout = io::stdout();
             record::export_to(&args.file, args.format.into(), &mut BufWriter::new(stdout.lock()))?
         }

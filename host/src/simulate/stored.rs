@@ -3,8 +3,9 @@
 //!
 //! The file holds one wire frame of `SetCalibration` (protocol version and
 //! CRC-32 included), so a damaged or foreign file is detected, reported and
-//! not used; it is written to a temporary file and renamed, so a crash during
-//! a write leaves the previous calibration.
+//! not used; it is written atomically ([`crate::output`]: a temporary file,
+//! `fsync`, rename), so a crash during a write leaves the previous
+//! calibration.
 
 use std::io;
 use std::path::{Path, PathBuf};
@@ -29,10 +30,18 @@ pub fn default_dir() -> Option<PathBuf> {
 
 /// The stored calibration, `None` if there is none.
 pub fn load(path: &Path) -> Result<Option<Calibration>, String> {
-    let mut bytes = match std::fs::read(path) {
+    // One frame at most (and one byte more, to tell a longer file).
+    let mut bytes = match crate::input::read_capped(path, MAX_COMMAND_FRAME as u64 + 1) {
         Ok(b) => b,
-        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(format!("{}: {e}", path.display())),
+        Err(crate::input::InputError { kind: crate::input::InputErrorKind::Io(e), .. })
+            if e.kind() == io::ErrorKind::NotFound =>
+        {
+            return Ok(None);
+        }
+        Err(crate::input::InputError { kind: crate::input::InputErrorKind::TooBig { .. }, .. }) => {
+            return Err(format!("{}: not a calibration record (longer than a frame)", path.display()));
+        }
+        Err(e) => return Err(e.to_string()),
     };
     if bytes.len() > MAX_COMMAND_FRAME || bytes.last() != Some(&0) {
         return Err(format!("{}: not a calibration record ({} bytes)", path.display(), bytes.len()));
@@ -54,10 +63,7 @@ pub fn save(path: &Path, c: &Calibration) -> Result<(), String> {
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     }
-    let tmp = path.with_extension("partial");
-    std::fs::write(&tmp, bytes)
-        .and_then(|()| std::fs::rename(&tmp, path))
-        .map_err(|e| format!("{}: {e}", path.display()))
+    crate::output::write_atomically(path, |w| w.write_all(bytes)).map_err(|e| e.to_string())
 }
 
 #[cfg(test)]

@@ -139,6 +139,9 @@ struct Plan {
     /// Unplug after this many profiles, until the head has turned its
     /// lasers off for want of heartbeats.
     unplug: Option<u64>,
+    /// Hang up for good after this many profiles: the path removed and the
+    /// pty closed, never plugged back.
+    hang_up: Option<u64>,
     /// Go silent (neither answer nor run the head; the commands are kept
     /// for later) after this many profiles, until the listener asks again
     /// with `GetInfo`.
@@ -424,6 +427,20 @@ fn device(link: PathBuf, plan: Plan, stop: Arc<AtomicBool>, hooks: Hooks) -> Rep
                 }
             }
             report.silence = Some(t.elapsed());
+        }
+        if let Some(after) = plan.hang_up
+            && produced >= after
+            && let Some(p) = pty.take()
+        {
+            let _ = std::fs::remove_file(&link);
+            drop(p);
+            report.unplugged = Some(Instant::now());
+            continue;
+        }
+        if pty.is_none() && plan.hang_up.is_some() {
+            // Hung up: nothing to wait on until the test ends.
+            thread::sleep(TICK);
+            continue;
         }
         if let Some(after) = plan.unplug
             && !unplugged
@@ -770,13 +787,17 @@ struct Served {
 
 impl Served {
     fn new(dir: &Path) -> Served {
+        Served::with_plan(dir, small_plan())
+    }
+
+    fn with_plan(dir: &Path, plan: Plan) -> Served {
         let link = dir.join("ttyCLI");
         let stop = Arc::new(AtomicBool::new(false));
         let (plugged, is_plugged) = mpsc::channel();
         let dev = {
             let (link, stop) = (link.clone(), stop.clone());
             let hooks = Hooks { plugged, listener: None };
-            thread::Builder::new().stack_size(16 << 20).spawn(move || device(link, small_plan(), stop, hooks)).unwrap()
+            thread::Builder::new().stack_size(16 << 20).spawn(move || device(link, plan, stop, hooks)).unwrap()
         };
         is_plugged.recv_timeout(Duration::from_secs(10)).expect("the device creates the link");
         Served { stop, dev: Some(dev), link }
@@ -1052,4 +1073,161 @@ fn another_protocol_version_is_refused() {
     let want =
         format!("speaks protocol version {}; this cms-host speaks version {PROTOCOL_VERSION}", PROTOCOL_VERSION + 1);
     assert!(e.to_string().contains(&want), "{e}");
+}
+
+// ------------------------------------------------------------- robustness
+
+/// Random bytes on the port are CRC errors, not a head of another version:
+/// the listener gives up with "no Hello", never "speaks protocol version
+/// 51" (the version byte was once checked before the CRC).
+#[test]
+fn random_bytes_are_not_a_version_mismatch() {
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("ttyNoise");
+    let Pty { mut master, slave } = plug(&link);
+    // Garbage (zeros included, so it splits into many "frames") for every
+    // command, until the listener hangs up.
+    let noise = thread::spawn(move || {
+        use nix::poll::PollFlags;
+        let mut rng = cms_study::Rng::new(51);
+        let mut buf = [0u8; 256];
+        loop {
+            let ev = wait_for(&master, PollFlags::POLLIN, Duration::from_secs(60));
+            if ev.intersects(PollFlags::POLLHUP | PollFlags::POLLERR) || ev.is_empty() {
+                break;
+            }
+            if master.read(&mut buf).is_ok() {
+                let g: Vec<u8> = (0..2000).map(|_| (rng.next_u64() % 64) as u8).collect();
+                let _ = write_all(&mut master, &g);
+            }
+        }
+    });
+    let opts = ListenOptions { progress: Progress::Quiet, ..ListenOptions::default() };
+    let o =
+        cms_host::listen::session(link.to_str().unwrap(), &opts, &AtomicBool::new(false), &mut io::sink(), &mut |_| {});
+    drop(slave);
+    noise.join().unwrap();
+    let e = o.result.unwrap_err();
+    assert!(matches!(e, ListenError::NoHello { .. }), "{e}");
+    assert!(!e.to_string().contains("protocol version"), "{e}");
+}
+
+/// The port hangs up for good while streaming: the listener gives up after
+/// `--reconnect-timeout` with exit 3, and still prints its summary first.
+#[test]
+fn cli_a_hang_up_still_prints_the_summary() {
+    let dir = tempfile::tempdir().unwrap();
+    let served = Served::with_plan(dir.path(), Plan { hang_up: Some(20), ..small_plan() });
+    let out = Process::new(bin())
+        .args(["listen", served.link.to_str().unwrap(), "--json", "--reconnect-timeout", "0.5"])
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    served.finish();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(3), "{stderr}");
+    let printed = String::from_utf8_lossy(&out.stdout).lines().count();
+    assert!(printed > 0);
+    assert!(stderr.contains(&format!("listen: frames: {printed} ")), "{stderr}");
+    let last = stderr.lines().last().unwrap();
+    assert!(last.starts_with("error: lost ") && last.contains("did not come back within 0.5 s"), "{stderr}");
+}
+
+/// Profiles `--json` printed, by sequence number.
+fn printed_seqs(stdout: &[u8]) -> Vec<u32> {
+    String::from_utf8_lossy(stdout)
+        .lines()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .filter_map(|v| v["seq"].as_u64())
+        .map(|s| s as u32)
+        .collect()
+}
+
+/// Reads `child`'s stdout until `n` whole lines have arrived; returns them.
+fn read_lines(stdout: &mut impl Read, n: usize) -> Vec<u8> {
+    let mut got = Vec::new();
+    let mut buf = [0u8; 65536];
+    while got.iter().filter(|&&b| b == b'\n').count() < n {
+        let k = stdout.read(&mut buf).unwrap();
+        assert!(k > 0, "listen ended early");
+        got.extend_from_slice(&buf[..k]);
+    }
+    got
+}
+
+/// Ctrl-C twice within microseconds: still the summary, exit 0, and every
+/// frame printed is in the recording (a second press once exited 130 at
+/// once, without either).
+#[test]
+fn cli_ctrl_c_twice_still_ends_with_the_summary() {
+    use nix::sys::signal::{Signal, kill};
+    use nix::unistd::Pid;
+    let dir = tempfile::tempdir().unwrap();
+    let served = Served::new(dir.path());
+    let rec = dir.path().join("twice.cmsrec");
+    let mut child = Process::new(bin())
+        .args(["listen", served.link.to_str().unwrap(), "--json", "--record"])
+        .arg(&rec)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdout = child.stdout.take().unwrap();
+    let mut got = read_lines(&mut stdout, 5);
+    let pid = Pid::from_raw(child.id() as i32);
+    kill(pid, Signal::SIGINT).unwrap();
+    kill(pid, Signal::SIGINT).unwrap();
+    stdout.read_to_end(&mut got).unwrap();
+    let mut stderr = String::new();
+    child.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
+    let status = child.wait().unwrap();
+    served.finish();
+    assert!(status.success(), "{status:?}: {stderr}");
+    assert!(stderr.contains("listen: frames: "), "{stderr}");
+    let printed = printed_seqs(&got);
+    let (recorded, stats, _) = recorded_profiles(&rec);
+    assert!(printed.len() >= 5);
+    assert!(printed.iter().all(|s| recorded.contains(s)), "printed {printed:?}, recorded {recorded:?}");
+    assert_eq!(stats.damaged, 0);
+}
+
+/// `kill -9` during `listen sim --record --json`: the recording holds at
+/// least every frame printed but the one in flight (it holds all of them:
+/// frames are written before they are printed). A few tries, each killed
+/// after a different number of frames.
+#[test]
+fn cli_kill_9_loses_at_most_the_frame_in_flight() {
+    use nix::sys::signal::{Signal, kill};
+    use nix::unistd::Pid;
+    let dir = tempfile::tempdir().unwrap();
+    for (k, n) in [7usize, 13, 22, 31, 40].into_iter().enumerate() {
+        let rec = dir.path().join(format!("kill{k}.cmsrec"));
+        let mut child = Process::new(bin())
+            .args(["listen", "sim", "--json", "--rate", "100", "--record"])
+            .arg(&rec)
+            .env("CMS_SIM_STATE", dir.path().join("sim-state"))
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let mut stdout = child.stdout.take().unwrap();
+        let got = read_lines(&mut stdout, n);
+        kill(Pid::from_raw(child.id() as i32), Signal::SIGKILL).unwrap();
+        let _ = child.wait();
+        // The whole lines printed before the kill.
+        let whole = &got[..=got.iter().rposition(|&b| b == b'\n').unwrap()];
+        let printed = printed_seqs(whole);
+        let (recorded, stats, _) = recorded_profiles(&rec);
+        let kept = printed.iter().filter(|s| recorded.contains(s)).count();
+        eprintln!(
+            "kill -9 try {k}: {} printed, {} recorded, {kept} of the printed kept, {} truncated bytes",
+            printed.len(),
+            recorded.len(),
+            stats.truncated_tail
+        );
+        assert!(printed.len() >= n);
+        assert!(kept + 1 >= printed.len(), "try {k}: printed {printed:?}, recorded {recorded:?}");
+    }
 }

@@ -16,6 +16,7 @@ mod listen;
 mod measure;
 mod record;
 mod render;
+mod robust;
 mod simulate;
 mod standards;
 mod triangulate_sim;

@@ -278,6 +278,45 @@ fn version_mismatch_is_reported_as_such() {
     assert_eq!(decode_frame::<DeviceMsg>(&mut out[..m]), Err(WireError::Version(PROTOCOL_VERSION + 1)));
 }
 
+/// A damaged frame is a CRC error whatever its first byte says: the
+/// version is believed only once the CRC holds (garbage on the port was
+/// once reported as "a head of protocol version 51").
+#[test]
+fn a_damaged_frame_of_another_version_is_a_crc_error() {
+    let mut scratch = [0u8; 64];
+    scratch[0] = 51;
+    let n = postcard::to_slice(&DeviceMsg::Ack(1), &mut scratch[1..]).unwrap().len();
+    let crc = CRC.checksum(&scratch[..1 + n]) ^ 1;
+    scratch[1 + n..5 + n].copy_from_slice(&crc.to_le_bytes());
+    let mut out = [0u8; 64];
+    let m = cobs::encode(&scratch[..5 + n], &mut out);
+    assert_eq!(decode_frame::<DeviceMsg>(&mut out[..m]), Err(WireError::Crc));
+
+    // A reader fed random frames (well-formed COBS, so each reaches the
+    // version and CRC checks) counts CRC errors, never a version.
+    let mut reader = FrameReader::<512>::new();
+    let mut versions = 0;
+    let mut garbage = std::vec::Vec::new();
+    let mut x = 0x9E37_79B9_7F4A_7C15u64;
+    for k in 0..100 {
+        let raw: std::vec::Vec<u8> = (0..10 + k % 30)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                x as u8
+            })
+            .collect();
+        let mut enc = vec![0u8; raw.len() + 2];
+        let m = cobs::encode(&raw, &mut enc);
+        garbage.extend_from_slice(&enc[..m]);
+        garbage.push(0);
+    }
+    reader.feed::<DeviceMsg, _>(&garbage, |r| versions += u32::from(matches!(r, Err(WireError::Version(_)))));
+    assert_eq!(versions, 0);
+    assert_eq!(reader.stats().crc_errors, 100, "{:?}", reader.stats());
+}
+
 fn arb_point() -> impl Strategy<Value = Point> {
     (
         any::<u16>(),
@@ -346,6 +385,19 @@ proptest! {
         let mut f = frame(&c);
         f.pop();
         prop_assert_eq!(decode_frame::<Command>(&mut f).unwrap(), c);
+    }
+
+    /// A version mismatch is reported only for a frame whose CRC holds.
+    #[test]
+    fn a_version_is_reported_only_with_its_crc(bytes in proptest::collection::vec(1u8.., 5..200)) {
+        let mut f = bytes.clone();
+        if let Err(WireError::Version(v)) = decode_frame::<DeviceMsg>(&mut f) {
+            let mut raw = bytes.clone();
+            let n = cobs::decode_in_place(&mut raw).unwrap();
+            let (body, crc) = raw[..n].split_at(n - 4);
+            prop_assert_eq!(CRC.checksum(body), u32::from_le_bytes([crc[0], crc[1], crc[2], crc[3]]));
+            prop_assert_eq!(v, raw[0]);
+        }
     }
 
     /// Random bytes never panic the reader, and whatever it accepts passed the CRC.
