@@ -125,7 +125,8 @@ fn main() -> ! {
         });
         copy(&rows[0][..], &mut x[..], sat);
         // The brightest pixel near the candidate: where the detector starts.
-        let c0 = (c0.saturating_sub(6)..=(c0 + 6).min(N - 1)).max_by_key(|&i| (x[i], core::cmp::Reverse(i))).unwrap_or(c0);
+        let c0 =
+            (c0.saturating_sub(6)..=(c0 + 6).min(N - 1)).max_by_key(|&i| (x[i], core::cmp::Reverse(i))).unwrap_or(c0);
         let ricker = per_call(|_| {
             for k in 1..=8 {
                 black_box(cwt::response_q8(black_box(x), c0, k));
