@@ -42,7 +42,7 @@
 //! fixed-capacity types.
 
 use std::fmt;
-use std::io::{self, IsTerminal, Write};
+use std::io::{self, Write};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -51,7 +51,6 @@ use cms_core::protocol::{
     DeviceInfo, DeviceMsg, ErrorCode, HeadState, HostMsg, LaserPattern, PROTOCOL_VERSION, Profile, Start, Status,
     WireError,
 };
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::analyze::live::LiveEstimate;
 use crate::link::{Client, ClientError, Counters, Greeting, Handshake, LinkError, Outbox, Wait, check_version};
@@ -75,18 +74,6 @@ pub const REOPEN_INTERVAL: Duration = Duration::from_millis(200);
 /// when finishing.
 pub const STOP_ACK_TIMEOUT: Duration = Duration::from_millis(500);
 
-/// How the live status is shown on stderr.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Progress {
-    /// A status line redrawn in place when stderr is a terminal (and the JSON
-    /// is not going to the same terminal), otherwise a plain line a second.
-    Auto,
-    /// A plain line every second.
-    Plain,
-    /// Nothing (the summary is the caller's to print).
-    Quiet,
-}
-
 /// What to do.
 #[derive(Clone, Debug)]
 pub struct ListenOptions {
@@ -106,8 +93,6 @@ pub struct ListenOptions {
     pub exposure_us: Option<u32>,
     /// How long a lost port may stay away.
     pub reconnect_timeout: Duration,
-    /// Live status display.
-    pub progress: Progress,
 }
 
 impl Default for ListenOptions {
@@ -121,7 +106,6 @@ impl Default for ListenOptions {
             start: Start { rate_hz: 30, laser_mask: 0b111, pattern: LaserPattern::Simultaneous },
             exposure_us: None,
             reconnect_timeout: Duration::from_secs(30),
-            progress: Progress::Auto,
         }
     }
 }
@@ -576,62 +560,26 @@ impl Session<'_> {
     }
 }
 
-/// The live status display.
-struct Display {
-    bar: Option<ProgressBar>,
-    plain: bool,
-    last: Instant,
+/// Where the session's live status line goes (the command line draws it;
+/// the session only says when one is due and what it reads).
+pub trait StatusLine {
+    /// Whether a new line is due at `now`.
+    fn due(&self, now: Instant) -> bool;
+    /// Shows `line` (the status at `now`).
+    fn show(&mut self, now: Instant, line: String);
+    /// The session has ended.
+    fn finish(&mut self) {}
 }
 
-impl Display {
-    fn new(opts: &ListenOptions) -> Display {
-        let tty = io::stderr().is_terminal();
-        let fancy = match opts.progress {
-            Progress::Auto => tty && !(opts.json && io::stdout().is_terminal()),
-            _ => false,
-        };
-        let plain = match opts.progress {
-            Progress::Auto => !fancy,
-            Progress::Plain => true,
-            Progress::Quiet => false,
-        };
-        let bar = fancy.then(|| {
-            let b = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr_with_hz(4));
-            if let Ok(style) = ProgressStyle::with_template("{spinner} {msg}") {
-                b.set_style(style);
-            }
-            b
-        });
-        Display { bar, plain, last: Instant::now() }
-    }
+/// No status line.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Quiet;
 
-    fn active(&self) -> bool {
-        self.bar.is_some() || self.plain
+impl StatusLine for Quiet {
+    fn due(&self, _: Instant) -> bool {
+        false
     }
-
-    fn due(&self, now: Instant) -> bool {
-        let every = if self.bar.is_some() { Duration::from_millis(250) } else { Duration::from_secs(1) };
-        self.active() && now.duration_since(self.last) >= every
-    }
-
-    fn show(&mut self, now: Instant, line: String) {
-        self.last = now;
-        match &self.bar {
-            Some(b) => {
-                b.set_message(line);
-                b.tick();
-            }
-            None => {
-                let _ = writeln!(io::stderr(), "{line}");
-            }
-        }
-    }
-
-    fn finish(&self) {
-        if let Some(b) = &self.bar {
-            b.finish_and_clear();
-        }
-    }
+    fn show(&mut self, _: Instant, _: String) {}
 }
 
 /// How a session ended: what it did, and why it ended early if it did.
@@ -656,16 +604,7 @@ impl Outcome {
     }
 }
 
-/// Listens on `port` (a device path), printing `--json` lines on stdout.
-/// Returns when `opts` says so, when `stop` becomes true (Ctrl-C), or when
-/// stdout is closed; the head is stopped first.
-pub fn listen(port: &str, opts: &ListenOptions, stop: &AtomicBool) -> Outcome {
-    let stdout = io::stdout();
-    let mut out = stdout.lock();
-    session(port, opts, stop, &mut out, &mut |_| {})
-}
-
-/// [`session`], its summary only when it did not fail.
+/// [`session`] without a status line, its summary only when it did not fail.
 pub fn listen_with(
     port: &str,
     opts: &ListenOptions,
@@ -673,18 +612,22 @@ pub fn listen_with(
     out: &mut dyn Write,
     observe: &mut dyn FnMut(&DeviceMsg),
 ) -> Result<Summary, ListenError> {
-    let o = session(port, opts, stop, out, observe);
+    let o = session(port, opts, stop, out, observe, &mut Quiet);
     o.result.map(|()| o.summary)
 }
 
-/// [`listen`] writing the JSON lines to `out`, and showing `observe` every
-/// message it keeps (the recorded ones) in order.
+/// Listens on `port` (a device path), writing the `--json` lines to `out`,
+/// showing `observe` every message it keeps (the recorded ones) in order
+/// and `status` the live status line. Returns when `opts` says so, when
+/// `stop` becomes true (Ctrl-C), or when `out` is closed; the head is
+/// stopped first.
 pub fn session(
     port: &str,
     opts: &ListenOptions,
     stop: &AtomicBool,
     out: &mut dyn Write,
     observe: &mut dyn FnMut(&DeviceMsg),
+    status: &mut dyn StatusLine,
 ) -> Outcome {
     let t0 = Instant::now();
     let recorder = match &opts.record {
@@ -725,7 +668,6 @@ pub fn session(
         window_rates: WindowRates::default(),
         live: LiveEstimate::default(),
     };
-    let mut display = Display::new(opts);
     let mut last_open_try = t0;
     let result = loop {
         let now = Instant::now();
@@ -800,9 +742,9 @@ pub fn session(
         {
             s.fatal = Some(ListenError::Record(e));
         }
-        if display.due(now) {
+        if status.due(now) {
             let line = s.status_line(now, client.is_open());
-            display.show(now, line);
+            status.show(now, line);
         }
     };
     // Whatever happened, the lasers go off: a last Stop if the port is open
@@ -813,7 +755,7 @@ pub fn session(
         client.outbox().push(HostMsg::Stop);
         let _ = client.transmit(Instant::now());
     }
-    display.finish();
+    status.finish();
     let flushed = match &mut s.recorder {
         Some(rec) => rec.finish().map_err(ListenError::Record),
         None => Ok(()),

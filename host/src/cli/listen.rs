@@ -1,14 +1,16 @@
-//! `cms-host listen`: its arguments, Ctrl-C, and the summary on stderr.
+//! `cms-host listen`: its arguments, Ctrl-C, the live status line and the
+//! summary on stderr.
 
-use std::io::{self, Write as _};
+use std::io::{self, IsTerminal as _, Write as _};
 use std::path::PathBuf;
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
 use cms_core::protocol::{LASERS, LaserPattern, Start};
-use cms_host::listen::{self, ListenOptions, Progress, Summary};
+use cms_host::listen::{self, ListenOptions, StatusLine, Summary};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::exit::Usage;
 
@@ -102,7 +104,54 @@ impl ListenArgs {
             },
             exposure_us: self.exposure_us,
             reconnect_timeout: self.reconnect_timeout,
-            progress: Progress::Auto,
+        }
+    }
+}
+
+/// The live status line on stderr: redrawn in place (an indicatif spinner
+/// line) when stderr is a terminal and the JSON is not going to the same
+/// terminal, otherwise a plain line a second.
+struct Display {
+    bar: Option<ProgressBar>,
+    last: Instant,
+}
+
+impl Display {
+    fn new(json: bool) -> Display {
+        let fancy = io::stderr().is_terminal() && !(json && io::stdout().is_terminal());
+        let bar = fancy.then(|| {
+            let b = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr_with_hz(4));
+            if let Ok(style) = ProgressStyle::with_template("{spinner} {msg}") {
+                b.set_style(style);
+            }
+            b
+        });
+        Display { bar, last: Instant::now() }
+    }
+}
+
+impl StatusLine for Display {
+    fn due(&self, now: Instant) -> bool {
+        let every = if self.bar.is_some() { Duration::from_millis(250) } else { Duration::from_secs(1) };
+        now.duration_since(self.last) >= every
+    }
+
+    fn show(&mut self, now: Instant, line: String) {
+        self.last = now;
+        match &self.bar {
+            Some(b) => {
+                b.set_message(line);
+                b.tick();
+            }
+            None => {
+                let _ = writeln!(io::stderr(), "{line}");
+            }
+        }
+    }
+
+    fn finish(&mut self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
         }
     }
 }
@@ -140,7 +189,10 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
             "`listen sim` needs the simulated head, which this build does not have; give a device path".to_string(),
         ));
     }
-    let outcome = listen::listen(&args.port, &args.options(), interrupt_flag());
+    let opts = args.options();
+    let mut display = Display::new(opts.json);
+    let stdout = io::stdout();
+    let outcome = listen::session(&args.port, &opts, interrupt_flag(), &mut stdout.lock(), &mut |_| {}, &mut display);
     // A session that ends in a failure after greeting the head (the port
     // lost for good) still says what it got, before the error line.
     if outcome.result.is_ok() || outcome.greeted() {

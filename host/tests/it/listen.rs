@@ -47,7 +47,7 @@ use cms_core::protocol::{
     Command, DeviceMsg, ErrorCode, FrameReader, HeadState, HostMsg, LaserPattern, MAX_COMMAND_FRAME, MAX_FRAME,
     PROTOCOL_VERSION, Start, WireError, encode,
 };
-use cms_host::listen::{ListenError, ListenOptions, Progress, Summary, listen_with};
+use cms_host::listen::{ListenError, ListenOptions, Summary, listen_with};
 use cms_host::record;
 use cms_study::{Gauss, Rng, clean_row, quantise};
 
@@ -510,7 +510,7 @@ fn thread_cpu_s() -> f64 {
 
 /// Runs the device with `plan` and the listener with `opts` until the
 /// listener has handed on `want` profiles (or `limit` passed), then stops both.
-fn run(dir: &Path, plan: Plan, mut opts: ListenOptions, want: u64, limit: Duration) -> Run {
+fn run(dir: &Path, plan: Plan, opts: ListenOptions, want: u64, limit: Duration) -> Run {
     let link = dir.join("ttyCMS");
     let dev_stop = Arc::new(AtomicBool::new(false));
     let tally = Arc::new(Tally::default());
@@ -521,7 +521,6 @@ fn run(dir: &Path, plan: Plan, mut opts: ListenOptions, want: u64, limit: Durati
         thread::Builder::new().stack_size(16 << 20).spawn(move || device(link, plan, stop, hooks)).unwrap()
     };
     is_plugged.recv_timeout(Duration::from_secs(10)).expect("the device creates the link");
-    opts.progress = Progress::Quiet;
     let stop = Arc::new(AtomicBool::new(false));
     let listener = {
         let (stop, tally, port) = (stop.clone(), tally.clone(), link.to_string_lossy().into_owned());
@@ -768,7 +767,7 @@ fn a_silent_port_gives_no_hello() {
     let link = dir.path().join("ttyMute");
     let _pty = plug(&link);
     let stop = AtomicBool::new(false);
-    let opts = ListenOptions { progress: Progress::Quiet, ..ListenOptions::default() };
+    let opts = ListenOptions::default();
     let t = Instant::now();
     let e = listen_with(link.to_str().unwrap(), &opts, &stop, &mut io::sink(), &mut |_| {}).unwrap_err();
     assert!(matches!(e, ListenError::NoHello { .. }), "{e}");
@@ -1064,7 +1063,7 @@ fn another_protocol_version_is_refused() {
             }
         }
     });
-    let opts = ListenOptions { progress: Progress::Quiet, ..ListenOptions::default() };
+    let opts = ListenOptions::default();
     let e =
         listen_with(link.to_str().unwrap(), &opts, &AtomicBool::new(false), &mut io::sink(), &mut |_| {}).unwrap_err();
     drop(slave);
@@ -1102,9 +1101,15 @@ fn random_bytes_are_not_a_version_mismatch() {
             }
         }
     });
-    let opts = ListenOptions { progress: Progress::Quiet, ..ListenOptions::default() };
-    let o =
-        cms_host::listen::session(link.to_str().unwrap(), &opts, &AtomicBool::new(false), &mut io::sink(), &mut |_| {});
+    let opts = ListenOptions::default();
+    let o = cms_host::listen::session(
+        link.to_str().unwrap(),
+        &opts,
+        &AtomicBool::new(false),
+        &mut io::sink(),
+        &mut |_| {},
+        &mut cms_host::listen::Quiet,
+    );
     drop(slave);
     noise.join().unwrap();
     let e = o.result.unwrap_err();

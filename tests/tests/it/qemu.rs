@@ -24,7 +24,7 @@ use cms_core::protocol::{
 };
 use cms_core::synthetic::{Scene, SceneCamera, SceneConfig};
 use cms_host::link::{Client, ClientError, Wait};
-use cms_host::listen::{ListenOptions, Progress, Summary, listen_with};
+use cms_host::listen::{ListenOptions, Summary, listen_with};
 use cms_host::qemu::{self, Machine, Qemu};
 
 /// The emulated head's scene seed (`SCENE_SEED` in firmware/qemu/src/bin/head.rs).
@@ -62,7 +62,7 @@ fn listen_to_qemu(machine: Machine, start: Start, frames: u64) -> Session {
     if let Err(e) = q.resume() {
         panic!("{e}");
     }
-    let opts = ListenOptions { frames: Some(frames), start, progress: Progress::Quiet, ..ListenOptions::default() };
+    let opts = ListenOptions { frames: Some(frames), start, ..ListenOptions::default() };
     let mut info = None;
     let mut profiles = Vec::new();
     let summary = listen_with(&port, &opts, &AtomicBool::new(false), &mut std::io::sink(), &mut |m| match m {
