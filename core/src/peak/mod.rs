@@ -542,6 +542,9 @@ pub struct Detector<const W: usize> {
     noise_q8: i32,
     /// Robust σ of the screen's block response, counts × 256.
     screen_sigma_q8: i32,
+    /// The detection thresholds' factor on both σ for the number of
+    /// samples they were measured on, Q8 ([`screen::detection_margin_q8`]).
+    margin_q8: i32,
     /// Rows until the next refresh (0: the next row refreshes).
     refresh_in: u16,
     /// Row length the estimates were made on.
@@ -562,6 +565,7 @@ impl<const W: usize> Detector<W> {
             s: [0; W],
             noise_q8: 0,
             screen_sigma_q8: 0,
+            margin_q8: 256,
             refresh_in: 0,
             noise_len: 0,
             stats: RowStats::default(),
@@ -613,16 +617,20 @@ impl<const W: usize> Detector<W> {
             } else {
                 0
             };
+            self.margin_q8 = screen::detection_margin_q8(screen::noise_samples(n));
             self.refresh_in = NOISE_ROWS;
             self.noise_len = n;
         }
         self.refresh_in -= 1;
-        let noise_q8 = self.noise_q8;
-        self.stats.noise_q8 = noise_q8;
+        self.stats.noise_q8 = self.noise_q8;
+        // What the thresholds use: the estimate with its small-sample margin
+        // (the statistics report the estimate itself).
+        let margin = |q8: i32| ((q8 as i64 * self.margin_q8 as i64) >> 8).min(i32::MAX as i64) as i32;
+        let noise_q8 = margin(self.noise_q8);
         let mut cands: Vec<Candidate, MAX_CANDIDATES> = Vec::new();
         if screened {
             let thr_noise =
-                (self.screen_sigma_q8 as i64 * self.cfg.threshold_sigma_q8 as i64 * SCREEN_FRACTION_Q8) >> 24;
+                (margin(self.screen_sigma_q8) as i64 * self.cfg.threshold_sigma_q8 as i64 * SCREEN_FRACTION_Q8) >> 24;
             let thr_abs = self.cfg.min_amplitude as i64 * self.plan.smin_floor_px as i64;
             let threshold = thr_noise.max(thr_abs).max(1).min(i32::MAX as i64) as i32;
             screen::candidates(row, lb, narrow, threshold, &mut cands);

@@ -288,32 +288,91 @@ pub fn sigma_q8(scratch: &mut [i32]) -> i32 {
     h.kth(scratch, m / 2).saturating_mul(380)
 }
 
+/// Rows shorter than this measure their noise on every second difference
+/// (`n − 2` overlapping triples) rather than on every third window: the
+/// median of a handful of samples is too often far below the noise. At
+/// 750 px both ways give 250 samples or more, so the count, and with it
+/// [`detection_margin_q8`], has no step there.
+pub const NOISE_EVERY_TRIPLE_BELOW: usize = 750;
+
+/// How many second differences [`pixel_noise_q8`] takes the median of for
+/// a row of `n` pixels.
+pub const fn noise_samples(n: usize) -> usize {
+    if n < NOISE_EVERY_TRIPLE_BELOW { n.saturating_sub(2) } else { n / 3 }
+}
+
 /// Robust pixel-noise σ (Q8) straight from the sensor's row, values above
 /// `sat` clamped: for white noise `x[i−1] − 2x[i] + x[i+1]` has σ√6 and
 /// median |·| = 0.6745 σ√6, so σ = 0.6053 × the median (155/256). Every
 /// third window (the row's chunks of three): the median of 250 samples of
 /// a 752-px row has a relative standard error of about 8 %, ample for a
-/// threshold. Stripes, hot pixels and edges are a minority of the row and
+/// threshold. Rows shorter than [`NOISE_EVERY_TRIPLE_BELOW`] take every
+/// triple ([`noise_samples`]); [`detection_margin_q8`] covers what error
+/// is left. Stripes, hot pixels and edges are a minority of the row and
 /// do not move the median.
-/// `scratch` needs a third of the row.
+/// `scratch` needs [`noise_samples`] of the row.
 #[inline(never)]
 pub fn pixel_noise_q8<P: Pixel>(row: &[P], sat: i32, scratch: &mut [i32]) -> i32 {
     let mut h = Histogram::new();
     let mut m = 0;
-    for (s, &[a, b, c]) in scratch.iter_mut().zip(row.as_chunks::<3>().0) {
-        let (a, b, c) = (a.value().min(sat), b.value().min(sat), c.value().min(sat));
-        let v = (a - 2 * b + c).abs();
-        *s = v;
-        h.add(v);
-        m += 1;
+    let d2 = |a: P, b: P, c: P| (a.value().min(sat) - 2 * b.value().min(sat) + c.value().min(sat)).abs();
+    if row.len() < NOISE_EVERY_TRIPLE_BELOW {
+        for (s, w) in scratch.iter_mut().zip(row.windows(3)) {
+            let v = d2(w[0], w[1], w[2]);
+            *s = v;
+            h.add(v);
+            m += 1;
+        }
+    } else {
+        for (s, &[a, b, c]) in scratch.iter_mut().zip(row.as_chunks::<3>().0) {
+            let v = d2(a, b, c);
+            *s = v;
+            h.add(v);
+            m += 1;
+        }
     }
     h.set_total(m);
     h.kth(&mut scratch[..m], m / 2).saturating_mul(155)
 }
 
+/// The factor (Q8) the detection thresholds put on a noise σ estimated
+/// from `m` second differences, so that a row whose few samples happen to
+/// read low does not turn its noise into stripes: the median of `m`
+/// samples has a relative standard error of about 1.17/√m (the half-normal
+/// median's), and the margin is three of them beyond what the 250 samples
+/// of a full 752-px row leave: `1 + k·(1/√m − 1/√250)`, `k = 3 × 1.17`.
+/// It is 1 at and above 250 samples (full rows keep the configured
+/// threshold as it stands), 1.14 for a 96-px window, 1.7 for 16 px. On
+/// uniform bytes it takes 16-px rows from 1–2 % "stripes" to under 0.02 %
+/// (`white_noise_in_short_rows_is_rarely_a_stripe`).
+pub fn detection_margin_q8(m: usize) -> i32 {
+    // 1/√m in Q16 from an integer square root of m in Q8; 1/√250 = 4145/65536.
+    let sqrt_q8 = ((m.max(1) as u64) << 16).isqrt();
+    let inv_q16 = ((1u64 << 24) / sqrt_q8) as i64;
+    256 + ((MARGIN_Q8 * (inv_q16 - 4145).max(0)) >> 16) as i32
+}
+
+/// `k` of [`detection_margin_q8`], Q8: 3 × 1.17 × 256 = 898.6.
+const MARGIN_Q8: i64 = 899;
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_detection_margin_follows_its_formula() {
+        for m in [1usize, 2, 6, 14, 30, 94, 189, 249, 250, 251, 683, 10_000] {
+            let want = 1.0 + 3.0 * 1.17 * (1.0 / (m as f64).sqrt() - 1.0 / 250f64.sqrt()).max(0.0);
+            let got = detection_margin_q8(m) as f64 / 256.0;
+            assert!((got - want).abs() < 2.0 / 256.0, "{m}: {got} vs {want}");
+        }
+        assert_eq!(detection_margin_q8(noise_samples(752)), 256);
+        assert_eq!(noise_samples(96), 94);
+        assert_eq!(noise_samples(749), 747);
+        assert_eq!(noise_samples(750), 250);
+        assert!(detection_margin_q8(noise_samples(200)) > 256);
+        assert_eq!(detection_margin_q8(noise_samples(252)), 256);
+    }
 
     #[test]
     fn block_width_follows_the_scale() {

@@ -207,7 +207,7 @@ pub(crate) fn refine(v: &RowView<'_>, c: usize, method: Method) -> Option<Stripe
             // difference of the box-cascade FIR), zero crossing near its max.
             let g = v.g;
             let gb = argmax_near(g, c, reach);
-            if gb == 0 || gb + 2 > n - 1 {
+            if gb < 2 || gb + 2 >= n {
                 None
             } else {
                 let dd = |i: usize| (g[i + 1] - g[i - 1]) as i64;

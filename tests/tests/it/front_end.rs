@@ -21,7 +21,8 @@ fn kth_sorted(v: &[i32], k: usize) -> i32 {
 
 /// Robust pixel noise: median |second difference| of every third window, × 155.
 fn pixel_noise_ref(x: &[i32]) -> i32 {
-    let v: Vec<i32> = x.windows(3).step_by(3).map(|w| (w[0] - 2 * w[1] + w[2]).abs()).collect();
+    let step = if x.len() < screen::NOISE_EVERY_TRIPLE_BELOW { 1 } else { 3 };
+    let v: Vec<i32> = x.windows(3).step_by(step).map(|w| (w[0] - 2 * w[1] + w[2]).abs()).collect();
     if v.is_empty() { 0 } else { kth_sorted(&v, v.len() / 2).saturating_mul(155) }
 }
 
