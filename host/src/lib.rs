@@ -14,6 +14,7 @@
 //! * [`record`] — the recording format, its reader, export and `info`.
 //! * [`input`] — grayscale PNG/TIFF images and CSV rows.
 //! * [`detect`] — laser-stripe positions of image rows, as CSV.
+//! * [`synthetic`] — a calibrated recording of any length over a known rail, for benchmarks at survey scale.
 //!
 //! **Models**
 //! * [`camera`] — the `f64` camera model: pinhole, skew, Brown–Conrady distortion (OpenCV's), and its one conversion to the head's `f32` model.
@@ -31,6 +32,7 @@
 //! * [`analyze`] — a recording stitched along the track, judged by the standards; the report.
 //! * [`plot`] — SVG and PNG plots with an embedded font.
 //! * [`output`] — every output file written atomically, and only as a regular file.
+//! * [`progress`] — how far a long job has got (the command line draws it).
 //!
 //! * [`error`] — the library's error and what kind of failure each is.
 
@@ -51,10 +53,12 @@ pub mod lm;
 pub mod measure;
 pub mod output;
 pub mod plot;
+pub mod progress;
 pub mod qemu;
 pub mod record;
 pub mod sim;
 pub mod simulate;
 pub mod standards;
+pub mod synthetic;
 
 pub use error::{Class, Error};

@@ -53,6 +53,7 @@ use crate::corrugation::{Corrected, HeadFrame, Joint, Line, joint_fit};
 use crate::detect::MAX_ROW;
 use crate::fit::{self, Fit, Options};
 use crate::input::{self, Row, Rows};
+use crate::progress::Progress;
 use crate::record::{self, FrameCounter};
 
 /// Per laser, its profile points `(along_mm, height_mm)`.
@@ -233,6 +234,7 @@ pub fn measure_recording(
     path: &Path,
     name: &str,
     cal_name: &str,
+    progress: &dyn Progress,
 ) -> Result<(Vec<Measurement>, Vec<String>), Error> {
     // The head first: measuring a whole recording with the wrong
     // calibration, to refuse it at the end, would waste its time.
@@ -250,7 +252,7 @@ pub fn measure_recording(
     let mut counter = FrameCounter::default();
     let mut results = Vec::new();
     // The recording's errors name it already.
-    let stats = record::scan_file(path, |msg| {
+    let stats = record::scan_file_with_progress(path, progress, |msg| {
         if let DeviceMsg::Profile(p) = msg {
             if p.part == 0 {
                 parts.clear();
@@ -280,11 +282,16 @@ pub fn measure_recording(
 /// a damaged or empty recording is then reported as such, not as an
 /// unknown image type); with the warnings of reading it. An image of
 /// another size than the calibration's (`cal_name`) camera is refused.
-pub fn measure_file(m: &Measurer, path: &Path, cal_name: &str) -> Result<(Vec<Measurement>, Vec<String>), Error> {
+pub fn measure_file(
+    m: &Measurer,
+    path: &Path,
+    cal_name: &str,
+    progress: &dyn Progress,
+) -> Result<(Vec<Measurement>, Vec<String>), Error> {
     let name = path.display().to_string();
     let named = path.extension().is_some_and(|e| e.eq_ignore_ascii_case(record::EXTENSION));
     if named || is_recording(path) {
-        return measure_recording(m, path, &name, cal_name);
+        return measure_recording(m, path, &name, cal_name, progress);
     }
     let rows = input::read_rows(path)?;
     m.file.check_image(cal_name, &name, rows.width(), rows.height())?;

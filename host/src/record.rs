@@ -54,6 +54,7 @@
 //! There is no host time stamp: profiles carry the head's exposure time
 //! (`timestamp_us`) and odometer, which is what every analysis uses.
 
+use crate::progress::Progress;
 use std::fs::{File, OpenOptions};
 use std::io::{self, BufReader, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
@@ -331,6 +332,41 @@ pub fn scan_reader(
     Ok(stats)
 }
 
+/// [`scan_file`], telling `progress` the bytes read.
+pub fn scan_file_with_progress(
+    path: &Path,
+    progress: &dyn Progress,
+    on_msg: impl FnMut(&DeviceMsg) -> io::Result<()>,
+) -> Result<ScanStats, RecordError> {
+    let f = File::open(path).map_err(|source| RecordError::Io {
+        path: path.to_path_buf(),
+        what: "cannot open recording",
+        source,
+    })?;
+    let total = f.metadata().map(|m| m.len()).unwrap_or(0);
+    progress.begin(&format!("reading {}", path.display()), total, "B");
+    let counted = Counted { inner: f, done: 0, progress };
+    let r = scan_reader(path, BufReader::with_capacity(256 << 10, counted), on_msg);
+    progress.end();
+    r
+}
+
+/// A reader that tells a [`Progress`] how many bytes it has read.
+struct Counted<'a, R> {
+    inner: R,
+    done: u64,
+    progress: &'a dyn Progress,
+}
+
+impl<R: Read> Read for Counted<'_, R> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.done += n as u64;
+        self.progress.set(self.done);
+        Ok(n)
+    }
+}
+
 /// [`scan_reader`] on a file.
 pub fn scan_file(path: &Path, on_msg: impl FnMut(&DeviceMsg) -> io::Result<()>) -> Result<ScanStats, RecordError> {
     let f = File::open(path).map_err(|source| RecordError::Io {
@@ -551,11 +587,16 @@ pub fn same_file(a: &Path, b: &Path) -> bool {
 }
 
 /// Exports the profiles of a recording to `out`; returns what reading found.
-pub fn export_to(path: &Path, format: ExportFormat, out: &mut dyn Write) -> Result<ScanStats, RecordError> {
+pub fn export_to(
+    path: &Path,
+    format: ExportFormat,
+    out: &mut dyn Write,
+    progress: &dyn Progress,
+) -> Result<ScanStats, RecordError> {
     if format == ExportFormat::Csv {
         writeln!(out, "{CSV_HEADER}").map_err(RecordError::Output)?;
     }
-    let stats = scan_file(path, |msg| match msg {
+    let stats = scan_file_with_progress(path, progress, |msg| match msg {
         DeviceMsg::Profile(p) => match format {
             ExportFormat::Csv => write_csv(out, p),
             ExportFormat::Jsonl => write_json_line(out, p),
@@ -648,10 +689,10 @@ impl Info {
     }
 
     /// Reads a recording.
-    pub fn of_file(path: &Path) -> Result<Info, RecordError> {
+    pub fn of_file(path: &Path, progress: &dyn Progress) -> Result<Info, RecordError> {
         let mut info = Info::default();
         let mut counter = FrameCounter::default();
-        info.scan = scan_file(path, |m| {
+        info.scan = scan_file_with_progress(path, progress, |m| {
             info.add(m, &mut counter);
             Ok(())
         })?;

@@ -14,10 +14,11 @@
 //! window is not an error: the summary says which band or wavelength could
 //! not be evaluated and why, and gives the rest.
 //!
-//! Cost: reading is the recording's decoding (about 2 000 frames/s, see
-//! docs/link-and-recordings.md); stitching `O(P log P)` in the points; the standards `O(N log N)`
-//! in the samples. A 3 m sim recording (90 frames, 130 000 points) is
-//! analysed in well under a second, plots included.
+//! Cost: one pass over the file, frames streamed through
+//! [`stitch::Stitcher`] as they are read (never all in memory); the
+//! standards `O(N log N)` in the samples. A synthetic 20 000-frame
+//! recording (`cms-host bench recording`, 340 m of rail, 531 MB) takes
+//! about 5 s and 180 MB (docs/benchmarks.md).
 
 pub mod live;
 pub mod report;
@@ -32,6 +33,7 @@ use serde_json::{Value, json};
 use crate::Error;
 use crate::corrugation::Across;
 use crate::measure::{Measurer, Profiles};
+use crate::progress::Progress;
 use crate::record::{self, ScanStats};
 use crate::standards::{StandardsError, en13231, en15610};
 use stitch::{Direction, FrameAssembler, FramePoints, Registration, Stitched, Stitching};
@@ -43,10 +45,16 @@ pub struct Options {
     pub roughness: en15610::Options,
 }
 
-/// The calibrated frames of a recording and what else it said.
+/// What a recording said, besides its frames (which stream through
+/// [`read_recording`]'s callback and are not kept).
 #[derive(Debug, Clone, Default)]
 pub struct Recording {
-    pub frames: Vec<FramePoints>,
+    /// Frames with calibrated points.
+    pub frames: usize,
+    /// Lowest and highest `seq` of those frames.
+    pub seq_range: Option<(u32, u32)>,
+    /// Lowest and highest odometer of those frames, mm.
+    pub odometer_range_mm: Option<(f64, f64)>,
     /// Profile messages.
     pub profiles: u64,
     pub calibrated_points: u64,
@@ -57,31 +65,49 @@ pub struct Recording {
     /// sensor size, for [`crate::calib::file::CalibrationFile::check_recording`].
     pub heads: crate::calib::file::RecordedHeads,
     pub stats: ScanStats,
-    /// Frames slid across ([`slide_frames`]) and the calibration file used.
+    /// Frames slid across ([`slide_frame`]) and the calibration file used.
     pub slid_across: Option<(usize, PathBuf)>,
 }
 
 impl Recording {
-    /// Lowest and highest odometer of the frames, mm.
-    pub fn odometer_range_mm(&self) -> Option<(f64, f64)> {
-        let it = self.frames.iter().map(|f| f.odometer_mm);
-        let lo = it.clone().fold(f64::INFINITY, f64::min);
-        let hi = it.fold(f64::NEG_INFINITY, f64::max);
-        (lo <= hi).then_some((lo, hi))
+    fn count(&mut self, f: &FramePoints) {
+        self.frames += 1;
+        let (s, o) = (f.seq, f.odometer_mm);
+        self.seq_range = Some(self.seq_range.map_or((s, s), |(lo, hi)| (lo.min(s), hi.max(s))));
+        if o.is_finite() {
+            self.odometer_range_mm = Some(self.odometer_range_mm.map_or((o, o), |(lo, hi)| (lo.min(o), hi.max(o))));
+        }
     }
 }
 
-/// Reads a recording's calibrated frames.
-pub fn read_recording(path: &Path) -> Result<Recording, Error> {
+/// Reads a recording, handing each frame with calibrated points to
+/// `on_frame` as soon as it is complete, with what the recording has said
+/// so far (its heads: a `Hello` precedes the profiles it describes).
+/// Memory is one frame; `progress` is told the bytes read. An error of
+/// `on_frame` stops the reading and is returned.
+pub fn read_recording(
+    path: &Path,
+    progress: &dyn Progress,
+    mut on_frame: impl FnMut(&Recording, FramePoints) -> Result<(), Error>,
+) -> Result<Recording, Error> {
     let mut rec = Recording::default();
     let mut asm = FrameAssembler::default();
-    let stats = record::scan_file(path, |msg| {
+    // The callback's error, kept while the reader is told to stop.
+    let mut failed: Option<Error> = None;
+    let mut deliver = |rec: &mut Recording, f: FramePoints, failed: &mut Option<Error>| -> std::io::Result<()> {
+        rec.count(&f);
+        on_frame(rec, f).map_err(|e| {
+            *failed = Some(e);
+            std::io::Error::other("stopped")
+        })
+    };
+    let scanned = record::scan_file_with_progress(path, progress, |msg| {
         match msg {
             DeviceMsg::Profile(p) => {
                 rec.profiles += 1;
                 rec.heads.profile(p);
                 if let Some(f) = asm.push(p) {
-                    rec.frames.push(f);
+                    deliver(&mut rec, f, &mut failed)?;
                 }
             }
             DeviceMsg::Hello(info) => {
@@ -91,9 +117,17 @@ pub fn read_recording(path: &Path) -> Result<Recording, Error> {
             _ => {}
         }
         Ok(())
-    })
-    .map_err(|e| Error::Input(e.to_string()))?;
-    rec.frames.extend(asm.finish());
+    });
+    let stats = match scanned {
+        Ok(stats) => stats,
+        Err(e) => return Err(failed.take().unwrap_or_else(|| Error::Input(e.to_string()))),
+    };
+    if let Some(f) = asm.finish()
+        && deliver(&mut rec, f, &mut failed).is_err()
+        && let Some(e) = failed.take()
+    {
+        return Err(e);
+    }
     rec.calibrated_points = asm.calibrated_points;
     rec.uncalibrated_points = asm.uncalibrated_points;
     rec.stats = stats;
@@ -101,7 +135,7 @@ pub fn read_recording(path: &Path) -> Result<Recording, Error> {
     if rec.profiles == 0 {
         return Err(Error::Input(format!("{name}: the recording holds no profiles")));
     }
-    if rec.frames.is_empty() {
+    if rec.frames == 0 {
         return Err(Error::Input(format!(
             "{name}: no calibrated points in {} profiles (the head had no calibration loaded: see cms-host calibrate upload)",
             rec.profiles
@@ -110,26 +144,22 @@ pub fn read_recording(path: &Path) -> Result<Recording, Error> {
     Ok(rec)
 }
 
-/// Slides every frame's points across the rail head's lateral slope
+/// Slides one frame's points across the rail head's lateral slope
 /// ([`crate::corrugation::Across`]: the points lifted to the head frame with
 /// the calibration's laser frames, the slope from the parabola through the
-/// three lines' mean heights); returns the frames corrected (a frame with
-/// fewer than two lines of 8 points is left as it is).
-pub fn slide_frames(frames: &mut [FramePoints], m: &Measurer) -> usize {
-    let mut done = 0;
-    for f in frames {
-        let profiles: Profiles = std::array::from_fn(|k| f.lasers[k].iter().map(|&(a, h)| (a, h * 1e-3)).collect());
-        let lines = m.lines(&profiles);
-        let Some(across) = Across::new(&lines) else { continue };
-        for (k, (pts, line)) in f.lasers.iter_mut().zip(&lines).enumerate() {
-            // `lines` keeps every point of a known laser, in order.
-            for (pt, p3) in pts.iter_mut().zip(&line.points) {
-                pt.1 += (across.slide(k, *p3)[2] - p3[2]) * 1e3;
-            }
+/// three lines' mean heights); false when the frame has fewer than two
+/// lines of 8 points (it is left as it is).
+pub fn slide_frame(f: &mut FramePoints, m: &Measurer) -> bool {
+    let profiles: Profiles = std::array::from_fn(|k| f.lasers[k].iter().map(|&(a, h)| (a, h * 1e-3)).collect());
+    let lines = m.lines(&profiles);
+    let Some(across) = Across::new(&lines) else { return false };
+    for (k, (pts, line)) in f.lasers.iter_mut().zip(&lines).enumerate() {
+        // `lines` keeps every point of a known laser, in order.
+        for (pt, p3) in pts.iter_mut().zip(&line.points) {
+            pt.1 += (across.slide(k, *p3)[2] - p3[2]) * 1e3;
         }
-        done += 1;
     }
-    done
+    true
 }
 
 /// One laser's outcome.
@@ -150,7 +180,11 @@ pub struct Analysis {
 
 /// Stitches the frames and runs both standards on every laser's profile.
 pub fn analyze(frames: &[FramePoints], opts: &Options) -> Result<Analysis, stitch::StitchError> {
-    let mut stitching = stitch::stitch(frames, &opts.stitch)?;
+    Ok(judge(stitch::stitch(frames, &opts.stitch)?, opts))
+}
+
+/// Runs both standards on every laser's stitched profile.
+pub fn judge(mut stitching: Stitching, opts: &Options) -> Analysis {
     let lasers = std::mem::take(&mut stitching.lasers)
         .into_iter()
         .map(|s| {
@@ -159,7 +193,7 @@ pub fn analyze(frames: &[FramePoints], opts: &Options) -> Result<Analysis, stitc
             LaserAnalysis { stitched: s, bands, roughness }
         })
         .collect();
-    Ok(Analysis { options: opts.clone(), stitching, lasers })
+    Analysis { options: opts.clone(), stitching, lasers }
 }
 
 /// ISO 3095 wavelengths the spectrum does not reach, with why.
@@ -216,14 +250,13 @@ fn opt_um(v: Option<f64>) -> String {
 /// The recording's and the stitching's description (a few lines).
 pub fn describe(path: &Path, rec: &Recording, a: &Analysis) -> String {
     let mut s = String::new();
-    let seqs = rec.frames.iter().map(|f| f.seq);
-    let (smin, smax) = (seqs.clone().min().unwrap_or(0), seqs.max().unwrap_or(0));
-    let (olo, ohi) = rec.odometer_range_mm().unwrap_or((0.0, 0.0));
+    let (smin, smax) = rec.seq_range.unwrap_or((0, 0));
+    let (olo, ohi) = rec.odometer_range_mm.unwrap_or((0.0, 0.0));
     let _ = writeln!(
         s,
         "recording {}: {} frames with calibrated points (seq {smin}–{smax}), {} points, odometer {olo:.3}–{ohi:.3} mm{}",
         path.display(),
-        rec.frames.len(),
+        rec.frames,
         rec.calibrated_points,
         match rec.calibration_id {
             Some(id) => format!(", calibration {id:#010x}"),
@@ -239,7 +272,7 @@ pub fn describe(path: &Path, rec: &Recording, a: &Analysis) -> String {
                 s,
                 "  heights slid across the rail head's lateral slope with {} ({n} of {} frames)",
                 cal.display(),
-                rec.frames.len()
+                rec.frames
             );
         }
         None => {
@@ -375,7 +408,7 @@ fn num(v: f64) -> Value {
 
 /// The analysis as one JSON object.
 pub fn to_json(path: &Path, rec: &Recording, a: &Analysis) -> Value {
-    let (olo, ohi) = rec.odometer_range_mm().unwrap_or((f64::NAN, f64::NAN));
+    let (olo, ohi) = rec.odometer_range_mm.unwrap_or((f64::NAN, f64::NAN));
     let lasers: Vec<Value> = a
         .lasers
         .iter()
@@ -455,7 +488,7 @@ pub fn to_json(path: &Path, rec: &Recording, a: &Analysis) -> Value {
         .collect();
     json!({
         "recording": path.display().to_string(),
-        "frames": rec.frames.len(),
+        "frames": rec.frames,
         "profiles": rec.profiles,
         "calibrated_points": rec.calibrated_points,
         "uncalibrated_points": rec.uncalibrated_points,

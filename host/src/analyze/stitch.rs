@@ -37,8 +37,10 @@
 //!
 //! Each frame's heights are relative to the head, which bounces and pitches
 //! on the trolley: between frames the whole profile may move by an offset
-//! and tilt. Frames are taken in track order and each is registered onto
-//! what has been stitched before it: over the cells they share, the
+//! and tilt. Frames are taken in the order they come — a recording's, the
+//! order the head travelled, whichever way — and each is registered onto
+//! what has been stitched before it ([`Stitcher`]; [`stitch`] takes a
+//! slice in odometer order): over the cells they share, the
 //! least-squares offset (and, if asked, tilt, when the overlap is at least
 //! [`Options::min_tilt_overlap_mm`] long) of the frame's values minus the
 //! stitched ones is subtracted from the whole frame, which is then averaged
@@ -69,8 +71,10 @@
 //! # Cost
 //!
 //! `O(P log P)` for P points (sorting each frame's points into cells) plus
-//! `O(C)` per frame for C cells it covers; memory 3 × f64 per grid cell.
-//! A grid longer than [`MAX_CELLS`] is refused.
+//! `O(C)` per frame for C cells it covers; memory 16 bytes per grid cell
+//! and lane (two lanes per laser with [`Direction::Auto`]) and one
+//! [`FrameFit`] per frame, not the frames: [`Stitcher`] streams. A grid
+//! longer than [`MAX_CELLS`] is refused.
 
 use cms_core::protocol::{LASERS, Profile};
 
@@ -297,125 +301,235 @@ pub fn median(mut v: Vec<f64>) -> Option<f64> {
     Some(if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) })
 }
 
-/// Stitches every laser of `frames` (in any order).
+/// Stitches every laser of `frames` (in any order: they are taken in
+/// odometer order, as a recording of a trolley pushed one way holds them).
 pub fn stitch(frames: &[FramePoints], opts: &Options) -> Result<Stitching, StitchError> {
-    if !(opts.dx_mm.is_finite() && opts.dx_mm > 0.0) {
-        return Err(StitchError::BadSpacing(opts.dx_mm));
+    let mut order: Vec<&FramePoints> = frames.iter().collect();
+    order.sort_by(|a, b| a.odometer_mm.total_cmp(&b.odometer_mm));
+    let mut s = Stitcher::new(opts)?;
+    for f in order {
+        s.push(f);
     }
-    let lasers_with_points: Vec<usize> =
-        (0..LASERS).filter(|&k| frames.iter().any(|f| f.lasers[k].iter().any(|p| finite(*p)))).collect();
-    let Some(&busiest) =
-        lasers_with_points.iter().max_by_key(|&&k| frames.iter().map(|f| f.lasers[k].len()).sum::<usize>())
-    else {
-        return Err(StitchError::NoPoints);
-    };
-    let (direction, auto_residuals_um) = match opts.direction {
-        Direction::Auto => {
-            // Offset-only registration for the comparison: a wrong sign
-            // must not be rescued by tilts.
-            let probe = Options { registration: Registration::Offset, ..*opts };
-            let fwd = stitch_laser(frames, busiest, 1.0, &probe)?.median_residual_um();
-            let rev = stitch_laser(frames, busiest, -1.0, &probe)?.median_residual_um();
-            let d = match (fwd, rev) {
-                (Some(f), Some(r)) if r < 0.8 * f => Direction::Reverse,
-                _ => Direction::Forward,
-            };
-            (d, Some((fwd, rev)))
-        }
-        d => (d, None),
-    };
-    let sign = if direction == Direction::Reverse { -1.0 } else { 1.0 };
-    let lasers =
-        lasers_with_points.iter().map(|&k| stitch_laser(frames, k, sign, opts)).collect::<Result<Vec<_>, _>>()?;
-    Ok(Stitching { direction, auto_residuals_um, lasers })
+    s.finish()
 }
 
-fn finite(p: (f64, f64)) -> bool {
-    p.0.is_finite() && p.1.is_finite()
-}
-
-/// One frame's cells: (cell index, value µm, points).
-struct FrameCells {
-    seq: u32,
-    cells: Vec<(usize, f64, usize)>,
-}
-
-/// Stitches laser `k` with `x = odometer + sign·along`.
+/// Stitches laser `k` of `frames` (in odometer order) with
+/// `x = odometer + sign·along`.
 pub fn stitch_laser(frames: &[FramePoints], k: usize, sign: f64, opts: &Options) -> Result<Stitched, StitchError> {
-    let dx = opts.dx_mm;
-    fn xs(f: &FramePoints, k: usize, sign: f64) -> impl Iterator<Item = (f64, f64)> + '_ {
-        let o = f.odometer_mm;
-        f.lasers[k].iter().copied().filter(move |p| finite(*p) && o.is_finite()).map(move |(a, h)| (o + sign * a, h))
-    }
-    let (lo, hi) = frames
-        .iter()
-        .flat_map(|f| xs(f, k, sign))
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (x, _)| (lo.min(x), hi.max(x)));
-    if !(lo.is_finite() && hi.is_finite()) {
-        return Err(StitchError::NoPoints);
-    }
-    let span_cells = ((hi - lo) / dx).ceil() + 2.0;
-    if span_cells.partial_cmp(&(MAX_CELLS as f64)) != Some(std::cmp::Ordering::Less) {
-        return Err(StitchError::TooLong { span_mm: hi - lo, dx_mm: dx });
-    }
-    let x0 = (lo / dx).round() * dx;
-    let n = span_cells as usize;
+    let direction = if sign < 0.0 { Direction::Reverse } else { Direction::Forward };
+    let mut st = stitch(frames, &Options { direction, ..*opts })?;
+    st.lasers.retain(|l| l.laser == k);
+    st.lasers.pop().ok_or(StitchError::NoPoints)
+}
 
-    // Each frame into cells.
-    let mut per_frame: Vec<FrameCells> = Vec::with_capacity(frames.len());
-    let mut points_used = 0usize;
-    for f in frames {
-        let mut pts: Vec<(usize, f64, f64)> = xs(f, k, sign)
-            .filter_map(|(x, h)| {
-                let c = ((x - x0) / dx).round();
-                (c >= 0.0 && c < n as f64).then_some((c as usize, x - (x0 + c * dx), h))
-            })
-            .collect();
-        if pts.is_empty() {
-            continue;
+/// The streaming stitcher: frames pushed one at a time, in the order the
+/// head travelled (a recording's order), each registered onto what was
+/// stitched before it. Memory is the grids (16 bytes per cell and lane:
+/// 27 MB per lane for 1.7 km at 1 mm) and one fit per frame, not the
+/// frames: a recording of any length streams through it.
+///
+/// A lane is one laser, one direction and one registration. With
+/// [`Direction::Auto`] every laser is stitched both ways at once, and the
+/// direction is chosen at [`Stitcher::finish`] from offset-only lanes of
+/// the busiest laser (extra lanes when the registration asked for is not
+/// offset-only), exactly as the frames would have been stitched twice.
+pub struct Stitcher {
+    opts: Options,
+    lanes: Vec<Lane>,
+    /// Finite points per laser.
+    points: [usize; LASERS],
+    error: Option<StitchError>,
+}
+
+/// One laser stitched one way.
+struct Lane {
+    laser: usize,
+    sign: f64,
+    registration: Registration,
+    /// Lattice index (cell centre at `index · dx`) of `cells[0]`.
+    base: i64,
+    /// Per cell: sum of weighted values, µm, and the weight (points).
+    cells: std::collections::VecDeque<(f64, u32)>,
+    fits: Vec<FrameFit>,
+    joins: Vec<Join>,
+    frames: usize,
+    points: usize,
+}
+
+impl Stitcher {
+    /// A stitcher for `opts` (its spacing checked here, once).
+    pub fn new(opts: &Options) -> Result<Stitcher, StitchError> {
+        if !(opts.dx_mm.is_finite() && opts.dx_mm > 0.0) {
+            return Err(StitchError::BadSpacing(opts.dx_mm));
         }
-        pts.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
-        let mut cells = Vec::new();
-        for group in pts.chunk_by(|a, b| a.0 == b.0) {
-            if let Some(v) = cell_value(group, dx) {
-                cells.push((group[0].0, v, group.len()));
-                points_used += group.len();
+        let signs: &[f64] = match opts.direction {
+            Direction::Forward => &[1.0],
+            Direction::Reverse => &[-1.0],
+            Direction::Auto => &[1.0, -1.0],
+        };
+        let mut regs = vec![opts.registration];
+        if opts.direction == Direction::Auto && opts.registration != Registration::Offset {
+            // The direction is judged with offsets only: a wrong sign must
+            // not be rescued by tilts.
+            regs.push(Registration::Offset);
+        }
+        let mut lanes = Vec::new();
+        for laser in 0..LASERS {
+            for &sign in signs {
+                for &registration in &regs {
+                    lanes.push(Lane {
+                        laser,
+                        sign,
+                        registration,
+                        base: 0,
+                        cells: Default::default(),
+                        fits: Vec::new(),
+                        joins: Vec::new(),
+                        frames: 0,
+                        points: 0,
+                    });
+                }
             }
         }
-        if !cells.is_empty() {
-            per_frame.push(FrameCells { seq: f.seq, cells });
+        Ok(Stitcher { opts: *opts, lanes, points: [0; LASERS], error: None })
+    }
+
+    /// Adds one frame. A frame that would stretch a profile beyond
+    /// [`MAX_CELLS`] is left out, and [`Stitcher::finish`] says so.
+    pub fn push(&mut self, f: &FramePoints) {
+        let dx = self.opts.dx_mm;
+        if !f.odometer_mm.is_finite() || self.error.is_some() {
+            return;
+        }
+        for k in 0..LASERS {
+            let pts = &f.lasers[k];
+            self.points[k] += pts.iter().filter(|p| finite(**p)).count();
+            let mut last_sign = f64::NAN;
+            let mut cells = Vec::new();
+            for lane in self.lanes.iter_mut().filter(|l| l.laser == k) {
+                if lane.sign != last_sign {
+                    cells = frame_cells(pts, f.odometer_mm, lane.sign, dx);
+                    last_sign = lane.sign;
+                }
+                if cells.is_empty() {
+                    continue;
+                }
+                if let Err(e) = lane.add(f.seq, cells.clone(), &self.opts) {
+                    self.error = Some(e);
+                    return;
+                }
+            }
         }
     }
-    // Track order: by the frame's centre.
-    let centre = |fc: &FrameCells| (fc.cells[0].0 + fc.cells[fc.cells.len() - 1].0) as f64 / 2.0;
-    per_frame.sort_by(|a, b| centre(a).total_cmp(&centre(b)));
 
-    let mut sum = vec![0.0; n];
-    let mut weight = vec![0usize; n];
-    let mut fits = Vec::new();
-    let mut joins = Vec::new();
-    for (i, fc) in per_frame.iter_mut().enumerate() {
-        let overlap: Vec<(f64, f64)> = fc
-            .cells
+    /// The profiles: the direction chosen (with `Auto`), every laser that
+    /// had points.
+    pub fn finish(self) -> Result<Stitching, StitchError> {
+        if let Some(e) = self.error {
+            return Err(e);
+        }
+        let with_points: Vec<usize> = (0..LASERS).filter(|&k| self.points[k] > 0).collect();
+        let Some(&busiest) = with_points.iter().max_by_key(|&&k| self.points[k]) else {
+            return Err(StitchError::NoPoints);
+        };
+        let dx = self.opts.dx_mm;
+        let probe = |sign: f64| {
+            self.lanes
+                .iter()
+                .find(|l| l.laser == busiest && l.sign == sign && l.registration == Registration::Offset)
+                .and_then(|l| median(l.fits.iter().map(|f| f.residual_um).collect()))
+        };
+        let (direction, auto_residuals_um) = match self.opts.direction {
+            Direction::Auto => {
+                let (fwd, rev) = (probe(1.0), probe(-1.0));
+                let d = match (fwd, rev) {
+                    (Some(f), Some(r)) if r < 0.8 * f => Direction::Reverse,
+                    _ => Direction::Forward,
+                };
+                (d, Some((fwd, rev)))
+            }
+            d => (d, None),
+        };
+        let sign = if direction == Direction::Reverse { -1.0 } else { 1.0 };
+        let registration = self.opts.registration;
+        let lasers = self
+            .lanes
+            .into_iter()
+            .filter(|l| l.sign == sign && l.registration == registration && with_points.contains(&l.laser))
+            .map(|l| l.into_stitched(dx))
+            .collect();
+        Ok(Stitching { direction, auto_residuals_um, lasers })
+    }
+}
+
+/// One frame's cells for `x = odometer + sign·along`: (lattice index,
+/// value µm, points), ascending.
+fn frame_cells(pts: &[(f64, f64)], odometer_mm: f64, sign: f64, dx: f64) -> Vec<(i64, f64, usize)> {
+    let mut p: Vec<(i64, f64, f64)> = pts
+        .iter()
+        .filter(|p| finite(**p))
+        .map(|&(a, h)| {
+            let x = odometer_mm + sign * a;
+            let c = (x / dx).round();
+            // `as` saturates: an absurd odometer lands far away, and the
+            // lane's span check refuses it.
+            (c as i64, x - c * dx, h)
+        })
+        .collect();
+    p.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
+    let mut cells = Vec::new();
+    for group in p.chunk_by(|a, b| a.0 == b.0) {
+        if let Some(v) = cell_value(group, dx) {
+            cells.push((group[0].0, v, group.len()));
+        }
+    }
+    cells
+}
+
+impl Lane {
+    /// Registers one frame's cells onto the lane and adds them.
+    fn add(&mut self, seq: u32, mut cells: Vec<(i64, f64, usize)>, opts: &Options) -> Result<(), StitchError> {
+        let dx = opts.dx_mm;
+        let (lo, hi) = (cells[0].0, cells[cells.len() - 1].0);
+        if self.cells.is_empty() {
+            self.base = lo;
+        }
+        let new_lo = self.base.min(lo);
+        let new_hi = (self.base + self.cells.len() as i64 - 1).max(hi);
+        let span = new_hi.saturating_sub(new_lo);
+        if span >= MAX_CELLS as i64 - 1 {
+            return Err(StitchError::TooLong { span_mm: span as f64 * dx, dx_mm: dx });
+        }
+        while self.base > lo {
+            self.cells.push_front((0.0, 0));
+            self.base -= 1;
+        }
+        while self.base + (self.cells.len() as i64) <= hi {
+            self.cells.push_back((0.0, 0));
+        }
+        let at = |c: i64| (c - self.base) as usize;
+        let overlap: Vec<(f64, f64)> = cells
             .iter()
-            .filter(|c| weight[c.0] > 0)
-            .map(|&(c, v, _)| (c as f64 * dx, v - sum[c] / weight[c] as f64))
+            .filter_map(|&(c, v, _)| {
+                let (sum, w) = self.cells[at(c)];
+                (w > 0).then(|| (c as f64 * dx, v - sum / w as f64))
+            })
             .collect();
         let overlap_mm = match (overlap.first(), overlap.last()) {
             (Some(a), Some(b)) => b.0 - a.0 + dx,
             _ => 0.0,
         };
-        let centre_mm = x0 + centre(fc) * dx;
-        if i > 0 && opts.registration != Registration::None {
+        let centre_mm = (lo as f64 + hi as f64) / 2.0 * dx;
+        if self.frames > 0 && self.registration != Registration::None {
             if overlap.len() >= 2 && overlap_mm >= opts.min_overlap_mm {
-                let tilt = opts.registration == Registration::OffsetTilt && overlap_mm >= opts.min_tilt_overlap_mm;
+                let tilt = self.registration == Registration::OffsetTilt && overlap_mm >= opts.min_tilt_overlap_mm;
                 let (xm, a, b) = line(&overlap, tilt);
-                for c in &mut fc.cells {
+                for c in &mut cells {
                     c.1 -= a + b * (c.0 as f64 * dx - xm);
                 }
                 let rss: f64 = overlap.iter().map(|&(x, d)| (d - a - b * (x - xm)).powi(2)).sum();
-                fits.push(FrameFit {
-                    seq: fc.seq,
+                self.fits.push(FrameFit {
+                    seq,
                     centre_mm,
                     overlap_mm,
                     offset_um: a,
@@ -423,42 +537,59 @@ pub fn stitch_laser(frames: &[FramePoints], k: usize, sign: f64, opts: &Options)
                     residual_um: (rss / overlap.len() as f64).sqrt(),
                 });
             } else {
-                joins.push(Join { seq: fc.seq, at_mm: x0 + fc.cells[0].0 as f64 * dx, overlap_mm });
+                self.joins.push(Join { seq, at_mm: lo as f64 * dx, overlap_mm });
             }
         }
-        for &(c, v, w) in &fc.cells {
-            sum[c] += v * w as f64;
-            weight[c] += w;
+        for &(c, v, w) in &cells {
+            let cell = &mut self.cells[at(c)];
+            cell.0 += v * w as f64;
+            cell.1 += w as u32;
+            self.points += w;
+        }
+        self.frames += 1;
+        Ok(())
+    }
+
+    /// The lane's profile: empty ends trimmed, gaps listed.
+    fn into_stitched(self, dx: f64) -> Stitched {
+        let z_um: Vec<f64> = self.cells.iter().map(|&(s, w)| if w > 0 { s / w as f64 } else { f64::NAN }).collect();
+        // The grid only ever grows to a frame's cells, so its ends have data.
+        let x0_mm = self.base as f64 * dx;
+        let mut gaps = Vec::new();
+        let mut i = 0;
+        while i < z_um.len() {
+            if z_um[i].is_finite() {
+                i += 1;
+                continue;
+            }
+            let s = i;
+            while i < z_um.len() && !z_um[i].is_finite() {
+                i += 1;
+            }
+            gaps.push(Gap { start_mm: x0_mm + s as f64 * dx, length_mm: (i - s) as f64 * dx });
+        }
+        Stitched {
+            laser: self.laser,
+            x0_mm,
+            dx_mm: dx,
+            z_um,
+            frames: self.frames,
+            points: self.points,
+            fits: self.fits,
+            joins: self.joins,
+            gaps,
         }
     }
-    let mut z_um: Vec<f64> =
-        sum.iter().zip(&weight).map(|(s, &w)| if w > 0 { s / w as f64 } else { f64::NAN }).collect();
-    // Trim the empty ends of the grid.
-    let first = z_um.iter().position(|v| v.is_finite()).unwrap_or(0);
-    let last = z_um.iter().rposition(|v| v.is_finite()).map_or(0, |i| i + 1);
-    z_um.truncate(last);
-    z_um.drain(..first.min(z_um.len()));
-    let x0_mm = x0 + first as f64 * dx;
-    let mut gaps = Vec::new();
-    let mut i = 0;
-    while i < z_um.len() {
-        if z_um[i].is_finite() {
-            i += 1;
-            continue;
-        }
-        let s = i;
-        while i < z_um.len() && !z_um[i].is_finite() {
-            i += 1;
-        }
-        gaps.push(Gap { start_mm: x0_mm + s as f64 * dx, length_mm: (i - s) as f64 * dx });
-    }
-    Ok(Stitched { laser: k, x0_mm, dx_mm: dx, z_um, frames: per_frame.len(), points: points_used, fits, joins, gaps })
+}
+
+fn finite(p: (f64, f64)) -> bool {
+    p.0.is_finite() && p.1.is_finite()
 }
 
 /// A cell's value at its centre from its points `(cell, x − centre, h)`
 /// (sorted by x): the least-squares line's intercept, or the mean when the
 /// points do not spread; `None` when they lie all on one side of the centre.
-fn cell_value(group: &[(usize, f64, f64)], dx: f64) -> Option<f64> {
+fn cell_value(group: &[(i64, f64, f64)], dx: f64) -> Option<f64> {
     let (first, last) = (group[0].1, group[group.len() - 1].1);
     let tol = 1e-9 * dx;
     if first > tol || last < -tol {
@@ -509,7 +640,7 @@ mod tests {
 
     #[test]
     fn cell_value_is_the_intercept_on_a_slope() {
-        let g: Vec<(usize, f64, f64)> =
+        let g: Vec<(i64, f64, f64)> =
             (0..7).map(|i| (0, -0.4 + 0.13 * i as f64, 3.0 + 2.0 * (-0.4 + 0.13 * i as f64))).collect();
         assert!((cell_value(&g, 1.0).unwrap() - 3.0).abs() < 1e-12);
         // All on one side: not used.
@@ -527,6 +658,36 @@ mod tests {
         let worst = (0..l.z_um.len()).map(|i| (l.z_um[i] - z(l.x_mm(i))).abs()).fold(0.0, f64::max);
         // The cell intercept is exact on a line; the sine's curvature over ±0.5 mm leaves < 0.1 µm.
         assert!(worst < 0.1, "{worst}");
+    }
+
+    #[test]
+    fn a_trolley_pushed_backwards_stitches_the_same_profile() {
+        let z = |x: f64| 30.0 * (x * std::f64::consts::TAU / 50.0).sin() + 10.0 * (x / 23.0).cos();
+        let frames: Vec<FramePoints> = (0..30).map(|i| frame(i, 1000.0 + 25.0 * i as f64, 68.0, 0.143, z)).collect();
+        let opts = Options { direction: Direction::Forward, ..Options::default() };
+        let mut ahead = Stitcher::new(&opts).unwrap();
+        let mut back = Stitcher::new(&opts).unwrap();
+        frames.iter().for_each(|f| ahead.push(f));
+        frames.iter().rev().for_each(|f| back.push(f));
+        let (a, b) = (ahead.finish().unwrap(), back.finish().unwrap());
+        let (a, b) = (&a.lasers[0], &b.lasers[0]);
+        assert_eq!((a.x0_mm, a.z_um.len(), a.fits.len()), (b.x0_mm, b.z_um.len(), b.fits.len()));
+        let worst = a.z_um.iter().zip(&b.z_um).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max);
+        // Registration order differs; the cells' curvature error (< 0.1 µm) then does too.
+        assert!(worst < 0.01, "{worst}");
+        let truth = (0..b.z_um.len()).map(|i| (b.z_um[i] - z(b.x_mm(i))).abs()).fold(0.0, f64::max);
+        assert!(truth < 0.1, "{truth}");
+    }
+
+    #[test]
+    fn absurd_odometers_are_refused_not_allocated() {
+        let z = |_: f64| 0.0;
+        for far in [9.0e15, 1.0e300, -1.0e300] {
+            let frames = [frame(0, 100.0, 68.0, 0.143, z), frame(1, far, 68.0, 0.143, z)];
+            let mut s = Stitcher::new(&Options::default()).unwrap();
+            frames.iter().for_each(|f| s.push(f));
+            assert!(matches!(s.finish(), Err(StitchError::TooLong { .. })), "{far}");
+        }
     }
 
     #[test]

@@ -5,11 +5,13 @@ use std::path::PathBuf;
 
 use clap::{Args, ValueEnum};
 use cms_host::Error;
-use cms_host::analyze::stitch::{self, Direction, Registration};
+use cms_host::analyze::stitch::{self, Direction, Registration, Stitcher};
 use cms_host::analyze::{self, Options};
 use cms_host::calib::file::CalibrationFile;
 use cms_host::measure::Measurer;
 use cms_host::standards::en15610;
+
+use super::progress::Bar;
 
 /// `--direction`.
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -106,20 +108,42 @@ impl AnalyzeArgs {
     }
 }
 
-/// Runs `cms-host analyze`.
+/// Runs `cms-host analyze`: one pass over the recording, each frame slid
+/// across (with `--calibration`) and stitched as it is read.
 pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
-    let mut rec = analyze::read_recording(&args.recording)?;
-    if let Some(path) = &args.calibration {
-        let name = path.display();
-        // The file's own errors name it.
-        let file = CalibrationFile::load(path).map_err(Error::from)?;
-        file.check_recording(&name.to_string(), &args.recording.display().to_string(), &rec.heads)?;
-        let m = Measurer::new(&file).map_err(|e| Error::Input(format!("{name}: {e}")))?;
-        rec.slid_across = Some((analyze::slide_frames(&mut rec.frames, &m), path.clone()));
-    }
     let opts = args.options();
-    let a =
-        analyze::analyze(&rec.frames, &opts).map_err(|e| Error::Input(format!("{}: {e}", args.recording.display())))?;
+    let rec_name = args.recording.display().to_string();
+    let calibration = match &args.calibration {
+        Some(path) => {
+            let name = path.display().to_string();
+            // The file's own errors name it.
+            let file = CalibrationFile::load(path).map_err(Error::from)?;
+            let m = Measurer::new(&file).map_err(|e| Error::Input(format!("{name}: {e}")))?;
+            Some((file, m, name))
+        }
+        None => None,
+    };
+    let mut stitcher = Stitcher::new(&opts.stitch).map_err(|e| Error::Input(format!("{rec_name}: {e}")))?;
+    let mut slid = 0usize;
+    let mut rec = analyze::read_recording(&args.recording, &Bar::stderr(), |so_far, mut f| {
+        if let Some((file, m, name)) = &calibration {
+            // The heads seen so far (a `Hello` precedes its profiles): a
+            // calibration of another head is refused before the work.
+            if so_far.frames == 1 {
+                file.check_recording(name, &rec_name, &so_far.heads)?;
+            }
+            slid += usize::from(analyze::slide_frame(&mut f, m));
+        }
+        stitcher.push(&f);
+        Ok(())
+    })?;
+    if let Some((file, _, name)) = &calibration {
+        // Every head of the recording, the later ones included.
+        file.check_recording(name, &rec_name, &rec.heads)?;
+        rec.slid_across = Some((slid, PathBuf::from(name)));
+    }
+    let stitching = stitcher.finish().map_err(|e| Error::Input(format!("{rec_name}: {e}")))?;
+    let a = analyze::judge(stitching, &opts);
     let text = analyze::summary(&args.recording, &rec, &a);
     if let Some(dir) = &args.report {
         analyze::report::write(dir, &args.recording, &rec, &a, &text)?;

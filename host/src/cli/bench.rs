@@ -14,6 +14,9 @@
 //!   wavelength and amplitude errors over runs (`corrugation.md`,
 //!   `corrugation.csv`) and one measured frame's plot (`frame_l50_a50.png`,
 //!   `.svg`).
+//! * `bench recording` — writes a synthetic calibrated recording of any
+//!   length (`cms_host::synthetic`), the input of the scale benchmarks of
+//!   `analyze` and `export` (docs/benchmarks.md).
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand, ValueEnum};
@@ -37,6 +40,32 @@ pub enum BenchCmd {
     /// Corrugation through the simulated head (paper geometry, 30 dB): wavelength and amplitude errors of the
     /// paper's four samples over runs; writes corrugation.md, corrugation.csv and a plot of one frame.
     Corrugation(CorrugationArgs),
+    /// Writes a synthetic calibrated recording (a known rail, no rendering) to time analyze and export at scale.
+    Recording(RecordingArgs),
+}
+
+/// Options of `bench recording`.
+#[derive(Args, Debug, Clone)]
+pub struct RecordingArgs {
+    /// Frames to write (10 000 at 17 mm: 170 m of rail).
+    #[arg(long, default_value_t = 10_000, value_parser = clap::value_parser!(u32).range(1..=10_000_000))]
+    pub frames: u32,
+    /// Travel between frames, mm (17: 0.5 m/s at 30 Hz).
+    #[arg(long = "step-mm", default_value_t = 17.0, value_parser = step_mm)]
+    pub step_mm: f64,
+    /// Seed of the noise and the head's bounce.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// The recording to write.
+    #[arg(long, value_name = "FILE.cmsrec")]
+    pub out: PathBuf,
+}
+
+fn step_mm(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v <= 1000.0 => Ok(v),
+        _ => Err(format!("`{s}` is not a travel between frames in mm (above 0, at most 1000)")),
+    }
 }
 
 /// Options of `bench corrugation`.
@@ -145,6 +174,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
         BenchCmd::Speed(s) => speed(&s)?,
         BenchCmd::Qemu(q) => cms_host::qemu::bench(&q.options())?,
         BenchCmd::Corrugation(c) => corrugation(&c)?,
+        BenchCmd::Recording(r) => recording(&r)?,
     };
     let mut out = std::io::stdout().lock();
     out.write_all(text.as_bytes()).and_then(|()| out.flush()).context("writing the report to stdout")
@@ -184,6 +214,28 @@ fn corrugation(a: &CorrugationArgs) -> Result<String> {
     cms_host::measure::plot(&path("frame_l50_a50"), &m).map_err(anyhow::Error::msg)?;
     md += &format!("\nPlot of one frame (λ 50 mm, A 50 µm): {} and .svg\n", path("frame_l50_a50.png").display());
     Ok(md)
+}
+
+/// `bench recording`: the synthetic recording, and a line saying what it is.
+fn recording(a: &RecordingArgs) -> Result<String> {
+    let opts = cms_host::synthetic::Options {
+        frames: a.frames,
+        step_mm: a.step_mm,
+        seed: a.seed,
+        ..cms_host::synthetic::Options::default()
+    };
+    let t = Instant::now();
+    cms_host::synthetic::write(&a.out, &opts, &super::progress::Bar::stderr())?;
+    let bytes = std::fs::metadata(&a.out).map(|m| m.len()).unwrap_or(0);
+    Ok(format!(
+        "{}: {} synthetic calibrated frames, {} points each, {:.1} m of rail, {:.1} MB, written in {:.1} s\n",
+        a.out.display(),
+        opts.frames,
+        3 * opts.points_per_line as u32,
+        opts.frames as f64 * opts.step_mm / 1000.0,
+        bytes as f64 / 1e6,
+        t.elapsed().as_secs_f64()
+    ))
 }
 
 /// Writes one of the study's files whole ([`cms_host::output`]).

@@ -39,7 +39,8 @@ pub fn run(args: &MeasureArgs) -> anyhow::Result<()> {
     }
     let mut out = BufWriter::new(io::stdout().lock());
     for path in &args.inputs {
-        let (results, warnings) = measure::measure_file(&m, path, &cal_name.to_string())?;
+        let (results, warnings) =
+            measure::measure_file(&m, path, &cal_name.to_string(), &super::progress::Bar::stderr())?;
         for w in warnings {
             // Not eprintln!: it panics if stderr is closed.
             let _ = writeln!(io::stderr(), "{w}");

@@ -12,6 +12,7 @@ pub mod exit;
 pub mod fit;
 pub mod listen;
 pub mod measure;
+pub mod progress;
 pub mod qemu;
 pub mod record;
 pub mod simulate;

@@ -1,5 +1,6 @@
 //! `cms-host export` and `cms-host info`: their arguments and output.
 
+use super::progress::Bar;
 use std::io::{self, BufWriter, Write as _};
 use std::path::PathBuf;
 
@@ -55,14 +56,16 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
             output::check_target(o)?;
             let mut stats = None;
             let mut failed = None;
-            output::write_atomically(o, |w| match record::export_to(&args.file, args.format.into(), w) {
-                Ok(s) => {
-                    stats = Some(s);
-                    Ok(())
-                }
-                Err(e) => {
-                    failed = Some(e);
-                    Err(io::Error::other("export failed"))
+            output::write_atomically(o, |w| {
+                match record::export_to(&args.file, args.format.into(), w, &Bar::stderr()) {
+                    Ok(s) => {
+                        stats = Some(s);
+                        Ok(())
+                    }
+                    Err(e) => {
+                        failed = Some(e);
+                        Err(io::Error::other("export failed"))
+                    }
                 }
             })
             .map_err(|e| match failed.take() {
@@ -73,7 +76,7 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
         }
         _ => {
             let stdout = io::stdout();
-            record::export_to(&args.file, args.format.into(), &mut BufWriter::new(stdout.lock()))?
+            record::export_to(&args.file, args.format.into(), &mut BufWriter::new(stdout.lock()), &Bar::stderr())?
         }
     };
     for w in record::warnings(&args.file, &stats) {
@@ -92,7 +95,7 @@ pub struct InfoArgs {
 
 /// `cms-host info`.
 pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
-    let info = record::Info::of_file(&args.file)?;
+    let info = record::Info::of_file(&args.file, &Bar::stderr())?;
     let mut out = io::stdout().lock();
     out.write_all(info.report(&args.file).as_bytes()).map_err(Error::Output)?;
     out.flush().map_err(Error::Output)?;

@@ -474,3 +474,35 @@ fn duplicated_and_damaged_frames_are_reported() {
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(text.contains("1 profile messages present twice") && text.contains("1 damaged frames"), "{text}");
 }
+
+/// The reduced scale benchmark: a synthetic survey (`bench recording`,
+/// 2 000 frames every 17 mm: 34 m) streams through `analyze` in one pass,
+/// and the known rail comes out: 30 µm at 50 mm is 0.060 mm peak to peak
+/// in the 30–100 mm band, 20 µm at 200 mm 0.040 mm in the 100–300 mm one,
+/// every frame registered, no gap; the 50 mm one-third octave is the
+/// spectrum's peak. docs/benchmarks.md has the full-size figures.
+#[test]
+fn a_synthetic_survey_streams_through_analyze() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("survey.cmsrec");
+    let r = rec.to_str().unwrap();
+    let o = run(&["bench", "recording", "--frames", "2000", "--out", r]);
+    assert!(o.status.success(), "{o:?}");
+    let o = run(&["analyze", r, "--json"]);
+    assert!(o.status.success(), "{o:?}");
+    assert!(o.stderr.is_empty(), "no progress drawn off a terminal: {}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["frames"], 2000);
+    assert_eq!(v["direction"], "forward");
+    for l in v["lasers"].as_array().unwrap() {
+        assert_eq!(l["registered"], 1999, "{l}");
+        assert!(l["gaps"].as_array().unwrap().is_empty());
+        let band = |lo: f64| {
+            let b = l["en13231"]["bands"].as_array().unwrap().iter().find(|b| b["lo_mm"] == lo).unwrap();
+            b["average_mean_pp_mm"].as_f64().unwrap()
+        };
+        assert!((band(30.0) - 0.060).abs() < 0.002, "{}", band(30.0));
+        assert!((band(100.0) - 0.040).abs() < 0.002, "{}", band(100.0));
+        assert_eq!(l["en15610"]["peak_wavelength_mm"], 50.0, "{l}");
+    }
+}

@@ -1,6 +1,7 @@
 //! Recordings: the writer, the reader on damaged files, export and info, and
 //! a bounded stable-Rust fuzz loop of the frame reader.
 
+use cms_host::progress::Silent;
 use std::io::Write;
 use std::path::Path;
 use std::process::Command as Process;
@@ -304,7 +305,7 @@ fn export_formats() {
         let (bytes, _) = recording(&[hello(), profile(2, 2), status()]);
         let path = write_file(dir.path(), "e.cmsrec", &bytes);
         let mut csv = Vec::new();
-        record::export_to(&path, record::ExportFormat::Csv, &mut csv).unwrap();
+        record::export_to(&path, record::ExportFormat::Csv, &mut csv, &Silent).unwrap();
         let csv = String::from_utf8(csv).unwrap();
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(lines[0], record::CSV_HEADER);
@@ -314,7 +315,7 @@ fn export_formats() {
         assert_eq!(lines[3], "2,0,21000,4.999,1,0,250.00200,1000,2.50000,0,-1.200,35.250");
         assert_eq!(lines[4], "2,0,21000,4.999,1,1,250.01199,1001,2.50000,4,,");
         let mut jl = Vec::new();
-        record::export_to(&path, record::ExportFormat::Jsonl, &mut jl).unwrap();
+        record::export_to(&path, record::ExportFormat::Jsonl, &mut jl, &Silent).unwrap();
         let v: serde_json::Value = serde_json::from_slice(&jl).unwrap();
         assert_eq!(v["seq"], 2);
         assert_eq!(v["timestamp_us"], 21000);
@@ -396,7 +397,7 @@ fn info_counts_gaps_and_damage() {
         let (mut bytes, ranges) = recording(&[profile(0, 2), profile(1, 2), profile(5, 2), profile(6, 2)]);
         bytes[ranges[1].start + 3] ^= 0x10; // frame 1 damaged
         let path = write_file(dir.path(), "g.cmsrec", &bytes);
-        let info = Info::of_file(&path).unwrap();
+        let info = Info::of_file(&path, &Silent).unwrap();
         assert_eq!(info.frames, 3);
         assert_eq!(info.seq_gaps, 4);
         assert_eq!(info.scan.damaged, 1);
@@ -411,7 +412,7 @@ fn info_counts_gaps_and_damage() {
             far.push(DeviceMsg::Profile(p));
         }
         let path = write_file(dir.path(), "far.cmsrec", &recording(&far).0);
-        let report = Info::of_file(&path).unwrap().report(&path);
+        let report = Info::of_file(&path, &Silent).unwrap().report(&path);
         assert!(report.contains("span 9223372036854775.807 mm"), "{report}");
     })
 }
