@@ -604,6 +604,23 @@ impl CalibrationFile {
         let tri = cms_core::pipeline::triangulator(&msg).map_err(|e| e.to_string())?;
         if let Some(h) = &self.head {
             let range = format!("range {:?}–{:?} mm", h.range_min_mm, h.range_max_mm);
+            // The range first: a range the camera cannot see is the
+            // range's fault, not the lines' nor the detector's.
+            for l in &self.lasers {
+                let seen = depths_in_view(&self.camera.intrinsics, l);
+                if seen.is_none_or(|(lo, hi)| h.range_min_mm < lo || h.range_max_mm > hi) {
+                    let seen = match seen {
+                        Some((lo, hi)) if hi.is_finite() => format!("{lo:.1}–{hi:.1} mm"),
+                        Some((lo, _)) => format!("beyond {lo:.1} mm"),
+                        None => "at no depth".into(),
+                    };
+                    return Err(format!(
+                        "[head] {range} reaches beyond the depths at which the camera sees laser {}'s line \
+                         ({seen} along the optical axis, in the image's middle row): narrow range_min_mm/range_max_mm",
+                        l.id
+                    ));
+                }
+            }
             tri.scale_range(h.laser_diameter_mm, (h.range_min_mm, h.range_max_mm)).map_err(|e| {
                 format!(
                     "[head]: no detector scale range for laser_diameter_mm = {:?}, {range}: {e}",
@@ -744,6 +761,23 @@ impl CalibrationFile {
             None => Ok(()),
         }
     }
+}
+
+/// The depths along the optical axis (mm) at which laser `l`'s line, in
+/// the image's middle row (the principal point's), falls between the
+/// image's first and last column, distortion ignored: on the plane
+/// `n·(x z, 0, z) = d` the column goes as `x = (d/z − n_z)/n_x`, so the
+/// depths where `x` is in view form one interval of `1/z` (its upper end
+/// infinite when the line stays in view however far). `None` if the line
+/// is in view at no positive depth.
+fn depths_in_view(i: &Intrinsics, l: &LaserSection) -> Option<(f64, f64)> {
+    let (x_lo, x_hi) = (-i.cx_px / i.fx_px, (f64::from(i.width_px) - i.cx_px) / i.fx_px);
+    let (a, b) = ((l.nz + l.nx * x_lo) / l.d_mm, (l.nz + l.nx * x_hi) / l.d_mm);
+    let (r, s) = (a.min(b), a.max(b));
+    if !(s > 0.0) {
+        return None;
+    }
+    Some((1.0 / s, if r > 0.0 { 1.0 / r } else { f64::INFINITY }))
 }
 
 #[cfg(test)]

@@ -196,8 +196,9 @@ fn laser_planes_must_be_distinct_ordered_and_apart() {
     assert!(e.contains("laser planes 0 and 1 cross, coincide or are out of laser order"), "{e}");
     let e = one_line_error(&run(&["measure", "--calibration", p, "/nonexistent/x.png"]));
     assert!(e.contains("cal.toml") && e.contains("laser planes 0 and 1"), "{e}");
+    // The calibration is checked before the recording is read.
     let e = one_line_error(&run(&["analyze", "/nonexistent/x.cmsrec", "--calibration", p]));
-    assert!(e.contains("/nonexistent/x.cmsrec"), "the recording is read first: {e}");
+    assert!(e.contains("cal.toml") && e.contains("laser planes 0 and 1"), "{e}");
 
     // Laser 2 turned by −10° about its point on the optical axis: it crosses
     // laser 1 at 228 mm, inside the 150–250 mm working depth (and the
@@ -237,7 +238,7 @@ fn the_writer_refuses_what_its_readers_would() {
     // The readers refuse it too, in the same words.
     std::fs::write(&path, f.to_toml()).unwrap();
     let e = one_line_error(&run(&["calibrate", "upload", path.to_str().unwrap(), "sim"]));
-    assert!(e.contains("[head]: no detector scale range"), "{e}");
+    assert!(e.contains("[head] range 1e300–1e301 mm reaches beyond the depths"), "{e}");
 }
 
 /// The whole chain from the simulated head's 24 calibration views on the
@@ -336,4 +337,36 @@ proptest! {
             }
         }
     }
+}
+
+/// Messages that name what is wrong: a plane through the camera (it holds
+/// the optical axis: the camera sees it edge on), a plane parallel to the
+/// optical axis whose line the camera never sees, and a `[head]` range
+/// wider than the depths at which the lines are in view (blamed on the
+/// range, with the depths that would do, not on the image nor on the
+/// detector's scale range).
+#[test]
+fn degenerate_planes_and_ranges_are_named() {
+    let r = reference_planes();
+    let err = |f: &CalibrationFile| CalibrationFile::parse(&f.to_toml(), "x.toml").unwrap_err().0;
+    let n = r[1].0;
+    let l = (n[0] * n[0] + n[1] * n[1]).sqrt();
+    let e = err(&with_planes([r[0], ([n[0] / l, n[1] / l, 0.0], 0.0), r[2]]));
+    assert!(e.contains("(id 1)") && e.contains("d_mm = 0 puts the camera on the laser plane"), "{e}");
+    let e = err(&with_planes([r[0], ([n[0] / l, n[1] / l, 0.0], r[1].1), r[2]]));
+    assert!(e.contains("laser plane 1 puts its line outside the image"), "{e}");
+    let mut wide = truth(&Scene::new(SimConfig::reference()).unwrap());
+    wide.head.as_mut().unwrap().range_min_mm = 10.0;
+    wide.head.as_mut().unwrap().range_max_mm = 5000.0;
+    let e = err(&wide);
+    assert!(e.starts_with("x.toml: [head] range 10.0–5000.0 mm reaches beyond the depths"), "{e}");
+    assert!(e.contains("along the optical axis") && e.contains("narrow range_min_mm/range_max_mm"), "{e}");
+    // The depths it names do: a range inside them is accepted.
+    let seen: Vec<f64> =
+        e.split(['(', ' ', '–']).filter_map(|w| w.parse::<f64>().ok()).filter(|&v| v != 10.0 && v != 5000.0).collect();
+    assert!(seen.len() >= 2, "{e}");
+    let mut ok = truth(&Scene::new(SimConfig::reference()).unwrap());
+    let h = ok.head.as_mut().unwrap();
+    (h.range_min_mm, h.range_max_mm) = (h.range_min_mm.max(seen[0] + 1.0), h.range_max_mm.min(seen[1] - 1.0));
+    assert!(CalibrationFile::parse(&ok.to_toml(), "x.toml").is_ok(), "{:?}", ok.head);
 }
