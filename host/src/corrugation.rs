@@ -33,49 +33,61 @@
 //!
 //! # The joint fit
 //!
-//! In the surface frame every point i of line l satisfies
+//! In the surface frame every point i (of any line) satisfies
 //!
 //! ```text
-//! z = c_l + g_l·x + e·x² + a·sin(ω x + κ y_i) + b·cos(ω x + κ y_i)
+//! z = T(x, y) + a·sin(ω x + κ y) + b·cos(ω x + κ y)
+//! T = c + g_x x + g_y y + e_yy y²  [+ e_xx x² + e_xy x y + f_xxx x³ + f_xxy x² y]
 //! ```
 //!
-//! one plane wave across the running band: common wavenumber `k = √(ω² + κ²)`
-//! (λ = 2π/k), amplitude `√(a² + b²)` and phase, the yaw `ψ = atan2(κ, ω)` in
-//! the phase shift between lines (`κ·Δy`, from the known lateral offsets,
-//! point by point); per line an offset `c_l` and a slope `g_l` (the crown
-//! and roll left over, and what little of the corrugation leaked into the
-//! plane's pitch over a non-integer number of periods: a residual slope of
-//! 1e-3 as a shear instead of a rotation changes λ by 5e-7), and a common
-//! curvature `e` (a yawed line crosses the crowned rail head obliquely and
-//! sees the crown along it: `sin²ψ/R`). The trend terms are nested: first
-//! one slope for all lines and no curvature, then the per-line slopes and
-//! the curvature are kept only if an F test asks for them (F > 12): over
-//! 2–3 periods a free quadratic takes a share of a long wavelength and
-//! inflates its scatter. The amplitude is shared (the lines are slid across
-//! first, see "Lateral slope" below, so they agree); each line's own fit is
-//! reported beside it, so a rail whose corrugation really differs across the band
-//! shows up as disagreeing lines. Linear in all but ω and κ; refined by
-//! the Levenberg–Marquardt of [`crate::lm`] from start values taken per line (a quadratic
-//! trend, then on what is left `fit`'s sine for the longest line and the
-//! linear fit at its ω for the others; κ from the lines' phases against
-//! their lateral positions). With one line κ is fixed at 0.
+//! one plane wave across the running band — common wavenumber `k = √(ω² +
+//! κ²)` (λ = 2π/k), amplitude `√(a² + b²)` and phase, the yaw `ψ =
+//! atan2(κ, ω)` — over a smooth surface `T` in the points' own `(x, y)`.
+//! `T` is the rail head's shape as the lines see it: a crown of radius R
+//! crossed at yaw ψ is `−(x sin ψ + y cos ψ + y₀)²/2R`, every term of which
+//! is in `T` (the `x y` twist is what per-line slopes once stood for, and
+//! could not follow on lines that fan or wander across); the cubic terms
+//! take up what the surface frame's small rotation of that parabola and the
+//! inclined planes' lateral wander (a line moves across as its height
+//! changes) leave. With points at their true lateral positions there is
+//! nothing to slide across first (see "Lateral slope"). The lateral terms
+//! are those the lines can tell apart: `g_y` from two lines, `e_yy` from
+//! three (they stand for the lines' offsets too); with one line κ is 0.
+//! The bracketed terms are nested: kept only if an F test asks for them
+//! (F > 12), since over 2–3 periods a free quadratic takes a share of a
+//! long wavelength and inflates its scatter.
 //!
-//! Errors left: second order in the angles (ψ·θ·β products: about 1e-4 of
-//! the wavelength at 5°, 2°, 3°, measured in the tests) and in the crown's
-//! curvature (under 3e-4 of the amplitude at the paper's lines ±15 mm on a
-//! 300 mm crown, asserted; it was 1.4e-3 before the slide across).
+//! Measured on a misaligned head's lines computed exactly over a crowned
+//! rail (`tests::lines`: three parallel inclined sheets, 280 mm long, 1 µm
+//! of noise): with per-line offsets, per-line slopes and one curvature the
+//! errors reached 0.5 mm and 5 µm at 5–10° of yaw over 200–300 mm crowns,
+//! and 1 fit in 3 ran off to a wrong minimum (λ off by 35–95 mm, reported
+//! as converged); with `T` every case of yaw 0–15°, pitch and roll ±2°,
+//! crowns 200 mm to flat is within 0.05 mm and 2 µm, and those that keep
+//! some misfit (2–5× the noise at 10–15° over the 200 mm crown) say so in
+//! their verdict (`tests::the_misalignment_sweep_is_right_or_flagged`).
+//!
+//! **Starts and bounds.** Linear in all but ω and κ; refined by the
+//! Levenberg–Marquardt of [`crate::lm`] from every line's own start: `T`
+//! by linear least squares, then `fit`'s sine of each line on what is left
+//! gives an ω (the others take their linear fit at it, κ from the lines'
+//! phases against their lateral positions). The lowest residual whose yaw
+//! is within ±45° wins; a start that runs beyond is discarded.
+//!
+//! **The verdict** ([`crate::verdict`]): the residual against the noise
+//! the points show (measured without a model), the bounds, convergence
+//! and outliers give good, doubtful or failed, with the reasons.
 //!
 //! **Lateral slope.** An inclined laser plane's line moves across the rail
 //! as the height changes (`v = v̄ + t·Δh`, `t = tan α`), and where the rail
-//! head slopes across (the crown away from its apex, or a rolled head) it
-//! meets higher or lower ground: one line's deviations read `1/(1 − γ t)`
-//! of the rail's (±4.5 % for lines 15 mm off the apex of a 300 mm crown at
-//! α = 42°). Before anything else every point is slid along the local
-//! lateral slope `γ_l` back to its line's mean lateral position, `h − γ_l·(v
-//! − v̄_l)` ([`slide_across`]), `γ_l` from the parabola through the three
-//! lines' mean heights: exact to first order in the crown's curvature.
-//! `cms-host analyze --calibration` applies the same to its per-laser
-//! profiles.
+//! head slopes across it meets higher or lower ground: one line's
+//! deviations read `1/(1 − γ t)` of the rail's (±4.5 % for lines 15 mm off
+//! the apex of a 300 mm crown at α = 42°). The joint fit models that
+//! directly (each point where it is); a profile taken on its own — one
+//! line, `cms-host analyze --calibration` — is slid along the local lateral
+//! slope `γ_l` back to its line's course first, `h − γ_l·(v − v̂_l)`
+//! ([`slide_across`]), `γ_l` from the parabola through the three lines'
+//! mean heights: exact to first order in the crown's curvature.
 //!
 //! **Outliers.** A misdetected stripe in one row (a glint, a spurious peak
 //! taken for a line) gives a height tens of µm to millimetres off; least
@@ -87,15 +99,16 @@
 //! absolute residual) are dropped and everything, the plane included, is
 //! fitted again; [`Joint::rejected`] says how many.
 //!
-//! **The corrected profile** of each line is then `(s, z − g_l x − e x²)`
-//! with `s = x cos ψ + y sin ψ` the position along the rail: heights normal
-//! to the surface, positions along the rail, the three lines in phase.
+//! **The corrected profile** of each line is then `(s, z − (T − c))` with
+//! `s = x cos ψ + y sin ψ` the position along the rail: heights normal to
+//! the surface, positions along the rail, the three lines in phase.
 //!
 //! # Cost
 //!
-//! n points in all: the plane O(n), the start fits (`fit`, per line), each
-//! LM iteration O(n·(5 + 2L)²); a paper-geometry image (3 × 3168 points)
-//! fits in tens of milliseconds.
+//! n points in all: the plane and `T` O(n), the start fits (`fit`, per
+//! line), then per start two refinements (with and without the bracketed
+//! terms), each LM iteration O(n·12²); a paper-geometry image (3 × 3168
+//! points) fits in tens of milliseconds.
 
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use serde::Serialize;
@@ -104,6 +117,7 @@ use cms_core::triangulation::Triangulator;
 
 use crate::fit::{self, FitError, Options};
 use crate::lm;
+use crate::verdict::{self, Evidence, Verdict};
 
 type V3 = [f64; 3];
 
@@ -240,6 +254,8 @@ pub struct Joint {
     /// Points rejected as outliers (beyond [`REJECT_SIGMA`] robust σ of the
     /// first fit) and left out of this result.
     pub rejected: usize,
+    /// Whether to believe it, and why ([`crate::verdict`]).
+    pub verdict: Verdict,
 }
 
 /// Per line in the surface frame: `(line index, [x, y, z])` points.
@@ -295,64 +311,51 @@ fn surface(lines: &[Line]) -> Result<Surface, FitError> {
     Ok(s)
 }
 
-/// Parameters `[a, b, ω, κ, e, g, c_0, δg_0, c_1, δg_1, …]`: line l's
-/// slope is `g + δg_l` (δg_0 ≡ 0).
-const OMEGA: usize = 2;
-const KAPPA: usize = 3;
-const CURVE: usize = 4;
-const SLOPE: usize = 5;
-const LINES: usize = 6;
-/// The F statistic above which the trend terms (curvature, per-line slopes)
-/// are kept: p < 1e-5 for 1–8 extra terms and thousands of points.
+/// The F statistic above which the trend terms (curvature along, twist,
+/// the cubic terms) are kept: p < 1e-5 for 1–8 extra terms and thousands of
+/// points.
 const F_TREND: f64 = 12.0;
-
-/// Residuals `z − ẑ` of the joint model (module docs) and, over the `free`
-/// parameters, their Jacobian.
-fn evaluate(s: &Surface, p: &[f64], free: &[usize]) -> Option<(DVector<f64>, DMatrix<f64>)> {
-    let (a, b, w, kappa, e) = (p[0], p[1], p[OMEGA], p[KAPPA], p[CURVE]);
-    let n = s.x.len();
-    let mut r = DVector::zeros(n);
-    let mut j = DMatrix::zeros(n, free.len());
-    let mut col = vec![0.0; p.len()];
-    for i in 0..n {
-        let (x, y, l) = (s.x[i], s.y[i], s.line[i]);
-        let (c, g) = (p[LINES + 2 * l], p[SLOPE] + p[LINES + 2 * l + 1]);
-        let (sn, cs) = (w * x + kappa * y).sin_cos();
-        r[i] = s.z[i] - (c + g * x + e * x * x + a * sn + b * cs);
-        let slope = a * cs - b * sn;
-        col.fill(0.0);
-        col[0] = -sn;
-        col[1] = -cs;
-        col[OMEGA] = -x * slope;
-        col[KAPPA] = -y * slope;
-        col[CURVE] = -x * x;
-        col[SLOPE] = -x;
-        col[LINES + 2 * l] = -1.0;
-        col[LINES + 2 * l + 1] = -x;
-        for (k, &f) in free.iter().enumerate() {
-            j[(i, k)] = col[f];
-        }
-    }
-    (r.iter().all(|v| v.is_finite()) && j.iter().all(|v| v.is_finite())).then_some((r, j))
-}
-
-/// Least-squares `z ≈ c + g x + e x²`: `(c, g, e)`.
-fn quadratic(x: &[f64], z: &[f64]) -> Option<[f64; 3]> {
-    let mut ata = Matrix3::zeros();
-    let mut atb = Vector3::zeros();
-    for (&x, &z) in x.iter().zip(z) {
-        let row = Vector3::new(1.0, x, x * x);
-        ata += row * row.transpose();
-        atb += row * z;
-    }
-    let s = ata.lu().solve(&atb)?;
-    Some([s[0], s[1], s[2]])
-}
 
 /// Fits the lines of one image jointly (module docs); returns the joint
 /// result and the surface-normal corrected profile of each line. Lines with
 /// fewer than 8 points are left out; at least one must remain.
 pub fn joint_fit(lines: &[Line]) -> Result<(Joint, Vec<Corrected>), FitError> {
+    let (mut joint, corrected) = fit_rejecting(lines)?;
+    joint.verdict = judge(&joint, lines, &corrected);
+    Ok((joint, corrected))
+}
+
+/// The verdict on a joint result: its residual against the noise the
+/// lines' points show (each line's own, pooled), its bounds, its state.
+fn judge(j: &Joint, lines: &[Line], corrected: &[Corrected]) -> Verdict {
+    let (mut ss, mut n) = (0.0, 0usize);
+    for l in lines.iter().filter(|l| l.points.len() >= 8) {
+        let pts: Vec<(f64, f64)> = l.points.iter().map(|p| (p[0], p[2])).collect();
+        if let Some(s) = verdict::point_noise(&pts) {
+            ss += s * s * pts.len() as f64;
+            n += pts.len();
+        }
+    }
+    let (lo, hi) = corrected
+        .iter()
+        .flat_map(|c| c.s_mm.iter())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &s| (a.min(s), b.max(s)));
+    let longest = corrected.iter().map(|c| c.s_mm.len()).max().unwrap_or(0);
+    verdict::judge(&Evidence {
+        rms_residual_mm: j.rms_residual_mm,
+        noise_mm: (n > 0).then(|| (ss / n as f64).sqrt()),
+        wavelength_mm: j.wavelength_mm,
+        span_mm: hi - lo,
+        spacing_mm: (hi - lo) / longest.saturating_sub(1).max(1) as f64,
+        yaw_rad: j.yaw_rad,
+        converged: j.converged,
+        rejected: j.rejected,
+        points: j.points + j.rejected,
+    })
+}
+
+/// [`fit_once`], then again without the outliers (module docs).
+fn fit_rejecting(lines: &[Line]) -> Result<(Joint, Vec<Corrected>), FitError> {
     let (joint, corrected, residuals) = fit_once(lines)?;
     // Outliers (module docs): points beyond REJECT_SIGMA robust standard
     // deviations of the first fit's residuals are dropped and the whole fit,
@@ -486,11 +489,82 @@ fn rejection_limit(residuals: &[f64]) -> Option<f64> {
     limit.is_finite().then_some(limit)
 }
 
-/// One joint fit of all points: the result, the corrected profiles and the
-/// residuals `z − ẑ` in the order of the lines' points (lines of at least 8
-/// points).
+/// Parameters of the surface model: the wave `[a, b, ω, κ]`, then the
+/// coefficients of [`quad_terms`] from `C`: `[c, g_x, g_y, e_xx, e_xy,
+/// e_yy, f_xxx, f_xxy]`.
+mod q {
+    pub const A: usize = 0;
+    pub const B: usize = 1;
+    pub const OMEGA: usize = 2;
+    pub const KAPPA: usize = 3;
+    pub const C: usize = 4;
+    pub const GX: usize = 5;
+    pub const GY: usize = 6;
+    pub const EXX: usize = 7;
+    pub const N: usize = 12;
+}
+
+/// The surface's trend terms at `(x, y)`: `[1, x, y, x², x y, y², x³, x² y]`.
+fn quad_terms(x: f64, y: f64) -> [f64; 8] {
+    [1.0, x, y, x * x, x * y, y * y, x * x * x, x * x * y]
+}
+
+/// Residuals `z − ẑ` of the surface model and, over `free`, their Jacobian:
+/// `ẑ = c + g_x x + g_y y + e_xx x² + e_xy x y + e_yy y² + a sin(ωx + κy) + b cos(ωx + κy)`.
+fn evaluate_surface(s: &Surface, p: &[f64], free: &[usize]) -> Option<(DVector<f64>, DMatrix<f64>)> {
+    let (a, b, w, kappa) = (p[q::A], p[q::B], p[q::OMEGA], p[q::KAPPA]);
+    let n = s.x.len();
+    let mut r = DVector::zeros(n);
+    let mut j = DMatrix::zeros(n, free.len());
+    let mut col = [0.0; q::N];
+    for i in 0..n {
+        let (x, y) = (s.x[i], s.y[i]);
+        let t = quad_terms(x, y);
+        let trend: f64 = t.iter().zip(&p[q::C..q::N]).map(|(t, c)| t * c).sum();
+        let (sn, cs) = (w * x + kappa * y).sin_cos();
+        r[i] = s.z[i] - (trend + a * sn + b * cs);
+        let slope = a * cs - b * sn;
+        col[q::A] = -sn;
+        col[q::B] = -cs;
+        col[q::OMEGA] = -x * slope;
+        col[q::KAPPA] = -y * slope;
+        for (k, t) in t.iter().enumerate() {
+            col[q::C + k] = -t;
+        }
+        for (k, &f) in free.iter().enumerate() {
+            j[(i, k)] = col[f];
+        }
+    }
+    (r.iter().all(|v| v.is_finite()) && j.iter().all(|v| v.is_finite())).then_some((r, j))
+}
+
+/// Linear least squares of the trend terms `cols` (indices into
+/// [`quad_terms`]) on `(x, y, z)`: the coefficients, 0 for the others.
+fn trend_fit(s: &Surface, cols: &[usize]) -> Option<[f64; 8]> {
+    let m = cols.len();
+    let mut ata = DMatrix::zeros(m, m);
+    let mut atb = DVector::zeros(m);
+    for i in 0..s.x.len() {
+        let t = quad_terms(s.x[i], s.y[i]);
+        for (a, &ca) in cols.iter().enumerate() {
+            atb[a] += t[ca] * s.z[i];
+            for (b, &cb) in cols.iter().enumerate() {
+                ata[(a, b)] += t[ca] * t[cb];
+            }
+        }
+    }
+    let sol = ata.lu().solve(&atb)?;
+    let mut out = [0.0; 8];
+    for (k, &c) in cols.iter().enumerate() {
+        out[c] = sol[k];
+    }
+    out.iter().all(|v| v.is_finite()).then_some(out)
+}
+
+/// One joint fit with the quadratic surface (module docs): the result, the
+/// corrected profiles and the residuals in the order of the lines' points.
 fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitError> {
-    let mut lines: Vec<Line> = lines.iter().filter(|l| l.points.len() >= 8).cloned().collect();
+    let lines: Vec<Line> = lines.iter().filter(|l| l.points.len() >= 8).cloned().collect();
     if lines.is_empty() {
         return Err(FitError::TooFewPoints { points: 0, needed: 8 });
     }
@@ -499,89 +573,131 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
             return Err(FitError::NonFinite { index });
         }
     }
-    slide_across(&mut lines);
     let s = surface(&lines)?;
-    // Start values: per line, a quadratic trend and a plain sine on what is
-    // left (the best line gives ω); κ from the lines' phases against their
-    // lateral positions.
-    // (The full search only on the line with the most points; the others
-    // take its ω and their linear fit: three times cheaper.)
-    let mut per_line = Vec::new();
-    for i in 0..lines.len() {
-        let idx: Vec<usize> = (0..s.x.len()).filter(|&k| s.line[k] == i).collect();
-        let x: Vec<f64> = idx.iter().map(|&k| s.x[k]).collect();
-        let z: Vec<f64> = idx.iter().map(|&k| s.z[k]).collect();
-        let y = idx.iter().map(|&k| s.y[k]).sum::<f64>() / idx.len() as f64;
-        let q = quadratic(&x, &z).ok_or(FitError::Degenerate("all points of a line at one position"))?;
-        let rest: Vec<f64> = x.iter().zip(&z).map(|(x, z)| z - q[0] - q[1] * x - q[2] * x * x).collect();
-        per_line.push((x, rest, y, q));
+    let nl = lines.len();
+    // The lateral terms the lines can tell apart: a slope across with two
+    // lines, a curvature across with three.
+    let several = nl > 1;
+    let mut simple_terms = vec![0, 1];
+    if several {
+        simple_terms.push(2);
     }
-    let longest = (0..per_line.len()).max_by_key(|&i| per_line[i].0.len()).ok_or(FitError::Degenerate("no line"))?;
-    let f = fit::fit(&per_line[longest].0, &per_line[longest].1, &Options { model: fit::Model::Sine, components: 1 })?;
-    let omega0 = std::f64::consts::TAU / f.wavelength_mm;
-    let mut starts = Vec::new();
-    for (x, rest, y, q) in per_line {
-        let l = fit::three_param(&x, &rest, omega0).ok_or(FitError::Degenerate("a line's sine at the common ω"))?;
-        starts.push((l, y, q));
+    if nl > 2 {
+        simple_terms.push(5);
     }
-    let amp0 = starts.iter().map(|(l, ..)| l.sin.hypot(l.cos)).sum::<f64>() / starts.len() as f64;
-    let phase = |l: &fit::Linear| l.cos.atan2(l.sin);
-    let (y0, ph0) = (starts[0].1, phase(&starts[0].0));
-    let pts: Vec<(f64, f64)> = starts
-        .iter()
-        .map(|(l, y, _)| {
-            let d = phase(l) - ph0;
-            (*y - y0, d - std::f64::consts::TAU * (d / std::f64::consts::TAU).round())
+    let mut trend_terms = simple_terms.clone();
+    trend_terms.push(3);
+    if several {
+        trend_terms.push(4);
+    }
+    trend_terms.push(6);
+    if several {
+        trend_terms.push(7);
+    }
+    trend_terms.sort_unstable();
+    // Starts: the quadratic surface, then on what is left `fit`'s sine of
+    // every line (each gives an ω), the linear fit at that ω on the others,
+    // κ from the lines' phases against their lateral positions.
+    let t0 = trend_fit(&s, &trend_terms).ok_or(FitError::Degenerate("the lines do not span a surface"))?;
+    let rest: Vec<f64> = (0..s.x.len())
+        .map(|i| s.z[i] - quad_terms(s.x[i], s.y[i]).iter().zip(&t0).map(|(t, c)| t * c).sum::<f64>())
+        .collect();
+    let per_line: Vec<(Vec<f64>, Vec<f64>, f64)> = (0..nl)
+        .map(|l| {
+            let idx: Vec<usize> = (0..s.x.len()).filter(|&k| s.line[k] == l).collect();
+            let x: Vec<f64> = idx.iter().map(|&k| s.x[k]).collect();
+            let z: Vec<f64> = idx.iter().map(|&k| rest[k]).collect();
+            let y = idx.iter().map(|&k| s.y[k]).sum::<f64>() / idx.len() as f64;
+            (x, z, y)
         })
         .collect();
-    let syy: f64 = pts.iter().map(|p| p.0 * p.0).sum();
-    let several = starts.len() > 1 && syy > 1e-6;
-    let kappa0 = if several { pts.iter().map(|p| p.0 * p.1).sum::<f64>() / syy } else { 0.0 };
-    let phase0 = ph0 - kappa0 * y0;
-    let slope0 = starts.iter().map(|(.., q)| q[1]).sum::<f64>() / starts.len() as f64;
-    let mut p0 = vec![amp0 * phase0.cos(), amp0 * phase0.sin(), omega0, kappa0, 0.0, slope0];
-    for (l, _, q) in &starts {
-        p0.extend([q[0] + l.offset, 0.0]);
-    }
-    // Nested models: first one slope for all lines and no curvature; the
-    // trend terms only where the data ask for them (F test): over 2–3
-    // periods a free quadratic takes a share of a long wavelength and
-    // inflates its scatter (1.5× at 100 mm on the paper's frame).
-    let fixed = |i: usize| (i == KAPPA && !several) || i == LINES + 1;
-    let simple: Vec<usize> = (0..p0.len()).filter(|&i| !fixed(i) && i != CURVE && (i < LINES || i % 2 == 0)).collect();
-    let lm = lm::levenberg_marquardt(
-        p0,
-        &simple,
-        fit::MAX_ITERATIONS,
-        &mut lm::Joint::new(|p: &[f64]| evaluate(&s, p, &simple)),
-    )
-    .ok_or(FitError::Degenerate("the joint model cannot be evaluated"))?;
-    let trend: Vec<usize> = (0..lm.p.len()).filter(|&i| !fixed(i)).collect();
-    let extra = trend.len() - simple.len();
-    let n_all = s.x.len();
-    let simple_len = simple.len();
-    let joint = lm::levenberg_marquardt(
-        lm.p.clone(),
-        &trend,
-        fit::MAX_ITERATIONS,
-        &mut lm::Joint::new(|p: &[f64]| evaluate(&s, p, &trend)),
-    );
-    let (lm, free) = match joint {
-        Some(full) if n_all > trend.len() && full.rss < lm.rss => {
-            let f = ((lm.rss - full.rss) / extra as f64) / (full.rss / (n_all - trend.len()) as f64);
-            if f > F_TREND { (full, trend) } else { (lm, simple) }
+    let mut omegas: Vec<f64> = Vec::new();
+    for (x, z, _) in &per_line {
+        if let Ok(f) = fit::fit(x, z, &Options { model: fit::Model::Sine, components: 1 }) {
+            let w = std::f64::consts::TAU / f.wavelength_mm;
+            if w.is_finite() && !omegas.iter().any(|o| (o / w - 1.0).abs() < 1e-3) {
+                omegas.push(w);
+            }
         }
-        _ => (lm, simple),
+    }
+    if omegas.is_empty() {
+        return Err(FitError::Degenerate("no line has a sine"));
+    }
+    let mut best: Option<(lm::Lm, Vec<usize>, usize)> = None;
+    for &omega0 in &omegas {
+        let Some(starts) = per_line
+            .iter()
+            .map(|(x, z, y)| fit::three_param(x, z, omega0).map(|l| (l, *y)))
+            .collect::<Option<Vec<_>>>()
+        else {
+            continue;
+        };
+        let amp0 = starts.iter().map(|(l, _)| l.sin.hypot(l.cos)).sum::<f64>() / starts.len() as f64;
+        let phase = |l: &fit::Linear| l.cos.atan2(l.sin);
+        let (y0, ph0) = (starts[0].1, phase(&starts[0].0));
+        let pts: Vec<(f64, f64)> = starts
+            .iter()
+            .map(|(l, y)| {
+                let d = phase(l) - ph0;
+                (*y - y0, d - std::f64::consts::TAU * (d / std::f64::consts::TAU).round())
+            })
+            .collect();
+        let syy: f64 = pts.iter().map(|p| p.0 * p.0).sum();
+        let kappa0 = if several && syy > 1e-6 { pts.iter().map(|p| p.0 * p.1).sum::<f64>() / syy } else { 0.0 };
+        let phase0 = ph0 - kappa0 * y0;
+        let mut p0 = vec![amp0 * phase0.cos(), amp0 * phase0.sin(), omega0, kappa0];
+        p0.extend(t0);
+        let wave: Vec<usize> = if several { vec![q::A, q::B, q::OMEGA, q::KAPPA] } else { vec![q::A, q::B, q::OMEGA] };
+        let free_of =
+            |terms: &[usize]| -> Vec<usize> { wave.iter().copied().chain(terms.iter().map(|t| q::C + t)).collect() };
+        let (simple, trend) = (free_of(&simple_terms), free_of(&trend_terms));
+        let mut p_simple = p0.clone();
+        for t in [3, 4, 6, 7] {
+            p_simple[q::C + t] = 0.0;
+        }
+        let Some(lm_s) = lm::levenberg_marquardt(
+            p_simple,
+            &simple,
+            fit::MAX_ITERATIONS,
+            &mut lm::Joint::new(|p: &[f64]| evaluate_surface(&s, p, &simple)),
+        ) else {
+            continue;
+        };
+        let lm_t = lm::levenberg_marquardt(
+            p0,
+            &trend,
+            fit::MAX_ITERATIONS,
+            &mut lm::Joint::new(|p: &[f64]| evaluate_surface(&s, p, &trend)),
+        );
+        let n_all = s.x.len();
+        let (extra, simple_len) = (trend.len() - simple.len(), simple.len());
+        let chosen = match lm_t {
+            Some(full) if n_all > trend.len() && full.rss < lm_s.rss => {
+                let f = ((lm_s.rss - full.rss) / extra as f64) / (full.rss / (n_all - trend.len()) as f64);
+                if f > F_TREND { (full, trend) } else { (lm_s, simple) }
+            }
+            _ => (lm_s, simple),
+        };
+        let yaw = chosen.0.p[q::KAPPA].atan2(chosen.0.p[q::OMEGA]);
+        // Bounds with a meaning: the lines within 45° of the rail.
+        if yaw.abs() > std::f64::consts::FRAC_PI_4 || !chosen.0.rss.is_finite() {
+            continue;
+        }
+        if best.as_ref().is_none_or(|b| chosen.0.rss < b.0.rss) {
+            best = Some((chosen.0, chosen.1, simple_len));
+        }
+    }
+    let Some((lm, free, simple_len)) = best else {
+        return Err(FitError::Degenerate("no start converged within the bounds"));
     };
     let p = &lm.p;
-    let (a, b, w, kappa) = (p[0], p[1], p[OMEGA], p[KAPPA]);
+    let (a, b, w, kappa) = (p[q::A], p[q::B], p[q::OMEGA], p[q::KAPPA]);
     let k = w.hypot(kappa);
     let n = s.x.len();
     let tau = std::f64::consts::TAU;
     let amp = a.hypot(b);
-    // Uncertainties: σ² (JᵀJ)⁻¹ over the free parameters.
     let sigma2 = lm.rss / n.saturating_sub(free.len()).max(1) as f64;
-    let cov = evaluate(&s, p, &free).and_then(|(_, j)| j.tr_mul(&j).cholesky()).map(|c| c.inverse() * sigma2);
+    let cov = evaluate_surface(&s, p, &free).and_then(|(_, j)| j.tr_mul(&j).cholesky()).map(|c| c.inverse() * sigma2);
     let sigma = |grad: &[(usize, f64)]| -> Option<f64> {
         let cov = cov.as_ref()?;
         let col = |i: usize| free.iter().position(|&f| f == i);
@@ -593,49 +709,47 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
         }
         (v >= 0.0 && v.is_finite()).then(|| v.sqrt())
     };
-    let mut lgrad = vec![(OMEGA, -tau * w / k.powi(3))];
+    let mut lgrad = vec![(q::OMEGA, -tau * w / k.powi(3))];
     if several {
-        lgrad.push((KAPPA, -tau * kappa / k.powi(3)));
+        lgrad.push((q::KAPPA, -tau * kappa / k.powi(3)));
     }
-    let mean_slope = p[SLOPE] + (0..lines.len()).map(|l| p[LINES + 2 * l + 1]).sum::<f64>() / lines.len() as f64;
     let joint = Joint {
-        lines: lines.len(),
+        lines: nl,
         points: n,
         wavelength_mm: tau / k,
         amplitude_mm: amp,
         phase_rad: b.atan2(a),
         normal: s.normal,
-        pitch_rad: s.pitch + mean_slope.atan(),
-        roll_rad: s.roll,
+        pitch_rad: s.pitch + p[q::GX].atan(),
+        roll_rad: s.roll + p[q::GY].atan(),
         yaw_rad: kappa.atan2(w),
-        curvature_per_mm: 2.0 * p[CURVE],
+        curvature_per_mm: 2.0 * p[q::EXX],
         trend: free.len() > simple_len,
         rms_residual_mm: (lm.rss / n as f64).sqrt(),
         wavelength_sigma_mm: sigma(&lgrad),
-        amplitude_sigma_mm: (amp > 0.0).then(|| sigma(&[(0, a / amp), (1, b / amp)])).flatten(),
+        amplitude_sigma_mm: (amp > 0.0).then(|| sigma(&[(q::A, a / amp), (q::B, b / amp)])).flatten(),
         iterations: lm.iterations,
         converged: lm.converged,
         rejected: 0,
+        verdict: Verdict { level: verdict::Level::Good, reasons: Vec::new(), noise_um: None },
     };
     let vals = [joint.wavelength_mm, joint.amplitude_mm, joint.phase_rad, joint.yaw_rad, joint.rms_residual_mm];
     if vals.iter().any(|v| !v.is_finite()) || k <= 0.0 {
         return Err(FitError::Degenerate("values out of range"));
     }
-    // The corrected profiles: (s, z) per line, each line's trend removed.
     let (sp, cp) = (kappa / k, w / k);
-    let mut out: Vec<Corrected> = lines
-        .iter()
-        .enumerate()
-        .map(|(i, l)| Corrected { laser: l.laser, s_mm: vec![], z_mm: vec![], offset_mm: p[LINES + 2 * i] })
-        .collect();
+    let mut out: Vec<Corrected> =
+        lines.iter().map(|l| Corrected { laser: l.laser, s_mm: vec![], z_mm: vec![], offset_mm: p[q::C] }).collect();
     for i in 0..n {
         let (x, y, z, l) = (s.x[i], s.y[i], s.z[i], s.line[i]);
+        let t = quad_terms(x, y);
+        let trend: f64 = t.iter().zip(&p[q::C..q::N]).skip(1).map(|(t, c)| t * c).sum();
         let o = &mut out[l];
         o.s_mm.push(x * cp + y * sp);
-        o.z_mm.push(z - (p[SLOPE] + p[LINES + 2 * l + 1]) * x - p[CURVE] * x * x);
+        o.z_mm.push(z - trend);
     }
     let residuals =
-        evaluate(&s, p, &[]).map(|(r, _)| r.as_slice().to_vec()).ok_or(FitError::Degenerate("residuals"))?;
+        evaluate_surface(&s, p, &[]).map(|(r, _)| r.as_slice().to_vec()).ok_or(FitError::Degenerate("residuals"))?;
     Ok((joint, out, residuals))
 }
 
@@ -847,5 +961,37 @@ mod tests {
         let one = vec![lines(&RAIL, (0.0, 0.0, 0.0), 0.0, 1).remove(1)];
         let (j, _) = joint_fit(&one).unwrap();
         assert!((j.wavelength_mm - 50.0).abs() < 1e-4 && j.yaw_rad == 0.0, "{j:?}");
+    }
+
+    /// The misalignment sweep in small (the full one: `cms-host bench
+    /// corrugation --sweep`): yaw 0–15°, pitch and roll ±2°, a flat rail
+    /// head and a 200 mm crown, 50 mm × 50 µm and 100 mm × 100 µm, 1 µm of
+    /// noise per point. Every result is within 0.05 mm and 2 µm, or its
+    /// verdict says it is not good; the aligned ones are good; most are.
+    #[test]
+    fn the_misalignment_sweep_is_right_or_flagged() {
+        let (mut good, mut all) = (0, 0);
+        for yaw in [0.0, 5.0, 10.0, 15.0] {
+            for (pitch, roll) in [(0.0, 0.0), (2.0, -2.0)] {
+                for crown in [1e12, 200.0] {
+                    for (lambda, amp, phase) in [(50.0, 0.05, 0.3), (100.0, 0.1, 2.5)] {
+                        let rail = Rail { lambda, amp, phase, crown_r: crown };
+                        let angles = (yaw * 1f64.to_radians(), pitch * 1f64.to_radians(), roll * 1f64.to_radians());
+                        let (j, _) = joint_fit(&lines(&rail, angles, 0.001, 7)).unwrap();
+                        let (el, ea) = (j.wavelength_mm - lambda, (j.amplitude_mm - amp) * 1e3);
+                        let within = el.abs() <= 0.05 && ea.abs() <= 2.0;
+                        let case = format!("yaw {yaw}° pitch {pitch}° roll {roll}° R {crown} λ {lambda} A {amp}");
+                        println!("{case}: Δλ {el:+.4} mm ΔA {ea:+.3} µm, {}", j.verdict);
+                        assert!(within || j.verdict.level != verdict::Level::Good, "{case}: {j:?}");
+                        if yaw == 0.0 && pitch == 0.0 && crown > 1e6 {
+                            assert_eq!(j.verdict.level, verdict::Level::Good, "{case}: {j:?}");
+                        }
+                        all += 1;
+                        good += usize::from(j.verdict.level == verdict::Level::Good);
+                    }
+                }
+            }
+        }
+        assert!(good * 4 >= all * 3, "{good} of {all} good");
     }
 }

@@ -25,6 +25,7 @@
 //! * [`fit`] — IEEE 1057 and the paper's rotated sine fits of a profile.
 //! * [`corrugation`] — the lines of one frame together: head frame, surface normal (paper §2.2), joint fit.
 //! * [`measure`] — per image or recorded frame: each laser's profile and fit, the joint result, plots.
+//! * [`verdict`] — whether a fitted result is to be believed: good, doubtful or failed, and why.
 //! * [`closed_loop`] — corrugation measured through the simulated head against its truth (`bench corrugation`, tests).
 //!
 //! **Judging the rail**
@@ -60,5 +61,6 @@ pub mod sim;
 pub mod simulate;
 pub mod standards;
 pub mod synthetic;
+pub mod verdict;
 
 pub use error::{Class, Error};

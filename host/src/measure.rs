@@ -55,6 +55,7 @@ use crate::fit::{self, Fit, Options};
 use crate::input::{self, Row, Rows};
 use crate::progress::Progress;
 use crate::record::{self, FrameCounter};
+use crate::verdict::{self, Evidence, Level, Verdict};
 
 /// Per laser, its profile points `(along_mm, height_mm)`.
 pub type Profiles = [Vec<(f64, f64)>; LASERS];
@@ -72,6 +73,9 @@ pub struct LaserResult {
     pub fit: Option<Fit>,
     /// Why there is no fit.
     pub error: Option<String>,
+    /// Whether to believe the fit ([`crate::verdict`]): one line's model
+    /// has no surface (a crowned rail crossed obliquely shows as misfit).
+    pub verdict: Option<Verdict>,
 }
 
 /// The result of one image or frame.
@@ -205,7 +209,8 @@ impl Measurer {
                 Ok(f) => (Some(f), None),
                 Err(e) => (None, Some(e.to_string())),
             };
-            lasers.push(LaserResult { laser: k, along_mm, height_mm, fit, error });
+            let verdict = fit.as_ref().map(|f| line_verdict(f, prof));
+            lasers.push(LaserResult { laser: k, along_mm, height_mm, fit, error, verdict });
         }
         let lines = self.lines(profiles);
         let (joint, corrected, joint_error) = match joint_fit(&lines) {
@@ -301,6 +306,30 @@ pub fn measure_file(
     Ok((vec![r], Vec::new()))
 }
 
+/// The verdict on one laser's own fit (no yaw: the line's own axis).
+fn line_verdict(f: &Fit, profile: &[(f64, f64)]) -> Verdict {
+    let (lo, hi) = profile.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.0), b.max(p.0)));
+    verdict::judge(&Evidence {
+        rms_residual_mm: f.rms_residual_mm,
+        noise_mm: verdict::point_noise(profile),
+        wavelength_mm: f.wavelength_mm,
+        span_mm: hi - lo,
+        spacing_mm: (hi - lo) / profile.len().saturating_sub(1).max(1) as f64,
+        yaw_rad: 0.0,
+        converged: f.converged,
+        rejected: 0,
+        points: profile.len(),
+    })
+}
+
+impl Measurement {
+    /// The worst verdict of its results (failed without any result).
+    pub fn level(&self) -> Level {
+        let joint = self.joint.as_ref().map_or(Level::Failed, |j| j.verdict.level);
+        self.lasers.iter().filter_map(|l| l.verdict.as_ref().map(|v| v.level)).fold(joint, Level::max)
+    }
+}
+
 /// Whether `path` is a recording (by its header).
 fn is_recording(path: &Path) -> bool {
     let mut h = [0u8; 8];
@@ -323,19 +352,25 @@ pub fn write_text(out: &mut impl Write, r: &Measurement) -> io::Result<()> {
     let pm = |s: Option<f64>, k: f64| s.map_or_else(String::new, |s| format!(" ± {:.4}", s * k));
     for l in &r.lasers {
         match &l.fit {
-            Some(f) => writeln!(
-                out,
-                "  laser {}: {} points, wavelength {:.4} mm{}, amplitude {:.2} µm{}, rotation {:.4}°, rms {:.2} µm{}",
-                l.laser,
-                f.points,
-                f.wavelength_mm,
-                pm(f.wavelength_sigma_mm, 1.0),
-                f.amplitude_mm * 1e3,
-                pm(f.amplitude_sigma_mm, 1e3),
-                f.rotation_rad.to_degrees(),
-                f.rms_residual_mm * 1e3,
-                if f.converged { "" } else { " (not converged)" }
-            )?,
+            Some(f) => {
+                // An uncertainty only where the model fits: a misfit's σ
+                // does not cover its error (the result is a diagnostic).
+                let good = l.verdict.as_ref().is_some_and(|v| v.level == Level::Good);
+                let pm = |s: Option<f64>, k: f64| if good { pm(s, k) } else { String::new() };
+                writeln!(
+                    out,
+                    "  laser {}: {} points, wavelength {:.4} mm{}, amplitude {:.2} µm{}, rotation {:.4}°, rms {:.2} µm; {}",
+                    l.laser,
+                    f.points,
+                    f.wavelength_mm,
+                    pm(f.wavelength_sigma_mm, 1.0),
+                    f.amplitude_mm * 1e3,
+                    pm(f.amplitude_sigma_mm, 1e3),
+                    f.rotation_rad.to_degrees(),
+                    f.rms_residual_mm * 1e3,
+                    l.verdict.as_ref().map_or_else(String::new, |v| v.to_string())
+                )?
+            }
             None => writeln!(
                 out,
                 "  laser {}: {} points, no fit: {}",
@@ -349,7 +384,7 @@ pub fn write_text(out: &mut impl Write, r: &Measurement) -> io::Result<()> {
         Some(j) => writeln!(
             out,
             "  joint ({} lines, {} points{}): wavelength {:.4} mm{}, amplitude {:.2} µm{}, yaw {:.3}°, pitch {:.3}°, \
-             roll {:.3}°, rms {:.2} µm{}",
+             roll {:.3}°, rms {:.2} µm; {}",
             j.lines,
             j.points,
             if j.rejected > 0 { format!(", {} outliers left out", j.rejected) } else { String::new() },
@@ -361,7 +396,7 @@ pub fn write_text(out: &mut impl Write, r: &Measurement) -> io::Result<()> {
             j.pitch_rad.to_degrees(),
             j.roll_rad.to_degrees(),
             j.rms_residual_mm * 1e3,
-            if j.converged { "" } else { " (not converged)" }
+            j.verdict
         ),
         None => writeln!(out, "  joint: no result: {}", r.joint_error.as_deref().unwrap_or("")),
     }

@@ -7,6 +7,7 @@ use clap::Args;
 use cms_host::Error;
 use cms_host::calib::file::CalibrationFile;
 use cms_host::measure::{self, Measurer};
+use cms_host::verdict::Level;
 
 /// Arguments of `cms-host measure`.
 #[derive(Args, Debug, Clone)]
@@ -23,6 +24,10 @@ pub struct MeasureArgs {
     #[arg(long, value_name = "DIR")]
     pub plot: Option<PathBuf>,
 
+    /// Exit with status 1 unless every result's verdict is good (after printing them all).
+    #[arg(long)]
+    pub strict: bool,
+
     /// Images (PNG, TIFF, JPEG, CSV rows) or recordings (.cmsrec).
     #[arg(required = true, value_name = "INPUT")]
     pub inputs: Vec<PathBuf>,
@@ -38,6 +43,7 @@ pub fn run(args: &MeasureArgs) -> anyhow::Result<()> {
         std::fs::create_dir_all(dir).map_err(|e| Error::Input(format!("--plot {}: {e}", dir.display())))?;
     }
     let mut out = BufWriter::new(io::stdout().lock());
+    let (mut all, mut not_good) = (0usize, 0usize);
     for path in &args.inputs {
         let (results, warnings) =
             measure::measure_file(&m, path, &cal_name.to_string(), &super::progress::Bar::stderr())?;
@@ -46,6 +52,8 @@ pub fn run(args: &MeasureArgs) -> anyhow::Result<()> {
             let _ = writeln!(io::stderr(), "{w}");
         }
         for r in &results {
+            all += 1;
+            not_good += usize::from(r.level() != Level::Good);
             if args.json {
                 serde_json::to_writer(&mut out, r).map_err(|e| Error::Output(e.into()))?;
                 writeln!(out).map_err(Error::Output)?;
@@ -63,5 +71,9 @@ pub fn run(args: &MeasureArgs) -> anyhow::Result<()> {
         }
     }
     out.flush().map_err(Error::Output)?;
+    if args.strict && not_good > 0 {
+        // Exit status 1: the inputs were sound, the results are not to be trusted.
+        anyhow::bail!("--strict: {not_good} of {all} results are not good (see their verdicts)");
+    }
     Ok(())
 }

@@ -262,7 +262,7 @@ fn camera_size_must_match_the_data() {
     let (rec, _) = recording_with_hello(dir.path(), &cal, id);
     let ok = cms_host(&["measure", "--calibration", s(&cal), s(&rec)]);
     assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
-    for width in [4000, 100] {
+    for width in [4000, 700] {
         let other = dir.path().join(format!("w{width}.toml"));
         // The same id as the head's, so that only the size differs.
         std::fs::write(&other, format!("id = {id}\n{}", text.replace("width = 752", &format!("width = {width}"))))
@@ -332,4 +332,65 @@ fn damaged_and_duplicated_frames_are_reported() {
     assert_eq!(String::from_utf8_lossy(&o.stdout).lines().count(), 1);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("present twice") && err.contains("damaged"), "{err}");
+}
+
+/// Every result carries its verdict: the text ends each fit with it, the
+/// JSON has it with the points' noise; `--strict` turns a result that is
+/// not good into exit status 1 after printing everything. A frame whose
+/// surface no model here follows (its calibrated points given a 60 µm step
+/// halfway along every line) is doubtful or failed, with the misfit as its
+/// reason.
+#[test]
+fn results_carry_a_verdict_and_strict_exits_1() {
+    let dir = tempfile::tempdir().unwrap();
+    let (img, cal) = image_and_calibration(dir.path());
+    let out = cms_host(&["measure", "--calibration", s(&cal), s(&img)]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8(out.stdout).unwrap();
+    let joint = text.lines().find(|l| l.trim_start().starts_with("joint")).unwrap();
+    assert!(joint.ends_with("; good"), "{text}");
+    let json = cms_host(&["measure", "--calibration", s(&cal), "--json", s(&img)]);
+    let v: serde_json::Value = serde_json::from_slice(&json.stdout).unwrap();
+    assert_eq!(v["joint"]["verdict"]["level"], "good", "{v}");
+    assert!(v["joint"]["verdict"]["noise_um"].as_f64().unwrap() > 0.0, "{v}");
+    let strict = cms_host(&["measure", "--strict", "--calibration", s(&cal), s(&img)]);
+    let all_good = !text.contains("; doubtful") && !text.contains("; failed");
+    assert_eq!(strict.status.code(), Some(if all_good { 0 } else { 1 }), "{text}");
+    if !all_good {
+        assert!(String::from_utf8_lossy(&strict.stderr).contains("--strict: "), "{strict:?}");
+    }
+}
+
+#[test]
+fn a_frame_with_a_step_is_not_good_and_strict_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, cal) = image_and_calibration(dir.path());
+    let id = CalibFile::load(&cal).0.head_id();
+    let (rec, _) = recording_with_hello(dir.path(), &cal, id);
+    let mut bytes = cms_host::record::header().to_vec();
+    cms_host::record::scan_file(&rec, |msg| {
+        let mut msg = msg.clone();
+        if let DeviceMsg::Profile(p) = &mut msg {
+            for l in p.lasers.iter_mut() {
+                for pt in l.points.iter_mut().filter(|pt| pt.row >= 240) {
+                    if let Some(m) = &mut pt.metric {
+                        m.height_nm += 60_000;
+                    }
+                }
+            }
+        }
+        bytes.extend(wire(&msg));
+        Ok(())
+    })
+    .unwrap();
+    let stepped = dir.path().join("stepped.cmsrec");
+    std::fs::write(&stepped, bytes).unwrap();
+    let out = cms_host(&["measure", "--strict", "--calibration", s(&cal), s(&stepped)]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(1), "{text}");
+    let joint = text.lines().find(|l| l.trim_start().starts_with("joint")).unwrap();
+    assert!(joint.contains("; doubtful: residual") || joint.contains("; failed: residual"), "{text}");
+    assert!(joint.contains("the model does not fit"), "{text}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.starts_with("error: --strict: ") && err.contains("results are not good"), "{err}");
 }
