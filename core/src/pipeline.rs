@@ -202,7 +202,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             store_dirty: false,
             dropped_rows: 0,
             row: [0; W],
-            profile: Profile::EMPTY,
+            profile: Profile::empty(),
         })
     }
 
@@ -344,6 +344,15 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
     /// streaming it is a fault (lasers off).
     pub fn link_error(&mut self, code: ErrorCode, reply: &mut impl FnMut(&DeviceMsg)) {
         self.fail(code, None, reply);
+    }
+
+    /// The settings could not be written to flash (or the flash is not
+    /// usable): reported as `Error { seq: None, code: Storage }` (only asked
+    /// for while idle, so no fault). Built here at run time: a `&DeviceMsg`
+    /// of constants written in the firmware is promoted to a static of the
+    /// message's full size (about 40 KB of flash).
+    pub fn storage_error(&mut self, reply: &mut impl FnMut(&DeviceMsg)) {
+        self.fail(ErrorCode::Storage, None, reply);
     }
 
     /// Carries out one command.
@@ -596,7 +605,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 }
             }
             // Lend the profile to the message without copying it twice.
-            let msg = DeviceMsg::Profile(core::mem::replace(&mut self.profile, Profile::EMPTY));
+            let msg = DeviceMsg::Profile(core::mem::replace(&mut self.profile, Profile::empty()));
             reply(&msg);
             if let DeviceMsg::Profile(p) = msg {
                 self.profile = p;

@@ -164,7 +164,27 @@ pub struct Profile {
 }
 
 impl Profile {
-    /// No points.
+    /// No points, built at run time: [`Profile::EMPTY`] is a constant of
+    /// the type's full size (about 40 KB, mostly the points' uninitialised
+    /// buffers), and every use of it by value copies it from flash — the
+    /// head's firmware carried it in `.rodata`. This writes the header and
+    /// the empty list's length only.
+    #[inline(never)]
+    pub fn empty() -> Profile {
+        Profile {
+            seq: 0,
+            part: 0,
+            parts: 1,
+            timestamp_us: 0,
+            odometer_um: 0,
+            exposure_us: 0,
+            laser_mask: 0,
+            lasers: Vec::new(),
+        }
+    }
+
+    /// No points (a constant, for struct-update syntax on the host; the
+    /// head uses [`Profile::empty`]).
     pub const EMPTY: Profile = Profile {
         seq: 0,
         part: 0,
