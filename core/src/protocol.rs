@@ -28,7 +28,7 @@
 //! possible message of each kind against it.
 
 use crate::fixed::Px;
-use crate::peak::{Config, Flags};
+use crate::peak::{ColumnWindow, Config, Flags};
 use heapless::{String, Vec};
 use serde::{Deserialize, Serialize};
 
@@ -407,6 +407,14 @@ pub enum HostMsg {
     Heartbeat,
     /// How frames are triggered from the next `Start` on (kept in flash).
     SetTrigger(Trigger),
+    /// Search windows per laser from the next `Start` on
+    /// (`peak::window`): laser `k`'s stripes are sought only in
+    /// `windows[k]`; a lit laser without one makes every row a full-row
+    /// search. Refused (`OutOfRange`) if a window is narrower than
+    /// `peak::window::MIN_WINDOW_PX` or ends past the sensor's row. Not
+    /// kept in flash. Appended last, so every other command's bytes are
+    /// those of earlier builds (which answer it with `Decode`).
+    SetWindows([Option<ColumnWindow>; LASERS]),
 }
 
 /// A command: a sequence number for the acknowledgement, and the body.
