@@ -1,9 +1,9 @@
 //! Search windows: the columns of a row where stripes are looked for (the
 //! profilers' "active area").
 //!
-//! A head whose lasers each fall in a known band of columns — from the
-//! calibration and the working depth ([`crate::pipeline::calibrated_windows`]),
-//! or set by the host (`SetWindows`) — need not screen the whole row. With
+//! A head whose lasers each fall in a known band of columns — set by the
+//! host (`protocol::HostMsg::SetWindows`; deriving them from the calibration
+//! and the working depth is not done yet) — need not screen the whole row. With
 //! [`Windows`] the detector ([`super::Detector::detect_in`]) runs the
 //! screen only inside each window (extended by two blocks each side, so a
 //! stripe at a window's edge sees real pixels in its box difference, not
