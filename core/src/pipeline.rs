@@ -33,7 +33,7 @@
 use crate::duty::DutyLimit;
 use crate::fixed::Px;
 use crate::odometer::DistanceTrigger;
-use crate::peak::{Config, Detector, Select, Stripes};
+use crate::peak::{ColumnWindow, Config, Detector, Select, Stripes, Windows};
 use crate::persist::Stored;
 use crate::protocol::{
     Calibration, Command, DeviceInfo, DeviceMsg, ErrorCode, HeadState, HostMsg, LASERS, LaserPattern, LaserPoints,
@@ -137,6 +137,10 @@ pub struct Head<const W: usize, L: LaserDriver> {
     sequential_next: u8,
     capture: Option<CaptureJob>,
     track: [Px; LASERS],
+    /// Search windows per laser (`SetWindows`), and those of the lit
+    /// lasers for the current frame (`None`: full-row search).
+    windows: [Option<ColumnWindow>; LASERS],
+    frame_windows: Option<Windows>,
     // statistics since the last Status
     frames: u32,
     window_frames: u32,
@@ -186,6 +190,8 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             sequential_next: 0,
             capture: None,
             track: [Px::ZERO; LASERS],
+            windows: [None; LASERS],
+            frame_windows: None,
             frames: 0,
             window_frames: 0,
             window_rows: 0,
@@ -202,7 +208,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             store_dirty: false,
             dropped_rows: 0,
             row: [0; W],
-            profile: Profile::EMPTY,
+            profile: Profile::empty(),
         })
     }
 
@@ -346,6 +352,15 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         self.fail(code, None, reply);
     }
 
+    /// The settings could not be written to flash (or the flash is not
+    /// usable): reported as `Error { seq: None, code: Storage }` (only asked
+    /// for while idle, so no fault). Built here at run time: a `&DeviceMsg`
+    /// of constants written in the firmware is promoted to a static of the
+    /// message's full size (about 40 KB of flash).
+    pub fn storage_error(&mut self, reply: &mut impl FnMut(&DeviceMsg)) {
+        self.fail(ErrorCode::Storage, None, reply);
+    }
+
     /// Carries out one command.
     pub fn handle<C: Camera>(&mut self, cmd: Command, now_us: u64, camera: &C, reply: &mut impl FnMut(&DeviceMsg)) {
         self.last_heard_us = now_us;
@@ -461,6 +476,17 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 self.capture = Some(CaptureJob { seq, mask, next_row: 0 });
                 reply(&DeviceMsg::Ack(seq));
             }
+            HostMsg::SetWindows(w) => {
+                if self.state == HeadState::Streaming {
+                    return self.fail(ErrorCode::Busy, Some(seq), reply);
+                }
+                let given: Vec<ColumnWindow, LASERS> = w.iter().flatten().copied().collect();
+                if !given.is_empty() && Windows::new(&given, camera.width()).is_err() {
+                    return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
+                }
+                self.windows = w;
+                reply(&DeviceMsg::Ack(seq));
+            }
             HostMsg::SetTrigger(t) => {
                 if self.state == HeadState::Streaming {
                     return self.fail(ErrorCode::Busy, Some(seq), reply);
@@ -571,6 +597,11 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         // A new frame (exposure and lasers may have changed): the detector
         // measures the noise afresh on its first row.
         self.detector.refresh_noise();
+        // The lit lasers' windows, if every lit laser has one (validated by
+        // SetWindows against this camera's width).
+        let lit_windows: Option<Vec<ColumnWindow, LASERS>> =
+            (0..LASERS).filter(|&k| mask & (1 << k) != 0).map(|k| self.windows[k]).collect();
+        self.frame_windows = lit_windows.and_then(|w| Windows::new(&w, width as u16).ok());
         let lit = mask.count_ones() as usize;
         for part in 0..parts {
             self.profile.part = part;
@@ -587,7 +618,11 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                     return self.fail(ErrorCode::SensorFault, None, reply);
                 }
                 let mut stripes: Stripes<LASERS> = Stripes::new();
-                if self.detector.detect(&self.row[..width], &mut stripes).is_err() {
+                let found = match &self.frame_windows {
+                    None => self.detector.detect(&self.row[..width], &mut stripes),
+                    Some(w) => self.detector.detect_in(&self.row[..width], w, &mut stripes),
+                };
+                if found.is_err() {
                     return self.fail(ErrorCode::SensorFault, None, reply);
                 }
                 assign(&stripes, lit, &mut self.track, &mut self.profile.lasers, r as u16);
@@ -596,7 +631,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 }
             }
             // Lend the profile to the message without copying it twice.
-            let msg = DeviceMsg::Profile(core::mem::replace(&mut self.profile, Profile::EMPTY));
+            let msg = DeviceMsg::Profile(core::mem::replace(&mut self.profile, Profile::empty()));
             reply(&msg);
             if let DeviceMsg::Profile(p) = msg {
                 self.profile = p;

@@ -28,7 +28,7 @@
 //! possible message of each kind against it.
 
 use crate::fixed::Px;
-use crate::peak::{Config, Flags};
+use crate::peak::{ColumnWindow, Config, Flags};
 use heapless::{String, Vec};
 use serde::{Deserialize, Serialize};
 
@@ -164,7 +164,27 @@ pub struct Profile {
 }
 
 impl Profile {
-    /// No points.
+    /// No points, built at run time: [`Profile::EMPTY`] is a constant of
+    /// the type's full size (about 40 KB, mostly the points' uninitialised
+    /// buffers), and every use of it by value copies it from flash — the
+    /// head's firmware carried it in `.rodata`. This writes the header and
+    /// the empty list's length only.
+    #[inline(never)]
+    pub fn empty() -> Profile {
+        Profile {
+            seq: 0,
+            part: 0,
+            parts: 1,
+            timestamp_us: 0,
+            odometer_um: 0,
+            exposure_us: 0,
+            laser_mask: 0,
+            lasers: Vec::new(),
+        }
+    }
+
+    /// No points (a constant, for struct-update syntax on the host; the
+    /// head uses [`Profile::empty`]).
     pub const EMPTY: Profile = Profile {
         seq: 0,
         part: 0,
@@ -387,6 +407,14 @@ pub enum HostMsg {
     Heartbeat,
     /// How frames are triggered from the next `Start` on (kept in flash).
     SetTrigger(Trigger),
+    /// Search windows per laser from the next `Start` on
+    /// (`peak::window`): laser `k`'s stripes are sought only in
+    /// `windows[k]`; a lit laser without one makes every row a full-row
+    /// search. Refused (`OutOfRange`) if a window is narrower than
+    /// `peak::window::MIN_WINDOW_PX` or ends past the sensor's row. Not
+    /// kept in flash. Appended last, so every other command's bytes are
+    /// those of earlier builds (which answer it with `Decode`).
+    SetWindows([Option<ColumnWindow>; LASERS]),
 }
 
 /// A command: a sequence number for the acknowledgement, and the body.

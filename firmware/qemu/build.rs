@@ -13,7 +13,8 @@
 //!   seed 1, 64 distinct 12-bit rows of 752 px with 1 and 3 stripes), so the
 //!   instruction counts on thumbv7em and callgrind's on x86-64
 //!   (scripts/instructions.sh) are of the same rows. Written as raw
-//!   little-endian pixels and postcard-encoded `Config`s, read by
+//!   little-endian pixels and postcard-encoded `Config`s, with one 96-px
+//!   search window per stripe for the windowed runs, read by
 //!   `src/bin/bench.rs` through `OUT_DIR/bench_data.rs`.
 
 use std::env;
@@ -32,6 +33,8 @@ const DISTINCT: usize = 64;
 const BITS: u8 = 12;
 /// Seed of the rows (`bench speed`'s default).
 const SEED: u64 = 1;
+/// Search window per laser of the windowed runs, px (issue 14: 96).
+const WINDOW_PX: u16 = 96;
 
 fn main() {
     let out = PathBuf::from(env::var_os("OUT_DIR").expect("OUT_DIR is set by cargo"));
@@ -57,8 +60,10 @@ fn main() {
     let _ = writeln!(src, "/// Stripes per row, the rows' pixels (LE u16), one postcard `Config` per method.");
     let _ = writeln!(
         src,
-        "pub struct Set {{ pub stripes: usize, pub rows: &'static [u8], pub configs: &'static [&'static [u8]] }}"
+        "pub struct Set {{ pub stripes: usize, pub rows: &'static [u8], pub configs: &'static [&'static [u8]], pub windows: &'static [(u16, u16)] }}"
     );
+    let _ = writeln!(src, "/// Width of the search windows of the windowed runs, px.");
+    let _ = writeln!(src, "pub const WINDOW_PX: u16 = {WINDOW_PX};");
     let _ = writeln!(src, "pub const SETS: &[Set] = &[");
     for stripes in [1usize, 3] {
         let rows = speed_rows(LEN, stripes, BITS, DISTINCT, SEED);
@@ -72,6 +77,13 @@ fn main() {
         for m in Method::ALL {
             let cfg = postcard::to_stdvec(&speed_config(m, BITS, stripes)).expect("encode config");
             let _ = write!(src, "&{cfg:?}, ");
+        }
+        // One window per stripe (per laser), centred where `speed_rows`
+        // puts the stripe (len·(k + ½)/stripes, ±8 px).
+        let _ = write!(src, "], windows: &[");
+        for k in 0..stripes {
+            let centre = (LEN * (2 * k + 1) / (2 * stripes)) as u16;
+            let _ = write!(src, "({}, {WINDOW_PX}), ", centre - WINDOW_PX / 2);
         }
         let _ = writeln!(src, "] }},");
     }

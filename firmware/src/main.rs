@@ -341,9 +341,9 @@ async fn main(spawner: Spawner) {
                 Some(Ok(seq)) => info!("flash: settings saved (record {})", seq),
                 Some(Err(e)) => {
                     error!("flash: save failed: {}", e);
-                    reply(&DeviceMsg::Error { seq: None, code: cms_core::protocol::ErrorCode::Storage });
+                    head.storage_error(&mut reply);
                 }
-                None => reply(&DeviceMsg::Error { seq: None, code: cms_core::protocol::ErrorCode::Storage }),
+                None => head.storage_error(&mut reply),
             }
         }
         if head.state() == HeadState::Streaming {

@@ -510,6 +510,9 @@ pub struct BenchRow {
     pub len: usize,
     /// Stripes per row.
     pub stripes: usize,
+    /// Width of the search window per stripe, px (`detect_in`); 0: a
+    /// full-row search (`detect`).
+    pub window_px: usize,
     /// Instructions per `detect` call.
     pub instructions: f64,
     /// Rows (of the long run) with exactly `stripes` stripes, and rows.
@@ -567,7 +570,13 @@ pub fn parse_bench(text: &str) -> Result<BenchReport, QemuError> {
             if n == 0 || long < short {
                 return Err(QemuError::Bench(format!("inconsistent counts in {l:?}")));
             }
-            rows.push(BenchRow { method, len, stripes, instructions: (long - short) as f64 / n as f64, found });
+            // Images from before search windows print no `window=`: full rows.
+            let window_px = match field(l, "window") {
+                None => 0,
+                Some(w) => w.parse().map_err(|_| QemuError::Bench(format!("bad window= in {l:?}")))?,
+            };
+            let instructions = (long - short) as f64 / n as f64;
+            rows.push(BenchRow { method, len, stripes, window_px, instructions, found });
         } else if l == "done" {
             done = true;
         } else if l.starts_with("panic") || l.contains("panic:") {
@@ -627,19 +636,30 @@ pub fn bench_table(r: &BenchReport, clock_mhz: u32) -> String {
         s,
         "# rows/s at {clock_mhz} MHz assume 1 instruction per cycle (a Cortex-M7 dual-issues some pairs and stalls on others)"
     );
-    let mut sizes: Vec<(usize, usize)> = r.rows.iter().map(|b| (b.len, b.stripes)).collect();
-    sizes.dedup();
+    let _ = writeln!(
+        s,
+        "# travel speed for continuous sampling = rows/s × the row pitch along the rail: {REFERENCE_ROW_PITCH_MM} mm \
+         (the reference head: 69 mm over 480 rows) and 1 mm (row skip or binning)"
+    );
+    let mut sizes: Vec<(usize, usize, usize)> = r.rows.iter().map(|b| (b.len, b.stripes, b.window_px)).collect();
     sizes.sort_unstable();
     sizes.dedup();
+    let head = |(l, k, w): (usize, usize, usize)| {
+        if w == 0 { format!("{l} px × {k}") } else { format!("{l} px × {k}, {w}-px windows") }
+    };
+    let find = |m: &str, (l, k, w): (usize, usize, usize)| {
+        r.rows.iter().find(|b| b.method == m && b.len == l && b.stripes == k && b.window_px == w)
+    };
     let mut methods: Vec<&str> = Vec::new();
     for b in &r.rows {
         if !methods.contains(&b.method.as_str()) {
             methods.push(&b.method);
         }
     }
+    let rate = |b: &BenchRow| clock_mhz as f64 * 1e6 / b.instructions;
     s.push_str("\n| method |");
-    for (l, k) in &sizes {
-        let _ = write!(s, " {l} px × {k} | rows/s |");
+    for &z in &sizes {
+        let _ = write!(s, " {} | rows/s |", head(z));
     }
     s.push_str("\n|---|");
     for _ in &sizes {
@@ -648,13 +668,38 @@ pub fn bench_table(r: &BenchReport, clock_mhz: u32) -> String {
     s.push('\n');
     for m in &methods {
         let _ = write!(s, "| {m} |");
-        for &(l, k) in &sizes {
-            match r.rows.iter().find(|b| b.method == *m && b.len == l && b.stripes == k) {
+        for &z in &sizes {
+            match find(m, z) {
                 Some(b) => {
-                    let rate = clock_mhz as f64 * 1e6 / b.instructions;
-                    let _ = write!(s, " {} | {} |", group(b.instructions.round() as u64), group(rate.round() as u64));
+                    let _ =
+                        write!(s, " {} | {} |", group(b.instructions.round() as u64), group(rate(b).round() as u64));
                 }
                 None => s.push_str(" — | — |"),
+            }
+        }
+        s.push('\n');
+    }
+    let _ = write!(
+        s,
+        "\nTravel speed for continuous sampling, m/s at {REFERENCE_ROW_PITCH_MM} mm / 1 mm per row\n\n| method |"
+    );
+    for &z in &sizes {
+        let _ = write!(s, " {} |", head(z));
+    }
+    s.push_str("\n|---|");
+    for _ in &sizes {
+        s.push_str("---:|");
+    }
+    s.push('\n');
+    for m in &methods {
+        let _ = write!(s, "| {m} |");
+        for &z in &sizes {
+            match find(m, z) {
+                Some(b) => {
+                    let v = rate(b) * 1e-3;
+                    let _ = write!(s, " {:.2} / {:.1} |", v * REFERENCE_ROW_PITCH_MM, v);
+                }
+                None => s.push_str(" — |"),
             }
         }
         s.push('\n');
@@ -663,7 +708,10 @@ pub fn bench_table(r: &BenchReport, clock_mhz: u32) -> String {
         .rows
         .iter()
         .filter(|b| b.found.0 != b.found.1)
-        .map(|b| format!("{} {}x{}: {}/{}", b.method, b.len, b.stripes, b.found.0, b.found.1))
+        .map(|b| {
+            let w = if b.window_px > 0 { format!(" ({} px windows)", b.window_px) } else { String::new() };
+            format!("{} {}x{}{w}: {}/{}", b.method, b.len, b.stripes, b.found.0, b.found.1)
+        })
         .collect();
     if !misses.is_empty() {
         let _ = writeln!(s, "\n# rows without exactly the expected stripes: {}", misses.join(", "));
@@ -683,6 +731,11 @@ fn group(v: u64) -> String {
     }
     out
 }
+
+/// The reference head's row pitch along the rail, mm: each laser's line
+/// covers about 69 mm of rail over the sensor's 480 rows
+/// (docs/corrugation-and-standards.md).
+pub const REFERENCE_ROW_PITCH_MM: f64 = 0.144;
 
 /// `cms-host bench qemu`: the table on stdout.
 pub fn bench(a: &BenchOptions) -> Result<String, QemuError> {
@@ -718,13 +771,18 @@ mod tests {
                     calibration loop_iterations=1000 ns=2000\n\
                     method=cwt size=752x1 rows=256 ns_short=640 ns_long=3200 found=320/320\n\
                     method=cwt size=752x3 rows=256 ns_short=640 ns_long=25600640 found=319/320\n\
+                    method=cwt size=752x3 window=96 rows=256 ns_short=640 ns_long=1280640 found=320/320\n\
                     done\n";
         let r = parse_bench(text).unwrap();
         assert_eq!(r.calibration, (1000, 2000));
         assert_eq!(r.rows[0].instructions, 10.0);
         assert_eq!(r.rows[1].instructions, 100_000.0);
+        assert_eq!((r.rows[1].window_px, r.rows[2].window_px), (0, 96));
         let t = bench_table(&r, 480);
-        assert!(t.contains("| cwt | 10 | 48 000 000 | 100 000 | 4 800 |"), "{t}");
+        assert!(t.contains("| 752 px × 3 | rows/s | 752 px × 3, 96-px windows | rows/s |"), "{t}");
+        assert!(t.contains("| cwt | 10 | 48 000 000 | 100 000 | 4 800 | 5 000 | 96 000 |"), "{t}");
+        // 4 800 rows/s × 0.144 mm = 0.69 m/s; × 1 mm = 4.8 m/s.
+        assert!(t.contains("| cwt | 6912.00 / 48000.0 | 0.69 / 4.8 | 13.82 / 96.0 |"), "{t}");
         assert!(t.contains("cwt 752x3: 319/320"), "{t}");
         for bad in
             ["", "calibration loop_iterations=1 ns=2\ndone", "cms-qemu-bench x\ncalibration loop_iterations=1 ns=2"]

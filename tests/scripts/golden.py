@@ -105,7 +105,7 @@ def point(row, flags=0, um=None):
 
 DEVICE = {"hello": 0, "profile": 1, "status": 2, "ack": 3, "error": 4, "raw": 5}
 HOST = {"start": 0, "stop": 1, "exposure": 2, "detector": 3, "calibration": 4, "capture": 5, "info": 6, "heartbeat": 7,
-        "trigger": 8}
+        "trigger": 8, "windows": 9}
 
 
 def dev(kind, body=b""):
@@ -141,6 +141,8 @@ GOLDENS = [
     ("info", cmd(7, "info")),
     ("heartbeat", cmd(8, "heartbeat")),
     ("trigger", cmd(9, "trigger", varint(1) + varint(5000))),        # Distance { every_um: 5000 }
+    # Laser 0: columns 80..176, laser 1 none, laser 2: 600..696 (a fixed-size array: no length).
+    ("windows", cmd(10, "windows", opt(varint(80) + varint(96)) + opt(None) + opt(varint(600) + varint(96)))),
 ]
 
 if __name__ == "__main__":

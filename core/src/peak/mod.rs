@@ -49,10 +49,12 @@ pub mod median;
 pub mod paper;
 pub mod screen;
 pub mod subpixel;
+pub mod window;
 
 use crate::fixed::Px;
 use crate::optics::ScaleRange;
 use heapless::Vec;
+pub use window::{ColumnWindow, WindowError, Windows};
 
 /// Most candidates refined per row (the strongest are kept).
 pub const MAX_CANDIDATES: usize = 32;
@@ -590,6 +592,29 @@ impl<const W: usize> Detector<W> {
 
     /// Finds the stripes of `row` into `out` (cleared first), ascending position.
     pub fn detect<P: Pixel, const N: usize>(&mut self, row: &[P], out: &mut Stripes<N>) -> Result<(), Error> {
+        self.detect_spans(row, None, out)
+    }
+
+    /// As [`Detector::detect`], but screening only the columns of
+    /// `windows` ([`window`]): the noise is still measured on the full row
+    /// (on the rows that refresh it), a candidate is refined on the full
+    /// row, and only stripes positioned inside a window are kept. Windows
+    /// past the row's end are clipped to it.
+    pub fn detect_in<P: Pixel, const N: usize>(
+        &mut self,
+        row: &[P],
+        windows: &Windows,
+        out: &mut Stripes<N>,
+    ) -> Result<(), Error> {
+        self.detect_spans(row, Some(windows), out)
+    }
+
+    fn detect_spans<P: Pixel, const N: usize>(
+        &mut self,
+        row: &[P],
+        windows: Option<&Windows>,
+        out: &mut Stripes<N>,
+    ) -> Result<(), Error> {
         out.clear();
         self.stats = RowStats::default();
         let n = row.len();
@@ -633,7 +658,10 @@ impl<const W: usize> Detector<W> {
                 (margin(self.screen_sigma_q8) as i64 * self.cfg.threshold_sigma_q8 as i64 * SCREEN_FRACTION_Q8) >> 24;
             let thr_abs = self.cfg.min_amplitude as i64 * self.plan.smin_floor_px as i64;
             let threshold = thr_noise.max(thr_abs).max(1).min(i32::MAX as i64) as i32;
-            screen::candidates(row, lb, narrow, threshold, &mut cands);
+            match windows {
+                None => screen::candidates(row, lb, narrow, threshold, &mut cands),
+                Some(ws) => window_candidates(row, ws, lb, narrow, threshold, &mut cands),
+            }
         } else {
             // Too short to screen: the whole row is one candidate.
             let _ = cands.push(Candidate { pos: n / 2, resp: 0 });
@@ -722,12 +750,51 @@ impl<const W: usize> Detector<W> {
             if let Some(s) = stripe
                 && (s.width >= self.cfg.min_width && s.width <= self.cfg.max_width
                     || s.flags.contains(Flags::SATURATED))
+                && windows.is_none_or(|w| w.contains(s.position.0))
             {
                 let _ = found.push(s);
             }
         }
         select(&mut found, &self.cfg, out);
         Ok(())
+    }
+}
+
+/// The screen's candidates inside `windows` ([`window`]): each window is
+/// screened over itself and two blocks either side (at least four blocks,
+/// within the row), so that the box difference at the window's edges reads
+/// real pixels; candidates in row coordinates, the strongest
+/// [`MAX_CANDIDATES`] over all windows. `row` must pass [`screen::screens`].
+///
+/// The span starts on the full row's block grid and is whole blocks long
+/// (where the row allows): inside it the blocks, their responses and so the
+/// candidates are the full-row screen's, so a stripe well inside a window
+/// is found and measured exactly as by a full-row search.
+fn window_candidates<P: Pixel>(
+    row: &[P],
+    windows: &Windows,
+    lb: u32,
+    narrow: bool,
+    threshold: i32,
+    cands: &mut Vec<Candidate, MAX_CANDIDATES>,
+) {
+    cands.clear();
+    let n = row.len();
+    let (ext, least) = (2usize << lb, 4usize << lb);
+    let mut part: Vec<Candidate, MAX_CANDIDATES> = Vec::new();
+    for w in windows.as_slice() {
+        let first = w.first_px as usize;
+        if first >= n {
+            continue;
+        }
+        let block = 1usize << lb;
+        let lo = first.saturating_sub(ext) & !(block - 1);
+        let hi = (lo + (w.end_px() as usize + ext - lo).next_multiple_of(block).max(least)).min(n);
+        let lo = lo.min(hi - least);
+        screen::candidates(&row[lo..hi], lb, narrow, threshold, &mut part);
+        for c in &part {
+            screen::push_candidate(cands, Candidate { pos: c.pos + lo, resp: c.resp });
+        }
     }
 }
 

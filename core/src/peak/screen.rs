@@ -81,7 +81,7 @@ fn block_sum<P: Pixel, const B: usize, const NARROW: bool>(ch: &[P; B]) -> i32 {
 }
 
 /// Adds a candidate, replacing the weakest when the list is full.
-fn push_candidate(out: &mut Vec<Candidate, MAX_CANDIDATES>, c: Candidate) {
+pub(crate) fn push_candidate(out: &mut Vec<Candidate, MAX_CANDIDATES>, c: Candidate) {
     if out.push(c).is_err()
         && let Some((j, w)) = out.iter().enumerate().min_by_key(|(_, c)| c.resp)
         && w.resp < c.resp

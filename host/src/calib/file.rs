@@ -774,6 +774,7 @@ fn depths_in_view(i: &Intrinsics, l: &LaserSection) -> Option<(f64, f64)> {
     let (x_lo, x_hi) = (-i.cx_px / i.fx_px, (f64::from(i.width_px) - i.cx_px) / i.fx_px);
     let (a, b) = ((l.nz + l.nx * x_lo) / l.d_mm, (l.nz + l.nx * x_hi) / l.d_mm);
     let (r, s) = (a.min(b), a.max(b));
+    // Not positive, or NaN (a degenerate section).
     if s.is_nan() || s <= 0.0 {
         return None;
     }

@@ -2,6 +2,7 @@
 //! commands, and the laser-safety rules.
 
 use cms_core::duty::{DUTY_BURST_US, DutyLimit, MAX_DUTY_PERMILLE};
+use cms_core::peak::ColumnWindow;
 use cms_core::persist::Stored;
 use cms_core::pipeline::{Camera, HEARTBEAT_TIMEOUT_US, Head, Identity, LaserDriver, default_detector};
 use cms_core::protocol::*;
@@ -1039,5 +1040,45 @@ proptest! {
                 );
             }
         }
+    }
+}
+
+/// `SetWindows`: with windows for lasers 0 and 1 only around their lines and
+/// laser 2's window put where its line is not, a streaming head reports
+/// lasers 0 and 1 as without windows and nothing for laser 2; a window past
+/// the row or too narrow is refused (lasers off), as is the command while
+/// streaming; a lit laser without a window makes the frame a full-row search.
+#[test]
+fn search_windows_set_by_the_host_restrict_what_the_head_reports() {
+    let w = |first_px, width_px| Some(ColumnWindow { first_px, width_px });
+    let run = |windows: Option<[Option<ColumnWindow>; 3]>| {
+        let (mut h, l) = head();
+        let mut cam = Cam::watching(&l);
+        let mut out = Vec::new();
+        if let Some(ws) = windows {
+            h.handle(cmd(1, HostMsg::SetWindows(ws)), 0, &cam, &mut |m| out.push(m.clone()));
+            assert!(out.contains(&DeviceMsg::Ack(1)), "{out:?}");
+        }
+        h.handle(cmd(2, start(0b111, LaserPattern::Simultaneous)), 10, &cam, &mut |m| out.push(m.clone()));
+        let mut refused = Vec::new();
+        h.handle(cmd(3, HostMsg::SetWindows([None; 3])), 15, &cam, &mut |m| refused.push(m.clone()));
+        assert!(refused.contains(&DeviceMsg::Error { seq: Some(3), code: ErrorCode::Busy }), "{refused:?}");
+        out.clear();
+        h.handle(cmd(4, start(0b111, LaserPattern::Simultaneous)), 16, &cam, &mut |m| out.push(m.clone()));
+        h.poll(20, &mut cam, &mut || 0, &mut |m| out.push(m.clone()));
+        let p = out.iter().find_map(|m| if let DeviceMsg::Profile(p) = m { Some(p.clone()) } else { None }).unwrap();
+        p.lasers.iter().map(|lp| lp.points.len()).collect::<Vec<_>>()
+    };
+    // Lines at 200, 380, 560 (±2 px).
+    assert_eq!(run(None), vec![480, 480, 480]);
+    assert_eq!(run(Some([w(152, 96), w(332, 96), w(640, 96)])), vec![480, 480, 0]);
+    assert_eq!(run(Some([w(152, 96), w(332, 96), None])), vec![480, 480, 480], "laser 2 without a window: full rows");
+    let (mut h, l) = head();
+    let cam = Cam::watching(&l);
+    for (seq, bad) in [(5, [w(700, 96), None, None]), (6, [w(100, 4), None, None])] {
+        let mut out = Vec::new();
+        h.handle(cmd(seq, HostMsg::SetWindows(bad)), 0, &cam, &mut |m| out.push(m.clone()));
+        assert!(out.contains(&DeviceMsg::Error { seq: Some(seq), code: ErrorCode::OutOfRange }), "{out:?}");
+        assert_eq!(l.now(), 0);
     }
 }

@@ -1,7 +1,7 @@
 //! The wire protocol: golden bytes, size bounds, round trips, resynchronisation.
 
 use cms_core::fixed::Px;
-use cms_core::peak::Flags;
+use cms_core::peak::{ColumnWindow, Flags};
 use cms_core::pipeline::default_detector;
 use cms_core::protocol::*;
 use heapless::{String, Vec};
@@ -128,6 +128,17 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
         ("info", frame(&Command { seq: 7, msg: HostMsg::GetInfo })),
         ("heartbeat", frame(&Command { seq: 8, msg: HostMsg::Heartbeat })),
         ("trigger", frame(&Command { seq: 9, msg: HostMsg::SetTrigger(Trigger::Distance { every_um: 5000 }) })),
+        (
+            "windows",
+            frame(&Command {
+                seq: 10,
+                msg: HostMsg::SetWindows([
+                    Some(ColumnWindow { first_px: 80, width_px: 96 }),
+                    None,
+                    Some(ColumnWindow { first_px: 600, width_px: 96 }),
+                ]),
+            }),
+        ),
     ]
 }
 
@@ -136,7 +147,7 @@ fn goldens_match_the_reference_encoder() {
     let want = include_str!("../../golden/frames.txt");
     let got: std::vec::Vec<_> = goldens().into_iter().map(|(name, bytes)| format!("{name}: {}", hex(&bytes))).collect();
     let want: std::vec::Vec<_> = want.lines().map(str::to_owned).collect();
-    assert_eq!(got.len(), 16, "one golden per message kind");
+    assert_eq!(got.len(), 17, "one golden per message kind");
     for (g, w) in got.iter().zip(&want) {
         assert_eq!(g, w);
     }
@@ -150,7 +161,16 @@ fn goldens_decode_back() {
         assert!(!bytes.contains(&0), "{name}: no zero inside a COBS frame");
         let ok = if matches!(
             name,
-            "start" | "stop" | "exposure" | "detector" | "calibration" | "capture" | "info" | "heartbeat" | "trigger"
+            "start"
+                | "stop"
+                | "exposure"
+                | "detector"
+                | "calibration"
+                | "capture"
+                | "info"
+                | "heartbeat"
+                | "trigger"
+                | "windows"
         ) {
             decode_frame::<Command>(&mut bytes).is_ok()
         } else {

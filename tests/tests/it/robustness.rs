@@ -6,7 +6,7 @@
 
 use cms_core::fixed::Px;
 use cms_core::optics::ScaleRange;
-use cms_core::peak::{Config, Detector, Flags, Method, Select, Stripes};
+use cms_core::peak::{ColumnWindow, Config, Detector, Flags, Method, Select, Stripes, Windows};
 use cms_tests::*;
 
 const LEN: usize = 752;
@@ -165,6 +165,80 @@ fn stuck_pixels_at_full_scale_never_become_or_displace_stripes() {
     println!("RMS {rms:.4} px over {count} stripes, {with_stuck} rows with stuck pixels, {skipped} skipped");
     assert!(rms <= 0.05, "RMS {rms:.4} px");
     assert!(with_stuck >= 250, "only {with_stuck} rows had stuck pixels");
+}
+
+/// Search windows (`Detector::detect_in`): 96 px around each of the three
+/// lines (which move ±20 px), on the stuck-pixel scene — a stuck single and
+/// pair at fixed columns and on the stripes' flanks every third row, hot
+/// pixels, banding, gradient and glow — give exactly the stripes of the
+/// full-row search, bit for bit: the noise is the full row's and the
+/// windows' screen is the full row's inside them.
+#[test]
+fn search_windows_find_exactly_what_the_full_row_search_finds() {
+    let mut rng = Rng::new(96);
+    let scene = Scene::new(&mut rng);
+    let stuck = stuck_columns(&mut rng, 3, 3);
+    let cfg = Config::new(12, ScaleRange::new(Px::from_f64(1.5), Px::from_f64(4.0)).unwrap());
+    let (mut full, mut windowed) = (Detector::<LEN>::new(cfg).unwrap(), Detector::<LEN>::new(cfg).unwrap());
+    let windows = Windows::new(&[180, 380, 580].map(|c| ColumnWindow::around(c, 48)), LEN as u16).unwrap();
+    let mut se = (0.0, 0usize);
+    for row_i in 0..600 {
+        let truth = stripes(&mut rng);
+        let mut row = scene.row(&truth, &mut rng);
+        if row_i % 3 == 0 {
+            for &c in &stuck {
+                if truth.iter().all(|t| (c as f64 - t.x0).abs() >= 1.5 * t.sigma) {
+                    row[c] = 4095;
+                }
+            }
+            let t = &truth[row_i % 2];
+            let c = (t.x0 + t.sigma * (2.0 + 4.0 * rng.uniform())).round() as usize;
+            row[c] = 4095;
+        }
+        let (mut a, mut b): (Stripes<8>, Stripes<8>) = (Stripes::new(), Stripes::new());
+        full.detect(&row, &mut a).unwrap();
+        windowed.detect_in(&row, &windows, &mut b).unwrap();
+        assert_eq!(a, b, "row {row_i}: full row vs windows, truth {truth:?}");
+        assert_eq!(b.len(), 3, "row {row_i}: {b:?} vs {truth:?}");
+        for (s, t) in b.iter().zip(&truth) {
+            let e = s.position.to_f64() - t.x0;
+            se = (se.0 + e * e, se.1 + 1);
+        }
+    }
+    let rms = (se.0 / se.1 as f64).sqrt();
+    assert!(rms <= 0.05, "RMS {rms:.4} px");
+}
+
+/// A stripe outside every window is not reported, however bright (a
+/// reflection, a second rail); one straddling a window's edge is reported
+/// when its centre is inside (measured on the full row, as without windows)
+/// and not when it is outside; the noise a windowed detector thresholds with
+/// is the full row's (its statistics say so).
+#[test]
+fn search_windows_report_only_stripes_centred_inside_them() {
+    let mut rng = Rng::new(97);
+    let scene = Scene::new(&mut rng);
+    let cfg = Config::new(12, ScaleRange::new(Px::from_f64(1.5), Px::from_f64(4.0)).unwrap());
+    let mut full = Detector::<LEN>::new(cfg).unwrap();
+    let mut det = Detector::<LEN>::new(cfg).unwrap();
+    let windows = Windows::new(&[ColumnWindow { first_px: 300, width_px: 96 }], LEN as u16).unwrap();
+    for (x0, inside) in [(350.3, true), (120.0, false), (650.7, false), (301.2, true), (298.6, false), (394.8, true)] {
+        for _ in 0..20 {
+            let g = [Gauss { x0, sigma: 2.5, amplitude: 3000.0 }];
+            let row = scene.row(&g, &mut rng);
+            let mut out: Stripes<8> = Stripes::new();
+            det.detect_in(&row, &windows, &mut out).unwrap();
+            let mut whole: Stripes<8> = Stripes::new();
+            full.detect(&row, &mut whole).unwrap();
+            assert_eq!(whole.len(), 1, "{x0}: {whole:?}");
+            if inside {
+                assert_eq!(out, whole, "{x0}");
+            } else {
+                assert!(out.is_empty(), "{x0}: outside the window yet reported: {out:?}");
+            }
+            assert_eq!(det.stats().noise_q8, full.stats().noise_q8, "{x0}: the noise is the full row's");
+        }
+    }
 }
 
 /// Stuck pixels and pairs at full scale alone, on every row, with the fixed

@@ -7,7 +7,9 @@
 //! σ = 2.5 px at 30 dB. As in scripts/instructions.sh, each configuration
 //! is timed over 64 rows and over 64 + 256 rows, and the difference divided
 //! by 256 is the cost of one `Detector::detect` call (the timer reads and
-//! the first pass over the rows cancel out). SysTick counts the 25 MHz core
+//! the first pass over the rows cancel out). Each configuration is run twice:
+//! a full-row search (`window=0`) and `detect_in` one 96-px search window
+//! per stripe, centred where the rows put the stripes (`window=96`). SysTick counts the 25 MHz core
 //! clock with its interrupt off, so the count is 40 ns — 40 instructions —
 //! per step, ±0.2 instructions per row after the division.
 //!
@@ -17,7 +19,8 @@
 //! ```text
 //! cms-qemu-bench board=qemu-mps2-an386 cpu=cortex-m4f clock_hz=25000000
 //! calibration loop_iterations=1000000 ns=2000000
-//! method=cwt size=752x3 rows=256 ns_short=… ns_long=… found=64/64
+//! method=cwt size=752x3 window=0 rows=256 ns_short=… ns_long=… found=320/320
+//! method=cwt size=752x3 window=96 rows=256 ns_short=… ns_long=… found=320/320
 //! done
 //! ```
 
@@ -26,7 +29,7 @@
 
 use core::fmt::Write as _;
 
-use cms_core::peak::{Config, Detector, Stripes};
+use cms_core::peak::{ColumnWindow, Config, Detector, Stripes, Windows};
 use cms_qemu::board::{Board, SYSCLK_HZ};
 use cms_qemu::{clock, uart};
 
@@ -50,13 +53,25 @@ fn pixels(rows: &[u8], i: usize, out: &mut [u16; data::LEN]) {
 
 /// Nanoseconds (= instructions under `-icount shift=0`) of `rows` calls of
 /// `detect`, and how many found exactly `stripes` stripes.
-fn time(det: &mut Detector<{ data::LEN }>, rows: &[[u16; data::LEN]], n: usize, stripes: usize) -> (u64, usize) {
+/// With `windows`, `detect_in` those search windows.
+fn time(
+    det: &mut Detector<{ data::LEN }>,
+    rows: &[[u16; data::LEN]],
+    n: usize,
+    stripes: usize,
+    windows: Option<&Windows>,
+) -> (u64, usize) {
     let mut out: Stripes<4> = Stripes::new();
     let mut ok = 0;
     let t0 = clock::counter();
     for i in 0..n {
+        let row = core::hint::black_box(&rows[i % rows.len()][..]);
+        let done = match windows {
+            None => det.detect(row, &mut out),
+            Some(w) => det.detect_in(row, w, &mut out),
+        };
         // A failed call cannot happen (rows fit the detector); counted as a miss.
-        if det.detect(core::hint::black_box(&rows[i % rows.len()][..]), &mut out).is_ok() && out.len() == stripes {
+        if done.is_ok() && out.len() == stripes {
             ok += 1;
         }
     }
@@ -96,6 +111,12 @@ fn main() -> ! {
     let mut det_slot: Option<Detector<{ data::LEN }>> = None;
     for set in data::SETS {
         let (stripes, raw, configs) = (set.stripes, set.rows, set.configs);
+        let list: heapless::Vec<ColumnWindow, 3> =
+            set.windows.iter().map(|&(first_px, width_px)| ColumnWindow { first_px, width_px }).collect();
+        let windows = match Windows::new(&list, data::LEN as u16) {
+            Ok(w) => w,
+            Err(e) => panic!("benchmark windows: {e}"),
+        };
         for (i, r) in rows.iter_mut().enumerate() {
             pixels(raw, i, r);
         }
@@ -107,15 +128,18 @@ fn main() -> ! {
                 Ok(d) => det_slot.insert(d),
                 Err(e) => panic!("{}: {e}", cfg.method.name()),
             };
-            let (short, _) = time(det, &rows, SHORT, stripes);
-            let (long, ok) = time(det, &rows, SHORT + EXTRA, stripes);
-            let _ = writeln!(
-                w,
-                "method={} size={}x{stripes} rows={EXTRA} ns_short={short} ns_long={long} found={ok}/{}",
-                cfg.method.name(),
-                data::LEN,
-                SHORT + EXTRA
-            );
+            for windows in [None, Some(&windows)] {
+                let (short, _) = time(det, &rows, SHORT, stripes, windows);
+                let (long, ok) = time(det, &rows, SHORT + EXTRA, stripes, windows);
+                let _ = writeln!(
+                    w,
+                    "method={} size={}x{stripes} window={} rows={EXTRA} ns_short={short} ns_long={long} found={ok}/{}",
+                    cfg.method.name(),
+                    data::LEN,
+                    if windows.is_some() { data::WINDOW_PX } else { 0 },
+                    SHORT + EXTRA
+                );
+            }
         }
     }
     let _ = writeln!(w, "done");

@@ -30,6 +30,7 @@ use cms_qemu::{clock, uart};
 use static_cell::StaticCell;
 
 mod data {
+    #![allow(dead_code, reason = "the search windows are cms-qemu-bench's")]
     include!(concat!(env!("OUT_DIR"), "/bench_data.rs"));
 }
 const N: usize = data::LEN;
