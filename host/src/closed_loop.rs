@@ -107,8 +107,18 @@ pub fn config(case: Case, run: u64, roughness_um: f64) -> SimConfig {
 /// Renders frame 0 of `cfg` (every `row_step`-th row), detects and
 /// triangulates with the true calibration: the measurer and the profiles.
 pub fn profiles(cfg: &SimConfig, row_step: usize) -> Result<(Measurer, Profiles), String> {
+    profiles_calibrated_as(cfg, cfg, row_step)
+}
+
+/// [`profiles`] of `cfg`'s scene triangulated with the true calibration of
+/// `calibrated`'s (the same head in the pose it was calibrated in).
+pub fn profiles_calibrated_as(
+    cfg: &SimConfig,
+    calibrated: &SimConfig,
+    row_step: usize,
+) -> Result<(Measurer, Profiles), String> {
     let mut scene = Scene::new(cfg.clone()).map_err(|e| e.to_string())?;
-    let cal = truth(&scene);
+    let cal = truth(&Scene::new(calibrated.clone()).map_err(|e| e.to_string())?);
     let m = Measurer::new(&cal)?;
     let scales = cfg.optics().scale_range().map_err(|e| e.to_string())?;
     let mut det_cfg = Config::new(scene.bits(), scales);
@@ -172,22 +182,9 @@ fn mean_std(v: impl Iterator<Item = f64> + Clone) -> (f64, f64) {
 pub fn study(cases: &[Case], study: &Study) -> Result<Vec<CaseStats>, String> {
     let (runs, single) = (study.runs, study.single);
     let jobs: Vec<(usize, u64)> = (0..cases.len()).flat_map(|c| (0..runs as u64).map(move |r| (c, r))).collect();
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let results: Vec<Result<(usize, RunError), String>> = std::thread::scope(|s| {
-        let workers: Vec<_> = (0..study.threads.max(1))
-            .map(|_| {
-                s.spawn(|| {
-                    let mut out = Vec::new();
-                    loop {
-                        let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                        let Some(&(c, r)) = jobs.get(i) else { break };
-                        out.push(run(cases[c], r, study).map(|e| (c, e)));
-                    }
-                    out
-                })
-            })
-            .collect();
-        workers.into_iter().flat_map(|w| w.join().unwrap_or_default()).collect()
+    let results = in_parallel(jobs.len(), study.threads, |i| {
+        let (c, r) = jobs[i];
+        run(cases[c], r, study).map(|e| (c, e))
     });
     let mut per: Vec<Vec<RunError>> = vec![Vec::new(); cases.len()];
     for r in results {
@@ -266,6 +263,250 @@ pub fn csv(stats: &[CaseStats]) -> String {
             c.max_abs.1,
             csv_pair(c.single_wavelength_mm),
             csv_pair(c.single_amplitude_um),
+        );
+    }
+    s
+}
+
+// ------------------------------------------------------------ the sweep
+
+/// A head turned and tilted against the datum it was calibrated with,
+/// degrees (the simulator's `HeadGeometry` angles).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Pose {
+    pub yaw_deg: f64,
+    pub pitch_deg: f64,
+    pub roll_deg: f64,
+}
+
+/// One cell of the misalignment sweep.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Cell {
+    pub pose: Pose,
+    /// Crown radius, mm (`None`: flat across).
+    pub crown_mm: Option<f64>,
+    pub case: Case,
+}
+
+/// The accuracy limits of a joint result: wavelength (mm), amplitude (µm).
+pub const LIMITS: (f64, f64) = (0.05, 2.0);
+
+/// The full sweep (issue 15): yaw {0, 2, 5, 10}°, pitch and roll {0, ±2}°,
+/// crown {flat, 300, 200} mm, λ {50, 100} mm × A {50, 100} µm: 432 cells.
+pub fn sweep_cells() -> Vec<Cell> {
+    let mut cells = Vec::new();
+    for yaw_deg in [0.0, 2.0, 5.0, 10.0] {
+        for pitch_deg in [0.0, 2.0, -2.0] {
+            for roll_deg in [0.0, 2.0, -2.0] {
+                for crown_mm in [None, Some(300.0), Some(200.0)] {
+                    for case in PAPER_CASES {
+                        cells.push(Cell { pose: Pose { yaw_deg, pitch_deg, roll_deg }, crown_mm, case });
+                    }
+                }
+            }
+        }
+    }
+    cells
+}
+
+/// One run of a cell: the joint result against the truth.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SweepRun {
+    pub cell: Cell,
+    pub run: u64,
+    /// Wavelength error (mm), amplitude error (µm); `None`: no result.
+    pub error: Option<(f64, f64)>,
+    /// Reported one-σ of the wavelength (mm) and amplitude (µm).
+    pub sigma: (Option<f64>, Option<f64>),
+    /// The verdict's level, or failed when there is no result.
+    pub level: crate::verdict::Level,
+    /// The verdict (or why there is no result).
+    pub verdict: String,
+}
+
+impl SweepRun {
+    /// Whether the result is within [`LIMITS`] × `k`.
+    pub fn within(&self, k: f64) -> bool {
+        self.error.is_some_and(|(l, a)| l.abs() <= k * LIMITS.0 && a.abs() <= k * LIMITS.1)
+    }
+    /// Whether the 95 % intervals (±1.96 σ) of the wavelength and of the
+    /// amplitude hold the truth (`None` without a result or an uncertainty).
+    pub fn covered(&self) -> (Option<bool>, Option<bool>) {
+        let Some((l, a)) = self.error else { return (None, None) };
+        (self.sigma.0.map(|s| l.abs() <= 1.96 * s), self.sigma.1.map(|s| a.abs() <= 1.96 * s))
+    }
+}
+
+/// Renders run `run` of `cell` (the head posed, calibrated aligned; phase
+/// and noise seed from the run), detects, triangulates and fits jointly.
+pub fn sweep_run(cell: Cell, run: u64, row_step: usize) -> SweepRun {
+    let mut cfg = config(cell.case, run, 0.0);
+    cfg.rail.crown_radius_mm = cell.crown_mm;
+    let calibrated = cfg.clone();
+    cfg.head.yaw_deg = cell.pose.yaw_deg;
+    cfg.head.pitch_deg = cell.pose.pitch_deg;
+    cfg.head.roll_deg = cell.pose.roll_deg;
+    let fitted = profiles_calibrated_as(&cfg, &calibrated, row_step)
+        .and_then(|(m, p)| joint_fit(&m.lines(&p)).map_err(|e| e.to_string()));
+    match fitted {
+        Ok((j, _)) => SweepRun {
+            cell,
+            run,
+            error: Some((j.wavelength_mm - cell.case.wavelength_mm, j.amplitude_mm * 1e3 - cell.case.amplitude_um)),
+            sigma: (j.wavelength_sigma_mm, j.amplitude_sigma_mm.map(|s| s * 1e3)),
+            level: j.verdict.level,
+            verdict: j.verdict.to_string(),
+        },
+        Err(e) => SweepRun {
+            cell,
+            run,
+            error: None,
+            sigma: (None, None),
+            level: crate::verdict::Level::Failed,
+            verdict: format!("no result: {e}"),
+        },
+    }
+}
+
+/// Every cell × `runs` runs on `threads` threads, in cell order.
+pub fn sweep(cells: &[Cell], runs: u64, row_step: usize, threads: usize) -> Vec<SweepRun> {
+    let jobs: Vec<(usize, u64)> = (0..cells.len()).flat_map(|c| (0..runs).map(move |r| (c, r))).collect();
+    in_parallel(jobs.len(), threads, |i| sweep_run(cells[jobs[i].0], jobs[i].1, row_step))
+}
+
+/// `f(0..jobs)` on `threads` threads, each taking the next job as it is
+/// free; the results in job order.
+fn in_parallel<T: Send>(jobs: usize, threads: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let mut out: Vec<(usize, T)> = std::thread::scope(|s| {
+        let workers: Vec<_> = (0..threads.max(1))
+            .map(|_| {
+                s.spawn(|| {
+                    let mut out = Vec::new();
+                    loop {
+                        let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        if i >= jobs {
+                            break;
+                        }
+                        out.push((i, f(i)));
+                    }
+                    out
+                })
+            })
+            .collect();
+        workers.into_iter().flat_map(|w| w.join().unwrap_or_default()).collect()
+    });
+    out.sort_by_key(|r| r.0);
+    out.into_iter().map(|r| r.1).collect()
+}
+
+/// What the sweep shows against issue 15's criteria.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SweepSummary {
+    pub runs: usize,
+    /// Runs within [`LIMITS`].
+    pub within: usize,
+    /// Runs marked good.
+    pub good: usize,
+    /// Runs marked good but beyond 3 × [`LIMITS`] (must be 0).
+    pub good_but_wrong: usize,
+    /// Runs beyond [`LIMITS`] and not marked good (flagged).
+    pub flagged: usize,
+    /// Runs with an uncertainty of the wavelength, and those whose 95 %
+    /// interval holds the truth; the same for the amplitude.
+    pub with_sigma: (usize, usize),
+    pub covered: (usize, usize),
+}
+
+/// The summary of `runs`.
+pub fn summarize(runs: &[SweepRun]) -> SweepSummary {
+    use crate::verdict::Level;
+    SweepSummary {
+        runs: runs.len(),
+        within: runs.iter().filter(|r| r.within(1.0)).count(),
+        good: runs.iter().filter(|r| r.level == Level::Good).count(),
+        good_but_wrong: runs.iter().filter(|r| r.level == Level::Good && !r.within(3.0)).count(),
+        flagged: runs.iter().filter(|r| !r.within(1.0) && r.level != Level::Good).count(),
+        with_sigma: (
+            runs.iter().filter(|r| r.covered().0.is_some()).count(),
+            runs.iter().filter(|r| r.covered().1.is_some()).count(),
+        ),
+        covered: (
+            runs.iter().filter(|r| r.covered().0 == Some(true)).count(),
+            runs.iter().filter(|r| r.covered().1 == Some(true)).count(),
+        ),
+    }
+}
+
+/// The sweep as Markdown: the summary, then one row per cell (worst run).
+pub fn sweep_markdown(runs: &[SweepRun]) -> String {
+    let s = summarize(runs);
+    let mut md = format!(
+        "{} runs: {} within {} mm and {} µm; {} good; {} good but beyond 3× the limits; {} beyond the limits and \
+         flagged; the 95 % intervals hold the truth in {} of {} runs ({:.1} %) for the wavelength, {} of {} \
+         ({:.1} %) for the amplitude.\n\n",
+        s.runs,
+        s.within,
+        LIMITS.0,
+        LIMITS.1,
+        s.good,
+        s.good_but_wrong,
+        s.flagged,
+        s.covered.0,
+        s.with_sigma.0,
+        100.0 * s.covered.0 as f64 / s.with_sigma.0.max(1) as f64,
+        s.covered.1,
+        s.with_sigma.1,
+        100.0 * s.covered.1 as f64 / s.with_sigma.1.max(1) as f64,
+    );
+    md += "| yaw ° | pitch ° | roll ° | crown mm | λ mm | A µm | runs | max \\|λ err\\| mm | max \\|A err\\| µm | good | worst verdict |\n";
+    md += "|---|---|---|---|---|---|---|---|---|---|---|\n";
+    for group in runs.chunk_by(|a, b| a.cell == b.cell) {
+        let c = group[0].cell;
+        let max = |f: fn(&(f64, f64)) -> f64| {
+            group.iter().map(|r| r.error.as_ref().map_or(f64::INFINITY, f)).fold(0.0, f64::max)
+        };
+        let worst = group.iter().max_by_key(|r| r.level).map_or("", |r| r.verdict.as_str());
+        md += &format!(
+            "| {} | {} | {} | {} | {} | {} | {} | {:.4} | {:.3} | {} | {} |\n",
+            c.pose.yaw_deg,
+            c.pose.pitch_deg,
+            c.pose.roll_deg,
+            c.crown_mm.map_or("flat".into(), |r| r.to_string()),
+            c.case.wavelength_mm,
+            c.case.amplitude_um,
+            group.len(),
+            max(|e| e.0.abs()),
+            max(|e| e.1.abs()),
+            group.iter().filter(|r| r.level == crate::verdict::Level::Good).count(),
+            worst.replace('|', "/"),
+        );
+    }
+    md
+}
+
+/// The sweep as CSV, one line per run.
+pub fn sweep_csv(runs: &[SweepRun]) -> String {
+    let mut s = String::from(
+        "yaw_deg,pitch_deg,roll_deg,crown_mm,wavelength_mm,amplitude_um,run,wl_err_mm,amp_err_um,wl_sigma_mm,amp_sigma_um,level\n",
+    );
+    let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.6}"));
+    for r in runs {
+        let c = r.cell;
+        s += &format!(
+            "{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            c.pose.yaw_deg,
+            c.pose.pitch_deg,
+            c.pose.roll_deg,
+            c.crown_mm.map_or(String::new(), |v| v.to_string()),
+            c.case.wavelength_mm,
+            c.case.amplitude_um,
+            r.run,
+            opt(r.error.map(|e| e.0)),
+            opt(r.error.map(|e| e.1)),
+            opt(r.sigma.0),
+            opt(r.sigma.1),
+            r.level,
         );
     }
     s

@@ -254,6 +254,9 @@ pub struct Joint {
     /// Points rejected as outliers (beyond [`REJECT_SIGMA`] robust σ of the
     /// first fit) and left out of this result.
     pub rejected: usize,
+    /// Another start's minimum, as good within the noise, at this
+    /// wavelength, mm: the data do not decide between them.
+    pub alternative_wavelength_mm: Option<f64>,
     /// Whether to believe it, and why ([`crate::verdict`]).
     pub verdict: Verdict,
 }
@@ -351,6 +354,7 @@ fn judge(j: &Joint, lines: &[Line], corrected: &[Corrected]) -> Verdict {
         converged: j.converged,
         rejected: j.rejected,
         points: j.points + j.rejected,
+        alternative_wavelength_mm: j.alternative_wavelength_mm,
     })
 }
 
@@ -506,7 +510,8 @@ mod q {
 
 /// The surface's trend terms at `(x, y)`: `[1, x, y, x², x y, y², x³, x² y]`.
 fn quad_terms(x: f64, y: f64) -> [f64; 8] {
-    [1.0, x, y, x * x, x * y, y * y, x * x * x, x * x * y]
+    let x2 = x * x;
+    [1.0, x, y, x2, x * y, y * y, x2 * x, x2 * y]
 }
 
 /// Residuals `z − ẑ` of the surface model and, over `free`, their Jacobian:
@@ -585,16 +590,22 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
     if nl > 2 {
         simple_terms.push(5);
     }
-    let mut trend_terms = simple_terms.clone();
-    trend_terms.push(3);
+    // The nested ladder: the plain surface, then the curvature along and
+    // the twist, then the cubic terms; each rung kept only if an F test
+    // asks for it over the one below (the cubic terms correlate with a
+    // long wavelength over 2–3 periods: only a surface that needs them
+    // may take them).
+    let mut quadratic_terms = simple_terms.clone();
+    quadratic_terms.push(3);
     if several {
-        trend_terms.push(4);
+        quadratic_terms.push(4);
     }
-    trend_terms.push(6);
+    let mut cubic_terms = quadratic_terms.clone();
+    cubic_terms.push(6);
     if several {
-        trend_terms.push(7);
+        cubic_terms.push(7);
     }
-    trend_terms.sort_unstable();
+    let trend_terms = cubic_terms.clone();
     // Starts: the quadratic surface, then on what is left `fit`'s sine of
     // every line (each gives an ω), the linear fit at that ω on the others,
     // κ from the lines' phases against their lateral positions.
@@ -624,6 +635,8 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
         return Err(FitError::Degenerate("no line has a sine"));
     }
     let mut best: Option<(lm::Lm, Vec<usize>, usize)> = None;
+    // Every start's minimum: (wavelength, rss).
+    let mut minima: Vec<(f64, f64)> = Vec::new();
     for &omega0 in &omegas {
         let Some(starts) = per_line
             .iter()
@@ -650,39 +663,51 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
         let wave: Vec<usize> = if several { vec![q::A, q::B, q::OMEGA, q::KAPPA] } else { vec![q::A, q::B, q::OMEGA] };
         let free_of =
             |terms: &[usize]| -> Vec<usize> { wave.iter().copied().chain(terms.iter().map(|t| q::C + t)).collect() };
-        let (simple, trend) = (free_of(&simple_terms), free_of(&trend_terms));
-        let mut p_simple = p0.clone();
-        for t in [3, 4, 6, 7] {
-            p_simple[q::C + t] = 0.0;
-        }
-        let Some(lm_s) = lm::levenberg_marquardt(
-            p_simple,
-            &simple,
-            fit::MAX_ITERATIONS,
-            &mut lm::Joint::new(|p: &[f64]| evaluate_surface(&s, p, &simple)),
-        ) else {
-            continue;
-        };
-        let lm_t = lm::levenberg_marquardt(
-            p0,
-            &trend,
-            fit::MAX_ITERATIONS,
-            &mut lm::Joint::new(|p: &[f64]| evaluate_surface(&s, p, &trend)),
-        );
+        let ladder = [free_of(&simple_terms), free_of(&quadratic_terms), free_of(&cubic_terms)];
+        let simple_len = ladder[0].len();
         let n_all = s.x.len();
-        let (extra, simple_len) = (trend.len() - simple.len(), simple.len());
-        let chosen = match lm_t {
-            Some(full) if n_all > trend.len() && full.rss < lm_s.rss => {
-                let f = ((lm_s.rss - full.rss) / extra as f64) / (full.rss / (n_all - trend.len()) as f64);
-                if f > F_TREND { (full, trend) } else { (lm_s, simple) }
+        let mut chosen: Option<(lm::Lm, Vec<usize>)> = None;
+        for free in ladder {
+            // Every rung from the linear start (a lower rung that cannot
+            // represent the surface may have bent the wave off its basin),
+            // the terms it does not have at 0.
+            let mut start = p0.clone();
+            for (k, v) in start.iter_mut().enumerate().skip(q::C) {
+                if !free.contains(&k) {
+                    *v = 0.0;
+                }
             }
-            _ => (lm_s, simple),
-        };
+            let Some(got) = lm::levenberg_marquardt(
+                start,
+                &free,
+                fit::MAX_ITERATIONS,
+                &mut lm::Joint::new(|p: &[f64]| evaluate_surface(&s, p, &free)),
+            ) else {
+                break;
+            };
+            match &chosen {
+                None => chosen = Some((got, free)),
+                Some((below, below_free)) => {
+                    let extra = free.len() - below_free.len();
+                    let better = n_all > free.len() && got.rss < below.rss && {
+                        let f = ((below.rss - got.rss) / extra as f64) / (got.rss / (n_all - free.len()) as f64);
+                        f > F_TREND
+                    };
+                    if !better {
+                        break;
+                    }
+                    chosen = Some((got, free));
+                }
+            }
+        }
+        let Some(chosen) = chosen else { continue };
         let yaw = chosen.0.p[q::KAPPA].atan2(chosen.0.p[q::OMEGA]);
         // Bounds with a meaning: the lines within 45° of the rail.
         if yaw.abs() > std::f64::consts::FRAC_PI_4 || !chosen.0.rss.is_finite() {
             continue;
         }
+        let k = chosen.0.p[q::OMEGA].hypot(chosen.0.p[q::KAPPA]);
+        minima.push((std::f64::consts::TAU / k, chosen.0.rss));
         if best.as_ref().is_none_or(|b| chosen.0.rss < b.0.rss) {
             best = Some((chosen.0, chosen.1, simple_len));
         }
@@ -731,8 +756,20 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
         iterations: lm.iterations,
         converged: lm.converged,
         rejected: 0,
+        alternative_wavelength_mm: None,
         verdict: Verdict { level: verdict::Level::Good, reasons: Vec::new(), noise_um: None },
     };
+    // Another start's minimum as good within the noise (its residual sum
+    // within 9 σ² of this one's) at a wavelength more than 3 σ away: the
+    // data do not decide between them.
+    let mut joint = joint;
+    if let Some(sl) = joint.wavelength_sigma_mm {
+        joint.alternative_wavelength_mm = minima
+            .iter()
+            .filter(|(l, r)| (l - joint.wavelength_mm).abs() > 3.0 * sl && r - lm.rss < 9.0 * sigma2)
+            .map(|m| m.0)
+            .next();
+    }
     let vals = [joint.wavelength_mm, joint.amplitude_mm, joint.phase_rad, joint.yaw_rad, joint.rms_residual_mm];
     if vals.iter().any(|v| !v.is_finite()) || k <= 0.0 {
         return Err(FitError::Degenerate("values out of range"));

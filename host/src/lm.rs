@@ -129,7 +129,7 @@ pub fn levenberg_marquardt(
                 // At the minimum, round-off rejects every step: a negligible
                 // step or gradient then means converged.
                 // (A small step under heavy damping proves nothing.)
-                if (small && mu <= 1.0) || g.norm() <= 1e-12 * (jtj_norm * rss).sqrt() {
+                if (small && mu <= 1.0) || g.norm() <= 1e-12 * (jtj_norm * rss).sqrt() || stationary(&jtj, &g, rss) {
                     return Some(Lm { p, rss, iterations: it, converged: true });
                 }
                 mu *= 4.0;
@@ -140,6 +140,18 @@ pub fn levenberg_marquardt(
         }
     }
     Some(Lm { p, rss, iterations: max_iterations, converged: false })
+}
+
+/// Whether the undamped Gauss–Newton step from here would lower the
+/// residual sum of squares by under 1e-9 of it (`gᵀ(JᵀJ)⁻¹g`, its
+/// predicted decrease): the minimum to far within the noise, even when
+/// round-off rejects every trial step and the gradient is not below the
+/// strict test (many free parameters, a residual far above zero).
+fn stationary(jtj: &DMatrix<f64>, g: &DVector<f64>, rss: f64) -> bool {
+    jtj.clone().cholesky().is_some_and(|c| {
+        let pred = g.dot(&c.solve(g));
+        pred.is_finite() && pred <= 1e-9 * rss
+    })
 }
 
 /// A [`Problem`] whose residuals and Jacobian one function computes

@@ -319,6 +319,7 @@ fn line_verdict(f: &Fit, profile: &[(f64, f64)]) -> Verdict {
         converged: f.converged,
         rejected: 0,
         points: profile.len(),
+        alternative_wavelength_mm: None,
     })
 }
 

@@ -16,6 +16,9 @@
 //!   (yaw), a wavelength the frame can show (at least [`MIN_PERIODS`]
 //!   periods along it for good, half a period at all; at least four point
 //!   spacings).
+//! * **Starts that disagree**: another start's minimum as good within the
+//!   noise at a wavelength more than 3 σ away (doubtful: the data do not
+//!   decide).
 //! * **The fit's own state**: the refinement's convergence test (a result
 //!   that did not converge but fits to the noise is doubtful, not failed),
 //!   the share of points left out as outliers (over 5 % is doubtful).
@@ -76,6 +79,8 @@ pub enum Reason {
     Outliers { rejected: usize, points: usize },
     /// The points' noise could not be measured (too few points).
     NoNoiseEstimate,
+    /// Another start ends as well within the noise at another wavelength.
+    StartsDisagree { wavelength_mm: f64, other_mm: f64 },
 }
 
 impl fmt::Display for Reason {
@@ -95,6 +100,10 @@ impl fmt::Display for Reason {
                 write!(f, "{rejected} of {points} points left out as outliers")
             }
             Reason::NoNoiseEstimate => f.write_str("too few points to measure their noise"),
+            Reason::StartsDisagree { wavelength_mm, other_mm } => write!(
+                f,
+                "another start fits as well at {other_mm:.3} mm (against {wavelength_mm:.3} mm): the data do not decide"
+            ),
         }
     }
 }
@@ -133,6 +142,8 @@ pub struct Evidence {
     pub converged: bool,
     pub rejected: usize,
     pub points: usize,
+    /// Another start's minimum as good within the noise, mm.
+    pub alternative_wavelength_mm: Option<f64>,
 }
 
 /// The verdict on `e` (module docs).
@@ -166,6 +177,9 @@ pub fn judge(e: &Evidence) -> Verdict {
     if e.wavelength_mm < 4.0 * e.spacing_mm {
         reasons
             .push((Level::Failed, Reason::BelowSampling { wavelength_mm: e.wavelength_mm, spacing_mm: e.spacing_mm }));
+    }
+    if let Some(other_mm) = e.alternative_wavelength_mm {
+        reasons.push((Level::Doubtful, Reason::StartsDisagree { wavelength_mm: e.wavelength_mm, other_mm }));
     }
     if !e.converged {
         reasons.push((Level::Doubtful, Reason::NotConverged));
@@ -254,6 +268,7 @@ mod tests {
             converged: true,
             rejected: 0,
             points: 4500,
+            alternative_wavelength_mm: None,
         };
         assert_eq!(judge(&e).level, Level::Good);
         assert_eq!(judge(&Evidence { rms_residual_mm: 0.002, ..e }).level, Level::Doubtful);
@@ -266,5 +281,6 @@ mod tests {
         assert_eq!(judge(&Evidence { wavelength_mm: 600.0, ..e }).level, Level::Failed);
         assert_eq!(judge(&Evidence { wavelength_mm: 0.3, ..e }).level, Level::Failed);
         assert_eq!(judge(&Evidence { noise_mm: None, ..e }).level, Level::Doubtful);
+        assert_eq!(judge(&Evidence { alternative_wavelength_mm: Some(47.0), ..e }).level, Level::Doubtful);
     }
 }
