@@ -642,7 +642,11 @@ impl<const W: usize> Detector<W> {
             } else {
                 0
             };
-            self.margin_q8 = screen::detection_margin_q8(screen::noise_samples(n));
+            if self.noise_len != n {
+                // It depends on the row's length only (a square root and a
+                // division in software on the M7: once per length).
+                self.margin_q8 = screen::detection_margin_q8(screen::noise_samples(n));
+            }
             self.refresh_in = NOISE_ROWS;
             self.noise_len = n;
         }
