@@ -37,7 +37,8 @@
 //!
 //! ```text
 //! z = T(x, y) + a·sin(ω x + κ y) + b·cos(ω x + κ y)
-//! T = c + g_x x + g_y y + e_yy y²  [+ e_xx x² + e_xy x y + f_xxx x³ + f_xxy x² y]
+//! T = c + g_x x + g_y y + e_yy y²  [+ e_xx x² + e_xy x y] [+ f_xxx x³ + f_xxy x² y]
+//!       [+ q_xxxx x⁴ + q_xxxy x³ y + q_xxyy x² y²]
 //! ```
 //!
 //! one plane wave across the running band — common wavenumber `k = √(ω² +
@@ -49,13 +50,22 @@
 //! could not follow on lines that fan or wander across); the cubic terms
 //! take up what the surface frame's small rotation of that parabola and the
 //! inclined planes' lateral wander (a line moves across as its height
-//! changes) leave. With points at their true lateral positions there is
+//! changes) leave. The quartic terms are the circle's: the simulator's
+//! crown (like a worn head's) is `−(R − √(R² − ρ²))`, whose `−ρ⁴/8R³` is
+//! 30–40 µm at the ends of a 280 mm frame yawed 10° over a 200 mm crown
+//! (ρ up to ~40 mm); without `x³ y` its part odd across (the outer lines'
+//! residuals mirror each other, ±6 µm) is taken up by κ — the yaw off by
+//! ±1.2–1.5°, hence λ = 2π cos ψ/ω off by 0.2–0.3 mm, its sign with the
+//! phase, at a residual only 1.3× the noise. With points at their true lateral positions there is
 //! nothing to slide across first (see "Lateral slope"). The lateral terms
 //! are those the lines can tell apart: `g_y` from two lines, `e_yy` from
 //! three (they stand for the lines' offsets too); with one line κ is 0.
-//! The bracketed terms are nested: kept only if an F test asks for them
-//! (F > 12), since over 2–3 periods a free quadratic takes a share of a
-//! long wavelength and inflates its scatter.
+//! The bracketed groups are rungs of a nested ladder, each kept only if an
+//! F test asks for it (F > 12) over the highest rung kept so far, since
+//! over 2–3 periods a free quadratic takes a share of a long wavelength and
+//! inflates its scatter; a rung that does not pay is passed over, not the
+//! end of the ladder (the quartic one can be needed where the cubic one is
+//! not: there the cubic rung's F is about 10, the quartic's thousands).
 //!
 //! Measured on a misaligned head's lines computed exactly over a crowned
 //! rail (`tests::lines`: three parallel inclined sheets, 280 mm long, 1 µm
@@ -106,9 +116,9 @@
 //! # Cost
 //!
 //! n points in all: the plane and `T` O(n), the start fits (`fit`, per
-//! line), then per start two refinements (with and without the bracketed
-//! terms), each LM iteration O(n·12²); a paper-geometry image (3 × 3168
-//! points) fits in tens of milliseconds.
+//! line), then per start one refinement per rung of the ladder (four),
+//! each LM iteration O(n·15²); a paper-geometry image (3 × 3168 points)
+//! fits in tens of milliseconds.
 
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use serde::Serialize;
@@ -315,7 +325,7 @@ fn surface(lines: &[Line]) -> Result<Surface, FitError> {
 }
 
 /// The F statistic above which the trend terms (curvature along, twist,
-/// the cubic terms) are kept: p < 1e-5 for 1–8 extra terms and thousands of
+/// the cubic and the quartic terms) are kept: p < 1e-5 for 1–8 extra terms and thousands of
 /// points.
 const F_TREND: f64 = 12.0;
 
@@ -495,7 +505,7 @@ fn rejection_limit(residuals: &[f64]) -> Option<f64> {
 
 /// Parameters of the surface model: the wave `[a, b, ω, κ]`, then the
 /// coefficients of [`quad_terms`] from `C`: `[c, g_x, g_y, e_xx, e_xy,
-/// e_yy, f_xxx, f_xxy]`.
+/// e_yy, f_xxx, f_xxy, q_xxxx, q_xxxy, q_xxyy]`.
 mod q {
     pub const A: usize = 0;
     pub const B: usize = 1;
@@ -505,17 +515,21 @@ mod q {
     pub const GX: usize = 5;
     pub const GY: usize = 6;
     pub const EXX: usize = 7;
-    pub const N: usize = 12;
+    pub const N: usize = C + super::TERMS;
 }
 
-/// The surface's trend terms at `(x, y)`: `[1, x, y, x², x y, y², x³, x² y]`.
-fn quad_terms(x: f64, y: f64) -> [f64; 8] {
+/// The surface's trend terms at `(x, y)`: `[1, x, y, x², x y, y², x³, x² y,
+/// x⁴, x³ y, x² y²]`.
+fn quad_terms(x: f64, y: f64) -> [f64; TERMS] {
     let x2 = x * x;
-    [1.0, x, y, x2, x * y, y * y, x2 * x, x2 * y]
+    [1.0, x, y, x2, x * y, y * y, x2 * x, x2 * y, x2 * x2, x2 * x * y, x2 * y * y]
 }
+
+/// How many trend terms [`quad_terms`] has.
+const TERMS: usize = 11;
 
 /// Residuals `z − ẑ` of the surface model and, over `free`, their Jacobian:
-/// `ẑ = c + g_x x + g_y y + e_xx x² + e_xy x y + e_yy y² + a sin(ωx + κy) + b cos(ωx + κy)`.
+/// `ẑ = T(x, y) + a sin(ωx + κy) + b cos(ωx + κy)`, `T` over [`quad_terms`].
 fn evaluate_surface(s: &Surface, p: &[f64], free: &[usize]) -> Option<(DVector<f64>, DMatrix<f64>)> {
     let (a, b, w, kappa) = (p[q::A], p[q::B], p[q::OMEGA], p[q::KAPPA]);
     let n = s.x.len();
@@ -545,7 +559,7 @@ fn evaluate_surface(s: &Surface, p: &[f64], free: &[usize]) -> Option<(DVector<f
 
 /// Linear least squares of the trend terms `cols` (indices into
 /// [`quad_terms`]) on `(x, y, z)`: the coefficients, 0 for the others.
-fn trend_fit(s: &Surface, cols: &[usize]) -> Option<[f64; 8]> {
+fn trend_fit(s: &Surface, cols: &[usize]) -> Option<[f64; TERMS]> {
     let m = cols.len();
     let mut ata = DMatrix::zeros(m, m);
     let mut atb = DVector::zeros(m);
@@ -559,7 +573,7 @@ fn trend_fit(s: &Surface, cols: &[usize]) -> Option<[f64; 8]> {
         }
     }
     let sol = ata.lu().solve(&atb)?;
-    let mut out = [0.0; 8];
+    let mut out = [0.0; TERMS];
     for (k, &c) in cols.iter().enumerate() {
         out[c] = sol[k];
     }
@@ -591,8 +605,9 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
         simple_terms.push(5);
     }
     // The nested ladder: the plain surface, then the curvature along and
-    // the twist, then the cubic terms; each rung kept only if an F test
-    // asks for it over the one below (the cubic terms correlate with a
+    // the twist, then the cubic terms, then the quartic ones; each rung
+    // kept only if an F test asks for it over the highest one kept (the
+    // higher terms correlate with a
     // long wavelength over 2–3 periods: only a surface that needs them
     // may take them).
     let mut quadratic_terms = simple_terms.clone();
@@ -605,7 +620,12 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
     if several {
         cubic_terms.push(7);
     }
-    let trend_terms = cubic_terms.clone();
+    let mut quartic_terms = cubic_terms.clone();
+    quartic_terms.push(8);
+    if several {
+        quartic_terms.extend([9, 10]);
+    }
+    let trend_terms = quartic_terms.clone();
     // Starts: the quadratic surface, then on what is left `fit`'s sine of
     // every line (each gives an ω), the linear fit at that ω on the others,
     // κ from the lines' phases against their lateral positions.
@@ -663,7 +683,8 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
         let wave: Vec<usize> = if several { vec![q::A, q::B, q::OMEGA, q::KAPPA] } else { vec![q::A, q::B, q::OMEGA] };
         let free_of =
             |terms: &[usize]| -> Vec<usize> { wave.iter().copied().chain(terms.iter().map(|t| q::C + t)).collect() };
-        let ladder = [free_of(&simple_terms), free_of(&quadratic_terms), free_of(&cubic_terms)];
+        let ladder =
+            [free_of(&simple_terms), free_of(&quadratic_terms), free_of(&cubic_terms), free_of(&quartic_terms)];
         let simple_len = ladder[0].len();
         let n_all = s.x.len();
         let mut chosen: Option<(lm::Lm, Vec<usize>)> = None;
@@ -693,10 +714,12 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
                         let f = ((below.rss - got.rss) / extra as f64) / (got.rss / (n_all - free.len()) as f64);
                         f > F_TREND
                     };
-                    if !better {
-                        break;
+                    // A rung that does not pay is passed over, not the end
+                    // of the ladder: the quartic terms can be needed where
+                    // the cubic ones are not (module docs).
+                    if better {
+                        chosen = Some((got, free));
                     }
-                    chosen = Some((got, free));
                 }
             }
         }
