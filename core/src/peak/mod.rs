@@ -542,11 +542,14 @@ pub struct Detector<const W: usize> {
     s: [i32; W],
     /// Robust pixel-noise σ, counts × 256 (refreshed every [`NOISE_ROWS`]).
     noise_q8: i32,
-    /// Robust σ of the screen's block response, counts × 256.
-    screen_sigma_q8: i32,
     /// The detection thresholds' factor on both σ for the number of
     /// samples they were measured on, Q8 ([`screen::detection_margin_q8`]).
     margin_q8: i32,
+    /// What the thresholds use, set with the estimates (not per row): the
+    /// pixel noise with its margin, counts × 256, and the screen's
+    /// threshold, counts.
+    detect_noise_q8: i32,
+    screen_threshold: i32,
     /// Rows until the next refresh (0: the next row refreshes).
     refresh_in: u16,
     /// Row length the estimates were made on.
@@ -566,8 +569,9 @@ impl<const W: usize> Detector<W> {
             r: [0; W],
             s: [0; W],
             noise_q8: 0,
-            screen_sigma_q8: 0,
             margin_q8: 256,
+            detect_noise_q8: 0,
+            screen_threshold: 1,
             refresh_in: 0,
             noise_len: 0,
             stats: RowStats::default(),
@@ -630,7 +634,8 @@ impl<const W: usize> Detector<W> {
         let narrow = self.cfg.bits <= 15;
         if self.refresh_in == 0 || self.noise_len != n {
             self.noise_q8 = screen::pixel_noise_q8(row, sat, &mut self.s[..n]);
-            self.screen_sigma_q8 = if screened {
+            // Robust σ of the screen's block response, counts × 256.
+            let screen_sigma_q8 = if screened {
                 let m = screen::responses(row, lb, &mut self.s[..n]);
                 // A short row has few blocks, and its stripes' responses can
                 // be most of them: the median is then the stripes', not the
@@ -647,21 +652,23 @@ impl<const W: usize> Detector<W> {
                 // division in software on the M7: once per length).
                 self.margin_q8 = screen::detection_margin_q8(screen::noise_samples(n));
             }
+            // What the thresholds use: the estimates with their
+            // small-sample margin (the statistics report the estimate itself).
+            let margin = |q8: i32| ((q8 as i64 * self.margin_q8 as i64) >> 8).min(i32::MAX as i64) as i32;
+            self.detect_noise_q8 = margin(self.noise_q8);
+            let thr_noise =
+                (margin(screen_sigma_q8) as i64 * self.cfg.threshold_sigma_q8 as i64 * SCREEN_FRACTION_Q8) >> 24;
+            let thr_abs = self.cfg.min_amplitude as i64 * self.plan.smin_floor_px as i64;
+            self.screen_threshold = thr_noise.max(thr_abs).max(1).min(i32::MAX as i64) as i32;
             self.refresh_in = NOISE_ROWS;
             self.noise_len = n;
         }
         self.refresh_in -= 1;
         self.stats.noise_q8 = self.noise_q8;
-        // What the thresholds use: the estimate with its small-sample margin
-        // (the statistics report the estimate itself).
-        let margin = |q8: i32| ((q8 as i64 * self.margin_q8 as i64) >> 8).min(i32::MAX as i64) as i32;
-        let noise_q8 = margin(self.noise_q8);
+        let noise_q8 = self.detect_noise_q8;
         let mut cands: Vec<Candidate, MAX_CANDIDATES> = Vec::new();
         if screened {
-            let thr_noise =
-                (margin(self.screen_sigma_q8) as i64 * self.cfg.threshold_sigma_q8 as i64 * SCREEN_FRACTION_Q8) >> 24;
-            let thr_abs = self.cfg.min_amplitude as i64 * self.plan.smin_floor_px as i64;
-            let threshold = thr_noise.max(thr_abs).max(1).min(i32::MAX as i64) as i32;
+            let threshold = self.screen_threshold;
             match windows {
                 None => screen::candidates(row, lb, narrow, threshold, &mut cands),
                 Some(ws) => window_candidates(row, ws, lb, narrow, threshold, &mut cands),

@@ -313,15 +313,6 @@ pub fn stitch(frames: &[FramePoints], opts: &Options) -> Result<Stitching, Stitc
     s.finish()
 }
 
-/// Stitches laser `k` of `frames` (in odometer order) with
-/// `x = odometer + sign·along`.
-pub fn stitch_laser(frames: &[FramePoints], k: usize, sign: f64, opts: &Options) -> Result<Stitched, StitchError> {
-    let direction = if sign < 0.0 { Direction::Reverse } else { Direction::Forward };
-    let mut st = stitch(frames, &Options { direction, ..*opts })?;
-    st.lasers.retain(|l| l.laser == k);
-    st.lasers.pop().ok_or(StitchError::NoPoints)
-}
-
 /// The streaming stitcher: frames pushed one at a time, in the order the
 /// head travelled (a recording's order), each registered onto what was
 /// stitched before it. Memory is the grids (16 bytes per cell and lane:
@@ -414,7 +405,7 @@ impl Stitcher {
                 if cells.is_empty() {
                     continue;
                 }
-                if let Err(e) = lane.add(f.seq, cells.clone(), &self.opts) {
+                if let Err(e) = lane.add(f.seq, &cells, &self.opts) {
                     self.error = Some(e);
                     return;
                 }
@@ -488,7 +479,7 @@ fn frame_cells(pts: &[(f64, f64)], odometer_mm: f64, sign: f64, dx: f64) -> Vec<
 
 impl Lane {
     /// Registers one frame's cells onto the lane and adds them.
-    fn add(&mut self, seq: u32, mut cells: Vec<(i64, f64, usize)>, opts: &Options) -> Result<(), StitchError> {
+    fn add(&mut self, seq: u32, cells: &[(i64, f64, usize)], opts: &Options) -> Result<(), StitchError> {
         let dx = opts.dx_mm;
         let (lo, hi) = (cells[0].0, cells[cells.len() - 1].0);
         if self.cells.is_empty() {
@@ -520,13 +511,14 @@ impl Lane {
             _ => 0.0,
         };
         let centre_mm = (lo as f64 + hi as f64) / 2.0 * dx;
+        // The registration's correction `a + b·(x − xm)`, subtracted as the
+        // cells are added (none for the first frame or a join).
+        let mut correction = (0.0, 0.0, 0.0);
         if self.frames > 0 && self.registration != Registration::None {
             if overlap.len() >= 2 && overlap_mm >= opts.min_overlap_mm {
                 let tilt = self.registration == Registration::OffsetTilt && overlap_mm >= opts.min_tilt_overlap_mm;
                 let (xm, a, b) = line(&overlap, tilt);
-                for c in &mut cells {
-                    c.1 -= a + b * (c.0 as f64 * dx - xm);
-                }
+                correction = (xm, a, b);
                 let rss: f64 = overlap.iter().map(|&(x, d)| (d - a - b * (x - xm)).powi(2)).sum();
                 self.fits.push(FrameFit {
                     seq,
@@ -540,7 +532,9 @@ impl Lane {
                 self.joins.push(Join { seq, at_mm: lo as f64 * dx, overlap_mm });
             }
         }
-        for &(c, v, w) in &cells {
+        let (xm, a, b) = correction;
+        for &(c, v, w) in cells {
+            let v = v - (a + b * (c as f64 * dx - xm));
             let cell = &mut self.cells[at(c)];
             cell.0 += v * w as f64;
             cell.1 += w as u32;
