@@ -21,8 +21,11 @@
 //! about 5 s and 180 MB (docs/benchmarks.md).
 
 pub mod live;
+pub mod profile;
 pub mod report;
+pub mod reprofiling;
 pub mod stitch;
+pub mod survey;
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -43,6 +46,7 @@ use stitch::{Direction, FrameAssembler, FramePoints, Registration, Stitched, Sti
 pub struct Options {
     pub stitch: stitch::Options,
     pub roughness: en15610::Options,
+    pub verdict: reprofiling::Options,
 }
 
 /// What a recording said, besides its frames (which stream through
@@ -175,17 +179,40 @@ pub struct LaserAnalysis {
 pub struct Analysis {
     pub options: Options,
     pub stitching: Stitching,
+    /// How each run was placed on the line (one entry per run).
+    pub joins: Vec<survey::RunJoin>,
     pub lasers: Vec<LaserAnalysis>,
+    /// Zones, the reprofiling table and blocks over all the lines.
+    pub verdict: reprofiling::Verdict,
+}
+
+/// Where the profiles came from.
+#[derive(Debug, Clone)]
+pub enum Source {
+    /// Recordings — the runs of one survey — each with what it said.
+    Recordings(Vec<(PathBuf, Recording)>),
+    /// A longitudinal profile from any instrument ([`profile`]).
+    Profile(PathBuf, profile::ProfileFile),
+}
+
+impl Source {
+    /// The input's name(s), for titles.
+    pub fn name(&self) -> String {
+        match self {
+            Source::Recordings(r) => r.iter().map(|(p, _)| p.display().to_string()).collect::<Vec<_>>().join(", "),
+            Source::Profile(p, _) => p.display().to_string(),
+        }
+    }
 }
 
 /// Stitches the frames and runs both standards on every laser's profile.
 pub fn analyze(frames: &[FramePoints], opts: &Options) -> Result<Analysis, stitch::StitchError> {
-    Ok(judge(stitch::stitch(frames, &opts.stitch)?, opts))
+    Ok(judge(stitch::stitch(frames, &opts.stitch)?, Vec::new(), opts))
 }
 
 /// Runs both standards on every laser's stitched profile.
-pub fn judge(mut stitching: Stitching, opts: &Options) -> Analysis {
-    let lasers = std::mem::take(&mut stitching.lasers)
+pub fn judge(mut stitching: Stitching, joins: Vec<survey::RunJoin>, opts: &Options) -> Analysis {
+    let lasers: Vec<LaserAnalysis> = std::mem::take(&mut stitching.lasers)
         .into_iter()
         .map(|s| {
             let bands = en13231::analyze(&s.z_um, s.dx_mm);
@@ -193,7 +220,8 @@ pub fn judge(mut stitching: Stitching, opts: &Options) -> Analysis {
             LaserAnalysis { stitched: s, bands, roughness }
         })
         .collect();
-    Analysis { options: opts.clone(), stitching, lasers }
+    let verdict = reprofiling::judge(&lasers, &opts.verdict);
+    Analysis { options: opts.clone(), stitching, joins, lasers, verdict }
 }
 
 /// ISO 3095 wavelengths the spectrum does not reach, with why.
@@ -247,9 +275,87 @@ fn opt_um(v: Option<f64>) -> String {
     v.map_or("-".into(), |v| format!("{v:.2} µm"))
 }
 
-/// The recording's and the stitching's description (a few lines).
-pub fn describe(path: &Path, rec: &Recording, a: &Analysis) -> String {
+/// A position for people: chainage `km+m`.
+pub fn chainage(x_mm: f64) -> String {
+    survey::Chainage(x_mm / 1000.0).to_string()
+}
+
+/// The input's and the stitching's description (a few lines).
+pub fn describe(source: &Source, a: &Analysis) -> String {
     let mut s = String::new();
+    match source {
+        Source::Recordings(runs) => {
+            for (path, rec) in runs {
+                describe_recording(&mut s, path, rec);
+            }
+            let st = &a.stitching;
+            let auto = match st.auto_residuals_um {
+                Some((f, r)) => format!(
+                    " (chosen from the data: median overlap residual forward {}, reverse {})",
+                    opt_um(f),
+                    opt_um(r)
+                ),
+                None => String::new(),
+            };
+            let _ = writeln!(
+                s,
+                "stitching: {}{auto}; registration: {}; samples every {} mm",
+                direction_name(st.direction),
+                registration_name(a.options.stitch.registration),
+                fmt_len(a.options.stitch.dx_mm)
+            );
+        }
+        Source::Profile(path, p) => {
+            let _ = writeln!(
+                s,
+                "profile {}: {} rows, {} line(s) ({}), {}; samples every {} mm{}",
+                path.display(),
+                p.rows,
+                p.columns.len(),
+                p.columns.join(", "),
+                if p.has_x {
+                    format!("positions every {} mm (median step)", fmt_len(p.data_dx_mm))
+                } else {
+                    "no position column".into()
+                },
+                fmt_len(a.options.stitch.dx_mm),
+                if p.resampled { " (interpolated onto that grid; never across a gap)" } else { "" }
+            );
+        }
+    }
+    for j in &a.joins {
+        let _ = writeln!(s, "{}", describe_join(j));
+    }
+    s
+}
+
+/// One run's placement on the line, in a line.
+pub fn describe_join(j: &survey::RunJoin) -> String {
+    let mut s = format!(
+        "run {}: position 0 at chainage {} ({:.3} m), chainage {} with track position{}",
+        j.run + 1,
+        survey::Chainage(j.start_m),
+        j.start_m,
+        j.heading.name(),
+        if j.heading_found { " (found by registration)" } else { "" }
+    );
+    if let Some(m) = j.moved_mm
+        && j.overlap_mm > 0.0
+    {
+        let _ = write!(s, "; registered {:+.1} mm from its given start", m);
+    }
+    if j.overlap_mm > 0.0 {
+        let _ = write!(s, "; overlap {:.1} m, residual {}", j.overlap_mm / 1000.0, opt_um(j.residual_um));
+    } else if j.run > 0 {
+        s.push_str("; overlaps no earlier run: placed as given");
+    }
+    if j.ambiguous() {
+        s.push_str("; AMBIGUOUS: another placement matched nearly as well (give its start chainage)");
+    }
+    s
+}
+
+fn describe_recording(s: &mut String, path: &Path, rec: &Recording) {
     let (smin, smax) = rec.seq_range.unwrap_or((0, 0));
     let (olo, ohi) = rec.odometer_range_mm.unwrap_or((0.0, 0.0));
     let _ = writeln!(
@@ -285,21 +391,6 @@ pub fn describe(path: &Path, rec: &Recording, a: &Analysis) -> String {
     for w in record::warnings(path, &rec.stats) {
         let _ = writeln!(s, "  {w}");
     }
-    let st = &a.stitching;
-    let auto = match st.auto_residuals_um {
-        Some((f, r)) => {
-            format!(" (chosen from the data: median overlap residual forward {}, reverse {})", opt_um(f), opt_um(r))
-        }
-        None => String::new(),
-    };
-    let _ = writeln!(
-        s,
-        "stitching: {}{auto}; registration: {}; samples every {} mm",
-        direction_name(st.direction),
-        registration_name(a.options.stitch.registration),
-        fmt_len(a.options.stitch.dx_mm)
-    );
-    s
 }
 
 /// One laser's stitching in a few lines.
@@ -308,11 +399,11 @@ pub fn describe_stitched(l: &Stitched) -> String {
     let overlap = stitch::median(l.fits.iter().map(|f| f.overlap_mm).collect());
     let _ = writeln!(
         s,
-        "laser {}: {:.0} mm of track from x = {:.1} mm ({:.0} mm covered), {} frames, {} points; {} registered \
+        "laser {}: {:.0} mm of track from chainage {} ({:.0} mm covered), {} frames, {} points; {} registered \
          (median overlap {}, residual median {}, offsets RMS {:.2} µm, tilts RMS {:.4} µm/mm), {} unregistered join(s), {} gap(s)",
         l.laser,
         l.length_mm(),
-        l.x0_mm,
+        chainage(l.x0_mm),
         l.covered_mm(),
         l.frames,
         l.points,
@@ -325,7 +416,7 @@ pub fn describe_stitched(l: &Stitched) -> String {
         l.gaps.len()
     );
     for g in l.gaps.iter().take(20) {
-        let _ = writeln!(s, "  gap at x = {:.1} mm, {} mm long", g.start_mm, fmt_len(g.length_mm));
+        let _ = writeln!(s, "  gap at {}, {} mm long", chainage(g.start_mm), fmt_len(g.length_mm));
     }
     if l.gaps.len() > 20 {
         let _ = writeln!(s, "  … and {} more gaps (see the report)", l.gaps.len() - 20);
@@ -333,8 +424,10 @@ pub fn describe_stitched(l: &Stitched) -> String {
     for j in l.joins.iter().take(10) {
         let _ = writeln!(
             s,
-            "  frame {} joined unregistered at x = {:.1} mm (overlap {:.1} mm)",
-            j.seq, j.at_mm, j.overlap_mm
+            "  frame {} joined unregistered at {} (overlap {:.1} mm)",
+            j.seq,
+            chainage(j.at_mm),
+            j.overlap_mm
         );
     }
     if l.joins.len() > 10 {
@@ -388,8 +481,8 @@ pub fn describe_bands(b: &Result<en13231::Analysis, StandardsError>) -> String {
 }
 
 /// The printed summary.
-pub fn summary(path: &Path, rec: &Recording, a: &Analysis) -> String {
-    let mut s = describe(path, rec, a);
+pub fn summary(source: &Source, a: &Analysis) -> String {
+    let mut s = describe(source, a);
     for l in &a.lasers {
         s.push('\n');
         s.push_str(&describe_stitched(&l.stitched));
@@ -399,7 +492,46 @@ pub fn summary(path: &Path, rec: &Recording, a: &Analysis) -> String {
             }
         }
     }
+    s.push('\n');
+    s.push_str(&reprofiling::describe(&a.verdict));
     s
+}
+
+fn verdict_json(v: &reprofiling::Verdict) -> Value {
+    let e = v.options.edition;
+    json!({
+        "edition": e.name(),
+        "source": e.source(),
+        "reprofile_mm": v.reprofile_mm,
+        "measured_mm": v.measured_mm,
+        "bands": v.rows.iter().map(|r| json!({
+            "lo_mm": r.band.lo_mm,
+            "hi_mm": r.band.hi_mm,
+            "limit_mm": r.limit_mm,
+            "measured_mm": r.measured_mm,
+            "exceeding_mm": r.exceeding_mm,
+            "exceeding_percent": r.exceeding_percent(),
+            "passes": r.passes(e),
+            "not_evaluated": r.not_evaluated,
+        })).collect::<Vec<_>>(),
+        "zones": v.zones.iter().map(|z| json!({
+            "lo_mm": z.band.lo_mm,
+            "hi_mm": z.band.hi_mm,
+            "start_mm": z.start_mm,
+            "end_mm": z.end_mm,
+            "start_chainage": chainage(z.start_mm),
+            "end_chainage": chainage(z.end_mm),
+            "exceeding_mm": z.exceeding_mm,
+            "worst_pp_mm": z.worst_pp_mm,
+        })).collect::<Vec<_>>(),
+        "block_mm": v.options.block_mm,
+        "blocks": v.blocks.iter().map(|b| json!({
+            "start_mm": b.start_mm,
+            "end_mm": b.end_mm,
+            "rms_mm": b.rms_mm,
+            "iso3095_exceeded_mm": b.iso3095_exceeded,
+        })).collect::<Vec<_>>(),
+    })
 }
 
 fn num(v: f64) -> Value {
@@ -407,8 +539,7 @@ fn num(v: f64) -> Value {
 }
 
 /// The analysis as one JSON object.
-pub fn to_json(path: &Path, rec: &Recording, a: &Analysis) -> Value {
-    let (olo, ohi) = rec.odometer_range_mm.unwrap_or((f64::NAN, f64::NAN));
+pub fn to_json(source: &Source, a: &Analysis) -> Value {
     let lasers: Vec<Value> = a
         .lasers
         .iter()
@@ -486,6 +617,61 @@ pub fn to_json(path: &Path, rec: &Recording, a: &Analysis) -> Value {
             })
         })
         .collect();
+    let mut o = match source {
+        Source::Recordings(runs) => {
+            let mut o = json!({ "runs": runs.iter().map(|(p, r)| recording_json(p, r)).collect::<Vec<_>>() });
+            // One recording: its fields at the top as well (as before runs).
+            if let [(p, r)] = runs.as_slice()
+                && let (Value::Object(top), Value::Object(one)) = (&mut o, recording_json(p, r))
+            {
+                top.extend(one);
+            }
+            o["direction"] = json!(match a.stitching.direction {
+                Direction::Reverse => "reverse",
+                _ => "forward",
+            });
+            o["auto_residuals_um"] =
+                json!(a.stitching.auto_residuals_um.map(|(f, r)| json!({ "forward": f, "reverse": r })));
+            o["registration"] = json!(match a.options.stitch.registration {
+                Registration::OffsetTilt => "offset-tilt",
+                Registration::Offset => "offset",
+                Registration::None => "none",
+            });
+            o
+        }
+        Source::Profile(p, f) => json!({
+            "profile": p.display().to_string(),
+            "rows": f.rows,
+            "columns": f.columns,
+            "data_dx_mm": f.data_dx_mm,
+            "resampled": f.resampled,
+        }),
+    };
+    o["dx_mm"] = json!(a.options.stitch.dx_mm);
+    o["run_joins"] = json!(
+        a.joins
+            .iter()
+            .map(|j| json!({
+                "run": j.run,
+                "heading": j.heading.name(),
+                "heading_found": j.heading_found,
+                "start_m": j.start_m,
+                "start_chainage": survey::Chainage(j.start_m).to_string(),
+                "moved_mm": j.moved_mm,
+                "overlap_mm": j.overlap_mm,
+                "residual_um": j.residual_um,
+                "correlation": j.correlation.map(|(b, s)| json!({ "best": b, "second": s })),
+                "ambiguous": j.ambiguous(),
+            }))
+            .collect::<Vec<_>>()
+    );
+    o["lasers"] = json!(lasers);
+    o["verdict"] = verdict_json(&a.verdict);
+    o
+}
+
+fn recording_json(path: &Path, rec: &Recording) -> Value {
+    let (olo, ohi) = rec.odometer_range_mm.unwrap_or((f64::NAN, f64::NAN));
     json!({
         "recording": path.display().to_string(),
         "frames": rec.frames,
@@ -497,13 +683,5 @@ pub fn to_json(path: &Path, rec: &Recording, a: &Analysis) -> Value {
         "odometer_mm": [num(olo), num(ohi)],
         "damaged_frames": rec.stats.damaged,
         "duplicate_profiles": rec.stats.duplicates,
-        "direction": match a.stitching.direction { Direction::Reverse => "reverse", _ => "forward" },
-        "auto_residuals_um": a.stitching.auto_residuals_um.map(|(f, r)| json!({ "forward": f, "reverse": r })),
-        "registration": match a.options.stitch.registration {
-            Registration::OffsetTilt => "offset-tilt",
-            Registration::Offset => "offset",
-            Registration::None => "none",
-        },
-        "lasers": lasers,
     })
 }

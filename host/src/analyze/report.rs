@@ -26,7 +26,7 @@ use std::path::Path;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{Analysis, Recording};
+use super::{Analysis, Source};
 use crate::Error;
 use crate::plot::{self, Figure, err};
 use crate::standards::{en13231, en15610};
@@ -271,12 +271,13 @@ fn profile_csv(a: &Analysis) -> String {
     }
     s.push('\n');
     let dx = a.options.stitch.dx_mm;
-    // Every laser's x0 is a multiple of dx: one shared integer grid.
-    let idx = |x: f64| (x / dx).round() as i64;
-    let lo = a.lasers.iter().map(|l| idx(l.stitched.x0_mm)).min().unwrap_or(0);
+    // Every laser's x0 is a whole number of spacings from the first's.
+    let origin = a.lasers.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
+    let idx = |x: f64| ((x - origin) / dx).round() as i64;
+    let lo = 0;
     let hi = a.lasers.iter().map(|l| idx(l.stitched.x0_mm) + l.stitched.z_um.len() as i64).max().unwrap_or(0);
     for i in lo..hi {
-        let _ = write!(s, "{}", (i as f64 * dx * 1e6).round() / 1e6);
+        let _ = write!(s, "{}", ((origin + i as f64 * dx) * 1e6).round() / 1e6);
         for l in &a.lasers {
             let j = i - idx(l.stitched.x0_mm);
             match usize::try_from(j).ok().and_then(|j| l.stitched.z_um.get(j)).filter(|v| v.is_finite()) {
@@ -320,7 +321,7 @@ fn html_escape(s: &str) -> String {
 }
 
 /// Writes the report into `dir`.
-pub fn write(dir: &Path, recording: &Path, rec: &Recording, a: &Analysis, summary: &str) -> Result<(), Error> {
+pub fn write(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result<(), Error> {
     let out_err = |what: &str, e: String| Error::Output(std::io::Error::other(format!("{what}: {e}")));
     std::fs::create_dir_all(dir)
         .map_err(|e| Error::Input(format!("cannot create report directory {}: {e}", dir.display())))?;
@@ -370,8 +371,8 @@ pub fn write(dir: &Path, recording: &Path, rec: &Recording, a: &Analysis, summar
         figures.push(("EN 15610 roughness spectrum".into(), "spectrum".into(), svg));
     }
 
-    let title = format!("Rail corrugation analysis: {}", recording.display());
-    let head = super::describe(recording, rec, a);
+    let title = format!("Rail corrugation analysis: {}", source.name());
+    let head = super::describe(source, a);
     let mut md = format!("# {title}\n\n```text\n{head}```\n");
     let mut html = format!(
         "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{t}</title>\n<style>body{{font-family:sans-serif;max-width:1450px;margin:auto}}pre{{background:#f6f6f6;padding:8px;overflow-x:auto}}svg{{max-width:100%;height:auto}}</style></head><body>\n<h1>{t}</h1>\n<pre>{h}</pre>\n",

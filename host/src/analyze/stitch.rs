@@ -549,19 +549,7 @@ impl Lane {
         let z_um: Vec<f64> = self.cells.iter().map(|&(s, w)| if w > 0 { s / w as f64 } else { f64::NAN }).collect();
         // The grid only ever grows to a frame's cells, so its ends have data.
         let x0_mm = self.base as f64 * dx;
-        let mut gaps = Vec::new();
-        let mut i = 0;
-        while i < z_um.len() {
-            if z_um[i].is_finite() {
-                i += 1;
-                continue;
-            }
-            let s = i;
-            while i < z_um.len() && !z_um[i].is_finite() {
-                i += 1;
-            }
-            gaps.push(Gap { start_mm: x0_mm + s as f64 * dx, length_mm: (i - s) as f64 * dx });
-        }
+        let gaps = super::profile::gaps(x0_mm, dx, &z_um);
         Stitched {
             laser: self.laser,
             x0_mm,

@@ -5,8 +5,10 @@ use std::path::PathBuf;
 
 use clap::{Args, ValueEnum};
 use cms_host::Error;
+use cms_host::analyze::reprofiling::{self, Edition};
 use cms_host::analyze::stitch::{self, Direction, Registration, Stitcher};
-use cms_host::analyze::{self, Options};
+use cms_host::analyze::survey::{self, Placement};
+use cms_host::analyze::{self, Options, Source, profile};
 use cms_host::calib::file::CalibrationFile;
 use cms_host::measure::Measurer;
 use cms_host::standards::en15610;
@@ -24,6 +26,17 @@ pub enum DirectionArg {
     Reverse,
 }
 
+/// `--edition`.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EditionArg {
+    /// EN 13231-3:2006: moving-window mean peak-to-peak.
+    #[value(name = "2006")]
+    En2006,
+    /// EN 13231-3:2012: isolated points over the Class 1 limit.
+    #[value(name = "2012")]
+    En2012,
+}
+
 /// `--register`.
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RegisterArg {
@@ -38,18 +51,37 @@ pub enum RegisterArg {
 /// Arguments of `cms-host analyze`.
 #[derive(Args, Debug, Clone)]
 pub struct AnalyzeArgs {
-    /// A recording (`cms-host listen --record`) of a calibrated head.
-    #[arg(value_name = "RECORDING")]
-    pub recording: PathBuf,
+    /// Recordings (`cms-host listen --record`) of a calibrated head — the
+    /// runs of one survey, joined on chainage — or one profile file from
+    /// any instrument (`x_mm,height_um`, or `x_mm,height_um_0,height_um_1,…`).
+    #[arg(value_name = "RECORDING|PROFILE.csv", required = true, num_args = 1..)]
+    pub inputs: Vec<PathBuf>,
+    /// Where each run lies, one per recording in order: its start chainage
+    /// (the chainage of odometer 0, `KM+M` or metres) and whether chainage
+    /// runs up or down with it (`0+000`, `12+345.6:down`, `:down`, `auto`).
+    /// Runs after the first are registered on the ones before within
+    /// --search-m of it; without a start, anywhere they overlap.
+    #[arg(long, value_name = "KM+M[:up|:down]", value_parser = placement)]
+    pub chainage: Vec<Placement>,
+    /// The EN 13231-3 edition whose criterion gives the verdict (zones, reprofiling table).
+    #[arg(long, value_enum, default_value_t = EditionArg::En2006)]
+    pub edition: EditionArg,
+    /// Block length for block RMS and the per-block EN 15610 spectrum, m.
+    #[arg(long = "block-m", value_name = "M", default_value_t = 50.0, value_parser = positive)]
+    pub block_m: f64,
+    /// How far from its given start chainage a run's registration looks, m.
+    #[arg(long = "search-m", value_name = "M", default_value_t = 25.0, value_parser = positive)]
+    pub search_m: f64,
     /// Write a report (report.md, report.html, SVG and PNG plots, CSV) into DIR (created if missing).
     #[arg(long, value_name = "DIR")]
     pub report: Option<PathBuf>,
     /// Print one JSON object instead of the text summary.
     #[arg(long)]
     pub json: bool,
-    /// Sample spacing of the stitched profile, mm (EN 15610 needs ≤ 1).
-    #[arg(long = "dx-mm", value_name = "MM", default_value_t = 1.0, value_parser = positive)]
-    pub dx_mm: f64,
+    /// Sample spacing of the stitched profile, mm (EN 15610 needs ≤ 1);
+    /// default 1 for recordings and the data's own spacing for a profile.
+    #[arg(long = "dx-mm", value_name = "MM", value_parser = positive)]
+    pub dx_mm: Option<f64>,
     /// How image rows map onto the track.
     #[arg(long, value_enum, default_value_t = DirectionArg::Auto)]
     pub direction: DirectionArg,
@@ -73,6 +105,10 @@ pub struct AnalyzeArgs {
     pub calibration: Option<PathBuf>,
 }
 
+fn placement(s: &str) -> Result<Placement, String> {
+    s.parse()
+}
+
 fn positive(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 && v <= 1e6 => Ok(v),
@@ -85,7 +121,7 @@ impl AnalyzeArgs {
     pub fn options(&self) -> Options {
         Options {
             stitch: stitch::Options {
-                dx_mm: self.dx_mm,
+                dx_mm: self.dx_mm.unwrap_or(1.0),
                 direction: match self.direction {
                     DirectionArg::Auto => Direction::Auto,
                     DirectionArg::Forward => Direction::Forward,
@@ -104,15 +140,40 @@ impl AnalyzeArgs {
                 curvature: !self.no_curvature,
                 ..en15610::Options::default()
             },
+            verdict: reprofiling::Options {
+                edition: match self.edition {
+                    EditionArg::En2006 => Edition::En2006,
+                    EditionArg::En2012 => Edition::En2012,
+                },
+                block_mm: self.block_m * 1000.0,
+            },
         }
     }
 }
 
-/// Runs `cms-host analyze`: one pass over the recording, each frame slid
-/// across (with `--calibration`) and stitched as it is read.
+/// Whether a file is a recording (by its magic) rather than a profile.
+fn is_recording(path: &std::path::Path) -> Result<bool, Error> {
+    use std::io::Read as _;
+    let mut f = std::fs::File::open(path).map_err(|e| Error::Input(format!("cannot read {}: {e}", path.display())))?;
+    let mut magic = [0u8; 8];
+    // Shorter than a recording's magic: not a recording.
+    Ok(f.read_exact(&mut magic).is_ok() && magic == cms_host::record::MAGIC)
+}
+
+/// Runs `cms-host analyze`: one pass over each recording, each frame slid
+/// across (with `--calibration`) and stitched as it is read, the runs
+/// joined on chainage; or one profile file.
 pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
-    let opts = args.options();
-    let rec_name = args.recording.display().to_string();
+    let mut opts = args.options();
+    if args.chainage.len() > args.inputs.len() {
+        return Err(Error::Input(format!(
+            "{} --chainage for {} input(s): give at most one per recording, in order",
+            args.chainage.len(),
+            args.inputs.len()
+        ))
+        .into());
+    }
+    // The calibration is checked before any input is read.
     let calibration = match &args.calibration {
         Some(path) => {
             let name = path.display().to_string();
@@ -123,10 +184,75 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
         }
         None => None,
     };
+    let kinds = args.inputs.iter().map(|p| is_recording(p)).collect::<Result<Vec<bool>, Error>>()?;
+    let recordings = kinds.iter().filter(|&&r| r).count();
+    let (source, runs) = if recordings == 0 {
+        let [path] = args.inputs.as_slice() else {
+            return Err(Error::Input(format!(
+                "{} profile files: analyze one at a time (recordings of one survey can be joined)",
+                args.inputs.len()
+            ))
+            .into());
+        };
+        if args.calibration.is_some() {
+            return Err(Error::Input(format!(
+                "{}: --calibration applies to recordings, not to a profile file",
+                path.display()
+            ))
+            .into());
+        }
+        let (file, stitching) = profile::read(path, args.dx_mm)?;
+        opts.stitch.dx_mm = stitching.lasers.first().map_or(opts.stitch.dx_mm, |l| l.dx_mm);
+        (Source::Profile(path.clone(), file), vec![stitching])
+    } else if recordings < args.inputs.len() {
+        let odd = args.inputs.iter().zip(&kinds).find(|(_, r)| !**r).map(|(p, _)| p.display().to_string());
+        let odd = odd.unwrap_or_default();
+        return Err(Error::Input(format!(
+            "{odd} is not a recording: give either recordings of one survey or one profile file"
+        ))
+        .into());
+    } else {
+        let mut runs = Vec::new();
+        let mut recs = Vec::new();
+        for path in &args.inputs {
+            let (rec, stitching) = read_run(path, &opts, calibration.as_ref())?;
+            recs.push((path.clone(), rec));
+            runs.push(stitching);
+        }
+        (Source::Recordings(recs), runs)
+    };
+    let join_opts = survey::JoinOptions { search_mm: args.search_m * 1000.0, ..survey::JoinOptions::default() };
+    let (stitching, joins) =
+        survey::join(runs, &args.chainage, &join_opts).map_err(|e| Error::Input(format!("{}: {e}", source.name())))?;
+    let a = analyze::judge(stitching, joins, &opts);
+    let text = analyze::summary(&source, &a);
+    if let Some(dir) = &args.report {
+        analyze::report::write(dir, &source, &a, &text)?;
+    }
+    let mut out = std::io::stdout().lock();
+    if args.json {
+        writeln!(out, "{}", analyze::to_json(&source, &a)).map_err(Error::Output)?;
+    } else {
+        out.write_all(text.as_bytes()).map_err(Error::Output)?;
+        if let Some(dir) = &args.report {
+            writeln!(out, "\nreport: {}", dir.join("report.html").display()).map_err(Error::Output)?;
+        }
+    }
+    out.flush().map_err(Error::Output)?;
+    Ok(())
+}
+
+/// One recording read and stitched (slid across with a calibration).
+fn read_run(
+    path: &std::path::Path,
+    opts: &Options,
+    calibration: Option<&(CalibrationFile, Measurer, String)>,
+) -> anyhow::Result<(analyze::Recording, stitch::Stitching)> {
+    let rec_name = path.display().to_string();
     let mut stitcher = Stitcher::new(&opts.stitch).map_err(|e| Error::Input(format!("{rec_name}: {e}")))?;
     let mut slid = 0usize;
-    let mut rec = analyze::read_recording(&args.recording, &Bar::stderr(), |so_far, mut f| {
-        if let Some((file, m, name)) = &calibration {
+    let mut rec = analyze::read_recording(path, &Bar::stderr(), |so_far, mut f| {
+        if let Some((file, m, name)) = calibration {
             // The heads seen so far (a `Hello` precedes its profiles): a
             // calibration of another head is refused before the work.
             if so_far.frames == 1 {
@@ -137,26 +263,11 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
         stitcher.push(&f);
         Ok(())
     })?;
-    if let Some((file, _, name)) = &calibration {
+    if let Some((file, _, name)) = calibration {
         // Every head of the recording, the later ones included.
         file.check_recording(name, &rec_name, &rec.heads)?;
         rec.slid_across = Some((slid, PathBuf::from(name)));
     }
     let stitching = stitcher.finish().map_err(|e| Error::Input(format!("{rec_name}: {e}")))?;
-    let a = analyze::judge(stitching, &opts);
-    let text = analyze::summary(&args.recording, &rec, &a);
-    if let Some(dir) = &args.report {
-        analyze::report::write(dir, &args.recording, &rec, &a, &text)?;
-    }
-    let mut out = std::io::stdout().lock();
-    if args.json {
-        writeln!(out, "{}", analyze::to_json(&args.recording, &rec, &a)).map_err(Error::Output)?;
-    } else {
-        out.write_all(text.as_bytes()).map_err(Error::Output)?;
-        if let Some(dir) = &args.report {
-            writeln!(out, "\nreport: {}", dir.join("report.html").display()).map_err(Error::Output)?;
-        }
-    }
-    out.flush().map_err(Error::Output)?;
-    Ok(())
+    Ok((rec, stitching))
 }

@@ -14,12 +14,13 @@
 //!    repeated until nothing is removed. Derivatives are central (second) and
 //!    one-sided per sample pair (first).
 //! 2. **Curvature processing** ([`curvature_process`]) with a 0.375 m wheel:
-//!    the profile a circular wheel rolling over the rail sees, i.e. the lower
-//!    envelope of the wheel's circles resting on the rail at every sample —
-//!    the morphological closing of the profile by a disc of radius R. It is the
-//!    profile itself wherever the wheel touches it (everywhere its curvature is
-//!    below 1/R, whatever the slope) and the wheel's arc over dips narrower
-//!    than the wheel can enter.
+//!    the path of the centre of a wheel rolled along the rail, less its
+//!    radius — at every sample the highest point of the record above the
+//!    wheel's circle centred over it, `r′(xᵢ) = maxₓ [r(x) − (R − √(R² −
+//!    (x − xᵢ)²))]` (a dilation by the wheel's arc). Until 2026-12 this was
+//!    the surface the wheel touches (that step followed by its reverse, a
+//!    closing); docs/corrugation-and-standards.md gives the reading and its
+//!    sources.
 //! 3. **Spectrum** ([`third_octave_spectrum`]): Welch's method on segments of
 //!    at least 1 m (option, default 1 m) with 50 % overlap inside each
 //!    continuous run; per segment the mean and least-squares trend are
@@ -281,9 +282,19 @@ fn spike_pass(y: &mut [f64], dx_m: f64) -> usize {
     removed
 }
 
-/// Curvature processing: the profile as a wheel of radius `radius_mm` sees
-/// it (the closing of the profile by the wheel's disc), each continuous run
-/// on its own; NaN stays NaN. Heights µm, spacing mm.
+/// Curvature processing (EN 15610 §7.3 as read in docs/corrugation-and-standards.md):
+/// the path of the centre of a wheel of radius `radius_mm` rolled along
+/// the record, less the radius — at every sample `x_i`,
+/// `r′(x_i) = max_k [r(x_k) − (R − √(R² − (x_k − x_i)²))]` over the samples
+/// `x_k` of the run (the wheel's lowest point when its centre is above
+/// `x_i`). Each continuous run on its own; NaN stays NaN. Heights µm,
+/// spacing mm.
+///
+/// A dip narrower than the wheel is bridged at the height where the wheel
+/// rests on its rims; a smooth profile is raised by about `R·r′²/2` where
+/// it slopes (the wheel touches beside the sample), which puts a little of
+/// a large corrugation's power into its second harmonic — that is what the
+/// wheel, and the standard's processing, do.
 pub fn curvature_process(z_um: &[f64], dx_mm: f64, radius_mm: f64) -> Vec<f64> {
     let mut out = z_um.to_vec();
     if check_dx(dx_mm).is_err() || !(radius_mm.is_finite() && radius_mm > 0.0) {
@@ -291,46 +302,24 @@ pub fn curvature_process(z_um: &[f64], dx_mm: f64, radius_mm: f64) -> Vec<f64> {
     }
     let r_um = radius_mm * 1000.0;
     let dx_um = dx_mm * 1000.0;
-    // Wheel centres on a grid `sub` times finer than the samples: a circle
-    // touching a sloped profile at a sample has its centre `slope · R` aside,
-    // rarely on a sample; with centres only on samples the envelope would
-    // stand up to (dx/2)²/(2R) proud of a smooth profile (0.3 µm at 1 mm).
-    // A grid of ≤ 0.05 mm keeps that below 0.005 µm.
-    let sub = (dx_mm / 0.05).ceil().clamp(1.0, 64.0) as usize;
     for run in segments(z_um) {
         let y = &z_um[run.clone()];
         let n = y.len();
         let (lo, hi) = y.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
         let range = hi - lo;
-        // Beyond the half-width where the wheel's sagitta exceeds the run's
-        // height range, the wheel cannot touch: s² > 2R·range − range².
+        // A sample farther than where the wheel's sagitta exceeds the run's
+        // height range cannot raise anything: s² > 2R·range − range².
         let reach_um = if range < r_um { (2.0 * r_um * range - range * range).max(0.0).sqrt() } else { r_um };
-        let reach = ((reach_um / dx_um).ceil() + 1.0).min((r_um / dx_um).floor()).min((n - 1) as f64).max(0.0);
-        let reach = reach as usize;
-        let reach_sub = reach * sub;
-        let sag: Vec<f64> = (0..=reach_sub)
+        let reach = ((reach_um / dx_um).ceil()).min((r_um / dx_um).floor()).min((n - 1) as f64).max(0.0) as usize;
+        let sag: Vec<f64> = (0..=reach)
             .map(|t| {
-                let s = t as f64 * dx_um / sub as f64;
+                let s = t as f64 * dx_um;
                 r_um - (r_um * r_um - s * s).max(0.0).sqrt()
             })
             .collect();
-        // Dilation: the height of the wheel's bottom for every centre, in
-        // sub-steps from `reach` samples before the run to `reach` after it
-        // (so the ends are touched from outside as well).
-        let centres = (n - 1 + 2 * reach) * sub + 1;
-        let bottom: Vec<f64> = (0..centres)
-            .map(|m| {
-                // Centre at sub-step position p = m − reach·sub from sample 0.
-                let first = m.saturating_sub(2 * reach_sub).div_ceil(sub);
-                let last = (m / sub).min(n - 1);
-                (first..=last).map(|k| y[k] - sag[(k * sub + reach_sub).abs_diff(m)]).fold(f64::NEG_INFINITY, f64::max)
-            })
-            .collect();
-        // Erosion: the lowest wheel rim over each sample.
-        for i in 0..n {
-            let c = i * sub + reach_sub;
-            out[run.start + i] =
-                (c - reach_sub..=c + reach_sub).map(|m| bottom[m] + sag[m.abs_diff(c)]).fold(f64::INFINITY, f64::min);
+        for (i, o) in out[run.clone()].iter_mut().enumerate() {
+            let (first, last) = (i.saturating_sub(reach), (i + reach).min(n - 1));
+            *o = (first..=last).map(|k| y[k] - sag[k.abs_diff(i)]).fold(f64::NEG_INFINITY, f64::max);
         }
     }
     out
