@@ -120,15 +120,35 @@ pub fn profiles_calibrated_as(
     let mut scene = Scene::new(cfg.clone()).map_err(|e| e.to_string())?;
     let cal = truth(&Scene::new(calibrated.clone()).map_err(|e| e.to_string())?);
     let m = Measurer::new(&cal)?;
+    let mut det = detector(cfg)?;
+    let profiles = frame_profiles(&mut scene, 0, &m, &mut det, row_step)?;
+    Ok((m, profiles))
+}
+
+/// The head's detector for `cfg`'s optics, every stripe of a row found,
+/// the strongest kept.
+pub fn detector(cfg: &SimConfig) -> Result<Box<Detector<{ crate::detect::MAX_ROW }>>, String> {
     let scales = cfg.optics().scale_range().map_err(|e| e.to_string())?;
-    let mut det_cfg = Config::new(scene.bits(), scales);
+    let mut det_cfg = Config::new(cfg.camera.bits, scales);
     det_cfg.max_stripes = LASERS as u8;
     det_cfg.select = Select::Strongest;
-    let mut det = Box::new(Detector::<{ crate::detect::MAX_ROW }>::new(det_cfg).map_err(|e| e.to_string())?);
+    Ok(Box::new(Detector::<{ crate::detect::MAX_ROW }>::new(det_cfg).map_err(|e| e.to_string())?))
+}
+
+/// Frame `frame` of `scene` (every `row_step`-th row) rendered, detected
+/// and triangulated with `m`: each laser's `(along_mm, height_mm)`, rows
+/// where all three stripes were found.
+pub fn frame_profiles(
+    scene: &mut Scene,
+    frame: u64,
+    m: &Measurer,
+    det: &mut Detector<{ crate::detect::MAX_ROW }>,
+    row_step: usize,
+) -> Result<Profiles, String> {
     let mut row = vec![0u16; scene.width()];
     let mut profiles: Profiles = Default::default();
     for r in (0..scene.height()).step_by(row_step.max(1)) {
-        scene.render_row(0, r, scene.all_lasers_mask(), &mut row);
+        scene.render_row(frame, r, scene.all_lasers_mask(), &mut row);
         let mut s: Stripes<LASERS> = Stripes::new();
         det.detect(&row, &mut s).map_err(|e| e.to_string())?;
         if s.len() != LASERS {
@@ -141,7 +161,7 @@ pub fn profiles_calibrated_as(
             }
         }
     }
-    Ok((m, profiles))
+    Ok(profiles)
 }
 
 /// Renders, detects, triangulates and measures frame 0 of `cfg` (all fits,

@@ -27,6 +27,7 @@
 //! * [`measure`] — per image or recorded frame: each laser's profile and fit, the joint result, plots.
 //! * [`verdict`] — whether a fitted result is to be believed: good, doubtful or failed, and why.
 //! * [`closed_loop`] — corrugation measured through the simulated head against its truth (`bench corrugation`, tests).
+//! * [`reference_beam`] — EN 13231-3 Annex A: the simulated head over a reference beam, band RMS differences (`bench annex-a`).
 //!
 //! **Judging the rail**
 //! * [`standards`] — EN 13231-3 wavelength bands, EN 15610 roughness.
@@ -57,6 +58,7 @@ pub mod plot;
 pub mod progress;
 pub mod qemu;
 pub mod record;
+pub mod reference_beam;
 pub mod sim;
 pub mod simulate;
 pub mod standards;

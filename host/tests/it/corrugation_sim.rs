@@ -73,3 +73,33 @@ fn misaligned_heads_over_crowns_are_right_or_flagged() {
         assert_eq!(r.level, Level::Good, "{r:?}");
     }
 }
+
+/// EN 13231-3 Annex A through the simulated head (`cms_host::reference_beam`,
+/// `cms-host bench annex-a`): over a 3 m reference beam with two sines in
+/// each band, every line's band RMS difference from the beam is within
+/// Annex A's 1 / 1 / 2 µm, and the beam's own band RMS is what its sines
+/// give (so the comparison has something to measure).
+#[test]
+fn the_reference_beam_meets_annex_a() {
+    use cms_host::reference_beam::{self, Beam};
+    let beam = Beam::default();
+    let o = reference_beam::measure(&beam).unwrap();
+    println!("{}", reference_beam::table(&o));
+    assert_eq!(o.lines.len(), 3);
+    for (_, shift, bands) in &o.lines {
+        assert!(shift.abs() < 0.5, "aligned {shift} mm");
+        for b in bands {
+            let expected: f64 = beam
+                .components
+                .iter()
+                .filter(|c| c.wavelength_mm > b.lo_mm && c.wavelength_mm < b.hi_mm)
+                .map(|c| c.amplitude_um * c.amplitude_um / 2.0)
+                .sum::<f64>()
+                .sqrt();
+            assert!((b.beam_rms_um - expected).abs() < 0.05 * expected, "{b:?} vs {expected}");
+            assert!(b.samples > 1000, "{b:?}");
+            assert!(b.passes(), "{b:?}");
+        }
+    }
+    assert!(o.passes());
+}
