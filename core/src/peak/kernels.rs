@@ -40,6 +40,7 @@ pub struct Rung {
 include!(concat!(env!("OUT_DIR"), "/kernels.rs"));
 
 /// The even Ricker half-kernel of rung `k` (offsets 0..=half_len).
+#[inline(always)]
 pub fn ricker(k: usize) -> &'static [i16] {
     let r = &RUNGS[k];
     &RICKER[r.ricker_off..=r.ricker_off + r.half_len]
@@ -59,16 +60,23 @@ pub struct Deriv {
 impl Deriv {
     /// The taps an evaluation at `k + p/PHASES` applies right of `k` (to
     /// `x[k+1], x[k+2], …`: offsets `m − p/PHASES`, `m ≥ 1`, to `half_len`).
+    /// `p = PHASES` is the next pixel's phase 0 seen from `k`: its first tap
+    /// (`x[k+1]`, offset 0) is `D(0) = 0`.
     #[inline]
     pub fn right(self, p: usize) -> &'static [i16] {
-        if p == 0 { &self.phase(0)[1..] } else { self.phase(PHASES - p) }
+        match p {
+            0 => &self.phase(0)[1..],
+            PHASES => self.phase(0),
+            _ => self.phase(PHASES - p),
+        }
     }
 
     /// The taps applied at and left of `k` (to `x[k], x[k−1], …`: offsets
-    /// `−(m + p/PHASES)`, `m ≥ 0`, to `half_len`), to be subtracted.
+    /// `−(m + p/PHASES)`, `m ≥ 0`, to `half_len`), to be subtracted
+    /// (`p = PHASES`: offsets `−(m + 1)`).
     #[inline]
     pub fn left(self, p: usize) -> &'static [i16] {
-        self.phase(p)
+        if p == PHASES { &self.phase(0)[1..] } else { self.phase(p) }
     }
 
     /// Half length in whole pixels (the offsets reach `half_len` px).
