@@ -101,6 +101,7 @@ impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
 
     /// Makes the sums out to offset `l`; false where they would reach past
     /// the row's ends or the buffer.
+    #[inline(never)]
     fn extend(&mut self, l: usize) -> bool {
         let (x, c) = (self.x, self.c);
         if c < l || c + l >= x.len() || l >= self.buf.len() {
@@ -121,7 +122,17 @@ impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
         true
     }
 
+    /// Makes the sums as far as rung `k` reaches (where they fit), so that
+    /// the responses up to it only multiply.
+    pub fn reserve(&mut self, k: usize) {
+        let l = RUNGS[k].half_len;
+        if l >= self.len {
+            self.extend(l);
+        }
+    }
+
     /// [`response_q8`] at the current position on rung `k`.
+    #[inline]
     pub fn response_q8(&mut self, k: usize) -> i64 {
         let h = kernels::ricker(k);
         let l = h.len() - 1;
@@ -222,6 +233,32 @@ fn dot2<S: Sample, const REV: bool>(xs: &[S], u: &[i16], v: &[i16]) -> (i64, i64
 /// one pass: each pixel is loaded once for both tap runs.
 pub fn slope_pair<S: Sample>(x: &[S], k: isize, p: usize, d: Deriv) -> (i64, i64) {
     let n = x.len() as isize;
+    let l = d.half_len();
+    if let Some((right, left)) = d.pair_runs(p)
+        && k + 1 >= l as isize
+        && k + (l as isize) < n
+    {
+        // The common case: both pairs of runs `l` long, one loop a side.
+        let k = k as usize;
+        let (xr, xl) = (&x[k + 1..][..l], &x[k + 1 - l..][..l]);
+        let (r_next, r_this) = right.split_at(l);
+        let (l_this, l_next) = left.split_at(l);
+        let (r_this, r_next, l_this, l_next) = (&r_this[..l], &r_next[..l], &l_this[..l], &l_next[..l]);
+        // Two accumulators for both sides (the left side's pixels negated:
+        // four would not fit the M4's registers with the loop's pointers).
+        let (mut fa, mut fb) = (0i64, 0i64);
+        for i in 0..l {
+            let a = xr[i].get() as i64;
+            fa += a * r_this[i] as i64;
+            fb += a * r_next[i] as i64;
+        }
+        for i in 0..l {
+            let a = -(xl[l - 1 - i].get() as i64);
+            fa += a * l_this[i] as i64;
+            fb += a * l_next[i] as i64;
+        }
+        return (fa, fb);
+    }
     let (ra, rb) = (d.right(p), d.right(p + 1));
     let (la, lb) = (d.left(p), d.left(p + 1));
     let (r_len, l_len) = (ra.len().max(rb.len()), la.len().max(lb.len()));
@@ -464,6 +501,8 @@ pub(crate) fn confirm<S: Sample>(
     let mut folded = Folded::new(x, c0, scratch);
     let mut climb_scale = |c: usize, k0: usize| -> (usize, [i64; 3]) {
         folded.at(c);
+        // A stripe at `k0` or one rung wider needs no more sums than these.
+        folded.reserve((k0 + 2).min(w_hi));
         let mut k = k0;
         let mut here = folded.response_q8(k);
         let (mut below, mut above) = (i64::MIN, i64::MIN);

@@ -79,6 +79,23 @@ impl Deriv {
         if p == PHASES { &self.phase(0)[1..] } else { self.phase(p) }
     }
 
+    /// For `1 ≤ p ≤ PHASES − 2`, the taps of phases `p` and `p + 1` as two
+    /// contiguous runs of `2·half_len`: right of `k`, `right(p + 1)` then
+    /// `right(p)`; at and left of `k`, `left(p)` then `left(p + 1)` (the
+    /// phases are stored in order, so the two of a pair are neighbours).
+    #[inline]
+    pub fn pair_runs(self, p: usize) -> Option<(&'static [i16], &'static [i16])> {
+        let l = self.half_len;
+        if !(1..PHASES - 1).contains(&p) {
+            return None;
+        }
+        // Phase r ≥ 1 starts at l + 1 + (r − 1)·l.
+        let start = |r: usize| l + 1 + (r - 1) * l;
+        let right = self.taps.get(start(PHASES - p - 1)..start(PHASES - p) + l)?;
+        let left = self.taps.get(start(p)..start(p + 1) + l)?;
+        Some((right, left))
+    }
+
     /// Half length in whole pixels (the offsets reach `half_len` px).
     pub fn half_len(self) -> usize {
         self.half_len

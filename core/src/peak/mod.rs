@@ -837,7 +837,6 @@ fn window_candidates<P: Pixel>(
     cands.clear();
     let n = row.len();
     let (ext, least) = (2usize << lb, 4usize << lb);
-    let mut part: Vec<Candidate, MAX_CANDIDATES> = Vec::new();
     for w in windows.as_slice() {
         let first = w.first_px as usize;
         if first >= n {
@@ -847,10 +846,7 @@ fn window_candidates<P: Pixel>(
         let lo = first.saturating_sub(ext) & !(block - 1);
         let hi = (lo + (w.end_px() as usize + ext - lo).next_multiple_of(block).max(least)).min(n);
         let lo = lo.min(hi - least);
-        screen::candidates(&row[lo..hi], lb, narrow, threshold, &mut part);
-        for c in &part {
-            screen::push_candidate(cands, Candidate { pos: c.pos + lo, resp: c.resp });
-        }
+        screen::candidates_at(&row[lo..hi], lo, lb, narrow, threshold, cands);
     }
 }
 
