@@ -850,13 +850,23 @@ fn window_candidates<P: Pixel>(
     }
 }
 
-/// Index of the first maximum of a slice of pixels (0 if empty).
+/// Index of the first maximum of a slice of pixels (0 if empty). Two
+/// pixels per iteration: the larger of the pair (the left one on a tie)
+/// against the best so far, one compare and select each.
 fn argmax_raw<P: Pixel>(x: &[P]) -> usize {
     let (mut best, mut top) = (0, i32::MIN);
-    for (i, p) in x.iter().enumerate() {
-        if p.value() > top {
-            (best, top) = (i, p.value());
+    let (pairs, rest) = x.as_chunks::<2>();
+    for (j, q) in pairs.iter().enumerate() {
+        let (a, b) = (q[0].value(), q[1].value());
+        let (v, i) = if b > a { (b, 2 * j + 1) } else { (a, 2 * j) };
+        if v > top {
+            (best, top) = (i, v);
         }
+    }
+    if let Some(p) = rest.first()
+        && p.value() > top
+    {
+        best = x.len() - 1;
     }
     best
 }
@@ -985,5 +995,33 @@ fn select<const N: usize>(found: &mut Vec<Stripe, MAX_CANDIDATES>, cfg: &Config,
     kept.sort_unstable_by_key(|s| s.position);
     for s in kept.iter() {
         let _ = out.push(*s);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn argmax_raw_is_the_first_maximum() {
+        let mut s = 12345u32;
+        for len in 0..24usize {
+            for _ in 0..50 {
+                let x: heapless::Vec<u16, 24> = (0..len)
+                    .map(|_| {
+                        s ^= s << 13;
+                        s ^= s >> 17;
+                        s ^= s << 5;
+                        (s % 5) as u16
+                    })
+                    .collect();
+                let want = x
+                    .iter()
+                    .enumerate()
+                    .fold((0, -1i32), |(b, t), (i, &v)| if v as i32 > t { (i, v as i32) } else { (b, t) })
+                    .0;
+                assert_eq!(argmax_raw(&x), want, "{x:?}");
+            }
+        }
     }
 }
