@@ -91,6 +91,90 @@ pub fn load_window<P: Pixel>(row: &[P], sat: i32, level: i32, x: &mut [i32], hit
     }
 }
 
+/// Whether the window `row` would come out of [`load_window`] and
+/// [`repair_spikes`] unchanged, so that the estimators can read it in place
+/// (no copy): no pixel above `sat`, and no pixel that passes the spike
+/// screen's first test (threshold `level`, [`spike_screen_level`]) is worth
+/// the repair's tests (`SpikeTest::worth_testing`: the top of a bright
+/// stripe passes the first test and fails that one). Where this holds the
+/// repair changes nothing, since it touches only pixels worth testing; where
+/// it does not, the detector copies and repairs as before. One pass, four
+/// pixels per iteration, no store.
+#[inline(never)]
+pub fn window_is_clean<P: Pixel>(row: &[P], sat: i32, level: i32) -> bool {
+    let n = row.len();
+    if n < 6 {
+        return false;
+    }
+    // `level − (2b − a − c)` is negative where the first test passes, and
+    // `sat − v` where a pixel is above saturation: the signs of four
+    // pixels' are OR-ed and tested once (wrapping: a large `level` can only
+    // make a clean window look unclean, never the reverse).
+    let miss = |a: i32, b: i32, c: i32| level.wrapping_sub(2 * b - a - c);
+    let (mut a, mut b) = (row[0].value(), row[1].value());
+    if (a | b) > sat {
+        return false;
+    }
+    let mut i = 1;
+    let (ps, p_rest) = row[2..].as_chunks::<4>();
+    for p in ps {
+        let (v0, v1, v2, v3) = (p[0].value(), p[1].value(), p[2].value(), p[3].value());
+        if (v0 | v1 | v2 | v3) > sat {
+            return false;
+        }
+        if (miss(a, b, v0) | miss(b, v0, v1) | miss(v0, v1, v2) | miss(v1, v2, v3)) < 0
+            && !hits_are_stripe_tops(row, i, level)
+        {
+            return false;
+        }
+        (a, b) = (v2, v3);
+        i += 4;
+    }
+    for p in p_rest {
+        let c = p.value();
+        if c > sat || (miss(a, b, c) < 0 && !hits_are_stripe_tops(row, i, level)) {
+            return false;
+        }
+        (a, b) = (b, c);
+        i += 1;
+    }
+    true
+}
+
+/// [`window_is_clean`]'s rare path: whether every pixel of `i..i + 4` that
+/// passes the first test fails `worth_testing` (out of the window's ends:
+/// worth testing, as in [`repair_spikes`]).
+#[inline(never)]
+fn hits_are_stripe_tops<P: Pixel>(row: &[P], i: usize, level: i32) -> bool {
+    let n = row.len();
+    if i < 2 || i + 6 > n {
+        // At the window's ends (pixels 1 and n − 2 lack a second neighbour):
+        // the general test, pixel by pixel.
+        let level = level as i64;
+        return (i..(i + 4).min(n - 1)).all(|j| {
+            let first = (2 * row[j].value() - row[j - 1].value() - row[j + 1].value()) as i64;
+            first <= level
+                || match row.get(j.wrapping_sub(2)..j + 3) {
+                    Some(&[l2, l1, m, r1, r2]) => {
+                        ((2 * (l1.value() + r1.value() - m.value()) - l2.value() - r2.value()) as i64) > level
+                    }
+                    _ => false,
+                }
+        });
+    }
+    // x[i − 2 ..= i + 5]; D(j) = 2x[j] − x[j−1] − x[j+1] for j = i − 1 ..= i + 4.
+    let Ok(w) = <&[P; 8]>::try_from(&row[i - 2..i + 6]) else {
+        return false;
+    };
+    let (x0, x1, x2, x3) = (w[0].value(), w[1].value(), w[2].value(), w[3].value());
+    let (x4, x5, x6, x7) = (w[4].value(), w[5].value(), w[6].value(), w[7].value());
+    let (d0, d1, d2) = (2 * x1 - x0 - x2, 2 * x2 - x1 - x3, 2 * x3 - x2 - x4);
+    let (d3, d4, d5) = (2 * x4 - x3 - x5, 2 * x5 - x4 - x6, 2 * x6 - x5 - x7);
+    // Pixel i + j (D = d_{j+1}): no hit, or its flanks' sum above `level`.
+    let top = |d: i32, l: i32, r: i32| d <= level || l + r > level;
+    top(d1, d0, d2) && top(d2, d1, d3) && top(d3, d2, d4) && top(d4, d3, d5)
+}
+
 /// [`load_window`]'s rare path, out of line: the windows of `w` from pixel `i`.
 #[inline(never)]
 fn push_hits(w: &[i32; 6], i: usize, level: i32, hits: &mut Vec<usize, MAX_SPIKES>) {

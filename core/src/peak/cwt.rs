@@ -43,43 +43,128 @@
 //! stored phase-major, so an evaluation reads two contiguous runs.
 
 use super::kernels::{self, Deriv, NORM_SHIFT, PHASES, RUNGS};
-use super::{Flags, RowView, Stripe};
+use super::{Flags, RowView, Sample, Stripe};
 use crate::fixed::Px;
 
 /// The `s^(−3/2)`-normalised Ricker response at integer `c` on rung `k`,
 /// counts × 256. Taps past the row's edge read the edge pixel.
-pub fn response_q8(x: &[i32], c: usize, k: usize) -> i64 {
+pub fn response_q8<S: Sample>(x: &[S], c: usize, k: usize) -> i64 {
     let h = kernels::ricker(k);
     let n = x.len();
     let l = h.len() - 1;
-    let mut acc = h[0] as i64 * x[c] as i64;
+    let mut acc = h[0] as i64 * x[c].get() as i64;
     if c >= l && c + l < n {
         // Plain indices over slices of the kernel's length: one counter and
         // no bounds checks (a zip with a reversed iterator tests both ends
         // at every tap).
         let (left, right) = (&x[c - l..c], &x[c + 1..=c + l]);
         for (m, (&w, &b)) in h[1..].iter().zip(right).enumerate() {
-            acc += w as i64 * (left[l - 1 - m] + b) as i64;
+            acc += w as i64 * (left[l - 1 - m].get() + b.get()) as i64;
         }
     } else {
         for (m, &w) in h.iter().enumerate().skip(1) {
-            let a = x[c.saturating_sub(m)];
-            let b = x[(c + m).min(n - 1)];
+            let a = x[c.saturating_sub(m)].get();
+            let b = x[(c + m).min(n - 1)].get();
             acc += w as i64 * (a + b) as i64;
         }
     }
     (acc * RUNGS[k].norm) >> NORM_SHIFT
 }
 
+/// The Ricker responses at one position `c` from the row folded about it:
+/// `x[c]` and the sums `x[c − m] + x[c + m]`, made once (as far as the
+/// widest rung asked for reaches) into a scratch buffer, so that each
+/// rung's response is one multiply-accumulate per tap over a contiguous
+/// run, and the climb's further rungs reuse the sums. The same values as
+/// [`response_q8`] (which it falls back to where the kernel would reach
+/// past the row's ends or the buffer).
+pub struct Folded<'a, 'b, S> {
+    x: &'a [S],
+    buf: &'b mut [i32],
+    c: usize,
+    /// How many sums are made (`buf[..len]`).
+    len: usize,
+}
+
+impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
+    /// The row `x` about `c`, with `buf` as scratch.
+    pub fn new(x: &'a [S], c: usize, buf: &'b mut [i32]) -> Self {
+        Folded { x, buf, c, len: 0 }
+    }
+
+    /// Moves to position `c` (the sums are made again).
+    pub fn at(&mut self, c: usize) {
+        if c != self.c {
+            (self.c, self.len) = (c, 0);
+        }
+    }
+
+    /// Makes the sums out to offset `l`; false where they would reach past
+    /// the row's ends or the buffer.
+    #[inline(never)]
+    fn extend(&mut self, l: usize) -> bool {
+        let (x, c) = (self.x, self.c);
+        if c < l || c + l >= x.len() || l >= self.buf.len() {
+            return false;
+        }
+        if self.len == 0 {
+            self.buf[0] = x[c].get();
+            self.len = 1;
+        }
+        // m = from..=l: x[c − m] (the left run read backwards) + x[c + m].
+        let from = self.len;
+        let cnt = l + 1 - from;
+        let (left, right, out) = (&x[c - l..][..cnt], &x[c + from..][..cnt], &mut self.buf[from..][..cnt]);
+        for i in 0..cnt {
+            out[i] = left[cnt - 1 - i].get() + right[i].get();
+        }
+        self.len = l + 1;
+        true
+    }
+
+    /// Makes the sums as far as rung `k` reaches (where they fit), so that
+    /// the responses up to it only multiply.
+    pub fn reserve(&mut self, k: usize) {
+        let l = RUNGS[k].half_len;
+        if l >= self.len {
+            self.extend(l);
+        }
+    }
+
+    /// [`response_q8`] at the current position on rung `k`.
+    #[inline]
+    pub fn response_q8(&mut self, k: usize) -> i64 {
+        let h = kernels::ricker(k);
+        let l = h.len() - 1;
+        if l >= self.len && !self.extend(l) {
+            return response_q8(self.x, self.c, k);
+        }
+        // Two taps per iteration (the loop's counter and branch shared).
+        let (h2, h_rest) = h.as_chunks::<2>();
+        let (p2, p_rest) = self.buf[..=l].as_chunks::<2>();
+        let (mut acc, mut acc2) = (0i64, 0i64);
+        for (w, p) in h2.iter().zip(p2) {
+            acc += w[0] as i64 * p[0] as i64;
+            acc2 += w[1] as i64 * p[1] as i64;
+        }
+        if let (Some(&w), Some(&p)) = (h_rest.first(), p_rest.first()) {
+            acc += w as i64 * p as i64;
+        }
+        let acc = acc + acc2;
+        (acc * RUNGS[k].norm) >> NORM_SHIFT
+    }
+}
+
 /// `Σ x[i] D(i − (k + p/PHASES))` on derivative table `d`: positive left of
 /// the response's maximum, negative right of it. Edge pixels replicate.
+/// `p` runs to `PHASES` (the next pixel's phase 0).
 ///
 /// With `i = k + m`: right of `k` (`m ≥ 1`) the offset is `m − p/P`, on
 /// phase `P − p` (phase 0 from its second tap when `p = 0`); left (`m ≥ 0`,
 /// offset `−(m + p/P)`, `D` odd) on phase `p`. Both runs are contiguous in
 /// the table ([`Deriv`]), so the inner loops are a load, a load and a
 /// multiply-accumulate per tap.
-pub fn slope_at(x: &[i32], k: isize, p: usize, d: Deriv) -> i64 {
+pub fn slope_at<S: Sample>(x: &[S], k: isize, p: usize, d: Deriv) -> i64 {
     let n = x.len() as isize;
     let (right, left) = (d.right(p), d.left(p));
     let mut acc = 0i64;
@@ -89,14 +174,14 @@ pub fn slope_at(x: &[i32], k: isize, p: usize, d: Deriv) -> i64 {
         // multiply and a 64-bit subtract, `+=` one multiply-accumulate.
         let (mut r_acc, mut l_acc) = (0i64, 0i64);
         for (&a, &w) in x[k + 1..=k + right.len()].iter().zip(right) {
-            r_acc += a as i64 * w as i64;
+            r_acc += a.get() as i64 * w as i64;
         }
         for (&a, &w) in x[k + 1 - left.len()..=k].iter().rev().zip(left) {
-            l_acc += a as i64 * w as i64;
+            l_acc += a.get() as i64 * w as i64;
         }
         acc = r_acc - l_acc;
     } else {
-        let at = |i: isize| x[i.clamp(0, n - 1) as usize] as i64;
+        let at = |i: isize| x[i.clamp(0, n - 1) as usize].get() as i64;
         for (m, &w) in right.iter().enumerate() {
             acc += at(k + 1 + m as isize) * w as i64;
         }
@@ -107,9 +192,88 @@ pub fn slope_at(x: &[i32], k: isize, p: usize, d: Deriv) -> i64 {
     acc
 }
 
+/// `Σ xs[i]·u[i]` and `Σ xs[i]·v[i]`, where `xs` is read forwards or
+/// backwards (`REV`: `xs[len − 1 − i]`), over tap runs whose lengths differ
+/// by at most one and that `xs` is as long as the longer of: one loop over
+/// the common part with a single counter, then the longer run's last tap.
+#[inline(always)]
+fn dot2<S: Sample, const REV: bool>(xs: &[S], u: &[i16], v: &[i16]) -> (i64, i64) {
+    let m = u.len().min(v.len());
+    let len = xs.len();
+    let (mut su, mut sv) = (0i64, 0i64);
+    if len < m {
+        return (0, 0);
+    }
+    let (u0, v0) = (&u[..m], &v[..m]);
+    if REV {
+        let xr = &xs[len - m..];
+        for i in 0..m {
+            let a = xr[m - 1 - i].get() as i64;
+            su += a * u0[i] as i64;
+            sv += a * v0[i] as i64;
+        }
+    } else {
+        let xf = &xs[..m];
+        for i in 0..m {
+            let a = xf[i].get() as i64;
+            su += a * u0[i] as i64;
+            sv += a * v0[i] as i64;
+        }
+    }
+    if len > m {
+        let a = if REV { xs[len - 1 - m].get() } else { xs[m].get() } as i64;
+        su += a * *u.get(m).unwrap_or(&0) as i64;
+        sv += a * *v.get(m).unwrap_or(&0) as i64;
+    }
+    (su, sv)
+}
+
+/// The slope at two neighbouring phases, `k + p/PHASES` and `k + (p +
+/// 1)/PHASES` (`p < PHASES`), as [`slope_at`] gives them (the same sums), in
+/// one pass: each pixel is loaded once for both tap runs.
+pub fn slope_pair<S: Sample>(x: &[S], k: isize, p: usize, d: Deriv) -> (i64, i64) {
+    let n = x.len() as isize;
+    let l = d.half_len();
+    if let Some((right, left)) = d.pair_runs(p)
+        && k + 1 >= l as isize
+        && k + (l as isize) < n
+    {
+        // The common case: both pairs of runs `l` long, one loop a side.
+        let k = k as usize;
+        let (xr, xl) = (&x[k + 1..][..l], &x[k + 1 - l..][..l]);
+        let (r_next, r_this) = right.split_at(l);
+        let (l_this, l_next) = left.split_at(l);
+        let (r_this, r_next, l_this, l_next) = (&r_this[..l], &r_next[..l], &l_this[..l], &l_next[..l]);
+        // Two accumulators for both sides (the left side's pixels negated:
+        // four would not fit the M4's registers with the loop's pointers).
+        let (mut fa, mut fb) = (0i64, 0i64);
+        for i in 0..l {
+            let a = xr[i].get() as i64;
+            fa += a * r_this[i] as i64;
+            fb += a * r_next[i] as i64;
+        }
+        for i in 0..l {
+            let a = -(xl[l - 1 - i].get() as i64);
+            fa += a * l_this[i] as i64;
+            fb += a * l_next[i] as i64;
+        }
+        return (fa, fb);
+    }
+    let (ra, rb) = (d.right(p), d.right(p + 1));
+    let (la, lb) = (d.left(p), d.left(p + 1));
+    let (r_len, l_len) = (ra.len().max(rb.len()), la.len().max(lb.len()));
+    if k + 1 < l_len as isize || k + r_len as isize >= n {
+        return (slope_at(x, k, p, d), slope_at(x, k, p + 1, d));
+    }
+    let k = k as usize;
+    let (r_a, r_b) = dot2::<S, false>(&x[k + 1..=k + r_len], ra, rb);
+    let (l_a, l_b) = dot2::<S, true>(&x[k + 1 - l_len..=k], la, lb);
+    (r_a - l_a, r_b - l_b)
+}
+
 /// Sub-pixel zero of the slope near `c` on derivative table `d`, Q16.16 px.
 /// `None` when no sign change is found within ±3 px.
-pub fn slope_zero(x: &[i32], c: usize, d: Deriv) -> Option<Px> {
+pub fn slope_zero<S: Sample>(x: &[S], c: usize, d: Deriv) -> Option<Px> {
     let n = x.len() as isize;
     let mut k = c as isize;
     let mut f_k = slope_at(x, k, 0, d);
@@ -168,32 +332,59 @@ pub fn slope_zero(x: &[i32], c: usize, d: Deriv) -> Option<Px> {
 }
 
 /// Sub-pixel zero of the slope starting from the guess `c + guess/PHASES`
-/// (Q16.16 px): the slope at the guess's phase, then phase by phase towards
-/// the sign change, at most 8 steps (half a pixel); `None` if it is not
-/// found there. A good guess (the responses' parabola) needs two
-/// evaluations where the whole-pixel bracket of [`slope_zero`] needs four;
-/// the zero is the same, the one in the enclosing phase interval.
-pub fn slope_zero_near(x: &[i32], c: usize, guess: i32, d: Deriv) -> Option<Px> {
+/// (the guess rounded down to a phase; Q16.16 px out): the slope at the
+/// guess's phase and the next in one pass ([`slope_pair`]), then pair by
+/// pair towards the sign change, at most 8 phases (half a pixel) each way;
+/// `None` if it is not found there. A good guess needs one pass where the
+/// whole-pixel bracket of [`slope_zero`] needs four evaluations; the zero
+/// is the same, the one in the enclosing phase interval.
+pub fn slope_zero_near<S: Sample>(x: &[S], c: usize, guess: i32, d: Deriv) -> Option<Px> {
     let n = x.len() as isize;
     let ph = PHASES as isize;
-    // Position in phases from pixel 0.
-    let mut t = c as isize * ph + guess as isize;
-    let at = |t: isize| -> Option<i64> {
-        let k = t.div_euclid(ph);
-        (0..n).contains(&k).then(|| slope_at(x, k, t.rem_euclid(ph) as usize, d))
-    };
-    let mut f = at(t)?;
-    let dir = if f > 0 { 1 } else { -1 };
-    for _ in 0..8 {
-        let f2 = at(t + dir)?;
-        if (f2 > 0) != (f > 0) {
-            // The zero is between t and t + dir: fa > 0 ≥ fb on [lo, lo + 1].
-            let (lo, fa, fb) = if dir > 0 { (t, f, f2) } else { (t - 1, f2, f) };
-            const STEP: i64 = 65536 / PHASES as i64;
-            let frac = ratio_q(fa.max(0), (fa - fb).max(1), STEP.trailing_zeros());
-            return Some(Px((lo as i64 * STEP + frac) as i32));
+    // The slope at phases t and t + 1 (t in phases from pixel 0, ≥ 0: a
+    // shift and a mask, PHASES being a power of two).
+    let pair = |t: isize| -> Option<(i64, i64)> {
+        if t < 0 {
+            return None;
         }
-        (t, f) = (t + dir, f2);
+        let (k, p) = (t >> PHASES.trailing_zeros(), (t as usize) & (PHASES - 1));
+        (k < n && (p + 1 < PHASES || k + 1 < n)).then(|| slope_pair(x, k, p, d))
+    };
+    // The zero in [lo, lo + 1] (phases), fa > 0 ≥ fb.
+    let zero = |lo: isize, fa: i64, fb: i64| {
+        const STEP: i64 = 65536 / PHASES as i64;
+        let frac = ratio_q(fa.max(0), (fa - fb).max(1), STEP.trailing_zeros());
+        Px((lo as i64 * STEP + frac) as i32)
+    };
+    let mut t = c as isize * ph + guess as isize;
+    let (mut fa, mut fb) = pair(t)?;
+    for _ in 0..4 {
+        if fa > 0 && fb <= 0 {
+            return Some(zero(t, fa, fb));
+        }
+        // The next pair where the line through these two puts the zero
+        // (the slope falls through it; at most 8 phases away, at least the
+        // next pair): between `u` and `u + 1`, or, with the pair next to
+        // this one, between it and the phase of this one beside it.
+        let fall = fa - fb;
+        let j = if fall > 0 { ratio_q(fa.abs(), fall.saturating_mul(8), 3) as isize } else { 1 }.max(1);
+        if fa > 0 {
+            // Rightwards (fa, fb > 0): t + 1 is known.
+            let u = t + j.max(2);
+            let (ga, gb) = pair(u)?;
+            if u == t + 2 && ga <= 0 {
+                return Some(zero(t + 1, fb, ga));
+            }
+            (t, fa, fb) = (u, ga, gb);
+        } else {
+            // Leftwards (fa ≤ 0): t is known.
+            let u = t - (j + 1).max(2);
+            let (ga, gb) = pair(u)?;
+            if u == t - 2 && gb > 0 && fa <= 0 {
+                return Some(zero(t - 1, gb, fa));
+            }
+            (t, fa, fb) = (u, ga, gb);
+        }
     }
     None
 }
@@ -239,8 +430,8 @@ pub(crate) struct Confirmed {
 pub(crate) struct Wider;
 
 /// The CWT estimator for one candidate.
-pub(crate) fn refine(v: &RowView<'_>, c0: usize) -> Result<Option<Stripe>, Wider> {
-    let Some(Confirmed { c, kb, dk_q16, width, amplitude, mut flags, guess }) = confirm(v, c0)? else {
+pub(crate) fn refine<S: Sample>(v: &RowView<'_, S>, c0: usize, scratch: &mut [i32]) -> Result<Option<Stripe>, Wider> {
+    let Some(Confirmed { c, kb, dk_q16, width, amplitude, mut flags, guess }) = confirm(v, c0, scratch)? else {
         return Ok(None);
     };
     let x = v.x;
@@ -293,7 +484,11 @@ pub(crate) fn refine(v: &RowView<'_>, c0: usize) -> Result<Option<Stripe>, Wider
 /// it moved. The climb stays within the width limits' rungs, so a
 /// stripe (or glow) wider or narrower than the range is measured there and
 /// rejected rather than clamped to the range's edge.
-pub(crate) fn confirm(v: &RowView<'_>, c0: usize) -> Result<Option<Confirmed>, Wider> {
+pub(crate) fn confirm<S: Sample>(
+    v: &RowView<'_, S>,
+    c0: usize,
+    scratch: &mut [i32],
+) -> Result<Option<Confirmed>, Wider> {
     let x = v.x;
     let n = x.len();
     let (k_lo, k_hi) = (v.plan.k_lo, v.plan.k_hi);
@@ -301,12 +496,18 @@ pub(crate) fn confirm(v: &RowView<'_>, c0: usize) -> Result<Option<Confirmed>, W
     // Climb in scale from rung `k0` at position `c`: the best rung and the
     // responses at it and at both its neighbours (`i64::MIN` where not
     // evaluated: beyond the width limits).
-    let climb_scale = |c: usize, k0: usize| -> (usize, [i64; 3]) {
+    //
+    // The responses come from the row folded about `c` ([`Folded`]).
+    let mut folded = Folded::new(x, c0, scratch);
+    let mut climb_scale = |c: usize, k0: usize| -> (usize, [i64; 3]) {
+        folded.at(c);
+        // A stripe at `k0` or one rung wider needs no more sums than these.
+        folded.reserve((k0 + 2).min(w_hi));
         let mut k = k0;
-        let mut here = response_q8(x, c, k);
+        let mut here = folded.response_q8(k);
         let (mut below, mut above) = (i64::MIN, i64::MIN);
         while k < w_hi {
-            let r = response_q8(x, c, k + 1);
+            let r = folded.response_q8(k + 1);
             if r <= here {
                 above = r;
                 break;
@@ -316,7 +517,7 @@ pub(crate) fn confirm(v: &RowView<'_>, c0: usize) -> Result<Option<Confirmed>, W
         }
         if k == k0 {
             while k > w_lo {
-                let r = response_q8(x, c, k - 1);
+                let r = folded.response_q8(k - 1);
                 if r <= here {
                     below = r;
                     break;
@@ -343,14 +544,16 @@ pub(crate) fn confirm(v: &RowView<'_>, c0: usize) -> Result<Option<Confirmed>, W
         let (den, num) = (l - 2 * m + r, l - r);
         if den < 0 && num.unsigned_abs() < den.unsigned_abs() {
             // |δ| · 16 = |num| / |den| · 8; δ has the sign of r − l.
+            // Rounded down to a phase: the zero is then expected between
+            // the guess and the next phase (what `slope_zero_near` reads first).
             let q = ratio_q(num.abs(), -den, 3) as i32;
-            if num < 0 { q } else { -q }
+            if num < 0 { q } else { -q - 1 }
         } else {
             0
         }
     };
     let guess = if RUNGS[kb].scale_q16 < 4 << 16 {
-        if c > 0 && c + 1 < n { vertex(x[c - 1] as i64, x[c] as i64, x[c + 1] as i64) } else { 0 }
+        if c > 0 && c + 1 < n { vertex(x[c - 1].get() as i64, x[c].get() as i64, x[c + 1].get() as i64) } else { 0 }
     } else {
         let mut best = resp[1];
         let mut left = if c > 0 { response_q8(x, c - 1, kb) } else { i64::MIN };
@@ -461,6 +664,18 @@ mod tests {
                             .map(|m| h[m.unsigned_abs()] as i64 * at(c as isize + m))
                             .sum();
                         assert_eq!(response_q8(x, c, k), (sum * RUNGS[k].norm) >> NORM_SHIFT, "k {k} c {c} n {n}");
+                        let mut buf = [0i32; 160];
+                        let mut f = Folded::new(x, c, &mut buf[..n]);
+                        for k2 in [k, k + 2, k + 1] {
+                            assert_eq!(f.response_q8(k2), response_q8(x, c, k2), "k {k2} c {c} n {n}");
+                        }
+                        for p in 0..PHASES {
+                            let next = slope_at(x, c as isize, p + 1, d);
+                            assert_eq!(slope_pair(x, c as isize, p, d), (slope_at(x, c as isize, p, d), next));
+                        }
+                        if c + 1 < n {
+                            assert_eq!(slope_at(x, c as isize, PHASES, d), slope_at(x, c as isize + 1, 0, d));
+                        }
                         for p in [0, 1, 7, PHASES - 1] {
                             // Σ x[i] D(i − (c + p/P)), D odd: table index |i − c|·P ∓ p.
                             let mut s = 0i64;

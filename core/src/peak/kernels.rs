@@ -40,6 +40,7 @@ pub struct Rung {
 include!(concat!(env!("OUT_DIR"), "/kernels.rs"));
 
 /// The even Ricker half-kernel of rung `k` (offsets 0..=half_len).
+#[inline(always)]
 pub fn ricker(k: usize) -> &'static [i16] {
     let r = &RUNGS[k];
     &RICKER[r.ricker_off..=r.ricker_off + r.half_len]
@@ -59,16 +60,40 @@ pub struct Deriv {
 impl Deriv {
     /// The taps an evaluation at `k + p/PHASES` applies right of `k` (to
     /// `x[k+1], x[k+2], …`: offsets `m − p/PHASES`, `m ≥ 1`, to `half_len`).
+    /// `p = PHASES` is the next pixel's phase 0 seen from `k`: its first tap
+    /// (`x[k+1]`, offset 0) is `D(0) = 0`.
     #[inline]
     pub fn right(self, p: usize) -> &'static [i16] {
-        if p == 0 { &self.phase(0)[1..] } else { self.phase(PHASES - p) }
+        match p {
+            0 => &self.phase(0)[1..],
+            PHASES => self.phase(0),
+            _ => self.phase(PHASES - p),
+        }
     }
 
     /// The taps applied at and left of `k` (to `x[k], x[k−1], …`: offsets
-    /// `−(m + p/PHASES)`, `m ≥ 0`, to `half_len`), to be subtracted.
+    /// `−(m + p/PHASES)`, `m ≥ 0`, to `half_len`), to be subtracted
+    /// (`p = PHASES`: offsets `−(m + 1)`).
     #[inline]
     pub fn left(self, p: usize) -> &'static [i16] {
-        self.phase(p)
+        if p == PHASES { &self.phase(0)[1..] } else { self.phase(p) }
+    }
+
+    /// For `1 ≤ p ≤ PHASES − 2`, the taps of phases `p` and `p + 1` as two
+    /// contiguous runs of `2·half_len`: right of `k`, `right(p + 1)` then
+    /// `right(p)`; at and left of `k`, `left(p)` then `left(p + 1)` (the
+    /// phases are stored in order, so the two of a pair are neighbours).
+    #[inline]
+    pub fn pair_runs(self, p: usize) -> Option<(&'static [i16], &'static [i16])> {
+        let l = self.half_len;
+        if !(1..PHASES - 1).contains(&p) {
+            return None;
+        }
+        // Phase r ≥ 1 starts at l + 1 + (r − 1)·l.
+        let start = |r: usize| l + 1 + (r - 1) * l;
+        let right = self.taps.get(start(PHASES - p - 1)..start(PHASES - p) + l)?;
+        let left = self.taps.get(start(p)..start(p + 1) + l)?;
+        Some((right, left))
     }
 
     /// Half length in whole pixels (the offsets reach `half_len` px).

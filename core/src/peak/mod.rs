@@ -73,6 +73,25 @@ pub trait Pixel: Copy {
         (q[0].value() + q[1].value()) + (q[2].value() + q[3].value())
     }
 }
+/// A value the estimators read: a pixel of the sensor's row (read in
+/// place where nothing in a candidate's window needs repair or clamping)
+/// or of the detector's `i32` copy of the window.
+pub trait Sample: Copy {
+    /// The value.
+    fn get(self) -> i32;
+}
+impl<P: Pixel> Sample for P {
+    #[inline(always)]
+    fn get(self) -> i32 {
+        self.value()
+    }
+}
+impl Sample for i32 {
+    #[inline(always)]
+    fn get(self) -> i32 {
+        self
+    }
+}
 impl Pixel for u8 {
     fn value(self) -> i32 {
         self as i32
@@ -488,9 +507,10 @@ pub struct Candidate {
 /// estimator reads ([`Plan::reach_px`]), so within it every estimator sees
 /// what it would see in the whole row, except where the window ends at the
 /// row's own ends (edges replicate there, as before).
-pub(crate) struct RowView<'a> {
-    /// The window (hot pixels repaired).
-    pub x: &'a [i32],
+pub(crate) struct RowView<'a, S = i32> {
+    /// The window (hot pixels repaired): the detector's copy, or the row
+    /// itself where the copy would equal it ([`coarse::window_is_clean`]).
+    pub x: &'a [S],
     /// The window low-pass filtered by the coarse box cascade (only for the
     /// methods that use it; empty otherwise).
     pub g: &'a [i32],
@@ -504,7 +524,7 @@ pub(crate) struct RowView<'a> {
     pub row_len: usize,
 }
 
-impl RowView<'_> {
+impl<S> RowView<'_, S> {
     /// Whether `reach` pixels either side of window index `c` run past the
     /// row's (not the window's) ends.
     pub fn clipped(&self, c: usize, reach: usize) -> bool {
@@ -520,10 +540,12 @@ impl RowView<'_> {
 
 /// Rows between two refreshes of the noise estimates (pixel noise and the
 /// screen's σ): they are stationary within a frame, so measuring them on
-/// one row in 32 (and on the first row after [`Detector::refresh_noise`],
-/// which the sensor head calls at every frame) costs a thirty-second of two
-/// medians per row.
-pub const NOISE_ROWS: u16 = 32;
+/// one row in 64 (and on the first row after [`Detector::refresh_noise`],
+/// which the sensor head calls at every frame) costs a sixty-fourth of two
+/// medians per row: about 260 instructions a row on thumbv7em (it was one
+/// row in 32 before the per-stripe work was halved and this became a tenth
+/// of a windowed row's cost). A 480-row frame still refreshes 8 times.
+pub const NOISE_ROWS: u16 = 64;
 
 /// The screen's threshold as a fraction of the detection threshold, Q8
 /// (0.6): the screen only nominates; the multi-scale test at the candidate
@@ -684,6 +706,7 @@ impl<const W: usize> Detector<W> {
         let block = 1usize << lb;
         let near = block + 1;
         let needs_g = matches!(self.cfg.method, Method::CogFiltered | Method::FirZero);
+        let in_place = self.cfg.method == Method::Cwt;
         let mut found: Vec<Stripe, MAX_CANDIDATES> = Vec::new();
         let mut runs_used: Vec<(usize, usize), MAX_CANDIDATES> = Vec::new();
         let level = coarse::spike_screen_level(noise_q8);
@@ -702,48 +725,70 @@ impl<const W: usize> Detector<W> {
                 let (lo, hi) =
                     if screened { (centre.saturating_sub(reach), (centre + reach + 1).min(n)) } else { (0, n) };
                 let w = hi - lo;
-                let x = &mut self.x[..w];
-                coarse::load_window(&row[lo..hi], sat, level, x, &mut hits);
-                let spikes = coarse::repair_spikes(x, &hits, noise_q8, self.plan.spike_k_q16);
-                if needs_g {
-                    let rung = &kernels::RUNGS[self.plan.k_coarse];
-                    coarse::response(x, &mut self.r[..w], &mut self.s[..w], &mut self.g[..w], rung);
-                }
-                let x = &self.x[..w];
-                // The brightest pixel where the screen responded (after the
-                // repair, so a stuck pixel does not pull the start away from
-                // a stripe beside it).
-                let start = if screened && spikes == 0 && (lo..hi).contains(&bright) {
-                    // Nothing repaired: the same pixel (up to ties among
-                    // values above saturation, which the copy clamps).
-                    bright - lo
+                // The default method reads a window that the copy and the
+                // repair would leave as it is (the common case) in place,
+                // from the row: the same values, no copy.
+                let in_place = in_place
+                    && screened
+                    && (lo..hi).contains(&bright)
+                    && row[bright].value() < sat
+                    && coarse::window_is_clean(&row[lo..hi], sat, level);
+                let (got, spikes) = if in_place {
+                    let view = RowView {
+                        x: &row[lo..hi],
+                        g: &[],
+                        cfg: &self.cfg,
+                        plan: &self.plan,
+                        noise_q8,
+                        off: lo,
+                        row_len: n,
+                    };
+                    (cwt::refine(&view, bright - lo, &mut self.s), 0)
                 } else {
-                    let (a, b) = if screened { (a0.max(lo) - lo, b0.min(hi - 1) - lo) } else { (0, w - 1) };
-                    argmax(&x[a..=b]) + a
-                };
-                let view = RowView {
-                    x,
-                    g: if needs_g { &self.g[..w] } else { &[] },
-                    cfg: &self.cfg,
-                    plan: &self.plan,
-                    noise_q8,
-                    off: lo,
-                    row_len: n,
-                };
-                // `start` is the first brightest pixel within `near`: a
-                // saturated run there includes it.
-                let run = if x[start] >= sat { coarse::saturated_run(view.x, start, near, sat) } else { None };
-                let got = match run {
-                    Some((s, e)) => {
-                        let run = (s + lo, e + lo);
-                        if runs_used.contains(&run) {
-                            Ok(None)
-                        } else {
-                            let _ = runs_used.push(run);
-                            Ok(saturated_stripe(&view, (s, e), sat))
-                        }
+                    let x = &mut self.x[..w];
+                    coarse::load_window(&row[lo..hi], sat, level, x, &mut hits);
+                    let spikes = coarse::repair_spikes(x, &hits, noise_q8, self.plan.spike_k_q16);
+                    if needs_g {
+                        let rung = &kernels::RUNGS[self.plan.k_coarse];
+                        coarse::response(x, &mut self.r[..w], &mut self.s[..w], &mut self.g[..w], rung);
                     }
-                    None => refine(&view, start),
+                    let x = &self.x[..w];
+                    // The brightest pixel where the screen responded (after the
+                    // repair, so a stuck pixel does not pull the start away from
+                    // a stripe beside it).
+                    let start = if screened && spikes == 0 && (lo..hi).contains(&bright) {
+                        // Nothing repaired: the same pixel (up to ties among
+                        // values above saturation, which the copy clamps).
+                        bright - lo
+                    } else {
+                        let (a, b) = if screened { (a0.max(lo) - lo, b0.min(hi - 1) - lo) } else { (0, w - 1) };
+                        argmax(&x[a..=b]) + a
+                    };
+                    let view = RowView {
+                        x,
+                        g: if needs_g { &self.g[..w] } else { &[] },
+                        cfg: &self.cfg,
+                        plan: &self.plan,
+                        noise_q8,
+                        off: lo,
+                        row_len: n,
+                    };
+                    // `start` is the first brightest pixel within `near`: a
+                    // saturated run there includes it.
+                    let run = if x[start] >= sat { coarse::saturated_run(view.x, start, near, sat) } else { None };
+                    let got = match run {
+                        Some((s, e)) => {
+                            let run = (s + lo, e + lo);
+                            if runs_used.contains(&run) {
+                                Ok(None)
+                            } else {
+                                let _ = runs_used.push(run);
+                                Ok(saturated_stripe(&view, (s, e), sat))
+                            }
+                        }
+                        None => refine(&view, start, &mut self.s),
+                    };
+                    (got, spikes)
                 };
                 match got {
                     Err(cwt::Wider) if reach < self.plan.reach_px + near => {
@@ -792,7 +837,6 @@ fn window_candidates<P: Pixel>(
     cands.clear();
     let n = row.len();
     let (ext, least) = (2usize << lb, 4usize << lb);
-    let mut part: Vec<Candidate, MAX_CANDIDATES> = Vec::new();
     for w in windows.as_slice() {
         let first = w.first_px as usize;
         if first >= n {
@@ -802,20 +846,27 @@ fn window_candidates<P: Pixel>(
         let lo = first.saturating_sub(ext) & !(block - 1);
         let hi = (lo + (w.end_px() as usize + ext - lo).next_multiple_of(block).max(least)).min(n);
         let lo = lo.min(hi - least);
-        screen::candidates(&row[lo..hi], lb, narrow, threshold, &mut part);
-        for c in &part {
-            screen::push_candidate(cands, Candidate { pos: c.pos + lo, resp: c.resp });
-        }
+        screen::candidates_at(&row[lo..hi], lo, lb, narrow, threshold, cands);
     }
 }
 
-/// Index of the first maximum of a slice of pixels (0 if empty).
+/// Index of the first maximum of a slice of pixels (0 if empty). Two
+/// pixels per iteration: the larger of the pair (the left one on a tie)
+/// against the best so far, one compare and select each.
 fn argmax_raw<P: Pixel>(x: &[P]) -> usize {
     let (mut best, mut top) = (0, i32::MIN);
-    for (i, p) in x.iter().enumerate() {
-        if p.value() > top {
-            (best, top) = (i, p.value());
+    let (pairs, rest) = x.as_chunks::<2>();
+    for (j, q) in pairs.iter().enumerate() {
+        let (a, b) = (q[0].value(), q[1].value());
+        let (v, i) = if b > a { (b, 2 * j + 1) } else { (a, 2 * j) };
+        if v > top {
+            (best, top) = (i, v);
         }
+    }
+    if let Some(p) = rest.first()
+        && p.value() > top
+    {
+        best = x.len() - 1;
     }
     best
 }
@@ -831,14 +882,14 @@ fn argmax(x: &[i32]) -> usize {
     best
 }
 
-fn refine(v: &RowView<'_>, start: usize) -> Result<Option<Stripe>, cwt::Wider> {
+fn refine(v: &RowView<'_>, start: usize, scratch: &mut [i32]) -> Result<Option<Stripe>, cwt::Wider> {
     Ok(match v.cfg.method {
-        Method::Cwt => return cwt::refine(v, start),
+        Method::Cwt => return cwt::refine(v, start, scratch),
         // The other methods detect through the same multi-scale test, then
         // apply their own sub-pixel estimate; a coarse candidate that the
         // test rejects (noise, a hot pixel, a glow) is no stripe for any.
         m => {
-            let Some(ok) = cwt::confirm(v, start)? else {
+            let Some(ok) = cwt::confirm(v, start, scratch)? else {
                 return Ok(None);
             };
             if !v.fits(ok.c, v.plan.method_reach_px) {
@@ -916,7 +967,11 @@ fn select<const N: usize>(found: &mut Vec<Stripe, MAX_CANDIDATES>, cfg: &Config,
     for i in 0..found.len() {
         let s = found[i];
         if found[..k].iter().all(|kept| kept.position.abs_diff(s.position) >= cfg.min_separation) {
-            found[k] = s;
+            // (Kept in place when nothing was dropped before it: the
+            // assignment is a `memmove` call on the M4.)
+            if k != i {
+                found[k] = s;
+            }
             k += 1;
         }
     }
@@ -940,5 +995,33 @@ fn select<const N: usize>(found: &mut Vec<Stripe, MAX_CANDIDATES>, cfg: &Config,
     kept.sort_unstable_by_key(|s| s.position);
     for s in kept.iter() {
         let _ = out.push(*s);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn argmax_raw_is_the_first_maximum() {
+        let mut s = 12345u32;
+        for len in 0..24usize {
+            for _ in 0..50 {
+                let x: heapless::Vec<u16, 24> = (0..len)
+                    .map(|_| {
+                        s ^= s << 13;
+                        s ^= s >> 17;
+                        s ^= s << 5;
+                        (s % 5) as u16
+                    })
+                    .collect();
+                let want = x
+                    .iter()
+                    .enumerate()
+                    .fold((0, -1i32), |(b, t), (i, &v)| if v as i32 > t { (i, v as i32) } else { (b, t) })
+                    .0;
+                assert_eq!(argmax_raw(&x), want, "{x:?}");
+            }
+        }
     }
 }

@@ -104,16 +104,19 @@ struct Peaks<'a> {
     rising: bool,
     log2_b: u32,
     n: usize,
+    /// Added to the positions (the span's first column in the row).
+    base: usize,
 }
 
 impl<'a> Peaks<'a> {
-    fn new(out: &'a mut Vec<Candidate, MAX_CANDIDATES>, log2_b: u32, n: usize) -> Peaks<'a> {
-        out.clear();
-        Peaks { out, last_j: usize::MAX, last_r: 0, rising: false, log2_b, n }
+    /// Adds to `out` (not cleared).
+    fn new(out: &'a mut Vec<Candidate, MAX_CANDIDATES>, log2_b: u32, n: usize, base: usize) -> Peaks<'a> {
+        Peaks { out, last_j: usize::MAX, last_r: 0, rising: false, log2_b, n, base }
     }
 
     fn emit(&mut self) {
-        let c = Candidate { pos: ((self.last_j + 1) << self.log2_b).min(self.n - 1), resp: self.last_r };
+        let pos = ((self.last_j + 1) << self.log2_b).min(self.n - 1) + self.base;
+        let c = Candidate { pos, resp: self.last_r };
         push_candidate(self.out, c);
     }
 
@@ -151,13 +154,14 @@ impl<'a> Peaks<'a> {
 /// moves, one compare per block on the fast path.
 fn scan_b<P: Pixel, const B: usize, const NARROW: bool>(
     row: &[P],
+    base: usize,
     log2_b: u32,
     threshold: i32,
     out: &mut Vec<Candidate, MAX_CANDIDATES>,
 ) {
     let n = row.len();
     let (chunks, tail) = row.as_chunks::<B>();
-    let mut pk = Peaks::new(out, log2_b, n);
+    let mut pk = Peaks::new(out, log2_b, n, base);
     // S[−1] (B × the edge pixel), S[0], S[1].
     let (mut s0, mut s1, mut s2) =
         (B as i32 * row[0].value(), block_sum::<P, B, NARROW>(&chunks[0]), block_sum::<P, B, NARROW>(&chunks[1]));
@@ -240,7 +244,23 @@ pub fn candidates<P: Pixel>(
     threshold: i32,
     out: &mut Vec<Candidate, MAX_CANDIDATES>,
 ) {
-    by_block!(log2_b, narrow, scan_b, row, log2_b, threshold, out)
+    out.clear();
+    by_block!(log2_b, narrow, scan_b, row, 0, log2_b, threshold, out)
+}
+
+/// As [`candidates`] for `span`, the columns `base..` of a row, adding its
+/// candidates (in row coordinates) to those already in `out`, the
+/// strongest [`MAX_CANDIDATES`] kept: the search windows' screens fill one
+/// list.
+pub fn candidates_at<P: Pixel>(
+    span: &[P],
+    base: usize,
+    log2_b: u32,
+    narrow: bool,
+    threshold: i32,
+    out: &mut Vec<Candidate, MAX_CANDIDATES>,
+) {
+    by_block!(log2_b, narrow, scan_b, span, base, log2_b, threshold, out)
 }
 
 /// Every block response `R[0..]` of `row` into `out` (as many as fit);

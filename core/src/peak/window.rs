@@ -151,10 +151,12 @@ impl Windows {
 
     /// Whether column `px` (Q16.16 position) lies inside a window.
     pub fn contains(&self, position_q16: i32) -> bool {
-        self.list.iter().any(|w| {
-            let (a, b) = ((w.first_px as i64) << 16, (w.end_px() as i64) << 16);
-            (a..b).contains(&(position_q16 as i64))
-        })
+        // `first ≤ position < end` in Q16.16 is `first ≤ ⌊position⌋ < end`
+        // for a position ≥ 0 (and no window holds a negative one).
+        let Ok(px) = u32::try_from(position_q16 >> 16) else {
+            return false;
+        };
+        self.list.iter().any(|w| (w.first_px as u32..w.end_px()).contains(&px))
     }
 
     /// Pixels the windows cover (overlaps counted once).

@@ -314,6 +314,12 @@ proptest! {
         prop_assert_eq!(&w, &want);
         let mut again = copy.clone();
         prop_assert_eq!(coarse::remove_spikes(&mut again, noise_q8, k_q16), n_want);
-        prop_assert_eq!(again, want);
+        prop_assert_eq!(&again, &want);
+        // A window the detector reads in place is one the copy and the
+        // repair leave as it is.
+        if coarse::window_is_clean(&row, sat, level) {
+            prop_assert_eq!(n_want, 0);
+            prop_assert_eq!(&want, &x);
+        }
     }
 }
