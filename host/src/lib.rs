@@ -7,6 +7,7 @@
 //! * [`link`] — the serial port (open by path, reconnect) and frame splitting.
 //! * [`listen`] — a streaming session: handshake, start, profiles, heartbeat, recording, summary.
 //! * [`capture`] — one full frame from a head (what the sensor sees).
+//! * [`upload`] — a calibration file sent to a head (`cms-host calibrate upload`).
 //! * [`simulate`] — the simulated head: `cms_core::pipeline::Head` on a pseudo-terminal, fed by [`sim`].
 //! * [`qemu`] — the emulated head: the firmware's `Head` on QEMU's Cortex-M boards, and its benchmark.
 //!
@@ -21,7 +22,7 @@
 //! * [`board`] — the checkerboard target and its pose, shared by calibration and the simulator.
 //! * [`lm`] — Levenberg–Marquardt, the one nonlinear least-squares solver (fits, calibration).
 //! * [`sim`] — the scene: rail, lasers, camera and sensor noise, rendered row by row with its truth.
-//! * [`calib`] — checkerboard corners, camera and laser-plane calibration, the calibration file, upload.
+//! * [`calib`] — checkerboard corners, camera and laser-plane calibration, the calibration file.
 //! * [`fit`] — IEEE 1057 and the paper's rotated sine fits of a profile.
 //! * [`corrugation`] — the lines of one frame together: head frame, surface normal (paper §2.2), joint fit.
 //! * [`measure`] — per image or recorded frame: each laser's profile and fit, the joint result, plots.
@@ -63,6 +64,7 @@ pub mod sim;
 pub mod simulate;
 pub mod standards;
 pub mod synthetic;
+pub mod upload;
 pub mod verdict;
 
 pub use error::{Class, Error};

@@ -47,15 +47,7 @@ impl crate::error::Classify for SimulateError {
     }
 }
 
-/// Camera and head geometry presets.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Preset {
-    /// The reference head: 752 × 480 global-shutter sensor, 8 bits.
-    #[default]
-    Reference,
-    /// The geometry of the paper's Table 4 (4752 × 3168).
-    Paper,
-}
+pub use crate::sim::Preset;
 
 /// One corrugation component, `WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -143,6 +135,10 @@ pub struct HeadOptions {
     /// [default: $CMS_SIM_STATE, else $XDG_STATE_HOME/cms-host/sim-head, else
     /// ~/.local/state/cms-host/sim-head].
     pub state: Option<PathBuf>,
+    /// Whether the head leaves the factory calibrated (its true
+    /// calibration, as a real profiler's factory calibration): used
+    /// whenever no calibration is kept in its state directory.
+    pub factory_calibration: bool,
 }
 
 impl Default for HeadOptions {
@@ -161,6 +157,7 @@ impl Default for HeadOptions {
             bits: None,
             laser_gain: None,
             state: None,
+            factory_calibration: true,
         }
     }
 }
@@ -180,6 +177,7 @@ pub fn serve_on_new_pty(
         max_rate_hz: built.max_rate_hz,
         exposure_us: Some(built.exposure_us),
         calibration_file: calibration_file(args),
+        factory_calibration: built.factory,
         ..ServeOptions::default()
     };
     serve(pty, built.renderer, built.detector, stop, &opts)
@@ -239,6 +237,7 @@ pub fn spawn_on_pty(args: &HeadOptions) -> Result<(PathBuf, SimHandle), Simulate
         max_rate_hz: built.max_rate_hz,
         exposure_us: Some(built.exposure_us),
         calibration_file: calibration_file(args),
+        factory_calibration: built.factory,
         ..ServeOptions::default()
     };
     let thread = std::thread::Builder::new()
@@ -265,6 +264,8 @@ pub struct SimPort {
     pub sim_corrugation: Vec<CorrugationSpec>,
     /// With PORT `sim`: RMS random roughness of the simulated rail, µm.
     pub sim_roughness_um: Option<f64>,
+    /// With PORT `sim`: the simulated head starts without its factory calibration.
+    pub sim_uncalibrated: bool,
 }
 
 impl SimPort {
@@ -276,6 +277,7 @@ impl SimPort {
             || self.sim_speed_mm_s.is_some()
             || !self.sim_corrugation.is_empty()
             || self.sim_roughness_um.is_some()
+            || self.sim_uncalibrated
     }
 }
 
@@ -285,7 +287,7 @@ impl SimPort {
 pub fn resolve_port(port: &str, sim: &SimPort) -> Result<(PathBuf, Option<SimHandle>), SimulateError> {
     if port != "sim" {
         if sim.any() {
-            return Err(SimulateError::Usage("--sim-seed, --sim-preset, --sim-state, --sim-speed-mm-s, --sim-corrugation and --sim-roughness-um need PORT `sim`".into()));
+            return Err(SimulateError::Usage("--sim-seed, --sim-preset, --sim-state, --sim-speed-mm-s, --sim-corrugation, --sim-roughness-um and --sim-uncalibrated need PORT `sim`".into()));
         }
         return Ok((PathBuf::from(port), None));
     }
@@ -298,6 +300,7 @@ pub fn resolve_port(port: &str, sim: &SimPort) -> Result<(PathBuf, Option<SimHan
         speed_mm_s: sim.sim_speed_mm_s,
         corrugation: sim.sim_corrugation.clone(),
         roughness_um: sim.sim_roughness_um,
+        factory_calibration: !sim.sim_uncalibrated,
         ..HeadOptions::default()
     };
     let (path, handle) = spawn_on_pty(&args)?;
@@ -400,6 +403,8 @@ mod scene {
         pub detector: Config,
         pub max_rate_hz: u16,
         pub exposure_us: u32,
+        /// The factory calibration, unless the head is to start without one.
+        pub factory: Option<cms_core::protocol::Calibration>,
     }
 
     pub(super) fn build(args: &HeadOptions) -> Result<Built, SimulateError> {
@@ -416,9 +421,15 @@ mod scene {
         cms_core::peak::Detector::<1>::new(detector)
             .map_err(|e| SimulateError::Usage(format!("detector for this scene: {e}")))?;
         let exposure_us = scene.camera().exposure_us.round().clamp(1.0, 1e6) as u32;
+        let factory = if args.factory_calibration {
+            let file = crate::calib::truth::truth(&scene);
+            Some(file.to_head().map_err(|e| SimulateError::Usage(format!("factory calibration: {e}")))?)
+        } else {
+            None
+        };
         let renderer =
             Threaded::new(SceneCamera::new(scene)).map_err(|e| SimulateError::Io("starting the render thread", e))?;
-        Ok(Built { renderer, detector, max_rate_hz: args.rate, exposure_us })
+        Ok(Built { renderer, detector, max_rate_hz: args.rate, exposure_us, factory })
     }
 
     /// The scene model as the head's row source: frames are exposed at the

@@ -35,7 +35,7 @@
 use std::path::Path;
 
 use super::stitch::{Direction, MAX_CELLS};
-use super::stitch::{Gap, Stitched, Stitching};
+use super::stitch::{Stitched, Stitching};
 use crate::Error;
 
 /// What the file held and how it was gridded.
@@ -213,7 +213,7 @@ fn interpolate(xs: &[f64], z: &[f64], x0: f64, dx: f64, n: usize, max_step: f64)
 
 /// A profile as one line's stitched result: no frames, its gaps listed.
 pub fn stitched(line: usize, x0_mm: f64, dx_mm: f64, z_um: Vec<f64>) -> Stitched {
-    let gaps = gaps(x0_mm, dx_mm, &z_um);
+    let gaps = super::stitch::gaps(x0_mm, dx_mm, &z_um);
     Stitched {
         laser: line,
         x0_mm,
@@ -227,27 +227,10 @@ pub fn stitched(line: usize, x0_mm: f64, dx_mm: f64, z_um: Vec<f64>) -> Stitched
     }
 }
 
-/// The runs of missing samples of a profile.
-pub fn gaps(x0_mm: f64, dx_mm: f64, z_um: &[f64]) -> Vec<Gap> {
-    let mut out = Vec::new();
-    let mut i = 0;
-    while i < z_um.len() {
-        if z_um[i].is_finite() {
-            i += 1;
-            continue;
-        }
-        let s = i;
-        while i < z_um.len() && !z_um[i].is_finite() {
-            i += 1;
-        }
-        out.push(Gap { start_mm: x0_mm + s as f64 * dx_mm, length_mm: (i - s) as f64 * dx_mm });
-    }
-    out
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::analyze::stitch::Gap;
 
     #[test]
     fn uniform_samples_are_kept_as_they_are_and_steps_leave_gaps() {

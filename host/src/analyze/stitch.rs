@@ -549,7 +549,7 @@ impl Lane {
         let z_um: Vec<f64> = self.cells.iter().map(|&(s, w)| if w > 0 { s / w as f64 } else { f64::NAN }).collect();
         // The grid only ever grows to a frame's cells, so its ends have data.
         let x0_mm = self.base as f64 * dx;
-        let gaps = super::profile::gaps(x0_mm, dx, &z_um);
+        let gaps = gaps(x0_mm, dx, &z_um);
         Stitched {
             laser: self.laser,
             x0_mm,
@@ -562,6 +562,24 @@ impl Lane {
             gaps,
         }
     }
+}
+
+/// The runs of missing samples of a profile.
+pub fn gaps(x0_mm: f64, dx_mm: f64, z_um: &[f64]) -> Vec<Gap> {
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < z_um.len() {
+        if z_um[i].is_finite() {
+            i += 1;
+            continue;
+        }
+        let s = i;
+        while i < z_um.len() && !z_um[i].is_finite() {
+            i += 1;
+        }
+        out.push(Gap { start_mm: x0_mm + s as f64 * dx_mm, length_mm: (i - s) as f64 * dx_mm });
+    }
+    out
 }
 
 fn finite(p: (f64, f64)) -> bool {

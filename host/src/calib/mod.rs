@@ -1,6 +1,6 @@
 //! Calibration of the sensor head: camera intrinsics from checkerboard
 //! photographs, laser planes from laser lines on the board, the calibration
-//! file, and its upload to a head.
+//! file (its upload to a head is [`crate::upload`]).
 //!
 //! * [`board`] — checkerboard inner-corner detection with sub-pixel refinement.
 //! * [`camera`] — Zhang's closed-form initialisation and Levenberg–Marquardt
@@ -9,7 +9,6 @@
 //! * [`lasers`] — laser planes from laser-on/laser-off pairs; `cms-host calibrate lasers`.
 //! * [`file`] — the TOML calibration file: versioned, units in the keys,
 //!   validated on load.
-//! * [`upload`] — `cms-host calibrate upload`.
 //! * [`truth`] — the true calibration of a simulated head.
 //! * [`render`] — `cms-host calibrate render`: calibration images from the
 //!   simulated head, with the truth beside them.
@@ -23,4 +22,3 @@ pub mod file;
 pub mod lasers;
 pub mod render;
 pub mod truth;
-pub mod upload;

@@ -31,9 +31,9 @@ use std::path::{Path, PathBuf};
 use serde_json::json;
 
 use crate::Error;
+use crate::sim::Preset;
 use crate::sim::board::{self, BoardImage, BoardRenderer, RenderOptions};
 use crate::sim::{NoiseModel, Scene, SimConfig};
-use crate::simulate::Preset;
 
 /// Most poses (two-digit file names).
 pub const MAX_POSES: usize = 100;

@@ -10,8 +10,9 @@ use cms_host::calib::board::{CornerError, find_corners};
 use cms_host::calib::camera::{CalibOptions, calibrate};
 use cms_host::calib::file::{CalibrationFile, HeadSection, LaserSection, PlaneSection, SigmaSection};
 use cms_host::calib::lasers::{LaserOptions, Pair, calibrate_lasers};
-use cms_host::calib::{self, render, upload};
+use cms_host::calib::{self, render};
 use cms_host::input::read_rows;
+use cms_host::upload;
 
 use super::exit::input;
 use super::simulate::{PresetArg, SimPortArgs};

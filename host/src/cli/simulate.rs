@@ -116,6 +116,9 @@ pub struct SimulateArgs {
     /// ~/.local/state/cms-host/sim-head].
     #[arg(long, value_name = "DIR")]
     pub state: Option<PathBuf>,
+    /// Start without the factory calibration (pixels only until one is uploaded).
+    #[arg(long)]
+    pub uncalibrated: bool,
 }
 
 impl SimulateArgs {
@@ -135,6 +138,7 @@ impl SimulateArgs {
             bits: self.bits,
             laser_gain: self.laser_gain,
             state: self.state.clone(),
+            factory_calibration: !self.uncalibrated,
         }
     }
 }
@@ -177,6 +181,9 @@ pub struct SimPortArgs {
     /// With PORT `sim`: RMS random roughness of the simulated rail, µm.
     #[arg(long = "sim-roughness-um", value_name = "R", value_parser = non_negative)]
     pub sim_roughness_um: Option<f64>,
+    /// With PORT `sim`: the simulated head starts without its factory calibration.
+    #[arg(long = "sim-uncalibrated")]
+    pub sim_uncalibrated: bool,
 }
 
 impl SimPortArgs {
@@ -189,6 +196,7 @@ impl SimPortArgs {
             sim_speed_mm_s: self.sim_speed_mm_s,
             sim_corrugation: self.sim_corrugation.clone(),
             sim_roughness_um: self.sim_roughness_um,
+            sim_uncalibrated: self.sim_uncalibrated,
         }
     }
 }

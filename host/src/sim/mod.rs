@@ -171,6 +171,16 @@ pub struct Laser {
     pub wavelength_nm: f64,
 }
 
+/// Camera and head geometry presets.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Preset {
+    /// The reference head: 752 × 480 global-shutter sensor, 8 bits.
+    #[default]
+    Reference,
+    /// The geometry of the paper's Table 4 (4752 × 3168).
+    Paper,
+}
+
 /// Everything the simulated head and rail are made of.
 ///
 /// `Default` is [`SimConfig::reference`]; [`SimConfig::paper`] is the

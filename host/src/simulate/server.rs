@@ -208,6 +208,9 @@ pub struct ServeOptions {
     /// Where the head keeps its calibration across restarts (the real
     /// head's flash); `None`: it forgets it.
     pub calibration_file: Option<std::path::PathBuf>,
+    /// The calibration the head left the factory with: loaded when none
+    /// is kept (or the kept one is unusable).
+    pub factory_calibration: Option<cms_core::protocol::Calibration>,
 }
 
 impl Default for ServeOptions {
@@ -218,6 +221,7 @@ impl Default for ServeOptions {
             max_rate_hz: 1000,
             exposure_us: None,
             calibration_file: None,
+            factory_calibration: None,
         }
     }
 }
@@ -480,14 +484,24 @@ pub fn serve<R: RowRenderer>(
         // camera's nominal exposure as a host would (the Ack goes nowhere).
         head.handle(Command { seq: 0, msg: HostMsg::SetExposure { exposure_us: us } }, 0, &camera, &mut |_| {});
     }
+    let mut kept = false;
     if let Some(path) = &opts.calibration_file {
         match stored::load(path) {
             Ok(Some(c)) => match head.load_calibration(c) {
-                Ok(()) => log(format_args!("calibration {:#010x} restored from {}", c.id, path.display())),
+                Ok(()) => {
+                    kept = true;
+                    log(format_args!("calibration {:#010x} restored from {}", c.id, path.display()));
+                }
                 Err(e) => log(format_args!("stored calibration in {} not used: {e}", path.display())),
             },
             Ok(None) => {}
             Err(e) => log(format_args!("stored calibration not used: {e}")),
+        }
+    }
+    if !kept && let Some(c) = opts.factory_calibration {
+        match head.load_calibration(c) {
+            Ok(()) => log(format_args!("factory calibration {:#010x} loaded", c.id)),
+            Err(e) => log(format_args!("factory calibration not used: {e}")),
         }
     }
     // A tall sensor sends a frame in several parts: room for all of them.
@@ -530,9 +544,11 @@ pub fn serve<R: RowRenderer>(
                         s.rate_hz = 0;
                     }
                     let kept = head.calibration().copied();
+                    // An upload is kept even when it equals the factory calibration.
+                    let upload = matches!(cmd.msg, HostMsg::SetCalibration(_));
                     head.handle(cmd, now_us, &camera, &mut |m| out.push(m));
                     if let (Some(path), Some(c)) = (&opts.calibration_file, head.calibration())
-                        && Some(*c) != kept
+                        && (upload || Some(*c) != kept)
                         && let Err(e) = stored::save(path, c)
                     {
                         log(format_args!("keeping the calibration: {e}"));

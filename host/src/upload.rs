@@ -15,8 +15,8 @@ use cms_core::fixed::Px;
 use cms_core::pipeline::triangulator;
 use cms_core::protocol::HostMsg;
 
-use super::file::CalibrationFile;
 use crate::Error;
+use crate::calib::file::CalibrationFile;
 use crate::link::{Client, ClientError, Handshake, Wait};
 use crate::simulate::{self, SimPort};
 
