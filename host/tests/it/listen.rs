@@ -292,7 +292,6 @@ fn device(link: PathBuf, plan: Plan, stop: Arc<AtomicBool>, hooks: Hooks) -> Rep
     let mut pty = Some(plug(&link));
     let _ = hooks.plugged.send(());
     let mut cmd_reader: Box<FrameReader<MAX_COMMAND_FRAME>> = Box::new(FrameReader::new());
-    let mut scratch = vec![0u8; MAX_FRAME];
     let mut frame = vec![0u8; MAX_FRAME];
     let mut rbuf = vec![0u8; 4096];
     let mut report = Report::default();
@@ -319,7 +318,7 @@ fn device(link: PathBuf, plan: Plan, stop: Arc<AtomicBool>, hooks: Hooks) -> Rep
         }
         {
             let mut reply = |m: &DeviceMsg| {
-                let f = encode(m, &mut scratch, &mut frame).expect("encode");
+                let f = encode(m, &mut frame).expect("encode");
                 let seq = if let DeviceMsg::Profile(p) = m { Some(p.seq) } else { None };
                 outq.push((seq, f.to_vec()));
             };
@@ -1032,9 +1031,8 @@ fn another_protocol_version_is_refused() {
         Head::new(Lasers::default(), default_detector(), Identity { firmware: "9", board: "v2" }).expect("head");
     info.get_or_insert(head.info(&TestCamera::new(64, 4, 1, 1)));
     let f = {
-        let mut scratch = vec![0u8; MAX_FRAME];
         let mut out = vec![0u8; MAX_FRAME];
-        encode(&DeviceMsg::Hello(info.unwrap()), &mut scratch, &mut out).unwrap().to_vec()
+        encode(&DeviceMsg::Hello(info.unwrap()), &mut out).unwrap().to_vec()
     };
     let mut raw = cobs_decode(&f[..f.len() - 1]);
     raw[0] = PROTOCOL_VERSION + 1;

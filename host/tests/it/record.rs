@@ -32,9 +32,8 @@ fn big<T: Send>(f: impl FnOnce() -> T + Send) -> T {
 }
 
 fn frame<T: serde::Serialize>(msg: &T) -> Vec<u8> {
-    let mut scratch = vec![0u8; MAX_FRAME];
     let mut out = vec![0u8; MAX_FRAME];
-    encode(msg, &mut scratch, &mut out).unwrap().to_vec()
+    encode(msg, &mut out).unwrap().to_vec()
 }
 
 fn profile(seq: u32, rows: u16) -> DeviceMsg {
