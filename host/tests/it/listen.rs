@@ -1234,3 +1234,32 @@ fn cli_kill_9_loses_at_most_the_frame_in_flight() {
         assert!(kept + 1 >= printed.len(), "try {k}: printed {printed:?}, recorded {recorded:?}");
     }
 }
+
+/// `--window`: the simulated head seeks each laser's stripes in its window
+/// only (its lines stand near columns 310, 379 and 450): windows around
+/// them keep every point; laser 1's window moved off its line loses them.
+#[test]
+fn cli_listen_sets_search_windows() {
+    let points = |windows: &[&str]| -> Vec<usize> {
+        let mut args = vec!["listen", "sim", "--frames", "2", "--json"];
+        for w in windows {
+            args.extend(["--window", w]);
+        }
+        let out = crate::common::run(&args);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let last = String::from_utf8(out.stdout).unwrap().lines().last().unwrap().to_owned();
+        let v: serde_json::Value = serde_json::from_str(&last).unwrap();
+        v["lasers"].as_array().unwrap().iter().map(|l| l["points"].as_array().unwrap().len()).collect()
+    };
+    assert_eq!(points(&["0:278-342", "1:347-411", "2:418-482"]), [480, 480, 480]);
+    // Two stripes a row for three lit lasers: the head gives each to the
+    // laser whose last position is nearest (`pipeline::assign`), not by
+    // window; one laser gets none.
+    let moved = points(&["0:278-342", "1:600-664", "2:418-482"]);
+    assert_eq!(moved.iter().sum::<usize>(), 960, "{moved:?}");
+    assert!(moved.contains(&0), "{moved:?}");
+    // A window the head refuses (past the 752-px row) ends the listener.
+    let out = crate::common::run(&["listen", "sim", "--frames", "2", "--window", "0:700-800"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("SetWindows"), "{}", String::from_utf8_lossy(&out.stderr));
+}
