@@ -11,6 +11,7 @@ use clap::{Args, ValueEnum};
 use cms_core::peak::ColumnWindow;
 use cms_core::peak::window::MIN_WINDOW_PX;
 use cms_core::protocol::{LASERS, LaserPattern, Start};
+use cms_host::calib::file::CalibrationFile;
 use cms_host::listen::{self, ListenOptions, StatusLine, Summary};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
@@ -65,6 +66,11 @@ pub struct ListenArgs {
     /// without one makes every row a full-row search).
     #[arg(long = "window", value_name = "LASER:FIRST-END", value_parser = parse_window)]
     pub windows: Vec<(usize, ColumnWindow)>,
+    /// Search windows from a calibration file: each laser's columns
+    /// between its `[head]` range_min_mm and range_max_mm, 16 px either side
+    /// (a --window for a laser replaces its window).
+    #[arg(long = "windows-from", value_name = "CAL")]
+    pub windows_from: Option<PathBuf>,
     /// How long a lost port may stay away before giving up, seconds.
     #[arg(long, value_name = "SECS", default_value = "30", value_parser = parse_secs)]
     pub reconnect_timeout: Duration,
@@ -77,6 +83,10 @@ fn parse_secs(s: &str) -> Result<Duration, String> {
     }
     Ok(Duration::from_secs_f64(v))
 }
+
+/// Margin of `--windows-from` either side of where a line can fall, px:
+/// a stripe's half width (3σ, σ up to 4 px) and the camera model's error.
+const WINDOW_MARGIN_PX: f64 = 16.0;
 
 /// `LASER:FIRST-END`, columns FIRST..END of laser LASER.
 fn parse_window(s: &str) -> Result<(usize, ColumnWindow), String> {
@@ -220,7 +230,22 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
             "`listen sim` needs the simulated head, which this build does not have; give a device path".to_string(),
         ));
     }
-    let opts = args.options();
+    let mut opts = args.options();
+    if let Some(path) = &args.windows_from {
+        let cal = CalibrationFile::load(path).map_err(cms_host::Error::from)?;
+        let mut w = cal.search_windows(WINDOW_MARGIN_PX).map_err(|e| Usage(format!("{}: {e}", path.display())))?;
+        for &(k, cw) in &args.windows {
+            w[k] = Some(cw);
+        }
+        let said: Vec<String> = (0..LASERS)
+            .map(|k| match w[k] {
+                Some(c) => format!("laser {k} {}–{} px", c.first_px, c.end_px()),
+                None => format!("laser {k} full row"),
+            })
+            .collect();
+        let _ = writeln!(io::stderr(), "listen: search windows from {}: {}", path.display(), said.join(", "));
+        opts.windows = Some(w);
+    }
     let mut display = Display::new(opts.json);
     let stdout = io::stdout();
     let outcome = listen::session(&args.port, &opts, interrupt_flag(), &mut stdout.lock(), &mut |_| {}, &mut display);

@@ -1258,6 +1258,13 @@ fn cli_listen_sets_search_windows() {
     let moved = points(&["0:278-342", "1:600-664", "2:418-482"]);
     assert_eq!(moved.iter().sum::<usize>(), 960, "{moved:?}");
     assert!(moved.contains(&0), "{moved:?}");
+    // Windows from the calibration's working range hold every line.
+    let cal = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/v3/cal.toml");
+    assert_eq!(points(&[]), [480, 480, 480]);
+    let out = crate::common::run(&["listen", "sim", "--frames", "2", "--windows-from", cal.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && err.contains("listen: search windows from "), "{err}");
+    assert!(err.contains("listen: frames: 2 "), "{err}");
     // A window the head refuses (past the 752-px row) ends the listener.
     let out = crate::common::run(&["listen", "sim", "--frames", "2", "--window", "0:700-800"]);
     assert!(!out.status.success());
