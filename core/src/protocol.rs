@@ -8,7 +8,14 @@
 //! ```
 //!
 //! * **postcard** encodes the message (varints, enum variants as indices): the
-//!   same Rust types on both ends, no schema drift.
+//!   same Rust types on both ends, no schema drift. A `Profile` is the one
+//!   message with a hand-written encoding, in row order with predicted and
+//!   quantised values ([`compact`]: about 5.5 bytes a point with its metric
+//!   point, against 19 in version 3).
+//! * **One pass, one buffer**: [`encode`] runs postcard through its own CRC
+//!   and COBS flavours into the output buffer (`CrcModifier<Cobs<Slice>>`):
+//!   each byte is checksummed, stuffed and written where it ends up, so the
+//!   head needs one [`MAX_FRAME`] buffer, not a scratch buffer besides.
 //! * **CRC-32** (ISO-HDLC, the Ethernet/zlib polynomial) over version and
 //!   payload catches what USB's own CRC cannot (buffer overruns, a replugged
 //!   port mid-frame, a simulator bug).
@@ -21,11 +28,19 @@
 //!   error whatever its first byte, and a version mismatch is reported only
 //!   for a frame that arrived intact. (This fixes the framing — version
 //!   first, CRC-32/ISO-HDLC last — for every future version.)
+//! * **Versions read**: commands of [`PROTOCOL_VERSION`] only; device
+//!   messages of version 4 and of version 3 ([`v3`]), into the same
+//!   [`DeviceMsg`] (the trait [`FromFrame`] says which a type reads), so a
+//!   recording of either version, or of both, reads the same.
 //!
 //! # Sizes
 //! [`MAX_FRAME`] bounds any encoded frame (delimiter included); the firmware
 //! and the host size their buffers from it, and a test encodes the largest
-//! possible message of each kind against it.
+//! possible message of each kind against it. A host reading recordings
+//! sizes its reader by [`MAX_READ_FRAME`] (version 3's frames were larger).
+
+pub mod compact;
+pub mod v3;
 
 use crate::fixed::Px;
 use crate::peak::{ColumnWindow, Config, Flags};
@@ -33,7 +48,7 @@ use heapless::{String, Vec};
 use serde::{Deserialize, Serialize};
 
 /// The protocol version this build speaks.
-pub const PROTOCOL_VERSION: u8 = 3;
+pub const PROTOCOL_VERSION: u8 = 4;
 /// Rows carried by one `Profile` message (a taller sensor sends several parts).
 pub const MAX_ROWS_PER_PROFILE: usize = 480;
 /// Lasers of the head.
@@ -41,17 +56,25 @@ pub const LASERS: usize = 3;
 /// Pixel bytes carried by one `RawRows` chunk.
 pub const RAW_CHUNK_BYTES: usize = 1024;
 
-/// Largest postcard encoding of any message (see `tests::max_sizes`):
-/// a `Profile` with every point at its largest varint and a triangulated
-/// point — 3 lasers × 480 points × 28 bytes (row 3, position 5, strength 3,
-/// width 5, flags 1, triangulated point 11) + 44 bytes of headers = 40 364.
-pub const MAX_MESSAGE: usize = 40_400;
+/// Largest postcard encoding of any message (the test
+/// `encoded_sizes_are_bounded` encodes the largest of each kind): a
+/// `Profile` ([`compact`]) of 1 440 points, each in a record of its own with
+/// the largest skip and every field at its largest — the variant, 39 bytes
+/// of header and end, 1 440 × (4 + 16) = 28 840.
+pub const MAX_MESSAGE: usize = 1
+    + compact::MAX_HEADER_BYTES
+    + LASERS * MAX_ROWS_PER_PROFILE * (compact::MAX_RECORD_BYTES + compact::MAX_POINT_BYTES);
 /// Largest frame on the wire: version, message, CRC, COBS overhead
 /// (1 byte in 254, plus 1) and the delimiter.
-pub const MAX_FRAME: usize = {
-    let raw = 1 + MAX_MESSAGE + 4;
+pub const MAX_FRAME: usize = frame_bound(MAX_MESSAGE);
+/// Largest frame a host reader meets: recordings may hold version-3 frames.
+pub const MAX_READ_FRAME: usize = if v3::MAX_FRAME > MAX_FRAME { v3::MAX_FRAME } else { MAX_FRAME };
+
+/// The largest frame of a message of at most `message` bytes.
+pub const fn frame_bound(message: usize) -> usize {
+    let raw = 1 + message + 4;
     raw + raw / 254 + 2
-};
+}
 /// Largest host → device frame (commands are small; the firmware's receive
 /// buffer). Checked against the largest command in a test.
 pub const MAX_COMMAND_FRAME: usize = 256;
@@ -142,8 +165,10 @@ pub struct LaserPoints {
 }
 
 /// One image's stripes (or a part of them, for sensors taller than
-/// [`MAX_ROWS_PER_PROFILE`] rows).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// [`MAX_ROWS_PER_PROFILE`] rows). Its wire encoding is [`compact`]'s: a
+/// laser's points must be in ascending rows, one a row (as the head makes
+/// them), or encoding fails with [`WireError::Unencodable`].
+#[derive(Clone, Debug, PartialEq)]
 pub struct Profile {
     /// Frame sequence number (wraps).
     pub seq: u32,
@@ -447,6 +472,9 @@ pub enum WireError {
     Crc,
     /// The payload is not a valid message.
     Decode,
+    /// The message breaks a rule of its wire encoding (a profile whose
+    /// laser has two points in one row, or points out of row order).
+    Unencodable,
 }
 
 impl core::fmt::Display for WireError {
@@ -459,6 +487,7 @@ impl core::fmt::Display for WireError {
             WireError::Version(v) => write!(f, "protocol version {v}, expected {PROTOCOL_VERSION}"),
             WireError::Crc => f.write_str("CRC mismatch"),
             WireError::Decode => f.write_str("payload does not decode"),
+            WireError::Unencodable => f.write_str("message cannot be encoded (profile points out of row order)"),
         }
     }
 }
@@ -476,31 +505,65 @@ impl From<WireError> for ErrorCode {
     }
 }
 
-/// Encodes `msg` as one frame into `out`, using `scratch` for the unframed
-/// bytes. Returns the frame (delimiter included).
-pub fn encode<'a, T: Serialize>(msg: &T, scratch: &mut [u8], out: &'a mut [u8]) -> Result<&'a [u8], WireError> {
-    if scratch.len() < 5 {
-        return Err(WireError::BufferTooSmall);
+/// Encodes `msg` as one frame into `out`, in one pass (postcard through its
+/// CRC and COBS flavours). Returns the frame (delimiter included).
+pub fn encode<'a, T: Serialize + ?Sized>(msg: &T, out: &'a mut [u8]) -> Result<&'a [u8], WireError> {
+    encode_version(PROTOCOL_VERSION, msg, out)
+}
+
+/// [`encode`] with another version byte (version 3's test frames).
+fn encode_version<'a, T: Serialize + ?Sized>(version: u8, msg: &T, out: &'a mut [u8]) -> Result<&'a [u8], WireError> {
+    use postcard::ser_flavors::{Cobs, Flavor, Slice, crc::CrcModifier};
+    let cobs = Cobs::try_new(Slice::new(out)).map_err(|_| WireError::BufferTooSmall)?;
+    let mut flavor = CrcModifier::new(cobs, CRC.digest());
+    flavor.try_push(version).map_err(|_| WireError::BufferTooSmall)?;
+    match postcard::serialize_with_flavor(msg, flavor) {
+        Ok(frame) => Ok(frame),
+        Err(postcard::Error::SerializeBufferFull) => Err(WireError::BufferTooSmall),
+        Err(_) => Err(WireError::Unencodable),
     }
-    scratch[0] = PROTOCOL_VERSION;
-    let n = postcard::to_slice(msg, &mut scratch[1..]).map_err(|_| WireError::BufferTooSmall)?.len();
-    let end = 1 + n;
-    if scratch.len() < end + 4 {
-        return Err(WireError::BufferTooSmall);
+}
+
+/// A message type that frames decode into, and the protocol versions it
+/// reads.
+pub trait FromFrame: Sized {
+    /// Decodes the payload (after the version byte, before the CRC) of an
+    /// intact frame of protocol `version`.
+    fn from_payload(version: u8, payload: &[u8]) -> Result<Self, WireError>;
+}
+
+/// The whole payload as one postcard `T`.
+fn exactly<'de, T: Deserialize<'de>>(payload: &'de [u8]) -> Result<T, WireError> {
+    let (msg, rest) = postcard::take_from_bytes(payload).map_err(|_| WireError::Decode)?;
+    if !rest.is_empty() {
+        return Err(WireError::Decode);
     }
-    let crc = CRC.checksum(&scratch[..end]);
-    scratch[end..end + 4].copy_from_slice(&crc.to_le_bytes());
-    let raw = &scratch[..end + 4];
-    let m = cobs::try_encode(raw, out).map_err(|_| WireError::BufferTooSmall)?;
-    if out.len() <= m {
-        return Err(WireError::BufferTooSmall);
+    Ok(msg)
+}
+
+impl FromFrame for Command {
+    /// This version only: a host of another version is told so.
+    fn from_payload(version: u8, payload: &[u8]) -> Result<Command, WireError> {
+        if version != PROTOCOL_VERSION {
+            return Err(WireError::Version(version));
+        }
+        exactly(payload)
     }
-    out[m] = 0;
-    Ok(&out[..=m])
+}
+
+impl FromFrame for DeviceMsg {
+    /// Versions 4 and 3 ([`v3`]).
+    fn from_payload(version: u8, payload: &[u8]) -> Result<DeviceMsg, WireError> {
+        match version {
+            PROTOCOL_VERSION => exactly(payload),
+            v3::VERSION => exactly::<v3::Read>(payload).map(|r| r.0),
+            v => Err(WireError::Version(v)),
+        }
+    }
 }
 
 /// Decodes one frame's bytes (COBS-encoded, without the delimiter), in place.
-pub fn decode_frame<'de, T: Deserialize<'de>>(frame: &'de mut [u8]) -> Result<T, WireError> {
+pub fn decode_frame<T: FromFrame>(frame: &mut [u8]) -> Result<T, WireError> {
     let n = cobs::decode_in_place(frame).map_err(|_| WireError::Cobs)?;
     if n < 5 {
         return Err(WireError::TooShort);
@@ -513,14 +576,7 @@ pub fn decode_frame<'de, T: Deserialize<'de>>(frame: &'de mut [u8]) -> Result<T,
     if CRC.checksum(body) != u32::from_le_bytes([crc[0], crc[1], crc[2], crc[3]]) {
         return Err(WireError::Crc);
     }
-    if raw[0] != PROTOCOL_VERSION {
-        return Err(WireError::Version(raw[0]));
-    }
-    let (msg, rest) = postcard::take_from_bytes(&body[1..]).map_err(|_| WireError::Decode)?;
-    if !rest.is_empty() {
-        return Err(WireError::Decode);
-    }
-    Ok(msg)
+    T::from_payload(body[0], &body[1..])
 }
 
 /// Counters of a frame reader.
@@ -576,7 +632,7 @@ impl<const N: usize> FrameReader<N> {
     /// Feeds `data`; calls `on_msg` with every complete frame's result, in order.
     pub fn feed<T, F>(&mut self, data: &[u8], mut on_msg: F)
     where
-        T: for<'de> Deserialize<'de>,
+        T: FromFrame,
         F: FnMut(Result<T, WireError>),
     {
         for &b in data {

@@ -1,5 +1,7 @@
-//! Everything specific to the board: pins, clocks, sensor constants. Another
-//! board is a change to this file only (and `lasers.rs`' port constant).
+//! Everything specific to the board: pins, clocks, sensor constants, and
+//! [`setup`], which brings the chip up and hands `main` its devices with
+//! their pins assigned. Another board is a change to this file only (and
+//! `lasers.rs`' port constant): `main` names no pin.
 //!
 //! # Reference board
 //! An OpenMV-Cam-H7-class board (STM32H743VI) with an MT9V034 global-shutter
@@ -36,7 +38,28 @@
 //! are set: rev V → 480 MHz at VOS0, anything older (rev Y) → 400 MHz at
 //! VOS1. AHB/AXI at half the core (240/200 MHz), APBs at a quarter.
 
-use embassy_stm32::pac;
+use embassy_stm32::flash::{Blocking as FlashBlocking, Flash};
+use embassy_stm32::gpio::{Level, Output, Speed};
+use embassy_stm32::i2c::{I2c, Master};
+use embassy_stm32::mode::Blocking;
+use embassy_stm32::peripherals::{self, DCMI, IWDG1, TIM5};
+use embassy_stm32::timer::qei::Qei;
+use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_stm32::{bind_interrupts, dcmi, dma, i2c, pac, timer, usb};
+use static_cell::StaticCell;
+
+use crate::camera;
+use crate::lasers::Lasers;
+use crate::link::UsbDriver;
+
+bind_interrupts!(pub struct Irqs {
+    OTG_FS => usb::InterruptHandler<peripherals::USB_OTG_FS>;
+    DCMI => dcmi::InterruptHandler<peripherals::DCMI>;
+    DMA1_STREAM0 => dma::InterruptHandler<peripherals::DMA1_CH0>;
+    DMA2_STREAM1 => camera::RingInterrupt;
+    I2C1_EV => i2c::EventInterruptHandler<peripherals::I2C1>;
+    I2C1_ER => i2c::ErrorInterruptHandler<peripherals::I2C1>;
+});
 
 /// The sensor's row length, px.
 pub const WIDTH: usize = 752;
@@ -110,10 +133,116 @@ pub fn clock_config(rev: u16) -> embassy_stm32::Config {
 
 /// Drives the laser enables low before anything else runs: clocks the GPIO
 /// port (nothing else is initialised yet) and forces the pins to outputs,
-/// low. Called first thing in `main`, before `embassy_stm32::init`.
-pub fn lasers_off_at_reset() {
+/// low. Called first thing in [`setup`], before `embassy_stm32::init`.
+fn lasers_off_at_reset() {
     pac::RCC.ahb4enr().modify(|w| w.set_gpioden(true));
     // Read back: the write must reach the RCC before the port is touched.
     let _ = pac::RCC.ahb4enr().read();
     crate::lasers::force_off();
+}
+
+/// The sensor's buses and control lines (the MT9V034 driver takes them once
+/// the sensor is out of reset).
+pub struct SensorParts {
+    /// The register bus, 100 kHz.
+    pub i2c: I2c<'static, Blocking, Master>,
+    /// The 8-bit parallel capture.
+    pub dcmi: dcmi::Dcmi<'static, DCMI>,
+    /// The snapshot trigger (EXPOSURE), low.
+    pub exposure: Output<'static>,
+    /// The wheel encoder's quadrature counter.
+    pub encoder: Qei<'static, TIM5>,
+    /// RESET_BAR, held high (released) while the sensor is in use.
+    pub reset: Output<'static>,
+    /// STANDBY, held low (awake).
+    pub standby: Output<'static>,
+}
+
+/// What `main` runs the head with: the board's devices, pins assigned.
+pub struct Devices {
+    /// Silicon revision (DBGMCU_IDC).
+    pub silicon_revision: u16,
+    /// Core clock, Hz.
+    pub sysclk_hz: u32,
+    /// The laser driver, owning the enables (off).
+    pub lasers: Lasers,
+    /// Status LED (green, off).
+    pub status_led: Output<'static>,
+    /// Fault LED (red, off).
+    pub fault_led: Output<'static>,
+    /// The independent watchdog, not started.
+    pub watchdog: IndependentWatchdog<'static, IWDG1>,
+    /// The internal flash (the settings slots).
+    pub flash: Flash<'static, FlashBlocking>,
+    /// The sensor's parts.
+    pub sensor: SensorParts,
+    /// The USB full-speed device driver.
+    pub usb: UsbDriver,
+}
+
+/// Brings the board up, in the order the laser-safety rules need: laser
+/// enables low through the registers first ([`lasers_off_at_reset`]), then
+/// the clocks ([`clock_config`]), then the laser driver takes the pins (and
+/// is checked off), then the instruction cache and the cycle counter, then
+/// every other device. Nothing is started: the watchdog is created
+/// stopped, the USB device and the sensor are `main`'s to run.
+pub fn setup(watchdog_us: u32) -> Devices {
+    lasers_off_at_reset();
+    let silicon_revision = silicon_revision();
+    let sysclk_hz = sysclk_hz(silicon_revision);
+    let p = embassy_stm32::init(clock_config(silicon_revision));
+    let lasers = Lasers::new(p.PD12, p.PD13, p.PD14);
+    defmt::assert!(lasers.all_are_off(), "laser enables not low after init");
+    enable_core_features();
+    let status_led = Output::new(p.PC1, Level::High, Speed::Low);
+    let fault_led = Output::new(p.PC0, Level::High, Speed::Low);
+    let watchdog = IndependentWatchdog::new(p.IWDG1, watchdog_us);
+    let flash = Flash::new_blocking(p.FLASH);
+    let dcmi = dcmi::Dcmi::new_8bit(
+        p.DCMI,
+        p.DMA1_CH0,
+        Irqs,
+        p.PC6,
+        p.PC7,
+        p.PE0,
+        p.PE1,
+        p.PE4,
+        p.PB6,
+        p.PE5,
+        p.PE6,
+        p.PB7,
+        p.PA4,
+        p.PA6,
+        dcmi::Config::default(),
+    );
+    let mut i2c_config = i2c::Config::default();
+    i2c_config.frequency = embassy_stm32::time::Hertz(100_000);
+    let i2c = I2c::new_blocking(p.I2C1, p.PB8, p.PB9, i2c_config);
+    let sensor = SensorParts {
+        i2c,
+        dcmi,
+        exposure: Output::new(p.PD6, Level::Low, Speed::VeryHigh),
+        encoder: Qei::new(p.TIM5, p.PA0, p.PA1, timer::qei::Config::default()),
+        reset: Output::new(p.PA10, Level::High, Speed::Low),
+        standby: Output::new(p.PD7, Level::Low, Speed::Low),
+    };
+    static EP_OUT: StaticCell<[u8; 256]> = StaticCell::new();
+    let mut usb_config = usb::Config::default();
+    usb_config.vbus_detection = false; // bus powered
+    let usb = usb::Driver::new_fs(p.USB_OTG_FS, Irqs, p.PA12, p.PA11, EP_OUT.init([0; 256]), usb_config);
+    Devices { silicon_revision, sysclk_hz, lasers, status_led, fault_led, watchdog, flash, sensor, usb }
+}
+
+/// Instruction cache and the DWT cycle counter. The data cache stays off:
+/// the DCMI ring is read while DMA writes it (no cache maintenance needed).
+fn enable_core_features() {
+    match cortex_m::Peripherals::take() {
+        Some(mut cp) => {
+            cp.SCB.enable_icache();
+            cp.DCB.enable_trace();
+            cortex_m::peripheral::DWT::unlock();
+            cp.DWT.enable_cycle_counter();
+        }
+        None => defmt::warn!("core peripherals already taken: no I-cache, no cycle counts"),
+    }
 }

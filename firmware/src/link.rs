@@ -12,6 +12,8 @@
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
+use cms_core::protocol::MAX_FRAME;
+
 use defmt::{info, warn};
 use embassy_stm32::peripherals::USB_OTG_FS;
 use embassy_stm32::usb::Driver;
@@ -25,9 +27,10 @@ use static_cell::StaticCell;
 /// The USB driver of this board.
 pub type UsbDriver = Driver<'static, USB_OTG_FS>;
 
-/// Outgoing bytes: room for two of the largest frames (a full profile of
-/// three lasers is about 17 KB; `MAX_FRAME` is 40 KB).
-pub const TX_BYTES: usize = 96 * 1024;
+/// Outgoing bytes: room for two of the largest frames (`MAX_FRAME`, 28.9 KB
+/// in protocol 4; a full profile of three lasers is about 8 KB calibrated),
+/// so the head encodes the next frame while the last goes out.
+pub const TX_BYTES: usize = 2 * MAX_FRAME;
 /// Packet size of the bulk endpoints (full speed).
 const PACKET: usize = 64;
 

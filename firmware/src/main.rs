@@ -4,11 +4,14 @@
 //! `cms_core::pipeline::Head`, the same code the simulated head runs and the
 //! host tests exercise; this crate supplies the hardware behind its traits.
 //!
-//! Start-up order:
-//! 1. laser enables driven low through the registers (`board::lasers_off_at_reset`)
-//!    — first statement, before clocks or any other init;
+//! `main` is setup, spawn, loop: `board::setup()` brings the chip up and
+//! hands it the devices (pins are named in `board.rs` only), `main` spawns
+//! the LED and USB tasks and runs the head loop. Start-up order:
+//! 1. laser enables driven low through the registers (`board::setup`'s
+//!    first statement, before clocks or any other init);
 //! 2. clocks (480 MHz on rev V silicon, 400 MHz on rev Y: `board.rs`), the
-//!    `Lasers` driver owning the pins, I-cache, DWT cycle counter;
+//!    `Lasers` driver owning the pins, I-cache, DWT cycle counter, then every
+//!    other device created (nothing started);
 //! 3. the independent watchdog (500 ms; a hung head resets, and after reset
 //!    the pins are high impedance, held off by the laser board's pull-downs);
 //! 4. the detector self-test on a synthetic row (logged);
@@ -43,23 +46,12 @@ use cms_core::protocol::{
 use defmt::{error, info, unwrap, warn};
 use defmt_rtt as _;
 use embassy_executor::Spawner;
-use embassy_stm32::gpio::{Level, Output, Speed};
-use embassy_stm32::wdg::IndependentWatchdog;
-use embassy_stm32::{bind_interrupts, dcmi, dma, i2c, peripherals, timer, usb};
+use embassy_stm32::gpio::Output;
 use embassy_time::{Duration, Instant, Timer};
 use static_cell::StaticCell;
 
 use crate::camera::Mt9v034;
 use crate::lasers::Lasers;
-
-bind_interrupts!(struct Irqs {
-    OTG_FS => usb::InterruptHandler<peripherals::USB_OTG_FS>;
-    DCMI => dcmi::InterruptHandler<peripherals::DCMI>;
-    DMA1_STREAM0 => dma::InterruptHandler<peripherals::DMA1_CH0>;
-    DMA2_STREAM1 => camera::RingInterrupt;
-    I2C1_EV => i2c::EventInterruptHandler<peripherals::I2C1>;
-    I2C1_ER => i2c::ErrorInterruptHandler<peripherals::I2C1>;
-});
 
 /// Most stripes the self-test collects (the head has three lasers).
 const MAX_STRIPES: usize = 4;
@@ -113,20 +105,6 @@ fn self_test(detector: &mut Detector<{ board::WIDTH }>, mhz: u32) -> bool {
     ok
 }
 
-/// Instruction cache and the DWT cycle counter. The data cache stays off:
-/// the DCMI ring is read while DMA writes it (no cache maintenance needed).
-fn enable_core_features() {
-    match cortex_m::Peripherals::take() {
-        Some(mut cp) => {
-            cp.SCB.enable_icache();
-            cp.DCB.enable_trace();
-            cortex_m::peripheral::DWT::unlock();
-            cp.DWT.enable_cycle_counter();
-        }
-        None => warn!("core peripherals already taken: no I-cache, no cycle counts"),
-    }
-}
-
 /// The DWT cycle counter extended to 64 bits (it wraps every 8.9 s at
 /// 480 MHz; the head loop reads it far more often).
 fn cycles64() -> u64 {
@@ -155,34 +133,68 @@ async fn blink(mut led: Output<'static>, fast: bool) {
     }
 }
 
-/// Encoding buffers for one device message (version, payload, CRC, COBS).
+/// Opens the settings slots and restores what they hold into the head (or
+/// tells it why there is nothing).
+fn open_store(
+    flash: embassy_stm32::flash::Flash<'static, embassy_stm32::flash::Blocking>,
+    head: &mut Head<{ board::WIDTH }, Lasers>,
+) -> Option<store::Store> {
+    let mut store = match store::Store::new(flash) {
+        Ok(s) => {
+            if let Some(i) = s.faulted {
+                warn!("flash: reading slot {} faulted before the last reset (ECC); not read until rewritten", i);
+            }
+            Some(s)
+        }
+        Err(e) => {
+            error!("flash slots: {}", e);
+            None
+        }
+    };
+    match store.as_mut().map(|s| s.load()) {
+        Some((Some(stored), health)) => {
+            head.restore(&stored, health);
+            let id = head.calibration().map_or(0, |c| c.id);
+            info!("flash: {}, calibration {} (0: none or refused)", health, id);
+        }
+        Some((None, health)) => {
+            head.set_store_health(health);
+            warn!("flash: {}: defaults, no calibration", health);
+        }
+        None => head.set_store_health(StoreHealth::Corrupt),
+    }
+    store
+}
+
+/// The encoding buffer for one device message: postcard writes version,
+/// payload, CRC and COBS into it in one pass.
 struct Encoder {
-    scratch: [u8; MAX_FRAME],
     out: [u8; MAX_FRAME],
 }
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
-    // 1. Lasers off before anything else.
-    board::lasers_off_at_reset();
-    // 2. Clocks, then the laser driver owns the pins.
-    let rev = board::silicon_revision();
-    let sysclk = board::sysclk_hz(rev);
-    let p = embassy_stm32::init(board::clock_config(rev));
-    let lasers = Lasers::new(p.PD12, p.PD13, p.PD14);
-    defmt::assert!(lasers.all_are_off(), "laser enables not low after init");
+    // 1–2. Lasers off, clocks, every device (board.rs: the only file that
+    // names pins).
+    let board::Devices {
+        silicon_revision,
+        sysclk_hz: sysclk,
+        lasers,
+        status_led,
+        fault_led,
+        mut watchdog,
+        flash,
+        sensor,
+        usb,
+    } = board::setup(store::WATCHDOG_MS as u32 * 1000);
     info!(
         "cms-firmware {}: silicon rev {=u16:#x}, {} MHz, lasers off",
         env!("CARGO_PKG_VERSION"),
-        rev,
+        silicon_revision,
         sysclk / 1_000_000
     );
-    enable_core_features();
-    let status_led = Output::new(p.PC1, Level::High, Speed::Low);
-    let fault_led = Output::new(p.PC0, Level::High, Speed::Low);
 
     // 3. Watchdog.
-    let mut watchdog = IndependentWatchdog::new(p.IWDG1, store::WATCHDOG_MS as u32 * 1000);
     watchdog.unleash();
 
     // 4. Self-test.
@@ -210,59 +222,13 @@ async fn main(spawner: Spawner) {
         }
     };
     head.set_cpu_hz(sysclk);
-    let mut store = match store::Store::new(embassy_stm32::flash::Flash::new_blocking(p.FLASH)) {
-        Ok(s) => {
-            if let Some(i) = s.faulted {
-                warn!("flash: reading slot {} faulted before the last reset (ECC); not read until rewritten", i);
-            }
-            Some(s)
-        }
-        Err(e) => {
-            error!("flash slots: {}", e);
-            None
-        }
-    };
-    match store.as_mut().map(|s| s.load()) {
-        Some((Some(stored), health)) => {
-            head.restore(&stored, health);
-            let id = head.calibration().map_or(0, |c| c.id);
-            info!("flash: {}, calibration {} (0: none or refused)", health, id);
-        }
-        Some((None, health)) => {
-            head.set_store_health(health);
-            warn!("flash: {}: defaults, no calibration", health);
-        }
-        None => head.set_store_health(StoreHealth::Corrupt),
-    }
+    let mut store = open_store(flash, head);
     watchdog.pet();
 
     // 6. Sensor, DCMI, encoder.
-    let dcmi = dcmi::Dcmi::new_8bit(
-        p.DCMI,
-        p.DMA1_CH0,
-        Irqs,
-        p.PC6,
-        p.PC7,
-        p.PE0,
-        p.PE1,
-        p.PE4,
-        p.PB6,
-        p.PE5,
-        p.PE6,
-        p.PB7,
-        p.PA4,
-        p.PA6,
-        dcmi::Config::default(),
-    );
-    let mut i2c_config = i2c::Config::default();
-    i2c_config.frequency = embassy_stm32::time::Hertz(100_000);
-    let i2c = i2c::I2c::new_blocking(p.I2C1, p.PB8, p.PB9, i2c_config);
-    let _sensor_reset = Output::new(p.PA10, Level::High, Speed::Low); // released
-    let _sensor_standby = Output::new(p.PD7, Level::Low, Speed::Low); // awake
-    let exposure = Output::new(p.PD6, Level::Low, Speed::VeryHigh);
-    let qei = timer::qei::Qei::new(p.TIM5, p.PA0, p.PA1, Default::default());
+    let board::SensorParts { i2c, dcmi, exposure, encoder, reset: _sensor_reset, standby: _sensor_standby } = sensor;
     Timer::after(Duration::from_millis(2)).await; // sensor out of reset
-    let mut camera = match Mt9v034::new(i2c, dcmi, exposure, qei, sysclk) {
+    let mut camera = match Mt9v034::new(i2c, dcmi, exposure, encoder, sysclk) {
         Ok(c) => Some(c),
         Err(e) => {
             error!("camera: {}; streaming will be refused", e);
@@ -273,17 +239,13 @@ async fn main(spawner: Spawner) {
     spawner.spawn(unwrap!(blink(if ok { status_led } else { fault_led }, !ok)));
 
     // 7. USB and the head loop.
-    static EP_OUT: StaticCell<[u8; 256]> = StaticCell::new();
-    let mut usb_config = usb::Config::default();
-    usb_config.vbus_detection = false; // bus powered
-    let driver = usb::Driver::new_fs(p.USB_OTG_FS, Irqs, p.PA12, p.PA11, EP_OUT.init([0; 256]), usb_config);
-    let (device, tx, rx) = link::build(driver);
+    let (device, tx, rx) = link::build(usb);
     spawner.spawn(unwrap!(link::usb_device(device)));
     spawner.spawn(unwrap!(link::usb_tx(tx)));
     spawner.spawn(unwrap!(link::usb_rx(rx)));
 
     static ENCODER: StaticCell<Encoder> = StaticCell::new();
-    let enc = ENCODER.init(Encoder { scratch: [0; MAX_FRAME], out: [0; MAX_FRAME] });
+    let enc = ENCODER.init(Encoder { out: [0; MAX_FRAME] });
     let mut reader: FrameReader<MAX_COMMAND_FRAME> = FrameReader::new();
     let mhz = (sysclk / 1_000_000) as u64;
     let mut clock_ns = move || cycles64() * 1000 / mhz;
@@ -301,7 +263,7 @@ async fn main(spawner: Spawner) {
                 s.laser_duty_permille
             );
         }
-        match encode(m, &mut enc.scratch, &mut enc.out) {
+        match encode(m, &mut enc.out) {
             Ok(frame) => {
                 link::send(frame);
             }

@@ -53,9 +53,8 @@ impl LaserDriver for NoLasers {
 }
 
 fn frame<T: serde::Serialize>(m: &T) -> Result<Vec<u8>, String> {
-    let mut scratch = vec![0u8; MAX_FRAME];
     let mut out = vec![0u8; MAX_FRAME];
-    encode(m, &mut scratch, &mut out).map(|f| f.to_vec()).map_err(|e| format!("encoding: {e}"))
+    encode(m, &mut out).map(|f| f.to_vec()).map_err(|e| format!("encoding: {e}"))
 }
 
 fn kind(m: &DeviceMsg) -> &'static str {

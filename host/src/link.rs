@@ -27,7 +27,7 @@ mod client;
 pub use client::{Client, ClientError, Greeting, Handshake, Outbox, Wait, check_version};
 
 use cms_core::protocol::{
-    Command, DeviceMsg, FrameReader, HostMsg, LinkStats, MAX_COMMAND_FRAME, MAX_FRAME, WireError, encode,
+    Command, DeviceMsg, FrameReader, HostMsg, LinkStats, MAX_COMMAND_FRAME, MAX_READ_FRAME, WireError, encode,
 };
 
 /// How long one [`Link::read`] waits for bytes.
@@ -76,7 +76,6 @@ impl crate::error::Classify for LinkError {
 pub struct Link {
     port: Box<dyn serialport::SerialPort>,
     path: String,
-    scratch: Vec<u8>,
     frame: Vec<u8>,
 }
 
@@ -98,12 +97,7 @@ impl Link {
             .flow_control(serialport::FlowControl::None)
             .open()
             .map_err(|source| LinkError::Open { port: path.to_string(), source })?;
-        Ok(Link {
-            port,
-            path: path.to_string(),
-            scratch: vec![0; MAX_COMMAND_FRAME],
-            frame: vec![0; MAX_COMMAND_FRAME],
-        })
+        Ok(Link { port, path: path.to_string(), frame: vec![0; MAX_COMMAND_FRAME] })
     }
 
     /// The path this link was opened with.
@@ -133,7 +127,7 @@ impl Link {
     /// heartbeat cover that); an error means the port is gone.
     pub fn send(&mut self, seq: u16, msg: HostMsg) -> Result<bool, LinkError> {
         let cmd = Command { seq, msg };
-        let frame = match encode(&cmd, &mut self.scratch, &mut self.frame) {
+        let frame = match encode(&cmd, &mut self.frame) {
             Ok(f) => f,
             // Every command fits MAX_COMMAND_FRAME (checked by cms-core's tests).
             Err(e) => return Err(self.gone(io::Error::other(format!("encoding a command: {e}")))),
@@ -176,7 +170,7 @@ pub struct Counters {
     pub crc_errors: u64,
     /// Frames that failed COBS, length, version or payload decoding.
     pub decode_errors: u64,
-    /// Frames longer than [`MAX_FRAME`] (discarded).
+    /// Frames longer than [`MAX_READ_FRAME`] (discarded).
     pub overflows: u64,
     /// Bytes discarded while resynchronising.
     pub discarded_bytes: u64,
@@ -206,7 +200,7 @@ impl Counters {
 /// Splits a device → host byte stream into frames with [`FrameReader`], and
 /// keeps each frame's wire bytes.
 pub struct Deframer {
-    reader: Box<FrameReader<MAX_FRAME>>,
+    reader: Box<FrameReader<MAX_READ_FRAME>>,
     /// Wire bytes of the frame in progress (delimiter appended when complete).
     raw: Vec<u8>,
     /// Bytes of the frame in progress, including those beyond `raw`'s cap.
@@ -240,11 +234,11 @@ impl Deframer {
 
     /// Feeds bytes; calls `on_frame` for every complete frame with its result
     /// and its wire bytes (COBS bytes and the 0x00 delimiter; empty for a
-    /// frame longer than [`MAX_FRAME`]).
+    /// frame longer than [`MAX_READ_FRAME`]).
     pub fn feed(&mut self, data: &[u8], mut on_frame: impl FnMut(Result<DeviceMsg, WireError>, &[u8])) {
         for seg in data.split_inclusive(|&b| b == 0) {
             self.pending += seg.len() as u64;
-            if self.raw.len() + seg.len() <= MAX_FRAME {
+            if self.raw.len() + seg.len() <= MAX_READ_FRAME {
                 self.raw.extend_from_slice(seg);
             } else {
                 self.raw.clear();
@@ -286,12 +280,11 @@ impl Deframer {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use cms_core::protocol::{HeadState, Status};
+    use cms_core::protocol::{HeadState, MAX_FRAME, Status};
 
     fn frame(msg: &DeviceMsg) -> Vec<u8> {
-        let mut scratch = vec![0u8; MAX_FRAME];
         let mut out = vec![0u8; MAX_FRAME];
-        encode(msg, &mut scratch, &mut out).unwrap().to_vec()
+        encode(msg, &mut out).unwrap().to_vec()
     }
 
     fn status(frames: u32) -> DeviceMsg {

@@ -47,9 +47,10 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use cms_core::peak::ColumnWindow;
 use cms_core::protocol::{
-    DeviceInfo, DeviceMsg, ErrorCode, HeadState, HostMsg, LaserPattern, PROTOCOL_VERSION, Profile, Start, Status,
-    WireError,
+    DeviceInfo, DeviceMsg, ErrorCode, HeadState, HostMsg, LASERS, LaserPattern, PROTOCOL_VERSION, Profile, Start,
+    Status, WireError,
 };
 
 use crate::analyze::live::LiveEstimate;
@@ -91,6 +92,10 @@ pub struct ListenOptions {
     pub start: Start,
     /// Exposure to set before starting, µs.
     pub exposure_us: Option<u32>,
+    /// Search windows per laser to set (`SetWindows`) before starting;
+    /// `None` sets none (the head keeps what it has; full rows after a
+    /// restart).
+    pub windows: Option<[Option<ColumnWindow>; LASERS]>,
     /// How long a lost port may stay away.
     pub reconnect_timeout: Duration,
 }
@@ -105,6 +110,7 @@ impl Default for ListenOptions {
             baud: 115_200,
             start: Start { rate_hz: 30, laser_mask: 0b111, pattern: LaserPattern::Simultaneous },
             exposure_us: None,
+            windows: None,
             reconnect_timeout: Duration::from_secs(30),
         }
     }
@@ -318,6 +324,7 @@ struct Session<'a> {
     phase: Phase,
     start_seq: Option<u16>,
     exposure_seq: Option<u16>,
+    windows_seq: Option<u16>,
     stop_seq: Option<u16>,
     /// When the stop began (and so when to give up waiting for its Ack).
     stopping: Option<Instant>,
@@ -349,6 +356,9 @@ impl Session<'_> {
     fn start(&mut self, out: &mut Outbox, now: Instant) {
         if let Some(us) = self.opts.exposure_us {
             self.exposure_seq = Some(out.push(HostMsg::SetExposure { exposure_us: us }));
+        }
+        if let Some(w) = self.opts.windows {
+            self.windows_seq = Some(out.push(HostMsg::SetWindows(w)));
         }
         self.start_seq = Some(out.push(HostMsg::Start(self.opts.start)));
         self.phase = Phase::Starting { sent: now };
@@ -436,6 +446,9 @@ impl Session<'_> {
             }
             DeviceMsg::Error { seq: Some(seq), code } if Some(seq) == self.exposure_seq => {
                 self.fatal = Some(ListenError::Refused { command: "SetExposure", code });
+            }
+            DeviceMsg::Error { seq: Some(seq), code } if Some(seq) == self.windows_seq => {
+                self.fatal = Some(ListenError::Refused { command: "SetWindows", code });
             }
             DeviceMsg::Error { .. } | DeviceMsg::RawRows(_) => {}
         }
@@ -652,6 +665,7 @@ pub fn session(
         phase: Phase::Hello(Greeting::begin(HANDSHAKE, client.outbox(), t0)),
         start_seq: None,
         exposure_seq: None,
+        windows_seq: None,
         stop_seq: None,
         stopping: None,
         stop_reported: false,

@@ -737,6 +737,88 @@ fn group(v: u64) -> String {
 /// (docs/corrugation-and-standards.md).
 pub const REFERENCE_ROW_PITCH_MM: f64 = 0.144;
 
+/// What the emulated head's profiles cost on the wire.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct WireCost {
+    /// Frames encoded.
+    pub frames: u64,
+    /// Points in them.
+    pub points: u64,
+    /// Their frames' bytes, delimiters included.
+    pub bytes: u64,
+}
+
+impl WireCost {
+    /// Bytes a point, frame overhead included.
+    pub fn bytes_per_point(&self) -> f64 {
+        self.bytes as f64 / self.points.max(1) as f64
+    }
+}
+
+/// The laser enables of the host's run of the head (nothing to drive).
+struct NoLasers;
+
+impl cms_core::pipeline::LaserDriver for NoLasers {
+    fn set(&mut self, _mask: u8) {}
+}
+
+/// The wire cost of `frames` frames of the emulated head: its scene's rows
+/// (`cms_core::synthetic`, seed 1, three lasers lit) through the host's run
+/// of the same `Head` (the end-to-end test shows the emulated head sends
+/// these profiles bit for bit), each profile encoded as the head encodes it.
+/// Uncalibrated, as the emulated head is.
+pub fn wire_cost(frames: u32) -> Result<WireCost, QemuError> {
+    use cms_core::pipeline::{Head, Identity, default_detector};
+    use cms_core::protocol::{Command as HeadCommand, DeviceMsg, HostMsg, LaserPattern, MAX_FRAME, Start, encode};
+    use cms_core::synthetic::{Scene, SceneCamera, SceneConfig};
+    let fail = |what: String| QemuError::Bench(what);
+    let identity = Identity { firmware: "host", board: "host" };
+    let mut head: Box<Head<752, NoLasers>> =
+        Box::new(Head::new(NoLasers, default_detector(), identity).map_err(|e| fail(format!("detector: {e}")))?);
+    let scene = Scene::new(SceneConfig::reference(1)).map_err(|e| fail(format!("scene: {e:?}")))?;
+    let mut camera = SceneCamera::new(scene);
+    let start = Start { rate_hz: 30, laser_mask: 0b111, pattern: LaserPattern::Simultaneous };
+    let mut sink = |_: &DeviceMsg| {};
+    head.handle(HeadCommand { seq: 1, msg: HostMsg::Start(start) }, 0, &camera, &mut sink);
+    let mut out = vec![0u8; MAX_FRAME];
+    let mut cost = WireCost::default();
+    let mut failed = None;
+    for i in 0..u64::from(frames) {
+        let t = (i + 1) * 1_000_000 / u64::from(start.rate_hz);
+        camera.travel_to(i as i64 * 2_000);
+        head.handle(HeadCommand { seq: 2, msg: HostMsg::Heartbeat }, t, &camera, &mut sink);
+        head.poll(t, &mut camera, &mut || 0, &mut |m| {
+            if let DeviceMsg::Profile(p) = m {
+                match encode(m, &mut out) {
+                    Ok(f) => {
+                        cost.frames += 1;
+                        cost.points += p.lasers.iter().map(|l| l.points.len() as u64).sum::<u64>();
+                        cost.bytes += f.len() as u64;
+                    }
+                    Err(e) => failed = Some(e),
+                }
+            }
+        });
+    }
+    match failed {
+        Some(e) => Err(fail(format!("encoding a profile: {e}"))),
+        None => Ok(cost),
+    }
+}
+
+/// The wire section of `cms-host bench qemu`.
+pub fn wire_table(c: &WireCost) -> String {
+    let per_frame = c.bytes as f64 / c.frames.max(1) as f64;
+    let points = c.points as f64 / c.frames.max(1) as f64;
+    format!(
+        "\n# Wire (protocol 4): the emulated head's frames, {} frames of {points:.0} points, no calibration\n\n\
+         | bytes/point | bytes/frame | at 60 frames/s |\n|---:|---:|---:|\n| {:.2} | {per_frame:.0} | {:.0} kB/s |\n",
+        c.frames,
+        c.bytes_per_point(),
+        60.0 * per_frame / 1000.0
+    )
+}
+
 /// `cms-host bench qemu`: the table on stdout.
 pub fn bench(a: &BenchOptions) -> Result<String, QemuError> {
     let image = image(BENCH_BIN, a.image.as_deref())?;
@@ -748,12 +830,21 @@ pub fn bench(a: &BenchOptions) -> Result<String, QemuError> {
             "the clock does not count instructions: {iters} iterations of 2 instructions took {ns} ns"
         )));
     }
-    Ok(bench_table(&report, a.clock_mhz))
+    Ok(bench_table(&report, a.clock_mhz) + &wire_table(&wire_cost(10)?))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The emulated head's frames: 1 440 points, under 6 bytes each.
+    #[test]
+    fn wire_cost_counts_the_profiles() {
+        let c = wire_cost(2).unwrap();
+        assert_eq!((c.frames, c.points), (2, 2 * 1440));
+        assert!(c.bytes_per_point() < 6.0, "{c:?}");
+        assert!(wire_table(&c).contains("| bytes/point |"));
+    }
 
     #[test]
     fn the_pty_line_is_found() {

@@ -264,6 +264,9 @@ pub struct ScanStats {
     /// Profile messages present twice in one session (the same `seq` and
     /// `part` since the last `Hello`): the second copy is skipped.
     pub duplicates: u64,
+    /// Wire bytes of the profile messages read (frames as recorded,
+    /// delimiter included; duplicates not counted).
+    pub profile_bytes: u64,
     /// The reader's counters.
     pub counters: Counters,
 }
@@ -299,7 +302,7 @@ pub fn scan_reader(
             Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
             Err(e) => return Err(io_err(e)),
         };
-        d.feed(&buf[..n], |res, _raw| {
+        d.feed(&buf[..n], |res, raw| {
             if failed.is_some() {
                 return;
             }
@@ -313,6 +316,9 @@ pub fn scan_reader(
                             return;
                         }
                         _ => {}
+                    }
+                    if matches!(msg, DeviceMsg::Profile(_)) {
+                        stats.profile_bytes += raw.len() as u64;
                     }
                     if let Err(e) = on_msg(&msg) {
                         failed = Some(e);
@@ -740,6 +746,10 @@ impl Info {
         let _ = writeln!(s, "lasers: {}", if lasers.is_empty() { "-".to_string() } else { lasers.join(", ") });
         let per = if self.frames > 0 { self.points as f64 / self.frames as f64 } else { 0.0 };
         let _ = writeln!(s, "points: {} ({per:.1} per frame)", self.points);
+        if self.points > 0 {
+            let b = self.scan.profile_bytes;
+            let _ = writeln!(s, "profile bytes: {b} ({:.2} per point, frames included)", b as f64 / self.points as f64);
+        }
         match &self.device {
             Some(d) => {
                 let _ = writeln!(

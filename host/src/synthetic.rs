@@ -136,10 +136,9 @@ pub fn write(path: &Path, opts: &Options, progress: &dyn Progress) -> Result<(),
 /// Writes the recording's bytes to `w`, telling `progress` the frames written.
 pub fn write_to(w: &mut dyn Write, opts: &Options, progress: &dyn Progress) -> io::Result<()> {
     let mut w = io::BufWriter::with_capacity(1 << 16, w);
-    let mut scratch = vec![0u8; MAX_FRAME];
     let mut out = vec![0u8; MAX_FRAME];
     let mut put = |w: &mut dyn Write, msg: &DeviceMsg| -> io::Result<()> {
-        let bytes = protocol::encode(msg, &mut scratch, &mut out).map_err(|e| io::Error::other(format!("{e:?}")))?;
+        let bytes = protocol::encode(msg, &mut out).map_err(|e| io::Error::other(format!("{e:?}")))?;
         w.write_all(bytes)
     };
     w.write_all(&record::header())?;

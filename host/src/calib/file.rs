@@ -77,6 +77,8 @@
 use std::fmt;
 use std::path::Path;
 
+use cms_core::peak::ColumnWindow;
+use cms_core::peak::window::MIN_WINDOW_PX;
 use cms_core::protocol::{Calibration, LASERS};
 use serde::de::{self, MapAccess, Visitor};
 use serde::ser::SerializeStruct;
@@ -763,6 +765,51 @@ impl CalibrationFile {
     }
 }
 
+impl CalibrationFile {
+    /// Search windows for the head (`SetWindows`), one a laser: the columns
+    /// where laser k's line can fall between `[head]`'s `range_min_mm` and
+    /// `range_max_mm`, through this camera (its distortion included), over
+    /// every 8th row and the last, widened by `margin_px` either side and
+    /// clamped to the image. `None` for a laser whose line is nowhere in
+    /// view there, or that has no plane. An error without a `[head]`
+    /// section.
+    ///
+    /// Why: profilers search only where the line can be (their "active
+    /// area"); the head's detector is cheaper in windows
+    /// (docs/detector.md, "Search windows"). Cost: 2 × 61 projections a
+    /// laser.
+    pub fn search_windows(&self, margin_px: f64) -> Result<[Option<ColumnWindow>; LASERS], String> {
+        let h = self.head.as_ref().ok_or("the calibration has no [head] section (range_min_mm, range_max_mm)")?;
+        let cam = self.intrinsics();
+        let (width, height) = (f64::from(cam.width_px), cam.height_px);
+        let mut out = [None; LASERS];
+        for l in &self.lasers {
+            let Some(slot) = out.get_mut(l.id as usize) else { continue };
+            if l.nx.abs() < 1e-9 {
+                continue; // a plane containing the columns' direction: no one column range
+            }
+            let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+            let rows = (0..height).step_by(8).chain([height.saturating_sub(1)]);
+            for v in rows {
+                let y = (f64::from(v) - cam.cy_px) / cam.fy_px;
+                for z in [h.range_min_mm, h.range_max_mm] {
+                    // n·(x z, y z, z) = d on the plane, at depth z and row v.
+                    let x = (l.d_mm / z - l.nz - l.ny * y) / l.nx;
+                    if let Some([u, _]) = cam.project([x * z, y * z, z]).filter(|p| p[0].is_finite()) {
+                        lo = lo.min(u);
+                        hi = hi.max(u);
+                    }
+                }
+            }
+            let (first, end) = ((lo - margin_px).floor().max(0.0), (hi + margin_px).ceil().min(width));
+            if end - first >= f64::from(MIN_WINDOW_PX) {
+                *slot = Some(ColumnWindow { first_px: first as u16, width_px: (end - first) as u16 });
+            }
+        }
+        Ok(out)
+    }
+}
+
 /// The depths along the optical axis (mm) at which laser `l`'s line, in
 /// the image's middle row (the principal point's), falls between the
 /// image's first and last column, distortion ignored: on the plane
@@ -784,6 +831,25 @@ fn depths_in_view(i: &Intrinsics, l: &LaserSection) -> Option<(f64, f64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The simulated head's true calibration (range 170–230 mm): each
+    /// window holds its line at the rail's 200 mm (columns 310, 379, 450),
+    /// lies within the row, and widens with the margin.
+    #[test]
+    fn search_windows_hold_the_lines() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/v3/cal.toml");
+        let cal = CalibrationFile::load(&path).unwrap();
+        let w = cal.search_windows(16.0).unwrap();
+        for (k, col) in [(0, 310), (1, 379), (2, 450)] {
+            let c = w[k].unwrap();
+            assert!(u32::from(c.first_px) < col && col < c.end_px() && c.end_px() <= 752, "laser {k}: {c:?}");
+            let narrow = cal.search_windows(0.0).unwrap()[k].unwrap();
+            assert!(c.first_px <= narrow.first_px && narrow.end_px() <= c.end_px() && c.width_px > narrow.width_px);
+        }
+        let mut no_head = cal.clone();
+        no_head.head = None;
+        assert!(no_head.search_windows(16.0).unwrap_err().contains("[head]"));
+    }
 
     const FULL: &str = "version = 1
 [camera]

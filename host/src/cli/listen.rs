@@ -8,7 +8,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
+use cms_core::peak::ColumnWindow;
+use cms_core::peak::window::MIN_WINDOW_PX;
 use cms_core::protocol::{LASERS, LaserPattern, Start};
+use cms_host::calib::file::CalibrationFile;
 use cms_host::listen::{self, ListenOptions, StatusLine, Summary};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
@@ -57,6 +60,17 @@ pub struct ListenArgs {
     /// Exposure time to set before starting, µs (1..=1000000).
     #[arg(long = "exposure", value_name = "US", value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
     pub exposure_us: Option<u32>,
+    /// A search window for laser LASER: its stripes are sought in columns
+    /// FIRST up to (not including) END only (`SetWindows` before `Start`;
+    /// repeat for each laser, the last for a laser counts; a lit laser
+    /// without one makes every row a full-row search).
+    #[arg(long = "window", value_name = "LASER:FIRST-END", value_parser = parse_window)]
+    pub windows: Vec<(usize, ColumnWindow)>,
+    /// Search windows from a calibration file: each laser's columns
+    /// between its `[head]` range_min_mm and range_max_mm, 16 px either side
+    /// (a --window for a laser replaces its window).
+    #[arg(long = "windows-from", value_name = "CAL")]
+    pub windows_from: Option<PathBuf>,
     /// How long a lost port may stay away before giving up, seconds.
     #[arg(long, value_name = "SECS", default_value = "30", value_parser = parse_secs)]
     pub reconnect_timeout: Duration,
@@ -68,6 +82,26 @@ fn parse_secs(s: &str) -> Result<Duration, String> {
         return Err(format!("`{s}`: seconds must be positive and at most 1e9"));
     }
     Ok(Duration::from_secs_f64(v))
+}
+
+/// Margin of `--windows-from` either side of where a line can fall, px:
+/// a stripe's half width (3σ, σ up to 4 px) and the camera model's error.
+const WINDOW_MARGIN_PX: f64 = 16.0;
+
+/// `LASER:FIRST-END`, columns FIRST..END of laser LASER.
+fn parse_window(s: &str) -> Result<(usize, ColumnWindow), String> {
+    let bad = || format!("`{s}`: a window is LASER:FIRST-END (columns FIRST up to END, e.g. 1:300-396)");
+    let (k, range) = s.trim().split_once(':').ok_or_else(bad)?;
+    let (a, b) = range.split_once('-').ok_or_else(bad)?;
+    let k: usize = k.trim().parse().map_err(|_| bad())?;
+    let (first, end): (u16, u16) = (a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?);
+    if k >= LASERS {
+        return Err(format!("`{s}`: no laser {k} (lasers 0..{LASERS})"));
+    }
+    match end.checked_sub(first) {
+        Some(w) if w >= MIN_WINDOW_PX => Ok((k, ColumnWindow { first_px: first, width_px: w })),
+        _ => Err(format!("`{s}`: a window ends at least {MIN_WINDOW_PX} px after its first column")),
+    }
 }
 
 fn parse_mask(s: &str) -> Result<u8, String> {
@@ -103,6 +137,13 @@ impl ListenArgs {
                 },
             },
             exposure_us: self.exposure_us,
+            windows: (!self.windows.is_empty()).then(|| {
+                let mut w = [None; LASERS];
+                for &(k, cw) in &self.windows {
+                    w[k] = Some(cw);
+                }
+                w
+            }),
             reconnect_timeout: self.reconnect_timeout,
         }
     }
@@ -189,7 +230,22 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
             "`listen sim` needs the simulated head, which this build does not have; give a device path".to_string(),
         ));
     }
-    let opts = args.options();
+    let mut opts = args.options();
+    if let Some(path) = &args.windows_from {
+        let cal = CalibrationFile::load(path).map_err(cms_host::Error::from)?;
+        let mut w = cal.search_windows(WINDOW_MARGIN_PX).map_err(|e| Usage(format!("{}: {e}", path.display())))?;
+        for &(k, cw) in &args.windows {
+            w[k] = Some(cw);
+        }
+        let said: Vec<String> = (0..LASERS)
+            .map(|k| match w[k] {
+                Some(c) => format!("laser {k} {}–{} px", c.first_px, c.end_px()),
+                None => format!("laser {k} full row"),
+            })
+            .collect();
+        let _ = writeln!(io::stderr(), "listen: search windows from {}: {}", path.display(), said.join(", "));
+        opts.windows = Some(w);
+    }
     let mut display = Display::new(opts.json);
     let stdout = io::stdout();
     let outcome = listen::session(&args.port, &opts, interrupt_flag(), &mut stdout.lock(), &mut |_| {}, &mut display);
@@ -199,4 +255,18 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
         print_summary(&outcome.summary);
     }
     Ok(outcome.result?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn windows_parse_and_refuse() {
+        assert_eq!(parse_window("1:300-396"), Ok((1, ColumnWindow { first_px: 300, width_px: 96 })));
+        assert_eq!(parse_window(" 0 : 0 - 8 "), Ok((0, ColumnWindow { first_px: 0, width_px: 8 })));
+        for bad in ["3:0-96", "1:300-305", "1:396-300", "1:300", "x:1-99", "1:-5-90", "1:0-70000", ""] {
+            assert!(parse_window(bad).is_err(), "{bad}");
+        }
+    }
 }

@@ -303,7 +303,6 @@ struct LinkShared {
 /// frames only, a pty of a few tens of KB would cap the link at one
 /// buffer-full per frame).
 struct Outbox {
-    scratch: Vec<u8>,
     frame: Vec<u8>,
     tx: Option<mpsc::Sender<Vec<u8>>>,
     shared: Arc<LinkShared>,
@@ -325,7 +324,6 @@ impl Outbox {
             .spawn(move || write_loop(file, rx, &sh))
             .map_err(|e| SimulateError::Io("starting the pty writer", e))?;
         Ok(Outbox {
-            scratch: vec![0; MAX_FRAME],
             frame: vec![0; MAX_FRAME],
             tx: Some(tx),
             shared,
@@ -339,7 +337,7 @@ impl Outbox {
 
     fn push(&mut self, msg: &DeviceMsg) {
         let profile = matches!(msg, DeviceMsg::Profile(_));
-        let Ok(bytes) = encode(msg, &mut self.scratch, &mut self.frame) else {
+        let Ok(bytes) = encode(msg, &mut self.frame) else {
             // Cannot happen: MAX_FRAME bounds every message (core's test).
             self.dropped_other += 1;
             return;

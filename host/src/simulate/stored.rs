@@ -2,7 +2,7 @@
 //! restarts, as the real head keeps it in flash.
 //!
 //! The file holds one wire frame of `SetCalibration` (protocol version and
-//! CRC-32 included), so a damaged or foreign file is detected, reported and
+//! CRC-32 included; one of protocol 3, an earlier build's, reads too), so a damaged or foreign file is detected, reported and
 //! not used; it is written atomically ([`crate::output`]: a temporary file,
 //! `fsync`, rename), so a crash during a write leaves the previous
 //! calibration.
@@ -10,6 +10,7 @@
 use std::io;
 use std::path::{Path, PathBuf};
 
+use cms_core::protocol::v3::AnyCommand;
 use cms_core::protocol::{Calibration, Command, HostMsg, MAX_COMMAND_FRAME, decode_frame, encode};
 
 /// The calibration file inside a state directory.
@@ -47,8 +48,10 @@ pub fn load(path: &Path) -> Result<Option<Calibration>, String> {
         return Err(format!("{}: not a calibration record ({} bytes)", path.display(), bytes.len()));
     }
     let n = bytes.len() - 1;
-    match decode_frame::<Command>(&mut bytes[..n]) {
-        Ok(Command { msg: HostMsg::SetCalibration(c), .. }) => Ok(Some(c)),
+    // A record of protocol 3 (an earlier build's) reads too: the command's
+    // bytes are the same.
+    match decode_frame::<AnyCommand>(&mut bytes[..n]) {
+        Ok(AnyCommand(Command { msg: HostMsg::SetCalibration(c), .. })) => Ok(Some(c)),
         Ok(_) => Err(format!("{}: not a calibration record", path.display())),
         Err(e) => Err(format!("{}: damaged calibration record ({e})", path.display())),
     }
@@ -56,9 +59,8 @@ pub fn load(path: &Path) -> Result<Option<Calibration>, String> {
 
 /// Stores a calibration (atomically: temporary file, then rename).
 pub fn save(path: &Path, c: &Calibration) -> Result<(), String> {
-    let mut scratch = [0u8; MAX_COMMAND_FRAME];
     let mut frame = [0u8; MAX_COMMAND_FRAME];
-    let bytes = encode(&Command { seq: 0, msg: HostMsg::SetCalibration(*c) }, &mut scratch, &mut frame)
+    let bytes = encode(&Command { seq: 0, msg: HostMsg::SetCalibration(*c) }, &mut frame)
         .map_err(|e| format!("encoding the calibration: {e}"))?;
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
@@ -94,5 +96,18 @@ mod tests {
         assert!(e.contains("damaged"), "{e}");
         std::fs::write(&path, b"hello").unwrap();
         assert!(load(&path).unwrap_err().contains("not a calibration record"));
+    }
+
+    /// A record an earlier build wrote (protocol 3) still loads.
+    #[test]
+    fn a_protocol_3_record_loads() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(FILE_NAME);
+        let mut frame = [0u8; MAX_COMMAND_FRAME];
+        let cmd = Command { seq: 0, msg: HostMsg::SetCalibration(cal()) };
+        let bytes = cms_core::protocol::v3::encode_command(&cmd, &mut frame).unwrap();
+        assert_eq!(bytes[1], 3, "the version byte (after COBS's first code byte)");
+        std::fs::write(&path, bytes).unwrap();
+        assert_eq!(load(&path), Ok(Some(cal())));
     }
 }

@@ -163,9 +163,8 @@ fn gaps_are_reported_where_they_are() {
 // ------------------------------------------------------------ recordings
 
 fn wire<T: serde::Serialize>(msg: &T) -> Vec<u8> {
-    let mut scratch = vec![0u8; MAX_FRAME];
     let mut out = vec![0u8; MAX_FRAME];
-    encode(msg, &mut scratch, &mut out).unwrap().to_vec()
+    encode(msg, &mut out).unwrap().to_vec()
 }
 
 /// A recording of `frames` as the head would send them (calibrated points).

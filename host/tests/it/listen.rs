@@ -292,7 +292,6 @@ fn device(link: PathBuf, plan: Plan, stop: Arc<AtomicBool>, hooks: Hooks) -> Rep
     let mut pty = Some(plug(&link));
     let _ = hooks.plugged.send(());
     let mut cmd_reader: Box<FrameReader<MAX_COMMAND_FRAME>> = Box::new(FrameReader::new());
-    let mut scratch = vec![0u8; MAX_FRAME];
     let mut frame = vec![0u8; MAX_FRAME];
     let mut rbuf = vec![0u8; 4096];
     let mut report = Report::default();
@@ -319,7 +318,7 @@ fn device(link: PathBuf, plan: Plan, stop: Arc<AtomicBool>, hooks: Hooks) -> Rep
         }
         {
             let mut reply = |m: &DeviceMsg| {
-                let f = encode(m, &mut scratch, &mut frame).expect("encode");
+                let f = encode(m, &mut frame).expect("encode");
                 let seq = if let DeviceMsg::Profile(p) = m { Some(p.seq) } else { None };
                 outq.push((seq, f.to_vec()));
             };
@@ -1032,9 +1031,8 @@ fn another_protocol_version_is_refused() {
         Head::new(Lasers::default(), default_detector(), Identity { firmware: "9", board: "v2" }).expect("head");
     info.get_or_insert(head.info(&TestCamera::new(64, 4, 1, 1)));
     let f = {
-        let mut scratch = vec![0u8; MAX_FRAME];
         let mut out = vec![0u8; MAX_FRAME];
-        encode(&DeviceMsg::Hello(info.unwrap()), &mut scratch, &mut out).unwrap().to_vec()
+        encode(&DeviceMsg::Hello(info.unwrap()), &mut out).unwrap().to_vec()
     };
     let mut raw = cobs_decode(&f[..f.len() - 1]);
     raw[0] = PROTOCOL_VERSION + 1;
@@ -1235,4 +1233,40 @@ fn cli_kill_9_loses_at_most_the_frame_in_flight() {
         assert!(printed.len() >= n);
         assert!(kept + 1 >= printed.len(), "try {k}: printed {printed:?}, recorded {recorded:?}");
     }
+}
+
+/// `--window`: the simulated head seeks each laser's stripes in its window
+/// only (its lines stand near columns 310, 379 and 450): windows around
+/// them keep every point; laser 1's window moved off its line loses them.
+#[test]
+fn cli_listen_sets_search_windows() {
+    let points = |windows: &[&str]| -> Vec<usize> {
+        let mut args = vec!["listen", "sim", "--frames", "2", "--json"];
+        for w in windows {
+            args.extend(["--window", w]);
+        }
+        let out = crate::common::run(&args);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let last = String::from_utf8(out.stdout).unwrap().lines().last().unwrap().to_owned();
+        let v: serde_json::Value = serde_json::from_str(&last).unwrap();
+        v["lasers"].as_array().unwrap().iter().map(|l| l["points"].as_array().unwrap().len()).collect()
+    };
+    assert_eq!(points(&["0:278-342", "1:347-411", "2:418-482"]), [480, 480, 480]);
+    // Two stripes a row for three lit lasers: the head gives each to the
+    // laser whose last position is nearest (`pipeline::assign`), not by
+    // window; one laser gets none.
+    let moved = points(&["0:278-342", "1:600-664", "2:418-482"]);
+    assert_eq!(moved.iter().sum::<usize>(), 960, "{moved:?}");
+    assert!(moved.contains(&0), "{moved:?}");
+    // Windows from the calibration's working range hold every line.
+    let cal = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/v3/cal.toml");
+    assert_eq!(points(&[]), [480, 480, 480]);
+    let out = crate::common::run(&["listen", "sim", "--frames", "2", "--windows-from", cal.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && err.contains("listen: search windows from "), "{err}");
+    assert!(err.contains("listen: frames: 2 "), "{err}");
+    // A window the head refuses (past the 752-px row) ends the listener.
+    let out = crate::common::run(&["listen", "sim", "--frames", "2", "--window", "0:700-800"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("SetWindows"), "{}", String::from_utf8_lossy(&out.stderr));
 }

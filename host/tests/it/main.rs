@@ -20,3 +20,4 @@ mod robust;
 mod simulate;
 mod standards;
 mod triangulate_sim;
+mod v3_recording;

@@ -165,9 +165,8 @@ fn write_recording(path: &Path, cal: &CalibFile) {
     }
     let mut rec = Recorder::open(path).unwrap();
     for p in [with_metric, raw] {
-        let mut scratch = vec![0u8; MAX_FRAME];
         let mut out = vec![0u8; MAX_FRAME];
-        rec.write_frame(encode(&DeviceMsg::Profile(p), &mut scratch, &mut out).unwrap()).unwrap();
+        rec.write_frame(encode(&DeviceMsg::Profile(p), &mut out).unwrap()).unwrap();
     }
     rec.finish().unwrap();
 }
@@ -221,9 +220,8 @@ fn hello(id: u32) -> DeviceMsg {
 }
 
 fn wire(msg: &DeviceMsg) -> Vec<u8> {
-    let mut scratch = vec![0u8; MAX_FRAME];
     let mut out = vec![0u8; MAX_FRAME];
-    encode(msg, &mut scratch, &mut out).unwrap().to_vec()
+    encode(msg, &mut out).unwrap().to_vec()
 }
 
 /// The two-frame recording of [`recording_metric_and_raw_frames`] with a

@@ -10,8 +10,8 @@ use cms_core::fixed::Px;
 use cms_core::peak::Flags;
 use cms_core::pipeline::default_detector;
 use cms_core::protocol::{
-    Command, DeviceInfo, DeviceMsg, FrameReader, HeadState, HostMsg, LaserPoints, MAX_COMMAND_FRAME, MAX_FRAME, Metric,
-    PROTOCOL_VERSION, Point, Profile, Status, StoreHealth, WireError, encode,
+    Command, DeviceInfo, DeviceMsg, FrameReader, HeadState, HostMsg, LaserPoints, MAX_COMMAND_FRAME, MAX_FRAME,
+    MAX_READ_FRAME, Metric, PROTOCOL_VERSION, Point, Profile, Status, StoreHealth, WireError, encode,
 };
 use cms_host::link::Deframer;
 use cms_host::record::{self, HEADER_LEN, Info, Recorder, ScanStats};
@@ -32,11 +32,11 @@ fn big<T: Send>(f: impl FnOnce() -> T + Send) -> T {
 }
 
 fn frame<T: serde::Serialize>(msg: &T) -> Vec<u8> {
-    let mut scratch = vec![0u8; MAX_FRAME];
     let mut out = vec![0u8; MAX_FRAME];
-    encode(msg, &mut scratch, &mut out).unwrap().to_vec()
+    encode(msg, &mut out).unwrap().to_vec()
 }
 
+/// A profile as a recording holds it (protocol 4 quantises: `on_wire`).
 fn profile(seq: u32, rows: u16) -> DeviceMsg {
     let mut lasers = heapless::Vec::new();
     for k in 0..3u8 {
@@ -56,16 +56,19 @@ fn profile(seq: u32, rows: u16) -> DeviceMsg {
         }
         lasers.push(LaserPoints { laser: k, points }).unwrap();
     }
-    DeviceMsg::Profile(Profile {
-        seq,
-        part: 0,
-        parts: 1,
-        timestamp_us: 1_000 + seq as u64 * 10_000,
-        odometer_um: seq as i64 * 2_500 - 1,
-        exposure_us: 200,
-        laser_mask: 7,
-        lasers,
-    })
+    DeviceMsg::Profile(
+        Profile {
+            seq,
+            part: 0,
+            parts: 1,
+            timestamp_us: 1_000 + seq as u64 * 10_000,
+            odometer_um: seq as i64 * 2_500 - 1,
+            exposure_us: 200,
+            laser_mask: 7,
+            lasers,
+        }
+        .on_wire(),
+    )
 }
 
 fn hello() -> DeviceMsg {
@@ -311,9 +314,9 @@ fn export_formats() {
         assert_eq!(lines[0], record::CSV_HEADER);
         assert!(record::CSV_HEADER.ends_with(",flags,along_mm,height_um"));
         assert_eq!(lines.len(), 1 + 3 * 2);
-        assert_eq!(lines[1], "2,0,21000,4.999,0,0,100.00200,1000,2.50000,0,,");
-        assert_eq!(lines[3], "2,0,21000,4.999,1,0,250.00200,1000,2.50000,0,-1.200,35.250");
-        assert_eq!(lines[4], "2,0,21000,4.999,1,1,250.01199,1001,2.50000,4,,");
+        assert_eq!(lines[1], "2,0,21000,4.999,0,0,100.00391,1008,2.50000,0,,");
+        assert_eq!(lines[3], "2,0,21000,4.999,1,0,250.00391,1008,2.50000,0,-1.200,35.300");
+        assert_eq!(lines[4], "2,0,21000,4.999,1,1,250.01172,1008,2.50000,4,,");
         let mut jl = Vec::new();
         record::export_to(&path, record::ExportFormat::Jsonl, &mut jl, &Silent).unwrap();
         let v: serde_json::Value = serde_json::from_slice(&jl).unwrap();
@@ -326,8 +329,8 @@ fn export_formats() {
         assert_eq!(p["flags"], 0);
         assert_eq!(p["width_px"], 2.5);
         assert_eq!(p["along_mm"], -1.2);
-        assert_eq!(p["height_um"], 35.25);
-        assert!((p["position_px"].as_f64().unwrap() - 250.002).abs() < 1e-4);
+        assert_eq!(p["height_um"], 35.3, "0.1 µm on the wire");
+        assert_eq!(p["position_px"], 250.00390625, "1/256 px on the wire");
         assert!(v["lasers"][0]["points"][0].get("along_mm").is_none());
     })
 }
@@ -526,9 +529,9 @@ fn fuzz_frame_readers_bounded() {
             total += data.len();
             check_readers(&mut rng, &data);
         }
-        // One frame longer than MAX_FRAME, then a valid one: overflow counted,
+        // One frame longer than MAX_READ_FRAME, then a valid one: overflow counted,
         // the valid one still read.
-        let mut big = vec![0x42u8; MAX_FRAME + 10];
+        let mut big = vec![0x42u8; MAX_READ_FRAME + 10];
         big.push(0);
         big.extend_from_slice(&valid[0]);
         let mut d = Deframer::new();

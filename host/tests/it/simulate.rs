@@ -80,9 +80,8 @@ impl Sim {
     fn send(&mut self, msg: HostMsg) -> u16 {
         self.seq += 1;
         self.beat = Instant::now(); // any command resets the head's watchdog
-        let mut scratch = [0u8; MAX_COMMAND_FRAME];
         let mut out = [0u8; MAX_COMMAND_FRAME];
-        let frame = encode(&Command { seq: self.seq, msg }, &mut scratch, &mut out).unwrap();
+        let frame = encode(&Command { seq: self.seq, msg }, &mut out).unwrap();
         self.port.write_all(frame).unwrap();
         self.seq
     }
@@ -415,9 +414,8 @@ fn in_process_head_serves_through_its_pty() {
     let mut t = tcgetattr(port.as_fd()).unwrap();
     cfmakeraw(&mut t);
     tcsetattr(port.as_fd(), SetArg::TCSANOW, &t).unwrap();
-    let mut scratch = [0u8; MAX_COMMAND_FRAME];
     let mut out = [0u8; MAX_COMMAND_FRAME];
-    let frame = encode(&Command { seq: 7, msg: HostMsg::GetInfo }, &mut scratch, &mut out).unwrap();
+    let frame = encode(&Command { seq: 7, msg: HostMsg::GetInfo }, &mut out).unwrap();
     (&port).write_all(frame).unwrap();
     let mut reader: Box<FrameReader<MAX_FRAME>> = Box::default();
     let mut buf = [0u8; 4096];

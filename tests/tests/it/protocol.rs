@@ -1,4 +1,5 @@
-//! The wire protocol: golden bytes, size bounds, round trips, resynchronisation.
+//! The wire protocol: golden bytes (protocol 4, and protocol 3's that
+//! recordings hold), size bounds, round trips, resynchronisation.
 
 use cms_core::fixed::Px;
 use cms_core::peak::{ColumnWindow, Flags};
@@ -8,9 +9,8 @@ use heapless::{String, Vec};
 use proptest::prelude::*;
 
 fn frame<T: serde::Serialize>(msg: &T) -> std::vec::Vec<u8> {
-    let mut scratch = vec![0u8; MAX_FRAME];
     let mut out = vec![0u8; MAX_FRAME];
-    encode(msg, &mut scratch, &mut out).unwrap().to_vec()
+    encode(msg, &mut out).unwrap().to_vec()
 }
 
 fn hex(b: &[u8]) -> std::string::String {
@@ -43,6 +43,38 @@ fn sample_profile() -> Profile {
         odometer_um: 25_000,
         exposure_us: 200,
         laser_mask: 1,
+        lasers,
+    }
+}
+
+/// Lasers 0 and 2, rows with gaps, both ends of the strength scale (the
+/// "profile-rows" golden of `golden.py`).
+fn rows_profile() -> Profile {
+    let pt = |row, pos, strength, width, flags, metric: Option<(i32, i32)>| Point {
+        row,
+        position: Px::from_f64(pos),
+        strength,
+        width: Px::from_f64(width),
+        flags: Flags(flags),
+        metric: metric.map(|(along_um, height_nm)| Metric { along_um, height_nm }),
+    };
+    let l0 = [
+        pt(3, 310.25, 158, 3.0, 0, Some((-33_947, -142_741))),
+        pt(4, 310.0, 157, 3.0625, 0, Some((-33_803, -139_571))),
+        pt(7, 309.5, 4095, 3.5, 1, Some((-33_370, -145_075))),
+    ];
+    let l2 = [pt(4, 512.75, 5, 1.0, 4, None), pt(300, 498.0, 65_535, 6.4375, 0, Some((9000, 7)))];
+    let mut lasers = Vec::new();
+    lasers.push(LaserPoints { laser: 0, points: Vec::from_slice(&l0).unwrap() }).unwrap();
+    lasers.push(LaserPoints { laser: 2, points: Vec::from_slice(&l2).unwrap() }).unwrap();
+    Profile {
+        seq: 8,
+        part: 0,
+        parts: 1,
+        timestamp_us: 133_333,
+        odometer_um: -4,
+        exposure_us: 100,
+        laser_mask: 5,
         lasers,
     }
 }
@@ -88,6 +120,7 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
             })),
         ),
         ("profile", frame(&DeviceMsg::Profile(sample_profile()))),
+        ("profile-rows", frame(&DeviceMsg::Profile(rows_profile()))),
         ("hello", frame(&DeviceMsg::Hello(sample_info()))),
         (
             "raw",
@@ -142,16 +175,94 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
     ]
 }
 
+/// Protocol 3's frames (from `golden.py`) and what this build reads them as.
+fn goldens_v3() -> std::vec::Vec<(&'static str, DeviceMsg)> {
+    let mut info = sample_info();
+    info.protocol = 3;
+    vec![("profile-v3", DeviceMsg::Profile(sample_profile())), ("hello-v3", DeviceMsg::Hello(info))]
+}
+
+fn golden_lines() -> std::vec::Vec<(std::string::String, std::vec::Vec<u8>)> {
+    include_str!("../../golden/frames.txt")
+        .lines()
+        .map(|l| {
+            let (name, bytes) = l.split_once(": ").unwrap();
+            (name.to_owned(), bytes.split(' ').map(|b| u8::from_str_radix(b, 16).unwrap()).collect())
+        })
+        .collect()
+}
+
 #[test]
 fn goldens_match_the_reference_encoder() {
     let want = include_str!("../../golden/frames.txt");
     let got: std::vec::Vec<_> = goldens().into_iter().map(|(name, bytes)| format!("{name}: {}", hex(&bytes))).collect();
     let want: std::vec::Vec<_> = want.lines().map(str::to_owned).collect();
-    assert_eq!(got.len(), 17, "one golden per message kind");
+    assert_eq!(got.len(), 18, "one golden per message kind, two profiles");
     for (g, w) in got.iter().zip(&want) {
         assert_eq!(g, w);
     }
-    assert_eq!(got.len(), want.len());
+    assert_eq!(want.len(), got.len() + goldens_v3().len());
+}
+
+/// Protocol 3's frames decode into this build's messages (recordings made
+/// before protocol 4), and the version-3 encoder kept for tests writes them.
+#[test]
+fn v3_goldens_decode_into_the_model() {
+    let lines = golden_lines();
+    for (name, want) in goldens_v3() {
+        let (_, bytes) = lines.iter().find(|(n, _)| n == name).unwrap();
+        let mut f = bytes[..bytes.len() - 1].to_vec();
+        assert_eq!(decode_frame::<DeviceMsg>(&mut f).unwrap(), want, "{name}");
+        let mut out = vec![0u8; v3::MAX_FRAME];
+        assert_eq!(v3::encode(&want, &mut out).unwrap(), &bytes[..], "{name}");
+        // A head of protocol 3 is not one the head's command reader obeys.
+        let mut c = bytes[..bytes.len() - 1].to_vec();
+        assert_eq!(decode_frame::<Command>(&mut c), Err(WireError::Version(3)), "{name}");
+    }
+}
+
+/// What a decoder gets back is the point quantised ([`Point::on_wire`]).
+#[test]
+fn goldens_decode_to_their_quantised_values() {
+    for (p, mut f) in [
+        (sample_profile(), frame(&DeviceMsg::Profile(sample_profile()))),
+        (rows_profile(), frame(&DeviceMsg::Profile(rows_profile()))),
+    ] {
+        f.pop();
+        assert_eq!(decode_frame::<DeviceMsg>(&mut f).unwrap(), DeviceMsg::Profile(p.on_wire()));
+    }
+    let p = rows_profile().on_wire();
+    assert_eq!(p.lasers[0].points[2].strength, 4032, "4095 is (16 + 15)·2⁷ + 2⁶");
+    assert_eq!(p.lasers[1].points[1].strength, 64_512);
+    assert_eq!(p.lasers[0].points[0].metric.unwrap().height_nm, -142_700);
+}
+
+/// A laser's points out of row order, or two in one row, do not encode.
+#[test]
+fn profiles_out_of_row_order_are_refused() {
+    for rows in [[5u16, 3], [4, 4]] {
+        let mut p = sample_profile();
+        p.lasers[0].points[0].row = rows[0];
+        p.lasers[0].points[1].row = rows[1];
+        let mut out = vec![0u8; MAX_FRAME];
+        assert_eq!(encode(&DeviceMsg::Profile(p), &mut out), Err(WireError::Unencodable), "{rows:?}");
+    }
+}
+
+/// Every strength code stands for a strength that encodes to it, and every
+/// strength is within its code's step (1/16 of the value or less).
+#[test]
+fn strength_codes_invert() {
+    for c in 0..=u8::MAX {
+        match compact::strength_from_code(c) {
+            Some(s) => assert_eq!(compact::strength_code(s), c),
+            None => assert!(c > compact::MAX_STRENGTH_CODE),
+        }
+    }
+    for s in 0..=u16::MAX {
+        let back = compact::strength_from_code(compact::strength_code(s)).unwrap();
+        assert!(u32::from(s.abs_diff(back)) * 32 <= u32::from(s).max(16), "{s} → {back}");
+    }
 }
 
 #[test]
@@ -192,10 +303,27 @@ fn encoded_sizes_are_bounded() {
         flags: Flags(u8::MAX),
         metric: Some(Metric { along_um: i32::MIN, height_nm: i32::MIN }),
     };
+    // Every point in a record of its own (laser k in rows k, k + 3, …, then
+    // the last one 65 535 − 2 + k after a long skip), its position and
+    // height swinging between their extremes, its along 2³⁰ off the linear
+    // prediction: every field at its longest varint.
     let mut lasers = Vec::new();
     for k in 0..LASERS as u8 {
         let mut points = Vec::new();
-        while points.push(worst_point).is_ok() {}
+        let mut along = [0i32; 2];
+        for i in 0..MAX_ROWS_PER_PROFILE {
+            let row =
+                if i + 1 == MAX_ROWS_PER_PROFILE { u16::MAX - 2 + u16::from(k) } else { (3 * i) as u16 + u16::from(k) };
+            let (position, height_nm) = if i % 2 == 0 { (Px(i32::MIN), i32::MIN) } else { (Px(i32::MAX), i32::MAX) };
+            let predicted = match i {
+                0 => 0,
+                1 => along[1],
+                _ => along[1].wrapping_mul(2).wrapping_sub(along[0]),
+            };
+            let along_um = predicted.wrapping_add(1 << 30);
+            along = [along[1], along_um];
+            points.push(Point { row, position, metric: Some(Metric { along_um, height_nm }), ..worst_point }).unwrap();
+        }
         lasers.push(LaserPoints { laser: k, points }).unwrap();
     }
     let profile = DeviceMsg::Profile(Profile {
@@ -211,8 +339,17 @@ fn encoded_sizes_are_bounded() {
     let mut raw = vec![0u8; 2 * MAX_FRAME];
     let n = postcard::to_slice(&profile, &mut raw).unwrap().len();
     assert!(n <= MAX_MESSAGE, "profile {n} > {MAX_MESSAGE}");
-    assert!(n > MAX_MESSAGE - 100, "MAX_MESSAGE is not tight: {n}");
+    // Short of the bound by the skips alone: the bound gives every record a
+    // 3-byte skip, and 65 535 rows leave room for one such a laser (the
+    // others skip nothing here).
+    assert!(n + 3 * LASERS * MAX_ROWS_PER_PROFILE > MAX_MESSAGE - 100, "MAX_MESSAGE is not tight: {n}");
     assert!(frame(&profile).len() <= MAX_FRAME);
+    // And the same profile in protocol 3 fits its own bound (host readers
+    // are sized by MAX_READ_FRAME).
+    let mut out = vec![0u8; v3::MAX_FRAME];
+    let n = v3::encode(&profile, &mut out).unwrap().len();
+    assert!(n <= v3::MAX_FRAME, "{n}");
+    const { assert!(v3::MAX_FRAME <= MAX_READ_FRAME && MAX_FRAME <= MAX_READ_FRAME) };
 
     let mut info = sample_info();
     info.firmware = String::try_from("0123456789abcdef").unwrap();
@@ -356,6 +493,8 @@ fn arb_point() -> impl Strategy<Value = Point> {
         })
 }
 
+/// Any points, each laser's in ascending rows (what the head sends):
+/// sorted and deduplicated by row.
 fn arb_profile() -> impl Strategy<Value = Profile> {
     (
         any::<u32>(),
@@ -365,6 +504,13 @@ fn arb_profile() -> impl Strategy<Value = Profile> {
         any::<u8>(),
         proptest::collection::vec(proptest::collection::vec(arb_point(), 0..40), 0..=3),
     )
+        .prop_map(|(seq, t, o, e, m, mut lasers)| {
+            for pts in lasers.iter_mut() {
+                pts.sort_by_key(|p| p.row);
+                pts.dedup_by_key(|p| p.row);
+            }
+            (seq, t, o, e, m, lasers)
+        })
         .prop_map(|(seq, t, o, e, m, lasers)| Profile {
             seq,
             part: 0,
@@ -382,12 +528,61 @@ fn arb_profile() -> impl Strategy<Value = Profile> {
 }
 
 proptest! {
+    /// A profile decodes to its quantised self, which encodes to the same bytes.
     #[test]
     fn profiles_round_trip(p in arb_profile()) {
-        let msg = DeviceMsg::Profile(p);
-        let mut f = frame(&msg);
+        let f0 = frame(&DeviceMsg::Profile(p.clone()));
+        let mut f = f0.clone();
         f.pop();
-        prop_assert_eq!(decode_frame::<DeviceMsg>(&mut f).unwrap(), msg);
+        let back = decode_frame::<DeviceMsg>(&mut f).unwrap();
+        prop_assert_eq!(&back, &DeviceMsg::Profile(p.on_wire()));
+        prop_assert_eq!(frame(&back), f0);
+    }
+
+    /// A protocol-3 profile, whatever its points, decodes unchanged.
+    #[test]
+    fn v3_profiles_decode_unchanged(p in arb_profile(), shuffle in any::<bool>()) {
+        let mut p = p;
+        if shuffle {
+            for lp in p.lasers.iter_mut() {
+                lp.points.reverse();
+            }
+        }
+        let mut out = vec![0u8; v3::MAX_FRAME];
+        let mut f = v3::encode(&DeviceMsg::Profile(p.clone()), &mut out).unwrap().to_vec();
+        f.pop();
+        prop_assert_eq!(decode_frame::<DeviceMsg>(&mut f).unwrap(), DeviceMsg::Profile(p));
+    }
+
+    /// Calibrated-head-like profiles cost at most 6 bytes a point.
+    #[test]
+    fn smooth_profiles_cost_under_six_bytes_a_point(x0 in 100.0f64..600.0, slope in -0.5f64..0.5, seed in any::<u64>()) {
+        let mut rng = seed | 1;
+        let mut noise = move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng % 2001) as f64 / 1000.0 - 1.0
+        };
+        let mut lasers = Vec::new();
+        for k in 0..LASERS as u8 {
+            let points = (0..MAX_ROWS_PER_PROFILE as u16)
+                .map(|r| Point {
+                    row: r,
+                    position: Px::from_f64(x0 + 100.0 * f64::from(k) + slope * f64::from(r) + 0.05 * noise()),
+                    strength: 150 + (noise() * 10.0) as u16,
+                    width: Px::from_f64(3.0 + 0.05 * noise()),
+                    flags: Flags::NONE,
+                    metric: Some(Metric {
+                        along_um: -34_000 + 144 * i32::from(r) + (3.0 * noise()) as i32,
+                        height_nm: -140_000 + (1500.0 * noise()) as i32,
+                    }),
+                })
+                .collect();
+            lasers.push(LaserPoints { laser: k, points }).unwrap();
+        }
+        let n = frame(&DeviceMsg::Profile(Profile { lasers, ..Profile::EMPTY })).len();
+        prop_assert!(n <= 6 * LASERS * MAX_ROWS_PER_PROFILE, "{} bytes", n);
     }
 
     #[test]

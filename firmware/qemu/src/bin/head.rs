@@ -33,16 +33,16 @@ pub const SCENE_SEED: u32 = 1;
 /// UART rate (QEMU ignores it; a terminal on the pty sees it).
 const BAUD: u32 = 115_200;
 
-/// Encodes a reply and sends it.
+/// Encodes a reply and sends it: one frame buffer (postcard writes the
+/// frame in place through its CRC and COBS flavours).
 struct Link {
-    scratch: [u8; MAX_FRAME],
     frame: [u8; MAX_FRAME],
 }
 
 impl Link {
     fn send(&mut self, msg: &DeviceMsg) {
         // MAX_FRAME bounds every message (cms-core checks the worst case).
-        if let Ok(bytes) = encode(msg, &mut self.scratch, &mut self.frame) {
+        if let Ok(bytes) = encode(msg, &mut self.frame) {
             uart::write_all(bytes);
         }
     }
@@ -53,7 +53,7 @@ async fn run(board: Board) {
     static LINK: StaticCell<Link> = StaticCell::new();
     static HEAD: StaticCell<Head<WIDTH, Lasers>> = StaticCell::new();
     static READER: StaticCell<FrameReader<MAX_COMMAND_FRAME>> = StaticCell::new();
-    let link = LINK.init_with(|| Link { scratch: [0; MAX_FRAME], frame: [0; MAX_FRAME] });
+    let link = LINK.init_with(|| Link { frame: [0; MAX_FRAME] });
     let identity = Identity { firmware: env!("CARGO_PKG_VERSION"), board: board.name() };
     let Ok(head) = Head::new(Lasers, default_detector(), identity) else {
         panic!("the default detector configuration is refused");
