@@ -13,6 +13,7 @@
 //!
 //! **Data**
 //! * [`record`] — the recording format, its reader, export and `info`.
+//! * [`survey_info`] — what a recording is of: line, track, rail, chainage, operator (`listen --survey`).
 //! * [`input`] — grayscale PNG/TIFF images and CSV rows.
 //! * [`detect`] — laser-stripe positions of image rows, as CSV.
 //! * [`synthetic`] — a calibrated recording of any length over a known rail, for benchmarks at survey scale.
@@ -63,6 +64,7 @@ pub mod reference_beam;
 pub mod sim;
 pub mod simulate;
 pub mod standards;
+pub mod survey_info;
 pub mod synthetic;
 pub mod upload;
 pub mod verdict;

@@ -323,8 +323,12 @@ pub fn describe(source: &Source, a: &Analysis) -> String {
             );
         }
     }
-    for j in &a.joins {
-        let _ = writeln!(s, "{}", describe_join(j));
+    // One run where the user put it by default needs no placement line.
+    let placed = a.joins.len() > 1 || a.joins.iter().any(|j| j.start_m != 0.0 || j.heading == survey::Heading::Down);
+    if placed {
+        for j in &a.joins {
+            let _ = writeln!(s, "{}", describe_join(j));
+        }
     }
     s
 }

@@ -352,13 +352,17 @@ pub fn describe(v: &Verdict) -> String {
     let mut s = String::new();
     let e = v.options.edition;
     let _ = writeln!(s, "verdict by {} — {}", e.name(), e.source());
-    let _ = writeln!(
-        s,
-        "reprofiling: {:.3} km of {:.3} km should be reprofiled ({:.1} %)",
-        v.reprofile_mm / 1e6,
-        v.measured_mm / 1e6,
-        if v.measured_mm > 0.0 { 100.0 * v.reprofile_mm / v.measured_mm } else { 0.0 }
-    );
+    if v.measured_mm > 0.0 {
+        let _ = writeln!(
+            s,
+            "reprofiling: {:.3} km of {:.3} km should be reprofiled ({:.1} %)",
+            v.reprofile_mm / 1e6,
+            v.measured_mm / 1e6,
+            100.0 * v.reprofile_mm / v.measured_mm
+        );
+    } else {
+        let _ = writeln!(s, "reprofiling: not judged (no band could be evaluated; see below)");
+    }
     let _ = writeln!(
         s,
         "{:<14} {:>9} {:>12} {:>13} {:>11} {:>6}",
@@ -409,6 +413,10 @@ pub fn describe(v: &Verdict) -> String {
         if v.zones.len() > 50 {
             let _ = writeln!(s, "  … and {} more (see the report)", v.zones.len() - 50);
         }
+    }
+    if v.blocks.iter().all(|b| b.rms_mm.iter().all(Option::is_none) && b.iso3095_exceeded.is_none()) {
+        let _ = writeln!(s, "blocks of {} m: no band or spectrum evaluated", v.options.block_mm / 1000.0);
+        return s;
     }
     let _ = writeln!(
         s,

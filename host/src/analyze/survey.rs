@@ -43,9 +43,6 @@
 //! Cost: per run four FFT correlations per line and heading of the joined
 //! length (`O(N log N)`), then `O(overlap)` per refinement step.
 
-use std::fmt;
-use std::str::FromStr;
-
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
 
@@ -53,101 +50,7 @@ use super::profile;
 use super::stitch::{Direction, Stitched, Stitching};
 use crate::standards::en13231;
 
-/// Which way chainage runs along a run's track position.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Heading {
-    /// Chainage increases with track position.
-    Up,
-    /// Chainage decreases with track position (the run was driven the other way).
-    Down,
-}
-
-impl Heading {
-    /// "up" or "down".
-    pub fn name(self) -> &'static str {
-        match self {
-            Heading::Up => "up",
-            Heading::Down => "down",
-        }
-    }
-}
-
-/// A position along the line, metres; printed and read as `km+m`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Chainage(pub f64);
-
-impl fmt::Display for Chainage {
-    /// `12+345.678` (`-0+012.500` before the origin).
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let m = (self.0 * 1000.0).round() / 1000.0;
-        let sign = if m < 0.0 { "-" } else { "" };
-        let a = m.abs();
-        let km = (a / 1000.0).floor();
-        write!(f, "{sign}{km:.0}+{:07.3}", a - km * 1000.0)
-    }
-}
-
-impl FromStr for Chainage {
-    type Err = String;
-
-    /// `12+345.678` (km + m) or `12345.678` (m).
-    fn from_str(s: &str) -> Result<Self, String> {
-        let t = s.trim();
-        let bad = || format!("`{s}` is not a chainage (km+m, e.g. 12+345.678, or metres)");
-        let (neg, body) = match t.strip_prefix('-') {
-            Some(b) => (true, b),
-            None => (false, t),
-        };
-        let m = match body.split_once('+') {
-            Some((km, m)) => {
-                let km: u32 = km.parse().map_err(|_| bad())?;
-                let m: f64 = m.parse().map_err(|_| bad())?;
-                if !(0.0..1000.0).contains(&m) {
-                    return Err(format!("`{s}`: the metres after + must be 0 to under 1000"));
-                }
-                f64::from(km) * 1000.0 + m
-            }
-            None => body.parse::<f64>().map_err(|_| bad())?,
-        };
-        if !m.is_finite() || m.abs() > 1e8 {
-            return Err(bad());
-        }
-        Ok(Chainage(if neg { -m } else { m }))
-    }
-}
-
-/// Where a run lies on the line, as far as its user said.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct Placement {
-    /// Chainage of the run's track position 0, m (`None`: unknown, found by registration).
-    pub start_m: Option<f64>,
-    /// `None`: unknown, found by registration (the first run: up).
-    pub heading: Option<Heading>,
-}
-
-impl FromStr for Placement {
-    type Err = String;
-
-    /// `KM+M`, `KM+M:up`, `KM+M:down`, `:down` or `auto`.
-    fn from_str(s: &str) -> Result<Self, String> {
-        let t = s.trim();
-        if t.eq_ignore_ascii_case("auto") {
-            return Ok(Placement::default());
-        }
-        let (c, h) = match t.rsplit_once(':') {
-            Some((c, h)) => (c, Some(h)),
-            None => (t, None),
-        };
-        let heading = match h.map(str::to_ascii_lowercase).as_deref() {
-            None => None,
-            Some("up") => Some(Heading::Up),
-            Some("down") => Some(Heading::Down),
-            Some(o) => return Err(format!("`{s}`: heading `{o}` is neither up nor down")),
-        };
-        let start_m = if c.is_empty() { None } else { Some(c.parse::<Chainage>()?.0) };
-        Ok(Placement { start_m, heading })
-    }
-}
+pub use crate::survey_info::{Chainage, Heading, Placement};
 
 /// Options of [`join`].
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -1,0 +1,245 @@
+//! What a recording is of: the survey metadata a user gives `listen
+//! --survey FILE.toml` — line, track, rail, where the run starts and which
+//! way chainage runs, who measured with what — carried in the recording's
+//! header (format version 2, [`crate::record`]) so that the file says
+//! where on the network it was taken, and `analyze` places the run by it.
+//!
+//! ```toml
+//! line = "LN 1234 Northtown–Southville"
+//! track = "up main"
+//! rail = "left"                 # left | right, facing the direction chainage runs
+//! start_chainage = "12+345.600" # of the odometer's zero (km+m, or metres)
+//! chainage = "up"               # up | down: chainage with the odometer
+//! operator = "A. Engineer"
+//! instrument = "CMS head 0042"
+//! notes = "after grinding, pass 2"
+//! ```
+//!
+//! Every key is optional; unknown keys are refused (a typo must not pass
+//! silently). The text is stored as given (at most [`MAX_BYTES`]), so a
+//! later build reads keys this one does not know.
+
+use std::fmt;
+use std::str::FromStr;
+
+use serde::{Deserialize, Serialize};
+
+/// The largest survey block a recording holds, bytes.
+pub const MAX_BYTES: usize = 16 * 1024;
+
+/// Which rail of the track.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RailSide {
+    Left,
+    Right,
+}
+
+/// The survey a recording belongs to.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Survey {
+    pub line: Option<String>,
+    pub track: Option<String>,
+    pub rail: Option<RailSide>,
+    /// Chainage of the odometer's zero, `km+m` or metres.
+    pub start_chainage: Option<String>,
+    /// `up` or `down`: chainage with the odometer.
+    pub chainage: Option<String>,
+    pub operator: Option<String>,
+    pub instrument: Option<String>,
+    pub notes: Option<String>,
+}
+
+impl Survey {
+    /// Parses and checks a survey file's text; the error names the key.
+    pub fn parse(text: &str) -> Result<Survey, String> {
+        if text.len() > MAX_BYTES {
+            return Err(format!("{} bytes: a survey file holds at most {MAX_BYTES}", text.len()));
+        }
+        let s: Survey = toml::from_str(text).map_err(|e| e.message().to_string())?;
+        s.placement()?;
+        Ok(s)
+    }
+
+    /// The placement of the run it describes.
+    pub fn placement(&self) -> Result<Placement, String> {
+        let start_m = match &self.start_chainage {
+            Some(c) => Some(c.parse::<Chainage>().map_err(|e| format!("start_chainage: {e}"))?.0),
+            None => None,
+        };
+        let heading = match self.chainage.as_deref().map(str::to_ascii_lowercase).as_deref() {
+            None => None,
+            Some("up") => Some(Heading::Up),
+            Some("down") => Some(Heading::Down),
+            Some(o) => return Err(format!("chainage: `{o}` is neither up nor down")),
+        };
+        Ok(Placement { start_m, heading })
+    }
+
+    /// The text stored in a recording.
+    pub fn to_text(&self) -> String {
+        toml::to_string(self).unwrap_or_default()
+    }
+
+    /// One line for people: "line …, track …, left rail, from 12+345.600 up, operator …".
+    pub fn describe(&self) -> String {
+        let mut parts = Vec::new();
+        if let Some(l) = &self.line {
+            parts.push(format!("line {l}"));
+        }
+        if let Some(t) = &self.track {
+            parts.push(format!("track {t}"));
+        }
+        if let Some(r) = self.rail {
+            parts.push(format!("{} rail", if r == RailSide::Left { "left" } else { "right" }));
+        }
+        if let Ok(p) = self.placement() {
+            match (p.start_m, p.heading) {
+                (Some(m), h) => parts.push(format!(
+                    "odometer 0 at {}{}",
+                    Chainage(m),
+                    h.map_or(String::new(), |h| format!(", chainage {}", h.name()))
+                )),
+                (None, Some(h)) => parts.push(format!("chainage {}", h.name())),
+                (None, None) => {}
+            }
+        }
+        if let Some(o) = &self.operator {
+            parts.push(format!("operator {o}"));
+        }
+        if let Some(i) = &self.instrument {
+            parts.push(format!("instrument {i}"));
+        }
+        if let Some(n) = &self.notes {
+            parts.push(format!("notes: {n}"));
+        }
+        if parts.is_empty() { "no survey details".into() } else { parts.join(", ") }
+    }
+}
+
+/// Which way chainage runs along a run's track position.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Heading {
+    /// Chainage increases with track position.
+    Up,
+    /// Chainage decreases with track position (the run was driven the other way).
+    Down,
+}
+
+impl Heading {
+    /// "up" or "down".
+    pub fn name(self) -> &'static str {
+        match self {
+            Heading::Up => "up",
+            Heading::Down => "down",
+        }
+    }
+}
+
+/// A position along the line, metres; printed and read as `km+m`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Chainage(pub f64);
+
+impl fmt::Display for Chainage {
+    /// `12+345.678` (`-0+012.500` before the origin).
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let m = (self.0 * 1000.0).round() / 1000.0;
+        let sign = if m < 0.0 { "-" } else { "" };
+        let a = m.abs();
+        let km = (a / 1000.0).floor();
+        write!(f, "{sign}{km:.0}+{:07.3}", a - km * 1000.0)
+    }
+}
+
+impl FromStr for Chainage {
+    type Err = String;
+
+    /// `12+345.678` (km + m) or `12345.678` (m).
+    fn from_str(s: &str) -> Result<Self, String> {
+        let t = s.trim();
+        let bad = || format!("`{s}` is not a chainage (km+m, e.g. 12+345.678, or metres)");
+        let (neg, body) = match t.strip_prefix('-') {
+            Some(b) => (true, b),
+            None => (false, t),
+        };
+        let m = match body.split_once('+') {
+            Some((km, m)) => {
+                let km: u32 = km.parse().map_err(|_| bad())?;
+                let m: f64 = m.parse().map_err(|_| bad())?;
+                if !(0.0..1000.0).contains(&m) {
+                    return Err(format!("`{s}`: the metres after + must be 0 to under 1000"));
+                }
+                f64::from(km) * 1000.0 + m
+            }
+            None => body.parse::<f64>().map_err(|_| bad())?,
+        };
+        if !m.is_finite() || m.abs() > 1e8 {
+            return Err(bad());
+        }
+        Ok(Chainage(if neg { -m } else { m }))
+    }
+}
+
+/// Where a run lies on the line, as far as its user said.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Placement {
+    /// Chainage of the run's track position 0, m (`None`: unknown, found by registration).
+    pub start_m: Option<f64>,
+    /// `None`: unknown, found by registration (the first run: up).
+    pub heading: Option<Heading>,
+}
+
+impl FromStr for Placement {
+    type Err = String;
+
+    /// `KM+M`, `KM+M:up`, `KM+M:down`, `:down` or `auto`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let t = s.trim();
+        if t.eq_ignore_ascii_case("auto") {
+            return Ok(Placement::default());
+        }
+        let (c, h) = match t.rsplit_once(':') {
+            Some((c, h)) => (c, Some(h)),
+            None => (t, None),
+        };
+        let heading = match h.map(str::to_ascii_lowercase).as_deref() {
+            None => None,
+            Some("up") => Some(Heading::Up),
+            Some("down") => Some(Heading::Down),
+            Some(o) => return Err(format!("`{s}`: heading `{o}` is neither up nor down")),
+        };
+        let start_m = if c.is_empty() { None } else { Some(c.parse::<Chainage>()?.0) };
+        Ok(Placement { start_m, heading })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_survey_file_parses_and_places_its_run() {
+        let s = Survey::parse(
+            "line = \"LN 1\"\ntrack = \"up main\"\nrail = \"left\"\nstart_chainage = \"12+345.6\"\nchainage = \"down\"\n",
+        )
+        .unwrap();
+        assert_eq!(s.placement().unwrap(), Placement { start_m: Some(12_345.6), heading: Some(Heading::Down) });
+        assert_eq!(Survey::parse(&s.to_text()).unwrap(), s);
+        assert!(s.describe().contains("line LN 1, track up main, left rail, odometer 0 at 12+345.600, chainage down"));
+    }
+
+    #[test]
+    fn bad_survey_files_name_the_key() {
+        for (text, want) in [
+            ("lnie = \"x\"\n", "lnie"),
+            ("rail = \"middle\"\n", "middle"),
+            ("start_chainage = \"12+3456\"\n", "start_chainage"),
+            ("chainage = \"sideways\"\n", "sideways"),
+            ("line = 3\n", "string"),
+        ] {
+            let e = Survey::parse(text).unwrap_err();
+            assert!(e.contains(want), "{text}: {e}");
+        }
+    }
+}
