@@ -84,6 +84,9 @@ pub struct ListenOptions {
     pub duration: Option<Duration>,
     /// Record into (append to) this file.
     pub record: Option<PathBuf>,
+    /// The survey a new recording's header carries (validated TOML,
+    /// [`crate::survey_info`]); appending to one of another survey is refused.
+    pub survey: Option<String>,
     /// One JSON object per profile message on the output.
     pub json: bool,
     /// Baud rate (a USB CDC head ignores it).
@@ -106,6 +109,7 @@ impl Default for ListenOptions {
             frames: None,
             duration: None,
             record: None,
+            survey: None,
             json: false,
             baud: 115_200,
             start: Start { rate_hz: 30, laser_mask: 0b111, pattern: LaserPattern::Simultaneous },
@@ -644,7 +648,7 @@ pub fn session(
 ) -> Outcome {
     let t0 = Instant::now();
     let recorder = match &opts.record {
-        Some(path) => match Recorder::open(path) {
+        Some(path) => match Recorder::open_with_survey(path, opts.survey.as_deref()) {
             Ok(r) => Some(r),
             Err(e) => return Outcome::failed(ListenError::Record(e)),
         },

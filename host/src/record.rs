@@ -1,16 +1,24 @@
 //! Recordings of the sensor link: the file format, its writer, its reader,
 //! and `cms-host export` / `cms-host info`.
 //!
-//! # File format (`.cmsrec`, format version 1)
+//! # File format (`.cmsrec`, format version 2; version 1 is read too)
 //!
 //! ```text
 //! offset 0   8 bytes  magic  "CMSREC" 0x00 0x01
-//! offset 8   2 bytes  format version, u16 little-endian (1)
+//! offset 8   2 bytes  format version, u16 little-endian (2; 1 before survey blocks)
 //! offset 10  1 byte   wire protocol version of the writer (cms_core::protocol::PROTOCOL_VERSION)
-//! offset 11  5 bytes  reserved, written as 0, ignored by readers
-//! offset 16  frames   every intact device → host frame, exactly its wire bytes:
+//! offset 11  1 byte   reserved, written as 0, ignored by readers
+//! offset 12  4 bytes  version 2: length L of the survey block, u32 little-endian (0: none);
+//!                     version 1: reserved (0)
+//! offset 16  L bytes  version 2: the survey (crate::survey_info), UTF-8 TOML, at most 16 KiB
+//! 16 + L     frames   every intact device → host frame, exactly its wire bytes:
 //!                     COBS(version ‖ postcard(DeviceMsg) ‖ CRC-32) ‖ 0x00
 //! ```
+//!
+//! The survey block says what the recording is of (line, track, rail,
+//! start chainage, operator: `listen --survey FILE.toml`); it is written
+//! once, when the file is created, and appending to a recording of
+//! another survey is refused.
 //!
 //! Nothing stands between the frames: the wire framing is already
 //! self-delimiting (COBS leaves 0x00 only as the delimiter) and checksummed
@@ -72,18 +80,34 @@ pub const EXTENSION: &str = "cmsrec";
 pub const MAGIC: [u8; 8] = *b"CMSREC\0\x01";
 /// Length of the header.
 pub const HEADER_LEN: usize = 16;
-/// The format version this build writes and reads.
-pub const FORMAT_VERSION: u16 = 1;
+/// The format version this build writes (it reads 1 as well).
+pub const FORMAT_VERSION: u16 = 2;
+/// The largest survey block, bytes.
+pub const MAX_SURVEY_BYTES: usize = crate::survey_info::MAX_BYTES;
 /// Longest time a written frame waits for its `fdatasync` while recording.
 pub const SYNC_INTERVAL: Duration = Duration::from_secs(1);
 
-/// The header of format version 1.
+/// The header of format version 2 without a survey block.
 pub fn header() -> [u8; HEADER_LEN] {
+    header_with(0)
+}
+
+/// The header of format version 2 announcing a survey block of `survey_len` bytes.
+fn header_with(survey_len: u32) -> [u8; HEADER_LEN] {
     let mut h = [0u8; HEADER_LEN];
     h[..8].copy_from_slice(&MAGIC);
     h[8..10].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
     h[10] = PROTOCOL_VERSION;
+    h[12..16].copy_from_slice(&survey_len.to_le_bytes());
     h
+}
+
+/// The header and survey block of a new recording.
+pub fn header_and_survey(survey: Option<&str>) -> Vec<u8> {
+    let text = survey.unwrap_or("").as_bytes();
+    let mut out = header_with(text.len() as u32).to_vec();
+    out.extend_from_slice(text);
+    out
 }
 
 /// What a valid header says.
@@ -93,6 +117,8 @@ pub struct Header {
     pub format: u16,
     /// Wire protocol version of the writer.
     pub protocol: u8,
+    /// Length of the survey block that follows the header, bytes.
+    pub survey_len: u32,
 }
 
 /// Checks a header; the error says what is wrong with it.
@@ -104,10 +130,29 @@ pub fn parse_header(h: &[u8]) -> Result<Header, String> {
         return Err("not a CMS recording: the file does not start with CMSREC".to_string());
     }
     let format = u16::from_le_bytes([h[8], h[9]]);
-    if format != FORMAT_VERSION {
-        return Err(format!("recording format version {format}; this cms-host reads version {FORMAT_VERSION}"));
+    if !(1..=FORMAT_VERSION).contains(&format) {
+        return Err(format!("recording format version {format}; this cms-host reads versions 1 to {FORMAT_VERSION}"));
     }
-    Ok(Header { format, protocol: h[10] })
+    let survey_len = if format >= 2 { u32::from_le_bytes([h[12], h[13], h[14], h[15]]) } else { 0 };
+    if survey_len as usize > MAX_SURVEY_BYTES {
+        return Err(format!("a survey block of {survey_len} bytes (at most {MAX_SURVEY_BYTES}): not a CMS recording"));
+    }
+    Ok(Header { format, protocol: h[10], survey_len })
+}
+
+/// Reads the survey block after a header (`None` when there is none).
+fn read_survey(r: &mut impl Read, h: &Header) -> io::Result<Option<String>> {
+    if h.survey_len == 0 {
+        return Ok(None);
+    }
+    let mut text = Vec::with_capacity(h.survey_len as usize);
+    r.take(u64::from(h.survey_len)).read_to_end(&mut text)?;
+    if text.len() != h.survey_len as usize {
+        return Err(io::Error::new(io::ErrorKind::UnexpectedEof, "the survey block is cut short"));
+    }
+    String::from_utf8(text)
+        .map(Some)
+        .map_err(|_| io::Error::new(io::ErrorKind::InvalidData, "the survey block is not UTF-8"))
 }
 
 /// Why a recording could not be written or read.
@@ -163,7 +208,17 @@ pub struct Recorder {
 impl Recorder {
     /// Creates `path`, or validates its header and appends to it.
     pub fn open(path: &Path) -> Result<Recorder, RecordError> {
+        Recorder::open_with_survey(path, None)
+    }
+
+    /// [`Recorder::open`], a new file with `survey`'s block; appending to a
+    /// file of another survey (or of none, when one is given) is refused.
+    pub fn open_with_survey(path: &Path, survey: Option<&str>) -> Result<Recorder, RecordError> {
         let io_err = |what, source| RecordError::Io { path: path.to_path_buf(), what, source };
+        let format = |why: String| RecordError::Format { path: path.to_path_buf(), why };
+        if survey.is_some_and(|t| t.len() > MAX_SURVEY_BYTES) {
+            return Err(format(format!("a survey of more than {MAX_SURVEY_BYTES} bytes")));
+        }
         let mut file = OpenOptions::new()
             .read(true)
             .append(true)
@@ -172,15 +227,22 @@ impl Recorder {
             .map_err(|e| io_err("cannot open recording", e))?;
         let len = file.metadata().map_err(|e| io_err("cannot read", e))?.len();
         if len == 0 {
-            file.write_all(&header()).map_err(|e| io_err("cannot write", e))?;
+            file.write_all(&header_and_survey(survey)).map_err(|e| io_err("cannot write", e))?;
         } else {
             let mut h = Vec::with_capacity(HEADER_LEN);
             (&mut file).take(HEADER_LEN as u64).read_to_end(&mut h).map_err(|e| io_err("cannot read", e))?;
-            parse_header(&h).map_err(|why| RecordError::Format {
-                path: path.to_path_buf(),
-                why: format!("{why}; refusing to append"),
-            })?;
-            if len > HEADER_LEN as u64 {
+            let header = parse_header(&h).map_err(|why| format(format!("{why}; refusing to append")))?;
+            let kept = read_survey(&mut file, &header)
+                .map_err(|e| format(format!("survey block: {e}; refusing to append")))?;
+            if let Some(t) = survey
+                && kept.as_deref() != Some(t)
+            {
+                return Err(format(match kept {
+                    Some(_) => "holds another survey; refusing to append (record this survey to a new file)".into(),
+                    None => "holds no survey; refusing to append one (record the survey to a new file)".into(),
+                }));
+            }
+            if len > HEADER_LEN as u64 + u64::from(header.survey_len) {
                 let mut last = [0u8];
                 file.seek(SeekFrom::End(-1)).map_err(|e| io_err("cannot read", e))?;
                 file.read_exact(&mut last).map_err(|e| io_err("cannot read", e))?;
@@ -290,6 +352,9 @@ pub fn scan_reader(
     let mut h = Vec::with_capacity(HEADER_LEN);
     (&mut r).take(HEADER_LEN as u64).read_to_end(&mut h).map_err(io_err)?;
     let header = parse_header(&h).map_err(|why| RecordError::Format { path: path.to_path_buf(), why })?;
+    // The survey block is read by `survey_of`; here it is passed over.
+    read_survey(&mut r, &header)
+        .map_err(|e| RecordError::Format { path: path.to_path_buf(), why: format!("survey block: {e}") })?;
     let mut stats = ScanStats { header: Some(header), ..ScanStats::default() };
     let mut d = Deframer::new();
     let mut buf = vec![0u8; 64 << 10];
@@ -583,6 +648,23 @@ pub fn check_header(path: &Path) -> Result<Header, RecordError> {
     parse_header(&h).map_err(|why| RecordError::Format { path: path.to_path_buf(), why })
 }
 
+/// The survey block of a recording, as stored (`None`: version 1, or none given).
+pub fn survey_of(path: &Path) -> Result<Option<String>, RecordError> {
+    let mut f = File::open(path).map_err(|source| RecordError::Io {
+        path: path.to_path_buf(),
+        what: "cannot open recording",
+        source,
+    })?;
+    let header = check_header(path)?;
+    f.seek(SeekFrom::Start(HEADER_LEN as u64)).map_err(|source| RecordError::Io {
+        path: path.to_path_buf(),
+        what: "cannot read",
+        source,
+    })?;
+    read_survey(&mut f, &header)
+        .map_err(|e| RecordError::Format { path: path.to_path_buf(), why: format!("survey block: {e}") })
+}
+
 /// Whether two paths name the same existing file.
 pub fn same_file(a: &Path, b: &Path) -> bool {
     use std::os::unix::fs::MetadataExt as _;
@@ -620,6 +702,8 @@ pub fn export_to(
 pub struct Info {
     /// What reading found.
     pub scan: ScanStats,
+    /// The survey block, as stored.
+    pub survey: Option<String>,
     /// Complete frames.
     pub frames: u64,
     /// Profile messages (parts).
@@ -702,6 +786,7 @@ impl Info {
             info.add(m, &mut counter);
             Ok(())
         })?;
+        info.survey = survey_of(path)?;
         Ok(info)
     }
 
@@ -712,6 +797,10 @@ impl Info {
         let _ = writeln!(s, "file: {}", path.display());
         if let Some(h) = self.scan.header {
             let _ = writeln!(s, "format: {} (wire protocol {})", h.format, h.protocol);
+        }
+        if let Some(t) = &self.survey {
+            let kv: Vec<&str> = t.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
+            let _ = writeln!(s, "survey: {}", kv.join("; "));
         }
         let _ = writeln!(s, "frames: {} ({} profile messages)", self.frames, self.profiles);
         match self.time_us {
@@ -792,14 +881,26 @@ mod tests {
     fn header_round_trip_and_refusals() {
         let h = header();
         assert_eq!(&h[..8], b"CMSREC\0\x01");
-        assert_eq!(parse_header(&h).unwrap(), Header { format: 1, protocol: PROTOCOL_VERSION });
+        assert_eq!(parse_header(&h).unwrap(), Header { format: 2, protocol: PROTOCOL_VERSION, survey_len: 0 });
         assert!(parse_header(&h[..10]).unwrap_err().contains("shorter"));
         let mut bad = h;
         bad[0] = b'X';
         assert!(parse_header(&bad).unwrap_err().contains("CMSREC"));
-        let mut v2 = h;
-        v2[8] = 2;
-        assert!(parse_header(&v2).unwrap_err().contains("version 2"));
+        let mut v3 = h;
+        v3[8] = 3;
+        assert!(parse_header(&v3).unwrap_err().contains("version 3"));
+        // Version 1: the same header, its reserved bytes never a survey length.
+        let mut v1 = h;
+        v1[8] = 1;
+        v1[12] = 0x55;
+        assert_eq!(parse_header(&v1).unwrap(), Header { format: 1, protocol: PROTOCOL_VERSION, survey_len: 0 });
+        // A survey block: its length after the header, then the text.
+        let with = header_and_survey(Some("line = \"A\"\n"));
+        assert_eq!(&with[12..16], &11u32.to_le_bytes());
+        assert_eq!(&with[16..], b"line = \"A\"\n");
+        let mut huge = h;
+        huge[12..16].copy_from_slice(&(MAX_SURVEY_BYTES as u32 + 1).to_le_bytes());
+        assert!(parse_header(&huge).unwrap_err().contains("survey block"));
     }
 
     #[test]

@@ -71,6 +71,8 @@ pub struct Recording {
     pub stats: ScanStats,
     /// Frames slid across ([`slide_frame`]) and the calibration file used.
     pub slid_across: Option<(usize, PathBuf)>,
+    /// The survey the recording's header names ([`crate::survey_info`]).
+    pub survey: Option<crate::survey_info::Survey>,
 }
 
 impl Recording {
@@ -373,6 +375,9 @@ fn describe_recording(s: &mut String, path: &Path, rec: &Recording) {
             None => String::new(),
         }
     );
+    if let Some(sv) = &rec.survey {
+        let _ = writeln!(s, "  survey: {}", sv.describe());
+    }
     if rec.uncalibrated_points > 0 {
         let _ = writeln!(s, "  {} points without a calibrated position were left out", rec.uncalibrated_points);
     }
@@ -687,5 +692,6 @@ fn recording_json(path: &Path, rec: &Recording) -> Value {
         "odometer_mm": [num(olo), num(ohi)],
         "damaged_frames": rec.stats.damaged,
         "duplicate_profiles": rec.stats.duplicates,
+        "survey": rec.survey,
     })
 }

@@ -12,6 +12,7 @@ use cms_host::analyze::{self, Options, Source, profile};
 use cms_host::calib::file::CalibrationFile;
 use cms_host::measure::Measurer;
 use cms_host::standards::en15610;
+use cms_host::survey_info::Survey;
 
 use super::progress::Bar;
 
@@ -186,6 +187,7 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
     };
     let kinds = args.inputs.iter().map(|p| is_recording(p)).collect::<Result<Vec<bool>, Error>>()?;
     let recordings = kinds.iter().filter(|&&r| r).count();
+    let mut placements = args.chainage.clone();
     let (source, runs) = if recordings == 0 {
         let [path] = args.inputs.as_slice() else {
             return Err(Error::Input(format!(
@@ -215,15 +217,30 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
         let mut runs = Vec::new();
         let mut recs = Vec::new();
         for path in &args.inputs {
-            let (rec, stitching) = read_run(path, &opts, calibration.as_ref())?;
+            let (mut rec, stitching) = read_run(path, &opts, calibration.as_ref())?;
+            let name = path.display();
+            if let Some(text) = cms_host::record::survey_of(path).map_err(Error::from)? {
+                let survey = Survey::parse(&text).map_err(|e| Error::Input(format!("{name}: survey block: {e}")))?;
+                rec.survey = Some(survey);
+            }
             recs.push((path.clone(), rec));
             runs.push(stitching);
+        }
+        // A run's --chainage, else its recording's survey.
+        for (k, (_, rec)) in recs.iter().enumerate() {
+            if k >= placements.len() {
+                let p = match &rec.survey {
+                    Some(sv) => sv.placement().map_err(Error::Input)?,
+                    None => Placement::default(),
+                };
+                placements.push(p);
+            }
         }
         (Source::Recordings(recs), runs)
     };
     let join_opts = survey::JoinOptions { search_mm: args.search_m * 1000.0, ..survey::JoinOptions::default() };
     let (stitching, joins) =
-        survey::join(runs, &args.chainage, &join_opts).map_err(|e| Error::Input(format!("{}: {e}", source.name())))?;
+        survey::join(runs, &placements, &join_opts).map_err(|e| Error::Input(format!("{}: {e}", source.name())))?;
     let a = analyze::judge(stitching, joins, &opts);
     let text = analyze::summary(&source, &a);
     if let Some(dir) = &args.report {

@@ -71,6 +71,12 @@ pub struct ListenArgs {
     /// (a --window for a laser replaces its window).
     #[arg(long = "windows-from", value_name = "CAL")]
     pub windows_from: Option<PathBuf>,
+    /// What the recording is of: a TOML file of line, track, rail,
+    /// start_chainage, chainage (up|down), operator, instrument, notes
+    /// (docs/corrugation-and-standards.md), stored in a new recording's
+    /// header; `analyze` places the run by it.
+    #[arg(long, value_name = "FILE.toml", requires = "record")]
+    pub survey: Option<PathBuf>,
     /// How long a lost port may stay away before giving up, seconds.
     #[arg(long, value_name = "SECS", default_value = "30", value_parser = parse_secs)]
     pub reconnect_timeout: Duration,
@@ -126,6 +132,7 @@ impl ListenArgs {
             frames: self.frames,
             duration: self.duration,
             record: self.record.clone(),
+            survey: None,
             json: self.json,
             baud: self.baud,
             start: Start {
@@ -231,6 +238,12 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
         ));
     }
     let mut opts = args.options();
+    if let Some(path) = &args.survey {
+        let name = path.display();
+        let text = std::fs::read_to_string(path).map_err(|e| Usage(format!("cannot read {name}: {e}")))?;
+        let survey = cms_host::survey_info::Survey::parse(&text).map_err(|e| Usage(format!("{name}: {e}")))?;
+        opts.survey = Some(survey.to_text());
+    }
     if let Some(path) = &args.windows_from {
         let cal = CalibrationFile::load(path).map_err(cms_host::Error::from)?;
         let mut w = cal.search_windows(WINDOW_MARGIN_PX).map_err(|e| Usage(format!("{}: {e}", path.display())))?;

@@ -674,3 +674,47 @@ fn en15610_levels_agree_with_an_independent_implementation() {
     println!("largest difference {worst:.3} dB");
     assert!(worst <= 0.5, "{worst} dB");
 }
+
+/// `listen --survey FILE.toml` stores the survey in the recording's header
+/// (format 2): `info` shows it, `analyze` names it and places the run by
+/// its start chainage and direction; appending to the recording with
+/// another survey is refused, and a bad survey file is a one-line error.
+#[test]
+fn a_survey_file_travels_with_the_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let survey = dir.path().join("survey.toml");
+    std::fs::write(
+        &survey,
+        "line = \"LN 1234\"\ntrack = \"up main\"\nrail = \"left\"\nstart_chainage = \"12+345.600\"\nchainage = \"down\"\noperator = \"A. Engineer\"\n",
+    )
+    .unwrap();
+    let rec = dir.path().join("run.cmsrec");
+    let (r, s) = (rec.to_str().unwrap(), survey.to_str().unwrap());
+    let state = dir.path().join("state");
+    let st = state.to_str().unwrap();
+    let l = run(&["listen", "sim", "--sim-state", st, "--frames", "20", "--record", r, "--survey", s]);
+    assert!(l.status.success(), "{}", String::from_utf8_lossy(&l.stderr));
+    let info = String::from_utf8(run(&["info", r]).stdout).unwrap();
+    assert!(info.contains("format: 2") && info.contains("survey: line = \"LN 1234\""), "{info}");
+    let o = run(&["analyze", r, "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["survey"]["line"], "LN 1234");
+    assert_eq!(v["run_joins"][0]["heading"], "down");
+    assert!((v["run_joins"][0]["start_m"].as_f64().unwrap() - 12_345.6).abs() < 1e-6);
+    // Down from 12+345.600: the profile lies just below it.
+    let x0 = v["lasers"][0]["x0_mm"].as_f64().unwrap();
+    assert!(x0 < 12_345_600.0 && x0 > 12_345_600.0 - 5_000.0, "{x0}");
+    let text = String::from_utf8(run(&["analyze", r]).stdout).unwrap();
+    assert!(
+        text.contains("survey: line LN 1234, track up main, left rail, odometer 0 at 12+345.600, chainage down"),
+        "{text}"
+    );
+    // Another survey on the same file is refused; so is a bad file.
+    std::fs::write(&survey, "line = \"LN 9\"\n").unwrap();
+    let e = one_line_error(&run(&["listen", "sim", "--sim-state", st, "--frames", "2", "--record", r, "--survey", s]));
+    assert!(e.contains("another survey"), "{e}");
+    std::fs::write(&survey, "lnie = \"LN 9\"\n").unwrap();
+    let e = one_line_error(&run(&["listen", "sim", "--sim-state", st, "--frames", "2", "--record", r, "--survey", s]));
+    assert!(e.contains("lnie"), "{e}");
+}
