@@ -75,6 +75,11 @@ pub struct AnalyzeArgs {
     /// Write a report (report.md, report.html, SVG and PNG plots, CSV) into DIR (created if missing).
     #[arg(long, value_name = "DIR")]
     pub report: Option<PathBuf>,
+    /// Write the stitched profile, the blocks and the zones as Parquet
+    /// (profile.parquet, blocks.parquet, zones.parquet; docs/exports.md)
+    /// into DIR (created if missing). The report writes them too.
+    #[arg(long, value_name = "DIR")]
+    pub parquet: Option<PathBuf>,
     /// Print one JSON object instead of the text summary.
     #[arg(long)]
     pub json: bool,
@@ -173,6 +178,13 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
         ))
         .into());
     }
+    // A --parquet directory that cannot be one fails before the work.
+    if let Some(dir) = &args.parquet
+        && dir.exists()
+        && !dir.is_dir()
+    {
+        return Err(Error::Output(std::io::Error::other(format!("{}: not a directory", dir.display()))).into());
+    }
     // The calibration is checked before any input is read.
     let calibration = match &args.calibration {
         Some(path) => {
@@ -228,6 +240,9 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
     let text = analyze::summary(&source, &a);
     if let Some(dir) = &args.report {
         analyze::report::write(dir, &source, &a, &text)?;
+    }
+    if let Some(dir) = &args.parquet {
+        analyze::exports::write(dir, &source, &a)?;
     }
     let mut out = std::io::stdout().lock();
     if args.json {
