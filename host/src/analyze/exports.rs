@@ -10,9 +10,11 @@
 //! # Why these choices
 //!
 //! - The `parquet` crate's low-level column writer, without its `arrow`
-//!   feature and without compression codecs: the data are a few columns of
-//!   doubles, and arrow's seven crates would double the host's build for
-//!   nothing (docs/exports.md has the measured cost).
+//!   feature and without compression codecs: the data are a few flat
+//!   columns, and arrow's crates would add build time for nothing
+//!   (docs/exports.md has the measured cost). Version 59, not 60: 60 marks
+//!   DOUBLE columns with the IEEE 754 total order, whose footer older
+//!   readers refuse.
 //! - Dictionary encoding (the writer's default) keeps the `source` column,
 //!   the same string on every row, to a few bytes per page; plain
 //!   encoding elsewhere. Data pages v1, the most widely read.
@@ -24,9 +26,10 @@
 //!
 //! # Cost
 //!
-//! One pass over the stitched samples; the profile file is about 8 bytes
-//! per sample and line (a 340 m survey at 1 mm with three lines: ~11 MB,
-//! held in memory once while it is written).
+//! One pass over the stitched samples; the profile file is 8 bytes per
+//! sample and line plus chainage and coverage (~40 bytes a sample for
+//! three lines: a 340 m survey at 1 mm is ~14 MB, held in memory once
+//! while it is written, beside the analysis itself).
 
 use std::path::Path;
 use std::sync::Arc;
@@ -57,6 +60,9 @@ pub enum Values {
     Bool(Vec<Option<bool>>),
     /// `BYTE_ARRAY` annotated `STRING` (UTF-8).
     Str(Vec<Option<String>>),
+    /// A `STRING` column of one value on every one of so many rows (the
+    /// profile's `source`: one copy in memory, not one per sample).
+    Repeat(String, usize),
 }
 
 impl Values {
@@ -66,6 +72,7 @@ impl Values {
             Values::I32(v) => v.len(),
             Values::Bool(v) => v.len(),
             Values::Str(v) => v.len(),
+            Values::Repeat(_, n) => *n,
         }
     }
 }
@@ -130,7 +137,7 @@ pub fn profile_table(source: &Source, a: &Analysis) -> Table {
         heights.push(col(format!("height_um_{}", l.stitched.laser), true, Values::F64(h)));
     }
     let mut columns = vec![
-        col("source", false, Values::Str(vec![Some(source.name()); rows])),
+        col("source", false, Values::Repeat(source.name(), rows)),
         col("chainage_mm", false, Values::F64(chainage_mm)),
     ];
     columns.extend(heights);
@@ -214,7 +221,7 @@ fn schema(name: &str, t: &Table) -> Result<Type, std::io::Error> {
             Values::F64(_) => (Physical::DOUBLE, None),
             Values::I32(_) => (Physical::INT32, None),
             Values::Bool(_) => (Physical::BOOLEAN, None),
-            Values::Str(_) => (Physical::BYTE_ARRAY, Some(LogicalType::String)),
+            Values::Str(_) | Values::Repeat(..) => (Physical::BYTE_ARRAY, Some(LogicalType::String)),
         };
         let rep = if c.nullable { Repetition::OPTIONAL } else { Repetition::REQUIRED };
         let f = Type::primitive_type_builder(&c.name, physical)
@@ -278,6 +285,18 @@ pub fn to_parquet(name: &str, t: &Table, meta: &[(&str, String)]) -> Result<Vec<
                 let (p, d) = levels(v, c.nullable)?;
                 let p: Vec<ByteArray> = p.iter().map(|s| ByteArray::from(s.as_str())).collect();
                 w.write_batch(&p, d.as_deref(), None)
+            }
+            (ColumnWriter::ByteArrayColumnWriter(w), Values::Repeat(text, n)) => {
+                // Batches of clones of one buffer (a reference count each).
+                let chunk = vec![ByteArray::from(text.as_str()); (*n).min(1 << 16)];
+                let mut left = *n;
+                let mut r = Ok(0);
+                while left > 0 && r.is_ok() {
+                    let k = left.min(chunk.len());
+                    r = w.write_batch(&chunk[..k], None, None);
+                    left -= k;
+                }
+                r
             }
             _ => return Err(std::io::Error::other(format!("column {}: writer of another type", c.name))),
         };

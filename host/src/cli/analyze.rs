@@ -72,7 +72,7 @@ pub struct AnalyzeArgs {
     /// How far from its given start chainage a run's registration looks, m.
     #[arg(long = "search-m", value_name = "M", default_value_t = 25.0, value_parser = positive)]
     pub search_m: f64,
-    /// Write a report (report.md, report.html, SVG and PNG plots, CSV) into DIR (created if missing).
+    /// Write a report (report.md, report.html, SVG and PNG plots, CSV and the Parquet exports) into DIR (created if missing).
     #[arg(long, value_name = "DIR")]
     pub report: Option<PathBuf>,
     /// Write the stitched profile, the blocks and the zones as Parquet

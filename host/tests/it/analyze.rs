@@ -847,6 +847,20 @@ mod pq {
     }
 }
 
+/// 7 m of the test rail (30 µm at 50 mm: over the 30–100 mm limit) in
+/// three lines, with a gap in all of them (frames 100–104 missing) and one
+/// in line 2 only (no points of it in frames 250–255).
+fn gappy_recording(dir: &Path) -> PathBuf {
+    let rec = dir.join("gappy.cmsrec");
+    let skip: Vec<u32> = (100..105).collect();
+    let mut fs = frames(17.0, 420, &skip, 0.5, 7);
+    for f in fs.iter_mut().filter(|f| (250..256).contains(&f.seq)) {
+        f.lasers[2].clear();
+    }
+    write_recording(&rec, &fs, true);
+    rec
+}
+
 /// `analyze --parquet DIR` (and `--report DIR`) on a recording of three
 /// lines with a gap in all of them and one in line 2 only, the rail
 /// corrugated over the 30–100 mm limit: profile.parquet, blocks.parquet
@@ -858,13 +872,7 @@ mod pq {
 #[test]
 fn parquet_exports_read_back_with_an_independent_reader() {
     let dir = tempfile::tempdir().unwrap();
-    let rec = dir.path().join("gappy.cmsrec");
-    let skip: Vec<u32> = (100..105).collect();
-    let mut fs = frames(17.0, 420, &skip, 0.5, 7);
-    for f in fs.iter_mut().filter(|f| (250..256).contains(&f.seq)) {
-        f.lasers[2].clear();
-    }
-    write_recording(&rec, &fs, true);
+    let rec = gappy_recording(dir.path());
     let (pqdir, report) = (dir.path().join("pq/sub"), dir.path().join("report"));
     let r = rec.to_str().unwrap();
     let o = run(&[
@@ -1073,4 +1081,75 @@ fn an_unwritable_parquet_dir_is_an_output_error() {
         assert!(e.contains("profile.parquet"), "{e}");
         assert_eq!(std::fs::read_dir(&ro).unwrap().count(), 0);
     }
+}
+
+/// The HTML report: the survey header (the input, how the run was placed,
+/// the chainage span), the verdict (edition and the source of its limits,
+/// the reprofiling table, one zone row per zone, one block row per block,
+/// the zone plot) as tables and figures, and a print stylesheet.
+#[test]
+fn the_report_has_the_survey_and_the_verdict_and_prints_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = gappy_recording(dir.path());
+    let report = dir.path().join("report");
+    let r = rec.to_str().unwrap();
+    let o = run(&["analyze", r, "--json", "--edition", "2012", "--block-m", "2", "--report", report.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let html = std::fs::read_to_string(report.join("report.html")).unwrap();
+    let section = |id: &str| {
+        let start = html.find(&format!("<section id=\"{id}\">")).unwrap_or_else(|| panic!("no section {id}"));
+        let end = start + html[start..].find("</section>").unwrap();
+        html[start..end].to_string()
+    };
+    let table_rows = |s: &str, class: &str| {
+        let start = s.find(&format!("<table class=\"{class}\">")).unwrap_or_else(|| panic!("no table {class}: {s}"));
+        let end = start + s[start..].find("</table>").unwrap();
+        s[start..end].matches("<tr>").count() - 1
+    };
+    // The survey header.
+    let survey = section("survey");
+    assert!(survey.contains(r), "{survey}");
+    assert!(survey.contains("run 1: position 0 at chainage 0+000.000"), "{survey}");
+    assert_eq!(table_rows(&survey, "inputs"), 1);
+    let x0 = v["lasers"].as_array().unwrap().iter().map(|l| l["x0_mm"].as_f64().unwrap()).fold(f64::INFINITY, f64::min);
+    let span = format!("Chainage {} to", cms_host::analyze::chainage(x0));
+    assert!(survey.contains(&span), "{span}: {survey}");
+    // The verdict: edition and source, the tables with one row per band, zone, block.
+    let verdict = section("verdict");
+    let j = &v["verdict"];
+    assert!(verdict.contains("EN 13231-3:2012"), "{verdict}");
+    assert!(verdict.contains("trade documentation quotes the 2012 edition"), "{verdict}");
+    assert!(verdict.contains("should be reprofiled"), "{verdict}");
+    assert_eq!(table_rows(&verdict, "reprofiling"), 4);
+    assert!(verdict.contains("not judged (no limit)"), "2012 has no limit for three bands: {verdict}");
+    let zones = j["zones"].as_array().unwrap();
+    assert!(!zones.is_empty());
+    assert_eq!(table_rows(&verdict, "zones"), zones.len());
+    for z in zones {
+        assert!(verdict.contains(z["start_chainage"].as_str().unwrap()), "{z}");
+    }
+    assert_eq!(table_rows(&verdict, "blocks"), j["blocks"].as_array().unwrap().len());
+    assert!(verdict.contains("<figure class=\"plot\"><svg"), "the zone plot inline");
+    assert!(verdict.contains("|band displacement|"), "the 2012 criterion plotted");
+    let svg = std::fs::read_to_string(report.join("zones.svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains("viewBox="), "scalable: {}", &svg[..100]);
+    assert!(report.join("zones.png").exists());
+    // Prints cleanly: a print stylesheet that breaks pages before sections,
+    // scales the plots to the page and lets nothing overflow.
+    let style = &html[html.find("<style>").unwrap()..html.find("</style>").unwrap()];
+    let print = &style[style.find("@media print").expect("a print stylesheet")..];
+    for rule in [
+        "h2{break-before:page",
+        "svg,figure,img{max-width:100%",
+        "pre{white-space:pre-wrap",
+        "thead{display:table-header-group}",
+    ] {
+        assert!(print.contains(rule), "{rule}: {print}");
+    }
+    // Every plot is inside a figure, so that the print rules apply.
+    assert_eq!(html.matches("<svg").count(), html.matches("<figure class=\"plot\"><svg").count());
+    // The Markdown says the same.
+    let md = std::fs::read_to_string(report.join("report.md")).unwrap();
+    assert!(md.contains("## Verdict") && md.contains("zones.svg") && md.contains("EN 13231-3:2012"), "{md}");
 }
