@@ -6,7 +6,8 @@
 //! limit ([`crate::standards`]). A summary goes to stdout (or one JSON
 //! object with `--json`); `--report DIR` writes a Markdown and a
 //! self-contained HTML report with SVG and PNG plots, and CSV exports
-//! ([`report`]).
+//! ([`report`]); `--parquet DIR` (and the report) the stitched profile,
+//! the blocks and the zones as Parquet files ([`exports`], docs/exports.md).
 //!
 //! Whatever the recording holds, nothing here panics: a file that is not a
 //! recording, a recording without calibrated points or absurd options are a
@@ -20,6 +21,7 @@
 //! recording (`cms-host bench recording`, 340 m of rail, 531 MB) takes
 //! about 5 s and 180 MB (docs/benchmarks.md).
 
+pub mod exports;
 pub mod live;
 pub mod profile;
 pub mod report;
@@ -248,7 +250,7 @@ pub fn spectrum_peak(r: &en15610::Roughness) -> Option<&en15610::ThirdOctave> {
     r.spectrum.bands.iter().max_by(|a, b| a.level_db.total_cmp(&b.level_db))
 }
 
-fn fmt_len(v: f64) -> String {
+pub(crate) fn fmt_len(v: f64) -> String {
     if (v - v.round()).abs() < 1e-6 * v.abs().max(1.0) { format!("{}", v.round()) } else { format!("{v:.2}") }
 }
 

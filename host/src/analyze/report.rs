@@ -5,17 +5,19 @@
 //!
 //! | file | what |
 //! |---|---|
-//! | `report.html` | self-contained (SVG inline): summary, tables, plots |
+//! | `report.html` | self-contained (SVG inline): the survey header (inputs, how each run was placed, the chainage span), the verdict (edition and its limits' source, reprofiling table, zones, zone plot, blocks) as tables, then per line and the plots; prints cleanly (`@media print`: A4 landscape, each section on a new page, plots scaled to the page and kept whole, tables wrap with repeated headers) |
 //! | `report.md` | the same in Markdown, plots linked as `*.svg` |
 //! | `summary.txt` | the printed summary |
 //! | `profile.svg/.png` | stitched profile of each laser (median removed), gaps blank |
 //! | `bands_laserK.svg/.png` | per laser: the four EN 13231-3 band signals, the moving-window mean peak-to-peak and its limit |
 //! | `spectrum.svg/.png` | EN 15610 one-third-octave levels per laser against the ISO 3095 limit |
+//! | `zones.svg/.png` | per band, each line's criterion along chainage against the edition's limit, the exceedance zones shaded |
 //! | `profile.csv` | `x_mm` and one height column per laser (µm), empty in gaps |
 //! | `bands_laserK.csv` | `x_mm` and the four band signals (mm) |
 //! | `spectrum_laserK.csv` | the spectrum (`en15610::spectrum_csv`) |
 //! | `registration.csv` | per laser and frame: overlap, offset, tilt, residual |
 //! | `gaps.csv` | per laser: start and length of every gap |
+//! | `profile.parquet`, `blocks.parquet`, `zones.parquet` | the stitched profile, blocks and zones ([`super::exports`], docs/exports.md) |
 //!
 //! Long profiles are plotted through a min/max envelope of at most
 //! [`MAX_PLOT_POINTS`] points per line (the CSVs keep every sample).
@@ -26,7 +28,7 @@ use std::path::Path;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{Analysis, Source};
+use super::{Analysis, Source, reprofiling};
 use crate::Error;
 use crate::plot::{self, Figure, err};
 use crate::standards::{en13231, en15610};
@@ -259,6 +261,301 @@ impl Figure for SpectrumFig<'_> {
     }
 }
 
+/// Per band, each line's criterion along chainage (the edition's: the
+/// moving-window mean peak-to-peak, or |band displacement| for 2012),
+/// the limit (dashed) and the exceedance zones (shaded).
+struct ZoneFig<'a> {
+    a: &'a Analysis,
+}
+
+impl Figure for ZoneFig<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+        root.fill(&WHITE).map_err(err)?;
+        let v = &self.a.verdict;
+        let e = v.options.edition;
+        let what = match e {
+            reprofiling::Edition::En2006 => "moving-window mean peak-to-peak",
+            reprofiling::Edition::En2012 => "|band displacement| (isolated points)",
+        };
+        let root = root
+            .titled(
+                &format!("{}: {what} per line (µm) along chainage, limit dashed, zones shaded", e.name()),
+                ("sans-serif", 18),
+            )
+            .map_err(err)?;
+        let x0 = self.a.lasers.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
+        let x1 = self.a.lasers.iter().map(|l| l.stitched.x_mm(l.stitched.z_um.len())).fold(f64::NEG_INFINITY, f64::max);
+        if !(x0.is_finite() && x1 > x0) {
+            return Ok(());
+        }
+        let (m0, m1) = (x0 / 1000.0, x1 / 1000.0);
+        for (b, (panel, band)) in root.split_evenly((en13231::BANDS.len(), 1)).iter().zip(&en13231::BANDS).enumerate() {
+            let mut lines: Vec<(usize, Pieces)> = Vec::new();
+            for l in &self.a.lasers {
+                let Some(Ok(st)) = l.bands.as_ref().ok().and_then(|a| a.bands.get(b)).map(|r| r.outcome.as_ref())
+                else {
+                    continue;
+                };
+                let y: Vec<f64> = match e {
+                    reprofiling::Edition::En2006 => st.mean_pp_mm.iter().map(|v| v * 1000.0).collect(),
+                    reprofiling::Edition::En2012 => st
+                        .mean_pp_mm
+                        .iter()
+                        .zip(&st.band_mm)
+                        .map(|(m, v)| if m.is_finite() { v.abs() * 1000.0 } else { f64::NAN })
+                        .collect(),
+                };
+                let x0m = l.stitched.x0_mm / 1000.0;
+                lines.push((l.stitched.laser, plot_pieces(x0m, l.stitched.dx_mm / 1000.0, &y, MAX_PLOT_POINTS / 2)));
+            }
+            let limit_um = e.limit_mm(band).map(|v| v * 1000.0);
+            let all: Pieces = lines.iter().flat_map(|(_, p)| p.clone()).collect();
+            let top = range(&all).map_or(0.0, |r| r.1.1).max(limit_um.unwrap_or(0.0)).max(1e-3) * 1.1;
+            let zones: Vec<&reprofiling::Zone> = v.zones.iter().filter(|z| z.band == *band).collect();
+            let caption = match (limit_um, lines.is_empty()) {
+                (_, true) => format!("{}: not evaluated", band.name()),
+                (None, false) => format!("{}: no {} limit known, not judged", band.name(), e.name()),
+                (Some(_), false) => format!("{}: {} zone(s)", band.name(), zones.len()),
+            };
+            let mut chart = ChartBuilder::on(panel)
+                .caption(caption, ("sans-serif", 15))
+                .margin(8)
+                .x_label_area_size(28)
+                .y_label_area_size(60)
+                .build_cartesian_2d(m0..m1, 0.0..top)
+                .map_err(err)?;
+            chart
+                .configure_mesh()
+                .y_desc("µm")
+                .x_label_formatter(&|m| super::chainage(m * 1000.0))
+                .max_light_lines(2)
+                .draw()
+                .map_err(err)?;
+            let shade = RGBColor(255, 200, 200).filled();
+            chart
+                .draw_series(zones.iter().map(|z| {
+                    // A zone of one sample still shows.
+                    let (a, b) = (z.start_mm / 1000.0, (z.end_mm / 1000.0).max(z.start_mm / 1000.0 + (m1 - m0) * 2e-3));
+                    Rectangle::new([(a, 0.0), (b, top)], shade)
+                }))
+                .map_err(err)?;
+            for (laser, pieces) in &lines {
+                let c = colour(*laser);
+                for p in pieces {
+                    chart.draw_series(LineSeries::new(p.iter().copied(), c.stroke_width(1))).map_err(err)?;
+                }
+            }
+            if let Some(lim) = limit_um {
+                chart
+                    .draw_series(DashedLineSeries::new([(m0, lim), (m1, lim)], 8, 5, BLACK.stroke_width(1)))
+                    .map_err(err)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A table: header cells and rows of cells (already escaped where needed).
+fn html_table(class: &str, head: &[&str], rows: &[Vec<String>]) -> String {
+    let mut s = format!("<table class=\"{class}\"><thead><tr>");
+    for h in head {
+        let _ = write!(s, "<th>{}</th>", html_escape(h));
+    }
+    s.push_str("</tr></thead><tbody>\n");
+    for r in rows {
+        s.push_str("<tr>");
+        for c in r {
+            let _ = write!(s, "<td>{}</td>", html_escape(c));
+        }
+        s.push_str("</tr>\n");
+    }
+    s.push_str("</tbody></table>\n");
+    s
+}
+
+/// The survey header: the inputs, the runs and how each was placed, the
+/// chainage span.
+fn survey_html(source: &Source, a: &Analysis) -> String {
+    let mut s = String::from("<section id=\"survey\"><h2>Survey</h2>\n");
+    match source {
+        Source::Recordings(runs) => {
+            let rows: Vec<Vec<String>> = runs
+                .iter()
+                .enumerate()
+                .map(|(i, (p, r))| {
+                    let (olo, ohi) = r.odometer_range_mm.unwrap_or((0.0, 0.0));
+                    let placed = a.joins.iter().find(|j| j.run == i).map_or("-".into(), super::describe_join);
+                    vec![
+                        format!("{}", i + 1),
+                        p.display().to_string(),
+                        r.frames.to_string(),
+                        format!("{olo:.0}–{ohi:.0} mm"),
+                        r.calibration_id.map_or("-".into(), |id| format!("{id:#010x}")),
+                        placed,
+                    ]
+                })
+                .collect();
+            s.push_str(&html_table(
+                "inputs",
+                &["run", "recording", "frames", "odometer", "calibration", "placed"],
+                &rows,
+            ));
+        }
+        Source::Profile(p, f) => {
+            let rows = vec![vec![p.display().to_string(), f.rows.to_string(), f.columns.join(", ")]];
+            s.push_str(&html_table("inputs", &["profile", "rows", "lines"], &rows));
+            for j in &a.joins {
+                let _ = writeln!(s, "<p>{}</p>", html_escape(&super::describe_join(j)));
+            }
+        }
+    }
+    let x0 = a.lasers.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
+    let x1 = a.lasers.iter().map(|l| l.stitched.x_mm(l.stitched.z_um.len())).fold(f64::NEG_INFINITY, f64::max);
+    if x0.is_finite() && x1 >= x0 {
+        let _ = writeln!(
+            s,
+            "<p class=\"span\">Chainage {} to {} ({:.3} m); {} line(s), samples every {} mm.</p>",
+            html_escape(&super::chainage(x0)),
+            html_escape(&super::chainage(x1)),
+            (x1 - x0) / 1000.0,
+            a.lasers.len(),
+            super::fmt_len(a.options.stitch.dx_mm)
+        );
+    }
+    s.push_str("</section>\n");
+    s
+}
+
+/// The verdict: the edition and its limits' source, the reprofiling table,
+/// the zones and the blocks.
+fn verdict_html(a: &Analysis, zone_svg: &str) -> String {
+    let v = &a.verdict;
+    let e = v.options.edition;
+    let mut s = String::from("<section id=\"verdict\"><h2>Verdict</h2>\n");
+    let _ = writeln!(s, "<p><strong>{}</strong> — limits: {}</p>", html_escape(e.name()), html_escape(e.source()));
+    let pct = if v.measured_mm > 0.0 { 100.0 * v.reprofile_mm / v.measured_mm } else { 0.0 };
+    let _ = writeln!(
+        s,
+        "<p class=\"reprofile\">{:.3} km of {:.3} km should be reprofiled ({pct:.1} %).</p>",
+        v.reprofile_mm / 1e6,
+        v.measured_mm / 1e6
+    );
+    s.push_str("<h3>Reprofiling table</h3>\n");
+    let rows: Vec<Vec<String>> = v
+        .rows
+        .iter()
+        .map(|r| {
+            let band = format!("{}–{} mm", r.band.lo_mm, r.band.hi_mm);
+            match (&r.not_evaluated, r.limit_mm) {
+                (Some(why), _) => {
+                    vec![band, "-".into(), "-".into(), "-".into(), "-".into(), format!("not evaluated: {why}")]
+                }
+                (None, None) => vec![
+                    band,
+                    "-".into(),
+                    format!("{:.1}", r.measured_mm / 1000.0),
+                    "-".into(),
+                    "-".into(),
+                    "not judged (no limit)".into(),
+                ],
+                (None, Some(lim)) => vec![
+                    band,
+                    format!("{lim:.3}"),
+                    format!("{:.1}", r.measured_mm / 1000.0),
+                    format!("{:.1}", r.exceeding_mm / 1000.0),
+                    format!("{:.1}", r.exceeding_percent()),
+                    match r.passes(e) {
+                        Some(true) => "pass".into(),
+                        Some(false) => "FAIL".into(),
+                        None => "-".into(),
+                    },
+                ],
+            }
+        })
+        .collect();
+    s.push_str(&html_table(
+        "reprofiling",
+        &["band", "limit, mm", "measured, m", "exceeding, m", "exceeding, %", "verdict"],
+        &rows,
+    ));
+    let _ = writeln!(s, "<h3>Exceedance zones ({})</h3>", v.zones.len());
+    if v.zones.is_empty() {
+        s.push_str("<p>None.</p>\n");
+    } else {
+        let rows: Vec<Vec<String>> = v
+            .zones
+            .iter()
+            .map(|z| {
+                vec![
+                    format!("{}–{} mm", z.band.lo_mm, z.band.hi_mm),
+                    super::chainage(z.start_mm),
+                    super::chainage(z.end_mm),
+                    format!("{:.1}", (z.end_mm - z.start_mm) / 1000.0),
+                    format!("{:.1}", z.exceeding_mm / 1000.0),
+                    format!("{:.3}", z.worst_pp_mm),
+                ]
+            })
+            .collect();
+        s.push_str(&html_table(
+            "zones",
+            &["band", "start", "end", "length, m", "exceeding, m", "largest peak-to-peak, mm"],
+            &rows,
+        ));
+    }
+    if !zone_svg.is_empty() {
+        let _ = writeln!(s, "<figure class=\"plot\">{zone_svg}</figure>");
+    }
+    let _ = writeln!(
+        s,
+        "<h3>Blocks of {} m</h3>\n<p>RMS of each band's displacement (largest line, µm) and the EN 15610 spectrum against ISO 3095.</p>",
+        super::fmt_len(v.options.block_mm / 1000.0)
+    );
+    let mut head = vec!["start".to_string(), "end".to_string()];
+    head.extend(en13231::BANDS.iter().map(|b| format!("{}–{} mm", b.lo_mm, b.hi_mm)));
+    head.push("ISO 3095".into());
+    let head: Vec<&str> = head.iter().map(String::as_str).collect();
+    let rows: Vec<Vec<String>> = v
+        .blocks
+        .iter()
+        .map(|b| {
+            let mut r = vec![super::chainage(b.start_mm), super::chainage(b.end_mm)];
+            r.extend(b.rms_mm.iter().map(|v| v.map_or("-".into(), |v| format!("{:.1}", v * 1000.0))));
+            r.push(match &b.iso3095_exceeded {
+                None => "no spectrum".into(),
+                Some(e) if e.is_empty() => "pass".into(),
+                Some(e) => format!("FAIL at {} mm", e.iter().map(|w| w.to_string()).collect::<Vec<_>>().join(", ")),
+            });
+            r
+        })
+        .collect();
+    s.push_str(&html_table("blocks", &head, &rows));
+    s.push_str("</section>\n");
+    s
+}
+
+/// Screen and print styles: on paper every section starts a page, plots
+/// are scaled to the page width and kept whole, tables and text wrap.
+const STYLE: &str = "body{font-family:sans-serif;max-width:1450px;margin:auto;padding:0 8px}\
+pre{background:#f6f6f6;padding:8px;overflow-x:auto}\
+svg{max-width:100%;height:auto;display:block}\
+figure{margin:8px 0}\
+table{border-collapse:collapse;margin:8px 0;font-size:0.9em}\
+th,td{border:1px solid #bbb;padding:2px 6px;text-align:left;vertical-align:top}\
+th{background:#eee}\
+@media print{\
+@page{size:A4 landscape;margin:12mm}\
+body{max-width:none;margin:0;padding:0;font-size:9pt}\
+h2{break-before:page;page-break-before:always}\
+section#survey h2{break-before:auto;page-break-before:auto}\
+h2,h3{break-after:avoid;page-break-after:avoid}\
+pre{white-space:pre-wrap;word-break:break-word;overflow:visible;background:none;border:1px solid #ccc}\
+svg,figure,img{max-width:100%!important;height:auto!important;break-inside:avoid;page-break-inside:avoid}\
+table{width:100%;table-layout:auto;break-inside:auto}\
+thead{display:table-header-group}\
+tr{break-inside:avoid;page-break-inside:avoid}\
+td,th{word-break:break-word}\
+}";
+
 fn median_of(z: &[f64]) -> f64 {
     super::stitch::median(z.to_vec()).unwrap_or(0.0)
 }
@@ -333,6 +630,7 @@ pub fn write(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result
     put("profile.csv", &profile_csv(a))?;
     put("registration.csv", &registration_csv(a))?;
     put("gaps.csv", &gaps_csv(a))?;
+    super::exports::write(dir, source, a)?;
 
     // (title, svg file stem, svg text)
     let mut figures: Vec<(String, String, String)> = Vec::new();
@@ -371,14 +669,30 @@ pub fn write(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result
         figures.push(("EN 15610 roughness spectrum".into(), "spectrum".into(), svg));
     }
 
+    let zone_svg = if a.lasers.is_empty() {
+        String::new()
+    } else {
+        plot::svg_and_png(&dir.join("zones"), (1400, 900), &ZoneFig { a }).map_err(|e| out_err("zone plot", e))?
+    };
+
     let title = format!("Rail corrugation analysis: {}", source.name());
     let head = super::describe(source, a);
-    let mut md = format!("# {title}\n\n```text\n{head}```\n");
+    let verdict_text = super::reprofiling::describe(&a.verdict);
+    let mut md = format!("# {title}\n\n## Survey\n\n```text\n{head}```\n\n## Verdict\n\n```text\n{verdict_text}```\n");
+    if !zone_svg.is_empty() {
+        md.push_str("\n![Exceedance along chainage](zones.svg) ([PNG](zones.png))\n");
+    }
     let mut html = format!(
-        "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{t}</title>\n<style>body{{font-family:sans-serif;max-width:1450px;margin:auto}}pre{{background:#f6f6f6;padding:8px;overflow-x:auto}}svg{{max-width:100%;height:auto}}</style></head><body>\n<h1>{t}</h1>\n<pre>{h}</pre>\n",
+        "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{t}</title>\n<style>{STYLE}</style></head><body>\n<h1>{t}</h1>\n",
         t = html_escape(&title),
-        h = html_escape(&head)
     );
+    html.push_str(&survey_html(source, a));
+    let _ = writeln!(
+        html,
+        "<details open><summary>Inputs and stitching in detail</summary><pre>{}</pre></details>",
+        html_escape(&head)
+    );
+    html.push_str(&verdict_html(a, &zone_svg));
     for l in &a.lasers {
         let k = l.stitched.laser;
         let text = format!(
@@ -394,10 +708,11 @@ pub fn write(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result
     html.push_str("<h2>Plots</h2>\n");
     for (t, stem, svg) in &figures {
         let _ = write!(md, "\n### {t}\n\n![{t}]({stem}.svg) ([PNG]({stem}.png))\n");
-        let _ = write!(html, "<h3>{}</h3>\n{svg}\n", html_escape(t));
+        let _ = write!(html, "<h3>{}</h3>\n<figure class=\"plot\">{svg}</figure>\n", html_escape(t));
     }
     let files = "profile.csv (x_mm, one height column per laser, µm), bands_laserK.csv (band signals, mm), \
-                 spectrum_laserK.csv (one-third octaves), registration.csv (per frame), gaps.csv, summary.txt";
+                 spectrum_laserK.csv (one-third octaves), registration.csv (per frame), gaps.csv, summary.txt; \
+                 profile.parquet, blocks.parquet, zones.parquet (docs/exports.md)";
     let _ = write!(md, "\n## Data\n\n{files}\n");
     let _ = write!(html, "<h2>Data</h2>\n<p>{}</p>\n</body></html>\n", html_escape(files));
     put("report.md", &md)?;

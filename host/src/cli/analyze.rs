@@ -73,9 +73,14 @@ pub struct AnalyzeArgs {
     /// How far from its given start chainage a run's registration looks, m.
     #[arg(long = "search-m", value_name = "M", default_value_t = 25.0, value_parser = positive)]
     pub search_m: f64,
-    /// Write a report (report.md, report.html, SVG and PNG plots, CSV) into DIR (created if missing).
+    /// Write a report (report.md, report.html, SVG and PNG plots, CSV and the Parquet exports) into DIR (created if missing).
     #[arg(long, value_name = "DIR")]
     pub report: Option<PathBuf>,
+    /// Write the stitched profile, the blocks and the zones as Parquet
+    /// (profile.parquet, blocks.parquet, zones.parquet; docs/exports.md)
+    /// into DIR (created if missing). The report writes them too.
+    #[arg(long, value_name = "DIR")]
+    pub parquet: Option<PathBuf>,
     /// Print one JSON object instead of the text summary.
     #[arg(long)]
     pub json: bool,
@@ -174,6 +179,13 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
         ))
         .into());
     }
+    // A --parquet directory that cannot be one fails before the work.
+    if let Some(dir) = &args.parquet
+        && dir.exists()
+        && !dir.is_dir()
+    {
+        return Err(Error::Output(std::io::Error::other(format!("{}: not a directory", dir.display()))).into());
+    }
     // The calibration is checked before any input is read.
     let calibration = match &args.calibration {
         Some(path) => {
@@ -245,6 +257,9 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
     let text = analyze::summary(&source, &a);
     if let Some(dir) = &args.report {
         analyze::report::write(dir, &source, &a, &text)?;
+    }
+    if let Some(dir) = &args.parquet {
+        analyze::exports::write(dir, &source, &a)?;
     }
     let mut out = std::io::stdout().lock();
     if args.json {

@@ -1,0 +1,338 @@
+//! `analyze --parquet DIR` (and `--report DIR`): the survey as Parquet
+//! files that DuckDB, Polars or Spark read without our code —
+//! `profile.parquet` (the stitched profile, one row per sample),
+//! `blocks.parquet` (block RMS and ISO 3095 per block) and
+//! `zones.parquet` (the exceedance zones). The schema is documented in
+//! docs/exports.md; every file of every survey has the same columns for
+//! the same lines, and a `source` column naming the inputs, so a fleet's
+//! files concatenate (`read_parquet('*/profile.parquet', union_by_name = true)`).
+//!
+//! # Why these choices
+//!
+//! - The `parquet` crate's low-level column writer, without its `arrow`
+//!   feature and without compression codecs: the data are a few flat
+//!   columns, and arrow's crates would add build time for nothing
+//!   (docs/exports.md has the measured cost). Version 59, not 60: 60 marks
+//!   DOUBLE columns with the IEEE 754 total order, whose footer older
+//!   readers refuse.
+//! - Dictionary encoding (the writer's default) keeps the `source` column,
+//!   the same string on every row, to a few bytes per page; plain
+//!   encoding elsewhere. Data pages v1, the most widely read.
+//! - Gaps are nulls (definition level 0), never NaN: `AVG`, `COUNT` and
+//!   `IS NULL` then mean what an analyst expects.
+//! - Each file is built in memory and written through
+//!   [`crate::output::write_atomically`]: whole or not at all, only over a
+//!   regular file. Nothing here panics on any analysis.
+//!
+//! # Cost
+//!
+//! One pass over the stitched samples; the profile file is 8 bytes per
+//! sample and line plus chainage and coverage (~40 bytes a sample for
+//! three lines: a 340 m survey at 1 mm is ~14 MB, held in memory once
+//! while it is written, beside the analysis itself).
+
+use std::path::Path;
+use std::sync::Arc;
+
+use parquet::basic::Compression;
+use parquet::column::writer::ColumnWriter;
+use parquet::data_type::ByteArray;
+use parquet::file::metadata::KeyValue;
+use parquet::file::properties::{WriterProperties, WriterVersion};
+use parquet::file::writer::SerializedFileWriter;
+use parquet::schema::types::Type;
+
+use super::{Analysis, Source, chainage};
+use crate::Error;
+use crate::standards::en13231;
+
+/// Version of the schema below, in each file's key-value metadata as `cms.schema`.
+pub const SCHEMA_VERSION: &str = "cms-host analyze exports 1";
+
+/// One column's values.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Values {
+    /// `DOUBLE`, `None` a null.
+    F64(Vec<Option<f64>>),
+    /// `INT32`.
+    I32(Vec<Option<i32>>),
+    /// `BOOLEAN`.
+    Bool(Vec<Option<bool>>),
+    /// `BYTE_ARRAY` annotated `STRING` (UTF-8).
+    Str(Vec<Option<String>>),
+    /// A `STRING` column of one value on every one of so many rows (the
+    /// profile's `source`: one copy in memory, not one per sample).
+    Repeat(String, usize),
+}
+
+impl Values {
+    fn len(&self) -> usize {
+        match self {
+            Values::F64(v) => v.len(),
+            Values::I32(v) => v.len(),
+            Values::Bool(v) => v.len(),
+            Values::Str(v) => v.len(),
+            Values::Repeat(_, n) => *n,
+        }
+    }
+}
+
+/// A column: name, whether it may hold nulls, values.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Column {
+    pub name: String,
+    pub nullable: bool,
+    pub values: Values,
+}
+
+fn col(name: impl Into<String>, nullable: bool, values: Values) -> Column {
+    Column { name: name.into(), nullable, values }
+}
+
+/// A table: columns of one length.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Table {
+    pub columns: Vec<Column>,
+}
+
+impl Table {
+    /// Rows (the first column's length; all are equal).
+    pub fn rows(&self) -> usize {
+        self.columns.first().map_or(0, |c| c.values.len())
+    }
+}
+
+/// The column name of a band: `10_30` for 10–30 mm.
+pub fn band_key(b: &en13231::Band) -> String {
+    format!("{}_{}", b.lo_mm, b.hi_mm)
+}
+
+/// The stitched profile on one grid: `source`, `chainage_mm`, `height_um_K`
+/// per line (null in gaps), `coverage` (lines with data at the sample).
+pub fn profile_table(source: &Source, a: &Analysis) -> Table {
+    let dx = a.options.stitch.dx_mm;
+    // Every line's x0 is a whole number of spacings from the lowest one's.
+    let origin = a.lasers.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
+    let idx = |x: f64| ((x - origin) / dx).round() as i64;
+    let rows = a.lasers.iter().map(|l| idx(l.stitched.x0_mm) + l.stitched.z_um.len() as i64).max().unwrap_or(0);
+    let rows = usize::try_from(rows).unwrap_or(0);
+    let chainage_mm: Vec<Option<f64>> =
+        (0..rows).map(|i| Some(((origin + i as f64 * dx) * 1e6).round() / 1e6)).collect();
+    let mut coverage = vec![0i32; rows];
+    let mut heights = Vec::new();
+    for l in &a.lasers {
+        let off = idx(l.stitched.x0_mm);
+        let h: Vec<Option<f64>> = (0..rows)
+            .map(|i| {
+                usize::try_from(i as i64 - off)
+                    .ok()
+                    .and_then(|j| l.stitched.z_um.get(j))
+                    .copied()
+                    .filter(|v| v.is_finite())
+            })
+            .collect();
+        for (c, v) in coverage.iter_mut().zip(&h) {
+            *c += i32::from(v.is_some());
+        }
+        heights.push(col(format!("height_um_{}", l.stitched.laser), true, Values::F64(h)));
+    }
+    let mut columns = vec![
+        col("source", false, Values::Repeat(source.name(), rows)),
+        col("chainage_mm", false, Values::F64(chainage_mm)),
+    ];
+    columns.extend(heights);
+    columns.push(col("coverage", false, Values::I32(coverage.into_iter().map(Some).collect())));
+    Table { columns }
+}
+
+/// The blocks: `source`, `start_mm`, `end_mm`, `start_chainage`,
+/// `end_chainage`, `rms_um_LO_HI` per band (largest line; null where not
+/// evaluated), `iso3095_pass` (null: no spectrum), `iso3095_exceeded_mm`
+/// (the one-third-octave wavelengths over the limit, `50,40`; empty on a
+/// pass, null without a spectrum).
+pub fn blocks_table(source: &Source, a: &Analysis) -> Table {
+    let b = &a.verdict.blocks;
+    let n = b.len();
+    let f = |v: Vec<f64>| Values::F64(v.into_iter().map(Some).collect());
+    let s = |v: Vec<String>| Values::Str(v.into_iter().map(Some).collect());
+    let mut columns = vec![
+        col("source", false, s(vec![source.name(); n])),
+        col("start_mm", false, f(b.iter().map(|b| b.start_mm).collect())),
+        col("end_mm", false, f(b.iter().map(|b| b.end_mm).collect())),
+        col("start_chainage", false, s(b.iter().map(|b| chainage(b.start_mm)).collect())),
+        col("end_chainage", false, s(b.iter().map(|b| chainage(b.end_mm)).collect())),
+    ];
+    for (k, band) in en13231::BANDS.iter().enumerate() {
+        let v = b.iter().map(|b| b.rms_mm.get(k).copied().flatten().map(|v| v * 1000.0)).collect();
+        columns.push(col(format!("rms_um_{}", band_key(band)), true, Values::F64(v)));
+    }
+    columns.push(col(
+        "iso3095_pass",
+        true,
+        Values::Bool(b.iter().map(|b| b.iso3095_exceeded.as_ref().map(Vec::is_empty)).collect()),
+    ));
+    columns.push(col(
+        "iso3095_exceeded_mm",
+        true,
+        Values::Str(
+            b.iter()
+                .map(|b| {
+                    b.iso3095_exceeded.as_ref().map(|e| e.iter().map(|w| w.to_string()).collect::<Vec<_>>().join(","))
+                })
+                .collect(),
+        ),
+    ));
+    Table { columns }
+}
+
+/// The zones: `source`, `edition`, `band_lo_mm`, `band_hi_mm`, `start_mm`,
+/// `end_mm`, `start_chainage`, `end_chainage`, `exceeding_mm`, `worst_pp_mm`.
+pub fn zones_table(source: &Source, a: &Analysis) -> Table {
+    let z = &a.verdict.zones;
+    let n = z.len();
+    let f = |v: Vec<f64>| Values::F64(v.into_iter().map(Some).collect());
+    let s = |v: Vec<String>| Values::Str(v.into_iter().map(Some).collect());
+    Table {
+        columns: vec![
+            col("source", false, s(vec![source.name(); n])),
+            col("edition", false, s(vec![a.verdict.options.edition.name().to_string(); n])),
+            col("band_lo_mm", false, f(z.iter().map(|z| z.band.lo_mm).collect())),
+            col("band_hi_mm", false, f(z.iter().map(|z| z.band.hi_mm).collect())),
+            col("start_mm", false, f(z.iter().map(|z| z.start_mm).collect())),
+            col("end_mm", false, f(z.iter().map(|z| z.end_mm).collect())),
+            col("start_chainage", false, s(z.iter().map(|z| chainage(z.start_mm)).collect())),
+            col("end_chainage", false, s(z.iter().map(|z| chainage(z.end_mm)).collect())),
+            col("exceeding_mm", false, f(z.iter().map(|z| z.exceeding_mm).collect())),
+            col("worst_pp_mm", false, f(z.iter().map(|z| z.worst_pp_mm).collect())),
+        ],
+    }
+}
+
+fn perr(e: parquet::errors::ParquetError) -> std::io::Error {
+    std::io::Error::other(format!("parquet: {e}"))
+}
+
+/// The Parquet schema of a table (`message cms_NAME { … }`).
+fn schema(name: &str, t: &Table) -> Result<Type, std::io::Error> {
+    use parquet::basic::{LogicalType, Repetition, Type as Physical};
+    let mut fields = Vec::new();
+    for c in &t.columns {
+        let (physical, logical) = match c.values {
+            Values::F64(_) => (Physical::DOUBLE, None),
+            Values::I32(_) => (Physical::INT32, None),
+            Values::Bool(_) => (Physical::BOOLEAN, None),
+            Values::Str(_) | Values::Repeat(..) => (Physical::BYTE_ARRAY, Some(LogicalType::String)),
+        };
+        let rep = if c.nullable { Repetition::OPTIONAL } else { Repetition::REQUIRED };
+        let f = Type::primitive_type_builder(&c.name, physical)
+            .with_repetition(rep)
+            .with_logical_type(logical)
+            .build()
+            .map_err(perr)?;
+        fields.push(Arc::new(f));
+    }
+    Type::group_type_builder(&format!("cms_{name}")).with_fields(fields).build().map_err(perr)
+}
+
+/// Splits optional values into the present ones and definition levels.
+fn levels<T: Clone>(v: &[Option<T>], nullable: bool) -> Result<(Vec<T>, Option<Vec<i16>>), std::io::Error> {
+    let present: Vec<T> = v.iter().flatten().cloned().collect();
+    if nullable {
+        Ok((present, Some(v.iter().map(|x| i16::from(x.is_some())).collect())))
+    } else if present.len() == v.len() {
+        Ok((present, None))
+    } else {
+        Err(std::io::Error::other("a null in a required column"))
+    }
+}
+
+/// A table as the bytes of a Parquet file (one row group), with `meta` as
+/// key-value metadata besides `cms.schema`.
+pub fn to_parquet(name: &str, t: &Table, meta: &[(&str, String)]) -> Result<Vec<u8>, std::io::Error> {
+    let rows = t.rows();
+    if let Some(c) = t.columns.iter().find(|c| c.values.len() != rows) {
+        return Err(std::io::Error::other(format!("column {} has {} rows of {rows}", c.name, c.values.len())));
+    }
+    let mut kv = vec![KeyValue::new("cms.schema".into(), SCHEMA_VERSION.to_string())];
+    kv.extend(meta.iter().map(|(k, v)| KeyValue::new((*k).into(), v.clone())));
+    let props = WriterProperties::builder()
+        .set_writer_version(WriterVersion::PARQUET_1_0)
+        .set_compression(Compression::UNCOMPRESSED)
+        .set_created_by(format!("cms-host {}", env!("CARGO_PKG_VERSION")))
+        .set_key_value_metadata(Some(kv))
+        .build();
+    let mut buf = Vec::new();
+    let mut w = SerializedFileWriter::new(&mut buf, Arc::new(schema(name, t)?), Arc::new(props)).map_err(perr)?;
+    let mut rg = w.next_row_group().map_err(perr)?;
+    for c in &t.columns {
+        let Some(mut cw) = rg.next_column().map_err(perr)? else {
+            return Err(std::io::Error::other("fewer columns in the schema than in the table"));
+        };
+        let written = match (cw.untyped(), &c.values) {
+            (ColumnWriter::DoubleColumnWriter(w), Values::F64(v)) => {
+                let (p, d) = levels(v, c.nullable)?;
+                w.write_batch(&p, d.as_deref(), None)
+            }
+            (ColumnWriter::Int32ColumnWriter(w), Values::I32(v)) => {
+                let (p, d) = levels(v, c.nullable)?;
+                w.write_batch(&p, d.as_deref(), None)
+            }
+            (ColumnWriter::BoolColumnWriter(w), Values::Bool(v)) => {
+                let (p, d) = levels(v, c.nullable)?;
+                w.write_batch(&p, d.as_deref(), None)
+            }
+            (ColumnWriter::ByteArrayColumnWriter(w), Values::Str(v)) => {
+                let (p, d) = levels(v, c.nullable)?;
+                let p: Vec<ByteArray> = p.iter().map(|s| ByteArray::from(s.as_str())).collect();
+                w.write_batch(&p, d.as_deref(), None)
+            }
+            (ColumnWriter::ByteArrayColumnWriter(w), Values::Repeat(text, n)) => {
+                // Batches of clones of one buffer (a reference count each).
+                let chunk = vec![ByteArray::from(text.as_str()); (*n).min(1 << 16)];
+                let mut left = *n;
+                let mut r = Ok(0);
+                while left > 0 && r.is_ok() {
+                    let k = left.min(chunk.len());
+                    r = w.write_batch(&chunk[..k], None, None);
+                    left -= k;
+                }
+                r
+            }
+            _ => return Err(std::io::Error::other(format!("column {}: writer of another type", c.name))),
+        };
+        written.map_err(perr)?;
+        cw.close().map_err(perr)?;
+    }
+    rg.close().map_err(perr)?;
+    w.close().map_err(perr)?;
+    Ok(buf)
+}
+
+/// The file names written by [`write`].
+pub const FILES: [&str; 3] = ["profile.parquet", "blocks.parquet", "zones.parquet"];
+
+/// Writes `profile.parquet`, `blocks.parquet` and `zones.parquet` into
+/// `dir` (created if missing). Any failure is an output error naming the file.
+pub fn write(dir: &Path, source: &Source, a: &Analysis) -> Result<(), Error> {
+    std::fs::create_dir_all(dir)
+        .map_err(|e| Error::Output(std::io::Error::new(e.kind(), format!("cannot create {}: {e}", dir.display()))))?;
+    let meta = vec![
+        ("cms.source", source.name()),
+        ("cms.dx_mm", a.options.stitch.dx_mm.to_string()),
+        ("cms.edition", a.verdict.options.edition.name().to_string()),
+        ("cms.block_mm", a.verdict.options.block_mm.to_string()),
+    ];
+    let tables =
+        [("profile", profile_table(source, a)), ("blocks", blocks_table(source, a)), ("zones", zones_table(source, a))];
+    for ((name, t), file) in tables.iter().zip(FILES) {
+        let path = dir.join(file);
+        let bytes = to_parquet(name, t, &meta)
+            .map_err(|e| Error::Output(std::io::Error::other(format!("{}: {e}", path.display()))))?;
+        crate::output::write_atomically(&path, |w| w.write_all(&bytes)).map_err(|e| match e {
+            // A directory that cannot take the file is an output failure here.
+            crate::output::OutputError::NotRegular { .. } => Error::from(e),
+            e => Error::Output(std::io::Error::other(e.to_string())),
+        })?;
+    }
+    Ok(())
+}
