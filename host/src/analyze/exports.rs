@@ -42,7 +42,7 @@ use parquet::file::properties::{WriterProperties, WriterVersion};
 use parquet::file::writer::SerializedFileWriter;
 use parquet::schema::types::Type;
 
-use super::{Analysis, Source, chainage};
+use super::{Analysis, Grid, Source, chainage};
 use crate::Error;
 use crate::standards::en13231;
 
@@ -110,18 +110,13 @@ pub fn band_key(b: &en13231::Band) -> String {
 /// The stitched profile on one grid: `source`, `chainage_mm`, `height_um_K`
 /// per line (null in gaps), `coverage` (lines with data at the sample).
 pub fn profile_table(source: &Source, a: &Analysis) -> Table {
-    let dx = a.options.stitch.dx_mm;
-    // Every line's x0 is a whole number of spacings from the lowest one's.
-    let origin = a.lasers.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
-    let idx = |x: f64| ((x - origin) / dx).round() as i64;
-    let rows = a.lasers.iter().map(|l| idx(l.stitched.x0_mm) + l.stitched.z_um.len() as i64).max().unwrap_or(0);
-    let rows = usize::try_from(rows).unwrap_or(0);
-    let chainage_mm: Vec<Option<f64>> =
-        (0..rows).map(|i| Some(((origin + i as f64 * dx) * 1e6).round() / 1e6)).collect();
+    let grid = Grid::of(&a.lasers, a.options.stitch.dx_mm);
+    let rows = grid.len;
+    let chainage_mm: Vec<Option<f64>> = (0..rows).map(|i| Some(grid.chainage_mm(i))).collect();
     let mut coverage = vec![0i32; rows];
     let mut heights = Vec::new();
     for l in &a.lasers {
-        let off = idx(l.stitched.x0_mm);
+        let off = grid.offset(&l.stitched) as i64;
         let h: Vec<Option<f64>> = (0..rows)
             .map(|i| {
                 usize::try_from(i as i64 - off)

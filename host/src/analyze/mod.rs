@@ -190,6 +190,37 @@ pub struct Analysis {
     pub verdict: reprofiling::Verdict,
 }
 
+/// The lines' profiles on one grid: sample `i` at chainage
+/// `origin_mm + i·dx_mm`, every line's first sample a whole number of
+/// spacings from the lowest one's (the stitcher and the join put them so).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Grid {
+    pub origin_mm: f64,
+    pub dx_mm: f64,
+    /// Samples from the lowest first sample to past the highest last one.
+    pub len: usize,
+}
+
+impl Grid {
+    /// The grid of `lines` at spacing `dx_mm` (empty without lines).
+    pub fn of(lines: &[LaserAnalysis], dx_mm: f64) -> Grid {
+        let origin_mm = lines.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
+        let mut g = Grid { origin_mm: if origin_mm.is_finite() { origin_mm } else { 0.0 }, dx_mm, len: 0 };
+        g.len = lines.iter().map(|l| g.offset(&l.stitched) + l.stitched.z_um.len()).max().unwrap_or(0);
+        g
+    }
+
+    /// The grid index of a line's first sample.
+    pub fn offset(&self, s: &Stitched) -> usize {
+        ((s.x0_mm - self.origin_mm) / self.dx_mm).round().max(0.0) as usize
+    }
+
+    /// Chainage of sample `i`, mm, rounded to the nanometre (as written to files).
+    pub fn chainage_mm(&self, i: usize) -> f64 {
+        ((self.origin_mm + i as f64 * self.dx_mm) * 1e6).round() / 1e6
+    }
+}
+
 /// Where the profiles came from.
 #[derive(Debug, Clone)]
 pub enum Source {

@@ -567,16 +567,11 @@ fn profile_csv(a: &Analysis) -> String {
         let _ = write!(s, ",laser_{}_um", l.stitched.laser);
     }
     s.push('\n');
-    let dx = a.options.stitch.dx_mm;
-    // Every laser's x0 is a whole number of spacings from the first's.
-    let origin = a.lasers.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
-    let idx = |x: f64| ((x - origin) / dx).round() as i64;
-    let lo = 0;
-    let hi = a.lasers.iter().map(|l| idx(l.stitched.x0_mm) + l.stitched.z_um.len() as i64).max().unwrap_or(0);
-    for i in lo..hi {
-        let _ = write!(s, "{}", ((origin + i as f64 * dx) * 1e6).round() / 1e6);
+    let grid = super::Grid::of(&a.lasers, a.options.stitch.dx_mm);
+    for i in 0..grid.len as i64 {
+        let _ = write!(s, "{}", grid.chainage_mm(i as usize));
         for l in &a.lasers {
-            let j = i - idx(l.stitched.x0_mm);
+            let j = i - grid.offset(&l.stitched) as i64;
             match usize::try_from(j).ok().and_then(|j| l.stitched.z_um.get(j)).filter(|v| v.is_finite()) {
                 Some(v) => {
                     let _ = write!(s, ",{v:.4}");

@@ -30,7 +30,7 @@
 
 use std::fmt::Write as _;
 
-use super::{LaserAnalysis, chainage};
+use super::{Grid, LaserAnalysis, chainage};
 use crate::standards::{en13231, en15610};
 
 /// Which edition's criterion judges a position.
@@ -171,10 +171,8 @@ pub fn judge(lasers: &[LaserAnalysis], opts: &Options) -> Verdict {
             blocks: vec![],
         };
     };
-    // The common grid: index 0 at the lowest line's first sample.
-    let origin = lasers.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
-    let idx = |x: f64| ((x - origin) / dx).round() as usize;
-    let len = lasers.iter().map(|l| idx(l.stitched.x0_mm) + l.stitched.z_um.len()).max().unwrap_or(0);
+    let grid = Grid::of(lasers, dx);
+    let (origin, len) = (grid.origin_mm, grid.len);
     let mut any_over = vec![false; len];
     let mut any_measured = vec![false; len];
     let mut rows = Vec::new();
@@ -187,7 +185,7 @@ pub fn judge(lasers: &[LaserAnalysis], opts: &Options) -> Verdict {
         let mut worst = vec![0.0f64; len];
         let mut why = None;
         for l in lasers {
-            let off = idx(l.stitched.x0_mm);
+            let off = grid.offset(&l.stitched);
             let stats = match &l.bands {
                 Ok(a) => a.bands.get(b).map(|r| r.outcome.as_ref()),
                 Err(e) => {

@@ -279,9 +279,9 @@ pub enum JoinError {
     Spacing { run: usize, dx_mm: f64, first_mm: f64 },
     /// A run overlaps nothing and has no start chainage.
     #[error(
-        "run {run} overlaps no earlier run by {min_mm:.0} mm or more{within}: give its start chainage (--chainage KM+M[:up|:down])"
+        "run {run} overlaps no earlier run by {min_mm:.0} mm or more: give its start chainage (--chainage KM+M[:up|:down])"
     )]
-    NoOverlap { run: usize, min_mm: f64, within: String },
+    NoOverlap { run: usize, min_mm: f64 },
 }
 
 /// A run's position `x` (mm) on the line: chainage mm.
@@ -438,7 +438,7 @@ pub fn join(
             }
             None => {
                 if r > 0 && !joined.is_empty() && place.start_m.is_none() {
-                    return Err(JoinError::NoOverlap { run: r, min_mm: opts.min_overlap_mm, within: String::new() });
+                    return Err(JoinError::NoOverlap { run: r, min_mm: opts.min_overlap_mm });
                 }
                 let h = place.heading.unwrap_or(Heading::Up);
                 let s = nominal(h).unwrap_or(e(h));
