@@ -36,56 +36,68 @@
 //! In the surface frame every point i (of any line) satisfies
 //!
 //! ```text
-//! z = T(x, y) + a·sin(ω x + κ y) + b·cos(ω x + κ y)
-//! T = c + g_x x + g_y y + e_yy y²  [+ e_xx x² + e_xy x y] [+ f_xxx x³ + f_xxy x² y]
-//!       [+ q_xxxx x⁴ + q_xxxy x³ y + q_xxyy x² y²]
+//! z = T + a·sin(k s) + b·cos(k s),   s = x cos ψ + y sin ψ,  u = −x sin ψ + y cos ψ
+//! T = c + g_x x + g_y y + p₂ u²  [+ p₃ u³ + p₄ u⁴]  [+ e_ss s² + e_su s u]
 //! ```
 //!
-//! one plane wave across the running band — common wavenumber `k = √(ω² +
-//! κ²)` (λ = 2π/k), amplitude `√(a² + b²)` and phase, the yaw `ψ =
-//! atan2(κ, ω)` — over a smooth surface `T` in the points' own `(x, y)`.
-//! `T` is the rail head's shape as the lines see it: a crown of radius R
-//! crossed at yaw ψ is `−(x sin ψ + y cos ψ + y₀)²/2R`, every term of which
-//! is in `T` (the `x y` twist is what per-line slopes once stood for, and
-//! could not follow on lines that fan or wander across); the cubic terms
-//! take up what the surface frame's small rotation of that parabola and the
-//! inclined planes' lateral wander (a line moves across as its height
-//! changes) leave. The quartic terms are the circle's: the simulator's
-//! crown (like a worn head's) is `−(R − √(R² − ρ²))`, whose `−ρ⁴/8R³` is
-//! 30–40 µm at the ends of a 280 mm frame yawed 10° over a 200 mm crown
-//! (ρ up to ~40 mm); without `x³ y` its part odd across (the outer lines'
-//! residuals mirror each other, ±6 µm) is taken up by κ — the yaw off by
-//! ±1.2–1.5°, hence λ = 2π cos ψ/ω off by 0.2–0.3 mm, its sign with the
-//! phase, at a residual only 1.3× the noise. With points at their true lateral positions there is
-//! nothing to slide across first (see "Lateral slope"). The lateral terms
-//! are those the lines can tell apart: `g_y` from two lines, `e_yy` from
-//! three (they stand for the lines' offsets too); with one line κ is 0.
+//! one plane wave along the rail — wavenumber `k` (λ = 2π/k, fitted as
+//! `ω = k cos ψ`, `κ = k sin ψ`), amplitude `√(a² + b²)`, the yaw `ψ` of the
+//! lines against the rail — over the rail head's surface written in the
+//! rail's own coordinates: `s` along it, `u` across it. A rail head is a
+//! surface extruded along the rail (`z(s, u) = h(s) + crown(u)`, in the
+//! simulator as on a real rail over one frame), and a rigid turn or tilt of
+//! the head keeps it one, so its shape is a polynomial in `u` alone
+//! **whatever the yaw**, and the wave's direction is the one that
+//! defines `u`: the crown and the yaw are fitted together. The plane takes
+//! the head's pitch and roll (and any linear term), `u²` the crown's
+//! curvature (three lines), `u³, u⁴` what a circle or a worn head adds
+//! beyond the parabola and where the apex is — which the lines can tell
+//! apart only when they cross the crown, i.e. when yawed; `s², s u` stand
+//! for long-wave geometry along the rail.
+//!
+//! This replaces a free 2-D polynomial in the points' `(x, y)` (to degree
+//! four: 11 terms), which needed `x⁴, x³y, x²y²` at 10° of yaw over a
+//! 200 mm crown and, having them, took a share of a long wavelength over
+//! 2–3 periods: through the simulator, 100 mm × 50 µm at 10° of yaw had
+//! σλ 0.03–0.038 mm against 0.02 for the aligned head. Here at most eight
+//! trend terms, none of them along the rail unless the data ask, and the
+//! same case is at σλ 0.02.
+//!
 //! The bracketed groups are rungs of a nested ladder, each kept only if an
-//! F test asks for it (F > 12) over the highest rung kept so far, since
-//! over 2–3 periods a free quadratic takes a share of a long wavelength and
-//! inflates its scatter; a rung that does not pay is passed over, not the
-//! end of the ladder (the quartic one can be needed where the cubic one is
-//! not: there the cubic rung's F is about 10, the quartic's thousands).
+//! F test asks for it (F > 12) over the highest rung kept so far; a rung
+//! that does not pay is passed over, not the end of the ladder; a rung
+//! whose columns the lines cannot tell apart (the column-normalised normal
+//! matrix's reciprocal condition under [`MIN_RCOND`], e.g. `u³` against
+//! `u` with three lines along the rail) is not tried. With two lines there
+//! is no `u²` in the first rung (it is a level across), with one line no
+//! term across and κ = 0.
 //!
 //! Measured on a misaligned head's lines computed exactly over a crowned
 //! rail (`tests::lines`: three parallel inclined sheets, 280 mm long, 1 µm
-//! of noise): with per-line offsets, per-line slopes and one curvature the
-//! errors reached 0.5 mm and 5 µm at 5–10° of yaw over 200–300 mm crowns,
-//! and 1 fit in 3 ran off to a wrong minimum (λ off by 35–95 mm, reported
-//! as converged); with `T` every case of yaw 0–10°, pitch and roll ±2°,
-//! crowns 200 mm to flat is within 0.05 mm and 2 µm, and at 15° over the
-//! 200 mm crown (0.09 and 0.15 mm off at λ 100 mm) the misfit (2.8–4.4×
-//! the noise) makes the verdict doubtful or failed
-//! (`tests::the_misalignment_sweep_is_right_or_flagged`). Through the
-//! simulator (a circular crown, the real detector) the sweep of `cms-host
-//! bench corrugation --sweep` is within the limits but for noise up to 10°.
+//! of noise, yaw 0–15°, pitch and roll ±2°, crowns 200 mm to flat): every
+//! case within 0.01 mm and 0.12 µm, all good
+//! (`tests::the_misalignment_sweep_is_right`); with the 2-D
+//! polynomial, 15° over the 200 mm crown was 0.09–0.16 mm off (flagged).
+//!
+//! **Uncertainties.** From the Jacobian at the solution, but not as if the
+//! points' errors were white: each point's influence on the result,
+//! correlated along its line over [`HAC_LAG`] points (Newey–West,
+//! [`hac_variance`]), because a stripe's position error depends on where
+//! it falls on the pixel grid, which changes slowly along a line. Then
+//! each line is fitted alone on its corrected profile ([`LineFit`]: the
+//! same wave seen by one line), and where the three disagree beyond their
+//! own uncertainties (Birge ratio `√(χ²/2)` over 1) the joint uncertainty
+//! grows by that ratio: an error common to a line's points (its stripe's
+//! sub-pixel systematic where its heights sit on the pixel grid) that no
+//! residual shows. Over [`verdict::MAX_BIRGE`] the verdict is doubtful.
 //!
 //! **Starts and bounds.** Linear in all but ω and κ; refined by the
-//! Levenberg–Marquardt of [`crate::lm`] from every line's own start: `T`
-//! by linear least squares, then `fit`'s sine of each line on what is left
-//! gives an ω (the others take their linear fit at it, κ from the lines'
-//! phases against their lateral positions). The lowest residual whose yaw
-//! is within ±45° wins; a start that runs beyond is discarded.
+//! Levenberg–Marquardt of [`crate::lm`] from every line's own start: a
+//! 2-D polynomial detrend, then `fit`'s sine of each line on what is left
+//! gives an ω (κ from the lines' phases against their lateral positions);
+//! each rung's linear terms by least squares at that ω and κ. The lowest
+//! residual whose yaw is within ±45° wins; a start that runs beyond is
+//! discarded.
 //!
 //! **The verdict** ([`crate::verdict`]): the residual against the noise
 //! the points show (measured without a model), the bounds, convergence
@@ -118,10 +130,11 @@
 //!
 //! # Cost
 //!
-//! n points in all: the plane and `T` O(n), the start fits (`fit`, per
-//! line), then per start one refinement per rung of the ladder (four),
-//! each LM iteration O(n·15²); a paper-geometry image (3 × 3168 points)
-//! fits in tens of milliseconds.
+//! n points in all: the plane and the start's detrend O(n), the start fits
+//! (`fit`, per line), then per start one refinement per rung of the
+//! ladder (three), each LM iteration O(n·12²); the uncertainties
+//! O(n·(12² + [`HAC_LAG`])); the lines' own fits O(n·4²). A
+//! paper-geometry image (3 × 3168 points) fits in tens of milliseconds.
 
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use serde::Serialize;
@@ -249,9 +262,13 @@ pub struct Joint {
     pub roll_rad: f64,
     /// Yaw of the lines against the rail, `atan2(κ, ω)`, rad.
     pub yaw_rad: f64,
-    /// Curvature of the lines' common trend `2e`, 1/mm (the crown seen by
-    /// yawed lines, or long-wave geometry); 0 when not fitted.
+    /// Curvature of the surface along the rail `2 e_ss`, 1/mm (long-wave
+    /// geometry); 0 when not fitted.
     pub curvature_per_mm: f64,
+    /// Curvature of the surface across the rail at the lines' centroid
+    /// `2 p₂`, 1/mm (the crown: `−1/R` for a head of radius R); 0 when not
+    /// fitted (fewer than three lines, or along the rail with two).
+    pub crown_curvature_per_mm: f64,
     /// Whether the trend terms (curvature, per-line slopes) were fitted.
     pub trend: bool,
     /// Root mean square of the residuals, mm.
@@ -270,8 +287,38 @@ pub struct Joint {
     /// Another start's minimum, as good within the noise, at this
     /// wavelength, mm: the data do not decide between them.
     pub alternative_wavelength_mm: Option<f64>,
+    /// Each line's own sine on its corrected profile (along the rail, the
+    /// joint surface removed): the same wave, seen by one line.
+    pub per_line: Vec<LineFit>,
+    /// How far the lines agree, as Birge ratios `√(χ²/(L − 1))` of their
+    /// wavelengths and amplitudes against their uncertainties (1 for lines
+    /// that agree within the noise; `None` under two line fits).
+    pub birge: Option<(f64, f64)>,
     /// Whether to believe it, and why ([`crate::verdict`]).
     pub verdict: Verdict,
+}
+
+/// One line's sine on its corrected profile: `z = c + a sin(ω s) + b
+/// cos(ω s)` over `(s_mm, z_mm)`, from the joint result; uncertainties as
+/// the joint's ([`hac_variance`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LineFit {
+    /// Laser index.
+    pub laser: usize,
+    /// Points fitted.
+    pub points: usize,
+    /// Wavelength along the rail, mm.
+    pub wavelength_mm: f64,
+    /// Amplitude, mm.
+    pub amplitude_mm: f64,
+    /// Root mean square of the residuals, mm.
+    pub rms_residual_mm: f64,
+    /// One-σ uncertainty of the wavelength, mm.
+    pub wavelength_sigma_mm: Option<f64>,
+    /// One-σ uncertainty of the amplitude, mm.
+    pub amplitude_sigma_mm: Option<f64>,
+    /// Whether the refinement met its convergence test.
+    pub converged: bool,
 }
 
 /// Per line in the surface frame: `(line index, [x, y, z])` points.
@@ -327,18 +374,106 @@ fn surface(lines: &[Line]) -> Result<Surface, FitError> {
     Ok(s)
 }
 
-/// The F statistic above which the trend terms (curvature along, twist,
-/// the cubic and the quartic terms) are kept: p < 1e-5 for 1–8 extra terms and thousands of
-/// points.
+/// The F statistic above which a rung of trend terms (the crown's cubic
+/// and quartic, the curvature along and the twist) is kept: p < 1e-5 for
+/// two extra terms and thousands of points.
 const F_TREND: f64 = 12.0;
 
 /// Fits the lines of one image jointly (module docs); returns the joint
 /// result and the surface-normal corrected profile of each line. Lines with
 /// fewer than 8 points are left out; at least one must remain.
 pub fn joint_fit(lines: &[Line]) -> Result<(Joint, Vec<Corrected>), FitError> {
-    let (mut joint, corrected) = fit_rejecting(lines)?;
+    joint_fit_from(lines, None)
+}
+
+/// [`joint_fit`] with one more start: a wavelength (mm) known to be near,
+/// such as the previous frame's result along the same rail. It is one start
+/// among the lines' own, not a prior: the lowest residual still wins.
+pub fn joint_fit_from(lines: &[Line], near_mm: Option<f64>) -> Result<(Joint, Vec<Corrected>), FitError> {
+    let (mut joint, corrected) = fit_rejecting(lines, near_mm)?;
+    joint.per_line = corrected.iter().filter_map(|c| line_fit(c, &joint)).collect();
+    joint.birge = birge(&joint.per_line);
+    // The lines' disagreement beyond their noise is an error the joint
+    // fit's own uncertainty does not see (a systematic of each line's
+    // points: where its stripe falls on the pixel grid, its own surface):
+    // the uncertainties grow by the Birge ratio when it exceeds 1.
+    // Each line's own uncertainty misses the same error: the lines' scatter
+    // is its measure for them too.
+    if let Some((bl, ba)) = joint.birge {
+        let (bl, ba) = (bl.max(1.0), ba.max(1.0));
+        joint.wavelength_sigma_mm = joint.wavelength_sigma_mm.map(|s| s * bl);
+        joint.amplitude_sigma_mm = joint.amplitude_sigma_mm.map(|s| s * ba);
+        for l in &mut joint.per_line {
+            l.wavelength_sigma_mm = l.wavelength_sigma_mm.map(|s| s * bl);
+            l.amplitude_sigma_mm = l.amplitude_sigma_mm.map(|s| s * ba);
+        }
+    }
     joint.verdict = judge(&joint, lines, &corrected);
     Ok((joint, corrected))
+}
+
+/// Line `c`'s sine on its corrected profile, refined from the joint wave
+/// (`None` under 8 points or when it does not fit).
+fn line_fit(c: &Corrected, j: &Joint) -> Option<LineFit> {
+    if c.s_mm.len() < 8 {
+        return None;
+    }
+    let n = c.s_mm.len();
+    let s = Surface {
+        normal: [0.0, 0.0, 1.0],
+        pitch: 0.0,
+        roll: 0.0,
+        x: c.s_mm.clone(),
+        y: vec![0.0; n],
+        z: c.z_mm.clone(),
+        line: vec![0; n],
+    };
+    let mut p0 = vec![0.0; q::N];
+    p0[q::OMEGA] = std::f64::consts::TAU / j.wavelength_mm;
+    let free = [q::A, q::B, q::OMEGA, q::C];
+    let start = linear_start(&s, &p0, &free)?;
+    let got = lm::levenberg_marquardt(
+        start,
+        &free,
+        fit::MAX_ITERATIONS,
+        &mut lm::Joint::new(|p: &[f64]| evaluate_surface(&s, p, &free)),
+    )?;
+    let (a, b, w) = (got.p[q::A], got.p[q::B], got.p[q::OMEGA]);
+    let amp = a.hypot(b);
+    let tau = std::f64::consts::TAU;
+    let sig = sigmas(&s, &got.p, &free, got.rss, &[&[(q::OMEGA, -tau / (w * w))], &[(q::A, a / amp), (q::B, b / amp)]]);
+    let fit = LineFit {
+        laser: c.laser,
+        points: n,
+        wavelength_mm: tau / w,
+        amplitude_mm: amp,
+        rms_residual_mm: (got.rss / n as f64).sqrt(),
+        wavelength_sigma_mm: sig[0],
+        amplitude_sigma_mm: sig[1],
+        converged: got.converged,
+    };
+    (fit.wavelength_mm.is_finite() && fit.wavelength_mm > 0.0 && amp.is_finite()).then_some(fit)
+}
+
+/// The Birge ratios of the lines' wavelengths and amplitudes: `√(χ²/(L −
+/// 1))` about their weighted mean, `None` under two lines with
+/// uncertainties.
+fn birge(fits: &[LineFit]) -> Option<(f64, f64)> {
+    let ratio = |v: &dyn Fn(&LineFit) -> Option<(f64, f64)>| -> Option<f64> {
+        let pts: Vec<(f64, f64)> = fits.iter().filter_map(v).filter(|(_, s)| *s > 0.0 && s.is_finite()).collect();
+        if pts.len() < 2 {
+            return None;
+        }
+        let wsum: f64 = pts.iter().map(|(_, s)| 1.0 / (s * s)).sum();
+        let mean = pts.iter().map(|(x, s)| x / (s * s)).sum::<f64>() / wsum;
+        let chi2: f64 = pts.iter().map(|(x, s)| ((x - mean) / s).powi(2)).sum();
+        let r = (chi2 / (pts.len() - 1) as f64).sqrt();
+        r.is_finite().then_some(r)
+    };
+    Some((
+        ratio(&|f| f.wavelength_sigma_mm.map(|s| (f.wavelength_mm, s)))?,
+        ratio(&|f| f.amplitude_sigma_mm.map(|s| (f.amplitude_mm, s)))?,
+    ))
 }
 
 /// The verdict on a joint result: its residual against the noise the
@@ -368,12 +503,22 @@ fn judge(j: &Joint, lines: &[Line], corrected: &[Corrected]) -> Verdict {
         rejected: j.rejected,
         points: j.points + j.rejected,
         alternative_wavelength_mm: j.alternative_wavelength_mm,
+        sigma_mm: (j.wavelength_sigma_mm, j.amplitude_sigma_mm),
+        amplitude_mm: j.amplitude_mm,
+        birge: j.birge.map(|(bl, ba)| {
+            // A disagreement that matters (module docs of `verdict`).
+            let matters = |sigma: Option<f64>, value: f64, share: f64| sigma.is_some_and(|s| s > share * value);
+            (
+                if matters(j.wavelength_sigma_mm, j.wavelength_mm, verdict::BIRGE_WAVELENGTH_SHARE) { bl } else { 0.0 },
+                if matters(j.amplitude_sigma_mm, j.amplitude_mm, verdict::BIRGE_AMPLITUDE_SHARE) { ba } else { 0.0 },
+            )
+        }),
     })
 }
 
 /// [`fit_once`], then again without the outliers (module docs).
-fn fit_rejecting(lines: &[Line]) -> Result<(Joint, Vec<Corrected>), FitError> {
-    let (joint, corrected, residuals) = fit_once(lines)?;
+fn fit_rejecting(lines: &[Line], near_mm: Option<f64>) -> Result<(Joint, Vec<Corrected>), FitError> {
+    let (joint, corrected, residuals) = fit_once(lines, near_mm)?;
     // Outliers (module docs): points beyond REJECT_SIGMA robust standard
     // deviations of the first fit's residuals are dropped and the whole fit,
     // plane included, is done again on the rest — once: a second pass would
@@ -392,7 +537,7 @@ fn fit_rejecting(lines: &[Line]) -> Result<(Joint, Vec<Corrected>), FitError> {
     if rejected == 0 {
         return Ok((joint, corrected));
     }
-    let (mut joint, corrected, _) = fit_once(&inliers)?;
+    let (mut joint, corrected, _) = fit_once(&inliers, near_mm)?;
     joint.rejected = rejected;
     Ok((joint, corrected))
 }
@@ -507,8 +652,8 @@ fn rejection_limit(residuals: &[f64]) -> Option<f64> {
 }
 
 /// Parameters of the surface model: the wave `[a, b, ω, κ]`, then the
-/// coefficients of [`quad_terms`] from `C`: `[c, g_x, g_y, e_xx, e_xy,
-/// e_yy, f_xxx, f_xxy, q_xxxx, q_xxxy, q_xxyy]`.
+/// coefficients of [`Terms`] from `C`: `[c, g_x, g_y, p₂, p₃, p₄, e_ss,
+/// e_su]`.
 mod q {
     pub const A: usize = 0;
     pub const B: usize = 1;
@@ -517,40 +662,77 @@ mod q {
     pub const C: usize = 4;
     pub const GX: usize = 5;
     pub const GY: usize = 6;
-    pub const EXX: usize = 7;
+    pub const U2: usize = 7;
+    pub const SS: usize = 10;
     pub const N: usize = C + super::TERMS;
 }
 
-/// The surface's trend terms at `(x, y)`: `[1, x, y, x², x y, y², x³, x² y,
-/// x⁴, x³ y, x² y²]`.
-fn quad_terms(x: f64, y: f64) -> [f64; TERMS] {
-    let x2 = x * x;
-    [1.0, x, y, x2, x * y, y * y, x2 * x, x2 * y, x2 * x2, x2 * x * y, x2 * y * y]
+/// How many trend terms [`Terms`] has.
+const TERMS: usize = 8;
+
+/// The trend's terms at one point, in the rail's own coordinates: `s`
+/// along the rail (the wave's direction, `(ω x + κ y)/k`) and `u` across
+/// it (`(−κ x + ω y)/k`), so that the crown is a polynomial in `u` alone
+/// whatever the yaw: `[1, x, y, u², u³, u⁴, s², s u]`. With their
+/// derivatives in `u` and `s` (the ω and κ columns of the Jacobian go
+/// through them: `∂u/∂ω = s sin ψ/k`, `∂u/∂κ = −s cos ψ/k`, `∂s/∂ω = −u
+/// sin ψ/k`, `∂s/∂κ = u cos ψ/k`).
+struct Terms {
+    t: [f64; TERMS],
+    /// `∂t/∂u`, `∂t/∂s` per term.
+    du: [f64; TERMS],
+    ds: [f64; TERMS],
+    u: f64,
+    s: f64,
 }
 
-/// How many trend terms [`quad_terms`] has.
-const TERMS: usize = 11;
+impl Terms {
+    fn at(x: f64, y: f64, omega: f64, kappa: f64) -> Terms {
+        let k = omega.hypot(kappa);
+        let (cp, sp) = if k > 0.0 { (omega / k, kappa / k) } else { (1.0, 0.0) };
+        let (s, u) = (x * cp + y * sp, -x * sp + y * cp);
+        let u2 = u * u;
+        Terms {
+            t: [1.0, x, y, u2, u2 * u, u2 * u2, s * s, s * u],
+            du: [0.0, 0.0, 0.0, 2.0 * u, 3.0 * u2, 4.0 * u2 * u, 0.0, s],
+            ds: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0 * s, u],
+            u,
+            s,
+        }
+    }
+
+    fn trend(&self, c: &[f64]) -> f64 {
+        self.t.iter().zip(c).map(|(t, c)| t * c).sum()
+    }
+}
 
 /// Residuals `z − ẑ` of the surface model and, over `free`, their Jacobian:
-/// `ẑ = T(x, y) + a sin(ωx + κy) + b cos(ωx + κy)`, `T` over [`quad_terms`].
+/// `ẑ = T(x, y) + a sin(ωx + κy) + b cos(ωx + κy)`, `T` over [`Terms`].
 fn evaluate_surface(s: &Surface, p: &[f64], free: &[usize]) -> Option<(DVector<f64>, DMatrix<f64>)> {
     let (a, b, w, kappa) = (p[q::A], p[q::B], p[q::OMEGA], p[q::KAPPA]);
+    let k = w.hypot(kappa);
+    let (cp, sp) = if k > 0.0 { (w / k, kappa / k) } else { (1.0, 0.0) };
     let n = s.x.len();
     let mut r = DVector::zeros(n);
     let mut j = DMatrix::zeros(n, free.len());
     let mut col = [0.0; q::N];
+    let coef = &p[q::C..q::N];
     for i in 0..n {
         let (x, y) = (s.x[i], s.y[i]);
-        let t = quad_terms(x, y);
-        let trend: f64 = t.iter().zip(&p[q::C..q::N]).map(|(t, c)| t * c).sum();
+        let t = Terms::at(x, y, w, kappa);
         let (sn, cs) = (w * x + kappa * y).sin_cos();
-        r[i] = s.z[i] - (trend + a * sn + b * cs);
+        r[i] = s.z[i] - (t.trend(coef) + a * sn + b * cs);
         let slope = a * cs - b * sn;
+        // The trend's dependence on the direction (module docs).
+        let dt_du: f64 = t.du.iter().zip(coef).map(|(d, c)| d * c).sum();
+        let dt_ds: f64 = t.ds.iter().zip(coef).map(|(d, c)| d * c).sum();
+        let (du_dw, du_dk) = if k > 0.0 { (t.s * sp / k, -t.s * cp / k) } else { (0.0, 0.0) };
+        let (ds_dw, ds_dk) = if k > 0.0 { (-t.u * sp / k, t.u * cp / k) } else { (0.0, 0.0) };
         col[q::A] = -sn;
         col[q::B] = -cs;
-        col[q::OMEGA] = -x * slope;
-        col[q::KAPPA] = -y * slope;
-        for (k, t) in t.iter().enumerate() {
+        col[q::OMEGA] = -x * slope - dt_du * du_dw - dt_ds * ds_dw;
+        col[q::KAPPA] = -y * slope - dt_du * du_dk - dt_ds * ds_dk;
+        for (k, t) in t.t.iter().enumerate() {
             col[q::C + k] = -t;
         }
         for (k, &f) in free.iter().enumerate() {
@@ -560,32 +742,158 @@ fn evaluate_surface(s: &Surface, p: &[f64], free: &[usize]) -> Option<(DVector<f
     (r.iter().all(|v| v.is_finite()) && j.iter().all(|v| v.is_finite())).then_some((r, j))
 }
 
-/// Linear least squares of the trend terms `cols` (indices into
-/// [`quad_terms`]) on `(x, y, z)`: the coefficients, 0 for the others.
-fn trend_fit(s: &Surface, cols: &[usize]) -> Option<[f64; TERMS]> {
-    let m = cols.len();
-    let mut ata = DMatrix::zeros(m, m);
-    let mut atb = DVector::zeros(m);
+/// The linear parameters over `free` (all but ω and κ) by least squares
+/// at `p`'s ω and κ: a start for the refinement, or `None` when the
+/// columns are not independent (reciprocal condition of the
+/// column-normalised normal matrix under [`MIN_RCOND`]: the lines cannot
+/// tell those terms apart, e.g. `u³` from `u` with three lines along the
+/// rail).
+fn linear_start(s: &Surface, p: &[f64], free: &[usize]) -> Option<Vec<f64>> {
+    let lin: Vec<usize> = free.iter().copied().filter(|&f| f != q::OMEGA && f != q::KAPPA).collect();
+    let m = lin.len();
+    let (w, kappa) = (p[q::OMEGA], p[q::KAPPA]);
+    let mut ata = DMatrix::<f64>::zeros(m, m);
+    let mut atb = DVector::<f64>::zeros(m);
+    let mut row = vec![0.0; m];
     for i in 0..s.x.len() {
-        let t = quad_terms(s.x[i], s.y[i]);
-        for (a, &ca) in cols.iter().enumerate() {
-            atb[a] += t[ca] * s.z[i];
-            for (b, &cb) in cols.iter().enumerate() {
-                ata[(a, b)] += t[ca] * t[cb];
+        let t = Terms::at(s.x[i], s.y[i], w, kappa);
+        let (sn, cs) = (w * s.x[i] + kappa * s.y[i]).sin_cos();
+        for (r, &f) in row.iter_mut().zip(&lin) {
+            *r = match f {
+                q::A => sn,
+                q::B => cs,
+                f => t.t[f - q::C],
+            };
+        }
+        for a in 0..m {
+            atb[a] += row[a] * s.z[i];
+            for b in 0..m {
+                ata[(a, b)] += row[a] * row[b];
             }
         }
     }
-    let sol = ata.lu().solve(&atb)?;
-    let mut out = [0.0; TERMS];
-    for (k, &c) in cols.iter().enumerate() {
-        out[c] = sol[k];
+    let d: Vec<f64> = (0..m).map(|k| ata[(k, k)].sqrt()).collect();
+    if d.iter().any(|v| v.is_nan() || *v <= 0.0 || v.is_infinite()) {
+        return None;
+    }
+    let scaled = DMatrix::from_fn(m, m, |a, b| ata[(a, b)] / (d[a] * d[b]));
+    let eig = scaled.clone().symmetric_eigen().eigenvalues;
+    let (lo, hi) = eig.iter().fold((f64::INFINITY, 0.0f64), |(l, h), &e| (l.min(e), h.max(e)));
+    if lo.is_nan() || lo <= MIN_RCOND * hi {
+        return None;
+    }
+    let rhs = DVector::from_fn(m, |a, _| atb[a] / d[a]);
+    let sol = scaled.cholesky()?.solve(&rhs);
+    let mut out = p.to_vec();
+    for (k, &f) in lin.iter().enumerate() {
+        out[f] = sol[k] / d[k];
     }
     out.iter().all(|v| v.is_finite()).then_some(out)
 }
 
-/// One joint fit with the quadratic surface (module docs): the result, the
+/// The smallest reciprocal condition of a rung's linear columns
+/// ([`linear_start`]), at the start and at the solution: under it the rung
+/// is not taken. Three lines along the rail (no yaw) see the crown at
+/// three lateral places only, and `u³`, `u⁴` are then told from `u`, `u²`
+/// only by the lines' lateral wander and fanning (tenths of a millimetre:
+/// an inclined plane's line moves across as its height changes), which
+/// puts the condition at 1e-5–1e-4: formally solvable, and the slope
+/// across (the roll) then trades against `u³` (the reference head's
+/// recording showed 1.4° of roll that was not there, `u³` and `u` each
+/// 0.25 mm at the outer lines and cancelling). Over a 280 mm frame the
+/// condition is 1e-3 at 0.5° of yaw, 8e-3 at 2°.
+const MIN_RCOND: f64 = 1e-3;
+
+/// A 2-D polynomial detrend in the points' `(x, y)` (to degree four along,
+/// two across), used only to find the starts: what is left holds the wave.
+fn start_detrend(s: &Surface, across: usize) -> Option<Vec<f64>> {
+    let terms = |x: f64, y: f64| -> Vec<f64> {
+        let x2 = x * x;
+        let mut t = vec![1.0, x, x2, x2 * x, x2 * x2];
+        if across > 0 {
+            t.extend([y, x * y, x2 * y, x2 * x * y]);
+        }
+        if across > 1 {
+            t.extend([y * y, x2 * y * y]);
+        }
+        t
+    };
+    let m = terms(0.0, 0.0).len();
+    let mut ata = DMatrix::<f64>::zeros(m, m);
+    let mut atb = DVector::<f64>::zeros(m);
+    for i in 0..s.x.len() {
+        let t = terms(s.x[i], s.y[i]);
+        for a in 0..m {
+            atb[a] += t[a] * s.z[i];
+            for b in 0..m {
+                ata[(a, b)] += t[a] * t[b];
+            }
+        }
+    }
+    let sol = ata.lu().solve(&atb)?;
+    let rest: Vec<f64> = (0..s.x.len())
+        .map(|i| s.z[i] - terms(s.x[i], s.y[i]).iter().zip(sol.iter()).map(|(t, c)| t * c).sum::<f64>())
+        .collect();
+    rest.iter().all(|v| v.is_finite()).then_some(rest)
+}
+
+/// The one-σ uncertainties of quantities derived from the parameters
+/// (one gradient over them each) of a least-squares solution `p` over
+/// `free` with residual sum `rss`: the residuals' own correlation along each
+/// line ([`hac_variance`]), never below the white-noise figure `σ² gᵀ
+/// (JᵀJ)⁻¹ g`. `None` where the normal matrix is singular.
+fn sigmas(s: &Surface, p: &[f64], free: &[usize], rss: f64, grads: &[&[(usize, f64)]]) -> Vec<Option<f64>> {
+    let n = s.x.len();
+    let sigma2 = rss / n.saturating_sub(free.len()).max(1) as f64;
+    let jac = evaluate_surface(s, p, free);
+    let inv = jac.as_ref().and_then(|(_, j)| j.tr_mul(j).cholesky()).map(|c| c.inverse());
+    let one = |grad: &[(usize, f64)]| -> Option<f64> {
+        let (inv, (r, j)) = (inv.as_ref()?, jac.as_ref()?);
+        if grad.is_empty() {
+            return None;
+        }
+        let mut g = DVector::zeros(free.len());
+        for &(i, gi) in grad {
+            g[free.iter().position(|&f| f == i)?] = gi;
+        }
+        let w = inv * g;
+        let jw = j * &w;
+        let white = sigma2 * jw.norm_squared();
+        let influence: Vec<f64> = jw.iter().zip(r.iter()).map(|(a, b)| a * b).collect();
+        let v = hac_variance(&influence, &s.line).max(white);
+        (v >= 0.0 && v.is_finite()).then(|| v.sqrt())
+    };
+    grads.iter().map(|g| one(g)).collect()
+}
+
+/// The variance of `Σ h_i` when the `h_i` (one point's influence on a
+/// result, in the order of the points along each line) are correlated
+/// along a line: `Σ_l Σ_{|i−j| ≤ L} (1 − |i−j|/(L+1)) h_i h_j` over the
+/// pairs of one line (Newey–West, Bartlett weights). The points' errors are
+/// not white: the stripe position's error depends on where the stripe
+/// falls on the pixel grid, which changes slowly along a line, and
+/// residuals averaged over 100 rows scatter 1.4–1.8× what white noise of
+/// their RMS would give (the simulated paper head at 30 dB); the white
+/// figure then claims 1.5–2× too little. `L` = [`HAC_LAG`] points.
+fn hac_variance(h: &[f64], line: &[usize]) -> f64 {
+    let mut v = 0.0;
+    for (i, (&hi, &li)) in h.iter().zip(line).enumerate() {
+        v += hi * hi;
+        let ahead = h[i + 1..].iter().zip(&line[i + 1..]).take(HAC_LAG).take_while(|(_, l)| **l == li);
+        for (lag, (&hj, _)) in (1..).zip(ahead) {
+            v += 2.0 * (1.0 - lag as f64 / (HAC_LAG + 1) as f64) * hi * hj;
+        }
+    }
+    v
+}
+
+/// The Newey–West lag, points along a line: longer than the correlation
+/// of the pixel grid's error (tens of rows), short against a line.
+const HAC_LAG: usize = 64;
+
+/// One joint fit with the rail's surface (module docs): the result, the
 /// corrected profiles and the residuals in the order of the lines' points.
-fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitError> {
+fn fit_once(lines: &[Line], near_mm: Option<f64>) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitError> {
     let lines: Vec<Line> = lines.iter().filter(|l| l.points.len() >= 8).cloned().collect();
     if lines.is_empty() {
         return Err(FitError::TooFewPoints { points: 0, needed: 8 });
@@ -597,45 +905,36 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
     }
     let s = surface(&lines)?;
     let nl = lines.len();
-    // The lateral terms the lines can tell apart: a slope across with two
-    // lines, a curvature across with three.
     let several = nl > 1;
-    let mut simple_terms = vec![0, 1];
+    // The nested ladder (module docs): the plane and the crown's curvature
+    // across (three lines), then the crown's cubic and quartic (the lines
+    // cross it only where they are yawed), then the curvature along the
+    // rail and the twist; each rung kept only if an F test asks for it over
+    // the highest one kept, and tried only if the lines tell its terms
+    // apart.
+    let mut plane = vec![0, 1];
     if several {
-        simple_terms.push(2);
+        plane.push(2);
     }
     if nl > 2 {
-        simple_terms.push(5);
+        plane.push(3);
     }
-    // The nested ladder: the plain surface, then the curvature along and
-    // the twist, then the cubic terms, then the quartic ones; each rung
-    // kept only if an F test asks for it over the highest one kept (the
-    // higher terms correlate with a
-    // long wavelength over 2–3 periods: only a surface that needs them
-    // may take them).
-    let mut quadratic_terms = simple_terms.clone();
-    quadratic_terms.push(3);
+    let mut crown = plane.clone();
     if several {
-        quadratic_terms.push(4);
+        crown.extend([4, 5]);
+        if nl == 2 {
+            crown.push(3);
+        }
     }
-    let mut cubic_terms = quadratic_terms.clone();
-    cubic_terms.push(6);
+    let mut along = crown.clone();
+    along.push(6);
     if several {
-        cubic_terms.push(7);
+        along.push(7);
     }
-    let mut quartic_terms = cubic_terms.clone();
-    quartic_terms.push(8);
-    if several {
-        quartic_terms.extend([9, 10]);
-    }
-    let trend_terms = quartic_terms.clone();
-    // Starts: the quadratic surface, then on what is left `fit`'s sine of
-    // every line (each gives an ω), the linear fit at that ω on the others,
-    // κ from the lines' phases against their lateral positions.
-    let t0 = trend_fit(&s, &trend_terms).ok_or(FitError::Degenerate("the lines do not span a surface"))?;
-    let rest: Vec<f64> = (0..s.x.len())
-        .map(|i| s.z[i] - quad_terms(s.x[i], s.y[i]).iter().zip(&t0).map(|(t, c)| t * c).sum::<f64>())
-        .collect();
+    // Starts: on what a 2-D polynomial leaves, `fit`'s sine of every line
+    // (each gives an ω), κ from the lines' phases against their lateral
+    // positions; then every rung's linear terms by least squares at it.
+    let rest = start_detrend(&s, nl.min(3) - 1).ok_or(FitError::Degenerate("the lines do not span a surface"))?;
     let per_line: Vec<(Vec<f64>, Vec<f64>, f64)> = (0..nl)
         .map(|l| {
             let idx: Vec<usize> = (0..s.x.len()).filter(|&k| s.line[k] == l).collect();
@@ -654,6 +953,11 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
             }
         }
     }
+    if let Some(w) = near_mm.map(|l| std::f64::consts::TAU / l).filter(|w| w.is_finite() && *w > 0.0)
+        && !omegas.iter().any(|o| (o / w - 1.0).abs() < 1e-3)
+    {
+        omegas.push(w);
+    }
     if omegas.is_empty() {
         return Err(FitError::Degenerate("no line has a sine"));
     }
@@ -668,7 +972,6 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
         else {
             continue;
         };
-        let amp0 = starts.iter().map(|(l, _)| l.sin.hypot(l.cos)).sum::<f64>() / starts.len() as f64;
         let phase = |l: &fit::Linear| l.cos.atan2(l.sin);
         let (y0, ph0) = (starts[0].1, phase(&starts[0].0));
         let pts: Vec<(f64, f64)> = starts
@@ -680,35 +983,38 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
             .collect();
         let syy: f64 = pts.iter().map(|p| p.0 * p.0).sum();
         let kappa0 = if several && syy > 1e-6 { pts.iter().map(|p| p.0 * p.1).sum::<f64>() / syy } else { 0.0 };
-        let phase0 = ph0 - kappa0 * y0;
-        let mut p0 = vec![amp0 * phase0.cos(), amp0 * phase0.sin(), omega0, kappa0];
-        p0.extend(t0);
+        let mut p0 = vec![0.0; q::N];
+        (p0[q::OMEGA], p0[q::KAPPA]) = (omega0, kappa0);
         let wave: Vec<usize> = if several { vec![q::A, q::B, q::OMEGA, q::KAPPA] } else { vec![q::A, q::B, q::OMEGA] };
         let free_of =
             |terms: &[usize]| -> Vec<usize> { wave.iter().copied().chain(terms.iter().map(|t| q::C + t)).collect() };
-        let ladder =
-            [free_of(&simple_terms), free_of(&quadratic_terms), free_of(&cubic_terms), free_of(&quartic_terms)];
-        let simple_len = ladder[0].len();
+        let ladder = [free_of(&plane), free_of(&crown), free_of(&along)];
+        let plane_len = ladder[0].len();
         let n_all = s.x.len();
         let mut chosen: Option<(lm::Lm, Vec<usize>)> = None;
+        let mut tried: Vec<usize> = Vec::new();
         for free in ladder {
-            // Every rung from the linear start (a lower rung that cannot
-            // represent the surface may have bent the wave off its basin),
-            // the terms it does not have at 0.
-            let mut start = p0.clone();
-            for (k, v) in start.iter_mut().enumerate().skip(q::C) {
-                if !free.contains(&k) {
-                    *v = 0.0;
-                }
+            if tried.contains(&free.len()) {
+                continue;
             }
+            tried.push(free.len());
+            // Every rung from the start's own linear solution (a lower rung
+            // that cannot represent the surface may have bent the wave off
+            // its basin).
+            let Some(start) = linear_start(&s, &p0, &free) else { continue };
             let Some(got) = lm::levenberg_marquardt(
                 start,
                 &free,
                 fit::MAX_ITERATIONS,
                 &mut lm::Joint::new(|p: &[f64]| evaluate_surface(&s, p, &free)),
             ) else {
-                break;
+                continue;
             };
+            // The start's yaw is a guess from the lines' phases: the terms
+            // must still be told apart at the yaw the refinement found.
+            if linear_start(&s, &got.p, &free).is_none() {
+                continue;
+            }
             match &chosen {
                 None => chosen = Some((got, free)),
                 Some((below, below_free)) => {
@@ -718,8 +1024,7 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
                         f > F_TREND
                     };
                     // A rung that does not pay is passed over, not the end
-                    // of the ladder: the quartic terms can be needed where
-                    // the cubic ones are not (module docs).
+                    // of the ladder.
                     if better {
                         chosen = Some((got, free));
                     }
@@ -735,10 +1040,10 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
         let k = chosen.0.p[q::OMEGA].hypot(chosen.0.p[q::KAPPA]);
         minima.push((std::f64::consts::TAU / k, chosen.0.rss));
         if best.as_ref().is_none_or(|b| chosen.0.rss < b.0.rss) {
-            best = Some((chosen.0, chosen.1, simple_len));
+            best = Some((chosen.0, chosen.1, plane_len));
         }
     }
-    let Some((lm, free, simple_len)) = best else {
+    let Some((lm, free, plane_len)) = best else {
         return Err(FitError::Degenerate("no start converged within the bounds"));
     };
     let p = &lm.p;
@@ -748,22 +1053,12 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
     let tau = std::f64::consts::TAU;
     let amp = a.hypot(b);
     let sigma2 = lm.rss / n.saturating_sub(free.len()).max(1) as f64;
-    let cov = evaluate_surface(&s, p, &free).and_then(|(_, j)| j.tr_mul(&j).cholesky()).map(|c| c.inverse() * sigma2);
-    let sigma = |grad: &[(usize, f64)]| -> Option<f64> {
-        let cov = cov.as_ref()?;
-        let col = |i: usize| free.iter().position(|&f| f == i);
-        let mut v = 0.0;
-        for &(i, gi) in grad {
-            for &(j, gj) in grad {
-                v += gi * gj * cov[(col(i)?, col(j)?)];
-            }
-        }
-        (v >= 0.0 && v.is_finite()).then(|| v.sqrt())
-    };
     let mut lgrad = vec![(q::OMEGA, -tau * w / k.powi(3))];
     if several {
         lgrad.push((q::KAPPA, -tau * kappa / k.powi(3)));
     }
+    let agrad: Vec<(usize, f64)> = if amp > 0.0 { vec![(q::A, a / amp), (q::B, b / amp)] } else { vec![] };
+    let sig = sigmas(&s, p, &free, lm.rss, &[&lgrad, &agrad]);
     let joint = Joint {
         lines: nl,
         points: n,
@@ -774,15 +1069,18 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
         pitch_rad: s.pitch + p[q::GX].atan(),
         roll_rad: s.roll + p[q::GY].atan(),
         yaw_rad: kappa.atan2(w),
-        curvature_per_mm: 2.0 * p[q::EXX],
-        trend: free.len() > simple_len,
+        curvature_per_mm: 2.0 * p[q::SS],
+        crown_curvature_per_mm: 2.0 * p[q::U2],
+        trend: free.len() > plane_len,
         rms_residual_mm: (lm.rss / n as f64).sqrt(),
-        wavelength_sigma_mm: sigma(&lgrad),
-        amplitude_sigma_mm: (amp > 0.0).then(|| sigma(&[(q::A, a / amp), (q::B, b / amp)])).flatten(),
+        wavelength_sigma_mm: sig[0],
+        amplitude_sigma_mm: if amp > 0.0 { sig[1] } else { None },
         iterations: lm.iterations,
         converged: lm.converged,
         rejected: 0,
         alternative_wavelength_mm: None,
+        per_line: Vec::new(),
+        birge: None,
         verdict: Verdict { level: verdict::Level::Good, reasons: Vec::new(), noise_um: None },
     };
     // Another start's minimum as good within the noise (its residual sum
@@ -800,15 +1098,14 @@ fn fit_once(lines: &[Line]) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitErro
     if vals.iter().any(|v| !v.is_finite()) || k <= 0.0 {
         return Err(FitError::Degenerate("values out of range"));
     }
-    let (sp, cp) = (kappa / k, w / k);
     let mut out: Vec<Corrected> =
         lines.iter().map(|l| Corrected { laser: l.laser, s_mm: vec![], z_mm: vec![], offset_mm: p[q::C] }).collect();
     for i in 0..n {
         let (x, y, z, l) = (s.x[i], s.y[i], s.z[i], s.line[i]);
-        let t = quad_terms(x, y);
-        let trend: f64 = t.iter().zip(&p[q::C..q::N]).skip(1).map(|(t, c)| t * c).sum();
+        let t = Terms::at(x, y, w, kappa);
+        let trend = t.trend(&p[q::C..q::N]) - p[q::C];
         let o = &mut out[l];
-        o.s_mm.push(x * cp + y * sp);
+        o.s_mm.push(t.s);
         o.z_mm.push(z - trend);
     }
     let residuals =
@@ -984,7 +1281,7 @@ mod tests {
         let kept: usize = corrected.iter().map(|l| l.s_mm.len()).sum();
         assert_eq!(kept + j.rejected, bad.iter().map(|l| l.points.len()).sum::<usize>());
         // Without the second pass the same data fit far worse.
-        let (once, ..) = fit_once(&bad).unwrap();
+        let (once, ..) = fit_once(&bad, None).unwrap();
         assert!(once.rms_residual_mm > 3.0 * c.rms_residual_mm, "{once:?}");
     }
 
@@ -1029,11 +1326,9 @@ mod tests {
     /// The misalignment sweep in small (the full one: `cms-host bench
     /// corrugation --sweep`): yaw 0–15°, pitch and roll ±2°, a flat rail
     /// head and a 200 mm crown, 50 mm × 50 µm and 100 mm × 100 µm, 1 µm of
-    /// noise per point. Every result is within 0.05 mm and 2 µm, or its
-    /// verdict says it is not good; the aligned ones are good; most are.
+    /// noise per point.
     #[test]
-    fn the_misalignment_sweep_is_right_or_flagged() {
-        let (mut good, mut all) = (0, 0);
+    fn the_misalignment_sweep_is_right() {
         for yaw in [0.0, 5.0, 10.0, 15.0] {
             for (pitch, roll) in [(0.0, 0.0), (2.0, -2.0)] {
                 for crown in [1e12, 200.0] {
@@ -1042,19 +1337,21 @@ mod tests {
                         let angles = (yaw * 1f64.to_radians(), pitch * 1f64.to_radians(), roll * 1f64.to_radians());
                         let (j, _) = joint_fit(&lines(&rail, angles, 0.001, 7)).unwrap();
                         let (el, ea) = (j.wavelength_mm - lambda, (j.amplitude_mm - amp) * 1e3);
-                        let within = el.abs() <= 0.05 && ea.abs() <= 2.0;
                         let case = format!("yaw {yaw}° pitch {pitch}° roll {roll}° R {crown} λ {lambda} A {amp}");
                         println!("{case}: Δλ {el:+.4} mm ΔA {ea:+.3} µm, {}", j.verdict);
-                        assert!(within || j.verdict.level != verdict::Level::Good, "{case}: {j:?}");
-                        if yaw == 0.0 && pitch == 0.0 && crown > 1e6 {
-                            assert_eq!(j.verdict.level, verdict::Level::Good, "{case}: {j:?}");
+                        // The surface model holds here: every case right
+                        // (measured: within 0.01 mm and 0.12 µm) and good,
+                        // and each line's own fit along the rail as well.
+                        assert!(el.abs() <= 0.025 && ea.abs() <= 0.3, "{case}: {j:?}");
+                        assert_eq!(j.verdict.level, verdict::Level::Good, "{case}: {j:?}");
+                        assert_eq!(j.per_line.len(), 3, "{case}: {j:?}");
+                        for l in &j.per_line {
+                            let sl = l.wavelength_sigma_mm.unwrap();
+                            assert!((l.wavelength_mm - lambda).abs() < 5.0 * sl, "{case}: {l:?}");
                         }
-                        all += 1;
-                        good += usize::from(j.verdict.level == verdict::Level::Good);
                     }
                 }
             }
         }
-        assert!(good * 4 >= all * 3, "{good} of {all} good");
     }
 }

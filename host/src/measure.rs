@@ -16,8 +16,13 @@
 //! triangulated here with the calibration.
 //!
 //! Per image or frame and per laser: the profile `(along_mm, height_mm)` in
-//! that laser's profile frame, its rotated-sine fit (`fit`), and the joint
-//! result of the lines with the surface-normal correction (`corrugation`).
+//! that laser's profile frame and its rotated-sine fit (`fit`), the joint
+//! result of the lines with the surface-normal correction (`corrugation`),
+//! and each line's sine on its corrected profile (along the rail, the joint
+//! surface removed). The lines' own-frame fits have no surface (a crowned
+//! rail crossed obliquely bends them), so with a joint result they are
+//! diagnostics: printed without an uncertainty, and left out of the level
+//! `--strict` goes by; the fits along the rail carry one.
 //! Text by default; `--json`: one JSON object per image/frame per line, with
 //! the profiles. `--plot DIR`: per image/frame `NAME.svg` and `NAME.png`, the
 //! corrected profiles with the joint sine and, below, the residuals.
@@ -49,7 +54,7 @@ use serde::Serialize;
 
 use crate::Error;
 use crate::calib::file::{CalibrationFile, RecordedHeads};
-use crate::corrugation::{Corrected, HeadFrame, Joint, Line, joint_fit};
+use crate::corrugation::{Corrected, HeadFrame, Joint, Line, LineFit, joint_fit_from};
 use crate::detect::MAX_ROW;
 use crate::fit::{self, Fit, Options};
 use crate::input::{self, Row, Rows};
@@ -76,6 +81,11 @@ pub struct LaserResult {
     /// Whether to believe the fit ([`crate::verdict`]): one line's model
     /// has no surface (a crowned rail crossed obliquely shows as misfit).
     pub verdict: Option<Verdict>,
+    /// The line's sine on its corrected profile (along the rail, the joint
+    /// surface removed: the model holds), when there is a joint result.
+    pub surface_fit: Option<LineFit>,
+    /// Whether to believe `surface_fit`.
+    pub surface_verdict: Option<Verdict>,
 }
 
 /// The result of one image or frame.
@@ -189,7 +199,7 @@ impl Measurer {
         out
     }
 
-    /// The profiles as lines in the head frame, for [`joint_fit`].
+    /// The profiles as lines in the head frame, for [`crate::corrugation::joint_fit`].
     pub fn lines(&self, profiles: &Profiles) -> Vec<Line> {
         (0..LASERS)
             .map(|k| Line {
@@ -202,6 +212,12 @@ impl Measurer {
     /// Fits the profiles: each laser alone (rotated sine), then jointly
     /// with the surface-normal correction.
     pub fn measure(&self, source: &str, profiles: &Profiles) -> Measurement {
+        self.measure_near(source, profiles, None)
+    }
+
+    /// [`Measurer::measure`] with the joint fit also started at `near_mm`
+    /// (the previous frame's wavelength: [`joint_fit_from`]).
+    pub fn measure_near(&self, source: &str, profiles: &Profiles, near_mm: Option<f64>) -> Measurement {
         let mut lasers = Vec::new();
         for (k, prof) in profiles.iter().enumerate() {
             let (along_mm, height_mm): (Vec<f64>, Vec<f64>) = prof.iter().copied().unzip();
@@ -210,13 +226,29 @@ impl Measurer {
                 Err(e) => (None, Some(e.to_string())),
             };
             let verdict = fit.as_ref().map(|f| line_verdict(f, prof));
-            lasers.push(LaserResult { laser: k, along_mm, height_mm, fit, error, verdict });
+            lasers.push(LaserResult {
+                laser: k,
+                along_mm,
+                height_mm,
+                fit,
+                error,
+                verdict,
+                surface_fit: None,
+                surface_verdict: None,
+            });
         }
         let lines = self.lines(profiles);
-        let (joint, corrected, joint_error) = match joint_fit(&lines) {
+        let (joint, corrected, joint_error) = match joint_fit_from(&lines, near_mm) {
             Ok((j, c)) => (Some(j), c, None),
             Err(e) => (None, Vec::new(), Some(e.to_string())),
         };
+        for f in joint.iter().flat_map(|j| j.per_line.iter()) {
+            let (Some(l), Some(c)) = (lasers.get_mut(f.laser), corrected.iter().find(|c| c.laser == f.laser)) else {
+                continue;
+            };
+            l.surface_verdict = Some(surface_verdict(f, c, &profiles[f.laser]));
+            l.surface_fit = Some(f.clone());
+        }
         Measurement {
             source: source.to_string(),
             seq: None,
@@ -256,6 +288,7 @@ pub fn measure_recording(
     let mut parts: Vec<Profile> = Vec::new();
     let mut counter = FrameCounter::default();
     let mut results = Vec::new();
+    let mut near_mm: Option<f64> = None;
     // The recording's errors name it already.
     let stats = record::scan_file_with_progress(path, progress, |msg| {
         if let DeviceMsg::Profile(p) = msg {
@@ -264,7 +297,13 @@ pub fn measure_recording(
             }
             parts.push(p.clone());
             if counter.profile(p) {
-                let mut r = m.measure(name, &m.frame_profiles(&parts));
+                // The last good frame's wavelength is one more start: along
+                // one rail it changes slowly, and a frame whose own starts
+                // miss it then still finds it.
+                let mut r = m.measure_near(name, &m.frame_profiles(&parts), near_mm);
+                if let Some(j) = r.joint.as_ref().filter(|j| j.verdict.level == Level::Good) {
+                    near_mm = Some(j.wavelength_mm);
+                }
                 r.seq = Some(p.seq);
                 r.odometer_mm = Some(parts[0].odometer_um as f64 * 1e-3);
                 results.push(r);
@@ -320,14 +359,44 @@ fn line_verdict(f: &Fit, profile: &[(f64, f64)]) -> Verdict {
         rejected: 0,
         points: profile.len(),
         alternative_wavelength_mm: None,
+        birge: None,
+        sigma_mm: (f.wavelength_sigma_mm, f.amplitude_sigma_mm),
+        amplitude_mm: f.amplitude_mm,
+    })
+}
+
+/// The verdict on one line's sine on its corrected profile.
+fn surface_verdict(f: &LineFit, c: &Corrected, profile: &[(f64, f64)]) -> Verdict {
+    let (lo, hi) = c.s_mm.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &s| (a.min(s), b.max(s)));
+    verdict::judge(&Evidence {
+        rms_residual_mm: f.rms_residual_mm,
+        noise_mm: verdict::point_noise(profile),
+        wavelength_mm: f.wavelength_mm,
+        span_mm: hi - lo,
+        spacing_mm: (hi - lo) / c.s_mm.len().saturating_sub(1).max(1) as f64,
+        yaw_rad: 0.0,
+        converged: f.converged,
+        rejected: 0,
+        points: f.points,
+        alternative_wavelength_mm: None,
+        birge: None,
+        sigma_mm: (f.wavelength_sigma_mm, f.amplitude_sigma_mm),
+        amplitude_mm: f.amplitude_mm,
     })
 }
 
 impl Measurement {
-    /// The worst verdict of its results (failed without any result).
+    /// The worst verdict of its results (failed without any result): the
+    /// joint one and the lines' on their corrected profiles; a line's fit
+    /// in its own frame only where there is no joint result (otherwise it
+    /// is a diagnostic).
     pub fn level(&self) -> Level {
         let joint = self.joint.as_ref().map_or(Level::Failed, |j| j.verdict.level);
-        self.lasers.iter().filter_map(|l| l.verdict.as_ref().map(|v| v.level)).fold(joint, Level::max)
+        self.lasers
+            .iter()
+            .filter_map(|l| if self.joint.is_some() { l.surface_verdict.as_ref() } else { l.verdict.as_ref() })
+            .map(|v| v.level)
+            .fold(joint, Level::max)
     }
 }
 
@@ -351,25 +420,51 @@ pub fn write_text(out: &mut impl Write, r: &Measurement) -> io::Result<()> {
     }
     writeln!(out, "{head}")?;
     let pm = |s: Option<f64>, k: f64| s.map_or_else(String::new, |s| format!(" ± {:.4}", s * k));
+    // `N points, wavelength …, amplitude …`, with the uncertainties given.
+    let sine = |points: usize, wl_mm: f64, wl_sigma: Option<f64>, amp_mm: f64, amp_sigma: Option<f64>| {
+        format!(
+            "{points} points, wavelength {wl_mm:.4} mm{}, amplitude {:.2} µm{}",
+            pm(wl_sigma, 1.0),
+            amp_mm * 1e3,
+            pm(amp_sigma, 1e3)
+        )
+    };
     for l in &r.lasers {
+        if let (Some(f), Some(v)) = (&l.surface_fit, &l.surface_verdict) {
+            writeln!(
+                out,
+                "  laser {} along the rail: {}, rms {:.2} µm; {v}",
+                l.laser,
+                sine(f.points, f.wavelength_mm, f.wavelength_sigma_mm, f.amplitude_mm, f.amplitude_sigma_mm),
+                f.rms_residual_mm * 1e3,
+            )?;
+        }
         match &l.fit {
             Some(f) => {
-                // An uncertainty only where the model fits: a misfit's σ
-                // does not cover its error (the result is a diagnostic).
-                let good = l.verdict.as_ref().is_some_and(|v| v.level == Level::Good);
-                let pm = |s: Option<f64>, k: f64| if good { pm(s, k) } else { String::new() };
+                // An uncertainty only where the model fits and there is no
+                // joint surface to fit it on: otherwise a diagnostic (one
+                // line's own model has no surface, and a misfit's σ does
+                // not cover its error).
+                let good = r.joint.is_none() && l.verdict.as_ref().is_some_and(|v| v.level == Level::Good);
+                let given = |s: Option<f64>| s.filter(|_| good);
                 writeln!(
                     out,
-                    "  laser {}: {} points, wavelength {:.4} mm{}, amplitude {:.2} µm{}, rotation {:.4}°, rms {:.2} µm; {}",
+                    "  laser {} own frame: {}, rotation {:.4}°, rms {:.2} µm; {}",
                     l.laser,
-                    f.points,
-                    f.wavelength_mm,
-                    pm(f.wavelength_sigma_mm, 1.0),
-                    f.amplitude_mm * 1e3,
-                    pm(f.amplitude_sigma_mm, 1e3),
+                    sine(
+                        f.points,
+                        f.wavelength_mm,
+                        given(f.wavelength_sigma_mm),
+                        f.amplitude_mm,
+                        given(f.amplitude_sigma_mm)
+                    ),
                     f.rotation_rad.to_degrees(),
                     f.rms_residual_mm * 1e3,
-                    l.verdict.as_ref().map_or_else(String::new, |v| v.to_string())
+                    if r.joint.is_some() {
+                        "a diagnostic (one line's model has no surface)".to_string()
+                    } else {
+                        l.verdict.as_ref().map_or_else(String::new, |v| v.to_string())
+                    }
                 )?
             }
             None => writeln!(

@@ -19,6 +19,14 @@
 //! * **Starts that disagree**: another start's minimum as good within the
 //!   noise at a wavelength more than 3 σ away (doubtful: the data do not
 //!   decide).
+//! * **Lines that disagree**: each line's own sine on its corrected
+//!   profile against the others', as a Birge ratio; over [`MAX_BIRGE`],
+//!   where the uncertainty it grows to exceeds 0.05 % of the wavelength or
+//!   1 % of the amplitude, doubtful (that uncertainty is then itself an
+//!   estimate from three values, and large).
+//! * **An imprecise result**: a 95 % interval wider than 0.1 % of the
+//!   wavelength or 5 % of the amplitude (doubtful: right within its
+//!   uncertainty, perhaps, but not to the instrument's class).
 //! * **The fit's own state**: the refinement's convergence test (a result
 //!   that did not converge but fits to the noise is doubtful, not failed),
 //!   the share of points left out as outliers (over 5 % is doubtful).
@@ -38,6 +46,25 @@ pub const MISFIT_DOUBTFUL: f64 = 1.5;
 pub const MISFIT_FAILED: f64 = 4.0;
 /// Fewest periods in the frame for a good wavelength.
 pub const MIN_PERIODS: f64 = 1.5;
+/// Largest Birge ratio of the lines' own results for a good joint one: 3
+/// is χ² = 18 over 2 degrees of freedom for three lines, p ≈ 1e-4 if they
+/// differed only by their noise.
+pub const MAX_BIRGE: f64 = 3.0;
+/// The share of the wavelength, and of the amplitude, that the joint
+/// uncertainty grown by the lines' disagreement must exceed for that
+/// disagreement to make a result doubtful: below, the lines differ by what
+/// their grown uncertainty carries, small against the value, and the
+/// result stands.
+pub const BIRGE_WAVELENGTH_SHARE: f64 = 5e-4;
+/// See [`BIRGE_WAVELENGTH_SHARE`].
+pub const BIRGE_AMPLITUDE_SHARE: f64 = 0.01;
+/// The widest 95 % interval (half-width) of a good wavelength, as a share
+/// of it: 0.05 mm at 50 mm, the accuracy this instrument claims there
+/// (the wavelength's scatter grows as λ² at a given frame length).
+pub const PRECISION_WAVELENGTH_SHARE: f64 = 1e-3;
+/// The widest 95 % interval (half-width) of a good amplitude, as a share
+/// of it.
+pub const PRECISION_AMPLITUDE_SHARE: f64 = 0.05;
 /// Largest yaw of the lines against the rail, rad (45°).
 pub const MAX_YAW_RAD: f64 = std::f64::consts::FRAC_PI_4;
 
@@ -81,6 +108,13 @@ pub enum Reason {
     NoNoiseEstimate,
     /// Another start ends as well within the noise at another wavelength.
     StartsDisagree { wavelength_mm: f64, other_mm: f64 },
+    /// The lines' own results differ by `ratio` (Birge) × their
+    /// uncertainties.
+    LinesDisagree { quantity: &'static str, ratio: f64 },
+    /// The 95 % interval (half-width `half_mm`) is wider than
+    /// [`PRECISION_WAVELENGTH_SHARE`] / [`PRECISION_AMPLITUDE_SHARE`] of
+    /// the value.
+    Imprecise { quantity: &'static str, half_mm: f64, value_mm: f64 },
 }
 
 impl fmt::Display for Reason {
@@ -103,6 +137,19 @@ impl fmt::Display for Reason {
             Reason::StartsDisagree { wavelength_mm, other_mm } => write!(
                 f,
                 "another start fits as well at {other_mm:.3} mm (against {wavelength_mm:.3} mm): the data do not decide"
+            ),
+            Reason::LinesDisagree { quantity, ratio } => {
+                write!(f, "the lines disagree on the {quantity} by {ratio:.1}× their uncertainties")
+            }
+            Reason::Imprecise { quantity, half_mm, value_mm } => write!(
+                f,
+                "the {quantity}'s 95 % interval ±{} is {:.2} % of it",
+                if *quantity == "wavelength" {
+                    format!("{half_mm:.3} mm")
+                } else {
+                    format!("{:.2} µm", half_mm * 1e3)
+                },
+                100.0 * half_mm / value_mm.abs()
             ),
         }
     }
@@ -144,6 +191,15 @@ pub struct Evidence {
     pub points: usize,
     /// Another start's minimum as good within the noise, mm.
     pub alternative_wavelength_mm: Option<f64>,
+    /// The lines' Birge ratios (wavelength, amplitude) about their mean,
+    /// for a joint result of several lines; 0 where the disagreement does
+    /// not matter (the grown uncertainty under [`BIRGE_WAVELENGTH_SHARE`] /
+    /// [`BIRGE_AMPLITUDE_SHARE`] of the value).
+    pub birge: Option<(f64, f64)>,
+    /// The result's one-σ uncertainties: wavelength (mm), amplitude (mm).
+    pub sigma_mm: (Option<f64>, Option<f64>),
+    /// The amplitude, mm.
+    pub amplitude_mm: f64,
 }
 
 /// The verdict on `e` (module docs).
@@ -180,6 +236,21 @@ pub fn judge(e: &Evidence) -> Verdict {
     }
     if let Some(other_mm) = e.alternative_wavelength_mm {
         reasons.push((Level::Doubtful, Reason::StartsDisagree { wavelength_mm: e.wavelength_mm, other_mm }));
+    }
+    if let Some((bl, ba)) = e.birge {
+        for (quantity, ratio) in [("wavelength", bl), ("amplitude", ba)] {
+            if ratio > MAX_BIRGE {
+                reasons.push((Level::Doubtful, Reason::LinesDisagree { quantity, ratio }));
+            }
+        }
+    }
+    for (quantity, sigma, value, share) in [
+        ("wavelength", e.sigma_mm.0, e.wavelength_mm, PRECISION_WAVELENGTH_SHARE),
+        ("amplitude", e.sigma_mm.1, e.amplitude_mm, PRECISION_AMPLITUDE_SHARE),
+    ] {
+        if let Some(half_mm) = sigma.map(|s| 1.96 * s).filter(|h| *h > share * value.abs()) {
+            reasons.push((Level::Doubtful, Reason::Imprecise { quantity, half_mm, value_mm: value }));
+        }
     }
     if !e.converged {
         reasons.push((Level::Doubtful, Reason::NotConverged));
@@ -269,6 +340,9 @@ mod tests {
             rejected: 0,
             points: 4500,
             alternative_wavelength_mm: None,
+            birge: Some((1.2, 0.4)),
+            sigma_mm: (Some(0.01), Some(0.0005)),
+            amplitude_mm: 0.05,
         };
         assert_eq!(judge(&e).level, Level::Good);
         assert_eq!(judge(&Evidence { rms_residual_mm: 0.002, ..e }).level, Level::Doubtful);
@@ -282,5 +356,14 @@ mod tests {
         assert_eq!(judge(&Evidence { wavelength_mm: 0.3, ..e }).level, Level::Failed);
         assert_eq!(judge(&Evidence { noise_mm: None, ..e }).level, Level::Doubtful);
         assert_eq!(judge(&Evidence { alternative_wavelength_mm: Some(47.0), ..e }).level, Level::Doubtful);
+        let v = judge(&Evidence { birge: Some((1.0, 3.5)), ..e });
+        assert_eq!(v.level, Level::Doubtful);
+        assert_eq!(v.to_string(), "doubtful: the lines disagree on the amplitude by 3.5× their uncertainties");
+        let v = judge(&Evidence { sigma_mm: (Some(0.04), Some(0.002)), ..e });
+        assert_eq!(
+            v.to_string(),
+            "doubtful: the wavelength's 95 % interval ±0.078 mm is 0.16 % of it; the amplitude's 95 % interval \
+             ±3.92 µm is 7.84 % of it"
+        );
     }
 }

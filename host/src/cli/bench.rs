@@ -104,7 +104,7 @@ pub struct CorrugationArgs {
     /// Worker threads [default: all cores].
     #[arg(long)]
     pub threads: Option<u64>,
-    /// The misalignment sweep instead (yaw 0–10°, pitch and roll ±2°, crowns flat/300/200 mm, the four cases;
+    /// The misalignment sweep instead (yaw 0–10° and 15° beyond, pitch and roll ±2°, crowns flat/300/200 mm, the four cases;
     /// the head calibrated aligned): writes sweep.md and sweep.csv. `--runs` runs per cell.
     #[arg(long)]
     pub sweep: bool,

@@ -56,6 +56,11 @@ fn image_json_text_and_plots() {
         let f = &l["fit"];
         assert!((f["wavelength_mm"].as_f64().unwrap() - LAMBDA_MM).abs() < 0.2, "{f}");
         assert_eq!(f["model"], "rotated");
+        // Along the rail, on the corrected profile: the model holds.
+        let g = &l["surface_fit"];
+        assert!((g["wavelength_mm"].as_f64().unwrap() - LAMBDA_MM).abs() < 0.05, "{g}");
+        assert!(g["wavelength_sigma_mm"].as_f64().unwrap() > 0.0, "{g}");
+        assert!(l["surface_verdict"]["level"].is_string(), "{l}");
     }
     let j = &v["joint"];
     let (wl, amp) = (j["wavelength_mm"].as_f64().unwrap(), j["amplitude_mm"].as_f64().unwrap());
@@ -75,7 +80,12 @@ fn image_json_text_and_plots() {
     let out = cms_host(&["measure", "--calibration", s(&cal), s(&img)]);
     assert!(out.status.success());
     let text = String::from_utf8(out.stdout).unwrap();
-    assert!(text.contains("laser 2:") && text.contains("joint (3 lines"), "{text}");
+    assert!(
+        text.contains("laser 2 along the rail:")
+            && text.contains("laser 2 own frame:")
+            && text.contains("joint (3 lines"),
+        "{text}"
+    );
 }
 
 /// A recording of the same head: one frame with the head's metric points,
