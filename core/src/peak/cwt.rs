@@ -271,6 +271,65 @@ pub fn slope_pair<S: Sample>(x: &[S], k: isize, p: usize, d: Deriv) -> (i64, i64
     (r_a - l_a, r_b - l_b)
 }
 
+/// The low and high halves of a word of tap pairs ([`kernels::DerivPairs`]), as i16.
+#[inline(always)]
+fn lo16(w: u32) -> i32 {
+    w as i16 as i32
+}
+
+#[inline(always)]
+fn hi16(w: u32) -> i32 {
+    (w as i32) >> 16
+}
+
+/// [`slope_pair`] in 32-bit arithmetic, two taps a word, for `1 ≤ p ≤
+/// PHASES − 2` (`None` elsewhere, or where the taps would reach past `x`).
+///
+/// Each side reads `2 × per_phase` pixels: on a rung of odd half length
+/// one more than the kernel, whose tap (the last word's high half) is zero.
+///
+/// # Range
+/// The caller guarantees every sample in `0..=sat` with `sat < 2^15` (so
+/// [`Sample::get16`] is the value) and `sat × deriv_abs < 2^31` for this
+/// rung ([`super::Plan`]'s `slope32_k`): then each of the four sums, and
+/// every partial sum on the way, is within `±sat × Σ|D|` of its phase's
+/// taps, below 2^31. The sums are exact, so the values equal
+/// [`slope_pair`]'s. Each tap is an i16 half of a word and each sample an
+/// i16, so the products are the Cortex-M4's 16 × 16 + 32 multiply-accumulates
+/// (`smlabb`, `smlatb`), a word of taps per two.
+#[inline(always)]
+pub fn slope_pair32<S: Sample>(x: &[S], k: usize, p: usize, dp: kernels::DerivPairs) -> Option<(i32, i32)> {
+    let w = 2 * dp.per_phase();
+    // Right of k: offsets m − (p or p + 1)/P on phases P − p and P − p − 1
+    // (stored in that order's reverse); at and left of k, read from k
+    // outwards, offsets −(m + p/P) on phases p and p + 1, subtracted.
+    // (`two_phases` is empty for a `p` out of range: no split.)
+    let (rb, ra) = dp.two_phases(PHASES.wrapping_sub(p + 1)).split_at_checked(w / 2)?;
+    let (la, lb) = dp.two_phases(p).split_at_checked(w / 2)?;
+    // x[k + 1 − w .. k + 1 + w]: at and left of k the first w, right the rest.
+    let xs = x.get((k + 1).checked_sub(w)?..k + 1 + w)?;
+    let (xl, xr) = xs.split_at(w);
+    let (xl, xr) = (xl.as_chunks::<2>().0, xr.as_chunks::<2>().0);
+    let (mut fa, mut fb) = (0i32, 0i32);
+    for ((q, &wa), &wb) in xr.iter().zip(ra).zip(rb) {
+        let (a0, a1) = (q[0].get16(), q[1].get16());
+        fa += a0 * lo16(wa) + a1 * hi16(wa);
+        fb += a0 * lo16(wb) + a1 * hi16(wb);
+    }
+    // Plain indices (one counter, no bounds checks: a zip with a reversed
+    // iterator tests both ends at every step), summed, subtracted once.
+    let h = w / 2;
+    let (xl, la, lb) = (&xl[..h], &la[..h], &lb[..h]);
+    let (mut ga, mut gb) = (0i32, 0i32);
+    for i in 0..h {
+        let q = &xl[h - 1 - i];
+        let (a0, a1) = (q[1].get16(), q[0].get16());
+        ga += a0 * lo16(la[i]) + a1 * hi16(la[i]);
+        gb += a0 * lo16(lb[i]) + a1 * hi16(lb[i]);
+    }
+    Some((fa - ga, fb - gb))
+}
+
 /// Sub-pixel zero of the slope near `c` on derivative table `d`, Q16.16 px.
 /// `None` when no sign change is found within ±3 px.
 pub fn slope_zero<S: Sample>(x: &[S], c: usize, d: Deriv) -> Option<Px> {
@@ -338,7 +397,16 @@ pub fn slope_zero<S: Sample>(x: &[S], c: usize, d: Deriv) -> Option<Px> {
 /// `None` if it is not found there. A good guess needs one pass where the
 /// whole-pixel bracket of [`slope_zero`] needs four evaluations; the zero
 /// is the same, the one in the enclosing phase interval.
-pub fn slope_zero_near<S: Sample>(x: &[S], c: usize, guess: i32, d: Deriv) -> Option<Px> {
+///
+/// `pairs`: the rung's tap pairs where the 32-bit slope is proven to fit
+/// ([`slope_pair32`]; the same values, fewer instructions).
+pub fn slope_zero_near<S: Sample>(
+    x: &[S],
+    c: usize,
+    guess: i32,
+    d: Deriv,
+    pairs: Option<kernels::DerivPairs>,
+) -> Option<Px> {
     let n = x.len() as isize;
     let ph = PHASES as isize;
     // The slope at phases t and t + 1 (t in phases from pixel 0, ≥ 0: a
@@ -348,6 +416,9 @@ pub fn slope_zero_near<S: Sample>(x: &[S], c: usize, guess: i32, d: Deriv) -> Op
             return None;
         }
         let (k, p) = (t >> PHASES.trailing_zeros(), (t as usize) & (PHASES - 1));
+        if let Some((a, b)) = pairs.and_then(|dp| slope_pair32(x, k as usize, p, dp)) {
+            return Some((a as i64, b as i64));
+        }
         (k < n && (p + 1 < PHASES || k + 1 < n)).then(|| slope_pair(x, k, p, d))
     };
     // The zero in [lo, lo + 1] (phases), fa > 0 ≥ fb.
@@ -399,6 +470,12 @@ pub fn ratio_q(num: i64, den: i64, bits: u32) -> i64 {
         return 0;
     }
     let num = num.clamp(0, den);
+    if let Ok(d32) = u32::try_from(den) {
+        // The same shifts in 32 bits (`den` below 2^32 has as many bits
+        // either way): the usual case, without 64-bit shifts.
+        let sh = (32 - d32.leading_zeros()).saturating_sub(31 - bits);
+        return ((((num as u32) >> sh) << bits) / (d32 >> sh).max(1)) as i64;
+    }
     let sh = (64 - den.leading_zeros()).saturating_sub(31 - bits);
     let (n, d) = ((num >> sh) as u32, ((den >> sh) as u32).max(1));
     ((n << bits) / d) as i64
@@ -452,7 +529,8 @@ pub(crate) fn refine<S: Sample>(v: &RowView<'_, S>, c0: usize, scratch: &mut [i3
     if !v.fits(c, reach + 2) {
         return Err(Wider);
     }
-    let found = match slope_zero_near(x, c, guess, d) {
+    let pairs = if v.plan.slope32_k.is_some_and(|k| j <= k) { kernels::DerivPairs::of(j) } else { None };
+    let found = match slope_zero_near(x, c, guess, d, pairs) {
         Some(p) => Some(p),
         None if !v.fits(c, reach + 5) => return Err(Wider),
         None => slope_zero(x, c, d),
@@ -646,6 +724,40 @@ mod tests {
             let bump = if (i as isize - n as isize / 2).abs() < 6 { 40_000 } else { 0 };
             ((s % 25_000) as i32 + bump).min(65_535)
         })
+    }
+
+    /// The 32-bit pair equals the 64-bit one wherever the plan allows it:
+    /// 12-bit rows (the widest rung whose bound holds at 4095), every
+    /// phase it takes, every position whose taps fit the row.
+    #[test]
+    fn slope_pair32_matches_slope_pair() {
+        let sat = 4095i64;
+        let top = (0..=kernels::PAIR_RUNGS).take_while(|&k| sat * RUNGS[k].deriv_abs < 1 << 31).last().unwrap();
+        assert!(top >= 9, "12-bit rows take the 32-bit slope up to rung {top}");
+        for seed in 1..4u64 {
+            let full = row(160, seed).map(|v| v & 4095);
+            // Full scale where the taps are largest, too.
+            let mut hot = full;
+            hot[70..90].fill(4095);
+            for x in [&full[..], &hot[..]] {
+                for k in 0..=top {
+                    let (d, dp) = (kernels::deriv(k), kernels::DerivPairs::of(k).unwrap());
+                    let w = 2 * dp.per_phase();
+                    assert!(w == d.half_len() || w == d.half_len() + 1);
+                    for c in 0..x.len() {
+                        for p in 0..PHASES {
+                            let got = slope_pair32(x, c, p, dp);
+                            if (1..PHASES - 1).contains(&p) && c + 1 >= w && c + w < x.len() {
+                                let (a, b) = got.unwrap();
+                                assert_eq!((a as i64, b as i64), slope_pair(x, c as isize, p, d), "k {k} c {c} p {p}");
+                            } else {
+                                assert_eq!(got, None, "k {k} c {c} p {p}");
+                            }
+                        }
+                    }
+                }
+            }
+        }
     }
 
     /// Both by definition: every tap, indices clamped to the row.

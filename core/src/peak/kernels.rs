@@ -18,6 +18,16 @@ pub struct Rung {
     /// Start of this rung's half-kernel in [`DERIV`] (sub-pixel offsets
     /// 0..=half_len·PHASES, stored phase-major: see [`Deriv`]).
     pub deriv_off: usize,
+    /// Start of this rung's tap pairs in [`DERIV_PAIRS`] (phases
+    /// 1..PHASES, `half_len.div_ceil(2)` words each), `usize::MAX` for the
+    /// rungs above [`PAIR_RUNGS`].
+    pub pairs_off: usize,
+    /// The largest Σ|D| of one slope evaluation at a phase in 1..PHASES
+    /// (both sides): a slope of pixels in `0..=sat` is within `±sat ×` this.
+    pub deriv_abs: i64,
+    /// Σ|ψ| over the whole Ricker kernel: a response's sum of pixels in
+    /// `0..=sat` is within `±sat ×` this.
+    pub ricker_abs: i64,
     /// Response normalisation: `R_q8 = (Σ x·ricker) · norm >> NORM_SHIFT` is
     /// the `s^(−3/2)`-normalised Ricker response in counts × 256.
     pub norm: i64,
@@ -121,6 +131,46 @@ impl Deriv {
     /// The tap at offset `j / PHASES`.
     pub fn at(self, j: usize) -> i16 {
         self.phase(j % PHASES)[j / PHASES]
+    }
+}
+
+/// The derivative taps of one rung's phases 1..PHASES in pairs (one u32
+/// word per two neighbouring taps, low half first, as i16; an odd run's last
+/// word has a zero high half).
+#[derive(Clone, Copy, Debug)]
+pub struct DerivPairs {
+    words: &'static [u32],
+    /// Words per phase.
+    per_phase: usize,
+    half_len: usize,
+}
+
+impl DerivPairs {
+    /// Rung `k`'s pairs, if they are stored (`k ≤ PAIR_RUNGS`).
+    pub fn of(k: usize) -> Option<DerivPairs> {
+        let r = RUNGS.get(k)?;
+        let per_phase = r.half_len.div_ceil(2);
+        let words = DERIV_PAIRS.get(r.pairs_off..)?.get(..per_phase * (PHASES - 1))?;
+        Some(DerivPairs { words, per_phase, half_len: r.half_len })
+    }
+
+    /// The words of phases `r` and `r + 1` (`1 ≤ r ≤ PHASES − 2`), one
+    /// after the other (`2 ×` [`DerivPairs::per_phase`] words; empty for
+    /// another `r`): taps `2i, 2i + 1` of [`Deriv::phase`]`(r)` in word `i`.
+    #[inline(always)]
+    pub fn two_phases(self, r: usize) -> &'static [u32] {
+        let n = self.per_phase;
+        self.words.get(r.wrapping_sub(1).wrapping_mul(n)..).and_then(|w| w.get(..2 * n)).unwrap_or(&[])
+    }
+
+    /// Words per phase (`half_len.div_ceil(2)`).
+    pub fn per_phase(self) -> usize {
+        self.per_phase
+    }
+
+    /// Half length in whole pixels.
+    pub fn half_len(self) -> usize {
+        self.half_len
     }
 }
 

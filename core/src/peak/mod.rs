@@ -79,6 +79,14 @@ pub trait Pixel: Copy {
 pub trait Sample: Copy {
     /// The value.
     fn get(self) -> i32;
+
+    /// The value read as an `i16` (the same where it is below 2^15, as
+    /// every sample is on the detector's 32-bit paths: `Plan` checks the
+    /// saturation level, and no sample the estimators read is above it).
+    #[inline(always)]
+    fn get16(self) -> i32 {
+        self.get() as i16 as i32
+    }
 }
 impl<P: Pixel> Sample for P {
     #[inline(always)]
@@ -385,6 +393,11 @@ pub(crate) struct Plan {
     pub typ_reach_px: usize,
     /// How far a baseline estimator reads from the confirmed pixel, px.
     pub method_reach_px: usize,
+    /// The widest fit rung whose slope fits 32 bits on pixels up to the
+    /// saturation level (`sat < 2^15` and `sat × deriv_abs < 2^31`, and its
+    /// taps stored in pairs: [`cwt::slope_pair32`]); `None`: not even the
+    /// first.
+    pub slope32_k: Option<usize>,
 }
 
 fn rung_floor(px: Px) -> usize {
@@ -471,7 +484,16 @@ impl Plan {
         // reach, at the price of a second copy.
         let k_mid = (k_lo + k_hi).div_ceil(2);
         let typ_reach_px = (rung_half(k_mid + 3) + 2).max(method_reach_px + 6).min(reach_px);
+        // Every sample the estimators read is in 0..=saturation (the
+        // in-place window is checked for it, the copy clamps to it).
+        let sat = cfg.saturation as i64;
+        let slope32_k = if sat < 1 << 15 {
+            (0..=kernels::PAIR_RUNGS).take_while(|&k| sat * kernels::RUNGS[k].deriv_abs < 1 << 31).last()
+        } else {
+            None
+        };
         Ok(Plan {
+            slope32_k,
             smin_floor_px: ((smin.0 as usize) >> 16).max(1),
             block_log2: screen::block_log2(geo as i32),
             screen_white_q8: (((4u64 << screen::block_log2(geo as i32)) << 16).isqrt()) as i64,
@@ -701,10 +723,14 @@ impl<const W: usize> Detector<W> {
         }
         self.stats.candidates = cands.len() as u16;
 
-        // A candidate's stripe peaks within its response's centre window,
-        // ±B of the block boundary: the brightest pixel is sought there.
+        // A candidate stands at the block boundary nearest its stripe's
+        // centre (the box difference centred there responded most), so the
+        // stripe peaks within ±B/2 of it: the brightest pixel is sought
+        // within ±(B/2 + 3), the noise's and the grid's slack; a saturated
+        // run within ±(B + 1).
         let block = 1usize << lb;
         let near = block + 1;
+        let near_peak = block / 2 + 3;
         let needs_g = matches!(self.cfg.method, Method::CogFiltered | Method::FirZero);
         let in_place = self.cfg.method == Method::Cwt;
         let mut found: Vec<Stripe, MAX_CANDIDATES> = Vec::new();
@@ -717,7 +743,7 @@ impl<const W: usize> Detector<W> {
             // it needs their reach only (a stuck pixel there moves it; the
             // start is sought again after the repair, and a window that is
             // then too short asks for the wide one).
-            let (a0, b0) = (c.pos.saturating_sub(near), (c.pos + near).min(n - 1));
+            let (a0, b0) = (c.pos.saturating_sub(near_peak), (c.pos + near_peak).min(n - 1));
             let bright = if screened { argmax_raw(&row[a0..=b0]) + a0 } else { n / 2 };
             let mut centre = bright;
             let mut reach = self.plan.typ_reach_px;
