@@ -11,7 +11,8 @@
 //!   offsets `m = 0..=ceil(5 s)` (one half; the kernel is even), peak scaled to
 //!   `RICKER_ONE`. Rounding is to nearest; the centre tap then absorbs the
 //!   residue so that the full kernel sums to exactly zero, which makes the
-//!   response to any constant background exactly zero.
+//!   response to any constant background exactly zero. `RICKER_PAIRS`: the
+//!   same integers two per u32 word.
 //! * `DERIV`: `D(t) = −ψ′(t/s) = (3u − u³)·e^(−u²/2)` at sub-pixel offsets
 //!   `t = j/PHASES`, `j = 0..=ceil(5 s)·PHASES` (one half; the kernel is odd,
 //!   so antisymmetry is exact by construction), peak scaled to `DERIV_ONE`.
@@ -90,6 +91,7 @@ fn main() {
     let mut ricker_all: Vec<i64> = Vec::new();
     let mut deriv_all: Vec<i64> = Vec::new();
     let mut deriv_pairs: Vec<i64> = Vec::new();
+    let mut ricker_pairs: Vec<i64> = Vec::new();
     let mut rungs = String::new();
     for k in 0..LADDER_LEN {
         let s = scale(k);
@@ -99,6 +101,15 @@ fn main() {
         let rq = zero_sum_even(&half);
         let r_off = ricker_all.len();
         ricker_all.extend_from_slice(&rq);
+        // The same half-kernel two taps a word (offsets 2i, 2i + 1 in word
+        // i, as i16 halves; a last odd tap with a zero high half) for the
+        // 32-bit responses (`cwt::Folded`).
+        let rp_off = ricker_pairs.len();
+        for two in rq.chunks(2) {
+            let lo = two[0] as i16 as u16 as u32;
+            let hi = two.get(1).map_or(0, |&t| t as i16 as u16 as u32);
+            ricker_pairs.push((lo | hi << 16) as i64);
+        }
         // Normalised response R = acc · norm >> NORM_SHIFT, in counts·256 (Q8):
         // norm = 2^NORM_SHIFT · 256 · s^(−3/2) / RICKER_ONE.
         let norm_f = 2f64.powi(NORM_SHIFT as i32) * 256.0 * s.powf(-1.5) / RICKER_ONE;
@@ -200,7 +211,7 @@ fn main() {
         let cnoise: f64 = resp.iter().map(|v| v * v).sum::<f64>().sqrt() * scale_down;
         writeln!(
             rungs,
-            "    Rung {{ scale_q16: {}, half_len: {l}, ricker_off: {r_off}, deriv_off: {d_off}, pairs_off: {pairs_off}, deriv_abs: {deriv_abs}, ricker_abs: {ricker_abs}, norm: {norm}, amp_inv: {amp_inv}, noise_q8: {noise_q8}, box_half: {h}, box_shift: {shift}, lag: {lag}, coarse_gain_q8: {}, coarse_noise_q8: {} }},",
+            "    Rung {{ scale_q16: {}, half_len: {l}, ricker_off: {r_off}, ricker_pairs_off: {rp_off}, deriv_off: {d_off}, pairs_off: {pairs_off}, deriv_abs: {deriv_abs}, ricker_abs: {ricker_abs}, norm: {norm}, amp_inv: {amp_inv}, noise_q8: {noise_q8}, box_half: {h}, box_shift: {shift}, lag: {lag}, coarse_gain_q8: {}, coarse_noise_q8: {} }},",
             (s * 65536.0).round() as i64,
             (cgain * 256.0).round() as i64,
             (cnoise * 256.0).round() as i64,
@@ -211,6 +222,7 @@ fn main() {
     write_array(&mut src, "RICKER", "i16", &ricker_all);
     write_array(&mut src, "DERIV", "i16", &deriv_all);
     write_array(&mut src, "DERIV_PAIRS", "u32", &deriv_pairs);
+    write_array(&mut src, "RICKER_PAIRS", "u32", &ricker_pairs);
 
     // The paper's kernels, integer scales 1..=PAPER_MAX_SCALE.
     let mut paper_all: Vec<i64> = Vec::new();

@@ -84,12 +84,17 @@ pub struct Folded<'a, 'b, S> {
     c: usize,
     /// How many sums are made (`buf[..len]`).
     len: usize,
+    /// The widest rung whose response is made in 32 bits
+    /// ([`Folded::response_q8`]), if any.
+    k32: Option<usize>,
 }
 
 impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
-    /// The row `x` about `c`, with `buf` as scratch.
-    pub fn new(x: &'a [S], c: usize, buf: &'b mut [i32]) -> Self {
-        Folded { x, buf, c, len: 0 }
+    /// The row `x` about `c`, with `buf` as scratch; responses in 32 bits
+    /// on the rungs up to `k32` (see [`Folded::response_q8`] for what that
+    /// needs of `x`).
+    pub fn new(x: &'a [S], c: usize, buf: &'b mut [i32], k32: Option<usize>) -> Self {
+        Folded { x, buf, c, len: 0, k32 }
     }
 
     /// Moves to position `c` (the sums are made again).
@@ -103,20 +108,27 @@ impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
     /// the row's ends or the buffer.
     #[inline(never)]
     fn extend(&mut self, l: usize) -> bool {
-        let (x, c) = (self.x, self.c);
-        if c < l || c + l >= x.len() || l >= self.buf.len() {
+        let (x, c, from) = (self.x, self.c, self.len);
+        let Some(lo) = c.checked_sub(l) else {
             return false;
+        };
+        // x[c − l ..= c + l], and buf[from ..= l + 1]: a word's slack past
+        // the sums, which the 32-bit responses read as the high half of a
+        // pair whose tap is zero.
+        let (Some(span), Some(out)) = (x.get(lo..=c + l), self.buf.get_mut(from..l + 2)) else {
+            return false;
+        };
+        let (left, right) = span.split_at(l);
+        let (mut out, mut m) = (&mut out[..l + 1 - from], from);
+        if m == 0 {
+            out[0] = right[0].get();
+            (out, m) = (&mut out[1..], 1);
         }
-        if self.len == 0 {
-            self.buf[0] = x[c].get();
-            self.len = 1;
-        }
-        // m = from..=l: x[c − m] (the left run read backwards) + x[c + m].
-        let from = self.len;
-        let cnt = l + 1 - from;
-        let (left, right, out) = (&x[c - l..][..cnt], &x[c + from..][..cnt], &mut self.buf[from..][..cnt]);
+        // m.. : x[c − m] (left[l − m], the left half read backwards) + x[c + m].
+        let cnt = out.len();
+        let (lf, rt) = (&left[..cnt], &right[m..][..cnt]);
         for i in 0..cnt {
-            out[i] = left[cnt - 1 - i].get() + right[i].get();
+            out[i] = lf[cnt - 1 - i].get() + rt[i].get();
         }
         self.len = l + 1;
         true
@@ -132,12 +144,31 @@ impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
     }
 
     /// [`response_q8`] at the current position on rung `k`.
+    ///
+    /// # Range
+    /// On a rung up to `k32` the caller guarantees every sample in
+    /// `0..=sat` with `2·sat < 2^15` and `sat × ricker_abs < 2^31`
+    /// ([`super::Plan`]'s `ricker32_k`): each sum `x[c − m] + x[c + m]` is
+    /// then an i16, and the sum of products, and every partial sum, is
+    /// within `±sat × Σ|ψ|`: exact in 32 bits, two taps a word (the
+    /// Cortex-M4's 16 × 16 + 32 multiply-accumulates), the same value.
     #[inline]
     pub fn response_q8(&mut self, k: usize) -> i64 {
         let h = kernels::ricker(k);
         let l = h.len() - 1;
         if l >= self.len && !self.extend(l) {
             return response_q8(self.x, self.c, k);
+        }
+        if self.k32.is_some_and(|k32| k <= k32) {
+            let words = kernels::ricker_pairs(k);
+            // `extend` made l + 2 ≥ 2·words (the slack's tap is zero).
+            if let Some(sums) = self.buf.get(..2 * words.len()) {
+                let mut acc = 0i32;
+                for (p, &w) in sums.as_chunks::<2>().0.iter().zip(words) {
+                    acc += (p[0] as i16 as i32) * lo16(w) + (p[1] as i16 as i32) * hi16(w);
+                }
+                return (acc as i64 * RUNGS[k].norm) >> NORM_SHIFT;
+            }
         }
         // Two taps per iteration (the loop's counter and branch shared).
         let (h2, h_rest) = h.as_chunks::<2>();
@@ -576,7 +607,7 @@ pub(crate) fn confirm<S: Sample>(
     // evaluated: beyond the width limits).
     //
     // The responses come from the row folded about `c` ([`Folded`]).
-    let mut folded = Folded::new(x, c0, scratch);
+    let mut folded = Folded::new(x, c0, scratch, v.plan.ricker32_k);
     let mut climb_scale = |c: usize, k0: usize| -> (usize, [i64; 3]) {
         folded.at(c);
         // A stripe at `k0` or one rung wider needs no more sums than these.
@@ -760,6 +791,32 @@ mod tests {
         }
     }
 
+    /// The 32-bit responses equal the 64-bit ones on the rungs the plan
+    /// allows for 12-bit rows, in any order of rungs (the sums made as the
+    /// climb asks for them).
+    #[test]
+    fn folded_responses_in_32_bits_match() {
+        let sat = 4095i64;
+        let top = (0..kernels::LADDER_LEN).take_while(|&k| sat * RUNGS[k].ricker_abs < 1 << 31).last().unwrap();
+        assert!(top >= 9, "12-bit rows take the 32-bit responses up to rung {top}");
+        for seed in 1..4u64 {
+            let full = row(160, seed).map(|v| v & 4095);
+            let mut hot = full;
+            hot[60..100].fill(4095);
+            for x in [&full[..], &hot[..]] {
+                for c in 0..x.len() {
+                    for order in [[0, 3, 6], [6, 5, 4], [top, 2, top - 1]] {
+                        let mut buf = [0x7fff_1234i32; 160];
+                        let mut f = Folded::new(x, c, &mut buf, Some(top));
+                        for k in order {
+                            assert_eq!(f.response_q8(k), response_q8(x, c, k), "k {k} c {c}");
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     /// Both by definition: every tap, indices clamped to the row.
     #[test]
     fn response_and_slope_match_direct_sums() {
@@ -777,7 +834,7 @@ mod tests {
                             .sum();
                         assert_eq!(response_q8(x, c, k), (sum * RUNGS[k].norm) >> NORM_SHIFT, "k {k} c {c} n {n}");
                         let mut buf = [0i32; 160];
-                        let mut f = Folded::new(x, c, &mut buf[..n]);
+                        let mut f = Folded::new(x, c, &mut buf[..n], None);
                         for k2 in [k, k + 2, k + 1] {
                             assert_eq!(f.response_q8(k2), response_q8(x, c, k2), "k {k2} c {c} n {n}");
                         }

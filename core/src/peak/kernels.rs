@@ -15,6 +15,9 @@ pub struct Rung {
     pub half_len: usize,
     /// Start of this rung's half-kernel in [`RICKER`] (offsets 0..=half_len).
     pub ricker_off: usize,
+    /// Start of this rung's half-kernel in [`RICKER_PAIRS`] (`(half_len +
+    /// 1).div_ceil(2)` words).
+    pub ricker_pairs_off: usize,
     /// Start of this rung's half-kernel in [`DERIV`] (sub-pixel offsets
     /// 0..=half_len·PHASES, stored phase-major: see [`Deriv`]).
     pub deriv_off: usize,
@@ -54,6 +57,15 @@ include!(concat!(env!("OUT_DIR"), "/kernels.rs"));
 pub fn ricker(k: usize) -> &'static [i16] {
     let r = &RUNGS[k];
     &RICKER[r.ricker_off..=r.ricker_off + r.half_len]
+}
+
+/// [`ricker`]`(k)` two taps a word (offsets `2i, 2i + 1` in word `i`, as
+/// i16 halves, low first; an even half length's last word has a zero high
+/// half).
+#[inline(always)]
+pub fn ricker_pairs(k: usize) -> &'static [u32] {
+    let r = &RUNGS[k];
+    &RICKER_PAIRS[r.ricker_pairs_off..][..(r.half_len + 1).div_ceil(2)]
 }
 
 /// The odd derivative half-kernel of one rung at sub-pixel offsets

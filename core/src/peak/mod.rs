@@ -398,6 +398,10 @@ pub(crate) struct Plan {
     /// taps stored in pairs: [`cwt::slope_pair32`]); `None`: not even the
     /// first.
     pub slope32_k: Option<usize>,
+    /// The widest rung whose Ricker response fits 32 bits with its folded
+    /// sums in i16 (`2·sat < 2^15` and `sat × ricker_abs < 2^31`:
+    /// [`cwt::Folded::response_q8`]).
+    pub ricker32_k: Option<usize>,
 }
 
 fn rung_floor(px: Px) -> usize {
@@ -492,8 +496,14 @@ impl Plan {
         } else {
             None
         };
+        let ricker32_k = if 2 * sat < 1 << 15 {
+            (0..kernels::LADDER_LEN).take_while(|&k| sat * kernels::RUNGS[k].ricker_abs < 1 << 31).last()
+        } else {
+            None
+        };
         Ok(Plan {
             slope32_k,
+            ricker32_k,
             smin_floor_px: ((smin.0 as usize) >> 16).max(1),
             block_log2: screen::block_log2(geo as i32),
             screen_white_q8: (((4u64 << screen::block_log2(geo as i32)) << 16).isqrt()) as i64,
