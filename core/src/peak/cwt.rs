@@ -154,22 +154,25 @@ impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
     /// Cortex-M4's 16 × 16 + 32 multiply-accumulates), the same value.
     #[inline]
     pub fn response_q8(&mut self, k: usize) -> i64 {
-        let h = kernels::ricker(k);
-        let l = h.len() - 1;
+        let r = &RUNGS[k];
+        let l = r.half_len;
         if l >= self.len && !self.extend(l) {
             return response_q8(self.x, self.c, k);
         }
         if self.k32.is_some_and(|k32| k <= k32) {
-            let words = kernels::ricker_pairs(k);
+            let words = kernels::RICKER_PAIRS.get(r.ricker_pairs_off..).unwrap_or(&[]);
+            let words = words.get(..(l + 1).div_ceil(2)).unwrap_or(&[]);
             // `extend` made l + 2 ≥ 2·words (the slack's tap is zero).
             if let Some(sums) = self.buf.get(..2 * words.len()) {
                 let mut acc = 0i32;
                 for (p, &w) in sums.as_chunks::<2>().0.iter().zip(words) {
                     acc += (p[0] as i16 as i32) * lo16(w) + (p[1] as i16 as i32) * hi16(w);
                 }
-                return (acc as i64 * RUNGS[k].norm) >> NORM_SHIFT;
+                // `norm` ≤ 2^24 · 256 / 30 000 < 2^31: a 32 × 32 → 64 multiply.
+                return (acc as i64 * (r.norm as i32) as i64) >> NORM_SHIFT;
             }
         }
+        let h = kernels::ricker(k);
         // Two taps per iteration (the loop's counter and branch shared).
         let (h2, h_rest) = h.as_chunks::<2>();
         let (p2, p_rest) = self.buf[..=l].as_chunks::<2>();
@@ -496,6 +499,7 @@ pub fn slope_zero_near<S: Sample>(
 /// bits, so the quotient keeps at least `30 − bits` bits of precision —
 /// 18 bits for the 1/4096-px step, far below the estimator's noise — where
 /// a 64-bit division is a library call of ~100 instructions on the M4.
+#[inline]
 pub fn ratio_q(num: i64, den: i64, bits: u32) -> i64 {
     if den <= 0 {
         return 0;
@@ -507,6 +511,12 @@ pub fn ratio_q(num: i64, den: i64, bits: u32) -> i64 {
         let sh = (32 - d32.leading_zeros()).saturating_sub(31 - bits);
         return ((((num as u32) >> sh) << bits) / (d32 >> sh).max(1)) as i64;
     }
+    ratio_q_wide(num, den, bits)
+}
+
+/// [`ratio_q`] for a denominator of 2^32 or more (out of line: rare).
+#[inline(never)]
+fn ratio_q_wide(num: i64, den: i64, bits: u32) -> i64 {
     let sh = (64 - den.leading_zeros()).saturating_sub(31 - bits);
     let (n, d) = ((num >> sh) as u32, ((den >> sh) as u32).max(1));
     ((n << bits) / d) as i64
