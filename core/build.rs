@@ -92,6 +92,7 @@ fn main() {
     let mut deriv_all: Vec<i64> = Vec::new();
     let mut deriv_pairs: Vec<i64> = Vec::new();
     let mut ricker_pairs: Vec<i64> = Vec::new();
+    let mut ricker_words: Vec<Vec<i64>> = Vec::new();
     let mut rungs = String::new();
     for k in 0..LADDER_LEN {
         let s = scale(k);
@@ -110,6 +111,7 @@ fn main() {
             let hi = two.get(1).map_or(0, |&t| t as i16 as u16 as u32);
             ricker_pairs.push((lo | hi << 16) as i64);
         }
+        ricker_words.push(ricker_pairs[rp_off..].to_vec());
         // Normalised response R = acc · norm >> NORM_SHIFT, in counts·256 (Q8):
         // norm = 2^NORM_SHIFT · 256 · s^(−3/2) / RICKER_ONE.
         let norm_f = 2f64.powi(NORM_SHIFT as i32) * 256.0 * s.powf(-1.5) / RICKER_ONE;
@@ -223,6 +225,13 @@ fn main() {
     write_array(&mut src, "DERIV", "i16", &deriv_all);
     write_array(&mut src, "DERIV_PAIRS", "u32", &deriv_pairs);
     write_array(&mut src, "RICKER_PAIRS", "u32", &ricker_pairs);
+    // And each rung's words as its own slice (one bounds check to find them).
+    let mut names = String::new();
+    for (k, w) in ricker_words.iter().enumerate() {
+        write_array(&mut src, &format!("RICKER_PAIRS_{k}"), "u32", w);
+        write!(names, "&RICKER_PAIRS_{k}, ").unwrap();
+    }
+    writeln!(src, "pub static RICKER_PAIRS_OF: [&[u32]; LADDER_LEN] = [{names}];").unwrap();
 
     // The paper's kernels, integer scales 1..=PAPER_MAX_SCALE.
     let mut paper_all: Vec<i64> = Vec::new();

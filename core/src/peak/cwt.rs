@@ -152,7 +152,7 @@ impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
     /// then an i16, and the sum of products, and every partial sum, is
     /// within `±sat × Σ|ψ|`: exact in 32 bits, two taps a word (the
     /// Cortex-M4's 16 × 16 + 32 multiply-accumulates), the same value.
-    #[inline]
+    #[inline(always)]
     pub fn response_q8(&mut self, k: usize) -> i64 {
         let r = &RUNGS[k];
         let l = r.half_len;
@@ -160,8 +160,7 @@ impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
             return response_q8(self.x, self.c, k);
         }
         if self.k32.is_some_and(|k32| k <= k32) {
-            let words = kernels::RICKER_PAIRS.get(r.ricker_pairs_off..).unwrap_or(&[]);
-            let words = words.get(..(l + 1).div_ceil(2)).unwrap_or(&[]);
+            let words = kernels::RICKER_PAIRS_OF[k];
             // `extend` made l + 2 ≥ 2·words (the slack's tap is zero).
             if let Some(sums) = self.buf.get(..2 * words.len()) {
                 let mut acc = 0i32;
@@ -508,10 +507,21 @@ pub fn ratio_q(num: i64, den: i64, bits: u32) -> i64 {
     if let Ok(d32) = u32::try_from(den) {
         // The same shifts in 32 bits (`den` below 2^32 has as many bits
         // either way): the usual case, without 64-bit shifts.
-        let sh = (32 - d32.leading_zeros()).saturating_sub(31 - bits);
-        return ((((num as u32) >> sh) << bits) / (d32 >> sh).max(1)) as i64;
+        return ratio_q32(num as u32, d32, bits) as i64;
     }
     ratio_q_wide(num, den, bits)
+}
+
+/// [`ratio_q`] of 32-bit operands: `⌊min(num, den) · 2^bits / den⌋`, 0
+/// for `den = 0` (the same shifts, so the same value).
+#[inline(always)]
+pub fn ratio_q32(num: u32, den: u32, bits: u32) -> u32 {
+    if den == 0 {
+        return 0;
+    }
+    let num = num.min(den);
+    let sh = (32 - den.leading_zeros()).saturating_sub(31 - bits);
+    ((num >> sh) << bits) / (den >> sh).max(1)
 }
 
 /// [`ratio_q`] for a denominator of 2^32 or more (out of line: rare).
@@ -613,20 +623,25 @@ pub(crate) fn confirm<S: Sample>(
     let (k_lo, k_hi) = (v.plan.k_lo, v.plan.k_hi);
     let (w_lo, w_hi) = (v.plan.k_width_lo, v.plan.k_width_hi);
     // Climb in scale from rung `k0` at position `c`: the best rung and the
-    // responses at it and at both its neighbours (`i64::MIN` where not
+    // responses at it and at both its neighbours (`i32::MIN` where not
     // evaluated: beyond the width limits).
     //
-    // The responses come from the row folded about `c` ([`Folded`]).
+    // The responses come from the row folded about `c` ([`Folded`]), in
+    // 32 bits: a response is within `±sat × Σ|ψ| × norm / 2^24` (counts ×
+    // 256), below 2^26 on every rung for 16-bit pixels
+    // (`responses_fit_32_bits`), so it, and the sums and differences of
+    // three of them below, are exact in i32.
+    let r32 = |r: i64| r as i32;
     let mut folded = Folded::new(x, c0, scratch, v.plan.ricker32_k);
-    let mut climb_scale = |c: usize, k0: usize| -> (usize, [i64; 3]) {
+    let mut climb_scale = |c: usize, k0: usize| -> (usize, [i32; 3]) {
         folded.at(c);
         // A stripe at `k0` or one rung wider needs no more sums than these.
         folded.reserve((k0 + 2).min(w_hi));
         let mut k = k0;
-        let mut here = folded.response_q8(k);
-        let (mut below, mut above) = (i64::MIN, i64::MIN);
+        let mut here = r32(folded.response_q8(k));
+        let (mut below, mut above) = (i32::MIN, i32::MIN);
         while k < w_hi {
-            let r = folded.response_q8(k + 1);
+            let r = r32(folded.response_q8(k + 1));
             if r <= here {
                 above = r;
                 break;
@@ -636,7 +651,7 @@ pub(crate) fn confirm<S: Sample>(
         }
         if k == k0 {
             while k > w_lo {
-                let r = folded.response_q8(k - 1);
+                let r = r32(folded.response_q8(k - 1));
                 if r <= here {
                     below = r;
                     break;
@@ -658,35 +673,35 @@ pub(crate) fn confirm<S: Sample>(
     // maximum of the best scale's response (its top is flat, the brightest
     // pixel can be several pixels off), and take the guess from the
     // parabola through the responses at c − 1, c, c + 1.
-    let vertex = |l: i64, m: i64, r: i64| -> i32 {
+    let vertex = |l: i32, m: i32, r: i32| -> i32 {
         // (l − r) / (2 (l − 2m + r)) in phases, when the three bend down.
         let (den, num) = (l - 2 * m + r, l - r);
         if den < 0 && num.unsigned_abs() < den.unsigned_abs() {
             // |δ| · 16 = |num| / |den| · 8; δ has the sign of r − l.
             // Rounded down to a phase: the zero is then expected between
             // the guess and the next phase (what `slope_zero_near` reads first).
-            let q = ratio_q(num.abs(), -den, 3) as i32;
+            let q = ratio_q32(num.unsigned_abs(), den.unsigned_abs(), 3) as i32;
             if num < 0 { q } else { -q - 1 }
         } else {
             0
         }
     };
     let guess = if RUNGS[kb].scale_q16 < 4 << 16 {
-        if c > 0 && c + 1 < n { vertex(x[c - 1].get() as i64, x[c].get() as i64, x[c + 1].get() as i64) } else { 0 }
+        if c > 0 && c + 1 < n { vertex(x[c - 1].get(), x[c].get(), x[c + 1].get()) } else { 0 }
     } else {
         let mut best = resp[1];
-        let mut left = if c > 0 { response_q8(x, c - 1, kb) } else { i64::MIN };
-        let mut right = if c + 1 < n { response_q8(x, c + 1, kb) } else { i64::MIN };
+        let mut left = if c > 0 { r32(response_q8(x, c - 1, kb)) } else { i32::MIN };
+        let mut right = if c + 1 < n { r32(response_q8(x, c + 1, kb)) } else { i32::MIN };
         let mut moved = 0;
         while moved < 6 {
             if right > best && right >= left {
                 c += 1;
                 (left, best) = (best, right);
-                right = if c + 1 < n { response_q8(x, c + 1, kb) } else { i64::MIN };
+                right = if c + 1 < n { r32(response_q8(x, c + 1, kb)) } else { i32::MIN };
             } else if left > best {
                 c -= 1;
                 (right, best) = (best, left);
-                left = if c > 0 { response_q8(x, c - 1, kb) } else { i64::MIN };
+                left = if c > 0 { r32(response_q8(x, c - 1, kb)) } else { i32::MIN };
             } else {
                 break;
             }
@@ -695,7 +710,7 @@ pub(crate) fn confirm<S: Sample>(
         if moved > 0 {
             (kb, resp) = climb_scale(c, kb);
         }
-        if left != i64::MIN && right != i64::MIN { vertex(left, best, right) } else { 0 }
+        if left != i32::MIN && right != i32::MIN { vertex(left, best, right) } else { 0 }
     };
     // The responses read `half_len` of the widest rung evaluated each side.
     if !v.fits(c, RUNGS[(kb + 1).min(w_hi)].half_len + 1) {
@@ -708,11 +723,11 @@ pub(crate) fn confirm<S: Sample>(
     let mut flags = Flags::NONE;
     // Width: parabola through the neighbouring rungs (log-scale axis).
     let [rm, _, rp] = resp;
-    let dk_q16: i64 = if kb > 0 && rm != i64::MIN && rp != i64::MIN {
+    let dk_q16: i64 = if kb > 0 && rm != i32::MIN && rp != i32::MIN {
         let (den, num) = (rm - 2 * r0 + rp, rm - rp);
-        // (rm − rp) / (2 den) in Q16, |·| ≤ ½: a 32-bit division (`ratio_q`).
+        // (rm − rp) / (2 den) in Q16, |·| ≤ ½: a 32-bit division (`ratio_q32`).
         if den < 0 {
-            let q = ratio_q(num.abs(), -den, 15);
+            let q = ratio_q32(num.unsigned_abs(), den.unsigned_abs(), 15) as i64;
             if num < 0 { q } else { -q }
         } else {
             0
@@ -732,7 +747,8 @@ pub(crate) fn confirm<S: Sample>(
     // Detection test at the best scale: response above threshold × its noise.
     let noise_resp_q8 = (v.noise_q8 as i64 * RUNGS[kb].noise_q8) >> 8;
     let thr = (noise_resp_q8 * v.cfg.threshold_sigma_q8 as i64) >> 8;
-    let amplitude = (r0 * RUNGS[kb].amp_inv) >> 24;
+    let amplitude = (r0 as i64 * RUNGS[kb].amp_inv) >> 24;
+    let r0 = r0 as i64;
     if r0 <= thr || amplitude < v.cfg.min_amplitude as i64 || width < v.cfg.min_width || width > v.cfg.max_width {
         return Ok(None);
     }
@@ -798,6 +814,17 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// Every response of 16-bit pixels fits i32 with room for the sums of
+    /// three that `confirm` forms (below 2^28): `sat × Σ|ψ| × norm / 2^24`.
+    #[test]
+    fn responses_fit_32_bits() {
+        for (k, r) in RUNGS.iter().enumerate() {
+            let bound = (65_535 * r.ricker_abs * r.norm) >> NORM_SHIFT;
+            assert!(bound < 1 << 26, "rung {k}: {bound}");
+            assert!(r.norm < 1 << 31);
         }
     }
 
