@@ -332,26 +332,30 @@ fn hi16(w: u32) -> i32 {
 /// (`smlabb`, `smlatb`), a word of taps per two.
 #[inline(always)]
 pub fn slope_pair32<S: Sample>(x: &[S], k: usize, p: usize, dp: kernels::DerivPairs) -> Option<(i32, i32)> {
-    let w = 2 * dp.per_phase();
+    if !(1..PHASES - 1).contains(&p) {
+        return None;
+    }
+    let h = dp.per_phase();
     // Right of k: offsets m − (p or p + 1)/P on phases P − p and P − p − 1
     // (stored in that order's reverse); at and left of k, read from k
     // outwards, offsets −(m + p/P) on phases p and p + 1, subtracted.
-    // (`two_phases` is empty for a `p` out of range: no split.)
-    let (rb, ra) = dp.two_phases(PHASES.wrapping_sub(p + 1)).split_at_checked(w / 2)?;
-    let (la, lb) = dp.two_phases(p).split_at_checked(w / 2)?;
-    // x[k + 1 − w .. k + 1 + w]: at and left of k the first w, right the rest.
-    let xs = x.get((k + 1).checked_sub(w)?..k + 1 + w)?;
-    let (xl, xr) = xs.split_at(w);
+    let (rb, ra) = dp.two_phases(PHASES - 1 - p)?;
+    let (la, lb) = dp.two_phases(p)?;
+    // x[k + 1 − 2h .. k + 1 + 2h]: at and left of k the first 2h, right the rest.
+    let xs = x.get((k + 1).checked_sub(2 * h)?..k + 1 + 2 * h)?;
+    let (xl, xr) = xs.split_at(2 * h);
     let (xl, xr) = (xl.as_chunks::<2>().0, xr.as_chunks::<2>().0);
+    // Plain indices over slices of one length (one counter, no bounds
+    // checks; a zip with a reversed iterator tests both ends at every step).
+    let (xr, ra, rb) = (&xr[..h], &ra[..h], &rb[..h]);
     let (mut fa, mut fb) = (0i32, 0i32);
-    for ((q, &wa), &wb) in xr.iter().zip(ra).zip(rb) {
+    for i in 0..h {
+        let q = &xr[i];
         let (a0, a1) = (q[0].get16(), q[1].get16());
-        fa += a0 * lo16(wa) + a1 * hi16(wa);
-        fb += a0 * lo16(wb) + a1 * hi16(wb);
+        fa += a0 * lo16(ra[i]) + a1 * hi16(ra[i]);
+        fb += a0 * lo16(rb[i]) + a1 * hi16(rb[i]);
     }
-    // Plain indices (one counter, no bounds checks: a zip with a reversed
-    // iterator tests both ends at every step), summed, subtracted once.
-    let h = w / 2;
+    // Summed, subtracted once.
     let (xl, la, lb) = (&xl[..h], &la[..h], &lb[..h]);
     let (mut ga, mut gb) = (0i32, 0i32);
     for i in 0..h {

@@ -166,13 +166,16 @@ impl DerivPairs {
         Some(DerivPairs { words, per_phase, half_len: r.half_len })
     }
 
-    /// The words of phases `r` and `r + 1` (`1 ≤ r ≤ PHASES − 2`), one
-    /// after the other (`2 ×` [`DerivPairs::per_phase`] words; empty for
-    /// another `r`): taps `2i, 2i + 1` of [`Deriv::phase`]`(r)` in word `i`.
+    /// The words of phases `r` and `r + 1` (`1 ≤ r ≤ PHASES − 2`; `None`
+    /// for another `r`), [`DerivPairs::per_phase`] words each: taps `2i, 2i
+    /// + 1` of [`Deriv::phase`]`(r)` in word `i`.
     #[inline(always)]
-    pub fn two_phases(self, r: usize) -> &'static [u32] {
+    pub fn two_phases(self, r: usize) -> Option<(&'static [u32], &'static [u32])> {
         let n = self.per_phase;
-        self.words.get(r.wrapping_sub(1).wrapping_mul(n)..).and_then(|w| w.get(..2 * n)).unwrap_or(&[])
+        if !(1..PHASES - 1).contains(&r) {
+            return None;
+        }
+        Some(self.words.get((r - 1) * n..(r + 1) * n)?.split_at(n))
     }
 
     /// Words per phase (`half_len.div_ceil(2)`).
