@@ -733,14 +733,12 @@ impl<const W: usize> Detector<W> {
         }
         self.stats.candidates = cands.len() as u16;
 
-        // A candidate stands at the block boundary nearest its stripe's
-        // centre (the box difference centred there responded most), so the
-        // stripe peaks within ±B/2 of it: the brightest pixel is sought
-        // within ±(B/2 + 3), the noise's and the grid's slack; a saturated
-        // run within ±(B + 1).
+        // A candidate's stripe peaks within its response's centre window,
+        // ±B of the block boundary: the brightest pixel is sought there.
+        // (Not less: a stuck pixel on a stripe's flank pulls the screen's
+        // candidate towards itself.)
         let block = 1usize << lb;
         let near = block + 1;
-        let near_peak = block / 2 + 3;
         let needs_g = matches!(self.cfg.method, Method::CogFiltered | Method::FirZero);
         let in_place = self.cfg.method == Method::Cwt;
         let mut found: Vec<Stripe, MAX_CANDIDATES> = Vec::new();
@@ -753,7 +751,7 @@ impl<const W: usize> Detector<W> {
             // it needs their reach only (a stuck pixel there moves it; the
             // start is sought again after the repair, and a window that is
             // then too short asks for the wide one).
-            let (a0, b0) = (c.pos.saturating_sub(near_peak), (c.pos + near_peak).min(n - 1));
+            let (a0, b0) = (c.pos.saturating_sub(near), (c.pos + near).min(n - 1));
             let bright = if screened { argmax_raw(&row[a0..=b0]) + a0 } else { n / 2 };
             let mut centre = bright;
             let mut reach = self.plan.typ_reach_px;
