@@ -160,7 +160,7 @@ impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
             return response_q8(self.x, self.c, k);
         }
         if self.k32.is_some_and(|k32| k <= k32) {
-            let words = kernels::RICKER_PAIRS_OF[k];
+            let words = kernels::ricker_pairs(k);
             // `extend` made l + 2 ≥ 2·words (the slack's tap is zero).
             if let Some(sums) = self.buf.get(..2 * words.len()) {
                 let mut acc = 0i32;
@@ -667,7 +667,7 @@ pub(crate) fn confirm<S: Sample>(
         (k, [below, here, above])
     };
     let mut c = c0;
-    let k_start = v.plan.k_coarse.clamp(k_lo, k_hi);
+    let k_start = v.plan.k_start;
     let (mut kb, mut resp) = climb_scale(c, k_start);
     // Pixel level. A stripe narrower than 4 px: its brightest pixel (where
     // the candidate starts) is within a pixel of the response's maximum, and

@@ -15,16 +15,9 @@ pub struct Rung {
     pub half_len: usize,
     /// Start of this rung's half-kernel in [`RICKER`] (offsets 0..=half_len).
     pub ricker_off: usize,
-    /// Start of this rung's half-kernel in [`RICKER_PAIRS`] (`(half_len +
-    /// 1).div_ceil(2)` words).
-    pub ricker_pairs_off: usize,
     /// Start of this rung's half-kernel in [`DERIV`] (sub-pixel offsets
     /// 0..=half_len·PHASES, stored phase-major: see [`Deriv`]).
     pub deriv_off: usize,
-    /// Start of this rung's tap pairs in [`DERIV_PAIRS`] (phases
-    /// 1..PHASES, `half_len.div_ceil(2)` words each), `usize::MAX` for the
-    /// rungs above [`PAIR_RUNGS`].
-    pub pairs_off: usize,
     /// The largest Σ|D| of one slope evaluation at a phase in 1..PHASES
     /// (both sides): a slope of pixels in `0..=sat` is within `±sat ×` this.
     pub deriv_abs: i64,
@@ -64,8 +57,7 @@ pub fn ricker(k: usize) -> &'static [i16] {
 /// half).
 #[inline(always)]
 pub fn ricker_pairs(k: usize) -> &'static [u32] {
-    let r = &RUNGS[k];
-    &RICKER_PAIRS[r.ricker_pairs_off..][..(r.half_len + 1).div_ceil(2)]
+    RICKER_PAIRS_OF[k]
 }
 
 /// The odd derivative half-kernel of one rung at sub-pixel offsets
@@ -160,10 +152,10 @@ pub struct DerivPairs {
 impl DerivPairs {
     /// Rung `k`'s pairs, if they are stored (`k ≤ PAIR_RUNGS`).
     pub fn of(k: usize) -> Option<DerivPairs> {
-        let r = RUNGS.get(k)?;
-        let per_phase = r.half_len.div_ceil(2);
-        let words = DERIV_PAIRS.get(r.pairs_off..)?.get(..per_phase * (PHASES - 1))?;
-        Some(DerivPairs { words, per_phase, half_len: r.half_len })
+        // Phases 1..PHASES, `per_phase` words each.
+        let words = *DERIV_PAIRS_OF.get(k)?;
+        let per_phase = words.len() / (PHASES - 1);
+        Some(DerivPairs { words, per_phase, half_len: RUNGS[k].half_len })
     }
 
     /// The words of phases `r` and `r + 1` (`1 ≤ r ≤ PHASES − 2`; `None`

@@ -371,6 +371,8 @@ pub(crate) struct Plan {
     pub k_width_hi: usize,
     /// Rung of the coarse pass.
     pub k_coarse: usize,
+    /// Where the CWT's climb in scale starts: `k_coarse` within `k_lo..=k_hi`.
+    pub k_start: usize,
     /// Integer scales of the paper's method.
     pub paper_lo: usize,
     pub paper_hi: usize,
@@ -515,6 +517,7 @@ impl Plan {
             k_width_lo,
             k_width_hi,
             k_coarse,
+            k_start: k_coarse.clamp(k_lo, k_hi),
             paper_lo,
             paper_hi,
             spike_k_q16,
