@@ -71,6 +71,38 @@ pub fn response_q8<S: Sample>(x: &[S], c: usize, k: usize) -> i64 {
     (acc * RUNGS[k].norm) >> NORM_SHIFT
 }
 
+/// `Σ x[i] ψ(i − c)` on rung `k` (before the normalisation of
+/// [`response_q8`]) straight from the row in 32 bits, two taps a word
+/// (`RICKER_PAIRS_OF`); `None` where the taps (and, on a rung of even half
+/// length, one pixel more each side, whose tap is zero) would reach past
+/// `x`. The centre pixel is read on both sides and its tap taken off once.
+///
+/// # Range
+/// The caller guarantees every sample in `0..=sat` with `2·sat < 2^15`
+/// (a sum of two is an i16) and `sat × (ricker_abs + 2^15) < 2^31` on
+/// this rung ([`super::Plan`]'s `ricker32_k`): every partial sum is within
+/// `±sat × (Σ|ψ| + |ψ(0)|)`, so the sum is exact, the same as the 64-bit
+/// one.
+#[inline(always)]
+pub fn ricker_sum32<S: Sample>(x: &[S], c: usize, k: usize) -> Option<i32> {
+    let words = kernels::ricker_pairs(k);
+    let w = words.len();
+    // x[c ..= c + 2w − 1] and x[c + 1 − 2w ..= c] (read from c outwards).
+    let right = x.get(c..c + 2 * w)?;
+    let left = x.get((c + 1).checked_sub(2 * w)?..=c)?;
+    let (r2, l2) = (right.as_chunks::<2>().0, left.as_chunks::<2>().0);
+    let (r2, l2) = (r2.get(..w)?, l2.get(..w)?);
+    let mut acc = -(lo16(*words.first()?) * right[0].get16());
+    for i in 0..w {
+        let (q, u, t) = (&r2[i], &l2[w - 1 - i], words[i]);
+        // x[c + m] + x[c − m] is below 2^15 (`2·sat < 2^15`): as an i16 it
+        // is the sum, and the product a 16 × 16 multiply-accumulate.
+        let (s0, s1) = ((q[0].get16() + u[1].get16()) as i16 as i32, (q[1].get16() + u[0].get16()) as i16 as i32);
+        acc += s0 * lo16(t) + s1 * hi16(t);
+    }
+    Some(acc)
+}
+
 /// The Ricker responses at one position `c` from the row folded about it:
 /// `x[c]` and the sums `x[c − m] + x[c + m]`, made once (as far as the
 /// widest rung asked for reaches) into a scratch buffer, so that each
@@ -84,17 +116,12 @@ pub struct Folded<'a, 'b, S> {
     c: usize,
     /// How many sums are made (`buf[..len]`).
     len: usize,
-    /// The widest rung whose response is made in 32 bits
-    /// ([`Folded::response_q8`]), if any.
-    k32: Option<usize>,
 }
 
 impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
-    /// The row `x` about `c`, with `buf` as scratch; responses in 32 bits
-    /// on the rungs up to `k32` (see [`Folded::response_q8`] for what that
-    /// needs of `x`).
-    pub fn new(x: &'a [S], c: usize, buf: &'b mut [i32], k32: Option<usize>) -> Self {
-        Folded { x, buf, c, len: 0, k32 }
+    /// The row `x` about `c`, with `buf` as scratch.
+    pub fn new(x: &'a [S], c: usize, buf: &'b mut [i32]) -> Self {
+        Folded { x, buf, c, len: 0 }
     }
 
     /// Moves to position `c` (the sums are made again).
@@ -112,10 +139,8 @@ impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
         let Some(lo) = c.checked_sub(l) else {
             return false;
         };
-        // x[c − l ..= c + l], and buf[from ..= l + 1]: a word's slack past
-        // the sums, which the 32-bit responses read as the high half of a
-        // pair whose tap is zero.
-        let (Some(span), Some(out)) = (x.get(lo..=c + l), self.buf.get_mut(from..l + 2)) else {
+        // x[c − l ..= c + l], and buf[from ..= l].
+        let (Some(span), Some(out)) = (x.get(lo..=c + l), self.buf.get_mut(from..l + 1)) else {
             return false;
         };
         let (left, right) = span.split_at(l);
@@ -144,32 +169,11 @@ impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
     }
 
     /// [`response_q8`] at the current position on rung `k`.
-    ///
-    /// # Range
-    /// On a rung up to `k32` the caller guarantees every sample in
-    /// `0..=sat` with `2·sat < 2^15` and `sat × ricker_abs < 2^31`
-    /// ([`super::Plan`]'s `ricker32_k`): each sum `x[c − m] + x[c + m]` is
-    /// then an i16, and the sum of products, and every partial sum, is
-    /// within `±sat × Σ|ψ|`: exact in 32 bits, two taps a word (the
-    /// Cortex-M4's 16 × 16 + 32 multiply-accumulates), the same value.
     #[inline(always)]
     pub fn response_q8(&mut self, k: usize) -> i64 {
-        let r = &RUNGS[k];
-        let l = r.half_len;
+        let l = RUNGS[k].half_len;
         if l >= self.len && !self.extend(l) {
             return response_q8(self.x, self.c, k);
-        }
-        if self.k32.is_some_and(|k32| k <= k32) {
-            let words = kernels::ricker_pairs(k);
-            // `extend` made l + 2 ≥ 2·words (the slack's tap is zero).
-            if let Some(sums) = self.buf.get(..2 * words.len()) {
-                let mut acc = 0i32;
-                for (p, &w) in sums.as_chunks::<2>().0.iter().zip(words) {
-                    acc += (p[0] as i16 as i32) * lo16(w) + (p[1] as i16 as i32) * hi16(w);
-                }
-                // `norm` ≤ 2^24 · 256 / 30 000 < 2^31: a 32 × 32 → 64 multiply.
-                return (acc as i64 * (r.norm as i32) as i64) >> NORM_SHIFT;
-            }
         }
         let h = kernels::ricker(k);
         // Two taps per iteration (the loop's counter and branch shared).
@@ -636,16 +640,27 @@ pub(crate) fn confirm<S: Sample>(
     // (`responses_fit_32_bits`), so it, and the sums and differences of
     // three of them below, are exact in i32.
     let r32 = |r: i64| r as i32;
-    let mut folded = Folded::new(x, c0, scratch, v.plan.ricker32_k);
+    //
+    // Where the plan allows it (`ricker32_k`), straight from the row in 32
+    // bits ([`ricker_sum32`]): the same values, no sums to make first.
+    let mut folded = Folded::new(x, c0, scratch);
+    let k32 = v.plan.ricker32_k;
     let mut climb_scale = |c: usize, k0: usize| -> (usize, [i32; 3]) {
-        folded.at(c);
-        // A stripe at `k0` or one rung wider needs no more sums than these.
-        folded.reserve((k0 + 2).min(w_hi));
+        let mut response = |k: usize| -> i32 {
+            if k32.is_some_and(|k32| k <= k32)
+                && let Some(acc) = ricker_sum32(x, c, k)
+            {
+                // |acc| < 2^31 and `norm` < 2^31: a 32 × 32 → 64 multiply.
+                return r32((acc as i64 * (RUNGS[k].norm as i32) as i64) >> NORM_SHIFT);
+            }
+            folded.at(c);
+            r32(folded.response_q8(k))
+        };
         let mut k = k0;
-        let mut here = r32(folded.response_q8(k));
+        let mut here = response(k);
         let (mut below, mut above) = (i32::MIN, i32::MIN);
         while k < w_hi {
-            let r = r32(folded.response_q8(k + 1));
+            let r = response(k + 1);
             if r <= here {
                 above = r;
                 break;
@@ -655,7 +670,7 @@ pub(crate) fn confirm<S: Sample>(
         }
         if k == k0 {
             while k > w_lo {
-                let r = r32(folded.response_q8(k - 1));
+                let r = response(k - 1);
                 if r <= here {
                     below = r;
                     break;
@@ -832,25 +847,31 @@ mod tests {
         }
     }
 
-    /// The 32-bit responses equal the 64-bit ones on the rungs the plan
-    /// allows for 12-bit rows, in any order of rungs (the sums made as the
-    /// climb asks for them).
+    /// The 32-bit sum straight from the row equals the 64-bit one on the
+    /// rungs the plan allows for 12-bit rows, wherever its taps fit.
     #[test]
-    fn folded_responses_in_32_bits_match() {
+    fn ricker_sum32_matches_response() {
         let sat = 4095i64;
-        let top = (0..kernels::LADDER_LEN).take_while(|&k| sat * RUNGS[k].ricker_abs < 1 << 31).last().unwrap();
+        let top =
+            (0..kernels::LADDER_LEN).take_while(|&k| sat * (RUNGS[k].ricker_abs + (1 << 15)) < 1 << 31).last().unwrap();
         assert!(top >= 9, "12-bit rows take the 32-bit responses up to rung {top}");
         for seed in 1..4u64 {
             let full = row(160, seed).map(|v| v & 4095);
             let mut hot = full;
             hot[60..100].fill(4095);
             for x in [&full[..], &hot[..]] {
-                for c in 0..x.len() {
-                    for order in [[0, 3, 6], [6, 5, 4], [top, 2, top - 1]] {
-                        let mut buf = [0x7fff_1234i32; 160];
-                        let mut f = Folded::new(x, c, &mut buf, Some(top));
-                        for k in order {
-                            assert_eq!(f.response_q8(k), response_q8(x, c, k), "k {k} c {c}");
+                for k in 0..=top {
+                    let reach = 2 * kernels::ricker_pairs(k).len() - 1;
+                    for c in 0..x.len() {
+                        match ricker_sum32(x, c, k) {
+                            Some(acc) => {
+                                assert_eq!(
+                                    (acc as i64 * RUNGS[k].norm) >> NORM_SHIFT,
+                                    response_q8(x, c, k),
+                                    "k {k} c {c}"
+                                )
+                            }
+                            None => assert!(c < reach || c + reach >= x.len(), "k {k} c {c}"),
                         }
                     }
                 }
@@ -875,7 +896,7 @@ mod tests {
                             .sum();
                         assert_eq!(response_q8(x, c, k), (sum * RUNGS[k].norm) >> NORM_SHIFT, "k {k} c {c} n {n}");
                         let mut buf = [0i32; 160];
-                        let mut f = Folded::new(x, c, &mut buf[..n], None);
+                        let mut f = Folded::new(x, c, &mut buf[..n]);
                         for k2 in [k, k + 2, k + 1] {
                             assert_eq!(f.response_q8(k2), response_q8(x, c, k2), "k {k2} c {c} n {n}");
                         }

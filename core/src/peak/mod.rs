@@ -400,9 +400,9 @@ pub(crate) struct Plan {
     /// taps stored in pairs: [`cwt::slope_pair32`]); `None`: not even the
     /// first.
     pub slope32_k: Option<usize>,
-    /// The widest rung whose Ricker response fits 32 bits with its folded
-    /// sums in i16 (`2·sat < 2^15` and `sat × ricker_abs < 2^31`:
-    /// [`cwt::Folded::response_q8`]).
+    /// The widest rung whose Ricker response is made in 32 bits straight
+    /// from the row (`2·sat < 2^15` and `sat × (ricker_abs + 2^15) < 2^31`:
+    /// [`cwt::ricker_sum32`]).
     pub ricker32_k: Option<usize>,
 }
 
@@ -499,7 +499,7 @@ impl Plan {
             None
         };
         let ricker32_k = if 2 * sat < 1 << 15 {
-            (0..kernels::LADDER_LEN).take_while(|&k| sat * kernels::RUNGS[k].ricker_abs < 1 << 31).last()
+            (0..kernels::LADDER_LEN).take_while(|&k| sat * (kernels::RUNGS[k].ricker_abs + (1 << 15)) < 1 << 31).last()
         } else {
             None
         };
