@@ -2,7 +2,9 @@
 //! and rounded once (the rounding rules are documented there).
 //!
 //! Memory (flash on the sensor head): `RICKER` 1.4 k × i16, `DERIV`
-//! 22 k × i16 (sub-pixel phases), `PAPER` 5.2 k × i16, about 58 KB in all.
+//! 22 k × i16 (sub-pixel phases), `PAPER` 5.2 k × i16, and the same
+//! integers two per word for the 32-bit paths (`RICKER_PAIRS_OF`, all rungs;
+//! `DERIV_PAIRS_OF`, rungs up to `PAIR_RUNGS`): 15 KB; about 74 KB in all.
 
 #![allow(missing_docs)]
 
