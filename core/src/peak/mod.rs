@@ -887,14 +887,23 @@ fn window_candidates<P: Pixel>(
     }
 }
 
-/// Index of the first maximum of a slice of pixels (0 if empty).
+/// Index of the first maximum of a slice of pixels (0 if empty). Two
+/// pixels per iteration: the larger of the pair (the left one on a tie)
+/// against the best so far, one compare and select each.
 fn argmax_raw<P: Pixel>(x: &[P]) -> usize {
     let (mut best, mut top) = (0, i32::MIN);
-    for (i, p) in x.iter().enumerate() {
-        let v = p.value();
+    let (pairs, rest) = x.as_chunks::<2>();
+    for (j, q) in pairs.iter().enumerate() {
+        let (a, b) = (q[0].value(), q[1].value());
+        let (v, i) = if b > a { (b, 2 * j + 1) } else { (a, 2 * j) };
         if v > top {
             (best, top) = (i, v);
         }
+    }
+    if let Some(p) = rest.first()
+        && p.value() > top
+    {
+        best = x.len() - 1;
     }
     best
 }
