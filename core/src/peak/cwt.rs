@@ -865,11 +865,7 @@ mod tests {
                     for c in 0..x.len() {
                         match ricker_sum32(x, c, k) {
                             Some(acc) => {
-                                assert_eq!(
-                                    (acc as i64 * rung.norm) >> NORM_SHIFT,
-                                    response_q8(x, c, k),
-                                    "k {k} c {c}"
-                                )
+                                assert_eq!((acc as i64 * rung.norm) >> NORM_SHIFT, response_q8(x, c, k), "k {k} c {c}")
                             }
                             None => assert!(c < reach || c + reach >= x.len(), "k {k} c {c}"),
                         }
