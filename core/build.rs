@@ -11,13 +11,17 @@
 //!   offsets `m = 0..=ceil(5 s)` (one half; the kernel is even), peak scaled to
 //!   `RICKER_ONE`. Rounding is to nearest; the centre tap then absorbs the
 //!   residue so that the full kernel sums to exactly zero, which makes the
-//!   response to any constant background exactly zero.
+//!   response to any constant background exactly zero. `RICKER_PAIRS_OF`:
+//!   the same integers two per u32 word, one array per rung.
 //! * `DERIV`: `D(t) = −ψ′(t/s) = (3u − u³)·e^(−u²/2)` at sub-pixel offsets
 //!   `t = j/PHASES`, `j = 0..=ceil(5 s)·PHASES` (one half; the kernel is odd,
 //!   so antisymmetry is exact by construction), peak scaled to `DERIV_ONE`.
 //!   Stored phase-major (all taps of phase 0, then of phase 1/PHASES, …) so
 //!   that one evaluation at a phase reads two contiguous runs.
 //!   Truncation at 5 s leaves |D| < 4·10⁻⁴ of its peak at the cut.
+//!   `DERIV_PAIRS_OF` holds the same integers of phases 1.. of the rungs up
+//!   to `PAIR_RUNGS`, two neighbouring taps per u32 word (no second
+//!   rounding), one array per rung.
 //! * `PAPER`: Eq. (2)+(4) of the paper for integer scales 1..=45 px:
 //!   `s^(−1/2)·(1 − u²)·e^(−u²/2)`, `u = m/s`, the same constant for all scales
 //!   (so responses compare across scales exactly as in Eq. 2), rounded to
@@ -40,6 +44,8 @@ const RICKER_ONE: f64 = 30000.0;
 const DERIV_ONE: f64 = 32000.0;
 const PAPER_ONE: f64 = 30000.0;
 const PAPER_MAX_SCALE: usize = 45;
+/// Widest rung whose derivative taps are also stored in pairs (`DERIV_PAIRS_OF`).
+const PAIR_RUNGS: usize = 15;
 /// Fixed-point shift of the response normalisation (see `peak/kernels.rs`).
 const NORM_SHIFT: u32 = 24;
 
@@ -81,9 +87,14 @@ fn main() {
     writeln!(src, "pub const PHASES: usize = {PHASES};").unwrap();
     writeln!(src, "pub const NORM_SHIFT: u32 = {NORM_SHIFT};").unwrap();
     writeln!(src, "pub const PAPER_MAX_SCALE: usize = {PAPER_MAX_SCALE};").unwrap();
+    writeln!(src, "pub const PAIR_RUNGS: usize = {PAIR_RUNGS};").unwrap();
 
     let mut ricker_all: Vec<i64> = Vec::new();
     let mut deriv_all: Vec<i64> = Vec::new();
+    let mut deriv_pairs: Vec<i64> = Vec::new();
+    let mut ricker_pairs: Vec<i64> = Vec::new();
+    let mut ricker_words: Vec<Vec<i64>> = Vec::new();
+    let mut deriv_words: Vec<Vec<i64>> = Vec::new();
     let mut rungs = String::new();
     for k in 0..LADDER_LEN {
         let s = scale(k);
@@ -93,6 +104,16 @@ fn main() {
         let rq = zero_sum_even(&half);
         let r_off = ricker_all.len();
         ricker_all.extend_from_slice(&rq);
+        // The same half-kernel two taps a word (offsets 2i, 2i + 1 in word
+        // i, as i16 halves; a last odd tap with a zero high half) for the
+        // 32-bit responses (`cwt::Folded`).
+        let rp_off = ricker_pairs.len();
+        for two in rq.chunks(2) {
+            let lo = two[0] as i16 as u16 as u32;
+            let hi = two.get(1).map_or(0, |&t| t as i16 as u16 as u32);
+            ricker_pairs.push((lo | hi << 16) as i64);
+        }
+        ricker_words.push(ricker_pairs[rp_off..].to_vec());
         // Normalised response R = acc · norm >> NORM_SHIFT, in counts·256 (Q8):
         // norm = 2^NORM_SHIFT · 256 · s^(−3/2) / RICKER_ONE.
         let norm_f = 2f64.powi(NORM_SHIFT as i32) * 256.0 * s.powf(-1.5) / RICKER_ONE;
@@ -122,6 +143,33 @@ fn main() {
                 j += PHASES;
             }
         }
+        // The same taps of phases 1.. (l each) in pairs, one u32 word per
+        // two neighbouring taps (the first in the low half, as i16; an odd
+        // run's last word has a zero high half), for the two-taps-a-word
+        // multiply-accumulates of the 32-bit slope (`cwt::slope_pair32`).
+        // Only the rungs up to PAIR_RUNGS (flash): wider rungs take the
+        // 64-bit path anyway at any usual bit depth.
+        if k <= PAIR_RUNGS {
+            let off = deriv_pairs.len();
+            for r in 1..PHASES {
+                let taps: Vec<i64> = (0..l).map(|m| tap(r + m * PHASES)).collect();
+                for two in taps.chunks(2) {
+                    let lo = two[0] as i16 as u16 as u32;
+                    let hi = two.get(1).map_or(0, |&t| t as i16 as u16 as u32);
+                    deriv_pairs.push((lo | hi << 16) as i64);
+                }
+            }
+            deriv_words.push(deriv_pairs[off..].to_vec());
+        }
+        // The largest Σ|D| one slope evaluation applies at a phase p in
+        // 1..PHASES (right of k phase PHASES − p, at and left of k phase p):
+        // a slope of pixels in 0..=sat is within ±sat × this, which decides
+        // whether it fits 32 bits (`Plan`).
+        let phase_abs = |r: usize| (0..l).map(|m| tap(r + m * PHASES).abs()).sum::<i64>();
+        let deriv_abs = (1..PHASES).map(|p| phase_abs(PHASES - p) + phase_abs(p)).max().unwrap_or(0);
+        // And Σ|ψ| over the whole Ricker kernel (both halves), for the same
+        // question about a response.
+        let ricker_abs = rq[0].abs() + 2 * rq[1..].iter().map(|v| v.abs()).sum::<i64>();
         // Coarse box cascade: three boxes of width w = 2h+1 have variance
         // 3(w²−1)/12; choose the odd w closest to that of a Gaussian of σ = s.
         let w = (4.0 * s * s + 1.0).sqrt();
@@ -165,7 +213,7 @@ fn main() {
         let cnoise: f64 = resp.iter().map(|v| v * v).sum::<f64>().sqrt() * scale_down;
         writeln!(
             rungs,
-            "    Rung {{ scale_q16: {}, half_len: {l}, ricker_off: {r_off}, deriv_off: {d_off}, norm: {norm}, amp_inv: {amp_inv}, noise_q8: {noise_q8}, box_half: {h}, box_shift: {shift}, lag: {lag}, coarse_gain_q8: {}, coarse_noise_q8: {} }},",
+            "    Rung {{ scale_q16: {}, half_len: {l}, ricker_off: {r_off}, deriv_off: {d_off}, deriv_abs: {deriv_abs}, ricker_abs: {ricker_abs}, norm: {norm}, amp_inv: {amp_inv}, noise_q8: {noise_q8}, box_half: {h}, box_shift: {shift}, lag: {lag}, coarse_gain_q8: {}, coarse_noise_q8: {} }},",
             (s * 65536.0).round() as i64,
             (cgain * 256.0).round() as i64,
             (cnoise * 256.0).round() as i64,
@@ -175,6 +223,20 @@ fn main() {
     writeln!(src, "pub static RUNGS: [Rung; LADDER_LEN] = [\n{rungs}];").unwrap();
     write_array(&mut src, "RICKER", "i16", &ricker_all);
     write_array(&mut src, "DERIV", "i16", &deriv_all);
+    // Each pair rung's words as its own slice (one bounds check to find them).
+    let mut names = String::new();
+    for (k, w) in deriv_words.iter().enumerate() {
+        write_array(&mut src, &format!("DERIV_PAIRS_{k}"), "u32", w);
+        write!(names, "&DERIV_PAIRS_{k}, ").unwrap();
+    }
+    writeln!(src, "pub static DERIV_PAIRS_OF: [&[u32]; PAIR_RUNGS + 1] = [{names}];").unwrap();
+    // And each rung's words as its own slice (one bounds check to find them).
+    let mut names = String::new();
+    for (k, w) in ricker_words.iter().enumerate() {
+        write_array(&mut src, &format!("RICKER_PAIRS_{k}"), "u32", w);
+        write!(names, "&RICKER_PAIRS_{k}, ").unwrap();
+    }
+    writeln!(src, "pub static RICKER_PAIRS_OF: [&[u32]; LADDER_LEN] = [{names}];").unwrap();
 
     // The paper's kernels, integer scales 1..=PAPER_MAX_SCALE.
     let mut paper_all: Vec<i64> = Vec::new();

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Where the instructions of a `cwt` row go on thumbv7em (QEMU, exact counts).
 
-    scripts/qemu_profile.py [--full] [--lines N]
+    scripts/qemu_profile.py [--full] [--lines N] [--annotate FN]
 
 Builds `cms-qemu-profile` (firmware/qemu/src/bin/profile.rs: 64 of the
 benchmark's three-stripe rows through `detect_in` with three 96-px windows,
@@ -11,7 +11,10 @@ address) and counts the addresses executed between the image's
 `marker_start` and `marker_end`. Prints instructions per row: the total, per
 function (inlined code counts in the function it was inlined into) and per
 source line. The total agrees with `cms-host bench qemu` to about 1 %
-(64 rows and one noise refresh here, 256 there). Not part of CI; needs
+(64 rows and one noise refresh here, 256 there). `--annotate FN` prints,
+for each function whose name contains FN, its disassembly with the times
+each instruction ran per row (to see what the glue between the loops is).
+Not part of CI; needs
 qemu-system-arm and the toolchain's llvm-tools (rust-toolchain.toml).
 """
 import argparse
@@ -38,6 +41,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="the full-row search instead of the windows")
     ap.add_argument("--lines", type=int, default=30, help="source lines to print")
+    ap.add_argument("--dump", metavar="FILE", help="write the per-row count of every address executed to FILE")
+    ap.add_argument("--annotate", metavar="FN", action="append", default=[],
+                    help="print the disassembly of the functions named like FN with per-row counts")
     args = ap.parse_args()
     env = dict(os.environ)
     env.pop("CARGO_TARGET_DIR", None)
@@ -49,7 +55,7 @@ def main():
         cwd=QEMU_DIR, env=env)
     elf = os.path.join(target_dir, TARGET, "release", "cms-qemu-profile")
     # Functions by address, source lines from the disassembly.
-    fn_of, line_of = {}, {}
+    fn_of, line_of, text_of = {}, {}, {}
     fn, src = None, None
     dis = subprocess.check_output([llvm("llvm-objdump"), "-d", "-l", "--no-show-raw-insn", elf], text=True)
     for l in dis.splitlines():
@@ -64,8 +70,8 @@ def main():
         m = re.match(r"^\s+([0-9a-f]+):", l)
         if m:
             a = int(m.group(1), 16)
-            fn_of[a], line_of[a] = fn, src
-    per_fn, per_line, total, on = collections.Counter(), collections.Counter(), 0, False
+            fn_of[a], line_of[a], text_of[a] = fn, src, l.strip()
+    per_fn, per_line, per_pc, total, on = collections.Counter(), collections.Counter(), collections.Counter(), 0, False
     pat = re.compile(r"\[[0-9a-f]+/([0-9a-f]+)/")
     with tempfile.TemporaryDirectory() as tmp:
         log = os.path.join(tmp, "trace.log")
@@ -89,6 +95,7 @@ def main():
                     total += 1
                     per_fn[f] += 1
                     per_line[line_of.get(pc)] += 1
+                    per_pc[pc] += 1
     if not on:
         sys.exit("marker_start never ran")
     what = "detect (full row)" if args.full else "detect_in, three 96-px windows"
@@ -100,6 +107,22 @@ def main():
     print("\nper source line:")
     for s, c in per_line.most_common(args.lines):
         print(f"{c / ROWS:9.1f}  {s}")
+    if args.dump:
+        with open(args.dump, "w") as f:
+            f.write(f"# {elf}\n")
+            for a, c in sorted(per_pc.items()):
+                f.write(f"{a:#x} {c / ROWS}\n")
+    for want in args.annotate:
+        for f in sorted({f for f in fn_of.values() if f and want in f}):
+            if not any(per_pc[a] for a in fn_of if fn_of[a] == f):
+                continue
+            print(f"\n{f}:")
+            last = None
+            for a in sorted(a for a in fn_of if fn_of[a] == f):
+                if line_of[a] != last:
+                    print(f"              ; {line_of[a]}")
+                    last = line_of[a]
+                print(f"{per_pc[a] / ROWS:9.2f}  {text_of[a]}")
 
 
 if __name__ == "__main__":

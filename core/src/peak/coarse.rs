@@ -100,8 +100,84 @@ pub fn load_window<P: Pixel>(row: &[P], sat: i32, level: i32, x: &mut [i32], hit
 /// repair changes nothing, since it touches only pixels worth testing; where
 /// it does not, the detector copies and repairs as before. One pass, four
 /// pixels per iteration, no store.
+///
+/// Where the pixels are narrow enough (a saturation level `2^b − 1` below
+/// 2^13, the default for sensors of up to 13 bits) and `level` small enough,
+/// two pixels are tested per 32-bit word ([`window_is_clean_pairs`]): the
+/// same answer at about 5 instead of 8.5 instructions a pixel.
 #[inline(never)]
 pub fn window_is_clean<P: Pixel>(row: &[P], sat: i32, level: i32) -> bool {
+    if row.len() >= 6 && sat < PAIR_SAT_LIMIT && sat & (sat + 1) == 0 && (0..=PAIR_LEVEL_MAX).contains(&level) {
+        return window_is_clean_pairs(row, sat, level);
+    }
+    window_is_clean_scalar(row, sat, level)
+}
+
+/// `sat` must be below this for [`window_is_clean_pairs`] (2^13: the
+/// pixels then fit the lanes with the second difference's range).
+pub const PAIR_SAT_LIMIT: i32 = 1 << 13;
+/// The largest `level` [`window_is_clean_pairs`] takes.
+pub const PAIR_LEVEL_MAX: i32 = 0x4001;
+
+/// [`window_is_clean`] two pixels per 32-bit word, for `sat = 2^b − 1 <
+/// 2^13` and `0 ≤ level ≤ 0x4001` (and at least 6 pixels); the same answer as
+/// [`window_is_clean_scalar`], chunk for chunk.
+///
+/// A word holds pixels `j` (low half) and `j + 1` (high half). For the
+/// centres `i, i + 1` with words `A = (x[i−1], x[i])`, `B = (x[i], x[i+1])`,
+/// `C = (x[i+1], x[i+2])`, each half of `K + 2B − A − C`, `K = 0x7FFF −
+/// level` in both halves, is `2b − a − c + 0x7FFF − level`. With every
+/// pixel below 2^13, `2b − a − c` lies in `[−16 382, 16 382]`, so each half
+/// lies in `[16 385 − level, 49 149 − level] ⊂ [0, 2^16)` for `level ≤
+/// 16 385`: the halves never carry into each other (the word is their
+/// exact sum, whatever order the operations run in, being linear), and bit 15
+/// of a half is set exactly where `2b − a − c − level ≥ 1`, the first test.
+/// Pixels at or above 2^13 are above `sat` and make the window unclean:
+/// every pixel is OR-ed into one word tested once at the end, so the halves'
+/// arithmetic is only trusted when it held. A chunk of four centres with a
+/// bit set goes to the scalar test's rare path (the stripe's top).
+fn window_is_clean_pairs<P: Pixel>(row: &[P], sat: i32, level: i32) -> bool {
+    const LANES: u32 = 0x0001_0001;
+    const SIGNS: u32 = 0x8000_8000;
+    let k = (0x7FFF - level) as u32 * LANES;
+    let above = !(sat as u32 * LANES);
+    let pair = |a: P, b: P| a.value() as u32 | (b.value() as u32) << 16;
+    // `e` holds (x[i − 1], x[i]) for the chunk of centres i..i + 4.
+    let mut e = pair(row[0], row[1]);
+    let mut all = e;
+    let mut i = 1;
+    let (ps, p_rest) = row[2..].as_chunks::<4>();
+    for p in ps {
+        let (lo, hi) = (pair(p[0], p[1]), pair(p[2], p[3]));
+        let b0 = (e >> 16) | (lo << 16);
+        let b1 = (lo >> 16) | (hi << 16);
+        let t0 = k.wrapping_add(b0 << 1).wrapping_sub(e).wrapping_sub(lo);
+        let t1 = k.wrapping_add(b1 << 1).wrapping_sub(lo).wrapping_sub(hi);
+        all |= lo | hi;
+        if (t0 | t1) & SIGNS != 0 && !hits_are_stripe_tops(row, i, level) {
+            return false;
+        }
+        e = hi;
+        i += 4;
+    }
+    if all & above != 0 {
+        return false;
+    }
+    let (mut a, mut b) = ((e & 0xFFFF) as i32, (e >> 16) as i32);
+    for p in p_rest {
+        let c = p.value();
+        if c > sat || (2 * b - a - c > level && !hits_are_stripe_tops(row, i, level)) {
+            return false;
+        }
+        (a, b) = (b, c);
+        i += 1;
+    }
+    true
+}
+
+/// [`window_is_clean`] a pixel at a time (any `sat` and `level`).
+#[inline(never)]
+pub fn window_is_clean_scalar<P: Pixel>(row: &[P], sat: i32, level: i32) -> bool {
     let n = row.len();
     if n < 6 {
         return false;

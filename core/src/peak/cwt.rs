@@ -71,6 +71,38 @@ pub fn response_q8<S: Sample>(x: &[S], c: usize, k: usize) -> i64 {
     (acc * RUNGS[k].norm) >> NORM_SHIFT
 }
 
+/// `Σ x[i] ψ(i − c)` on rung `k` (before the normalisation of
+/// [`response_q8`]) straight from the row in 32 bits, two taps a word
+/// (`RICKER_PAIRS_OF`); `None` where the taps (and, on a rung of even half
+/// length, one pixel more each side, whose tap is zero) would reach past
+/// `x`. The centre pixel is read on both sides and its tap taken off once.
+///
+/// # Range
+/// The caller guarantees every sample in `0..=sat` with `2·sat < 2^15`
+/// (a sum of two is an i16) and `sat × (ricker_abs + 2^15) < 2^31` on
+/// this rung ([`super::Plan`]'s `ricker32_k`): every partial sum is within
+/// `±sat × (Σ|ψ| + |ψ(0)|)`, so the sum is exact, the same as the 64-bit
+/// one.
+#[inline(always)]
+pub fn ricker_sum32<S: Sample>(x: &[S], c: usize, k: usize) -> Option<i32> {
+    let words = kernels::ricker_pairs(k);
+    let w = words.len();
+    // x[c ..= c + 2w − 1] and x[c + 1 − 2w ..= c] (read from c outwards).
+    let right = x.get(c..c + 2 * w)?;
+    let left = x.get((c + 1).checked_sub(2 * w)?..=c)?;
+    let (r2, l2) = (right.as_chunks::<2>().0, left.as_chunks::<2>().0);
+    let (r2, l2) = (r2.get(..w)?, l2.get(..w)?);
+    let mut acc = -(lo16(*words.first()?) * right[0].get16());
+    for i in 0..w {
+        let (q, u, t) = (&r2[i], &l2[w - 1 - i], words[i]);
+        // x[c + m] + x[c − m] is below 2^15 (`2·sat < 2^15`): as an i16 it
+        // is the sum, and the product a 16 × 16 multiply-accumulate.
+        let (s0, s1) = ((q[0].get16() + u[1].get16()) as i16 as i32, (q[1].get16() + u[0].get16()) as i16 as i32);
+        acc += s0 * lo16(t) + s1 * hi16(t);
+    }
+    Some(acc)
+}
+
 /// The Ricker responses at one position `c` from the row folded about it:
 /// `x[c]` and the sums `x[c − m] + x[c + m]`, made once (as far as the
 /// widest rung asked for reaches) into a scratch buffer, so that each
@@ -103,20 +135,25 @@ impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
     /// the row's ends or the buffer.
     #[inline(never)]
     fn extend(&mut self, l: usize) -> bool {
-        let (x, c) = (self.x, self.c);
-        if c < l || c + l >= x.len() || l >= self.buf.len() {
+        let (x, c, from) = (self.x, self.c, self.len);
+        let Some(lo) = c.checked_sub(l) else {
             return false;
+        };
+        // x[c − l ..= c + l], and buf[from ..= l].
+        let (Some(span), Some(out)) = (x.get(lo..=c + l), self.buf.get_mut(from..l + 1)) else {
+            return false;
+        };
+        let (left, right) = span.split_at(l);
+        let (mut out, mut m) = (&mut out[..l + 1 - from], from);
+        if m == 0 {
+            out[0] = right[0].get();
+            (out, m) = (&mut out[1..], 1);
         }
-        if self.len == 0 {
-            self.buf[0] = x[c].get();
-            self.len = 1;
-        }
-        // m = from..=l: x[c − m] (the left run read backwards) + x[c + m].
-        let from = self.len;
-        let cnt = l + 1 - from;
-        let (left, right, out) = (&x[c - l..][..cnt], &x[c + from..][..cnt], &mut self.buf[from..][..cnt]);
+        // m.. : x[c − m] (left[l − m], the left half read backwards) + x[c + m].
+        let cnt = out.len();
+        let (lf, rt) = (&left[..cnt], &right[m..][..cnt]);
         for i in 0..cnt {
-            out[i] = left[cnt - 1 - i].get() + right[i].get();
+            out[i] = lf[cnt - 1 - i].get() + rt[i].get();
         }
         self.len = l + 1;
         true
@@ -132,13 +169,13 @@ impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
     }
 
     /// [`response_q8`] at the current position on rung `k`.
-    #[inline]
+    #[inline(always)]
     pub fn response_q8(&mut self, k: usize) -> i64 {
-        let h = kernels::ricker(k);
-        let l = h.len() - 1;
+        let l = RUNGS[k].half_len;
         if l >= self.len && !self.extend(l) {
             return response_q8(self.x, self.c, k);
         }
+        let h = kernels::ricker(k);
         // Two taps per iteration (the loop's counter and branch shared).
         let (h2, h_rest) = h.as_chunks::<2>();
         let (p2, p_rest) = self.buf[..=l].as_chunks::<2>();
@@ -271,6 +308,69 @@ pub fn slope_pair<S: Sample>(x: &[S], k: isize, p: usize, d: Deriv) -> (i64, i64
     (r_a - l_a, r_b - l_b)
 }
 
+/// The low and high halves of a word of tap pairs ([`kernels::DerivPairs`]), as i16.
+#[inline(always)]
+fn lo16(w: u32) -> i32 {
+    w as i16 as i32
+}
+
+#[inline(always)]
+fn hi16(w: u32) -> i32 {
+    (w as i32) >> 16
+}
+
+/// [`slope_pair`] in 32-bit arithmetic, two taps a word, for `1 ≤ p ≤
+/// PHASES − 2` (`None` elsewhere, or where the taps would reach past `x`).
+///
+/// Each side reads `2 × per_phase` pixels: on a rung of odd half length
+/// one more than the kernel, whose tap (the last word's high half) is zero.
+///
+/// # Range
+/// The caller guarantees every sample in `0..=sat` with `sat < 2^15` (so
+/// [`Sample::get16`] is the value) and `sat × deriv_abs < 2^31` for this
+/// rung ([`super::Plan`]'s `slope32_k`): then each of the four sums, and
+/// every partial sum on the way, is within `±sat × Σ|D|` of its phase's
+/// taps, below 2^31. The sums are exact, so the values equal
+/// [`slope_pair`]'s. Each tap is an i16 half of a word and each sample an
+/// i16, so the products are the Cortex-M4's 16 × 16 + 32 multiply-accumulates
+/// (`smlabb`, `smlatb`), a word of taps per two.
+#[inline(always)]
+pub fn slope_pair32<S: Sample>(x: &[S], k: usize, p: usize, dp: kernels::DerivPairs) -> Option<(i32, i32)> {
+    if !(1..PHASES - 1).contains(&p) {
+        return None;
+    }
+    let h = dp.per_phase();
+    // Right of k: offsets m − (p or p + 1)/P on phases P − p and P − p − 1
+    // (stored in that order's reverse); at and left of k, read from k
+    // outwards, offsets −(m + p/P) on phases p and p + 1, subtracted.
+    let (rb, ra) = dp.two_phases(PHASES - 1 - p)?;
+    let (la, lb) = dp.two_phases(p)?;
+    // x[k + 1 − 2h .. k + 1 + 2h]: at and left of k the first 2h, right the rest.
+    let xs = x.get((k + 1).checked_sub(2 * h)?..k + 1 + 2 * h)?;
+    let (xl, xr) = xs.split_at(2 * h);
+    let (xl, xr) = (xl.as_chunks::<2>().0, xr.as_chunks::<2>().0);
+    // Plain indices over slices of one length (one counter, no bounds
+    // checks; a zip with a reversed iterator tests both ends at every step).
+    let (xr, ra, rb) = (&xr[..h], &ra[..h], &rb[..h]);
+    let (mut fa, mut fb) = (0i32, 0i32);
+    for i in 0..h {
+        let q = &xr[i];
+        let (a0, a1) = (q[0].get16(), q[1].get16());
+        fa += a0 * lo16(ra[i]) + a1 * hi16(ra[i]);
+        fb += a0 * lo16(rb[i]) + a1 * hi16(rb[i]);
+    }
+    // Summed, subtracted once.
+    let (xl, la, lb) = (&xl[..h], &la[..h], &lb[..h]);
+    let (mut ga, mut gb) = (0i32, 0i32);
+    for i in 0..h {
+        let q = &xl[h - 1 - i];
+        let (a0, a1) = (q[1].get16(), q[0].get16());
+        ga += a0 * lo16(la[i]) + a1 * hi16(la[i]);
+        gb += a0 * lo16(lb[i]) + a1 * hi16(lb[i]);
+    }
+    Some((fa - ga, fb - gb))
+}
+
 /// Sub-pixel zero of the slope near `c` on derivative table `d`, Q16.16 px.
 /// `None` when no sign change is found within ±3 px.
 pub fn slope_zero<S: Sample>(x: &[S], c: usize, d: Deriv) -> Option<Px> {
@@ -338,7 +438,16 @@ pub fn slope_zero<S: Sample>(x: &[S], c: usize, d: Deriv) -> Option<Px> {
 /// `None` if it is not found there. A good guess needs one pass where the
 /// whole-pixel bracket of [`slope_zero`] needs four evaluations; the zero
 /// is the same, the one in the enclosing phase interval.
-pub fn slope_zero_near<S: Sample>(x: &[S], c: usize, guess: i32, d: Deriv) -> Option<Px> {
+///
+/// `pairs`: the rung's tap pairs where the 32-bit slope is proven to fit
+/// ([`slope_pair32`]; the same values, fewer instructions).
+pub fn slope_zero_near<S: Sample>(
+    x: &[S],
+    c: usize,
+    guess: i32,
+    d: Deriv,
+    pairs: Option<kernels::DerivPairs>,
+) -> Option<Px> {
     let n = x.len() as isize;
     let ph = PHASES as isize;
     // The slope at phases t and t + 1 (t in phases from pixel 0, ≥ 0: a
@@ -348,6 +457,9 @@ pub fn slope_zero_near<S: Sample>(x: &[S], c: usize, guess: i32, d: Deriv) -> Op
             return None;
         }
         let (k, p) = (t >> PHASES.trailing_zeros(), (t as usize) & (PHASES - 1));
+        if let Some((a, b)) = pairs.and_then(|dp| slope_pair32(x, k as usize, p, dp)) {
+            return Some((a as i64, b as i64));
+        }
         (k < n && (p + 1 < PHASES || k + 1 < n)).then(|| slope_pair(x, k, p, d))
     };
     // The zero in [lo, lo + 1] (phases), fa > 0 ≥ fb.
@@ -394,11 +506,35 @@ pub fn slope_zero_near<S: Sample>(x: &[S], c: usize, guess: i32, d: Deriv) -> Op
 /// bits, so the quotient keeps at least `30 − bits` bits of precision —
 /// 18 bits for the 1/4096-px step, far below the estimator's noise — where
 /// a 64-bit division is a library call of ~100 instructions on the M4.
+#[inline]
 pub fn ratio_q(num: i64, den: i64, bits: u32) -> i64 {
     if den <= 0 {
         return 0;
     }
     let num = num.clamp(0, den);
+    if let Ok(d32) = u32::try_from(den) {
+        // The same shifts in 32 bits (`den` below 2^32 has as many bits
+        // either way): the usual case, without 64-bit shifts.
+        return ratio_q32(num as u32, d32, bits) as i64;
+    }
+    ratio_q_wide(num, den, bits)
+}
+
+/// [`ratio_q`] of 32-bit operands: `⌊min(num, den) · 2^bits / den⌋`, 0
+/// for `den = 0` (the same shifts, so the same value).
+#[inline(always)]
+pub fn ratio_q32(num: u32, den: u32, bits: u32) -> u32 {
+    if den == 0 {
+        return 0;
+    }
+    let num = num.min(den);
+    let sh = (32 - den.leading_zeros()).saturating_sub(31 - bits);
+    ((num >> sh) << bits) / (den >> sh).max(1)
+}
+
+/// [`ratio_q`] for a denominator of 2^32 or more (out of line: rare).
+#[inline(never)]
+fn ratio_q_wide(num: i64, den: i64, bits: u32) -> i64 {
     let sh = (64 - den.leading_zeros()).saturating_sub(31 - bits);
     let (n, d) = ((num >> sh) as u32, ((den >> sh) as u32).max(1));
     ((n << bits) / d) as i64
@@ -452,7 +588,8 @@ pub(crate) fn refine<S: Sample>(v: &RowView<'_, S>, c0: usize, scratch: &mut [i3
     if !v.fits(c, reach + 2) {
         return Err(Wider);
     }
-    let found = match slope_zero_near(x, c, guess, d) {
+    let pairs = if v.plan.slope32_k.is_some_and(|k| j <= k) { kernels::DerivPairs::of(j) } else { None };
+    let found = match slope_zero_near(x, c, guess, d, pairs) {
         Some(p) => Some(p),
         None if !v.fits(c, reach + 5) => return Err(Wider),
         None => slope_zero(x, c, d),
@@ -494,20 +631,36 @@ pub(crate) fn confirm<S: Sample>(
     let (k_lo, k_hi) = (v.plan.k_lo, v.plan.k_hi);
     let (w_lo, w_hi) = (v.plan.k_width_lo, v.plan.k_width_hi);
     // Climb in scale from rung `k0` at position `c`: the best rung and the
-    // responses at it and at both its neighbours (`i64::MIN` where not
+    // responses at it and at both its neighbours (`i32::MIN` where not
     // evaluated: beyond the width limits).
     //
-    // The responses come from the row folded about `c` ([`Folded`]).
+    // The responses come from the row folded about `c` ([`Folded`]), in
+    // 32 bits: a response is within `±sat × Σ|ψ| × norm / 2^24` (counts ×
+    // 256), below 2^26 on every rung for 16-bit pixels
+    // (`responses_fit_32_bits`), so it, and the sums and differences of
+    // three of them below, are exact in i32.
+    let r32 = |r: i64| r as i32;
+    //
+    // Where the plan allows it (`ricker32_k`), straight from the row in 32
+    // bits ([`ricker_sum32`]): the same values, no sums to make first.
     let mut folded = Folded::new(x, c0, scratch);
-    let mut climb_scale = |c: usize, k0: usize| -> (usize, [i64; 3]) {
-        folded.at(c);
-        // A stripe at `k0` or one rung wider needs no more sums than these.
-        folded.reserve((k0 + 2).min(w_hi));
+    let k32 = v.plan.ricker32_k;
+    let mut climb_scale = |c: usize, k0: usize| -> (usize, [i32; 3]) {
+        let mut response = |k: usize| -> i32 {
+            if k32.is_some_and(|k32| k <= k32)
+                && let Some(acc) = ricker_sum32(x, c, k)
+            {
+                // |acc| < 2^31 and `norm` < 2^31: a 32 × 32 → 64 multiply.
+                return r32((acc as i64 * (RUNGS[k].norm as i32) as i64) >> NORM_SHIFT);
+            }
+            folded.at(c);
+            r32(folded.response_q8(k))
+        };
         let mut k = k0;
-        let mut here = folded.response_q8(k);
-        let (mut below, mut above) = (i64::MIN, i64::MIN);
+        let mut here = response(k);
+        let (mut below, mut above) = (i32::MIN, i32::MIN);
         while k < w_hi {
-            let r = folded.response_q8(k + 1);
+            let r = response(k + 1);
             if r <= here {
                 above = r;
                 break;
@@ -517,7 +670,7 @@ pub(crate) fn confirm<S: Sample>(
         }
         if k == k0 {
             while k > w_lo {
-                let r = folded.response_q8(k - 1);
+                let r = response(k - 1);
                 if r <= here {
                     below = r;
                     break;
@@ -529,7 +682,7 @@ pub(crate) fn confirm<S: Sample>(
         (k, [below, here, above])
     };
     let mut c = c0;
-    let k_start = v.plan.k_coarse.clamp(k_lo, k_hi);
+    let k_start = v.plan.k_start;
     let (mut kb, mut resp) = climb_scale(c, k_start);
     // Pixel level. A stripe narrower than 4 px: its brightest pixel (where
     // the candidate starts) is within a pixel of the response's maximum, and
@@ -539,35 +692,35 @@ pub(crate) fn confirm<S: Sample>(
     // maximum of the best scale's response (its top is flat, the brightest
     // pixel can be several pixels off), and take the guess from the
     // parabola through the responses at c − 1, c, c + 1.
-    let vertex = |l: i64, m: i64, r: i64| -> i32 {
+    let vertex = |l: i32, m: i32, r: i32| -> i32 {
         // (l − r) / (2 (l − 2m + r)) in phases, when the three bend down.
         let (den, num) = (l - 2 * m + r, l - r);
         if den < 0 && num.unsigned_abs() < den.unsigned_abs() {
             // |δ| · 16 = |num| / |den| · 8; δ has the sign of r − l.
             // Rounded down to a phase: the zero is then expected between
             // the guess and the next phase (what `slope_zero_near` reads first).
-            let q = ratio_q(num.abs(), -den, 3) as i32;
+            let q = ratio_q32(num.unsigned_abs(), den.unsigned_abs(), 3) as i32;
             if num < 0 { q } else { -q - 1 }
         } else {
             0
         }
     };
     let guess = if RUNGS[kb].scale_q16 < 4 << 16 {
-        if c > 0 && c + 1 < n { vertex(x[c - 1].get() as i64, x[c].get() as i64, x[c + 1].get() as i64) } else { 0 }
+        if c > 0 && c + 1 < n { vertex(x[c - 1].get(), x[c].get(), x[c + 1].get()) } else { 0 }
     } else {
         let mut best = resp[1];
-        let mut left = if c > 0 { response_q8(x, c - 1, kb) } else { i64::MIN };
-        let mut right = if c + 1 < n { response_q8(x, c + 1, kb) } else { i64::MIN };
+        let mut left = if c > 0 { r32(response_q8(x, c - 1, kb)) } else { i32::MIN };
+        let mut right = if c + 1 < n { r32(response_q8(x, c + 1, kb)) } else { i32::MIN };
         let mut moved = 0;
         while moved < 6 {
             if right > best && right >= left {
                 c += 1;
                 (left, best) = (best, right);
-                right = if c + 1 < n { response_q8(x, c + 1, kb) } else { i64::MIN };
+                right = if c + 1 < n { r32(response_q8(x, c + 1, kb)) } else { i32::MIN };
             } else if left > best {
                 c -= 1;
                 (right, best) = (best, left);
-                left = if c > 0 { response_q8(x, c - 1, kb) } else { i64::MIN };
+                left = if c > 0 { r32(response_q8(x, c - 1, kb)) } else { i32::MIN };
             } else {
                 break;
             }
@@ -576,7 +729,7 @@ pub(crate) fn confirm<S: Sample>(
         if moved > 0 {
             (kb, resp) = climb_scale(c, kb);
         }
-        if left != i64::MIN && right != i64::MIN { vertex(left, best, right) } else { 0 }
+        if left != i32::MIN && right != i32::MIN { vertex(left, best, right) } else { 0 }
     };
     // The responses read `half_len` of the widest rung evaluated each side.
     if !v.fits(c, RUNGS[(kb + 1).min(w_hi)].half_len + 1) {
@@ -589,11 +742,11 @@ pub(crate) fn confirm<S: Sample>(
     let mut flags = Flags::NONE;
     // Width: parabola through the neighbouring rungs (log-scale axis).
     let [rm, _, rp] = resp;
-    let dk_q16: i64 = if kb > 0 && rm != i64::MIN && rp != i64::MIN {
+    let dk_q16: i64 = if kb > 0 && rm != i32::MIN && rp != i32::MIN {
         let (den, num) = (rm - 2 * r0 + rp, rm - rp);
-        // (rm − rp) / (2 den) in Q16, |·| ≤ ½: a 32-bit division (`ratio_q`).
+        // (rm − rp) / (2 den) in Q16, |·| ≤ ½: a 32-bit division (`ratio_q32`).
         if den < 0 {
-            let q = ratio_q(num.abs(), -den, 15);
+            let q = ratio_q32(num.unsigned_abs(), den.unsigned_abs(), 15) as i64;
             if num < 0 { q } else { -q }
         } else {
             0
@@ -613,7 +766,8 @@ pub(crate) fn confirm<S: Sample>(
     // Detection test at the best scale: response above threshold × its noise.
     let noise_resp_q8 = (v.noise_q8 as i64 * RUNGS[kb].noise_q8) >> 8;
     let thr = (noise_resp_q8 * v.cfg.threshold_sigma_q8 as i64) >> 8;
-    let amplitude = (r0 * RUNGS[kb].amp_inv) >> 24;
+    let amplitude = (r0 as i64 * RUNGS[kb].amp_inv) >> 24;
+    let r0 = r0 as i64;
     if r0 <= thr || amplitude < v.cfg.min_amplitude as i64 || width < v.cfg.min_width || width > v.cfg.max_width {
         return Ok(None);
     }
@@ -646,6 +800,79 @@ mod tests {
             let bump = if (i as isize - n as isize / 2).abs() < 6 { 40_000 } else { 0 };
             ((s % 25_000) as i32 + bump).min(65_535)
         })
+    }
+
+    /// The 32-bit pair equals the 64-bit one wherever the plan allows it:
+    /// 12-bit rows (the widest rung whose bound holds at 4095), every
+    /// phase it takes, every position whose taps fit the row.
+    #[test]
+    fn slope_pair32_matches_slope_pair() {
+        let sat = 4095i64;
+        let top = (0..=kernels::PAIR_RUNGS).take_while(|&k| sat * RUNGS[k].deriv_abs < 1 << 31).last().unwrap();
+        assert!(top >= 9, "12-bit rows take the 32-bit slope up to rung {top}");
+        for seed in 1..4u64 {
+            let full = row(160, seed).map(|v| v & 4095);
+            // Full scale where the taps are largest, too.
+            let mut hot = full;
+            hot[70..90].fill(4095);
+            for x in [&full[..], &hot[..]] {
+                for k in 0..=top {
+                    let (d, dp) = (kernels::deriv(k), kernels::DerivPairs::of(k).unwrap());
+                    let w = 2 * dp.per_phase();
+                    assert!(w == d.half_len() || w == d.half_len() + 1);
+                    for c in 0..x.len() {
+                        for p in 0..PHASES {
+                            let got = slope_pair32(x, c, p, dp);
+                            if (1..PHASES - 1).contains(&p) && c + 1 >= w && c + w < x.len() {
+                                let (a, b) = got.unwrap();
+                                assert_eq!((a as i64, b as i64), slope_pair(x, c as isize, p, d), "k {k} c {c} p {p}");
+                            } else {
+                                assert_eq!(got, None, "k {k} c {c} p {p}");
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Every response of 16-bit pixels fits i32 with room for the sums of
+    /// three that `confirm` forms (below 2^28): `sat × Σ|ψ| × norm / 2^24`.
+    #[test]
+    fn responses_fit_32_bits() {
+        for (k, r) in RUNGS.iter().enumerate() {
+            let bound = (65_535 * r.ricker_abs * r.norm) >> NORM_SHIFT;
+            assert!(bound < 1 << 26, "rung {k}: {bound}");
+            assert!(r.norm < 1 << 31);
+        }
+    }
+
+    /// The 32-bit sum straight from the row equals the 64-bit one on the
+    /// rungs the plan allows for 12-bit rows, wherever its taps fit.
+    #[test]
+    fn ricker_sum32_matches_response() {
+        let sat = 4095i64;
+        let top =
+            (0..kernels::LADDER_LEN).take_while(|&k| sat * (RUNGS[k].ricker_abs + (1 << 15)) < 1 << 31).last().unwrap();
+        assert!(top >= 9, "12-bit rows take the 32-bit responses up to rung {top}");
+        for seed in 1..4u64 {
+            let full = row(160, seed).map(|v| v & 4095);
+            let mut hot = full;
+            hot[60..100].fill(4095);
+            for x in [&full[..], &hot[..]] {
+                for (k, rung) in RUNGS.iter().enumerate().take(top + 1) {
+                    let reach = 2 * kernels::ricker_pairs(k).len() - 1;
+                    for c in 0..x.len() {
+                        match ricker_sum32(x, c, k) {
+                            Some(acc) => {
+                                assert_eq!((acc as i64 * rung.norm) >> NORM_SHIFT, response_q8(x, c, k), "k {k} c {c}")
+                            }
+                            None => assert!(c < reach || c + reach >= x.len(), "k {k} c {c}"),
+                        }
+                    }
+                }
+            }
+        }
     }
 
     /// Both by definition: every tap, indices clamped to the row.

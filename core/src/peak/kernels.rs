@@ -2,7 +2,9 @@
 //! and rounded once (the rounding rules are documented there).
 //!
 //! Memory (flash on the sensor head): `RICKER` 1.4 k × i16, `DERIV`
-//! 22 k × i16 (sub-pixel phases), `PAPER` 5.2 k × i16, about 58 KB in all.
+//! 22 k × i16 (sub-pixel phases), `PAPER` 5.2 k × i16, and the same
+//! integers two per word for the 32-bit paths (`RICKER_PAIRS_OF`, all rungs;
+//! `DERIV_PAIRS_OF`, rungs up to `PAIR_RUNGS`): 15 KB; about 74 KB in all.
 
 #![allow(missing_docs)]
 
@@ -18,6 +20,12 @@ pub struct Rung {
     /// Start of this rung's half-kernel in [`DERIV`] (sub-pixel offsets
     /// 0..=half_len·PHASES, stored phase-major: see [`Deriv`]).
     pub deriv_off: usize,
+    /// The largest Σ|D| of one slope evaluation at a phase in 1..PHASES
+    /// (both sides): a slope of pixels in `0..=sat` is within `±sat ×` this.
+    pub deriv_abs: i64,
+    /// Σ|ψ| over the whole Ricker kernel: a response's sum of pixels in
+    /// `0..=sat` is within `±sat ×` this.
+    pub ricker_abs: i64,
     /// Response normalisation: `R_q8 = (Σ x·ricker) · norm >> NORM_SHIFT` is
     /// the `s^(−3/2)`-normalised Ricker response in counts × 256.
     pub norm: i64,
@@ -44,6 +52,14 @@ include!(concat!(env!("OUT_DIR"), "/kernels.rs"));
 pub fn ricker(k: usize) -> &'static [i16] {
     let r = &RUNGS[k];
     &RICKER[r.ricker_off..=r.ricker_off + r.half_len]
+}
+
+/// [`ricker`]`(k)` two taps a word (offsets `2i, 2i + 1` in word `i`, as
+/// i16 halves, low first; an even half length's last word has a zero high
+/// half).
+#[inline(always)]
+pub fn ricker_pairs(k: usize) -> &'static [u32] {
+    RICKER_PAIRS_OF[k]
 }
 
 /// The odd derivative half-kernel of one rung at sub-pixel offsets
@@ -121,6 +137,49 @@ impl Deriv {
     /// The tap at offset `j / PHASES`.
     pub fn at(self, j: usize) -> i16 {
         self.phase(j % PHASES)[j / PHASES]
+    }
+}
+
+/// The derivative taps of one rung's phases 1..PHASES in pairs (one u32
+/// word per two neighbouring taps, low half first, as i16; an odd run's last
+/// word has a zero high half).
+#[derive(Clone, Copy, Debug)]
+pub struct DerivPairs {
+    words: &'static [u32],
+    /// Words per phase.
+    per_phase: usize,
+    half_len: usize,
+}
+
+impl DerivPairs {
+    /// Rung `k`'s pairs, if they are stored (`k ≤ PAIR_RUNGS`).
+    pub fn of(k: usize) -> Option<DerivPairs> {
+        // Phases 1..PHASES, `per_phase` words each.
+        let words = *DERIV_PAIRS_OF.get(k)?;
+        let per_phase = words.len() / (PHASES - 1);
+        Some(DerivPairs { words, per_phase, half_len: RUNGS[k].half_len })
+    }
+
+    /// The words of phases `r` and `r + 1` (`1 ≤ r ≤ PHASES − 2`; `None`
+    /// for another `r`), [`DerivPairs::per_phase`] words each: taps `2i, 2i
+    /// + 1` of [`Deriv::phase`]`(r)` in word `i`.
+    #[inline(always)]
+    pub fn two_phases(self, r: usize) -> Option<(&'static [u32], &'static [u32])> {
+        let n = self.per_phase;
+        if !(1..PHASES - 1).contains(&r) {
+            return None;
+        }
+        Some(self.words.get((r - 1) * n..(r + 1) * n)?.split_at(n))
+    }
+
+    /// Words per phase (`half_len.div_ceil(2)`).
+    pub fn per_phase(self) -> usize {
+        self.per_phase
+    }
+
+    /// Half length in whole pixels.
+    pub fn half_len(self) -> usize {
+        self.half_len
     }
 }
 

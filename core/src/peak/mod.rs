@@ -79,6 +79,14 @@ pub trait Pixel: Copy {
 pub trait Sample: Copy {
     /// The value.
     fn get(self) -> i32;
+
+    /// The value read as an `i16` (the same where it is below 2^15, as
+    /// every sample is on the detector's 32-bit paths: `Plan` checks the
+    /// saturation level, and no sample the estimators read is above it).
+    #[inline(always)]
+    fn get16(self) -> i32 {
+        self.get() as i16 as i32
+    }
 }
 impl<P: Pixel> Sample for P {
     #[inline(always)]
@@ -363,6 +371,8 @@ pub(crate) struct Plan {
     pub k_width_hi: usize,
     /// Rung of the coarse pass.
     pub k_coarse: usize,
+    /// Where the CWT's climb in scale starts: `k_coarse` within `k_lo..=k_hi`.
+    pub k_start: usize,
     /// Integer scales of the paper's method.
     pub paper_lo: usize,
     pub paper_hi: usize,
@@ -385,6 +395,15 @@ pub(crate) struct Plan {
     pub typ_reach_px: usize,
     /// How far a baseline estimator reads from the confirmed pixel, px.
     pub method_reach_px: usize,
+    /// The widest fit rung whose slope fits 32 bits on pixels up to the
+    /// saturation level (`sat < 2^15` and `sat × deriv_abs < 2^31`, and its
+    /// taps stored in pairs: [`cwt::slope_pair32`]); `None`: not even the
+    /// first.
+    pub slope32_k: Option<usize>,
+    /// The widest rung whose Ricker response is made in 32 bits straight
+    /// from the row (`2·sat < 2^15` and `sat × (ricker_abs + 2^15) < 2^31`:
+    /// [`cwt::ricker_sum32`]).
+    pub ricker32_k: Option<usize>,
 }
 
 fn rung_floor(px: Px) -> usize {
@@ -471,7 +490,22 @@ impl Plan {
         // reach, at the price of a second copy.
         let k_mid = (k_lo + k_hi).div_ceil(2);
         let typ_reach_px = (rung_half(k_mid + 3) + 2).max(method_reach_px + 6).min(reach_px);
+        // Every sample the estimators read is in 0..=saturation (the
+        // in-place window is checked for it, the copy clamps to it).
+        let sat = cfg.saturation as i64;
+        let slope32_k = if sat < 1 << 15 {
+            (0..=kernels::PAIR_RUNGS).take_while(|&k| sat * kernels::RUNGS[k].deriv_abs < 1 << 31).last()
+        } else {
+            None
+        };
+        let ricker32_k = if 2 * sat < 1 << 15 {
+            (0..kernels::LADDER_LEN).take_while(|&k| sat * (kernels::RUNGS[k].ricker_abs + (1 << 15)) < 1 << 31).last()
+        } else {
+            None
+        };
         Ok(Plan {
+            slope32_k,
+            ricker32_k,
             smin_floor_px: ((smin.0 as usize) >> 16).max(1),
             block_log2: screen::block_log2(geo as i32),
             screen_white_q8: (((4u64 << screen::block_log2(geo as i32)) << 16).isqrt()) as i64,
@@ -483,6 +517,7 @@ impl Plan {
             k_width_lo,
             k_width_hi,
             k_coarse,
+            k_start: k_coarse.clamp(k_lo, k_hi),
             paper_lo,
             paper_hi,
             spike_k_q16,
@@ -703,6 +738,8 @@ impl<const W: usize> Detector<W> {
 
         // A candidate's stripe peaks within its response's centre window,
         // ±B of the block boundary: the brightest pixel is sought there.
+        // (Not less: a stuck pixel on a stripe's flank pulls the screen's
+        // candidate towards itself.)
         let block = 1usize << lb;
         let near = block + 1;
         let needs_g = matches!(self.cfg.method, Method::CogFiltered | Method::FirZero);

@@ -294,6 +294,44 @@ proptest! {
         prop_assert_eq!(&r, &r_ref);
     }
 
+    /// The spike screen two pixels a word (`sat = 2^b − 1 < 2^13`) gives the
+    /// scalar screen's answer, on rows with stripes, spikes and pairs, with
+    /// pixels above the saturation level (up to the container's) or not, at
+    /// any level the word path takes.
+    #[test]
+    fn window_is_clean_in_pairs_is_the_scalar_test(
+        bits in 8u32..=13, over in any::<bool>(), seed in any::<u64>(), len in 0usize..120, level in 0i32..=0x4001,
+        hot in 0usize..4,
+    ) {
+        let sat = (1i32 << bits) - 1;
+        let max = if over { 65_535 } else { sat };
+        let mut s = seed | 1;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        };
+        let base = (next() % (sat as u64 / 2 + 1)) as i32;
+        let noise = 1 + (next() % 40) as i32;
+        let mut row: Vec<u16> = (0..len).map(|_| (base + (next() % noise as u64) as i32).min(sat) as u16).collect();
+        // A stripe (its top passes the first test), and hot pixels.
+        if len > 10 {
+            let c = (next() % len as u64) as usize;
+            for (i, p) in row.iter_mut().enumerate() {
+                let t = (i as f64 - c as f64) / 2.5;
+                *p = (*p as f64 + sat as f64 / 2.0 * (-t * t / 2.0).exp()).min(sat as f64) as u16;
+            }
+        }
+        for _ in 0..hot {
+            if len > 0 {
+                let i = (next() % len as u64) as usize;
+                row[i] = (next() % (max as u64 + 1)) as u16;
+            }
+        }
+        prop_assert_eq!(coarse::window_is_clean(&row, sat, level), coarse::window_is_clean_scalar(&row, sat, level));
+    }
+
     /// The window's copy and spike screen, and the repair, equal the plain
     /// definitions (on rows with spikes and pairs at any level).
     #[test]
