@@ -575,12 +575,12 @@ impl<S> RowView<'_, S> {
 
 /// Rows between two refreshes of the noise estimates (pixel noise and the
 /// screen's σ): they are stationary within a frame, so measuring them on
-/// one row in 64 (and on the first row after [`Detector::refresh_noise`],
-/// which the sensor head calls at every frame) costs a sixty-fourth of two
-/// medians per row: about 260 instructions a row on thumbv7em (it was one
-/// row in 32 before the per-stripe work was halved and this became a tenth
-/// of a windowed row's cost). A 480-row frame still refreshes 8 times.
-pub const NOISE_ROWS: u16 = 64;
+/// one row in 128 (and on the first row after [`Detector::refresh_noise`],
+/// which the sensor head calls at every frame) costs a 128th of two
+/// medians per row: about 130 instructions a row on thumbv7em (one row in
+/// 64 cost about 260, a thirtieth of a windowed row; one in 32 before
+/// that). A 480-row frame still refreshes 4 times.
+pub const NOISE_ROWS: u16 = 128;
 
 /// The screen's threshold as a fraction of the detection threshold, Q8
 /// (0.6): the screen only nominates; the multi-scale test at the candidate
