@@ -469,6 +469,17 @@ pub fn slope_zero_near<S: Sample>(
         Px((lo as i64 * STEP + frac) as i32)
     };
     let mut t = c as isize * ph + guess as isize;
+    // The 32-bit pair takes phases 1 ..= PHASES − 2 (the pair at phase 0
+    // or PHASES − 1 is the 64-bit one, several times the cost): a guess on
+    // either is moved a phase inwards, the zero then expected a phase
+    // past the pair, where the line through it is extrapolated (below).
+    if pairs.is_some() {
+        match (t as usize) & (PHASES - 1) {
+            0 => t += 1,
+            p if p == PHASES - 1 => t -= 1,
+            _ => {}
+        }
+    }
     let (mut fa, mut fb) = pair(t)?;
     // The common miss: the zero a phase or two past the first pair (the
     // guess's parabola is off by up to ~0.1 px). The slope is that close to
