@@ -469,38 +469,7 @@ pub fn slope_zero_near<S: Sample>(
         Px((lo as i64 * STEP + frac) as i32)
     };
     let mut t = c as isize * ph + guess as isize;
-    // The 32-bit pair takes phases 1 ..= PHASES − 2 (the pair at phase 0
-    // or PHASES − 1 is the 64-bit one, several times the cost): a guess on
-    // either is moved a phase inwards, the zero then expected a phase
-    // past the pair, where the line through it is extrapolated (below).
-    if pairs.is_some() {
-        match (t as usize) & (PHASES - 1) {
-            0 => t += 1,
-            p if p == PHASES - 1 => t -= 1,
-            _ => {}
-        }
-    }
     let (mut fa, mut fb) = pair(t)?;
-    // The common miss: the zero a phase or two past the first pair (the
-    // guess's parabola is off by up to ~0.1 px). The slope is that close to
-    // linear over a few phases (odd about the maximum for a symmetric
-    // stripe, so its bend there is of third order): the line through the
-    // pair is extrapolated, not a second pair evaluated.
-    const STEP_BITS: u32 = (65536 / PHASES as u32).trailing_zeros();
-    let fall = fa - fb;
-    if fall > 0 {
-        let reach = fall * EXTRAPOLATE_PHASES;
-        if fb > 0 && fb <= reach {
-            // Right of t + 1 by fb / fall phases.
-            let frac = ratio_q(fb, reach, STEP_BITS + EXTRAPOLATE_PHASES.trailing_zeros());
-            return Some(Px((((t + 1) as i64) << STEP_BITS) as i32 + frac as i32));
-        }
-        if fa <= 0 && -fa <= reach {
-            // Left of t by −fa / fall phases.
-            let frac = ratio_q(-fa, reach, STEP_BITS + EXTRAPOLATE_PHASES.trailing_zeros());
-            return Some(Px(((t as i64) << STEP_BITS) as i32 - frac as i32));
-        }
-    }
     for _ in 0..4 {
         if fa > 0 && fb <= 0 {
             return Some(zero(t, fa, fb));
@@ -531,10 +500,6 @@ pub fn slope_zero_near<S: Sample>(
     }
     None
 }
-
-/// How far past its first pair (phases, a power of two) [`slope_zero_near`]
-/// extrapolates the line through the pair rather than evaluate another.
-pub const EXTRAPOLATE_PHASES: i64 = 2;
 
 /// `⌊num · 2^bits / den⌋` for `0 ≤ num ≤ den`, `den > 0`, `bits ≤ 15`, by a
 /// 32-bit division: both are shifted right until `den` has `31 − bits`
