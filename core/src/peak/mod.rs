@@ -575,12 +575,12 @@ impl<S> RowView<'_, S> {
 
 /// Rows between two refreshes of the noise estimates (pixel noise and the
 /// screen's σ): they are stationary within a frame, so measuring them on
-/// one row in 64 (and on the first row after [`Detector::refresh_noise`],
-/// which the sensor head calls at every frame) costs a sixty-fourth of two
-/// medians per row: about 260 instructions a row on thumbv7em (it was one
-/// row in 32 before the per-stripe work was halved and this became a tenth
-/// of a windowed row's cost). A 480-row frame still refreshes 8 times.
-pub const NOISE_ROWS: u16 = 64;
+/// one row in 128 (and on the first row after [`Detector::refresh_noise`],
+/// which the sensor head calls at every frame) costs a 128th of two
+/// medians per row: about 130 instructions a row on thumbv7em (one row in
+/// 64 cost about 260, a thirtieth of a windowed row; one in 32 before
+/// that). A 480-row frame still refreshes 4 times.
+pub const NOISE_ROWS: u16 = 128;
 
 /// The screen's threshold as a fraction of the detection threshold, Q8
 /// (0.6): the screen only nominates; the multi-scale test at the candidate
@@ -887,10 +887,25 @@ fn window_candidates<P: Pixel>(
     }
 }
 
-/// Index of the first maximum of a slice of pixels (0 if empty). Two
+/// The longest slice [`argmax_raw`] finds the maximum of by keys.
+const ARGMAX_KEYED_MAX: usize = 64;
+
+/// Index of the first maximum of a slice of pixels (0 if empty). Up to
+/// [`ARGMAX_KEYED_MAX`] pixels by keys (below); longer ones two
 /// pixels per iteration: the larger of the pair (the left one on a tie)
 /// against the best so far, one compare and select each.
 fn argmax_raw<P: Pixel>(x: &[P]) -> usize {
+    if !x.is_empty() && x.len() <= ARGMAX_KEYED_MAX {
+        // Pixels are below 2^16: the value and the complement of the index
+        // in one key, `v · 64 + (63 − i)`, whose maximum is the first
+        // maximum's (a tie goes to the lower index): a load, a shifted add
+        // and a compare-select a pixel, no index carried.
+        let mut key = 0u32;
+        for (i, p) in x.iter().enumerate() {
+            key = key.max(((p.value() as u32) << 6) | (63 - i) as u32);
+        }
+        return 63 - (key & 63) as usize;
+    }
     let (mut best, mut top) = (0, i32::MIN);
     let (pairs, rest) = x.as_chunks::<2>();
     for (j, q) in pairs.iter().enumerate() {
@@ -1042,14 +1057,16 @@ mod tests {
     #[test]
     fn argmax_raw_is_the_first_maximum() {
         let mut s = 12345u32;
-        for len in 0..24usize {
-            for _ in 0..50 {
-                let x: heapless::Vec<u16, 24> = (0..len)
+        // Both paths (keys up to ARGMAX_KEYED_MAX pixels, pairs past it),
+        // ties among few levels and full-scale 16-bit values.
+        for len in 0..80usize {
+            for t in 0..50 {
+                let x: heapless::Vec<u16, 80> = (0..len)
                     .map(|_| {
                         s ^= s << 13;
                         s ^= s >> 17;
                         s ^= s << 5;
-                        (s % 5) as u16
+                        if t % 2 == 0 { (s % 5) as u16 } else { u16::MAX - (s % 3) as u16 }
                     })
                     .collect();
                 let want = x
