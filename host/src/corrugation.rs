@@ -686,10 +686,17 @@ struct Terms {
     s: f64,
 }
 
+/// The wave's direction from `(ω, κ)`: `(k, cos ψ, sin ψ)`, the rail's
+/// axis (`(1, 0)` for no wave), found once per evaluation, not per point.
+fn direction(omega: f64, kappa: f64) -> (f64, f64, f64) {
+    let k = omega.hypot(kappa);
+    let (cp, sp) = if k > 0.0 { (omega / k, kappa / k) } else { (1.0, 0.0) };
+    (k, cp, sp)
+}
+
 impl Terms {
-    fn at(x: f64, y: f64, omega: f64, kappa: f64) -> Terms {
-        let k = omega.hypot(kappa);
-        let (cp, sp) = if k > 0.0 { (omega / k, kappa / k) } else { (1.0, 0.0) };
+    /// At `(x, y)` for the direction `(cos ψ, sin ψ)` of [`direction`].
+    fn at(x: f64, y: f64, (cp, sp): (f64, f64)) -> Terms {
         let (s, u) = (x * cp + y * sp, -x * sp + y * cp);
         let u2 = u * u;
         Terms {
@@ -710,8 +717,7 @@ impl Terms {
 /// `ẑ = T(x, y) + a sin(ωx + κy) + b cos(ωx + κy)`, `T` over [`Terms`].
 fn evaluate_surface(s: &Surface, p: &[f64], free: &[usize]) -> Option<(DVector<f64>, DMatrix<f64>)> {
     let (a, b, w, kappa) = (p[q::A], p[q::B], p[q::OMEGA], p[q::KAPPA]);
-    let k = w.hypot(kappa);
-    let (cp, sp) = if k > 0.0 { (w / k, kappa / k) } else { (1.0, 0.0) };
+    let (k, cp, sp) = direction(w, kappa);
     let n = s.x.len();
     let mut r = DVector::zeros(n);
     let mut j = DMatrix::zeros(n, free.len());
@@ -719,7 +725,7 @@ fn evaluate_surface(s: &Surface, p: &[f64], free: &[usize]) -> Option<(DVector<f
     let coef = &p[q::C..q::N];
     for i in 0..n {
         let (x, y) = (s.x[i], s.y[i]);
-        let t = Terms::at(x, y, w, kappa);
+        let t = Terms::at(x, y, (cp, sp));
         let (sn, cs) = (w * x + kappa * y).sin_cos();
         r[i] = s.z[i] - (t.trend(coef) + a * sn + b * cs);
         let slope = a * cs - b * sn;
@@ -752,11 +758,12 @@ fn linear_start(s: &Surface, p: &[f64], free: &[usize]) -> Option<Vec<f64>> {
     let lin: Vec<usize> = free.iter().copied().filter(|&f| f != q::OMEGA && f != q::KAPPA).collect();
     let m = lin.len();
     let (w, kappa) = (p[q::OMEGA], p[q::KAPPA]);
+    let (_, cp, sp) = direction(w, kappa);
     let mut ata = DMatrix::<f64>::zeros(m, m);
     let mut atb = DVector::<f64>::zeros(m);
     let mut row = vec![0.0; m];
     for i in 0..s.x.len() {
-        let t = Terms::at(s.x[i], s.y[i], w, kappa);
+        let t = Terms::at(s.x[i], s.y[i], (cp, sp));
         let (sn, cs) = (w * s.x[i] + kappa * s.y[i]).sin_cos();
         for (r, &f) in row.iter_mut().zip(&lin) {
             *r = match f {
@@ -1100,9 +1107,10 @@ fn fit_once(lines: &[Line], near_mm: Option<f64>) -> Result<(Joint, Vec<Correcte
     }
     let mut out: Vec<Corrected> =
         lines.iter().map(|l| Corrected { laser: l.laser, s_mm: vec![], z_mm: vec![], offset_mm: p[q::C] }).collect();
+    let (_, cp, sp) = direction(w, kappa);
     for i in 0..n {
         let (x, y, z, l) = (s.x[i], s.y[i], s.z[i], s.line[i]);
-        let t = Terms::at(x, y, w, kappa);
+        let t = Terms::at(x, y, (cp, sp));
         let trend = t.trend(&p[q::C..q::N]) - p[q::C];
         let o = &mut out[l];
         o.s_mm.push(t.s);
