@@ -25,8 +25,13 @@
 //! # Why this estimator
 //! The zero of `Σ x[i] D(i − t)` for an odd kernel is an M-estimator whose
 //! variance for a Gaussian stripe in white noise is
-//! `σn² Σ D² / (A Σ g′ D)²`; for `D = −ψ′` at `s = 1.5 σ` it is 1.051 × the
-//! Cramér–Rao bound (1.05–1.07 over a quarter-octave width mismatch).
+//! `σn² Σ D² / (A Σ g′ D)²` (the RMS ratios below are its square root); for
+//! `D = −ψ′` at `s = 1.5 σ` it is 1.051 × the Cramér–Rao bound (1.05–1.07
+//! over a quarter-octave width mismatch). The tables hold `−ψ′` tapered to
+//! zero between 3.25 s and 4 s, with the odd Gaussian term that keeps it
+//! orthogonal to a slope (`core/build.rs`): 1.056 ×, for a fifth fewer
+//! taps than `−ψ′` to 5 s (a hard cut at 4 s would make the slope jump as
+//! a tap enters at each whole pixel).
 //! The derivative-of-Gaussian correlator would reach 1.00 ×, but it responds
 //! to a linear background; `−ψ′` is orthogonal to constants *and* slopes
 //! (`∫ t ψ′ = 0`) and, being odd, to any even background around the stripe
@@ -35,9 +40,9 @@
 //! of order `e^(−2π² s²)`.
 //!
 //! # Cost
-//! Per candidate: three Ricker evaluations for a typical stripe (ceil(5 s)
+//! Per candidate: three Ricker evaluations for a typical stripe (ceil(4 s)
 //! symmetric taps each; five more for a wide one, whose position climbs),
-//! and two derivative evaluations of 2·ceil(5 s_fit)+1 taps from a good
+//! and two derivative evaluations of 2·ceil(4 s_fit)+1 taps from a good
 //! guess (four by the whole-pixel bracket): for σ = 2.5 px about 120
 //! multiply-adds, independent of row length. The derivative tables are
 //! stored phase-major, so an evaluation reads two contiguous runs.
@@ -573,10 +578,11 @@ pub(crate) fn refine<S: Sample>(v: &RowView<'_, S>, c0: usize, scratch: &mut [i3
     let x = v.x;
     // Fit rung: nearest to 1.5 σ̂, i.e. kb + dk + 4·log2(1.5) (= 2.3399, Q16 153_348).
     let j = ((((kb as i64) << 16) + dk_q16 + 153_348 + 32_768) >> 16).clamp(0, kernels::LADDER_LEN as i64 - 1) as usize;
-    // The whole kernel (to 5 s): cut at 4 s, where `D` is still 1.3 % of
-    // its peak, the slope jumps as a tap enters at each whole pixel, and
-    // the secant across that jump moves the zero by ~3·10⁻⁴ px near whole
-    // pixels (measured against the f64 reference: 3.7 % of its RMS error).
+    // The whole kernel, tapered to zero at 4 s (`core/build.rs`): cut
+    // where `D` is still 1.3 % of its peak, the slope jumped as a tap
+    // entered at each whole pixel, and the secant across that jump moved
+    // the zero by ~3·10⁻⁴ px near whole pixels (3.7 % of the f64
+    // reference's RMS error).
     let d = kernels::deriv(j);
     let reach = d.half_len();
     if v.clipped(c, reach) {

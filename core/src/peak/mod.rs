@@ -900,9 +900,18 @@ fn argmax_raw<P: Pixel>(x: &[P]) -> usize {
         // in one key, `v · 64 + (63 − i)`, whose maximum is the first
         // maximum's (a tie goes to the lower index): a load, a shifted add
         // and a compare-select a pixel, no index carried.
-        let mut key = 0u32;
-        for (i, p) in x.iter().enumerate() {
-            key = key.max(((p.value() as u32) << 6) | (63 - i) as u32);
+        // Two pixels an iteration, the index term counting down by two (one
+        // counter for both).
+        let (pairs, rest) = x.as_chunks::<2>();
+        let (mut key, mut tag) = (0u32, 63u32);
+        for q in pairs {
+            let a = ((q[0].value() as u32) << 6) | tag;
+            let b = ((q[1].value() as u32) << 6) | (tag - 1);
+            key = key.max(a).max(b);
+            tag -= 2;
+        }
+        if let Some(p) = rest.first() {
+            key = key.max(((p.value() as u32) << 6) | tag);
         }
         return 63 - (key & 63) as usize;
     }
@@ -1012,6 +1021,25 @@ fn saturated_stripe(v: &RowView<'_>, (s, e): (usize, usize), sat: i32) -> Option
 
 /// Minimum separation, then the selection rule; output sorted by position.
 fn select<const N: usize>(found: &mut Vec<Stripe, MAX_CANDIDATES>, cfg: &Config, out: &mut Stripes<N>) {
+    let limit = match cfg.select {
+        Select::All => N,
+        _ => (cfg.max_stripes as usize).min(N),
+    };
+    // The usual row: as many stripes as may be kept or fewer, found in
+    // ascending position (candidates come in row order) and each at least
+    // the separation from the next. Then no rule drops one (the separation
+    // holds between every pair, the limit is not reached) and the output
+    // is `found` as it is: the general path below gives the same.
+    if found.len() <= limit
+        && found
+            .windows(2)
+            .all(|p| p[1].position.0 > p[0].position.0 && p[0].position.abs_diff(p[1].position) >= cfg.min_separation)
+    {
+        for s in found.iter() {
+            let _ = out.push(*s);
+        }
+        return;
+    }
     found.sort_unstable_by(|a, b| b.strength.cmp(&a.strength).then(a.position.cmp(&b.position)));
     // In place: the first `k` are the ones kept so far (no second buffer to
     // fill and copy out).
@@ -1029,10 +1057,6 @@ fn select<const N: usize>(found: &mut Vec<Stripe, MAX_CANDIDATES>, cfg: &Config,
     }
     found.truncate(k);
     let kept = found;
-    let limit = match cfg.select {
-        Select::All => N,
-        _ => (cfg.max_stripes as usize).min(N),
-    };
     match cfg.select {
         Select::Strongest | Select::All => kept.truncate(limit),
         Select::First => {
