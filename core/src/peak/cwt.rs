@@ -99,11 +99,15 @@ pub fn ricker_sum32<S: Sample>(x: &[S], c: usize, k: usize) -> Option<i32> {
     let (r2, l2) = (r2.get(..w)?, l2.get(..w)?);
     let mut acc = -(lo16(*words.first()?) * right[0].get16());
     for i in 0..w {
-        let (q, u, t) = (&r2[i], &l2[w - 1 - i], words[i]);
-        // x[c + m] + x[c − m] is below 2^15 (`2·sat < 2^15`): as an i16 it
-        // is the sum, and the product a 16 × 16 multiply-accumulate.
-        let (s0, s1) = ((q[0].get16() + u[1].get16()) as i16 as i32, (q[1].get16() + u[0].get16()) as i16 as i32);
-        acc += s0 * lo16(t) + s1 * hi16(t);
+        // (x[c + m], x[c + m + 1]) and (x[c − m − 1], x[c − m]), m = 2i, a
+        // word each; the second turned half for half and added: the word
+        // of the sums x[c + m] + x[c − m] and x[c + m + 1] + x[c − m − 1],
+        // each below 2^15 (`2·sat < 2^15`), so no carry crosses the halves
+        // and each half as an i16 is its sum (one add with a rotated
+        // operand, then two 16 × 16 multiply-accumulates on the halves).
+        let (q, u, t) = (S::word(&r2[i]), S::word(&l2[w - 1 - i]), words[i]);
+        let s = q.wrapping_add(u.rotate_right(16));
+        acc += lo16(s) * lo16(t) + hi16(s) * hi16(t);
     }
     Some(acc)
 }
@@ -359,19 +363,19 @@ pub fn slope_pair32<S: Sample>(x: &[S], k: usize, p: usize, dp: kernels::DerivPa
     let (xr, ra, rb) = (&xr[..h], &ra[..h], &rb[..h]);
     let (mut fa, mut fb) = (0i32, 0i32);
     for i in 0..h {
-        let q = &xr[i];
-        let (a0, a1) = (q[0].get16(), q[1].get16());
-        fa += a0 * lo16(ra[i]) + a1 * hi16(ra[i]);
-        fb += a0 * lo16(rb[i]) + a1 * hi16(rb[i]);
+        // The pixels as one word, each half an i16 (below 2^15).
+        let q = S::word(&xr[i]);
+        fa += lo16(q) * lo16(ra[i]) + hi16(q) * hi16(ra[i]);
+        fb += lo16(q) * lo16(rb[i]) + hi16(q) * hi16(rb[i]);
     }
     // Summed, subtracted once.
     let (xl, la, lb) = (&xl[..h], &la[..h], &lb[..h]);
     let (mut ga, mut gb) = (0i32, 0i32);
     for i in 0..h {
-        let q = &xl[h - 1 - i];
-        let (a0, a1) = (q[1].get16(), q[0].get16());
-        ga += a0 * lo16(la[i]) + a1 * hi16(la[i]);
-        gb += a0 * lo16(lb[i]) + a1 * hi16(lb[i]);
+        // Read from k outwards: the word's high half is the nearer pixel.
+        let q = S::word(&xl[h - 1 - i]);
+        ga += hi16(q) * lo16(la[i]) + lo16(q) * hi16(la[i]);
+        gb += hi16(q) * lo16(lb[i]) + lo16(q) * hi16(lb[i]);
     }
     Some((fa - ga, fb - gb))
 }

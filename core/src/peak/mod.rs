@@ -87,11 +87,25 @@ pub trait Sample: Copy {
     fn get16(self) -> i32 {
         self.get() as i16 as i32
     }
+
+    /// Two samples below 2^16 as one word, the first in the low half (for
+    /// the two-taps-a-word paths; on a row of `u16` pixels one load).
+    #[inline(always)]
+    fn word(pair: &[Self; 2]) -> u32 {
+        (pair[0].get() as u32 & 0xFFFF) | ((pair[1].get() as u32) << 16)
+    }
 }
 impl<P: Pixel> Sample for P {
     #[inline(always)]
     fn get(self) -> i32 {
         self.value()
+    }
+
+    #[inline(always)]
+    fn word(pair: &[P; 2]) -> u32 {
+        // The pixels are below 2^16: no mask (which would keep the two
+        // halfword loads from becoming one word load).
+        (pair[0].value() as u32) | ((pair[1].value() as u32) << 16)
     }
 }
 impl Sample for i32 {
