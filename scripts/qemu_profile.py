@@ -40,6 +40,7 @@ def llvm(tool):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="the full-row search instead of the windows")
+    ap.add_argument("--track", action="store_true", help="the windows tracked (detect_tracked, ±20 px)")
     ap.add_argument("--lines", type=int, default=30, help="source lines to print")
     ap.add_argument("--dump", metavar="FILE", help="write the per-row count of every address executed to FILE")
     ap.add_argument("--annotate", metavar="FN", action="append", default=[],
@@ -49,6 +50,8 @@ def main():
     env.pop("CARGO_TARGET_DIR", None)
     if args.full:
         env["CMS_PROFILE_FULL_ROW"] = "1"
+    if args.track:
+        env["CMS_PROFILE_TRACK"] = "1"
     target_dir = os.path.join(QEMU_DIR, "target")
     subprocess.check_call(
         ["cargo", "build", "--release", "--quiet", "--bin", "cms-qemu-profile", "--target-dir", target_dir],
@@ -98,7 +101,8 @@ def main():
                     per_pc[pc] += 1
     if not on:
         sys.exit("marker_start never ran")
-    what = "detect (full row)" if args.full else "detect_in, three 96-px windows"
+    what = "detect (full row)" if args.full else (
+        "detect_tracked, three 96-px windows, ±20 px tracks" if args.track else "detect_in, three 96-px windows")
     print(f"cwt, 752 px x 3 stripes, {what}: {total / ROWS:.0f} instructions per row ({ROWS} rows)")
     print("\nper function (inlined code in its caller):")
     for f, c in per_fn.most_common(20):

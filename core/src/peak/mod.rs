@@ -54,7 +54,7 @@ pub mod window;
 use crate::fixed::Px;
 use crate::optics::ScaleRange;
 use heapless::Vec;
-pub use window::{ColumnWindow, WindowError, Windows};
+pub use window::{ColumnWindow, Track, WindowError, Windows};
 
 /// Most candidates refined per row (the strongest are kept).
 pub const MAX_CANDIDATES: usize = 32;
@@ -621,6 +621,9 @@ pub struct Detector<const W: usize> {
     /// threshold, counts.
     detect_noise_q8: i32,
     screen_threshold: i32,
+    /// The spike screen's first test for `detect_noise_q8`
+    /// ([`coarse::spike_screen_level`]), counts.
+    spike_level: i32,
     /// Rows until the next refresh (0: the next row refreshes).
     refresh_in: u16,
     /// Row length the estimates were made on.
@@ -643,6 +646,7 @@ impl<const W: usize> Detector<W> {
             margin_q8: 256,
             detect_noise_q8: 0,
             screen_threshold: 1,
+            spike_level: 1,
             refresh_in: 0,
             noise_len: 0,
             stats: RowStats::default(),
@@ -684,10 +688,23 @@ impl<const W: usize> Detector<W> {
         self.detect_spans(row, Some(windows), out)
     }
 
-    fn detect_spans<P: Pixel, const N: usize>(
+    /// As [`Detector::detect_in`], with windows that follow their stripes
+    /// ([`Track`]): in a window whose stripe the last row found at column
+    /// `p`, the candidate is the brightest pixel of `p ± half_width_px`
+    /// (within the window), refined as any candidate; where that pixel is
+    /// at the track's edge (the stripe may have moved beyond it), or the
+    /// candidate is no stripe in the window, or the window has no track
+    /// yet, the window is screened as by [`Detector::detect_in`]. Afterwards each window's
+    /// track is the strongest stripe kept inside it (none: the next row
+    /// screens the window). A stripe of a window that the track does not
+    /// follow (a second one, a reflection) is not sought while the track
+    /// holds. Call [`Track::reset`] where the stripes may have jumped (a
+    /// new frame, other lasers lit).
+    pub fn detect_tracked<P: Pixel, const N: usize>(
         &mut self,
         row: &[P],
-        windows: Option<&Windows>,
+        windows: &Windows,
+        track: &mut Track,
         out: &mut Stripes<N>,
     ) -> Result<(), Error> {
         out.clear();
@@ -699,10 +716,65 @@ impl<const W: usize> Detector<W> {
         if n < MIN_ROW || N == 0 {
             return Ok(());
         }
+        let lb = self.plan.block_log2;
+        if !screen::screens(n, lb) {
+            track.reset();
+            return self.detect_spans(row, Some(windows), out);
+        }
+        self.refresh_if_due(row);
+        let mut found: Vec<Stripe, MAX_CANDIDATES> = Vec::new();
+        let mut runs_used: Vec<(usize, usize), MAX_CANDIDATES> = Vec::new();
+        let half = track.half_width_px() as usize;
+        let mut cands: Vec<Candidate, MAX_CANDIDATES> = Vec::new();
+        let mut count = 0u16;
+        for (w, last) in windows.as_slice().iter().zip(track.last_px()) {
+            let (first, end) = (w.first_px as usize, (w.end_px() as usize).min(n));
+            if first >= end {
+                continue;
+            }
+            let before = found.len();
+            if let Some(p) = *last {
+                let (a, b) = ((p as usize).saturating_sub(half).max(first), (p as usize + half + 1).min(end));
+                // The brightest pixel at the track's edge (not the window's):
+                // the stripe may lie beyond it, so the window is screened.
+                let bright = if a < b { brightest_of_track(&row[a..b]) + a } else { a };
+                let edge = (bright == a && a > first) || (bright + 1 == b && b < end);
+                if a < b && !edge {
+                    count += 1;
+                    self.candidate(row, Some((bright, bright)), Some(windows), &mut found, &mut runs_used);
+                }
+            }
+            let in_window = |s: &Stripe| (first..end).contains(&((s.position.0 >> 16) as usize));
+            if !found[before..].iter().any(in_window) {
+                window_candidates(
+                    row,
+                    core::slice::from_ref(w),
+                    lb,
+                    self.cfg.bits <= 15,
+                    self.screen_threshold,
+                    &mut cands,
+                );
+                count += cands.len() as u16;
+                for c in &cands {
+                    let bright = self.brightest_near(row, c.pos);
+                    self.candidate(row, Some((c.pos, bright)), Some(windows), &mut found, &mut runs_used);
+                }
+            }
+        }
+        self.stats.candidates = count;
+        select(&mut found, &self.cfg, out);
+        track.follow(windows, out);
+        Ok(())
+    }
+
+    /// Measures the noise afresh on the rows that refresh it (the first
+    /// after [`Detector::refresh_noise`], one in [`NOISE_ROWS`], a new row
+    /// length); whether the row is long enough to screen.
+    fn refresh_if_due<P: Pixel>(&mut self, row: &[P]) -> bool {
+        let n = row.len();
         let sat = self.cfg.saturation as i32;
         let lb = self.plan.block_log2;
         let screened = screen::screens(n, lb);
-        let narrow = self.cfg.bits <= 15;
         if self.refresh_in == 0 || self.noise_len != n {
             self.noise_q8 = screen::pixel_noise_q8(row, sat, &mut self.s[..n]);
             // Robust σ of the screen's block response, counts × 256.
@@ -727,6 +799,7 @@ impl<const W: usize> Detector<W> {
             // small-sample margin (the statistics report the estimate itself).
             let margin = |q8: i32| ((q8 as i64 * self.margin_q8 as i64) >> 8).min(i32::MAX as i64) as i32;
             self.detect_noise_q8 = margin(self.noise_q8);
+            self.spike_level = coarse::spike_screen_level(self.detect_noise_q8);
             let thr_noise =
                 (margin(screen_sigma_q8) as i64 * self.cfg.threshold_sigma_q8 as i64 * SCREEN_FRACTION_Q8) >> 24;
             let thr_abs = self.cfg.min_amplitude as i64 * self.plan.smin_floor_px as i64;
@@ -736,134 +809,234 @@ impl<const W: usize> Detector<W> {
         }
         self.refresh_in -= 1;
         self.stats.noise_q8 = self.noise_q8;
-        let noise_q8 = self.detect_noise_q8;
+        screened
+    }
+
+    /// The brightest pixel of the raw row where the screen responded at
+    /// `pos`: its stripe peaks within the response's centre window, ±B of
+    /// the block boundary (not less: a stuck pixel on a stripe's flank pulls
+    /// the screen's candidate towards itself).
+    fn brightest_near<P: Pixel>(&self, row: &[P], pos: usize) -> usize {
+        let near = (1usize << self.plan.block_log2) + 1;
+        let (a0, b0) = (pos.saturating_sub(near), (pos + near).min(row.len() - 1));
+        argmax_raw(&row[a0..=b0]) + a0
+    }
+
+    fn detect_spans<P: Pixel, const N: usize>(
+        &mut self,
+        row: &[P],
+        windows: Option<&Windows>,
+        out: &mut Stripes<N>,
+    ) -> Result<(), Error> {
+        out.clear();
+        self.stats = RowStats::default();
+        let n = row.len();
+        if n > W {
+            return Err(Error::RowTooLong { len: n, max: W });
+        }
+        if n < MIN_ROW || N == 0 {
+            return Ok(());
+        }
+        let lb = self.plan.block_log2;
+        let screened = self.refresh_if_due(row);
+        let narrow = self.cfg.bits <= 15;
         let mut cands: Vec<Candidate, MAX_CANDIDATES> = Vec::new();
         if screened {
             let threshold = self.screen_threshold;
             match windows {
                 None => screen::candidates(row, lb, narrow, threshold, &mut cands),
-                Some(ws) => window_candidates(row, ws, lb, narrow, threshold, &mut cands),
+                Some(ws) => window_candidates(row, ws.as_slice(), lb, narrow, threshold, &mut cands),
             }
         } else {
             // Too short to screen: the whole row is one candidate.
             let _ = cands.push(Candidate { pos: n / 2, resp: 0 });
         }
         self.stats.candidates = cands.len() as u16;
-
-        // A candidate's stripe peaks within its response's centre window,
-        // ±B of the block boundary: the brightest pixel is sought there.
-        // (Not less: a stuck pixel on a stripe's flank pulls the screen's
-        // candidate towards itself.)
-        let block = 1usize << lb;
-        let near = block + 1;
-        let needs_g = matches!(self.cfg.method, Method::CogFiltered | Method::FirZero);
-        let in_place = self.cfg.method == Method::Cwt;
         let mut found: Vec<Stripe, MAX_CANDIDATES> = Vec::new();
         let mut runs_used: Vec<(usize, usize), MAX_CANDIDATES> = Vec::new();
-        let level = coarse::spike_screen_level(noise_q8);
-        let mut hits: Vec<usize, { coarse::MAX_SPIKES }> = Vec::new();
         for c in &cands {
-            // The first window is centred on the brightest pixel of the raw
-            // row where the screen responded: the estimators start there, so
-            // it needs their reach only (a stuck pixel there moves it; the
-            // start is sought again after the repair, and a window that is
-            // then too short asks for the wide one).
-            let (a0, b0) = (c.pos.saturating_sub(near), (c.pos + near).min(n - 1));
-            let bright = if screened { argmax_raw(&row[a0..=b0]) + a0 } else { n / 2 };
-            let mut centre = bright;
-            let mut reach = self.plan.typ_reach_px;
-            let stripe = loop {
-                let (lo, hi) =
-                    if screened { (centre.saturating_sub(reach), (centre + reach + 1).min(n)) } else { (0, n) };
-                let w = hi - lo;
-                // The default method reads a window that the copy and the
-                // repair would leave as it is (the common case) in place,
-                // from the row: the same values, no copy.
-                let in_place = in_place
-                    && screened
-                    && (lo..hi).contains(&bright)
-                    && row[bright].value() < sat
-                    && coarse::window_is_clean(&row[lo..hi], sat, level);
-                let (got, spikes) = if in_place {
-                    let view = RowView {
-                        x: &row[lo..hi],
-                        g: &[],
-                        cfg: &self.cfg,
-                        plan: &self.plan,
-                        noise_q8,
-                        off: lo,
-                        row_len: n,
-                    };
-                    (cwt::refine(&view, bright - lo, &mut self.s), 0)
-                } else {
-                    let x = &mut self.x[..w];
-                    coarse::load_window(&row[lo..hi], sat, level, x, &mut hits);
-                    let spikes = coarse::repair_spikes(x, &hits, noise_q8, self.plan.spike_k_q16);
-                    if needs_g {
-                        let rung = &kernels::RUNGS[self.plan.k_coarse];
-                        coarse::response(x, &mut self.r[..w], &mut self.s[..w], &mut self.g[..w], rung);
-                    }
-                    let x = &self.x[..w];
-                    // The brightest pixel where the screen responded (after the
-                    // repair, so a stuck pixel does not pull the start away from
-                    // a stripe beside it).
-                    let start = if screened && spikes == 0 && (lo..hi).contains(&bright) {
-                        // Nothing repaired: the same pixel (up to ties among
-                        // values above saturation, which the copy clamps).
-                        bright - lo
-                    } else {
-                        let (a, b) = if screened { (a0.max(lo) - lo, b0.min(hi - 1) - lo) } else { (0, w - 1) };
-                        argmax(&x[a..=b]) + a
-                    };
-                    let view = RowView {
-                        x,
-                        g: if needs_g { &self.g[..w] } else { &[] },
-                        cfg: &self.cfg,
-                        plan: &self.plan,
-                        noise_q8,
-                        off: lo,
-                        row_len: n,
-                    };
-                    // `start` is the first brightest pixel within `near`: a
-                    // saturated run there includes it.
-                    let run = if x[start] >= sat { coarse::saturated_run(view.x, start, near, sat) } else { None };
-                    let got = match run {
-                        Some((s, e)) => {
-                            let run = (s + lo, e + lo);
-                            if runs_used.contains(&run) {
-                                Ok(None)
-                            } else {
-                                let _ = runs_used.push(run);
-                                Ok(saturated_stripe(&view, (s, e), sat))
-                            }
-                        }
-                        None => refine(&view, start, &mut self.s),
-                    };
-                    (got, spikes)
-                };
-                match got {
-                    Err(cwt::Wider) if reach < self.plan.reach_px + near => {
-                        (centre, reach) = (c.pos, self.plan.reach_px + near);
-                    }
-                    got => {
-                        self.stats.spikes = self.stats.spikes.saturating_add(spikes);
-                        break got.ok().flatten().map(|mut s| {
-                            s.position = Px(s.position.0 + ((lo as i32) << 16));
-                            s
-                        });
-                    }
-                }
-            };
-            if let Some(s) = stripe
-                && (s.width >= self.cfg.min_width && s.width <= self.cfg.max_width
-                    || s.flags.contains(Flags::SATURATED))
-                && windows.is_none_or(|w| w.contains(s.position.0))
-            {
-                let _ = found.push(s);
+            if screened {
+                let bright = self.brightest_near(row, c.pos);
+                self.candidate(row, Some((c.pos, bright)), windows, &mut found, &mut runs_used);
+            } else {
+                self.candidate(row, None, windows, &mut found, &mut runs_used);
             }
         }
         select(&mut found, &self.cfg, out);
         Ok(())
+    }
+
+    /// One candidate, `at` = its position from the screen and the
+    /// brightest pixel near it (`None`: the whole row, too short to
+    /// screen): refined, and its stripe added to `found` if it is one
+    /// (within the width limits or saturated, and inside a window if there
+    /// are windows).
+    #[inline(always)]
+    fn candidate<P: Pixel>(
+        &mut self,
+        row: &[P],
+        at: Option<(usize, usize)>,
+        windows: Option<&Windows>,
+        found: &mut Vec<Stripe, MAX_CANDIDATES>,
+        runs_used: &mut Vec<(usize, usize), MAX_CANDIDATES>,
+    ) {
+        let n = row.len();
+        let sat = self.cfg.saturation as i32;
+        let screened = at.is_some();
+        let (pos, bright) = at.unwrap_or((n / 2, n / 2));
+        let lb = self.plan.block_log2;
+        let near = (1usize << lb) + 1;
+        let (a0, b0) = (pos.saturating_sub(near), (pos + near).min(n - 1));
+        let noise_q8 = self.detect_noise_q8;
+        let in_place = self.cfg.method == Method::Cwt;
+        let level = self.spike_level;
+        // The first window is centred on the brightest pixel of the raw
+        // row where the screen responded: the estimators start there, so
+        // it needs their reach only (a stuck pixel there moves it; the
+        // start is sought again after the repair, and a window that is
+        // then too short asks for the wide one).
+        let mut centre = bright;
+        let mut reach = self.plan.typ_reach_px;
+        let stripe = loop {
+            let (lo, hi) = if screened { (centre.saturating_sub(reach), (centre + reach + 1).min(n)) } else { (0, n) };
+            // The default method reads a window that the copy and the
+            // repair would leave as it is (the common case) in place,
+            // from the row: the same values, no copy.
+            let in_place = in_place
+                && screened
+                && (lo..hi).contains(&bright)
+                && row[bright].value() < sat
+                && coarse::window_is_clean(&row[lo..hi], sat, level);
+            let (got, spikes) = if in_place {
+                let view = RowView {
+                    x: &row[lo..hi],
+                    g: &[],
+                    cfg: &self.cfg,
+                    plan: &self.plan,
+                    noise_q8,
+                    off: lo,
+                    row_len: n,
+                };
+                (cwt::refine(&view, bright - lo, &mut self.s), 0)
+            } else {
+                let first_window = reach < self.plan.reach_px + near;
+                self.copied(row, (lo, hi), (a0, b0), at.map(|_| bright), first_window, runs_used)
+            };
+            match got {
+                Err(cwt::Wider) if reach < self.plan.reach_px + near => {
+                    (centre, reach) = (pos, self.plan.reach_px + near);
+                }
+                got => {
+                    self.stats.spikes = self.stats.spikes.saturating_add(spikes);
+                    break got.ok().flatten().map(|mut s| {
+                        s.position = Px(s.position.0 + ((lo as i32) << 16));
+                        s
+                    });
+                }
+            }
+        };
+        if let Some(s) = stripe
+            && (s.width >= self.cfg.min_width && s.width <= self.cfg.max_width || s.flags.contains(Flags::SATURATED))
+            && windows.is_none_or(|w| w.contains(s.position.0))
+        {
+            let _ = found.push(s);
+        }
+    }
+
+    /// [`Detector::candidate`]'s window `lo..hi` copied and repaired (hot
+    /// and stuck pixels; the rare path, out of line), the start sought
+    /// again in the copy (`(a0, b0)`: where the screen responded, as row
+    /// indices; `bright`: the brightest raw pixel there, `None` for an
+    /// unscreened row; `first_window`: the wide window can still be asked
+    /// for), and the stripe refined there; with the number of pixels
+    /// repaired.
+    #[inline(never)]
+    fn copied<P: Pixel>(
+        &mut self,
+        row: &[P],
+        (lo, hi): (usize, usize),
+        (a0, b0): (usize, usize),
+        bright: Option<usize>,
+        first_window: bool,
+        runs_used: &mut Vec<(usize, usize), MAX_CANDIDATES>,
+    ) -> (Result<Option<Stripe>, cwt::Wider>, u16) {
+        let mut hits: Vec<usize, { coarse::MAX_SPIKES }> = Vec::new();
+        let (n, w) = (row.len(), hi - lo);
+        let sat = self.cfg.saturation as i32;
+        let screened = bright.is_some();
+        let bright = bright.unwrap_or(n / 2);
+        let lb = self.plan.block_log2;
+        let near = (1usize << lb) + 1;
+        let noise_q8 = self.detect_noise_q8;
+        let level = self.spike_level;
+        let needs_g = matches!(self.cfg.method, Method::CogFiltered | Method::FirZero);
+        let x = &mut self.x[..w];
+        coarse::load_window(&row[lo..hi], sat, level, x, &mut hits);
+        let spikes = coarse::repair_spikes(x, &hits, noise_q8, self.plan.spike_k_q16);
+        if needs_g {
+            let rung = &kernels::RUNGS[self.plan.k_coarse];
+            coarse::response(x, &mut self.r[..w], &mut self.s[..w], &mut self.g[..w], rung);
+        }
+        let x = &self.x[..w];
+        // The brightest pixel where the screen responded (after the
+        // repair, so a stuck pixel does not pull the start away from
+        // a stripe beside it).
+        // The stripe the repaired window shows nearest to the
+        // brightest raw pixel, where a pixel was repaired: its
+        // response can have hidden a stripe beside it from the
+        // screen (the stripe's block response then only a shoulder
+        // of the spike's, no candidate of its own), and this
+        // candidate is then the stripe's. Not found in the first
+        // window: the wide one is asked for, which has room.
+        let hidden = if screened && spikes > 0 {
+            hidden_candidate(x, 1 << lb, self.screen_threshold, bright.clamp(lo, hi - 1) - lo)
+        } else {
+            None
+        };
+        let start = if screened && spikes == 0 && (lo..hi).contains(&bright) {
+            // Nothing repaired: the same pixel (up to ties among
+            // values above saturation, which the copy clamps).
+            bright - lo
+        } else if let Some(c) = hidden {
+            let (a, b) = (c.saturating_sub(near), (c + near).min(w - 1));
+            argmax(&x[a..=b]) + a
+        } else {
+            let (a, b) = if screened { (a0.max(lo) - lo, b0.min(hi - 1) - lo) } else { (0, w - 1) };
+            argmax(&x[a..=b]) + a
+        };
+        let view = RowView {
+            x,
+            g: if needs_g { &self.g[..w] } else { &[] },
+            cfg: &self.cfg,
+            plan: &self.plan,
+            noise_q8,
+            off: lo,
+            row_len: n,
+        };
+        // `start` is the first brightest pixel within `near`: a
+        // saturated run there includes it. At the window's end (not
+        // the row's) it has no neighbour on one side, so the spike
+        // screen could not test it (a stuck pixel cut from its
+        // pair): the wide window is asked for, which holds it.
+        let cut = screened
+            && ((start == 0 && lo > 0)
+                || (start + 1 == w && hi < n)
+                || (spikes > 0 && hidden.is_none() && first_window));
+        let run = if x[start] >= sat { coarse::saturated_run(view.x, start, near, sat) } else { None };
+        let got = match run {
+            _ if cut => Err(cwt::Wider),
+            Some((s, e)) => {
+                let run = (s + lo, e + lo);
+                if runs_used.contains(&run) {
+                    Ok(None)
+                } else {
+                    let _ = runs_used.push(run);
+                    Ok(saturated_stripe(&view, (s, e), sat))
+                }
+            }
+            None => refine(&view, start, &mut self.s),
+        };
+        (got, spikes)
     }
 }
 
@@ -879,7 +1052,7 @@ impl<const W: usize> Detector<W> {
 /// is found and measured exactly as by a full-row search.
 fn window_candidates<P: Pixel>(
     row: &[P],
-    windows: &Windows,
+    windows: &[ColumnWindow],
     lb: u32,
     narrow: bool,
     threshold: i32,
@@ -888,7 +1061,7 @@ fn window_candidates<P: Pixel>(
     cands.clear();
     let n = row.len();
     let (ext, least) = (2usize << lb, 4usize << lb);
-    for w in windows.as_slice() {
+    for w in windows {
         let first = w.first_px as usize;
         if first >= n {
             continue;
@@ -899,6 +1072,58 @@ fn window_candidates<P: Pixel>(
         let lo = lo.min(hi - least);
         screen::candidates_at(&row[lo..hi], lo, lb, narrow, threshold, cands);
     }
+}
+
+/// After a repair, where in the repaired window `x` a stripe stands that
+/// the repaired pixels may have hidden from the screen: the local maximum
+/// nearest to `near_to` of the screen's box difference (`2B` pixels minus
+/// the `B` on each side, the block response of [`screen`] taken at every
+/// pixel instead of every block) above the screen's `threshold`; `None`
+/// if there is none. The rare path (a window with a hot or stuck pixel):
+/// `B` additions per pixel (out of line: rare).
+#[inline(never)]
+fn hidden_candidate(x: &[i32], block: usize, threshold: i32, near_to: usize) -> Option<usize> {
+    let n = x.len();
+    if n < 4 * block + 2 {
+        return None;
+    }
+    let sum = |a: usize, b: usize| x[a..b].iter().sum::<i32>();
+    let r = |c: usize| 2 * sum(c - block, c + block) - sum(c - 2 * block, c + 2 * block);
+    let (first, last) = (2 * block, n - 2 * block);
+    let mut best: Option<usize> = None;
+    let (mut prev, mut cur) = (r(first), r(first + 1));
+    for c in first + 1..last {
+        let next = r(c + 1);
+        if cur > threshold
+            && cur > prev
+            && cur >= next
+            && best.is_none_or(|b| c.abs_diff(near_to) < b.abs_diff(near_to))
+        {
+            best = Some(c);
+        }
+        (prev, cur) = (cur, next);
+    }
+    best
+}
+
+/// The brightest pixel of a track's columns ([`Detector::detect_tracked`]):
+/// the first maximum of every other pixel, then the first maximum within
+/// ±2 of it. A stripe (σ ≥ 1 px) peaks within a pixel of its brightest
+/// even pixel, so this is the stripe's brightest pixel at about half the
+/// cost of every pixel's (what it can miss is a lone pixel brighter than
+/// the stripe, which the window's spike screen is there for).
+fn brightest_of_track<P: Pixel>(x: &[P]) -> usize {
+    let (pairs, _) = x.as_chunks::<2>();
+    if pairs.len() < 2 || pairs.len() > ARGMAX_KEYED_MAX {
+        return argmax_raw(x);
+    }
+    let mut key = 0u32;
+    for (j, q) in pairs.iter().enumerate() {
+        key = key.max(((q[0].value() as u32) << 6) | (63 - j) as u32);
+    }
+    let even = 2 * (63 - (key & 63) as usize);
+    let (a, b) = (even.saturating_sub(2), (even + 3).min(x.len()));
+    argmax_raw(&x[a..b]) + a
 }
 
 /// The longest slice [`argmax_raw`] finds the maximum of by keys.

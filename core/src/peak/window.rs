@@ -72,7 +72,66 @@ impl ColumnWindow {
     }
 }
 
-/// Why a set of windows was refused.
+/// Narrowest and widest half width of a [`Track`], px.
+pub const TRACK_HALF_WIDTH_PX: core::ops::RangeInclusive<u16> = 2..=64;
+
+/// Windows that follow their stripes ([`super::Detector::detect_tracked`]):
+/// per window, the column where the last row found its stripe, and how far
+/// from it the next row looks (the profilers' tracking window). Where the
+/// line moves less than `half_width_px` from row to row, each row costs the
+/// brightest pixel of `2·half_width_px + 1` columns instead of the
+/// window's screen; where it is lost, the window is screened.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Track {
+    half_width_px: u16,
+    last_px: [Option<u16>; MAX_WINDOWS],
+}
+
+impl Track {
+    /// A track looking `half_width_px` either side of the last stripe
+    /// (within [`TRACK_HALF_WIDTH_PX`]), holding no stripe yet.
+    pub fn new(half_width_px: u16) -> Result<Track, WindowError> {
+        if !TRACK_HALF_WIDTH_PX.contains(&half_width_px) {
+            return Err(WindowError::TrackWidth(half_width_px));
+        }
+        Ok(Track { half_width_px, last_px: [None; MAX_WINDOWS] })
+    }
+
+    /// Forgets every stripe: the next row screens every window.
+    pub fn reset(&mut self) {
+        self.last_px = [None; MAX_WINDOWS];
+    }
+
+    /// How far from the last stripe a row looks, px.
+    pub fn half_width_px(&self) -> u16 {
+        self.half_width_px
+    }
+
+    /// The column of each window's stripe in the last row (in the order of
+    /// [`Windows::as_slice`]; `None`: not found, or not yet).
+    pub fn last_px(&self) -> &[Option<u16>; MAX_WINDOWS] {
+        &self.last_px
+    }
+
+    /// After a row: each window's stripe is the strongest of `stripes`
+    /// inside it.
+    pub(crate) fn follow(&mut self, windows: &Windows, stripes: &[super::Stripe]) {
+        for (w, last) in windows.as_slice().iter().zip(self.last_px.iter_mut()) {
+            let (first, end) = (w.first_px as i32, w.end_px() as i32);
+            let (mut best, mut strength) = (None, 0);
+            for s in stripes {
+                // Positions are ≥ 0 and below 2^15 px (a row of `u16` columns).
+                let px = s.position.0 >> 16;
+                if px >= first && px < end && (best.is_none() || s.strength > strength) {
+                    (best, strength) = (Some(px as u16), s.strength);
+                }
+            }
+            *last = best;
+        }
+    }
+}
+
+/// Why a set of windows (or a track) was refused.
 #[non_exhaustive]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -98,6 +157,8 @@ pub enum WindowError {
         /// The row length it was checked against.
         row_px: u16,
     },
+    /// A [`Track`] half width outside [`TRACK_HALF_WIDTH_PX`].
+    TrackWidth(u16),
 }
 
 impl core::fmt::Display for WindowError {
@@ -111,6 +172,12 @@ impl core::fmt::Display for WindowError {
             WindowError::PastRow { first_px, width_px, row_px } => {
                 write!(f, "search window of {width_px} px at column {first_px} ends past the {row_px}-px row")
             }
+            WindowError::TrackWidth(px) => write!(
+                f,
+                "tracking half width of {px} px, {}–{} px allowed",
+                TRACK_HALF_WIDTH_PX.start(),
+                TRACK_HALF_WIDTH_PX.end()
+            ),
         }
     }
 }

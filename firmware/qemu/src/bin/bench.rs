@@ -8,8 +8,11 @@
 //! is timed over 64 rows and over 64 + 256 rows, and the difference divided
 //! by 256 is the cost of one `Detector::detect` call (the timer reads and
 //! the first pass over the rows cancel out). Each configuration is run twice:
-//! a full-row search (`window=0`) and `detect_in` one 96-px search window
-//! per stripe, centred where the rows put the stripes (`window=96`). SysTick counts the 25 MHz core
+//! a full-row search (`window=0`), `detect_in` one 96-px search window
+//! per stripe, centred where the rows put the stripes (`window=96`), and
+//! `detect_tracked` in the same windows with a track of ±20 px
+//! (`window=96 track=20`: the rows' stripes jump up to 16 px from one row
+//! to the next, a real line moves less than a pixel). SysTick counts the 25 MHz core
 //! clock with its interrupt off, so the count is 40 ns — 40 instructions —
 //! per step, ±0.2 instructions per row after the division.
 //!
@@ -21,6 +24,7 @@
 //! calibration loop_iterations=1000000 ns=2000000
 //! method=cwt size=752x3 window=0 rows=256 ns_short=… ns_long=… found=320/320
 //! method=cwt size=752x3 window=96 rows=256 ns_short=… ns_long=… found=320/320
+//! method=cwt size=752x3 window=96 track=20 rows=256 ns_short=… ns_long=… found=320/320
 //! done
 //! ```
 
@@ -29,7 +33,7 @@
 
 use core::fmt::Write as _;
 
-use cms_core::peak::{ColumnWindow, Config, Detector, Stripes, Windows};
+use cms_core::peak::{ColumnWindow, Config, Detector, Stripes, Track, Windows};
 use cms_qemu::board::{Board, SYSCLK_HZ};
 use cms_qemu::{clock, uart};
 
@@ -40,6 +44,18 @@ mod data {
 /// Rows of the short and the long run (as scripts/instructions.sh).
 const SHORT: usize = 64;
 const EXTRA: usize = 256;
+
+/// Half width of the tracked runs' tracks, px: the rows' stripes jump up
+/// to 16 px (±8 px of jitter) between consecutive rows.
+const TRACK_PX: u16 = 20;
+
+/// How a run searches its rows.
+#[derive(Clone, Copy)]
+enum Search<'a> {
+    Full,
+    Windows(&'a Windows),
+    Tracked(&'a Windows),
+}
 
 /// Iterations of the calibration loop (2 instructions each).
 const LOOP: u32 = 1_000_000;
@@ -52,23 +68,27 @@ fn pixels(rows: &[u8], i: usize, out: &mut [u16; data::LEN]) {
 }
 
 /// Nanoseconds (= instructions under `-icount shift=0`) of `rows` calls of
-/// `detect`, and how many found exactly `stripes` stripes.
-/// With `windows`, `detect_in` those search windows.
+/// `detect` (or `detect_in`, `detect_tracked`: `search`), and how many
+/// found exactly `stripes` stripes. A tracked run starts with no track.
 fn time(
     det: &mut Detector<{ data::LEN }>,
     rows: &[[u16; data::LEN]],
     n: usize,
     stripes: usize,
-    windows: Option<&Windows>,
+    search: Search<'_>,
 ) -> (u64, usize) {
     let mut out: Stripes<4> = Stripes::new();
     let mut ok = 0;
+    let Ok(mut track) = Track::new(TRACK_PX) else {
+        panic!("the benchmark's track width is refused");
+    };
     let t0 = clock::counter();
     for i in 0..n {
         let row = core::hint::black_box(&rows[i % rows.len()][..]);
-        let done = match windows {
-            None => det.detect(row, &mut out),
-            Some(w) => det.detect_in(row, w, &mut out),
+        let done = match search {
+            Search::Full => det.detect(row, &mut out),
+            Search::Windows(w) => det.detect_in(row, w, &mut out),
+            Search::Tracked(w) => det.detect_tracked(row, w, &mut track, &mut out),
         };
         // A failed call cannot happen (rows fit the detector); counted as a miss.
         if done.is_ok() && out.len() == stripes {
@@ -128,17 +148,19 @@ fn main() -> ! {
                 Ok(d) => det_slot.insert(d),
                 Err(e) => panic!("{}: {e}", cfg.method.name()),
             };
-            for windows in [None, Some(&windows)] {
-                let (short, _) = time(det, &rows, SHORT, stripes, windows);
-                let (long, ok) = time(det, &rows, SHORT + EXTRA, stripes, windows);
-                let _ = writeln!(
-                    w,
-                    "method={} size={}x{stripes} window={} rows={EXTRA} ns_short={short} ns_long={long} found={ok}/{}",
-                    cfg.method.name(),
-                    data::LEN,
-                    if windows.is_some() { data::WINDOW_PX } else { 0 },
-                    SHORT + EXTRA
-                );
+            for search in [Search::Full, Search::Windows(&windows), Search::Tracked(&windows)] {
+                let (short, _) = time(det, &rows, SHORT, stripes, search);
+                let (long, ok) = time(det, &rows, SHORT + EXTRA, stripes, search);
+                let (window, track) = match search {
+                    Search::Full => (0, 0),
+                    Search::Windows(_) => (data::WINDOW_PX, 0),
+                    Search::Tracked(_) => (data::WINDOW_PX, TRACK_PX),
+                };
+                let _ = write!(w, "method={} size={}x{stripes} window={window}", cfg.method.name(), data::LEN);
+                if track > 0 {
+                    let _ = write!(w, " track={track}");
+                }
+                let _ = writeln!(w, " rows={EXTRA} ns_short={short} ns_long={long} found={ok}/{}", SHORT + EXTRA);
             }
         }
     }

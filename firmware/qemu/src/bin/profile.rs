@@ -6,6 +6,7 @@
 //! ```text
 //! scripts/qemu_profile.py            # builds this, runs QEMU, prints the profile
 //! scripts/qemu_profile.py --full     # the full-row search (`detect`) instead
+//! scripts/qemu_profile.py --track    # `detect_tracked`, a track of ±20 px
 //! ```
 //!
 //! QEMU runs with `-singlestep -d exec,nochain` (one translation block per
@@ -18,7 +19,7 @@
 #![no_std]
 #![no_main]
 
-use cms_core::peak::{ColumnWindow, Config, Detector, Stripes, Windows};
+use cms_core::peak::{ColumnWindow, Config, Detector, Stripes, Track, Windows};
 use cms_qemu::board::SYSCLK_HZ;
 use cms_qemu::uart;
 use static_cell::StaticCell;
@@ -76,10 +77,21 @@ fn main() -> ! {
     };
     let mut out: Stripes<4> = Stripes::new();
     let full_row = option_env!("CMS_PROFILE_FULL_ROW").is_some();
+    // A track of ±20 px (`--track`; the benchmark's, see bench.rs).
+    let tracked = option_env!("CMS_PROFILE_TRACK").is_some();
+    let Ok(mut track) = Track::new(20) else {
+        panic!("the track width is refused");
+    };
     marker_start();
     for i in 0..ROWS {
         let row = core::hint::black_box(&rows[i % data::DISTINCT][..]);
-        let _ = if full_row { det.detect(row, &mut out) } else { det.detect_in(row, &windows, &mut out) };
+        let _ = if full_row {
+            det.detect(row, &mut out)
+        } else if tracked {
+            det.detect_tracked(row, &windows, &mut track, &mut out)
+        } else {
+            det.detect_in(row, &windows, &mut out)
+        };
     }
     marker_end();
     cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_SUCCESS);
