@@ -707,15 +707,10 @@ impl<const W: usize> Detector<W> {
         track: &mut Track,
         out: &mut Stripes<N>,
     ) -> Result<(), Error> {
-        out.clear();
-        self.stats = RowStats::default();
-        let n = row.len();
-        if n > W {
-            return Err(Error::RowTooLong { len: n, max: W });
-        }
-        if n < MIN_ROW || N == 0 {
+        if !self.begin(row.len(), out)? {
             return Ok(());
         }
+        let n = row.len();
         let lb = self.plan.block_log2;
         if !screen::screens(n, lb) {
             track.reset();
@@ -765,6 +760,18 @@ impl<const W: usize> Detector<W> {
         select(&mut found, &self.cfg, out);
         track.follow(windows, out);
         Ok(())
+    }
+
+    /// Clears `out` and the statistics for a row of `n` pixels; whether
+    /// there is anything to look for (a row too long for the buffers is an
+    /// error, one too short or no room for a stripe gives none).
+    fn begin<const N: usize>(&mut self, n: usize, out: &mut Stripes<N>) -> Result<bool, Error> {
+        out.clear();
+        self.stats = RowStats::default();
+        if n > W {
+            return Err(Error::RowTooLong { len: n, max: W });
+        }
+        Ok(n >= MIN_ROW && N > 0)
     }
 
     /// Measures the noise afresh on the rows that refresh it (the first
@@ -828,15 +835,10 @@ impl<const W: usize> Detector<W> {
         windows: Option<&Windows>,
         out: &mut Stripes<N>,
     ) -> Result<(), Error> {
-        out.clear();
-        self.stats = RowStats::default();
-        let n = row.len();
-        if n > W {
-            return Err(Error::RowTooLong { len: n, max: W });
-        }
-        if n < MIN_ROW || N == 0 {
+        if !self.begin(row.len(), out)? {
             return Ok(());
         }
+        let n = row.len();
         let lb = self.plan.block_log2;
         let screened = self.refresh_if_due(row);
         let narrow = self.cfg.bits <= 15;

@@ -75,6 +75,23 @@ fn stuck_columns(rng: &mut Rng, singles: usize, pairs: usize) -> Vec<usize> {
     cols
 }
 
+/// A row's stuck pixels at full scale: the fixed `stuck` columns (where no
+/// line is within 1.5 σ) and one on the flank of line `row_i % 2`, 2–6 σ
+/// from its centre (at least 4 px from the stuck columns: three in a row
+/// would be a run as wide as a stripe's top, not a single pixel or a pair).
+fn stick(row: &mut [u16], stuck: &[usize], truth: &[Gauss], row_i: usize, rng: &mut Rng) {
+    for &c in stuck {
+        if truth.iter().all(|t| (c as f64 - t.x0).abs() >= 1.5 * t.sigma) {
+            row[c] = 4095;
+        }
+    }
+    let t = &truth[row_i % 2];
+    let c = (t.x0 + t.sigma * (2.0 + 4.0 * rng.uniform())).round() as usize;
+    if stuck.iter().all(|&o| o.abs_diff(c) >= 4) {
+        row[c] = 4095;
+    }
+}
+
 fn stripes(rng: &mut Rng) -> [Gauss; 3] {
     // Three lines ~200 px apart, unequal brightness (1:0.4:0.15) and width.
     let base = [180.0, 380.0, 580.0];
@@ -186,14 +203,7 @@ fn search_windows_find_exactly_what_the_full_row_search_finds() {
         let truth = stripes(&mut rng);
         let mut row = scene.row(&truth, &mut rng);
         if row_i % 3 == 0 {
-            for &c in &stuck {
-                if truth.iter().all(|t| (c as f64 - t.x0).abs() >= 1.5 * t.sigma) {
-                    row[c] = 4095;
-                }
-            }
-            let t = &truth[row_i % 2];
-            let c = (t.x0 + t.sigma * (2.0 + 4.0 * rng.uniform())).round() as usize;
-            row[c] = 4095;
+            stick(&mut row, &stuck, &truth, row_i, &mut rng);
         }
         let (mut a, mut b): (Stripes<8>, Stripes<8>) = (Stripes::new(), Stripes::new());
         full.detect(&row, &mut a).unwrap();
@@ -245,18 +255,7 @@ fn tracked_windows_find_exactly_what_the_windows_find() {
         }
         let mut row = scene.row(&truth, &mut rng);
         if row_i % 3 == 0 {
-            for &c in &stuck {
-                if truth.iter().all(|t| (c as f64 - t.x0).abs() >= 1.5 * t.sigma) {
-                    row[c] = 4095;
-                }
-            }
-            let t = &truth[row_i % 2];
-            let c = (t.x0 + t.sigma * (2.0 + 4.0 * rng.uniform())).round() as usize;
-            // (At least 4 px from the stuck columns: three in a row are a
-            // run as wide as a stripe's top, not a single pixel or a pair.)
-            if stuck.iter().all(|&o| o.abs_diff(c) >= 4) {
-                row[c] = 4095;
-            }
+            stick(&mut row, &stuck, &truth, row_i, &mut rng);
         }
         let before = *track.last_px();
         let (mut a, mut b): (Stripes<8>, Stripes<8>) = (Stripes::new(), Stripes::new());
