@@ -881,7 +881,7 @@ fn triangulate(t: &Triangulator, out: &mut Vec<LaserPoints, LASERS>, row: u16, c
             let at = if centre_q16 == 0 {
                 t.profile(lp.laser as usize, p.position, row)
             } else {
-                t.profile_at(lp.laser as usize, p.position, Px((i32::from(row) << 16) + centre_q16))
+                t.profile_at(lp.laser as usize, p.position, (i64::from(row) << 16) + i64::from(centre_q16))
             };
             p.metric =
                 at.map(|q| Metric { along_um: round_i32(q.along_mm * 1e3), height_nm: round_i32(q.height_mm * 1e6) });

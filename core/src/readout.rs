@@ -175,9 +175,10 @@ impl Readout {
         self.rows / self.skip.factor() as u16
     }
 
-    /// The sensor row of output row `i` (`i < rows_read`).
+    /// The sensor row of output row `i` (`i < rows_read`; saturating
+    /// beyond).
     pub const fn sensor_row(&self, i: u16) -> u16 {
-        self.first_row + i * self.skip.factor() as u16
+        self.first_row.saturating_add(i.saturating_mul(self.skip.factor() as u16))
     }
 
     /// Whether sensor row `row` is one this readout reads.

@@ -490,10 +490,11 @@ impl Triangulator {
         self.profile_q32(laser, position, (row as i64) << 32)
     }
 
-    /// [`Self::profile`] at a fractional row (`row_px`, Q16.16 rows): the
-    /// centre of a binned row (`readout::RowSampling::Bin`).
-    pub fn profile_at(&self, laser: usize, position: Px, row_px: Px) -> Option<ProfilePoint> {
-        self.profile_q32(laser, position, (row_px.0 as i64) << 16)
+    /// [`Self::profile`] at a fractional row (`row_q16`: rows in Q16.16,
+    /// wide enough for any `u16` row and its fraction): the centre of a
+    /// binned row (`readout::RowSampling::Bin`).
+    pub fn profile_at(&self, laser: usize, position: Px, row_q16: i64) -> Option<ProfilePoint> {
+        self.profile_q32(laser, position, row_q16 << 16)
     }
 
     fn profile_q32(&self, laser: usize, position: Px, row_q32: i64) -> Option<ProfilePoint> {
