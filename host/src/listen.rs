@@ -255,6 +255,9 @@ pub struct Summary {
     pub head: Option<Status>,
     /// The head's description.
     pub device: Option<DeviceInfo>,
+    /// The row readout the head acknowledged (`SetReadout`; `None`: none
+    /// asked for).
+    pub readout: Option<Readout>,
     /// Frames written to the recording.
     pub recorded: u64,
     /// Whether the head acknowledged the final `Stop`.
@@ -309,6 +312,16 @@ impl fmt::Display for Summary {
             Some(0) => writeln!(f, "calibration: none (positions in pixels only: see cms-host calibrate)")?,
             Some(id) => writeln!(f, "calibration: {id:#010x} (points in mm along the line, heights in µm)")?,
             None => {}
+        }
+        if let Some(r) = &self.readout {
+            writeln!(
+                f,
+                "rows: sensor rows {}..{}, one in {} ({} a frame)",
+                r.first_row(),
+                r.end_row(),
+                r.skip().factor(),
+                r.rows_read()
+            )?;
         }
         if let Some(h) = &self.head {
             writeln!(f, "head (last status): {}", telemetry(h))?;
@@ -366,7 +379,8 @@ struct Session<'a> {
     start_seq: Option<u16>,
     exposure_seq: Option<u16>,
     windows_seq: Option<u16>,
-    readout_seq: Option<u16>,
+    /// The `SetReadout` sent, and what it asked for.
+    readout_seq: Option<(u16, Readout)>,
     stop_seq: Option<u16>,
     /// When the stop began (and so when to give up waiting for its Ack).
     stopping: Option<Instant>,
@@ -407,7 +421,7 @@ impl Session<'_> {
             match req.on(height) {
                 Ok(r) => {
                     let msg = HostMsg::SetReadout { first_row: r.first_row(), rows: r.rows(), skip: r.skip().factor() };
-                    self.readout_seq = Some(out.push(msg));
+                    self.readout_seq = Some((out.push(msg), r));
                 }
                 Err(why) => {
                     self.fatal = Some(ListenError::Readout { port: self.port.to_string(), why });
@@ -494,6 +508,10 @@ impl Session<'_> {
                     self.last_rx = now;
                 } else if Some(seq) == self.stop_seq {
                     self.sum.stop_acked = true;
+                } else if let Some((s, r)) = self.readout_seq
+                    && s == seq
+                {
+                    self.sum.readout = Some(r);
                 }
             }
             DeviceMsg::Error { seq: Some(seq), code } if Some(seq) == self.start_seq => {
@@ -505,7 +523,7 @@ impl Session<'_> {
             DeviceMsg::Error { seq: Some(seq), code } if Some(seq) == self.windows_seq => {
                 self.fatal = Some(ListenError::Refused { command: "SetWindows", code });
             }
-            DeviceMsg::Error { seq: Some(seq), code } if Some(seq) == self.readout_seq => {
+            DeviceMsg::Error { seq: Some(seq), code } if self.readout_seq.is_some_and(|(s, _)| s == seq) => {
                 self.fatal = Some(ListenError::Refused { command: "SetReadout", code });
             }
             DeviceMsg::Error { .. } | DeviceMsg::RawRows(_) => {}

@@ -1321,6 +1321,9 @@ fn cli_listen_reads_a_row_window_and_a_row_skip() {
     assert!((0.2..0.4).contains(&pitch.abs()), "two rows along the rail: {pitch} mm");
     let window = frame(&["--rows", "100:200", "--row-skip", "4"]);
     assert!(window.iter().all(|l| l.keys().copied().eq((100..300).step_by(4))), "{:?}", window[0].keys());
+    let out = crate::common::run(&["listen", "sim", "--frames", "1", "--rows", "100:200", "--row-skip", "4"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("listen: rows: sensor rows 100..300, one in 4 (50 a frame)"), "{stderr}");
 
     for (args, needle) in [
         (["--rows", "0:480", "--row-skip", "3"], "row skip is 1, 2 or 4"),
