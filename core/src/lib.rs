@@ -16,6 +16,8 @@
 //!   CRC-checked, COBS-delimited frames.
 //! * [`pipeline`] — the sensor head's logic without its hardware: rows in,
 //!   profiles out, commands, and the laser-safety rules.
+//! * [`readout`] — which sensor rows a frame reads: a row window and a row
+//!   skip (row pitch along the rail traded for frames per second).
 //! * [`duty`] — the lasers' enforced maximum duty cycle.
 //! * [`odometer`] — wheel-encoder counts → travelled distance, and the
 //!   frame-every-N-mm trigger.
@@ -35,5 +37,6 @@ pub mod peak;
 pub mod persist;
 pub mod pipeline;
 pub mod protocol;
+pub mod readout;
 pub mod synthetic;
 pub mod triangulation;

@@ -29,6 +29,13 @@
 //! trigger are what a head keeps in flash ([`Stored`]): the head marks them
 //! changed and the firmware writes them when [`Head::take_store_request`]
 //! says so (the write itself is `persist`'s).
+//!
+//! # Readout
+//! A frame reads the rows of the [`Readout`] `SetReadout` set before its
+//! `Start` (every row otherwise; captures always every row): the head sets
+//! it on the camera ([`Camera::set_readout`], lasers off) when it changes,
+//! numbers each point by its sensor row, and triangulates a binned row at
+//! its rows' centre ([`RowSampling`]).
 
 use crate::duty::DutyLimit;
 use crate::fixed::Px;
@@ -40,6 +47,7 @@ use crate::protocol::{
     MAX_ROWS_PER_PROFILE, Metric, PROTOCOL_VERSION, Point, Profile, RAW_CHUNK_BYTES, RawRows, Start, Status,
     StoreHealth, Trigger,
 };
+use crate::readout::{Readout, RowSampling};
 use crate::triangulation::{CameraModel, Plane, Triangulator};
 use heapless::{String, Vec};
 
@@ -99,6 +107,17 @@ pub trait Camera {
         }
         Ok(())
     }
+    /// Reads the rows of `readout` (validated against [`Camera::height`])
+    /// from the next exposure on, until told otherwise; says how
+    /// ([`RowSampling`]). The head calls it, lasers off, before an exposure
+    /// whose readout differs from the last one set: a streaming frame's
+    /// (`SetReadout`), and a capture's (every row). Default: whole frames
+    /// whatever the readout, and the head passes over the rows it does not
+    /// read.
+    fn set_readout(&mut self, readout: &Readout) -> Result<RowSampling, Self::Error> {
+        let _ = readout;
+        Ok(RowSampling::WholeFrame)
+    }
 }
 
 /// An image capture under way: the next band starts at `next_row`.
@@ -141,6 +160,12 @@ pub struct Head<const W: usize, L: LaserDriver> {
     /// lasers for the current frame (`None`: full-row search).
     windows: [Option<ColumnWindow>; LASERS],
     frame_windows: Option<Windows>,
+    /// The readout `SetReadout` asked for (`None`: every row), the one in
+    /// force since `Start`, and the one last set on the camera with how the
+    /// camera honours it.
+    readout: Option<Readout>,
+    frame_readout: Option<Readout>,
+    camera_readout: Option<(Readout, RowSampling)>,
     // statistics since the last Status
     frames: u32,
     window_frames: u32,
@@ -192,6 +217,9 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             track: [Px::ZERO; LASERS],
             windows: [None; LASERS],
             frame_windows: None,
+            readout: None,
+            frame_readout: None,
+            camera_readout: None,
             frames: 0,
             window_frames: 0,
             window_rows: 0,
@@ -397,6 +425,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                     return self.fail(ErrorCode::InvalidConfig, Some(seq), reply);
                 }
                 self.start = s;
+                self.frame_readout = self.readout;
                 self.state = HeadState::Streaming;
                 self.fault = None;
                 self.epoch_us = if self.frames == 0 { now_us } else { self.epoch_us };
@@ -487,6 +516,18 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 self.windows = w;
                 reply(&DeviceMsg::Ack(seq));
             }
+            HostMsg::SetReadout { first_row, rows, skip } => {
+                if self.state == HeadState::Streaming {
+                    return self.fail(ErrorCode::Busy, Some(seq), reply);
+                }
+                match Readout::from_factor(first_row, rows, skip, camera.height()) {
+                    Ok(r) => {
+                        self.readout = Some(r);
+                        reply(&DeviceMsg::Ack(seq));
+                    }
+                    Err(_) => self.fail(ErrorCode::OutOfRange, Some(seq), reply),
+                }
+            }
             HostMsg::SetTrigger(t) => {
                 if self.state == HeadState::Streaming {
                     return self.fail(ErrorCode::Busy, Some(seq), reply);
@@ -571,6 +612,12 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 1 << k
             }
         };
+        // The rows this frame reads, set on the camera (lasers off) if they
+        // are not the ones it has.
+        let readout = self.frame_readout.unwrap_or(Readout::full(camera.height()));
+        let Ok(sampling) = self.apply_readout(readout, camera) else {
+            return self.fail(ErrorCode::SensorFault, None, reply);
+        };
         if !self.duty.request(now_us, self.exposure_us) {
             // Over the duty-cycle limit: no strobe, no frame.
             self.dropped = self.dropped.wrapping_add(1);
@@ -585,8 +632,13 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             Ok(o) => o,
             Err(_) => return self.fail(ErrorCode::SensorFault, None, reply),
         };
-        let (width, height) = (camera.width() as usize, camera.height() as usize);
+        let width = camera.width() as usize;
+        let height = readout.rows_read() as usize;
         let parts = height.div_ceil(MAX_ROWS_PER_PROFILE).clamp(1, 255) as u8;
+        // A binned row is triangulated at its rows' centre; a whole-frame
+        // camera's rows outside the readout are passed over unprocessed.
+        let centre_q16 = if sampling == RowSampling::Bin { readout.bin_centre_q16() } else { 0 };
+        let mut next_sensor_row = 0u16;
         self.profile.seq = self.frame_seq;
         self.profile.parts = parts;
         self.profile.timestamp_us = now_us - self.epoch_us;
@@ -613,7 +665,17 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             }
             let first = part as usize * MAX_ROWS_PER_PROFILE;
             let last = (first + MAX_ROWS_PER_PROFILE).min(height);
-            for r in first..last {
+            for i in first..last {
+                let r = readout.sensor_row(i as u16);
+                if sampling == RowSampling::WholeFrame {
+                    while next_sensor_row < r {
+                        if camera.read_row(&mut self.row[..width]).is_err() {
+                            return self.fail(ErrorCode::SensorFault, None, reply);
+                        }
+                        next_sensor_row += 1;
+                    }
+                    next_sensor_row += 1;
+                }
                 if camera.read_row(&mut self.row[..width]).is_err() {
                     return self.fail(ErrorCode::SensorFault, None, reply);
                 }
@@ -625,9 +687,9 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 if found.is_err() {
                     return self.fail(ErrorCode::SensorFault, None, reply);
                 }
-                assign(&stripes, lit, &mut self.track, &mut self.profile.lasers, r as u16);
+                assign(&stripes, lit, &mut self.track, &mut self.profile.lasers, r);
                 if let Some((_, t)) = &self.calibration {
-                    triangulate(t, &mut self.profile.lasers, r as u16);
+                    triangulate(t, &mut self.profile.lasers, r, centre_q16);
                 }
             }
             // Lend the profile to the message without copying it twice.
@@ -673,6 +735,10 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             }
             self.capture = Some(job);
             return;
+        }
+        // A capture is of every row, whatever the streaming readout.
+        if self.apply_readout(Readout::full(height), camera).is_err() {
+            return self.fail(ErrorCode::SensorFault, Some(job.seq), reply);
         }
         self.state = HeadState::Streaming;
         self.set_lasers(job.mask);
@@ -720,6 +786,26 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         if job.next_row < height {
             self.capture = Some(job);
         }
+    }
+
+    /// Sets `readout` on the camera unless it is the one it has (called
+    /// with the lasers off, before an exposure).
+    fn apply_readout<C: Camera>(&mut self, readout: Readout, camera: &mut C) -> Result<RowSampling, C::Error> {
+        if let Some((r, s)) = self.camera_readout
+            && r == readout
+        {
+            return Ok(s);
+        }
+        self.camera_readout = None;
+        let s = camera.set_readout(&readout)?;
+        self.camera_readout = Some((readout, s));
+        Ok(s)
+    }
+
+    /// The readout in force while streaming (every row unless `SetReadout`
+    /// said otherwise before the `Start`).
+    pub fn streaming_readout(&self) -> Option<Readout> {
+        self.frame_readout
     }
 
     /// The current status.
@@ -785,15 +871,20 @@ fn assign(
     }
 }
 
-/// Fills in the triangulated point of each laser's point of this row.
-fn triangulate(t: &Triangulator, out: &mut Vec<LaserPoints, LASERS>, row: u16) {
+/// Fills in the triangulated point of each laser's point of this row
+/// (sensor row `row`, its centre `centre_q16` rows below: a binned row's).
+fn triangulate(t: &Triangulator, out: &mut Vec<LaserPoints, LASERS>, row: u16, centre_q16: i32) {
     for lp in out.iter_mut() {
         if let Some(p) = lp.points.last_mut()
             && p.row == row
         {
-            p.metric = t
-                .profile(lp.laser as usize, p.position, row)
-                .map(|q| Metric { along_um: round_i32(q.along_mm * 1e3), height_nm: round_i32(q.height_mm * 1e6) });
+            let at = if centre_q16 == 0 {
+                t.profile(lp.laser as usize, p.position, row)
+            } else {
+                t.profile_at(lp.laser as usize, p.position, (i64::from(row) << 16) + i64::from(centre_q16))
+            };
+            p.metric =
+                at.map(|q| Metric { along_um: round_i32(q.along_mm * 1e3), height_nm: round_i32(q.height_mm * 1e6) });
         }
     }
 }

@@ -440,6 +440,21 @@ pub enum HostMsg {
     /// kept in flash. Appended last, so every other command's bytes are
     /// those of earlier builds (which answer it with `Decode`).
     SetWindows([Option<ColumnWindow>; LASERS]),
+    /// The sensor rows a frame reads from the next `Start` on
+    /// (`readout`): rows `first_row .. first_row + rows`, one in `skip`
+    /// (1, 2 or 4). Points keep their sensor row. Refused (`OutOfRange`)
+    /// if `readout::Readout::from_factor` refuses it against the sensor's
+    /// height, and (`Busy`) while streaming. Not kept in flash; image
+    /// captures read every row whatever it says. Appended last, after
+    /// `SetWindows`, so every other command's bytes are unchanged.
+    SetReadout {
+        /// First sensor row of the window.
+        first_row: u16,
+        /// Sensor rows of the window (a multiple of `skip`).
+        rows: u16,
+        /// Read one row in `skip`: 1, 2 or 4.
+        skip: u8,
+    },
 }
 
 /// A command: a sequence number for the acknowledgement, and the body.

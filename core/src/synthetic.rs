@@ -37,6 +37,7 @@
 use crate::fixed::Px;
 use crate::pipeline::Camera;
 use crate::protocol::LASERS;
+use crate::readout::{Readout, RowSampling};
 
 /// One laser's stripe in the image.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -366,6 +367,9 @@ pub struct SceneCamera {
     scene: Scene,
     odometer_um: i64,
     exposure: Option<(i64, u8, u32)>,
+    /// The rows it reads (as the sensor would: only these), and the next
+    /// of them (an index into the readout).
+    readout: Readout,
     next_row: u16,
 }
 
@@ -377,7 +381,8 @@ pub struct NoFrame;
 impl SceneCamera {
     /// A camera at odometer 0.
     pub fn new(scene: Scene) -> SceneCamera {
-        SceneCamera { scene, odometer_um: 0, exposure: None, next_row: 0 }
+        let readout = Readout::full(scene.cfg.height);
+        SceneCamera { scene, odometer_um: 0, exposure: None, readout, next_row: 0 }
     }
 
     /// The scene.
@@ -414,13 +419,20 @@ impl Camera for SceneCamera {
     }
     fn read_row(&mut self, row: &mut [u16]) -> Result<(), NoFrame> {
         let (odometer, mask, exposure) = self.exposure.ok_or(NoFrame)?;
-        if self.next_row >= self.scene.cfg.height {
+        if self.next_row >= self.readout.rows_read() {
             self.exposure = None;
             return Err(NoFrame);
         }
-        self.scene.row(odometer, mask, exposure, self.next_row, row);
+        self.scene.row(odometer, mask, exposure, self.readout.sensor_row(self.next_row), row);
         self.next_row += 1;
         Ok(())
+    }
+    fn set_readout(&mut self, readout: &Readout) -> Result<RowSampling, NoFrame> {
+        if readout.end_row() > self.scene.cfg.height {
+            return Err(NoFrame);
+        }
+        self.readout = *readout;
+        Ok(RowSampling::Skip)
     }
 }
 

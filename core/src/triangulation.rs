@@ -453,8 +453,8 @@ impl Triangulator {
 
     /// `X − O'` for laser `l`, or `None`.
     #[inline]
-    fn delta(&self, l: &Laser, position: Px, row: u16) -> Option<[f32; 3]> {
-        let [x, y] = self.undistort_q32((position.0 as i64) << 16, (row as i64) << 32)?;
+    fn delta(&self, l: &Laser, position: Px, row_q32: i64) -> Option<[f32; 3]> {
+        let [x, y] = self.undistort_q32((position.0 as i64) << 16, row_q32)?;
         let dx = x - l.r0[0];
         let dy = y - l.r0[1];
         let q = l.c[0] * dx + l.c[1] * dy;
@@ -476,7 +476,7 @@ impl Triangulator {
     /// is outside the invertible field, or `laser` is out of range.
     pub fn point_mm(&self, laser: usize, position: Px, row: u16) -> Option<[f32; 3]> {
         let l = self.lasers.get(laser)?;
-        let v = self.delta(l, position, row)?;
+        let v = self.delta(l, position, (row as i64) << 32)?;
         let p = [
             l.origin_hi[0] + (v[0] + l.origin_lo[0]),
             l.origin_hi[1] + (v[1] + l.origin_lo[1]),
@@ -487,8 +487,19 @@ impl Triangulator {
 
     /// The profile-frame coordinates of the same point (see [`Self::point_mm`]).
     pub fn profile(&self, laser: usize, position: Px, row: u16) -> Option<ProfilePoint> {
+        self.profile_q32(laser, position, (row as i64) << 32)
+    }
+
+    /// [`Self::profile`] at a fractional row (`row_q16`: rows in Q16.16,
+    /// wide enough for any `u16` row and its fraction): the centre of a
+    /// binned row (`readout::RowSampling::Bin`).
+    pub fn profile_at(&self, laser: usize, position: Px, row_q16: i64) -> Option<ProfilePoint> {
+        self.profile_q32(laser, position, row_q16 << 16)
+    }
+
+    fn profile_q32(&self, laser: usize, position: Px, row_q32: i64) -> Option<ProfilePoint> {
         let l = self.lasers.get(laser)?;
-        let v = self.delta(l, position, row)?;
+        let v = self.delta(l, position, row_q32)?;
         let a = &l.along;
         let n = &self.up;
         let along_mm = (a[0] * v[0] + a[1] * v[1] + a[2] * v[2]) + l.along_off;

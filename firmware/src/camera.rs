@@ -41,6 +41,16 @@
 //! exposure with the same lasers, exposure and gain. 15 bands of 32 rows
 //! cost 15 frame times plus 15 × 25 KB on the link: about 0.7 s.
 //!
+//! # Row window and row skip
+//! [`Camera::set_readout`] writes the readout into the sensor (ROW_START,
+//! WINDOW_HEIGHT and READ_MODE's row bin, [`readout_registers`]): the
+//! sensor then reads out only the window's rows, and for a skip of 2 or 4
+//! bins that many rows into one, so a frame has `rows / skip` rows and takes
+//! that many row times to read out (the ring and the detector see only
+//! them). The MT9V034's read mode has binning, not a plain row skip: a
+//! binned row is the mean of its rows, so the camera says
+//! [`RowSampling::Bin`] and the head triangulates it at its rows' centre.
+//!
 //! # Pixel format
 //! 8-bit DCMI on D9..D2 of the sensor's 10-bit ADC: 8 bits per pixel, one
 //! byte each, four pixels per DMA word (first pixel in the low byte).
@@ -50,6 +60,7 @@ use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use cms_core::odometer::Odometer;
 use cms_core::pipeline::Camera;
+use cms_core::readout::{Readout, RowSampling, RowSkip};
 use embassy_stm32::dcmi::Dcmi;
 use embassy_stm32::gpio::Output;
 use embassy_stm32::i2c::{I2c, Master};
@@ -190,6 +201,7 @@ mod reg {
     pub const HBLANK: u8 = 0x05;
     pub const VBLANK: u8 = 0x06;
     pub const CHIP_CONTROL: u8 = 0x07;
+    pub const READ_MODE_A: u8 = 0x0D;
     pub const SHUTTER_WIDTH_A: u8 = 0x0B;
     pub const RESET: u8 = 0x0C;
     pub const ADC_MODE: u8 = 0x1C;
@@ -197,6 +209,41 @@ mod reg {
     pub const AEC_AGC_ENABLE: u8 = 0xAF;
     /// The MT9V034's CHIP_VERSION.
     pub const MT9V034: u16 = 0x1324;
+    /// ROW_START of the first active row (rows 0–3 are dark), and the
+    /// register's largest value.
+    pub const FIRST_ACTIVE_ROW: u16 = 4;
+    pub const ROW_START_MAX: u16 = 482;
+    /// READ_MODE (context A), bit by bit:
+    /// * 1:0 row bin: 0 every row, 1 two rows binned into one, 2 four;
+    /// * 3:2 column bin, the same for columns (0 here: the detector needs
+    ///   every column);
+    /// * 4 row flip, 5 column flip (read bottom to top, right to left: 0);
+    /// * 6 show dark columns, 7 show dark rows (0: active pixels only);
+    /// * 9:8 reserved, set at reset (0x0300) and kept set.
+    pub const READ_MODE_RESERVED: u16 = 0x0300;
+    pub const READ_MODE_ROW_BIN_2: u16 = 1;
+    pub const READ_MODE_ROW_BIN_4: u16 = 2;
+}
+
+/// The register writes of a readout: ROW_START (first row of the window,
+/// counted from the first dark row), WINDOW_HEIGHT (the window's rows
+/// before binning) and READ_MODE (the row bin). `None` for a window whose
+/// start the sensor cannot take.
+pub fn readout_registers(r: &Readout) -> Option<[(u8, u16); 3]> {
+    let row_start = reg::FIRST_ACTIVE_ROW + r.first_row();
+    if row_start > reg::ROW_START_MAX || r.end_row() as usize > board::HEIGHT {
+        return None;
+    }
+    let bin = match r.skip() {
+        RowSkip::X1 => 0,
+        RowSkip::X2 => reg::READ_MODE_ROW_BIN_2,
+        RowSkip::X4 => reg::READ_MODE_ROW_BIN_4,
+    };
+    Some([
+        (reg::ROW_START, row_start),
+        (reg::WINDOW_HEIGHT, r.rows()),
+        (reg::READ_MODE_A, reg::READ_MODE_RESERVED | bin),
+    ])
 }
 
 /// Why the camera failed.
@@ -212,6 +259,8 @@ pub enum CameraError {
     Transfer,
     /// `read_row` without an exposure, or past the last row.
     NoFrame,
+    /// A readout the sensor's registers cannot take.
+    Readout,
 }
 
 /// The sensor and its capture path.
@@ -222,6 +271,8 @@ pub struct Mt9v034 {
     qei: Qei<'static, TIM5>,
     odometer: Cell<Odometer>,
     shutter_rows: u16,
+    /// Rows a frame of the readout written into the sensor has.
+    frame_rows: usize,
     next_row: Option<usize>,
     dropped_rows: u32,
     cycles_per_us: u32,
@@ -249,6 +300,7 @@ impl Mt9v034 {
             qei,
             odometer: Cell::new(odometer),
             shutter_rows: 0,
+            frame_rows: board::HEIGHT,
             next_row: None,
             dropped_rows: 0,
             cycles_per_us: sysclk_hz / 1_000_000,
@@ -277,6 +329,7 @@ impl Mt9v034 {
             (reg::AEC_AGC_ENABLE, 0x0000), // manual exposure and gain: the detector's noise model needs them fixed
             (reg::ADC_MODE, 0x0302),       // linear 10-bit ADC, context A and B
             (reg::ANALOG_GAIN_A, 16),      // 1×
+            (reg::READ_MODE_A, reg::READ_MODE_RESERVED), // every row and column, not flipped, no dark pixels
         ] {
             cam.write(r, v)?;
         }
@@ -386,6 +439,17 @@ impl Camera for Mt9v034 {
         BAND_ROWS as u16
     }
 
+    fn set_readout(&mut self, readout: &Readout) -> Result<RowSampling, CameraError> {
+        let writes = readout_registers(readout).ok_or(CameraError::Readout)?;
+        // Written while no capture is armed: the sensor takes them at the
+        // next frame start, which the next EXPOSURE pulse begins.
+        for (r, v) in writes {
+            self.write(r, v)?;
+        }
+        self.frame_rows = usize::from(readout.rows_read());
+        Ok(if readout.skip() == RowSkip::X1 { RowSampling::Skip } else { RowSampling::Bin })
+    }
+
     fn start_band(&mut self, first: u16, rows: u16, scratch: &mut [u16]) -> Result<(), CameraError> {
         let rows = usize::from(rows).min(BAND_ROWS);
         let lost = self.dropped_rows;
@@ -413,7 +477,7 @@ impl Mt9v034 {
     /// for it to arrive (module docs).
     fn ring_row(&mut self, row: &mut [u16]) -> Result<(), CameraError> {
         let r = self.next_row.ok_or(CameraError::NoFrame)?;
-        if r >= board::HEIGHT {
+        if r >= self.frame_rows {
             self.next_row = None;
             return Err(CameraError::NoFrame);
         }

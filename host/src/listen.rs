@@ -52,6 +52,7 @@ use cms_core::protocol::{
     DeviceInfo, DeviceMsg, ErrorCode, HeadState, HostMsg, LASERS, LaserPattern, PROTOCOL_VERSION, Profile, Start,
     Status, WireError,
 };
+use cms_core::readout::{Readout, ReadoutError};
 
 use crate::analyze::live::LiveEstimate;
 use crate::link::{Client, ClientError, Counters, Greeting, Handshake, LinkError, Outbox, Wait, check_version};
@@ -99,6 +100,10 @@ pub struct ListenOptions {
     /// `None` sets none (the head keeps what it has; full rows after a
     /// restart).
     pub windows: Option<[Option<ColumnWindow>; LASERS]>,
+    /// The sensor rows to read (`SetReadout` before starting: first row,
+    /// rows, skip); `None` sets none (the head keeps what it has; every
+    /// row after a restart).
+    pub readout: Option<RowsRequest>,
     /// How long a lost port may stay away.
     pub reconnect_timeout: Duration,
 }
@@ -115,8 +120,31 @@ impl Default for ListenOptions {
             start: Start { rate_hz: 30, laser_mask: 0b111, pattern: LaserPattern::Simultaneous },
             exposure_us: None,
             windows: None,
+            readout: None,
             reconnect_timeout: Duration::from_secs(30),
         }
+    }
+}
+
+/// The readout `listen` asks the head for (`HostMsg::SetReadout`): sensor
+/// rows `first_row .. first_row + rows`, one in `skip`. Checked against
+/// the sensor's height in the head's `Hello` before it is sent (and by the
+/// head again).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RowsRequest {
+    /// First sensor row.
+    pub first_row: u16,
+    /// Sensor rows of the window; `None`: up to the sensor's last row.
+    pub rows: Option<u16>,
+    /// Read one row in `skip` (1, 2 or 4).
+    pub skip: u8,
+}
+
+impl RowsRequest {
+    /// The readout on a sensor `sensor_rows` high.
+    pub fn on(&self, sensor_rows: u16) -> Result<Readout, ReadoutError> {
+        let rows = self.rows.unwrap_or(sensor_rows.saturating_sub(self.first_row));
+        Readout::from_factor(self.first_row, rows, self.skip, sensor_rows)
     }
 }
 
@@ -142,6 +170,14 @@ pub enum ListenError {
         port: String,
         /// The head's version.
         theirs: u8,
+    },
+    /// The row readout asked for does not fit the head's sensor.
+    #[error("--rows/--row-skip on the head of {port}: {why}")]
+    Readout {
+        /// The port.
+        port: String,
+        /// Why.
+        why: ReadoutError,
     },
     /// The head refused a command of the handshake.
     #[error("the head refused {command}: {code}")]
@@ -175,6 +211,7 @@ impl crate::error::Classify for ListenError {
         match self {
             ListenError::Output(_) => crate::Class::Output,
             ListenError::Record(r) => crate::error::Classify::class(r),
+            ListenError::Readout { .. } => crate::Class::Input,
             _ => crate::Class::Device,
         }
     }
@@ -218,6 +255,9 @@ pub struct Summary {
     pub head: Option<Status>,
     /// The head's description.
     pub device: Option<DeviceInfo>,
+    /// The row readout the head acknowledged (`SetReadout`; `None`: none
+    /// asked for).
+    pub readout: Option<Readout>,
     /// Frames written to the recording.
     pub recorded: u64,
     /// Whether the head acknowledged the final `Stop`.
@@ -272,6 +312,16 @@ impl fmt::Display for Summary {
             Some(0) => writeln!(f, "calibration: none (positions in pixels only: see cms-host calibrate)")?,
             Some(id) => writeln!(f, "calibration: {id:#010x} (points in mm along the line, heights in µm)")?,
             None => {}
+        }
+        if let Some(r) = &self.readout {
+            writeln!(
+                f,
+                "rows: sensor rows {}..{}, one in {} ({} a frame)",
+                r.first_row(),
+                r.end_row(),
+                r.skip().factor(),
+                r.rows_read()
+            )?;
         }
         if let Some(h) = &self.head {
             writeln!(f, "head (last status): {}", telemetry(h))?;
@@ -329,6 +379,8 @@ struct Session<'a> {
     start_seq: Option<u16>,
     exposure_seq: Option<u16>,
     windows_seq: Option<u16>,
+    /// The `SetReadout` sent, and what it asked for.
+    readout_seq: Option<(u16, Readout)>,
     stop_seq: Option<u16>,
     /// When the stop began (and so when to give up waiting for its Ack).
     stopping: Option<Instant>,
@@ -363,6 +415,19 @@ impl Session<'_> {
         }
         if let Some(w) = self.opts.windows {
             self.windows_seq = Some(out.push(HostMsg::SetWindows(w)));
+        }
+        if let Some(req) = self.opts.readout {
+            let height = self.sum.device.as_ref().map_or(0, |d| d.sensor_height);
+            match req.on(height) {
+                Ok(r) => {
+                    let msg = HostMsg::SetReadout { first_row: r.first_row(), rows: r.rows(), skip: r.skip().factor() };
+                    self.readout_seq = Some((out.push(msg), r));
+                }
+                Err(why) => {
+                    self.fatal = Some(ListenError::Readout { port: self.port.to_string(), why });
+                    return;
+                }
+            }
         }
         self.start_seq = Some(out.push(HostMsg::Start(self.opts.start)));
         self.phase = Phase::Starting { sent: now };
@@ -443,6 +508,10 @@ impl Session<'_> {
                     self.last_rx = now;
                 } else if Some(seq) == self.stop_seq {
                     self.sum.stop_acked = true;
+                } else if let Some((s, r)) = self.readout_seq
+                    && s == seq
+                {
+                    self.sum.readout = Some(r);
                 }
             }
             DeviceMsg::Error { seq: Some(seq), code } if Some(seq) == self.start_seq => {
@@ -453,6 +522,9 @@ impl Session<'_> {
             }
             DeviceMsg::Error { seq: Some(seq), code } if Some(seq) == self.windows_seq => {
                 self.fatal = Some(ListenError::Refused { command: "SetWindows", code });
+            }
+            DeviceMsg::Error { seq: Some(seq), code } if self.readout_seq.is_some_and(|(s, _)| s == seq) => {
+                self.fatal = Some(ListenError::Refused { command: "SetReadout", code });
             }
             DeviceMsg::Error { .. } | DeviceMsg::RawRows(_) => {}
         }
@@ -670,6 +742,7 @@ pub fn session(
         start_seq: None,
         exposure_seq: None,
         windows_seq: None,
+        readout_seq: None,
         stop_seq: None,
         stopping: None,
         stop_reported: false,

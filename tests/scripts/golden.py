@@ -161,7 +161,7 @@ def profile_v4(seqno, ts, odo, exposure, mask, lasers):
 
 DEVICE = {"hello": 0, "profile": 1, "status": 2, "ack": 3, "error": 4, "raw": 5}
 HOST = {"start": 0, "stop": 1, "exposure": 2, "detector": 3, "calibration": 4, "capture": 5, "info": 6, "heartbeat": 7,
-        "trigger": 8, "windows": 9}
+        "trigger": 8, "windows": 9, "readout": 10}
 
 
 def dev(kind, body=b""):
@@ -206,6 +206,8 @@ GOLDENS = [
     ("trigger", cmd(9, "trigger", varint(1) + varint(5000))),        # Distance { every_um: 5000 }
     # Laser 0: columns 80..176, laser 1 none, laser 2: 600..696 (a fixed-size array: no length).
     ("windows", cmd(10, "windows", opt(varint(80) + varint(96)) + opt(None) + opt(varint(600) + varint(96)))),
+    # Rows 40..440, one in two (a struct variant: its fields in order).
+    ("readout", cmd(11, "readout", varint(40) + varint(400) + u8(2))),
 ]
 
 # Protocol 3's frames that recordings hold (decoded, never written, by this build).

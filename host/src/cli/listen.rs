@@ -11,8 +11,9 @@ use clap::{Args, ValueEnum};
 use cms_core::peak::ColumnWindow;
 use cms_core::peak::window::MIN_WINDOW_PX;
 use cms_core::protocol::{LASERS, LaserPattern, Start};
+use cms_core::readout::RowSkip;
 use cms_host::calib::file::CalibrationFile;
-use cms_host::listen::{self, ListenOptions, StatusLine, Summary};
+use cms_host::listen::{self, ListenOptions, RowsRequest, StatusLine, Summary};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::exit::Usage;
@@ -71,6 +72,16 @@ pub struct ListenArgs {
     /// (a --window for a laser replaces its window).
     #[arg(long = "windows-from", value_name = "CAL")]
     pub windows_from: Option<PathBuf>,
+    /// Read only sensor rows FIRST up to (not including) FIRST+COUNT
+    /// (`SetReadout` before `Start`): a shorter stretch of rail a frame,
+    /// more frames a second. Points keep their sensor rows.
+    #[arg(long = "rows", value_name = "FIRST:COUNT", value_parser = parse_rows)]
+    pub rows: Option<(u16, u16)>,
+    /// Read one sensor row in N (1, 2 or 4; the MT9V034 bins N rows into
+    /// one): N times the row pitch along the rail, about N times the
+    /// frames a second. COUNT of --rows must be a multiple of N.
+    #[arg(long = "row-skip", value_name = "N", value_parser = parse_row_skip)]
+    pub row_skip: Option<u8>,
     /// What the recording is of: a TOML file of line, track, rail,
     /// start_chainage, chainage (up|down), operator, instrument, notes
     /// (docs/corrugation-and-standards.md), stored in a new recording's
@@ -93,6 +104,28 @@ fn parse_secs(s: &str) -> Result<Duration, String> {
 /// Margin of `--windows-from` either side of where a line can fall, px:
 /// a stripe's half width (3σ, σ up to 4 px) and the camera model's error.
 const WINDOW_MARGIN_PX: f64 = 16.0;
+
+/// `FIRST:COUNT`, sensor rows FIRST..FIRST+COUNT.
+fn parse_rows(s: &str) -> Result<(u16, u16), String> {
+    let bad = || format!("`{s}`: a row window is FIRST:COUNT (sensor rows FIRST up to FIRST+COUNT, e.g. 120:240)");
+    let (a, b) = s.trim().split_once(':').ok_or_else(bad)?;
+    let (first, count): (u16, u16) = (a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?);
+    if count == 0 {
+        return Err(format!("`{s}`: a row window has at least one row"));
+    }
+    if u32::from(first) + u32::from(count) > u32::from(u16::MAX) {
+        return Err(format!("`{s}`: a row window ends by row {}", u16::MAX));
+    }
+    Ok((first, count))
+}
+
+/// `--row-skip`: 1, 2 or 4.
+fn parse_row_skip(s: &str) -> Result<u8, String> {
+    match s.trim().parse::<u8>().map(RowSkip::new) {
+        Ok(Ok(k)) => Ok(k.factor()),
+        _ => Err(format!("`{s}`: the row skip is 1, 2 or 4 (read one sensor row in N)")),
+    }
+}
 
 /// `LASER:FIRST-END`, columns FIRST..END of laser LASER.
 fn parse_window(s: &str) -> Result<(usize, ColumnWindow), String> {
@@ -150,6 +183,11 @@ impl ListenArgs {
                     w[k] = Some(cw);
                 }
                 w
+            }),
+            readout: (self.rows.is_some() || self.row_skip.is_some()).then(|| RowsRequest {
+                first_row: self.rows.map_or(0, |r| r.0),
+                rows: self.rows.map(|r| r.1),
+                skip: self.row_skip.unwrap_or(1),
             }),
             reconnect_timeout: self.reconnect_timeout,
         }
@@ -280,6 +318,19 @@ mod tests {
         assert_eq!(parse_window(" 0 : 0 - 8 "), Ok((0, ColumnWindow { first_px: 0, width_px: 8 })));
         for bad in ["3:0-96", "1:300-305", "1:396-300", "1:300", "x:1-99", "1:-5-90", "1:0-70000", ""] {
             assert!(parse_window(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn rows_and_row_skip_parse_and_refuse() {
+        assert_eq!(parse_rows("120:240"), Ok((120, 240)));
+        assert_eq!(parse_rows(" 0 : 480 "), Ok((0, 480)));
+        for bad in ["120", "120:0", "-1:20", "a:b", "65535:2", ""] {
+            assert!(parse_rows(bad).is_err(), "{bad}");
+        }
+        assert_eq!((parse_row_skip("1"), parse_row_skip("2"), parse_row_skip("4")), (Ok(1), Ok(2), Ok(4)));
+        for bad in ["0", "3", "8", "x", "-2", ""] {
+            assert!(parse_row_skip(bad).is_err(), "{bad}");
         }
     }
 }

@@ -30,6 +30,7 @@ use cms_core::protocol::{
     Command, DeviceMsg, ErrorCode, FrameReader, HeadState, HostMsg, MAX_COMMAND_FRAME, MAX_FRAME, MAX_ROWS_PER_PROFILE,
     WireError, encode,
 };
+use cms_core::readout::{Readout, RowSampling};
 use nix::poll::{PollFd, PollFlags, PollTimeout};
 use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
 
@@ -92,6 +93,12 @@ pub trait RowRenderer {
     fn begin_frame(&mut self, frame: u64, t_us: u64, exposure_us: u32, mask: u8) -> i64;
     /// Row `r` of the current frame into `out` (`width` pixels).
     fn row(&mut self, r: u16, out: &mut [u16]);
+    /// The rows frames from the next one on will be asked for, in order
+    /// (a renderer that renders ahead renders only these). Default: rows
+    /// are rendered when asked for.
+    fn set_readout(&mut self, readout: &Readout) {
+        let _ = readout;
+    }
     /// CPU time spent on threads of its own (zero if it renders on the caller's).
     fn cpu(&self) -> Duration {
         Duration::ZERO
@@ -99,10 +106,16 @@ pub trait RowRenderer {
 }
 
 /// The simulated camera: a [`RowRenderer`] behind `cms_core`'s [`Camera`].
+///
+/// It reads what the real sensor would: the rows of its readout
+/// ([`Camera::set_readout`]), skipping the others (it renders only those),
+/// so a frame is the subset of a full frame's rows the readout names.
 pub struct SimCamera<R> {
     renderer: R,
     start: Instant,
     frame: u64,
+    readout: Readout,
+    /// The next output row of the exposed frame (an index into `readout`).
     next_row: Option<u16>,
 }
 
@@ -113,7 +126,8 @@ pub struct NoFrame;
 impl<R: RowRenderer> SimCamera<R> {
     /// A camera whose clock (the odometer's time base) starts at `start`.
     pub fn new(renderer: R, start: Instant) -> Self {
-        SimCamera { renderer, start, frame: 0, next_row: None }
+        let readout = Readout::full(renderer.size().1);
+        SimCamera { renderer, start, frame: 0, readout, next_row: None }
     }
 
     /// Frames exposed so far.
@@ -146,14 +160,22 @@ impl<R: RowRenderer> Camera for SimCamera<R> {
         Ok(odometer)
     }
     fn read_row(&mut self, row: &mut [u16]) -> Result<(), NoFrame> {
-        let r = self.next_row.ok_or(NoFrame)?;
-        if r >= self.height() {
+        let i = self.next_row.ok_or(NoFrame)?;
+        if i >= self.readout.rows_read() {
             self.next_row = None;
             return Err(NoFrame);
         }
-        self.renderer.row(r, row);
-        self.next_row = Some(r + 1);
+        self.renderer.row(self.readout.sensor_row(i), row);
+        self.next_row = Some(i + 1);
         Ok(())
+    }
+    fn set_readout(&mut self, readout: &Readout) -> Result<RowSampling, NoFrame> {
+        if readout.end_row() > self.height() {
+            return Err(NoFrame);
+        }
+        self.readout = *readout;
+        self.renderer.set_readout(readout);
+        Ok(RowSampling::Skip)
     }
 }
 

@@ -12,10 +12,12 @@ use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
+use cms_core::readout::Readout;
+
 use super::RowRenderer;
 
 enum Job {
-    Frame { generation: u64, frame: u64, t_us: u64, exposure_us: u32, mask: u8 },
+    Frame { generation: u64, frame: u64, t_us: u64, exposure_us: u32, mask: u8, readout: Readout },
 }
 
 enum Done {
@@ -28,6 +30,7 @@ pub struct Threaded {
     size: (u16, u16),
     bits: u8,
     generation: u64,
+    readout: Readout,
     jobs: Option<SyncSender<Job>>,
     done: Receiver<Done>,
     spare: SyncSender<Vec<u16>>,
@@ -47,12 +50,12 @@ impl Threaded {
         let cpu = cpu_ns.clone();
         let thread = std::thread::Builder::new().name("cms-sim-render".into()).spawn(move || {
             let cpu0 = super::server::thread_cpu();
-            while let Ok(Job::Frame { generation, frame, t_us, exposure_us, mask }) = job_rx.recv() {
+            while let Ok(Job::Frame { generation, frame, t_us, exposure_us, mask, readout }) = job_rx.recv() {
                 let odometer_um = renderer.begin_frame(frame, t_us, exposure_us, mask);
                 if done_tx.send(Done::Odometer { generation, odometer_um }).is_err() {
                     return;
                 }
-                for row in 0..size.1 {
+                for row in (0..readout.rows_read()).map(|i| readout.sensor_row(i)) {
                     let mut pixels = spare_rx.try_recv().unwrap_or_default();
                     pixels.resize(size.0 as usize, 0);
                     renderer.row(row, &mut pixels);
@@ -63,7 +66,8 @@ impl Threaded {
                 cpu.store((super::server::thread_cpu() - cpu0).as_nanos() as u64, Ordering::Relaxed);
             }
         })?;
-        Ok(Threaded { size, bits, generation: 0, jobs: Some(jobs), done, spare, thread: Some(thread), cpu_ns })
+        let readout = Readout::full(size.1);
+        Ok(Threaded { size, bits, generation: 0, readout, jobs: Some(jobs), done, spare, thread: Some(thread), cpu_ns })
     }
 }
 
@@ -80,7 +84,7 @@ impl RowRenderer for Threaded {
     fn begin_frame(&mut self, frame: u64, t_us: u64, exposure_us: u32, mask: u8) -> i64 {
         self.generation += 1;
         let generation = self.generation;
-        let job = Job::Frame { generation, frame, t_us, exposure_us, mask };
+        let job = Job::Frame { generation, frame, t_us, exposure_us, mask, readout: self.readout };
         if self.jobs.as_ref().is_none_or(|j| j.send(job).is_err()) {
             return 0;
         }
@@ -95,6 +99,9 @@ impl RowRenderer for Threaded {
                 Err(_) => return 0,
             }
         }
+    }
+    fn set_readout(&mut self, readout: &Readout) {
+        self.readout = *readout;
     }
     fn row(&mut self, r: u16, out: &mut [u16]) {
         loop {

@@ -1270,3 +1270,73 @@ fn cli_listen_sets_search_windows() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("SetWindows"), "{}", String::from_utf8_lossy(&out.stderr));
 }
+
+/// `--rows FIRST:COUNT` / `--row-skip N` on the simulated head (standing
+/// still, so two runs see the same rail): one row in two gives half the
+/// rows a frame, numbered by their sensor rows, at the full readout's
+/// metric positions along the rail (and heights) within the noise; a
+/// window one in four gives its rows only. Values that cannot be a
+/// readout are bad usage (exit 2, one `error:` line): a skip of 3 or a
+/// malformed window at once, a window that does not fit the head's 480
+/// rows once the head has said its height.
+#[test]
+fn cli_listen_reads_a_row_window_and_a_row_skip() {
+    type Points = Vec<std::collections::BTreeMap<u64, (f64, f64)>>;
+    let frame = |extra: &[&str]| -> Points {
+        let mut args = vec!["listen", "sim", "--frames", "2", "--json", "--sim-speed-mm-s", "0"];
+        args.extend(extra);
+        let out = crate::common::run(&args);
+        assert!(out.status.success(), "{extra:?}: {}", String::from_utf8_lossy(&out.stderr));
+        let last = String::from_utf8(out.stdout).unwrap().lines().last().unwrap().to_owned();
+        let v: serde_json::Value = serde_json::from_str(&last).unwrap();
+        v["lasers"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|l| {
+                let point = |p: &serde_json::Value| {
+                    let f = |k: &str| p[k].as_f64().unwrap_or_else(|| panic!("{k} of {p}"));
+                    (p["row"].as_u64().unwrap(), (f("along_mm"), f("height_um")))
+                };
+                l["points"].as_array().unwrap().iter().map(point).collect()
+            })
+            .collect()
+    };
+    let full = frame(&[]);
+    assert!(full.iter().all(|l| l.keys().copied().eq(0..480)), "every row of every laser");
+    let half = frame(&["--row-skip", "2"]);
+    let mut worst = (0.0f64, 0.0f64);
+    for (k, l) in half.iter().enumerate() {
+        assert!(l.keys().copied().eq((0..480).step_by(2)), "laser {k}: {:?}", l.keys().collect::<Vec<_>>());
+        for (r, &(along, height)) in l {
+            let (a, h) = full[k][r];
+            worst = (worst.0.max((along - a).abs()), worst.1.max((height - h).abs()));
+        }
+    }
+    // Rows are 0.144 mm apart along the rail: the same row lands within a
+    // few µm (the stripe's noise moves it across the row, not along); the
+    // heights differ by the two frames' noise.
+    assert!(worst.0 <= 0.005 && worst.1 <= 20.0, "worst along {} mm, height {} µm", worst.0, worst.1);
+    let pitch = half[1][&2].0 - half[1][&0].0;
+    assert!((0.2..0.4).contains(&pitch.abs()), "two rows along the rail: {pitch} mm");
+    let window = frame(&["--rows", "100:200", "--row-skip", "4"]);
+    assert!(window.iter().all(|l| l.keys().copied().eq((100..300).step_by(4))), "{:?}", window[0].keys());
+    let out = crate::common::run(&["listen", "sim", "--frames", "1", "--rows", "100:200", "--row-skip", "4"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("listen: rows: sensor rows 100..300, one in 4 (50 a frame)"), "{stderr}");
+
+    for (args, needle) in [
+        (["--rows", "0:480", "--row-skip", "3"], "row skip is 1, 2 or 4"),
+        (["--rows", "0-480", "--row-skip", "1"], "FIRST:COUNT"),
+        (["--rows", "0:479", "--row-skip", "2"], "whole number"),
+        (["--rows", "400:200", "--row-skip", "1"], "ends past"),
+    ] {
+        let mut a = vec!["listen", "sim", "--frames", "2"];
+        a.extend(args);
+        let out = crate::common::run(&a);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {out:?}");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let errors: Vec<&str> = stderr.lines().filter(|l| l.starts_with("error: ")).collect();
+        assert!(errors.len() == 1 && errors[0].contains(needle), "{args:?}: {stderr}");
+    }
+}

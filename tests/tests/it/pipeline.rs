@@ -6,6 +6,7 @@ use cms_core::peak::ColumnWindow;
 use cms_core::persist::Stored;
 use cms_core::pipeline::{Camera, HEARTBEAT_TIMEOUT_US, Head, Identity, LaserDriver, default_detector};
 use cms_core::protocol::*;
+use cms_core::readout::{Readout, RowSampling, RowSkip};
 use cms_tests::{Gauss, Rng, clean_row, quantise};
 use proptest::prelude::*;
 use std::cell::{Cell, RefCell};
@@ -41,6 +42,11 @@ struct Cam {
     odo: Cell<Option<i64>>,
     /// Rows the camera lost (DMA overrun).
     lost_rows: u32,
+    /// How it honours a readout (`None`: the default, whole frames), the
+    /// readouts the head set, and rows read since the last exposure.
+    sampling: Option<RowSampling>,
+    readouts: Vec<Readout>,
+    rows_read: u32,
 }
 impl Cam {
     fn new() -> Cam {
@@ -54,6 +60,18 @@ impl Cam {
             lit: Vec::new(),
             odo: Cell::new(None),
             lost_rows: 0,
+            sampling: None,
+            readouts: Vec::new(),
+            rows_read: 0,
+        }
+    }
+    /// Sensor rows of output row `i` (the readout's group for a binning
+    /// camera, the row itself otherwise).
+    fn sensor_rows(&self, i: u16) -> std::ops::Range<u16> {
+        match (self.sampling, self.readouts.last()) {
+            (Some(RowSampling::Skip), Some(r)) => r.sensor_row(i)..r.sensor_row(i) + 1,
+            (Some(RowSampling::Bin), Some(r)) => r.sensor_row(i)..r.sensor_row(i) + u16::from(r.skip().factor()),
+            _ => i..i + 1,
         }
     }
     fn watching(l: &Lasers) -> Cam {
@@ -79,6 +97,7 @@ impl Camera for Cam {
             return Err(());
         }
         self.row = 0;
+        self.rows_read = 0;
         self.mask = laser_mask;
         if let Some(l) = &self.lasers {
             self.lit.push(l.now());
@@ -93,14 +112,28 @@ impl Camera for Cam {
         self.lost_rows
     }
     fn read_row(&mut self, out: &mut [u16]) -> Result<(), ()> {
-        let stripes: Vec<Gauss> = (0..3)
-            .filter(|k| self.mask & (1 << k) != 0)
-            .map(|k| Gauss { x0: Cam::truth(self.row, k), sigma: 2.5, amplitude: [2500.0, 1500.0, 900.0][k] })
-            .collect();
-        let row = quantise(&clean_row(752, 150.0, &stripes), 4.0, 12, &mut self.rng);
+        // The mean of the output row's sensor rows (one but for binning).
+        let rows = self.sensor_rows(self.row);
+        let n = rows.len() as f64;
+        let mut mean = vec![0.0; 752];
+        for r in rows {
+            let stripes: Vec<Gauss> = (0..3)
+                .filter(|k| self.mask & (1 << k) != 0)
+                .map(|k| Gauss { x0: Cam::truth(r, k), sigma: 2.5, amplitude: [2500.0, 1500.0, 900.0][k] })
+                .collect();
+            for (m, v) in mean.iter_mut().zip(clean_row(752, 150.0, &stripes)) {
+                *m += v / n;
+            }
+        }
+        let row = quantise(&mean, 4.0, 12, &mut self.rng);
         out.copy_from_slice(&row);
         self.row += 1;
+        self.rows_read += 1;
         Ok(())
+    }
+    fn set_readout(&mut self, readout: &Readout) -> Result<RowSampling, ()> {
+        self.readouts.push(*readout);
+        Ok(self.sampling.unwrap_or(RowSampling::WholeFrame))
     }
 }
 
@@ -1083,4 +1116,121 @@ fn search_windows_set_by_the_host_restrict_what_the_head_reports() {
         assert!(out.contains(&DeviceMsg::Error { seq: Some(seq), code: ErrorCode::OutOfRange }), "{out:?}");
         assert_eq!(l.now(), 0);
     }
+}
+
+/// One frame's profile from a calibrated head after `SetReadout` (`None`:
+/// none sent) on a camera honouring it as `sampling`, and the rows the
+/// camera read for it.
+fn readout_frame(readout: Option<(u16, u16, u8)>, sampling: Option<RowSampling>) -> (Profile, u32, Vec<Readout>) {
+    let (mut h, l) = head();
+    let mut cam = Cam { sampling, ..Cam::watching(&l) };
+    let mut out = Vec::new();
+    h.handle(cmd(1, HostMsg::SetCalibration(calibration(3))), 0, &cam, &mut |m| out.push(m.clone()));
+    if let Some((first_row, rows, skip)) = readout {
+        h.handle(cmd(2, HostMsg::SetReadout { first_row, rows, skip }), 0, &cam, &mut |m| out.push(m.clone()));
+        assert!(out.contains(&DeviceMsg::Ack(2)), "{out:?}");
+    }
+    h.handle(cmd(3, start(0b111, LaserPattern::Simultaneous)), 10, &cam, &mut |m| out.push(m.clone()));
+    h.poll(20, &mut cam, &mut || 0, &mut |m| out.push(m.clone()));
+    let p = out.iter().find_map(|m| if let DeviceMsg::Profile(p) = m { Some(p.clone()) } else { None }).unwrap();
+    (p, cam.rows_read, cam.readouts)
+}
+
+/// Each laser's metric point by sensor row.
+fn metric_by_row(p: &Profile) -> Vec<std::collections::BTreeMap<u16, Metric>> {
+    p.lasers.iter().map(|lp| lp.points.iter().map(|q| (q.row, q.metric.expect("calibrated"))).collect()).collect()
+}
+
+/// `SetReadout`: a window read one row in two gives half the window's
+/// rows, numbered by their sensor rows, whether the camera reads whole
+/// frames (the head passes over the others) or only those rows; their
+/// metric points are the full readout's at the same rows within the
+/// noise; a binning camera's are the mean of its two rows'.
+#[test]
+fn a_row_readout_numbers_points_by_sensor_row_and_keeps_their_metric_positions() {
+    let (full, full_rows, _) = readout_frame(None, None);
+    assert_eq!(full_rows, 480);
+    let full = metric_by_row(&full);
+    assert!(full.iter().all(|l| l.len() == 480));
+    let want_rows: Vec<u16> = (40..440).step_by(2).collect();
+    let close = |a: &Metric, b: &Metric, what: &str| {
+        // Along the rail: the row decides (0.14 mm a row), the stripe's
+        // noise moves it by well under a µm; height: σ of a few hundredths
+        // of a pixel is a few µm.
+        assert!((a.along_um - b.along_um).abs() <= 2, "{what}: {a:?} vs {b:?}");
+        assert!((a.height_nm - b.height_nm).abs() <= 25_000, "{what}: {a:?} vs {b:?}");
+    };
+    for sampling in [None, Some(RowSampling::Skip)] {
+        let (p, rows_read, set) = readout_frame(Some((40, 400, 2)), sampling);
+        let want = Readout::new(40, 400, RowSkip::X2, 480).unwrap();
+        assert_eq!(set, vec![want], "set once, before the exposure");
+        assert_eq!(rows_read, if sampling.is_none() { 439 } else { 200 }, "{sampling:?}");
+        for (k, l) in metric_by_row(&p).iter().enumerate() {
+            assert_eq!(l.keys().copied().collect::<Vec<_>>(), want_rows, "laser {k}, {sampling:?}");
+            for (r, m) in l {
+                close(m, &full[k][r], &format!("laser {k} row {r} {sampling:?}"));
+            }
+        }
+    }
+    // Binned: rows 40 + 2i again, each point where the mean of rows r and
+    // r + 1 is.
+    let (p, rows_read, _) = readout_frame(Some((40, 400, 2)), Some(RowSampling::Bin));
+    assert_eq!(rows_read, 200);
+    for (k, l) in metric_by_row(&p).iter().enumerate() {
+        assert_eq!(l.keys().copied().collect::<Vec<_>>(), want_rows, "laser {k} binned");
+        for (r, m) in l {
+            let (a, b) = (&full[k][r], &full[k][&(r + 1)]);
+            let mid = Metric { along_um: (a.along_um + b.along_um) / 2, height_nm: (a.height_nm + b.height_nm) / 2 };
+            close(m, &mid, &format!("laser {k} row {r} binned"));
+            assert!(m.along_um != a.along_um, "triangulated at the centre, not at row {r}");
+        }
+    }
+    // One row in four over the whole sensor.
+    let (p, rows_read, _) = readout_frame(Some((0, 480, 4)), Some(RowSampling::Skip));
+    assert_eq!(rows_read, 120);
+    assert!(p.lasers.iter().all(|l| l.points.iter().map(|q| q.row).eq((0..480).step_by(4))));
+}
+
+/// `SetReadout` refuses, lasers off, what does not fit the sensor or is
+/// not a skip of 1, 2 or 4, and anything while streaming; a capture reads
+/// every row whatever the readout, and the next frame has the readout back.
+#[test]
+fn a_bad_readout_is_refused_and_captures_read_every_row() {
+    let (mut h, l) = head();
+    let mut cam = Cam { sampling: Some(RowSampling::Skip), ..Cam::watching(&l) };
+    for (seq, (first_row, rows, skip)) in
+        [(1, (0, 480, 3)), (2, (0, 0, 1)), (3, (0, 6, 4)), (4, (400, 96, 1)), (5, (u16::MAX, 2, 2)), (6, (0, 480, 0))]
+    {
+        let out =
+            collect(|r| h.handle(cmd(seq, HostMsg::SetReadout { first_row, rows, skip }), 0, &cam, &mut |m| r(m)));
+        assert_eq!(out, vec![DeviceMsg::Error { seq: Some(seq), code: ErrorCode::OutOfRange }]);
+        assert_eq!(l.now(), 0);
+    }
+    let out = collect(|r| {
+        h.handle(cmd(7, HostMsg::SetReadout { first_row: 100, rows: 200, skip: 4 }), 0, &cam, &mut |m| r(m))
+    });
+    assert_eq!(out, vec![DeviceMsg::Ack(7)]);
+    assert_eq!(h.streaming_readout(), None, "from the next Start on");
+    h.handle(cmd(8, start(0b001, LaserPattern::Simultaneous)), 10, &cam, &mut |_| {});
+    let want = Readout::new(100, 200, RowSkip::X4, 480).unwrap();
+    assert_eq!(h.streaming_readout(), Some(want));
+    let busy = collect(|r| {
+        h.handle(cmd(9, HostMsg::SetReadout { first_row: 0, rows: 480, skip: 1 }), 20, &cam, &mut |m| r(m))
+    });
+    assert!(busy.contains(&DeviceMsg::Error { seq: Some(9), code: ErrorCode::Busy }), "{busy:?}");
+    assert_eq!(l.now(), 0);
+    // A fault stopped it; a capture now reads all 480 rows.
+    let out = collect(|r| {
+        h.handle(cmd(10, HostMsg::CaptureImage(0b001)), 30, &cam, &mut |m| r(m));
+        h.poll(30, &mut cam, &mut || 0, &mut |m| r(m));
+    });
+    let rows: std::collections::BTreeSet<u16> =
+        out.iter().filter_map(|m| if let DeviceMsg::RawRows(r) = m { Some(r.first_row) } else { None }).collect();
+    assert_eq!(rows.len(), 480);
+    assert_eq!(cam.readouts, vec![Readout::full(480)], "no frame yet: the capture's readout only");
+    h.handle(cmd(11, start(0b001, LaserPattern::Simultaneous)), 40, &cam, &mut |_| {});
+    let out = collect(|r| h.poll(40, &mut cam, &mut || 0, &mut |m| r(m)));
+    let p = out.iter().find_map(|m| if let DeviceMsg::Profile(p) = m { Some(p.clone()) } else { None }).unwrap();
+    assert_eq!(cam.readouts, vec![Readout::full(480), want]);
+    assert!(p.lasers[0].points.iter().map(|q| q.row).eq((100..300).step_by(4)), "{p:?}");
 }

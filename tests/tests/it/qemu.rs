@@ -24,7 +24,7 @@ use cms_core::protocol::{
 };
 use cms_core::synthetic::{Scene, SceneCamera, SceneConfig};
 use cms_host::link::{Client, ClientError, Wait};
-use cms_host::listen::{ListenOptions, Summary, listen_with};
+use cms_host::listen::{ListenOptions, RowsRequest, Summary, listen_with};
 use cms_host::qemu::{self, Machine, Qemu};
 
 /// The emulated head's scene seed (`SCENE_SEED` in firmware/qemu/src/bin/head.rs).
@@ -39,6 +39,8 @@ struct Session {
     summary: Summary,
     /// The head's report after a last `Stop`.
     after_stop: Status,
+    /// The readout the listener set (`None`: every row).
+    readout: Option<RowsRequest>,
 }
 
 /// One emulated head at a time: two QEMUs on a 2-core machine slow each
@@ -49,6 +51,11 @@ static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 /// Starts the emulated head on `machine`, listens for `frames` frames with
 /// `start`, and stops QEMU.
 fn listen_to_qemu(machine: Machine, start: Start, frames: u64) -> Session {
+    listen_to_qemu_reading(machine, start, frames, None)
+}
+
+/// [`listen_to_qemu`] with the listener's `SetReadout` (`None`: none).
+fn listen_to_qemu_reading(machine: Machine, start: Start, frames: u64, readout: Option<RowsRequest>) -> Session {
     let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let image = match qemu::image(qemu::HEAD_BIN, None) {
         Ok(i) => i,
@@ -62,7 +69,7 @@ fn listen_to_qemu(machine: Machine, start: Start, frames: u64) -> Session {
     if let Err(e) = q.resume() {
         panic!("{e}");
     }
-    let opts = ListenOptions { frames: Some(frames), start, ..ListenOptions::default() };
+    let opts = ListenOptions { frames: Some(frames), start, readout, ..ListenOptions::default() };
     let mut info = None;
     let mut profiles = Vec::new();
     let summary = listen_with(&port, &opts, &AtomicBool::new(false), &mut std::io::sink(), &mut |m| match m {
@@ -82,7 +89,7 @@ fn listen_to_qemu(machine: Machine, start: Start, frames: u64) -> Session {
         Err(e) => panic!("listening to the emulated head: {e} (QEMU exited early: {early:?}; {stderr})"),
     };
     assert_eq!(early, None, "QEMU exited by itself: {stderr}");
-    Session { info: info.expect("the head said Hello"), profiles, summary, after_stop }
+    Session { info: info.expect("the head said Hello"), profiles, summary, after_stop, readout }
 }
 
 /// Sends `Stop` and returns the `Status` that follows its `Ack`.
@@ -121,6 +128,10 @@ fn replay(s: &Session, start: Start) -> usize {
     let scene = Scene::new(SceneConfig::reference(SCENE_SEED)).expect("reference scene");
     let mut camera = SceneCamera::new(scene);
     let mut sink = |_: &DeviceMsg| {};
+    if let Some(r) = s.readout.map(|r| r.on(480).expect("a readout of the 480-row scene")) {
+        let msg = HostMsg::SetReadout { first_row: r.first_row(), rows: r.rows(), skip: r.skip().factor() };
+        head.handle(Command { seq: 1, msg }, 0, &camera, &mut sink);
+    }
     head.handle(Command { seq: 1, msg: HostMsg::Start(start) }, 0, &camera, &mut sink);
     assert_eq!(head.state(), HeadState::Streaming);
     let period_us = 1_000_000 / start.rate_hz as u64;
@@ -173,8 +184,9 @@ fn check_session(s: &Session, start: Start, frames: u64, board: &str) -> usize {
         assert!(w[1].odometer_um > w[0].odometer_um, "frame {k}: the head travels");
     }
     let peaks = replay(s, start);
-    // Every lit laser's stripe is found in every row of this scene.
-    let lit_per_frame: usize = s.profiles.iter().map(|p| p.laser_mask.count_ones() as usize * 480).sum();
+    // Every lit laser's stripe is found in every row read of this scene.
+    let rows = s.readout.map_or(480, |r| usize::from(r.on(480).unwrap().rows_read()));
+    let lit_per_frame: usize = s.profiles.iter().map(|p| p.laser_mask.count_ones() as usize * rows).sum();
     assert_eq!(peaks, lit_per_frame, "a peak per lit laser per row");
     peaks
 }
@@ -196,4 +208,19 @@ fn every_peak_of_the_emulated_m7_equals_the_hosts_with_lasers_in_turn() {
     assert_eq!(masks, [0b001, 0b100, 0b001, 0b100], "one laser per frame, in turn");
     let peaks = check_session(&s, start, 4, "qemu-mps2-an500");
     eprintln!("mps2-an500: {} frames, {peaks} peaks equal to the host's", s.profiles.len());
+}
+
+/// `SetReadout` on the emulated head: rows 40..440 one in two, each frame
+/// 200 rows a laser at sensor rows 40, 42, …, 438, bit for bit the host's
+/// run of the same readout.
+#[test]
+fn the_emulated_head_reads_a_row_window_one_row_in_two() {
+    let start = Start { rate_hz: 30, laser_mask: 0b111, pattern: LaserPattern::Simultaneous };
+    let readout = RowsRequest { first_row: 40, rows: Some(400), skip: 2 };
+    let s = listen_to_qemu_reading(Machine::An386, start, 3, Some(readout));
+    let peaks = check_session(&s, start, 3, "qemu-mps2-an386");
+    assert_eq!(peaks, 3 * 3 * 200);
+    for p in &s.profiles {
+        assert!(p.lasers.iter().all(|l| l.points.iter().map(|q| q.row).eq((40..440).step_by(2))), "seq {}", p.seq);
+    }
 }
