@@ -40,7 +40,7 @@
 use crate::duty::DutyLimit;
 use crate::fixed::Px;
 use crate::odometer::DistanceTrigger;
-use crate::peak::{ColumnWindow, Config, Detector, Select, Stripes, Windows};
+use crate::peak::{ColumnWindow, Config, Detector, Select, Stripes, Track, Windows};
 use crate::persist::Stored;
 use crate::protocol::{
     Calibration, Command, DeviceInfo, DeviceMsg, ErrorCode, HeadState, HostMsg, LASERS, LaserPattern, LaserPoints,
@@ -160,6 +160,9 @@ pub struct Head<const W: usize, L: LaserDriver> {
     /// lasers for the current frame (`None`: full-row search).
     windows: [Option<ColumnWindow>; LASERS],
     frame_windows: Option<Windows>,
+    /// Windows that follow their lines (`SetTracking`; `None`: off),
+    /// reset at every frame.
+    tracking: Option<Track>,
     /// The readout `SetReadout` asked for (`None`: every row), the one in
     /// force since `Start`, and the one last set on the camera with how the
     /// camera honours it.
@@ -217,6 +220,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             track: [Px::ZERO; LASERS],
             windows: [None; LASERS],
             frame_windows: None,
+            tracking: None,
             readout: None,
             frame_readout: None,
             camera_readout: None,
@@ -528,6 +532,20 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                     Err(_) => self.fail(ErrorCode::OutOfRange, Some(seq), reply),
                 }
             }
+            HostMsg::SetTracking { half_width_px } => {
+                if self.state == HeadState::Streaming {
+                    return self.fail(ErrorCode::Busy, Some(seq), reply);
+                }
+                if half_width_px == 0 {
+                    self.tracking = None;
+                } else {
+                    match Track::new(half_width_px) {
+                        Ok(t) => self.tracking = Some(t),
+                        Err(_) => return self.fail(ErrorCode::OutOfRange, Some(seq), reply),
+                    }
+                }
+                reply(&DeviceMsg::Ack(seq));
+            }
             HostMsg::SetTrigger(t) => {
                 if self.state == HeadState::Streaming {
                     return self.fail(ErrorCode::Busy, Some(seq), reply);
@@ -654,6 +672,11 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         let lit_windows: Option<Vec<ColumnWindow, LASERS>> =
             (0..LASERS).filter(|&k| mask & (1 << k) != 0).map(|k| self.windows[k]).collect();
         self.frame_windows = lit_windows.and_then(|w| Windows::new(&w, width as u16).ok());
+        // The lines may have moved between frames (other lasers lit, a
+        // new exposure): the first row screens every window.
+        if let Some(t) = &mut self.tracking {
+            t.reset();
+        }
         let lit = mask.count_ones() as usize;
         for part in 0..parts {
             self.profile.part = part;
@@ -680,9 +703,10 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                     return self.fail(ErrorCode::SensorFault, None, reply);
                 }
                 let mut stripes: Stripes<LASERS> = Stripes::new();
-                let found = match &self.frame_windows {
-                    None => self.detector.detect(&self.row[..width], &mut stripes),
-                    Some(w) => self.detector.detect_in(&self.row[..width], w, &mut stripes),
+                let found = match (&self.frame_windows, &mut self.tracking) {
+                    (None, _) => self.detector.detect(&self.row[..width], &mut stripes),
+                    (Some(w), None) => self.detector.detect_in(&self.row[..width], w, &mut stripes),
+                    (Some(w), Some(t)) => self.detector.detect_tracked(&self.row[..width], w, t, &mut stripes),
                 };
                 if found.is_err() {
                     return self.fail(ErrorCode::SensorFault, None, reply);

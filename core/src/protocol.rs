@@ -455,6 +455,19 @@ pub enum HostMsg {
         /// Read one row in `skip`: 1, 2 or 4.
         skip: u8,
     },
+    /// Search windows that follow their lines from the next `Start` on
+    /// (`peak::window::Track`, `peak::Detector::detect_tracked`): a row
+    /// looks `half_width_px` either side of where the row before found its
+    /// window's stripe, and screens the window where it finds none there
+    /// (and on a frame's first row). `0`: off, the default. It applies
+    /// where every lit laser has a window (`SetWindows`). Refused
+    /// (`OutOfRange`) outside `peak::window::TRACK_HALF_WIDTH_PX` (and not
+    /// 0), and (`Busy`) while streaming. Not kept in flash. Appended last,
+    /// after `SetReadout`, so every other command's bytes are unchanged.
+    SetTracking {
+        /// How far from the last row's stripe a row looks, px (0: off).
+        half_width_px: u16,
+    },
 }
 
 /// A command: a sequence number for the acknowledgement, and the body.

@@ -118,6 +118,8 @@ fn run(dir: &Path) -> Result<usize, String> {
         HostMsg::Start(Start { rate_hz: 0, laser_mask: 0, pattern: LaserPattern::Simultaneous }), // refused
         HostMsg::SetReadout { first_row: 2, rows: 8, skip: 2 },
         HostMsg::SetReadout { first_row: 0, rows: 12, skip: 3 }, // refused
+        HostMsg::SetTracking { half_width_px: 8 },
+        HostMsg::SetTracking { half_width_px: 1 }, // refused
     ];
     let mut cmd_frames = Vec::new();
     let mut t = 0u64;

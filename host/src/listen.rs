@@ -104,6 +104,10 @@ pub struct ListenOptions {
     /// rows, skip); `None` sets none (the head keeps what it has; every
     /// row after a restart).
     pub readout: Option<RowsRequest>,
+    /// Windows that follow their lines (`SetTracking` before starting):
+    /// how far from the last row's stripe a row looks, px; `None` sets
+    /// nothing (the head keeps what it has; off after a restart).
+    pub track_px: Option<u16>,
     /// How long a lost port may stay away.
     pub reconnect_timeout: Duration,
 }
@@ -121,6 +125,7 @@ impl Default for ListenOptions {
             exposure_us: None,
             windows: None,
             readout: None,
+            track_px: None,
             reconnect_timeout: Duration::from_secs(30),
         }
     }
@@ -379,6 +384,7 @@ struct Session<'a> {
     start_seq: Option<u16>,
     exposure_seq: Option<u16>,
     windows_seq: Option<u16>,
+    tracking_seq: Option<u16>,
     /// The `SetReadout` sent, and what it asked for.
     readout_seq: Option<(u16, Readout)>,
     stop_seq: Option<u16>,
@@ -415,6 +421,9 @@ impl Session<'_> {
         }
         if let Some(w) = self.opts.windows {
             self.windows_seq = Some(out.push(HostMsg::SetWindows(w)));
+        }
+        if let Some(px) = self.opts.track_px {
+            self.tracking_seq = Some(out.push(HostMsg::SetTracking { half_width_px: px }));
         }
         if let Some(req) = self.opts.readout {
             let height = self.sum.device.as_ref().map_or(0, |d| d.sensor_height);
@@ -522,6 +531,9 @@ impl Session<'_> {
             }
             DeviceMsg::Error { seq: Some(seq), code } if Some(seq) == self.windows_seq => {
                 self.fatal = Some(ListenError::Refused { command: "SetWindows", code });
+            }
+            DeviceMsg::Error { seq: Some(seq), code } if Some(seq) == self.tracking_seq => {
+                self.fatal = Some(ListenError::Refused { command: "SetTracking", code });
             }
             DeviceMsg::Error { seq: Some(seq), code } if self.readout_seq.is_some_and(|(s, _)| s == seq) => {
                 self.fatal = Some(ListenError::Refused { command: "SetReadout", code });
@@ -742,6 +754,7 @@ pub fn session(
         start_seq: None,
         exposure_seq: None,
         windows_seq: None,
+        tracking_seq: None,
         readout_seq: None,
         stop_seq: None,
         stopping: None,

@@ -161,7 +161,7 @@ def profile_v4(seqno, ts, odo, exposure, mask, lasers):
 
 DEVICE = {"hello": 0, "profile": 1, "status": 2, "ack": 3, "error": 4, "raw": 5}
 HOST = {"start": 0, "stop": 1, "exposure": 2, "detector": 3, "calibration": 4, "capture": 5, "info": 6, "heartbeat": 7,
-        "trigger": 8, "windows": 9, "readout": 10}
+        "trigger": 8, "windows": 9, "readout": 10, "tracking": 11}
 
 
 def dev(kind, body=b""):
@@ -208,6 +208,8 @@ GOLDENS = [
     ("windows", cmd(10, "windows", opt(varint(80) + varint(96)) + opt(None) + opt(varint(600) + varint(96)))),
     # Rows 40..440, one in two (a struct variant: its fields in order).
     ("readout", cmd(11, "readout", varint(40) + varint(400) + u8(2))),
+    # Tracks of ±12 px (a one-field struct variant: the field).
+    ("tracking", cmd(12, "tracking", varint(12))),
 ]
 
 # Protocol 3's frames that recordings hold (decoded, never written, by this build).

@@ -72,6 +72,15 @@ pub struct ListenArgs {
     /// (a --window for a laser replaces its window).
     #[arg(long = "windows-from", value_name = "CAL")]
     pub windows_from: Option<PathBuf>,
+    /// Make the search windows follow their lines: each row looks PX
+    /// either side of where the row before found its window's stripe
+    /// (2..=64), and screens the whole window where it finds none there
+    /// (`SetTracking` before `Start`; with a --window or --windows-from for
+    /// every lit laser). Cheaper rows where a line moves less than PX from
+    /// row to row; a second line in a window is not sought while the track
+    /// holds. 0: off.
+    #[arg(long = "track", value_name = "PX", value_parser = parse_track)]
+    pub track_px: Option<u16>,
     /// Read only sensor rows FIRST up to (not including) FIRST+COUNT
     /// (`SetReadout` before `Start`): a shorter stretch of rail a frame,
     /// more frames a second. Points keep their sensor rows.
@@ -104,6 +113,15 @@ fn parse_secs(s: &str) -> Result<Duration, String> {
 /// Margin of `--windows-from` either side of where a line can fall, px:
 /// a stripe's half width (3σ, σ up to 4 px) and the camera model's error.
 const WINDOW_MARGIN_PX: f64 = 16.0;
+
+/// `--track PX`: 0 (off) or a half width the head takes.
+fn parse_track(s: &str) -> Result<u16, String> {
+    let range = cms_core::peak::window::TRACK_HALF_WIDTH_PX;
+    match s.trim().parse::<u16>() {
+        Ok(v) if v == 0 || range.contains(&v) => Ok(v),
+        _ => Err(format!("`{s}`: a track is 0 (off) or {}..={} px either side", range.start(), range.end())),
+    }
+}
 
 /// `FIRST:COUNT`, sensor rows FIRST..FIRST+COUNT.
 fn parse_rows(s: &str) -> Result<(u16, u16), String> {
@@ -189,6 +207,7 @@ impl ListenArgs {
                 rows: self.rows.map(|r| r.1),
                 skip: self.row_skip.unwrap_or(1),
             }),
+            track_px: self.track_px,
             reconnect_timeout: self.reconnect_timeout,
         }
     }
@@ -296,6 +315,9 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
             .collect();
         let _ = writeln!(io::stderr(), "listen: search windows from {}: {}", path.display(), said.join(", "));
         opts.windows = Some(w);
+    }
+    if opts.track_px.is_some_and(|px| px > 0) && opts.windows.is_none() {
+        return Err(Usage("--track follows search windows: give --window or --windows-from too".to_string()).into());
     }
     let mut display = Display::new(opts.json);
     let stdout = io::stdout();

@@ -1271,6 +1271,49 @@ fn cli_listen_sets_search_windows() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("SetWindows"), "{}", String::from_utf8_lossy(&out.stderr));
 }
 
+/// `--track PX` with windows: the simulated head's windows follow their
+/// lines and keep every point, the lines' positions those of the same
+/// windows untracked (the head standing still, so two runs see the same
+/// rail; its noise differs, so within 0.05 px); a track the head does not
+/// take, or one without windows, is bad usage (exit 2, one `error:` line).
+#[test]
+fn cli_listen_tracks_search_windows() {
+    let run = |extra: &[&str]| -> Vec<Vec<f64>> {
+        let mut args = vec!["listen", "sim", "--frames", "2", "--json", "--sim-speed-mm-s", "0"];
+        args.extend(["--window", "0:278-342", "--window", "1:347-411", "--window", "2:418-482"]);
+        args.extend(extra);
+        let out = crate::common::run(&args);
+        assert!(out.status.success(), "{extra:?}: {}", String::from_utf8_lossy(&out.stderr));
+        let last = String::from_utf8(out.stdout).unwrap().lines().last().unwrap().to_owned();
+        let v: serde_json::Value = serde_json::from_str(&last).unwrap();
+        v["lasers"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|l| l["points"].as_array().unwrap().iter().map(|p| p["position_px"].as_f64().unwrap()).collect())
+            .collect()
+    };
+    let (plain, tracked) = (run(&[]), run(&["--track", "8"]));
+    assert!(tracked.iter().all(|l| l.len() == 480), "every row of every line");
+    for (a, b) in plain.iter().zip(&tracked) {
+        let worst = a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+        assert!(worst <= 0.05, "{worst} px");
+    }
+    for (args, needle) in [
+        (vec!["--window", "0:278-342", "--track", "1"], "a track is 0 (off) or 2..=64"),
+        (vec!["--window", "0:278-342", "--track", "x"], "a track is"),
+        (vec!["--track", "8"], "--track follows search windows"),
+    ] {
+        let mut a = vec!["listen", "sim", "--frames", "2"];
+        a.extend(args.iter().copied());
+        let out = crate::common::run(&a);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {out:?}");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let errors: Vec<&str> = stderr.lines().filter(|l| l.starts_with("error: ")).collect();
+        assert!(errors.len() == 1 && errors[0].contains(needle), "{args:?}: {stderr}");
+    }
+}
+
 /// `--rows FIRST:COUNT` / `--row-skip N` on the simulated head (standing
 /// still, so two runs see the same rail): one row in two gives half the
 /// rows a frame, numbered by their sensor rows, at the full readout's

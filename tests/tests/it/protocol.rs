@@ -173,6 +173,7 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
             }),
         ),
         ("readout", frame(&Command { seq: 11, msg: HostMsg::SetReadout { first_row: 40, rows: 400, skip: 2 } })),
+        ("tracking", frame(&Command { seq: 12, msg: HostMsg::SetTracking { half_width_px: 12 } })),
     ]
 }
 
@@ -198,7 +199,7 @@ fn goldens_match_the_reference_encoder() {
     let want = include_str!("../../golden/frames.txt");
     let got: std::vec::Vec<_> = goldens().into_iter().map(|(name, bytes)| format!("{name}: {}", hex(&bytes))).collect();
     let want: std::vec::Vec<_> = want.lines().map(str::to_owned).collect();
-    assert_eq!(got.len(), 19, "one golden per message kind, two profiles");
+    assert_eq!(got.len(), 20, "one golden per message kind, two profiles");
     for (g, w) in got.iter().zip(&want) {
         assert_eq!(g, w);
     }
@@ -284,6 +285,7 @@ fn goldens_decode_back() {
                 | "trigger"
                 | "windows"
                 | "readout"
+                | "tracking"
         ) {
             decode_frame::<Command>(&mut bytes).is_ok()
         } else {
