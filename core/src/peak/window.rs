@@ -2,8 +2,9 @@
 //! profilers' "active area").
 //!
 //! A head whose lasers each fall in a known band of columns — set by the
-//! host (`protocol::HostMsg::SetWindows`; deriving them from the calibration
-//! and the working depth is not done yet) — need not screen the whole row. With
+//! host (`protocol::HostMsg::SetWindows`; `cms-host listen --windows-from`
+//! derives them from the calibration and the working range) — need not
+//! screen the whole row. With
 //! [`Windows`] the detector ([`super::Detector::detect_in`]) runs the
 //! screen only inside each window (extended by two blocks each side, so a
 //! stripe at a window's edge sees real pixels in its box difference, not
@@ -35,10 +36,23 @@
 //! The full-row estimate is the one a full-row search uses, so a window
 //! changes only where candidates are sought, never how a stripe is judged.
 //!
+//! # Tracking
+//! A [`Track`] makes the windows follow their lines
+//! ([`super::Detector::detect_tracked`]): where the row before found a
+//! window's stripe at `p`, the next row's candidate is the brightest pixel
+//! of `p ± half_width_px`, and the window is screened only where that finds
+//! no stripe (or the pixel is at the track's edge, or there is no track).
+//! The lines of a rail move well under a pixel from one row (0.14 mm along
+//! the rail) to the next, so the track holds and each window costs a
+//! brightest-pixel search of `half_width_px + 1` pixels instead of its
+//! screen.
+//!
 //! # Cost
 //! The screen costs about 2.9 instructions per pixel on thumbv7em: three
 //! 96-px windows (128 px screened each) cost about a third of a 752-px
-//! row's. What a stripe costs is the same as in a full-row search.
+//! row's. What a stripe costs is the same as in a full-row search. A track
+//! of ±20 px costs about 100 instructions a window where the screen cost
+//! about 500 (docs/benchmarks.md).
 
 use heapless::Vec;
 
