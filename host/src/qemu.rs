@@ -513,6 +513,9 @@ pub struct BenchRow {
     /// Width of the search window per stripe, px (`detect_in`); 0: a
     /// full-row search (`detect`).
     pub window_px: usize,
+    /// Half width of the windows' tracks, px (`detect_tracked`); 0: not
+    /// tracked.
+    pub track_px: usize,
     /// Instructions per `detect` call.
     pub instructions: f64,
     /// Rows (of the long run) with exactly `stripes` stripes, and rows.
@@ -575,8 +578,13 @@ pub fn parse_bench(text: &str) -> Result<BenchReport, QemuError> {
                 None => 0,
                 Some(w) => w.parse().map_err(|_| QemuError::Bench(format!("bad window= in {l:?}")))?,
             };
+            // Images from before tracking print no `track=`: not tracked.
+            let track_px = match field(l, "track") {
+                None => 0,
+                Some(t) => t.parse().map_err(|_| QemuError::Bench(format!("bad track= in {l:?}")))?,
+            };
             let instructions = (long - short) as f64 / n as f64;
-            rows.push(BenchRow { method, len, stripes, window_px, instructions, found });
+            rows.push(BenchRow { method, len, stripes, window_px, track_px, instructions, found });
         } else if l == "done" {
             done = true;
         } else if l.starts_with("panic") || l.contains("panic:") {
@@ -641,14 +649,17 @@ pub fn bench_table(r: &BenchReport, clock_mhz: u32) -> String {
         "# travel speed for continuous sampling = rows/s × the row pitch along the rail: {REFERENCE_ROW_PITCH_MM} mm \
          (the reference head: 69 mm over 480 rows) and 1 mm (row skip or binning)"
     );
-    let mut sizes: Vec<(usize, usize, usize)> = r.rows.iter().map(|b| (b.len, b.stripes, b.window_px)).collect();
+    let mut sizes: Vec<(usize, usize, usize, usize)> =
+        r.rows.iter().map(|b| (b.len, b.stripes, b.window_px, b.track_px)).collect();
     sizes.sort_unstable();
     sizes.dedup();
-    let head = |(l, k, w): (usize, usize, usize)| {
-        if w == 0 { format!("{l} px × {k}") } else { format!("{l} px × {k}, {w}-px windows") }
+    let head = |(l, k, w, t): (usize, usize, usize, usize)| match (w, t) {
+        (0, _) => format!("{l} px × {k}"),
+        (w, 0) => format!("{l} px × {k}, {w}-px windows"),
+        (w, t) => format!("{l} px × {k}, {w}-px windows tracked ±{t} px"),
     };
-    let find = |m: &str, (l, k, w): (usize, usize, usize)| {
-        r.rows.iter().find(|b| b.method == m && b.len == l && b.stripes == k && b.window_px == w)
+    let find = |m: &str, (l, k, w, t): (usize, usize, usize, usize)| {
+        r.rows.iter().find(|b| b.method == m && b.len == l && b.stripes == k && b.window_px == w && b.track_px == t)
     };
     let mut methods: Vec<&str> = Vec::new();
     for b in &r.rows {
@@ -709,7 +720,11 @@ pub fn bench_table(r: &BenchReport, clock_mhz: u32) -> String {
         .iter()
         .filter(|b| b.found.0 != b.found.1)
         .map(|b| {
-            let w = if b.window_px > 0 { format!(" ({} px windows)", b.window_px) } else { String::new() };
+            let w = match (b.window_px, b.track_px) {
+                (0, _) => String::new(),
+                (w, 0) => format!(" ({w} px windows)"),
+                (w, t) => format!(" ({w} px windows tracked ±{t} px)"),
+            };
             format!("{} {}x{}{w}: {}/{}", b.method, b.len, b.stripes, b.found.0, b.found.1)
         })
         .collect();
@@ -863,6 +878,7 @@ mod tests {
                     method=cwt size=752x1 rows=256 ns_short=640 ns_long=3200 found=320/320\n\
                     method=cwt size=752x3 rows=256 ns_short=640 ns_long=25600640 found=319/320\n\
                     method=cwt size=752x3 window=96 rows=256 ns_short=640 ns_long=1280640 found=320/320\n\
+                    method=cwt size=752x3 window=96 track=20 rows=256 ns_short=640 ns_long=640640 found=320/320\n\
                     done\n";
         let r = parse_bench(text).unwrap();
         assert_eq!(r.calibration, (1000, 2000));
@@ -870,10 +886,13 @@ mod tests {
         assert_eq!(r.rows[1].instructions, 100_000.0);
         assert_eq!((r.rows[1].window_px, r.rows[2].window_px), (0, 96));
         let t = bench_table(&r, 480);
-        assert!(t.contains("| 752 px × 3 | rows/s | 752 px × 3, 96-px windows | rows/s |"), "{t}");
-        assert!(t.contains("| cwt | 10 | 48 000 000 | 100 000 | 4 800 | 5 000 | 96 000 |"), "{t}");
+        assert_eq!((r.rows[2].track_px, r.rows[3].track_px), (0, 20));
+        let head =
+            "| 752 px × 3 | rows/s | 752 px × 3, 96-px windows | rows/s | 752 px × 3, 96-px windows tracked ±20 px |";
+        assert!(t.contains(head), "{t}");
+        assert!(t.contains("| cwt | 10 | 48 000 000 | 100 000 | 4 800 | 5 000 | 96 000 | 2 500 | 192 000 |"), "{t}");
         // 4 800 rows/s × 0.144 mm = 0.69 m/s; × 1 mm = 4.8 m/s.
-        assert!(t.contains("| cwt | 6912.00 / 48000.0 | 0.69 / 4.8 | 13.82 / 96.0 |"), "{t}");
+        assert!(t.contains("| cwt | 6912.00 / 48000.0 | 0.69 / 4.8 | 13.82 / 96.0 | 27.65 / 192.0 |"), "{t}");
         assert!(t.contains("cwt 752x3: 319/320"), "{t}");
         for bad in
             ["", "calibration loop_iterations=1 ns=2\ndone", "cms-qemu-bench x\ncalibration loop_iterations=1 ns=2"]
