@@ -308,6 +308,31 @@ fn main() {
         write!(names, "&DERIV_PAIRS_{k}, ").unwrap();
     }
     writeln!(src, "pub static DERIV_PAIRS_OF: [&[u32]; PAIR_RUNGS + 1] = [{names}];").unwrap();
+    // The same as `kernels::DerivPairs` (its words, words per phase, half
+    // length), and each rung's `kernels::Deriv` (its run of `DERIV`, cut at
+    // compile time by `split_at`): a stripe finds its fit rung's kernels by
+    // one index, not by slicing and dividing.
+    let mut pairs = String::new();
+    for (k, w) in deriv_words.iter().enumerate() {
+        let l = half_len(scale(k));
+        write!(
+            pairs,
+            "DerivPairs {{ words: &DERIV_PAIRS_{k}, per_phase: {}, half_len: {l} }}, ",
+            w.len() / (PHASES - 1)
+        )
+        .unwrap();
+    }
+    writeln!(src, "pub static DERIV_PAIRS_TABLE: [DerivPairs; PAIR_RUNGS + 1] = [{pairs}];").unwrap();
+    let mut derivs = String::new();
+    let mut off = 0;
+    for k in 0..LADDER_LEN {
+        let l = half_len(scale(k));
+        let n = l * PHASES + 1;
+        write!(derivs, "Deriv {{ taps: DERIV.split_at({off}).1.split_at({n}).0, half_len: {l} }}, ").unwrap();
+        off += n;
+    }
+    assert_eq!(off, deriv_all.len(), "every rung's taps in DERIV, in order");
+    writeln!(src, "pub static DERIVS: [Deriv; LADDER_LEN] = [{derivs}];").unwrap();
     // And each rung's words as its own slice (one bounds check to find them).
     let mut names = String::new();
     for (k, w) in ricker_words.iter().enumerate() {

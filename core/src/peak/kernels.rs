@@ -153,11 +153,10 @@ pub struct DerivPairs {
 
 impl DerivPairs {
     /// Rung `k`'s pairs, if they are stored (`k ≤ PAIR_RUNGS`).
+    #[inline]
     pub fn of(k: usize) -> Option<DerivPairs> {
-        // Phases 1..PHASES, `per_phase` words each.
-        let words = *DERIV_PAIRS_OF.get(k)?;
-        let per_phase = words.len() / (PHASES - 1);
-        Some(DerivPairs { words, per_phase, half_len: RUNGS[k].half_len })
+        // Phases 1..PHASES, `per_phase` words each (made at build time).
+        DERIV_PAIRS_TABLE.get(k).copied()
     }
 
     /// The words of phases `r` and `r + 1` (`1 ≤ r ≤ PHASES − 2`; `None`
@@ -184,9 +183,9 @@ impl DerivPairs {
 }
 
 /// The odd derivative half-kernel of rung `k` at sub-pixel offsets j/PHASES.
+#[inline]
 pub fn deriv(k: usize) -> Deriv {
-    let r = &RUNGS[k];
-    Deriv { taps: &DERIV[r.deriv_off..=r.deriv_off + r.half_len * PHASES], half_len: r.half_len }
+    DERIVS[k]
 }
 
 /// The paper's Eq. (2)+(4) half-kernel at integer scale `s` (1..=PAPER_MAX_SCALE).
@@ -243,6 +242,21 @@ mod tests {
             // The phases tile the offsets exactly once.
             let total: usize = (0..PHASES).map(|r| d.phase(r).len()).sum();
             assert_eq!(total, d.len());
+        }
+    }
+
+    #[test]
+    fn the_build_time_tables_are_the_rungs_runs() {
+        for (k, r) in RUNGS.iter().enumerate() {
+            let d = deriv(k);
+            assert_eq!((d.half_len(), d.len()), (r.half_len, r.half_len * PHASES + 1), "rung {k}");
+            assert_eq!(d.taps, &DERIV[r.deriv_off..=r.deriv_off + r.half_len * PHASES], "rung {k}");
+            if let Some(p) = DerivPairs::of(k) {
+                assert_eq!(p.words, DERIV_PAIRS_OF[k], "rung {k}");
+                assert_eq!((p.per_phase(), p.half_len()), (r.half_len.div_ceil(2), r.half_len), "rung {k}");
+            } else {
+                assert!(k > PAIR_RUNGS, "rung {k}");
+            }
         }
     }
 

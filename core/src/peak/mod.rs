@@ -1124,8 +1124,15 @@ fn brightest_of_track<P: Pixel>(x: &[P]) -> usize {
         key = key.max(((q[0].value() as u32) << 6) | (63 - j) as u32);
     }
     let even = 2 * (63 - (key & 63) as usize);
+    // The first maximum of the (up to) five pixels around it.
     let (a, b) = (even.saturating_sub(2), (even + 3).min(x.len()));
-    argmax_raw(&x[a..b]) + a
+    let mut best = a;
+    for i in a + 1..b {
+        if x[i].value() > x[best].value() {
+            best = i;
+        }
+    }
+    best
 }
 
 /// The longest slice [`argmax_raw`] finds the maximum of by keys.
