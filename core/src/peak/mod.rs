@@ -1081,8 +1081,10 @@ fn window_candidates<P: Pixel>(
 /// nearest to `near_to` of the screen's box difference (`2B` pixels minus
 /// the `B` on each side, the block response of [`screen`] taken at every
 /// pixel instead of every block) above the screen's `threshold`; `None`
-/// if there is none. The rare path (a window with a hot or stuck pixel):
-/// `B` additions per pixel (out of line: rare).
+/// if there is none. The rare path (a window with a hot or stuck pixel,
+/// which a sensor with a hot pixel near a line has on every row): the
+/// three box sums slide a pixel at a time, six additions a pixel (out of
+/// line).
 #[inline(never)]
 fn hidden_candidate(x: &[i32], block: usize, threshold: i32, near_to: usize) -> Option<usize> {
     let n = x.len();
@@ -1090,12 +1092,25 @@ fn hidden_candidate(x: &[i32], block: usize, threshold: i32, near_to: usize) -> 
         return None;
     }
     let sum = |a: usize, b: usize| x[a..b].iter().sum::<i32>();
-    let r = |c: usize| 2 * sum(c - block, c + block) - sum(c - 2 * block, c + 2 * block);
     let (first, last) = (2 * block, n - 2 * block);
+    // At centre `c`: the centre's 2B pixels and the B either side.
+    let (mut left, mut centre, mut right) = (
+        sum(first - 2 * block, first - block),
+        sum(first - block, first + block),
+        sum(first + block, first + 2 * block),
+    );
+    let r_first = centre - left - right;
+    let mut at = |c: usize| -> i32 {
+        // Move the boxes from `c − 1` to `c` (`c + 2B − 1 < n`).
+        left += x[c - 1 - block] - x[c - 1 - 2 * block];
+        centre += x[c - 1 + block] - x[c - 1 - block];
+        right += x[c - 1 + 2 * block] - x[c - 1 + block];
+        centre - left - right
+    };
     let mut best: Option<usize> = None;
-    let (mut prev, mut cur) = (r(first), r(first + 1));
+    let (mut prev, mut cur) = (r_first, at(first + 1));
     for c in first + 1..last {
-        let next = r(c + 1);
+        let next = at(c + 1);
         if cur > threshold
             && cur > prev
             && cur >= next
@@ -1325,6 +1340,41 @@ fn select<const N: usize>(found: &mut Vec<Stripe, MAX_CANDIDATES>, cfg: &Config,
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The sliding box sums give the local maxima of the box difference
+    /// taken by its definition at every pixel.
+    #[test]
+    fn hidden_candidate_is_the_nearest_local_maximum_of_the_box_difference() {
+        let mut seed = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        for _ in 0..300 {
+            let (n, block) = (20 + (next() % 100) as usize, 1usize << (1 + next() % 3));
+            let mut buf = [0i32; 128];
+            buf.iter_mut().for_each(|v| *v = (next() % 4096) as i32);
+            let x = &buf[..n];
+            let (threshold, near_to) = ((next() % 6000) as i32, (next() as usize) % n);
+            let r = |c: usize| {
+                let s = |a: usize, b: usize| x[a..b].iter().sum::<i32>();
+                s(c - block, c + block) - s(c - 2 * block, c - block) - s(c + block, c + 2 * block)
+            };
+            let want =
+                if n < 4 * block + 2 {
+                    None
+                } else {
+                    (2 * block + 1..n - 2 * block)
+                        .filter(|&c| r(c) > threshold && r(c) > r(c - 1) && r(c) >= r(c + 1))
+                        .fold(None, |b: Option<usize>, c| {
+                            if b.is_none_or(|b| c.abs_diff(near_to) < b.abs_diff(near_to)) { Some(c) } else { b }
+                        })
+                };
+            assert_eq!(hidden_candidate(x, block, threshold, near_to), want, "n {n} block {block}");
+        }
+    }
 
     #[test]
     fn argmax_raw_is_the_first_maximum() {

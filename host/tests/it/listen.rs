@@ -1235,6 +1235,14 @@ fn cli_kill_9_loses_at_most_the_frame_in_flight() {
     }
 }
 
+/// The last JSON frame of a `listen … --json` run that must succeed.
+fn last_json_frame(args: &[&str]) -> serde_json::Value {
+    let out = crate::common::run(args);
+    assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+    let last = String::from_utf8(out.stdout).unwrap().lines().last().unwrap().to_owned();
+    serde_json::from_str(&last).unwrap()
+}
+
 /// `--window`: the simulated head seeks each laser's stripes in its window
 /// only (its lines stand near columns 310, 379 and 450): windows around
 /// them keep every point; laser 1's window moved off its line loses them.
@@ -1245,10 +1253,7 @@ fn cli_listen_sets_search_windows() {
         for w in windows {
             args.extend(["--window", w]);
         }
-        let out = crate::common::run(&args);
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-        let last = String::from_utf8(out.stdout).unwrap().lines().last().unwrap().to_owned();
-        let v: serde_json::Value = serde_json::from_str(&last).unwrap();
+        let v = last_json_frame(&args);
         v["lasers"].as_array().unwrap().iter().map(|l| l["points"].as_array().unwrap().len()).collect()
     };
     assert_eq!(points(&["0:278-342", "1:347-411", "2:418-482"]), [480, 480, 480]);
@@ -1282,10 +1287,7 @@ fn cli_listen_tracks_search_windows() {
         let mut args = vec!["listen", "sim", "--frames", "2", "--json", "--sim-speed-mm-s", "0"];
         args.extend(["--window", "0:278-342", "--window", "1:347-411", "--window", "2:418-482"]);
         args.extend(extra);
-        let out = crate::common::run(&args);
-        assert!(out.status.success(), "{extra:?}: {}", String::from_utf8_lossy(&out.stderr));
-        let last = String::from_utf8(out.stdout).unwrap().lines().last().unwrap().to_owned();
-        let v: serde_json::Value = serde_json::from_str(&last).unwrap();
+        let v = last_json_frame(&args);
         v["lasers"]
             .as_array()
             .unwrap()
@@ -1328,10 +1330,7 @@ fn cli_listen_reads_a_row_window_and_a_row_skip() {
     let frame = |extra: &[&str]| -> Points {
         let mut args = vec!["listen", "sim", "--frames", "2", "--json", "--sim-speed-mm-s", "0"];
         args.extend(extra);
-        let out = crate::common::run(&args);
-        assert!(out.status.success(), "{extra:?}: {}", String::from_utf8_lossy(&out.stderr));
-        let last = String::from_utf8(out.stdout).unwrap().lines().last().unwrap().to_owned();
-        let v: serde_json::Value = serde_json::from_str(&last).unwrap();
+        let v = last_json_frame(&args);
         v["lasers"]
             .as_array()
             .unwrap()
