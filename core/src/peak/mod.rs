@@ -1171,7 +1171,8 @@ fn argmax_raw<P: Pixel>(x: &[P]) -> usize {
             let a = ((q[0].value() as u32) << 6) | tag;
             let b = ((q[1].value() as u32) << 6) | (tag - 1);
             key = key.max(a).max(b);
-            tag -= 2;
+            // Wraps after the last pair of a 64-pixel run (then unused).
+            tag = tag.wrapping_sub(2);
         }
         if let Some(p) = rest.first() {
             key = key.max(((p.value() as u32) << 6) | tag);
