@@ -222,9 +222,14 @@ fn search_windows_find_exactly_what_the_full_row_search_finds() {
 /// Tracked windows (`Detector::detect_tracked`, ±8 px) on the stuck-pixel
 /// scene, with lines that drift as a rail's do (a sine of ±12 px over 150
 /// rows), jump 30 px every 97 rows (the track is lost: the window is
-/// screened) and vanish for 5 rows in 61 (a gap in the rail head): exactly
-/// the stripes of the untracked windows, row for row, none missed, and the
-/// track holds wherever the line moved less than it reaches. (This scene
+/// screened) and vanish for 5 rows in 61 (a gap in the rail head): the
+/// stripes of the untracked windows, row for row, none missed, and the
+/// track holds wherever the line moved less than it reaches. The tracked
+/// candidate is the brightest of the track's pixels, the untracked one of
+/// the screen's response; where noise on a weak line's top makes them two
+/// pixels, the sub-pixel search starts from another guess and the stripe
+/// can differ by what the line through the slope's first pair leaves
+/// (`cwt::tests::a_phase_beside_the_pair`), far below what the wire resolves. (This scene
 /// found two ways a stuck pixel beside a weak line hid it from the
 /// untracked search, both fixed: the screen's candidate was the spike's,
 /// and the line stood beyond the brightest-pixel search around it, or the
@@ -239,6 +244,7 @@ fn tracked_windows_find_exactly_what_the_windows_find() {
     let windows = Windows::new(&[180, 380, 580].map(|c| ColumnWindow::around(c, 48)), LEN as u16).unwrap();
     let mut track = Track::new(8).unwrap();
     let (mut held, mut screened, mut se) = (0usize, 0usize, (0.0, 0usize));
+    let mut differ = 0usize;
     let mut jump = 0.0;
     for row_i in 0..1200usize {
         if row_i % 97 == 0 {
@@ -261,10 +267,16 @@ fn tracked_windows_find_exactly_what_the_windows_find() {
         let (mut a, mut b): (Stripes<8>, Stripes<8>) = (Stripes::new(), Stripes::new());
         plain.detect_in(&row, &windows, &mut a).unwrap();
         tracked.detect_tracked(&row, &windows, &mut track, &mut b).unwrap();
-        // The same stripes as the untracked windows, bit for bit (the
-        // candidate is the same pixel, refined the same way), each
-        // within the limits of the truth.
-        assert_eq!(a, b, "row {row_i}: windows vs tracked, truth {truth:?}, tracks {before:?}");
+        // The same stripes as the untracked windows (bit for bit where the
+        // candidate is the same pixel), each within the limits of the truth.
+        let why = || format!("row {row_i}: windows {a:?} vs tracked {b:?}, truth {truth:?}, tracks {before:?}");
+        assert_eq!(a.len(), b.len(), "{}", why());
+        for (p, q) in a.iter().zip(b.iter()) {
+            // 1/1024 px; the same width, strength and flags.
+            assert!((p.position.0 - q.position.0).abs() <= 64, "{}", why());
+            assert_eq!((p.width, p.strength, p.flags), (q.width, q.strength, q.flags), "{}", why());
+        }
+        differ += usize::from(a != b);
         for (s, t) in b.iter().zip(&truth) {
             let e = s.position.to_f64() - t.x0;
             assert!(e.abs() < 0.25, "row {row_i}: stripe at {} vs truth {}", s.position, t.x0);
@@ -284,7 +296,8 @@ fn tracked_windows_find_exactly_what_the_windows_find() {
         }
     }
     let rms = (se.0 / se.1 as f64).sqrt();
-    println!("{held} window-rows tracked, {screened} without a track; RMS {rms:.4} px");
+    println!("{held} window-rows tracked, {screened} without a track, {differ} rows not bit for bit; RMS {rms:.4} px");
+    assert!(differ <= 1200 / 50, "{differ} rows differ from the untracked windows");
     assert!(rms <= 0.05, "RMS {rms:.4} px");
     // Tracks are lost only at the jumps (twice in 97 rows: out and back)
     // and the gaps (line 1, 5 rows in 61), and found again the next row.
