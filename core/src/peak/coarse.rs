@@ -138,41 +138,77 @@ pub const PAIR_LEVEL_MAX: i32 = 0x4001;
 /// bit set goes to the scalar test's rare path (the stripe's top).
 fn window_is_clean_pairs<P: Pixel>(row: &[P], sat: i32, level: i32) -> bool {
     const LANES: u32 = 0x0001_0001;
-    const SIGNS: u32 = 0x8000_8000;
     let k = (0x7FFF - level) as u32 * LANES;
     let above = !(sat as u32 * LANES);
     let pair = |a: P, b: P| a.value() as u32 | (b.value() as u32) << 16;
     // `e` holds (x[i − 1], x[i]) for the chunk of centres i..i + 4.
     let mut e = pair(row[0], row[1]);
     let mut all = e;
-    let mut i = 1;
-    let (ps, p_rest) = row[2..].as_chunks::<4>();
-    for p in ps {
+    let (ps, _) = row[2..].as_chunks::<4>();
+    let mut from = 0;
+    loop {
+        let scan = scan_pairs(&ps[from..], e, k);
+        all |= scan.all;
+        e = scan.e;
+        match scan.hit {
+            None => break,
+            Some(c) => {
+                let c = from + c;
+                if !hits_are_stripe_tops(row, 1 + 4 * c, level) {
+                    return false;
+                }
+                from = c + 1;
+            }
+        }
+    }
+    // The last centres, where the row's n − 2 are not a multiple of four:
+    // the chunk of the last four pixels (centres n − 5 ..= n − 2, some
+    // already tested: the same answer twice), with no scalar tail.
+    if ps.len() * 4 + 2 < row.len() {
+        let (Some(tail), n) = (row.last_chunk::<4>(), row.len()) else {
+            return window_is_clean_scalar(row, sat, level);
+        };
+        let scan = scan_pairs(core::slice::from_ref(tail), pair(row[n - 6], row[n - 5]), k);
+        all |= scan.all;
+        if scan.hit.is_some() && !hits_are_stripe_tops(row, n - 5, level) {
+            return false;
+        }
+    }
+    all & above == 0
+}
+
+/// Where [`scan_pairs`] stopped: the first chunk whose centres pass the
+/// first test (`None`: none did), the last word read, and every word read
+/// OR-ed.
+struct PairScan {
+    hit: Option<usize>,
+    e: u32,
+    all: u32,
+}
+
+/// [`window_is_clean_pairs`]'s loop over chunks of four pixels (`e`: the
+/// pair before the first chunk, `k`: the test's constant in both halves),
+/// up to the first chunk with a bit set. Out of line, the rare path's call
+/// is outside it: the loop keeps its five values in registers (with the
+/// call inside, they were spilled to the stack every chunk).
+#[inline(always)]
+fn scan_pairs<P: Pixel>(ps: &[[P; 4]], mut e: u32, k: u32) -> PairScan {
+    const SIGNS: u32 = 0x8000_8000;
+    let pair = |a: P, b: P| a.value() as u32 | (b.value() as u32) << 16;
+    let mut all = 0;
+    for (c, p) in ps.iter().enumerate() {
         let (lo, hi) = (pair(p[0], p[1]), pair(p[2], p[3]));
         let b0 = (e >> 16) | (lo << 16);
         let b1 = (lo >> 16) | (hi << 16);
-        let t0 = k.wrapping_add(b0 << 1).wrapping_sub(e).wrapping_sub(lo);
-        let t1 = k.wrapping_add(b1 << 1).wrapping_sub(lo).wrapping_sub(hi);
+        let t0 = k.wrapping_add(b0 << 1).wrapping_sub(e.wrapping_add(lo));
+        let t1 = k.wrapping_add(b1 << 1).wrapping_sub(lo.wrapping_add(hi));
         all |= lo | hi;
-        if (t0 | t1) & SIGNS != 0 && !hits_are_stripe_tops(row, i, level) {
-            return false;
-        }
         e = hi;
-        i += 4;
-    }
-    if all & above != 0 {
-        return false;
-    }
-    let (mut a, mut b) = ((e & 0xFFFF) as i32, (e >> 16) as i32);
-    for p in p_rest {
-        let c = p.value();
-        if c > sat || (2 * b - a - c > level && !hits_are_stripe_tops(row, i, level)) {
-            return false;
+        if (t0 | t1) & SIGNS != 0 {
+            return PairScan { hit: Some(c), e, all };
         }
-        (a, b) = (b, c);
-        i += 1;
     }
-    true
+    PairScan { hit: None, e, all }
 }
 
 /// [`window_is_clean`] a pixel at a time (any `sat` and `level`).

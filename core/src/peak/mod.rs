@@ -588,13 +588,16 @@ impl<S> RowView<'_, S> {
 }
 
 /// Rows between two refreshes of the noise estimates (pixel noise and the
-/// screen's σ): they are stationary within a frame, so measuring them on
-/// one row in 128 (and on the first row after [`Detector::refresh_noise`],
-/// which the sensor head calls at every frame) costs a 128th of two
-/// medians per row: about 130 instructions a row on thumbv7em (one row in
-/// 64 cost about 260, a thirtieth of a windowed row; one in 32 before
-/// that). A 480-row frame still refreshes 4 times.
-pub const NOISE_ROWS: u16 = 128;
+/// screen's σ): they are stationary within a frame (the MT9V034's global
+/// shutter exposes every row of a frame at once), so measuring them on one
+/// row in 256 (and on the first row after [`Detector::refresh_noise`],
+/// which the sensor head calls at every frame) costs a 256th of a refresh
+/// (about 18 000 instructions on thumbv7em: two medians over the row and
+/// the screen's block responses), about 70 a row (one row in 128 cost
+/// about 145, one in 64 about 290). A 480-row frame refreshes twice; a
+/// caller that never calls `refresh_noise` still follows a change of
+/// exposure within 256 rows.
+pub const NOISE_ROWS: u16 = 256;
 
 /// The screen's threshold as a fraction of the detection threshold, Q8
 /// (0.6): the screen only nominates; the multi-scale test at the candidate
@@ -1151,14 +1154,13 @@ fn brightest_of_track<P: Pixel>(x: &[P]) -> usize {
     let j = 63 - (key & 63) as usize;
     let at = if j == last { n - 2 } else { 4 * j + 1 };
     // The first maximum of the (up to) seven pixels around it.
-    let (a, b) = (at.saturating_sub(3), (at + 4).min(n));
-    let mut best = a;
-    for i in a + 1..b {
-        if x[i].value() > x[best].value() {
-            best = i;
-        }
+    let a = at.saturating_sub(3);
+    let near = &x[a..(at + 4).min(n)];
+    let mut key = 0u32;
+    for (i, p) in near.iter().enumerate() {
+        key = key.max(((p.value() as u32) << 6) | (63 - i) as u32);
     }
-    best
+    a + 63 - (key & 63) as usize
 }
 
 /// The longest slice [`argmax_raw`] finds the maximum of by keys.
