@@ -51,8 +51,9 @@
 //! The screen costs about 2.9 instructions per pixel on thumbv7em: three
 //! 96-px windows (128 px screened each) cost about a third of a 752-px
 //! row's. What a stripe costs is the same as in a full-row search. A track
-//! of ±20 px costs about 100 instructions a window where the screen cost
-//! about 500 (docs/benchmarks.md).
+//! of ±20 px costs well under 100 instructions a window (the brightest of
+//! one column in four, then ±3 px) where the screen cost about 500
+//! (docs/benchmarks.md).
 
 use heapless::Vec;
 
