@@ -164,8 +164,9 @@ fn window_is_clean_pairs<P: Pixel>(row: &[P], sat: i32, level: i32) -> bool {
     // The last centres, where the row's n − 2 are not a multiple of four:
     // the chunk of the last four pixels (centres n − 5 ..= n − 2, some
     // already tested: the same answer twice), with no scalar tail.
-    if ps.len() * 4 + 2 < row.len() {
-        let (Some(tail), n) = (row.last_chunk::<4>(), row.len()) else {
+    let n = row.len();
+    if ps.len() * 4 + 2 < n {
+        let Some(tail) = row.last_chunk::<4>() else {
             return window_is_clean_scalar(row, sat, level);
         };
         let scan = scan_pairs(core::slice::from_ref(tail), pair(row[n - 6], row[n - 5]), k);
@@ -188,9 +189,10 @@ struct PairScan {
 
 /// [`window_is_clean_pairs`]'s loop over chunks of four pixels (`e`: the
 /// pair before the first chunk, `k`: the test's constant in both halves),
-/// up to the first chunk with a bit set. Out of line, the rare path's call
-/// is outside it: the loop keeps its five values in registers (with the
-/// call inside, they were spilled to the stack every chunk).
+/// up to the first chunk with a bit set. A loop of its own with the rare
+/// path's call outside it keeps its five values in registers (with the call
+/// inside, they were spilled to the stack every chunk); inlined, as a call
+/// per scan cost more than the spills.
 #[inline(always)]
 fn scan_pairs<P: Pixel>(ps: &[[P; 4]], mut e: u32, k: u32) -> PairScan {
     const SIGNS: u32 = 0x8000_8000;

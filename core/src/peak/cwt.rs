@@ -485,10 +485,10 @@ pub fn slope_zero_near<S: Sample>(
     // The zero a phase beside the first pair: the line through it, not a
     // second pair. The guess is that close for nearly every stripe it
     // misses (its noise is about a phase); the line is then extrapolated by
-    // at most a phase, where it is within 2·10⁻⁴ px of the zero of the
-    // pair that brackets it (σ 1.5; 8·10⁻⁵ at σ 2.5, against 1.5·10⁻⁵
-    // inside the bracket: `tests::a_phase_beside_the_pair`), and a second
-    // pass costs as much as the first.
+    // at most a phase, where it is within 1.4·10⁻⁴ px of the zero of the
+    // pair that brackets it (noiseless stripes σ 1.5–10 px:
+    // `tests::a_phase_beside_the_pair`), and a second pass costs as much
+    // as the first.
     let fall = fa - fb;
     if fall > 0 {
         if fa > 0 && fb > 0 && fb <= fall {

@@ -1155,12 +1155,7 @@ fn brightest_of_track<P: Pixel>(x: &[P]) -> usize {
     let at = if j == last { n - 2 } else { 4 * j + 1 };
     // The first maximum of the (up to) seven pixels around it.
     let a = at.saturating_sub(3);
-    let near = &x[a..(at + 4).min(n)];
-    let mut key = 0u32;
-    for (i, p) in near.iter().enumerate() {
-        key = key.max(((p.value() as u32) << 6) | (63 - i) as u32);
-    }
-    a + 63 - (key & 63) as usize
+    a + argmax_raw(&x[a..(at + 4).min(n)])
 }
 
 /// The longest slice [`argmax_raw`] finds the maximum of by keys.
