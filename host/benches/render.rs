@@ -6,8 +6,8 @@
 //!
 //! `cargo bench -p cms-host --bench render`.
 
-use cms_host::sim::board::{self, BoardRenderer, RenderOptions};
-use cms_host::sim::{NoiseModel, Scene, SimConfig};
+use cms_host::sim::calibration::board::{self, BoardRenderer, RenderOptions};
+use cms_host::sim::scene::{NoiseModel, Scene, SimConfig};
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
 use std::time::Duration;

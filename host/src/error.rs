@@ -2,8 +2,8 @@
 //!
 //! Each domain module has its own typed error ([`crate::input::InputError`],
 //! [`crate::link::LinkError`], [`crate::link::ClientError`],
-//! [`crate::listen::ListenError`], [`crate::record::RecordError`],
-//! [`crate::qemu::QemuError`], [`crate::simulate::SimulateError`], …) and
+//! [`crate::device::listen::ListenError`], [`crate::recording::RecordError`],
+//! [`crate::device::qemu::QemuError`], [`crate::sim::head::SimulateError`], …) and
 //! says what [`Class`] of failure each of its variants is ([`Classify`]).
 //! [`Error`] holds any of them ([`Error::Module`]) or one of the plain
 //! messages the command-level functions produce (a bad input, a device that

@@ -7,14 +7,14 @@
 //! ([`LiveEstimate::estimate`], once a second, or four times with a
 //! terminal): the window's frames are stitched ([`super::stitch`], 1 mm
 //! samples, direction from the data, offset registration) and each laser's
-//! profile gets the paper's rotated-sine fit ([`crate::fit`]). The window is
+//! profile gets the paper's rotated-sine fit ([`crate::measure::fit`]). The window is
 //! the frames within [`WINDOW_MM`] of odometer of the newest (at most
 //! [`MAX_FRAMES`]), so at walking pace or at 2 m/s it is about half a metre
 //! of rail: ten wavelengths of 50 mm corrugation.
 //!
 //! **Cheap by design.** The status line is drawn by the listener's own
 //! loop: while it computes, nobody reads the port, and a head whose link
-//! buffer fills drops frames. The full fit ([`crate::fit::fit`]: three starts,
+//! buffer fills drops frames. The full fit ([`crate::measure::fit::fit`]: three starts,
 //! the fallback scan, Levenberg–Marquardt on the rotated model) took 0.5 s
 //! per update here, so the live estimate is the short path of the same
 //! module: the profile detrended (a straight line takes the sensor's
@@ -32,7 +32,7 @@ use std::fmt::Write as _;
 use cms_core::protocol::Profile;
 
 use super::stitch::{self, Direction, FrameAssembler, FramePoints, Registration};
-use crate::fit;
+use crate::measure::fit;
 
 /// Odometer span of the frames kept, mm.
 pub const WINDOW_MM: f64 = 500.0;

@@ -3,7 +3,7 @@
 //! one longitudinal profile per laser line ([`stitch`]), and judged as a rail
 //! engineer expects (docs/reference.md §2): the EN 13231-3 wavelength bands
 //! and the EN 15610 one-third-octave roughness spectrum against the ISO 3095
-//! limit ([`crate::standards`]). A summary goes to stdout (or one JSON
+//! limit ([`crate::analyze::standards`]). A summary goes to stdout (or one JSON
 //! object with `--json`); `--report DIR` writes a Markdown and a
 //! self-contained HTML report with SVG and PNG plots, and CSV exports
 //! ([`report`]); `--parquet DIR` (and the report) the stitched profile,
@@ -21,11 +21,10 @@
 //! recording (`cms-host bench recording`, 340 m of rail, 531 MB) takes
 //! about 5 s and 180 MB (docs/benchmarks.md).
 
-pub mod exports;
 pub mod live;
 pub mod profile;
-pub mod report;
 pub mod reprofiling;
+pub mod standards;
 pub mod stitch;
 pub mod survey;
 
@@ -36,11 +35,11 @@ use cms_core::protocol::DeviceMsg;
 use serde_json::{Value, json};
 
 use crate::Error;
-use crate::corrugation::Across;
+use crate::analyze::standards::{StandardsError, en13231, en15610};
+use crate::measure::corrugation::Across;
 use crate::measure::{Measurer, Profiles};
 use crate::progress::Progress;
-use crate::record::{self, ScanStats};
-use crate::standards::{StandardsError, en13231, en15610};
+use crate::recording::{self, ScanStats};
 use stitch::{Direction, FrameAssembler, FramePoints, Registration, Stitched, Stitching};
 
 /// What [`analyze`] needs besides the frames.
@@ -73,8 +72,8 @@ pub struct Recording {
     pub stats: ScanStats,
     /// Frames slid across ([`slide_frame`]) and the calibration file used.
     pub slid_across: Option<(usize, PathBuf)>,
-    /// The survey the recording's header names ([`crate::survey_info`]).
-    pub survey: Option<crate::survey_info::Survey>,
+    /// The survey the recording's header names ([`crate::recording::survey_info`]).
+    pub survey: Option<crate::recording::survey_info::Survey>,
 }
 
 impl Recording {
@@ -109,7 +108,7 @@ pub fn read_recording(
             std::io::Error::other("stopped")
         })
     };
-    let scanned = record::scan_file_with_progress(path, progress, |msg| {
+    let scanned = recording::scan_file_with_progress(path, progress, |msg| {
         match msg {
             DeviceMsg::Profile(p) => {
                 rec.profiles += 1;
@@ -153,7 +152,7 @@ pub fn read_recording(
 }
 
 /// Slides one frame's points across the rail head's lateral slope
-/// ([`crate::corrugation::Across`]: the points lifted to the head frame with
+/// ([`crate::measure::corrugation::Across`]: the points lifted to the head frame with
 /// the calibration's laser frames, the slope from the parabola through the
 /// three lines' mean heights); false when the frame has fewer than two
 /// lines of 8 points (it is left as it is).
@@ -430,7 +429,7 @@ fn describe_recording(s: &mut String, path: &Path, rec: &Recording) {
             );
         }
     }
-    for w in record::warnings(path, &rec.stats) {
+    for w in recording::warnings(path, &rec.stats) {
         let _ = writeln!(s, "  {w}");
     }
 }

@@ -31,7 +31,7 @@
 use std::fmt::Write as _;
 
 use super::{Grid, LaserAnalysis, chainage};
-use crate::standards::{en13231, en15610};
+use crate::analyze::standards::{en13231, en15610};
 
 /// Which edition's criterion judges a position.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -48,9 +48,9 @@ use rustfft::num_complex::Complex;
 
 use super::profile;
 use super::stitch::{Direction, Stitched, Stitching};
-use crate::standards::en13231;
+use crate::analyze::standards::en13231;
 
-pub use crate::survey_info::{Chainage, Heading, Placement};
+pub use crate::recording::survey_info::{Chainage, Heading, Placement};
 
 /// Options of [`join`].
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -55,7 +55,7 @@
 
 use std::collections::{HashMap, HashSet};
 
-use crate::board::Board;
+use crate::model::board::Board;
 
 /// Why a board's corners were not found.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]

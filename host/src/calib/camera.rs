@@ -16,7 +16,7 @@
 //! image centre, focal lengths by linear least squares on the same
 //! constraints. Distortion starts at zero.
 //!
-//! **Refinement.** One dense Levenberg–Marquardt ([`crate::lm`]) over the
+//! **Refinement.** One dense Levenberg–Marquardt ([`crate::model::lm`]) over the
 //! free intrinsics (`fx, fy, cx, cy`, optionally the skew — fixed at 0 by
 //! default, as in OpenCV — `k1, k2, p1, p2, k3`) and six parameters per view
 //! (Rodrigues vector, translation), minimising the squared pixel
@@ -64,9 +64,9 @@ use std::path::Path;
 
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, SMatrix, SymmetricEigen, Vector3};
 
-use crate::board::{Board, BoardPose};
-use crate::camera::Intrinsics;
-use crate::lm::{self, Problem as _};
+use crate::model::board::{Board, BoardPose};
+use crate::model::camera::Intrinsics;
+use crate::model::lm::{self, Problem as _};
 
 /// Two views closer than this (RMS over corners, px) are one pose.
 pub const DUPLICATE_RMS_PX: f64 = 1.0;

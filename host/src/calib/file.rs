@@ -84,8 +84,8 @@ use serde::de::{self, MapAccess, Visitor};
 use serde::ser::SerializeStruct;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-use crate::board::Board;
-use crate::camera::Intrinsics;
+use crate::model::board::Board;
+use crate::model::camera::Intrinsics;
 
 /// The file format version this build reads and writes.
 pub const FILE_VERSION: u32 = 1;

@@ -40,9 +40,9 @@ use cms_core::peak::{Config, Detector, Select, Stripes};
 use cms_core::protocol::LASERS;
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
-use crate::board::{Board, BoardPose};
-use crate::camera::Intrinsics;
 use crate::input::{Pixels, Rows};
+use crate::model::board::{Board, BoardPose};
+use crate::model::camera::Intrinsics;
 
 /// Widest image the row detector takes.
 const MAX_WIDTH: usize = 8192;

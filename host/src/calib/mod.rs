@@ -1,6 +1,6 @@
 //! Calibration of the sensor head: camera intrinsics from checkerboard
 //! photographs, laser planes from laser lines on the board, the calibration
-//! file (its upload to a head is [`crate::upload`]).
+//! file (its upload to a head is [`crate::device::upload`]).
 //!
 //! * [`board`] — checkerboard inner-corner detection with sub-pixel refinement.
 //! * [`camera`] — Zhang's closed-form initialisation and Levenberg–Marquardt
@@ -14,11 +14,9 @@
 //!   simulated head, with the truth beside them.
 //!
 //! They share OpenCV's conventions: the camera model and frame of
-//! [`crate::camera`], the board frame and pose of [`crate::board`].
+//! [`crate::model::camera`], the board frame and pose of [`crate::model::board`].
 
 pub mod board;
 pub mod camera;
 pub mod file;
 pub mod lasers;
-pub mod render;
-pub mod truth;

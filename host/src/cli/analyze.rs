@@ -6,13 +6,13 @@ use std::path::PathBuf;
 use clap::{Args, ValueEnum};
 use cms_host::Error;
 use cms_host::analyze::reprofiling::{self, Edition};
+use cms_host::analyze::standards::en15610;
 use cms_host::analyze::stitch::{self, Direction, Registration, Stitcher};
 use cms_host::analyze::survey::{self, Placement};
 use cms_host::analyze::{self, Options, Source, profile};
 use cms_host::calib::file::CalibrationFile;
 use cms_host::measure::Measurer;
-use cms_host::standards::en15610;
-use cms_host::survey_info::Survey;
+use cms_host::recording::survey_info::Survey;
 
 use super::progress::Bar;
 
@@ -163,7 +163,7 @@ fn is_recording(path: &std::path::Path) -> Result<bool, Error> {
     let mut f = std::fs::File::open(path).map_err(|e| Error::Input(format!("cannot read {}: {e}", path.display())))?;
     let mut magic = [0u8; 8];
     // Shorter than a recording's magic: not a recording.
-    Ok(f.read_exact(&mut magic).is_ok() && magic == cms_host::record::MAGIC)
+    Ok(f.read_exact(&mut magic).is_ok() && magic == cms_host::recording::MAGIC)
 }
 
 /// Runs `cms-host analyze`: one pass over each recording, each frame slid
@@ -231,7 +231,7 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
         for path in &args.inputs {
             let (mut rec, stitching) = read_run(path, &opts, calibration.as_ref())?;
             let name = path.display();
-            if let Some(text) = cms_host::record::survey_of(path).map_err(Error::from)? {
+            if let Some(text) = cms_host::recording::survey_of(path).map_err(Error::from)? {
                 let survey = Survey::parse(&text).map_err(|e| Error::Input(format!("{name}: survey block: {e}")))?;
                 rec.survey = Some(survey);
             }
@@ -256,10 +256,10 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
     let a = analyze::judge(stitching, joins, &opts);
     let text = analyze::summary(&source, &a);
     if let Some(dir) = &args.report {
-        analyze::report::write(dir, &source, &a, &text)?;
+        cms_host::report::write(dir, &source, &a, &text)?;
     }
     if let Some(dir) = &args.parquet {
-        analyze::exports::write(dir, &source, &a)?;
+        cms_host::report::exports::write(dir, &source, &a)?;
     }
     let mut out = std::io::stdout().lock();
     if args.json {

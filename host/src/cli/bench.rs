@@ -9,13 +9,13 @@
 //!   1280-px 12-bit rows with 1 and 3 stripes, and the ratio `cwt` / `cog`
 //!   measured in the same run. `cargo bench -p cms-host --bench detect` times
 //!   the same rows with criterion.
-//! * `bench corrugation` — the closed loop of `cms_host::closed_loop`: the
+//! * `bench corrugation` — the closed loop of `cms_host::sim::closed_loop`: the
 //!   paper's four corrugation samples through the simulated head, the
 //!   wavelength and amplitude errors over runs (`corrugation.md`,
 //!   `corrugation.csv`) and one measured frame's plot (`frame_l50_a50.png`,
 //!   `.svg`).
 //! * `bench recording` — writes a synthetic calibrated recording of any
-//!   length (`cms_host::synthetic`), the input of the scale benchmarks of
+//!   length (`cms_host::sim::synthetic`), the input of the scale benchmarks of
 //!   `analyze` and `export` (docs/benchmarks.md).
 
 use anyhow::{Context, Result, bail};
@@ -197,7 +197,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
     let text = match cmd {
         BenchCmd::Accuracy(a) => accuracy(&a)?,
         BenchCmd::Speed(s) => speed(&s)?,
-        BenchCmd::Qemu(q) => cms_host::qemu::bench(&q.options())?,
+        BenchCmd::Qemu(q) => cms_host::device::qemu::bench(&q.options())?,
         BenchCmd::Corrugation(c) => corrugation(&c)?,
         BenchCmd::Recording(r) => recording(&r)?,
         BenchCmd::AnnexA(a) => annex_a(&a)?,
@@ -208,7 +208,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
 
 /// `bench corrugation`: the closed-loop table and one frame's plot.
 fn corrugation(a: &CorrugationArgs) -> Result<String> {
-    use cms_host::closed_loop::{self as cl, PAPER_CASES};
+    use cms_host::sim::closed_loop::{self as cl, PAPER_CASES};
     if !(a.roughness_um >= 0.0 && a.roughness_um.is_finite()) {
         bail!("--roughness-um must be finite and ≥ 0");
     }
@@ -262,31 +262,31 @@ fn corrugation(a: &CorrugationArgs) -> Result<String> {
 /// `bench recording`: the synthetic recording, and a line saying what it is.
 /// `bench annex-a`: the table, and a failure when a limit is not met.
 fn annex_a(a: &AnnexAArgs) -> Result<String> {
-    let beam = cms_host::reference_beam::Beam {
+    let beam = cms_host::sim::annex_a::Beam {
         length_mm: a.length_m * 1000.0,
         step_mm: a.step_mm,
         row_step: a.row_step.into(),
         seed: a.seed,
-        ..cms_host::reference_beam::Beam::default()
+        ..cms_host::sim::annex_a::Beam::default()
     };
-    let o = cms_host::reference_beam::measure(&beam).map_err(cms_host::Error::Input)?;
+    let o = cms_host::sim::annex_a::measure(&beam).map_err(cms_host::Error::Input)?;
     let mut text = String::from(
         "EN 13231-3 Annex A through the simulated head (limits and CAT's figures as RailMeasurement quotes them)\n\n",
     );
-    text.push_str(&cms_host::reference_beam::table(&o));
+    text.push_str(&cms_host::sim::annex_a::table(&o));
     text.push_str(if o.passes() { "every band within its limit\n" } else { "A LIMIT IS NOT MET\n" });
     Ok(text)
 }
 
 fn recording(a: &RecordingArgs) -> Result<String> {
-    let opts = cms_host::synthetic::Options {
+    let opts = cms_host::sim::synthetic::Options {
         frames: a.frames,
         step_mm: a.step_mm,
         seed: a.seed,
-        ..cms_host::synthetic::Options::default()
+        ..cms_host::sim::synthetic::Options::default()
     };
     let t = Instant::now();
-    cms_host::synthetic::write(&a.out, &opts, &super::progress::Bar::stderr())?;
+    cms_host::sim::synthetic::write(&a.out, &opts, &super::progress::Bar::stderr())?;
     let bytes = std::fs::metadata(&a.out).map(|m| m.len()).unwrap_or(0);
     Ok(format!(
         "{}: {} synthetic calibrated frames, {} points each, {:.1} m of rail, {:.1} MB, written in {:.1} s\n",

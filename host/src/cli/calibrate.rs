@@ -6,13 +6,14 @@ use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use cms_host::Error;
+use cms_host::calib;
 use cms_host::calib::board::{CornerError, find_corners};
 use cms_host::calib::camera::{CalibOptions, calibrate};
 use cms_host::calib::file::{CalibrationFile, HeadSection, LaserSection, PlaneSection, SigmaSection};
 use cms_host::calib::lasers::{LaserOptions, Pair, calibrate_lasers};
-use cms_host::calib::{self, render};
+use cms_host::device::upload;
 use cms_host::input::read_rows;
-use cms_host::upload;
+use cms_host::sim::calibration::images as render;
 
 use super::exit::input;
 use super::simulate::{PresetArg, SimPortArgs};

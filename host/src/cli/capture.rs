@@ -3,8 +3,8 @@
 use std::path::PathBuf;
 
 use cms_core::protocol::LASERS;
-use cms_host::capture::{self, Options};
-use cms_host::simulate;
+use cms_host::device::capture::{self, Options};
+use cms_host::sim::head;
 
 use super::simulate::SimPortArgs;
 
@@ -41,7 +41,7 @@ pub fn run(args: &CaptureArgs) -> anyhow::Result<()> {
     // Before the head lights its lasers for nothing.
     cms_host::output::check_target(&args.out)?;
     let opts = Options { lasers: args.lasers, exposure_us: args.exposure_us, baud: args.baud };
-    let frame = simulate::with_port(&args.port, &args.sim.options(), |port| capture::capture(port, &opts))??;
+    let frame = head::with_port(&args.port, &args.sim.options(), |port| capture::capture(port, &opts))??;
     capture::save_png(&frame, &args.out)?;
     println!(
         "{}: {}×{} px, {} bit, lasers {:#05b}",

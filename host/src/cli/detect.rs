@@ -8,7 +8,7 @@ use clap::{Args, ValueEnum};
 use cms_core::fixed::Px;
 use cms_core::optics::ScaleRange;
 use cms_core::peak::{Config, Detector, Method, Select};
-use cms_host::detect::{self, Axis, MAX_STRIPES, Options};
+use cms_host::input::detect::{self, Axis, MAX_STRIPES, Options};
 
 /// Arguments of `cms-host detect`.
 #[derive(Args, Debug, Clone)]

@@ -64,11 +64,11 @@ fn class_of(e: &(dyn std::error::Error + 'static)) -> Option<Class> {
         cms_host::input::InputError,
         cms_host::link::LinkError,
         cms_host::link::ClientError,
-        cms_host::listen::ListenError,
-        cms_host::record::RecordError,
+        cms_host::device::listen::ListenError,
+        cms_host::recording::RecordError,
         cms_host::output::OutputError,
-        cms_host::qemu::QemuError,
-        cms_host::simulate::SimulateError
+        cms_host::device::qemu::QemuError,
+        cms_host::sim::head::SimulateError
     );
     None
 }

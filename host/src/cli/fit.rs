@@ -7,7 +7,7 @@ use clap::{Args, ValueEnum};
 use cms_host::Error;
 
 use super::exit::Usage;
-use cms_host::fit::{Fit, Method, Model, Options, Start, fit, fit_jacquelin, parse_profile};
+use cms_host::measure::fit::{Fit, Method, Model, Options, Start, fit, fit_jacquelin, parse_profile};
 
 /// `--model`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]

@@ -13,7 +13,7 @@ use cms_core::peak::window::MIN_WINDOW_PX;
 use cms_core::protocol::{LASERS, LaserPattern, Start};
 use cms_core::readout::RowSkip;
 use cms_host::calib::file::CalibrationFile;
-use cms_host::listen::{self, ListenOptions, RowsRequest, StatusLine, Summary};
+use cms_host::device::listen::{self, ListenOptions, RowsRequest, StatusLine, Summary};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::exit::Usage;
@@ -298,7 +298,8 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
     if let Some(path) = &args.survey {
         let name = path.display();
         let text = std::fs::read_to_string(path).map_err(|e| Usage(format!("cannot read {name}: {e}")))?;
-        let survey = cms_host::survey_info::Survey::parse(&text).map_err(|e| Usage(format!("{name}: {e}")))?;
+        let survey =
+            cms_host::recording::survey_info::Survey::parse(&text).map_err(|e| Usage(format!("{name}: {e}")))?;
         opts.survey = Some(survey.to_text());
     }
     if let Some(path) = &args.windows_from {

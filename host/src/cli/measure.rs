@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use clap::Args;
 use cms_host::Error;
 use cms_host::calib::file::CalibrationFile;
+use cms_host::measure::verdict::Level;
 use cms_host::measure::{self, Measurer};
-use cms_host::verdict::Level;
 
 /// Arguments of `cms-host measure`.
 #[derive(Args, Debug, Clone)]

@@ -83,8 +83,8 @@ fn dispatch(command: Command) -> Result<()> {
             // Ctrl-C from here on stops the listener (and then QEMU) instead of
             // ending this process with QEMU left running in its own process group.
             let stop = listen::interrupt_flag();
-            Ok(cms_host::qemu::with_port(&args.port, &qemu.options(), stop, |port| {
-                cms_host::simulate::with_port(port, &sim.options(), |port| {
+            Ok(cms_host::device::qemu::with_port(&args.port, &qemu.options(), stop, |port| {
+                cms_host::sim::head::with_port(port, &sim.options(), |port| {
                     listen::run(&listen::ListenArgs { port: port.to_string(), ..args.clone() })
                 })
             })???)

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use clap::{Args, ValueEnum};
-use cms_host::qemu::{BenchOptions, Machine, QemuPort};
+use cms_host::device::qemu::{BenchOptions, Machine, QemuPort};
 
 /// `--machine`, `--qemu-machine`: the emulated board.
 #[derive(ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use clap::{Args, ValueEnum};
 use cms_host::Error;
 use cms_host::output;
-use cms_host::record::{self, ExportFormat};
+use cms_host::recording::{self, ExportFormat};
 
 use super::exit::Usage;
 
@@ -46,9 +46,9 @@ pub struct ExportArgs {
 /// `cms-host export`.
 pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
     // Validate the recording before creating the output file.
-    record::check_header(&args.file)?;
+    recording::check_header(&args.file)?;
     let stats = match &args.out {
-        Some(o) if record::same_file(o, &args.file) => {
+        Some(o) if recording::same_file(o, &args.file) => {
             anyhow::bail!(Usage(format!("--out {} is the recording itself; refusing to overwrite it", o.display())));
         }
         Some(o) if !output::is_stdout(o) => {
@@ -57,7 +57,7 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
             let mut stats = None;
             let mut failed = None;
             output::write_atomically(o, |w| {
-                match record::export_to(&args.file, args.format.into(), w, &Bar::stderr()) {
+                match recording::export_to(&args.file, args.format.into(), w, &Bar::stderr()) {
                     Ok(s) => {
                         stats = Some(s);
                         Ok(())
@@ -76,10 +76,10 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
         }
         _ => {
             let stdout = io::stdout();
-            record::export_to(&args.file, args.format.into(), &mut BufWriter::new(stdout.lock()), &Bar::stderr())?
+            recording::export_to(&args.file, args.format.into(), &mut BufWriter::new(stdout.lock()), &Bar::stderr())?
         }
     };
-    for w in record::warnings(&args.file, &stats) {
+    for w in recording::warnings(&args.file, &stats) {
         let _ = writeln!(io::stderr(), "{w}");
     }
     Ok(())
@@ -95,7 +95,7 @@ pub struct InfoArgs {
 
 /// `cms-host info`.
 pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
-    let info = record::Info::of_file(&args.file, &Bar::stderr())?;
+    let info = recording::Info::of_file(&args.file, &Bar::stderr())?;
     let mut out = io::stdout().lock();
     out.write_all(info.report(&args.file).as_bytes()).map_err(Error::Output)?;
     out.flush().map_err(Error::Output)?;

@@ -8,7 +8,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Args, ValueEnum};
-use cms_host::simulate::{
+use cms_host::sim::head::{
     self, CorrugationSpec, HeadOptions, Preset, SimPort, SimulateError, parse_corrugation, parse_gains,
 };
 
@@ -150,7 +150,7 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
     let flag = stop.clone();
     ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed))
         .map_err(|e| SimulateError::Io("installing the SIGINT/SIGTERM handler", io::Error::other(e)))?;
-    let summary = simulate::serve_on_new_pty(&args.options(), &stop, |path| {
+    let summary = head::serve_on_new_pty(&args.options(), &stop, |path| {
         let mut out = io::stdout().lock();
         writeln!(out, "{}", path.display())?;
         out.flush()

@@ -10,10 +10,10 @@ use cms_core::fixed::Px;
 use cms_core::peak::Flags;
 use cms_core::protocol::{DeviceMsg, LaserPoints, MAX_FRAME, Metric, Point, Profile, encode};
 use cms_host::analyze::stitch::{self, Direction, FramePoints, Options, Registration};
-use cms_host::calib::truth::truth;
-use cms_host::record;
-use cms_host::sim::Scene;
-use cms_host::simulate::{HeadOptions, parse_corrugation, sim_config};
+use cms_host::recording;
+use cms_host::sim::calibration::truth::truth;
+use cms_host::sim::head::{HeadOptions, parse_corrugation, sim_config};
+use cms_host::sim::scene::Scene;
 
 /// A small deterministic generator (xorshift64*), uniform and normal.
 struct Rng(u64);
@@ -67,7 +67,7 @@ fn frames(step_mm: f64, count: u32, skip: &[u32], noise_um: f64, seed: u64) -> V
 /// (what no registration can know: the absolute level and slope), µm.
 fn error_rms(s: &stitch::Stitched, truth: impl Fn(f64) -> f64) -> f64 {
     let (mut ss, mut n) = (0.0, 0usize);
-    for run in cms_host::standards::segments(&s.z_um) {
+    for run in cms_host::analyze::standards::segments(&s.z_um) {
         let d: Vec<(f64, f64)> = run.map(|i| (s.x_mm(i), s.z_um[i] - truth(s.x_mm(i)))).collect();
         let m = d.len() as f64;
         let (xm, ym) = (d.iter().map(|p| p.0).sum::<f64>() / m, d.iter().map(|p| p.1).sum::<f64>() / m);
@@ -169,7 +169,7 @@ fn wire<T: serde::Serialize>(msg: &T) -> Vec<u8> {
 
 /// A recording of `frames` as the head would send them (calibrated points).
 fn write_recording(path: &Path, frames: &[FramePoints], calibrated: bool) {
-    let mut bytes = record::header().to_vec();
+    let mut bytes = recording::header().to_vec();
     for f in frames {
         let mut p = Profile { seq: f.seq, odometer_um: (f.odometer_mm * 1000.0).round() as i64, ..Profile::EMPTY };
         for (k, pts) in f.lasers.iter().enumerate() {
@@ -236,7 +236,7 @@ fn bad_input_is_one_line_and_exit_2() {
     std::fs::write(d("text.cmsrec"), "x_mm,z_mm\n1,2\n").unwrap();
     let e = one_line_error(&run(&["analyze", d("text.cmsrec").to_str().unwrap()]));
     assert!(e.contains("text.cmsrec"), "{e}");
-    std::fs::write(d("empty.cmsrec"), record::header()).unwrap();
+    std::fs::write(d("empty.cmsrec"), recording::header()).unwrap();
     let e = one_line_error(&run(&["analyze", d("empty.cmsrec").to_str().unwrap()]));
     assert!(e.contains("no profiles"), "{e}");
     write_recording(&d("raw.cmsrec"), &frames(33.3, 3, &[], 1.0, 5), false);
@@ -455,10 +455,10 @@ fn duplicated_and_damaged_frames_are_reported() {
     write_recording(&path, &frames(33.3, 4, &[], 1.0, 5), true);
     let mut bytes = std::fs::read(&path).unwrap();
     // Frame 3 again (a writer retrying), then one damaged frame.
-    let body = &bytes[record::HEADER_LEN..];
+    let body = &bytes[recording::HEADER_LEN..];
     let starts: Vec<usize> =
         std::iter::once(0).chain(body.iter().enumerate().filter(|(_, b)| **b == 0).map(|(i, _)| i + 1)).collect();
-    let last = bytes[record::HEADER_LEN + starts[3]..record::HEADER_LEN + starts[4]].to_vec();
+    let last = bytes[recording::HEADER_LEN + starts[3]..recording::HEADER_LEN + starts[4]].to_vec();
     bytes.extend(&last);
     let mut broken = last.clone();
     broken[5] ^= 0x40;
@@ -508,7 +508,7 @@ fn a_synthetic_survey_streams_through_analyze() {
     }
 }
 
-/// Two synthetic runs of one survey (`cms_host::synthetic`, a rail with
+/// Two synthetic runs of one survey (`cms_host::sim::synthetic`, a rail with
 /// broadband roughness and 80 m of 40 µm peak-to-peak corrugation at
 /// 50 mm from chainage 0+060 to 0+140): the first driven up from 0+000 for
 /// 110 m, the second started at 0+200, 20 m before where the first ended
@@ -516,7 +516,7 @@ fn a_synthetic_survey_streams_through_analyze() {
 /// no heading for the second, `analyze RUN1 RUN2` finds both, joins them
 /// into 200 m with the overlap registered to the noise, and finds the zone.
 fn survey_runs(dir: &Path, points_per_line: u16) -> (PathBuf, PathBuf) {
-    use cms_host::synthetic::{self, Rail};
+    use cms_host::sim::synthetic::{self, Rail};
     let rail = Rail::Survey { zone_mm: (60_000.0, 140_000.0), wavelength_mm: 50.0, amplitude_um: 20.0 };
     let frames = (110_000.0 / 17.0) as u32;
     let base = synthetic::Options { frames, points_per_line, rail, ..synthetic::Options::default() };

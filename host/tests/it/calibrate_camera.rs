@@ -16,10 +16,10 @@
 use crate::common::cms_host;
 use std::path::PathBuf;
 
-use cms_host::board::{Board, BoardPose};
 use cms_host::calib::board::{CornerError, find_corners};
 use cms_host::calib::camera::{CalibError, CalibOptions, board_pose, calibrate};
-use cms_host::camera::Intrinsics;
+use cms_host::model::board::{Board, BoardPose};
+use cms_host::model::camera::Intrinsics;
 use nalgebra::{Rotation3, Vector3};
 
 const PHOTOS: [u32; 13] = [1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 13, 14];

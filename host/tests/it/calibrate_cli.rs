@@ -4,8 +4,8 @@
 use crate::common::{one_line_error, run};
 
 use cms_host::calib::file::CalibrationFile;
-use cms_host::calib::truth::truth;
-use cms_host::sim::{Scene, SimConfig};
+use cms_host::sim::calibration::truth::truth;
+use cms_host::sim::scene::{Scene, SimConfig};
 use proptest::prelude::*;
 
 /// Upload to the simulated head, which keeps it: a new head on the same

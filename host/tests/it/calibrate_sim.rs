@@ -5,13 +5,13 @@
 //! true intrinsics and laser planes. The done-when: intrinsics within 0.2 %,
 //! each plane's normal within 0.02° and offset within 0.02 mm.
 
-use cms_host::board::Board;
 use cms_host::calib::board::find_corners;
 use cms_host::calib::camera::{CalibOptions, calibrate};
 use cms_host::calib::lasers::{LaserOptions, Pair, calibrate_lasers};
 use cms_host::input::Rows;
-use cms_host::sim::board::{BoardImage, board_for, calibration_poses, render_board};
-use cms_host::sim::{Scene, SimConfig};
+use cms_host::model::board::Board;
+use cms_host::sim::calibration::board::{BoardImage, board_for, calibration_poses, render_board};
+use cms_host::sim::scene::{Scene, SimConfig};
 
 fn rows(img: BoardImage) -> Rows {
     if img.bits <= 8 {

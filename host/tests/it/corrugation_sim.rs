@@ -1,5 +1,5 @@
 //! Closed loop through the simulated head at the paper's geometry (Table 4)
-//! and 30 dB stripes (`cms_host::closed_loop`): for the paper's samples
+//! and 30 dB stripes (`cms_host::sim::closed_loop`): for the paper's samples
 //! (wavelength 50 and 100 mm × amplitude 50 and 100 µm, machined: no
 //! roughness), 20 runs each with different noise seeds and corrugation
 //! phases, every second image row. The joint fit's amplitude error is
@@ -11,7 +11,7 @@
 //! Prints the table (`--nocapture`); `cms-host bench corrugation` makes it
 //! with every row.
 
-use cms_host::closed_loop::{PAPER_CASES, Study, markdown, study};
+use cms_host::sim::closed_loop::{PAPER_CASES, Study, markdown, study};
 
 #[test]
 fn paper_samples_within_the_limits() {
@@ -45,8 +45,8 @@ fn paper_samples_within_the_limits() {
 /// aligned head over the flat rail is good.
 #[test]
 fn misaligned_heads_over_crowns_are_right_or_flagged() {
-    use cms_host::closed_loop::{Case, Cell, Pose, summarize, sweep, sweep_markdown};
-    use cms_host::verdict::Level;
+    use cms_host::measure::verdict::Level;
+    use cms_host::sim::closed_loop::{Case, Cell, Pose, summarize, sweep, sweep_markdown};
     let mut cells = Vec::new();
     for yaw_deg in [0.0, 5.0, 10.0, 15.0] {
         for (pitch_deg, roll_deg) in [(0.0, 0.0), (2.0, -2.0), (-2.0, 2.0)] {
@@ -82,17 +82,17 @@ fn misaligned_heads_over_crowns_are_right_or_flagged() {
     }
 }
 
-/// EN 13231-3 Annex A through the simulated head (`cms_host::reference_beam`,
+/// EN 13231-3 Annex A through the simulated head (`cms_host::sim::annex_a`,
 /// `cms-host bench annex-a`): over a 3 m reference beam with two sines in
 /// each band, every line's band RMS difference from the beam is within
 /// Annex A's 1 / 1 / 2 µm, and the beam's own band RMS is what its sines
 /// give (so the comparison has something to measure).
 #[test]
 fn the_reference_beam_meets_annex_a() {
-    use cms_host::reference_beam::{self, Beam};
+    use cms_host::sim::annex_a::{self, Beam};
     let beam = Beam::default();
-    let o = reference_beam::measure(&beam).unwrap();
-    println!("{}", reference_beam::table(&o));
+    let o = annex_a::measure(&beam).unwrap();
+    println!("{}", annex_a::table(&o));
     assert_eq!(o.lines.len(), 3);
     for (_, shift, bands) in &o.lines {
         assert!(shift.abs() < 0.5, "aligned {shift} mm");

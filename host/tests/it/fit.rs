@@ -1,4 +1,4 @@
-//! `cms_host::fit` and `cms-host fit`: the public test vector of docs/reference.md §3,
+//! `cms_host::measure::fit` and `cms-host fit`: the public test vector of docs/reference.md §3,
 //! agreement with scipy's general least-squares solver on noisy rotated
 //! profiles (`tests/scripts/fit_reference.py`, checked-in data), the command
 //! line, and properties (no panic on any input).
@@ -6,7 +6,7 @@
 use crate::common::cms_host;
 use std::path::PathBuf;
 
-use cms_host::fit::{self, Model, Options, Start};
+use cms_host::measure::fit::{self, Model, Options, Start};
 use proptest::prelude::*;
 
 /// Notes §3's public test vector (Jacquelin, 15 points).

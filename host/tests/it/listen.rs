@@ -47,8 +47,8 @@ use cms_core::protocol::{
     Command, DeviceMsg, ErrorCode, FrameReader, HeadState, HostMsg, LaserPattern, MAX_COMMAND_FRAME, MAX_FRAME,
     PROTOCOL_VERSION, Start, WireError, encode,
 };
-use cms_host::listen::{ListenError, ListenOptions, Summary, listen_with};
-use cms_host::record;
+use cms_host::device::listen::{ListenError, ListenOptions, Summary, listen_with};
+use cms_host::recording;
 use cms_study::{Gauss, Rng, clean_row, quantise};
 
 // ------------------------------------------------------------------ device
@@ -556,10 +556,10 @@ fn run(dir: &Path, plan: Plan, opts: ListenOptions, want: u64, limit: Duration) 
     Run { summary, seen, json, report, cpu_s, wall_s }
 }
 
-fn recorded_profiles(path: &Path) -> (Vec<u32>, record::ScanStats, usize) {
+fn recorded_profiles(path: &Path) -> (Vec<u32>, recording::ScanStats, usize) {
     let mut seqs = Vec::new();
     let mut hellos = 0;
-    let stats = record::scan_file(path, |m| {
+    let stats = recording::scan_file(path, |m| {
         match m {
             DeviceMsg::Profile(p) => seqs.push(p.seq),
             DeviceMsg::Hello(_) => hellos += 1,
@@ -848,7 +848,7 @@ fn cli_listen_json_record_info_export() {
     assert!(csv.status.success());
     let csv = String::from_utf8(csv.stdout).unwrap();
     let mut lines = csv.lines();
-    assert_eq!(lines.next(), Some(record::CSV_HEADER));
+    assert_eq!(lines.next(), Some(recording::CSV_HEADER));
     assert_eq!(lines.count(), 30 * 3 * 64, "3 points per row, 64 rows, 30 frames");
 
     let jl = dir.path().join("out.jsonl");
@@ -1100,13 +1100,13 @@ fn random_bytes_are_not_a_version_mismatch() {
         }
     });
     let opts = ListenOptions::default();
-    let o = cms_host::listen::session(
+    let o = cms_host::device::listen::session(
         link.to_str().unwrap(),
         &opts,
         &AtomicBool::new(false),
         &mut io::sink(),
         &mut |_| {},
-        &mut cms_host::listen::Quiet,
+        &mut cms_host::device::listen::Quiet,
     );
     drop(slave);
     noise.join().unwrap();

@@ -7,9 +7,9 @@ use std::path::{Path, PathBuf};
 
 use cms_core::peak::{Config, Detector, Select, Stripes};
 use cms_core::protocol::{DeviceMsg, LASERS, LaserPoints, MAX_FRAME, Metric, Point, Profile, encode};
-use cms_host::calib::truth::truth;
-use cms_host::record::Recorder;
-use cms_host::sim::{Corrugation, Scene, SimConfig};
+use cms_host::recording::Recorder;
+use cms_host::sim::calibration::truth::truth;
+use cms_host::sim::scene::{Corrugation, Scene, SimConfig};
 
 const LAMBDA_MM: f64 = 20.0;
 const AMP_UM: f64 = 100.0;
@@ -249,9 +249,9 @@ fn recording_with_hello(dir: &Path, cal: &Path, id: u32) -> (PathBuf, Vec<u8>) {
         .join()
         .unwrap();
     let body = std::fs::read(&plain).unwrap();
-    let mut bytes = body[..cms_host::record::HEADER_LEN].to_vec();
+    let mut bytes = body[..cms_host::recording::HEADER_LEN].to_vec();
     bytes.extend(wire(&hello(id)));
-    bytes.extend(&body[cms_host::record::HEADER_LEN..]);
+    bytes.extend(&body[cms_host::recording::HEADER_LEN..]);
     let rec = dir.join(format!("hello-{id}.cmsrec"));
     std::fs::write(&rec, &bytes).unwrap();
     (rec, bytes)
@@ -310,7 +310,7 @@ fn damaged_and_duplicated_frames_are_reported() {
     // The frames: header, Hello, frame 7, frame 8. Frame 8 written twice
     // (as a writer retrying would), then frame 7's first data byte flipped.
     let ends: Vec<usize> = bytes.iter().enumerate().filter(|(_, b)| **b == 0).map(|(i, _)| i + 1).collect();
-    let frames: Vec<usize> = ends.into_iter().filter(|&e| e > cms_host::record::HEADER_LEN).collect();
+    let frames: Vec<usize> = ends.into_iter().filter(|&e| e > cms_host::recording::HEADER_LEN).collect();
     let (f7, f8) = (frames[0]..frames[1], frames[1]..frames[2]);
     let mut dup = bytes.clone();
     dup.extend_from_slice(&bytes[f8.clone()]);
@@ -375,8 +375,8 @@ fn a_frame_with_a_step_is_not_good_and_strict_says_so() {
     let (_, cal) = image_and_calibration(dir.path());
     let id = CalibFile::load(&cal).0.head_id();
     let (rec, _) = recording_with_hello(dir.path(), &cal, id);
-    let mut bytes = cms_host::record::header().to_vec();
-    cms_host::record::scan_file(&rec, |msg| {
+    let mut bytes = cms_host::recording::header().to_vec();
+    cms_host::recording::scan_file(&rec, |msg| {
         let mut msg = msg.clone();
         if let DeviceMsg::Profile(p) = &mut msg {
             for l in p.lasers.iter_mut() {

@@ -14,7 +14,7 @@ use cms_core::protocol::{
     MAX_READ_FRAME, Metric, PROTOCOL_VERSION, Point, Profile, Status, StoreHealth, WireError, encode,
 };
 use cms_host::link::Deframer;
-use cms_host::record::{self, HEADER_LEN, Info, Recorder, ScanStats};
+use cms_host::recording::{self, HEADER_LEN, Info, Recorder, ScanStats};
 use cms_study::Rng;
 use proptest::prelude::*;
 
@@ -105,7 +105,7 @@ fn status() -> DeviceMsg {
 
 /// A recording's bytes: header and frames; and the frames' byte ranges.
 fn recording(msgs: &[DeviceMsg]) -> (Vec<u8>, Vec<std::ops::Range<usize>>) {
-    let mut b = record::header().to_vec();
+    let mut b = recording::header().to_vec();
     let mut ranges = Vec::new();
     for m in msgs {
         let f = frame(m);
@@ -117,7 +117,7 @@ fn recording(msgs: &[DeviceMsg]) -> (Vec<u8>, Vec<std::ops::Range<usize>>) {
 
 fn scan(bytes: &[u8]) -> (Vec<DeviceMsg>, ScanStats) {
     let mut got = Vec::new();
-    let s = record::scan_reader(Path::new("mem"), bytes, |m| {
+    let s = recording::scan_reader(Path::new("mem"), bytes, |m| {
         got.push(m.clone());
         Ok(())
     })
@@ -192,7 +192,7 @@ fn refuses_to_append_to_a_foreign_file() {
             assert_eq!(std::fs::read(&path).unwrap(), content);
         }
         let path = dir.path().join("v9");
-        let mut h = record::header();
+        let mut h = recording::header();
         h[8] = 9;
         std::fs::write(&path, h).unwrap();
         let e = Recorder::open(&path).unwrap_err().to_string();
@@ -240,7 +240,7 @@ fn truncated_at_every_byte() {
             assert_eq!(s.damaged, 0);
         }
         for cut in 0..HEADER_LEN {
-            let e = record::scan_reader(Path::new("x"), &bytes[..cut], |_| Ok(())).unwrap_err();
+            let e = recording::scan_reader(Path::new("x"), &bytes[..cut], |_| Ok(())).unwrap_err();
             assert!(e.to_string().contains("shorter than the 16-byte header"), "{e}");
         }
     })
@@ -308,17 +308,17 @@ fn export_formats() {
         let (bytes, _) = recording(&[hello(), profile(2, 2), status()]);
         let path = write_file(dir.path(), "e.cmsrec", &bytes);
         let mut csv = Vec::new();
-        record::export_to(&path, record::ExportFormat::Csv, &mut csv, &Silent).unwrap();
+        recording::export_to(&path, recording::ExportFormat::Csv, &mut csv, &Silent).unwrap();
         let csv = String::from_utf8(csv).unwrap();
         let lines: Vec<&str> = csv.lines().collect();
-        assert_eq!(lines[0], record::CSV_HEADER);
-        assert!(record::CSV_HEADER.ends_with(",flags,along_mm,height_um"));
+        assert_eq!(lines[0], recording::CSV_HEADER);
+        assert!(recording::CSV_HEADER.ends_with(",flags,along_mm,height_um"));
         assert_eq!(lines.len(), 1 + 3 * 2);
         assert_eq!(lines[1], "2,0,21000,4.999,0,0,100.00391,1008,2.50000,0,,");
         assert_eq!(lines[3], "2,0,21000,4.999,1,0,250.00391,1008,2.50000,0,-1.200,35.300");
         assert_eq!(lines[4], "2,0,21000,4.999,1,1,250.01172,1008,2.50000,4,,");
         let mut jl = Vec::new();
-        record::export_to(&path, record::ExportFormat::Jsonl, &mut jl, &Silent).unwrap();
+        recording::export_to(&path, recording::ExportFormat::Jsonl, &mut jl, &Silent).unwrap();
         let v: serde_json::Value = serde_json::from_slice(&jl).unwrap();
         assert_eq!(v["seq"], 2);
         assert_eq!(v["timestamp_us"], 21000);

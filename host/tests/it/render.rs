@@ -6,10 +6,10 @@ use cms_core::fixed::Px;
 use cms_core::optics::ScaleRange;
 use cms_core::peak::{Config, Detector, Stripes};
 use cms_host::Error;
-use cms_host::calib::render::{self, Options};
-use cms_host::sim::board::{self, BoardRenderer, RenderOptions};
-use cms_host::sim::{NoiseModel, Scene, SimConfig};
-use cms_host::simulate::Preset;
+use cms_host::sim::calibration::board::{self, BoardRenderer, RenderOptions};
+use cms_host::sim::calibration::images::{self, Options};
+use cms_host::sim::head::Preset;
+use cms_host::sim::scene::{NoiseModel, Scene, SimConfig};
 
 fn args(out: &std::path::Path, poses: usize) -> Options {
     Options { preset: Preset::Reference, poses, seed: 3, noiseless: false, out: out.to_path_buf() }
@@ -91,7 +91,7 @@ fn laser_stripes_where_the_planes_cut_the_board() {
 fn cli_writes_images_and_truth() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("render");
-    render::render(&args(&out, 2)).unwrap();
+    images::render(&args(&out, 2)).unwrap();
     for k in 0..2 {
         for name in [format!("board-{k:02}.png"), format!("lasers-{k:02}.png")] {
             let img = image::open(out.join(&name)).unwrap();
@@ -135,14 +135,14 @@ fn cli_writes_images_and_truth() {
 fn cli_refuses_bad_arguments() {
     let dir = tempfile::tempdir().unwrap();
     for n in [0, 101] {
-        match render::render(&args(dir.path(), n)) {
+        match images::render(&args(dir.path(), n)) {
             Err(Error::Input(m)) => assert!(m.contains("--poses"), "{m}"),
             r => panic!("{n} poses: {r:?}"),
         }
     }
     let file = dir.path().join("file");
     std::fs::write(&file, "x").unwrap();
-    match render::render(&args(&file, 1)) {
+    match images::render(&args(&file, 1)) {
         Err(Error::Input(m)) => assert!(m.contains("not a directory") && !m.contains('\n'), "{m}"),
         r => panic!("{r:?}"),
     }

@@ -7,9 +7,9 @@ use crate::common::{one_line_error, run};
 use std::os::unix::fs::FileTypeExt as _;
 use std::path::{Path, PathBuf};
 
-use cms_host::calib::truth::truth;
-use cms_host::record::Recorder;
-use cms_host::sim::{Scene, SimConfig};
+use cms_host::recording::Recorder;
+use cms_host::sim::calibration::truth::truth;
+use cms_host::sim::scene::{Scene, SimConfig};
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()

@@ -13,7 +13,7 @@ use cms_core::protocol::{
     Command, DeviceMsg, ErrorCode, FrameReader, HeadState, HostMsg, LaserPattern, MAX_COMMAND_FRAME, MAX_FRAME,
     Profile, Start, encode,
 };
-use cms_host::sim::{Scene, Shot};
+use cms_host::sim::scene::{Scene, Shot};
 use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
 
 const BIN: &str = env!("CARGO_BIN_EXE_cms-host");
@@ -198,8 +198,8 @@ fn truth_errors(p: &Profile) -> Errors {
     use std::sync::OnceLock;
     static SCENE: OnceLock<Scene> = OnceLock::new();
     let scene = SCENE.get_or_init(|| {
-        let args = cms_host::simulate::HeadOptions { seed: 1, ..Default::default() };
-        Scene::new(cms_host::simulate::sim_config(&args).unwrap()).unwrap()
+        let args = cms_host::sim::head::HeadOptions { seed: 1, ..Default::default() };
+        Scene::new(cms_host::sim::head::sim_config(&args).unwrap()).unwrap()
     });
     let shot = Shot {
         frame_index: p.seq as u64,
@@ -408,7 +408,7 @@ fn bad_options_exit_2_with_one_line() {
 
 #[test]
 fn in_process_head_serves_through_its_pty() {
-    let (path, handle) = cms_host::simulate::spawn_on_pty(&cms_host::simulate::HeadOptions::default()).unwrap();
+    let (path, handle) = cms_host::sim::head::spawn_on_pty(&cms_host::sim::head::HeadOptions::default()).unwrap();
     assert!(handle.is_running());
     let port = OpenOptions::new().read(true).write(true).custom_flags(nix::libc::O_NOCTTY).open(&path).unwrap();
     let mut t = tcgetattr(port.as_fd()).unwrap();

@@ -1,11 +1,11 @@
-//! Rail-standard analysis (`cms_host::standards`): the EN 15610 check value
+//! Rail-standard analysis (`cms_host::analyze::standards`): the EN 15610 check value
 //! of docs/reference.md §2, spike removal, curvature processing, the
 //! EN 13231-3 band split and peak-to-peak criteria, short-record errors, and
 //! no panic on any finite profile.
 
 use std::f64::consts::PI;
 
-use cms_host::standards::{StandardsError, en13231, en15610, segments};
+use cms_host::analyze::standards::{StandardsError, en13231, en15610, segments};
 use proptest::prelude::*;
 
 /// `amp_um · sin(2π x / wavelength + phase)` sampled every `dx_mm` over `len_mm`.

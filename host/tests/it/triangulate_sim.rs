@@ -15,8 +15,8 @@ use cms_core::peak::{Config, Detector, Select, Stripes};
 use cms_core::pipeline::triangulator;
 use cms_core::protocol::LASERS;
 use cms_core::triangulation::Triangulator;
-use cms_host::calib::truth::truth;
-use cms_host::sim::{Corrugation, NoiseModel, Scene, SimConfig};
+use cms_host::sim::calibration::truth::truth;
+use cms_host::sim::scene::{Corrugation, NoiseModel, Scene, SimConfig};
 
 fn paper(noise: bool, crown: bool) -> SimConfig {
     let mut cfg = SimConfig::paper();

@@ -1,5 +1,5 @@
 //! The planar calibration target and its pose: the geometry that camera
-//! calibration ([`crate::calib`]) fits and the simulator ([`crate::sim`])
+//! calibration ([`crate::calib`]) fits and the simulator ([`crate::sim::scene`])
 //! renders, so neither has to import the other. [`crate::calib::board`]
 //! finds the corners of such a board in an image.
 //!
@@ -8,7 +8,7 @@
 //!   `0..rows`) at `(i·S, j·S, 0)` mm, `z` completing a right-handed frame;
 //!   corners are listed row by row (`j` outer, `i` inner);
 //! * a board pose maps board to camera: `X_cam = rot · X_board + t_mm`, the
-//!   camera frame that of [`crate::camera`].
+//!   camera frame that of [`crate::model::camera`].
 
 /// A planar checkerboard: `cols × rows` inner corners, `square_mm` apart.
 #[derive(Clone, Copy, Debug, PartialEq)]

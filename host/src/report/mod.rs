@@ -17,10 +17,12 @@
 //! | `spectrum_laserK.csv` | the spectrum (`en15610::spectrum_csv`) |
 //! | `registration.csv` | per laser and frame: overlap, offset, tilt, residual |
 //! | `gaps.csv` | per laser: start and length of every gap |
-//! | `profile.parquet`, `blocks.parquet`, `zones.parquet` | the stitched profile, blocks and zones ([`super::exports`], docs/exports.md) |
+//! | `profile.parquet`, `blocks.parquet`, `zones.parquet` | the stitched profile, blocks and zones ([`exports`], docs/exports.md) |
 //!
 //! Long profiles are plotted through a min/max envelope of at most
 //! [`MAX_PLOT_POINTS`] points per line (the CSVs keep every sample).
+
+pub mod exports;
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -28,10 +30,10 @@ use std::path::Path;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{Analysis, Source, reprofiling};
 use crate::Error;
+use crate::analyze::standards::{en13231, en15610};
+use crate::analyze::{Analysis, Source, reprofiling};
 use crate::plot::{self, Figure, err};
-use crate::standards::{en13231, en15610};
 
 /// Most points of one plotted line.
 pub const MAX_PLOT_POINTS: usize = 4000;
@@ -49,7 +51,7 @@ pub fn plot_pieces(x0: f64, dx: f64, y: &[f64], max: usize) -> Vec<Vec<(f64, f64
     // Samples per bucket (each bucket gives its min and max).
     let per = (2 * finite).div_ceil(max.max(2)).max(1);
     let mut out = Vec::new();
-    for run in crate::standards::segments(y) {
+    for run in crate::analyze::standards::segments(y) {
         let mut piece = Vec::new();
         if per == 1 {
             piece.extend(run.map(|i| (x0 + i as f64 * dx, y[i])));
@@ -327,7 +329,7 @@ impl Figure for ZoneFig<'_> {
             chart
                 .configure_mesh()
                 .y_desc("µm")
-                .x_label_formatter(&|m| super::chainage(m * 1000.0))
+                .x_label_formatter(&|m| crate::analyze::chainage(m * 1000.0))
                 .max_light_lines(2)
                 .draw()
                 .map_err(err)?;
@@ -384,7 +386,7 @@ fn survey_html(source: &Source, a: &Analysis) -> String {
                 .enumerate()
                 .map(|(i, (p, r))| {
                     let (olo, ohi) = r.odometer_range_mm.unwrap_or((0.0, 0.0));
-                    let placed = a.joins.iter().find(|j| j.run == i).map_or("-".into(), super::describe_join);
+                    let placed = a.joins.iter().find(|j| j.run == i).map_or("-".into(), crate::analyze::describe_join);
                     vec![
                         format!("{}", i + 1),
                         p.display().to_string(),
@@ -405,7 +407,7 @@ fn survey_html(source: &Source, a: &Analysis) -> String {
             let rows = vec![vec![p.display().to_string(), f.rows.to_string(), f.columns.join(", ")]];
             s.push_str(&html_table("inputs", &["profile", "rows", "lines"], &rows));
             for j in &a.joins {
-                let _ = writeln!(s, "<p>{}</p>", html_escape(&super::describe_join(j)));
+                let _ = writeln!(s, "<p>{}</p>", html_escape(&crate::analyze::describe_join(j)));
             }
         }
     }
@@ -415,11 +417,11 @@ fn survey_html(source: &Source, a: &Analysis) -> String {
         let _ = writeln!(
             s,
             "<p class=\"span\">Chainage {} to {} ({:.3} m); {} line(s), samples every {} mm.</p>",
-            html_escape(&super::chainage(x0)),
-            html_escape(&super::chainage(x1)),
+            html_escape(&crate::analyze::chainage(x0)),
+            html_escape(&crate::analyze::chainage(x1)),
             (x1 - x0) / 1000.0,
             a.lasers.len(),
-            super::fmt_len(a.options.stitch.dx_mm)
+            crate::analyze::fmt_len(a.options.stitch.dx_mm)
         );
     }
     s.push_str("</section>\n");
@@ -488,8 +490,8 @@ fn verdict_html(a: &Analysis, zone_svg: &str) -> String {
             .map(|z| {
                 vec![
                     format!("{}–{} mm", z.band.lo_mm, z.band.hi_mm),
-                    super::chainage(z.start_mm),
-                    super::chainage(z.end_mm),
+                    crate::analyze::chainage(z.start_mm),
+                    crate::analyze::chainage(z.end_mm),
                     format!("{:.1}", (z.end_mm - z.start_mm) / 1000.0),
                     format!("{:.1}", z.exceeding_mm / 1000.0),
                     format!("{:.3}", z.worst_pp_mm),
@@ -508,7 +510,7 @@ fn verdict_html(a: &Analysis, zone_svg: &str) -> String {
     let _ = writeln!(
         s,
         "<h3>Blocks of {} m</h3>\n<p>RMS of each band's displacement (largest line, µm) and the EN 15610 spectrum against ISO 3095.</p>",
-        super::fmt_len(v.options.block_mm / 1000.0)
+        crate::analyze::fmt_len(v.options.block_mm / 1000.0)
     );
     let mut head = vec!["start".to_string(), "end".to_string()];
     head.extend(en13231::BANDS.iter().map(|b| format!("{}–{} mm", b.lo_mm, b.hi_mm)));
@@ -518,7 +520,7 @@ fn verdict_html(a: &Analysis, zone_svg: &str) -> String {
         .blocks
         .iter()
         .map(|b| {
-            let mut r = vec![super::chainage(b.start_mm), super::chainage(b.end_mm)];
+            let mut r = vec![crate::analyze::chainage(b.start_mm), crate::analyze::chainage(b.end_mm)];
             r.extend(b.rms_mm.iter().map(|v| v.map_or("-".into(), |v| format!("{:.1}", v * 1000.0))));
             r.push(match &b.iso3095_exceeded {
                 None => "no spectrum".into(),
@@ -557,7 +559,7 @@ td,th{word-break:break-word}\
 }";
 
 fn median_of(z: &[f64]) -> f64 {
-    super::stitch::median(z.to_vec()).unwrap_or(0.0)
+    crate::analyze::stitch::median(z.to_vec()).unwrap_or(0.0)
 }
 
 /// The stitched profiles on one grid: `x_mm,laser_K_um…`.
@@ -567,7 +569,7 @@ fn profile_csv(a: &Analysis) -> String {
         let _ = write!(s, ",laser_{}_um", l.stitched.laser);
     }
     s.push('\n');
-    let grid = super::Grid::of(&a.lasers, a.options.stitch.dx_mm);
+    let grid = crate::analyze::Grid::of(&a.lasers, a.options.stitch.dx_mm);
     for i in 0..grid.len as i64 {
         let _ = write!(s, "{}", grid.chainage_mm(i as usize));
         for l in &a.lasers {
@@ -625,7 +627,7 @@ pub fn write(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result
     put("profile.csv", &profile_csv(a))?;
     put("registration.csv", &registration_csv(a))?;
     put("gaps.csv", &gaps_csv(a))?;
-    super::exports::write(dir, source, a)?;
+    exports::write(dir, source, a)?;
 
     // (title, svg file stem, svg text)
     let mut figures: Vec<(String, String, String)> = Vec::new();
@@ -671,8 +673,8 @@ pub fn write(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result
     };
 
     let title = format!("Rail corrugation analysis: {}", source.name());
-    let head = super::describe(source, a);
-    let verdict_text = super::reprofiling::describe(&a.verdict);
+    let head = crate::analyze::describe(source, a);
+    let verdict_text = reprofiling::describe(&a.verdict);
     let mut md = format!("# {title}\n\n## Survey\n\n```text\n{head}```\n\n## Verdict\n\n```text\n{verdict_text}```\n");
     if !zone_svg.is_empty() {
         md.push_str("\n![Exceedance along chainage](zones.svg) ([PNG](zones.png))\n");
@@ -692,9 +694,9 @@ pub fn write(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result
         let k = l.stitched.laser;
         let text = format!(
             "{}\n{}\n{}",
-            super::describe_stitched(&l.stitched),
-            super::describe_bands(&l.bands),
-            super::describe_roughness(&l.roughness)
+            crate::analyze::describe_stitched(&l.stitched),
+            crate::analyze::describe_bands(&l.bands),
+            crate::analyze::describe_roughness(&l.roughness)
         );
         let _ = write!(md, "\n## Laser {k}\n\n```text\n{text}```\n");
         let _ = write!(html, "<h2>Laser {k}</h2>\n<pre>{}</pre>\n", html_escape(&text));

@@ -1,7 +1,7 @@
 //! What a recording is of: the survey metadata a user gives `listen
 //! --survey FILE.toml` — line, track, rail, where the run starts and which
 //! way chainage runs, who measured with what — carried in the recording's
-//! header (format version 2, [`crate::record`]) so that the file says
+//! header (format version 2, [`crate::recording`]) so that the file says
 //! where on the network it was taken, and `analyze` places the run by it.
 //!
 //! ```toml

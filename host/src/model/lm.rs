@@ -1,6 +1,6 @@
 //! The host's nonlinear least-squares solver: Levenberg–Marquardt with
-//! Marquardt's diagonal scaling, for the sine fits ([`crate::fit`], the joint
-//! fit of [`crate::corrugation`]) and camera calibration
+//! Marquardt's diagonal scaling, for the sine fits ([`crate::measure::fit`], the joint
+//! fit of [`crate::measure::corrugation`]) and camera calibration
 //! ([`crate::calib::camera`]).
 //!
 //! **The rule.** Solve `(JᵀJ + μ·diag(JᵀJ)) δ = −Jᵀr` by Cholesky (the

@@ -2,7 +2,7 @@
 //!
 //! The head is `cms_core::pipeline::Head` — the firmware's own command
 //! handling, detector, framing and laser-safety rules — fed with camera rows
-//! rendered by the scene model ([`crate::sim`]) instead of a sensor, and
+//! rendered by the scene model ([`crate::sim::scene`]) instead of a sensor, and
 //! talking the wire protocol over a pty instead of USB. A listener cannot
 //! tell the difference except by the `board` name in `Hello` (`cms-sim`).
 //!
@@ -25,7 +25,7 @@ use std::thread::JoinHandle;
 pub use scene::SceneCamera;
 pub use server::{MAX_WIDTH, Pty, RowRenderer, ServeOptions, Summary, serve};
 
-use crate::sim::{Corrugation, SimConfig};
+use crate::sim::scene::{Corrugation, SimConfig};
 
 /// Why the simulated head could not start or stopped.
 #[derive(Debug, thiserror::Error)]
@@ -47,7 +47,7 @@ impl crate::error::Classify for SimulateError {
     }
 }
 
-pub use crate::sim::Preset;
+pub use crate::sim::scene::Preset;
 
 /// One corrugation component, `WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -392,7 +392,7 @@ pub fn sim_config(args: &HeadOptions) -> Result<SimConfig, SimulateError> {
 mod scene {
     use super::worker::Threaded;
     use super::{HeadOptions, RowRenderer, SimulateError, sim_config};
-    use crate::sim::{Scene, Shot};
+    use crate::sim::scene::{Scene, Shot};
     use cms_core::peak::{Config, Select};
     use cms_core::protocol::LASERS;
 
@@ -422,7 +422,7 @@ mod scene {
             .map_err(|e| SimulateError::Usage(format!("detector for this scene: {e}")))?;
         let exposure_us = scene.camera().exposure_us.round().clamp(1.0, 1e6) as u32;
         let factory = if args.factory_calibration {
-            let file = crate::calib::truth::truth(&scene);
+            let file = crate::sim::calibration::truth::truth(&scene);
             Some(file.to_head().map_err(|e| SimulateError::Usage(format!("factory calibration: {e}")))?)
         } else {
             None
@@ -475,7 +475,7 @@ mod scene {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::Scene;
+    use crate::sim::scene::Scene;
 
     #[test]
     fn option_values_parse_or_explain() {

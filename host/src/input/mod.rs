@@ -10,6 +10,8 @@
 //! `.tif`/`.tiff`, `.csv`. Content sniffing is deliberately not done, so a
 //! mislabelled file is an error rather than a surprise.
 
+pub mod detect;
+
 use std::fmt;
 use std::io::Cursor;
 use std::path::{Path, PathBuf};

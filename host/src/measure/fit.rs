@@ -44,7 +44,7 @@
 //! wins. For the rotated model, θ starts from the slope of a straight-line
 //! fit, the points are rotated by it and the sine start is found on those.
 //!
-//! **Refinement.** Levenberg–Marquardt ([`crate::lm`], Marquardt's diagonal scaling) on all
+//! **Refinement.** Levenberg–Marquardt ([`crate::model::lm`], Marquardt's diagonal scaling) on all
 //! parameters jointly; it only accepts steps that lower the residual, so it
 //! cannot diverge. Components beyond the first are started by fitting the
 //! residual of the previous ones (dominant first), then refined jointly.
@@ -87,7 +87,7 @@ use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
 use serde::Serialize;
 
-use crate::lm;
+use crate::model::lm;
 
 /// Most Levenberg–Marquardt iterations of the joint refinement.
 pub const MAX_ITERATIONS: usize = 200;

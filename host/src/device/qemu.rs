@@ -30,7 +30,7 @@
 //!    `cont` goes to the monitor. Nothing the head sends can be lost before
 //!    the listener is there.
 //! 4. **Listen** on the pty path exactly as on `/dev/ttyACM0`
-//!    ([`crate::listen`]).
+//!    ([`crate::device::listen`]).
 //! 5. **Stop**: `quit` on the monitor; killed if it has not exited after 2 s
 //!    (and on drop, whatever happened).
 //!

@@ -10,7 +10,7 @@
 //! offset 11  1 byte   reserved, written as 0, ignored by readers
 //! offset 12  4 bytes  version 2: length L of the survey block, u32 little-endian (0: none);
 //!                     version 1: reserved (0)
-//! offset 16  L bytes  version 2: the survey (crate::survey_info), UTF-8 TOML, at most 16 KiB
+//! offset 16  L bytes  version 2: the survey (crate::recording::survey_info), UTF-8 TOML, at most 16 KiB
 //! 16 + L     frames   every intact device → host frame, exactly its wire bytes:
 //!                     COBS(version ‖ postcard(DeviceMsg) ‖ CRC-32) ‖ 0x00
 //! ```
@@ -62,6 +62,8 @@
 //! There is no host time stamp: profiles carry the head's exposure time
 //! (`timestamp_us`) and odometer, which is what every analysis uses.
 
+pub mod survey_info;
+
 use crate::progress::Progress;
 use std::fs::{File, OpenOptions};
 use std::io::{self, BufReader, Read, Seek, SeekFrom, Write};
@@ -83,7 +85,7 @@ pub const HEADER_LEN: usize = 16;
 /// The format version this build writes (it reads 1 as well).
 pub const FORMAT_VERSION: u16 = 2;
 /// The largest survey block, bytes.
-pub const MAX_SURVEY_BYTES: usize = crate::survey_info::MAX_BYTES;
+pub const MAX_SURVEY_BYTES: usize = crate::recording::survey_info::MAX_BYTES;
 /// Longest time a written frame waits for its `fdatasync` while recording.
 pub const SYNC_INTERVAL: Duration = Duration::from_secs(1);
 

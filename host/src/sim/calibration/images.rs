@@ -1,5 +1,5 @@
 //! `cms-host calibrate render`: calibration images from the simulated head
-//! (see [`crate::sim::board`]), with the truth beside them.
+//! (see [`crate::sim::calibration::board`]), with the truth beside them.
 //!
 //! ```text
 //! cms-host calibrate render [--preset reference|paper] [--poses N] [--seed S] [--noiseless] --out DIR
@@ -31,9 +31,9 @@ use std::path::{Path, PathBuf};
 use serde_json::json;
 
 use crate::Error;
-use crate::sim::Preset;
-use crate::sim::board::{self, BoardImage, BoardRenderer, RenderOptions};
-use crate::sim::{NoiseModel, Scene, SimConfig};
+use crate::sim::calibration::board::{self, BoardImage, BoardRenderer, RenderOptions};
+use crate::sim::scene::Preset;
+use crate::sim::scene::{NoiseModel, Scene, SimConfig};
 
 /// Most poses (two-digit file names).
 pub const MAX_POSES: usize = 100;

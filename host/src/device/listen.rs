@@ -56,7 +56,7 @@ use cms_core::readout::{Readout, ReadoutError};
 
 use crate::analyze::live::LiveEstimate;
 use crate::link::{Client, ClientError, Counters, Greeting, Handshake, LinkError, Outbox, Wait, check_version};
-use crate::record::{self, FrameCounter, RecordError, Recorder};
+use crate::recording::{self, FrameCounter, RecordError, Recorder};
 
 /// How long to wait for `Hello` after each `GetInfo`.
 pub const HELLO_TIMEOUT: Duration = Duration::from_secs(2);
@@ -86,7 +86,7 @@ pub struct ListenOptions {
     /// Record into (append to) this file.
     pub record: Option<PathBuf>,
     /// The survey a new recording's header carries (validated TOML,
-    /// [`crate::survey_info`]); appending to one of another survey is refused.
+    /// [`crate::recording::survey_info`]); appending to one of another survey is refused.
     pub survey: Option<String>,
     /// One JSON object per profile message on the output.
     pub json: bool,
@@ -552,7 +552,7 @@ impl Session<'_> {
         self.last_profile = Some(now);
         self.sum.profiles += 1;
         self.live.push(p);
-        let n = record::points(p);
+        let n = recording::points(p);
         self.sum.points += n;
         self.window_points += n;
         if self.counter.profile(p) {
@@ -564,7 +564,7 @@ impl Session<'_> {
             }
         }
         if self.opts.json && !self.sum.output_closed {
-            let r = record::write_json_line(self.out, p).and_then(|()| self.out.flush());
+            let r = recording::write_json_line(self.out, p).and_then(|()| self.out.flush());
             match r {
                 Ok(()) => {}
                 Err(e) if e.kind() == io::ErrorKind::BrokenPipe => {

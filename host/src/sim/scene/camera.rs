@@ -1,12 +1,12 @@
 //! The simulated head's camera: the lens and sensor geometry of
-//! [`crate::camera::Intrinsics`] (pinhole with skew and Brown–Conrady
+//! [`crate::model::camera::Intrinsics`] (pinhole with skew and Brown–Conrady
 //! distortion, OpenCV's convention and frame; the model, its projection and
 //! undistortion live there), and the sensor's photometric limits: pixel
 //! pitch, bit depth, exposure and full well.
 
 use super::SimError;
 use super::check;
-use crate::camera::Intrinsics;
+use crate::model::camera::Intrinsics;
 
 /// A camera: intrinsics, distortion and image size, bit depth, exposure and
 /// full-well capacity.

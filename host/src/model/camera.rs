@@ -2,7 +2,7 @@
 //! distortion in OpenCV's form and order, with the image size. Calibration
 //! estimates it ([`crate::calib::camera`]), the calibration file stores it
 //! ([`crate::calib::file`]), the simulator renders through it
-//! ([`crate::sim::Camera`]); the head runs the `f32` copy that
+//! ([`crate::sim::scene::Camera`]); the head runs the `f32` copy that
 //! [`Intrinsics::to_core`] makes — the only conversion between the two.
 //!
 //! ```text

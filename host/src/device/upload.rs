@@ -18,7 +18,7 @@ use cms_core::protocol::HostMsg;
 use crate::Error;
 use crate::calib::file::CalibrationFile;
 use crate::link::{Client, ClientError, Handshake, Wait};
-use crate::simulate::{self, SimPort};
+use crate::sim::head::{self, SimPort};
 
 /// How long to wait for each answer.
 const ANSWER_TIMEOUT: Duration = Duration::from_secs(2);
@@ -52,7 +52,7 @@ pub fn upload(args: &Options) -> Result<String, Error> {
         ),
         None => None,
     };
-    let r = simulate::with_port(&args.port, &args.sim, |port| -> Result<String, Error> {
+    let r = head::with_port(&args.port, &args.sim, |port| -> Result<String, Error> {
         let mut client = Client::open(port, args.baud).map_err(ClientError::from)?;
         let info = client.handshake(Handshake { tries: 1, wait: Wait::Within(ANSWER_TIMEOUT) })?;
         let (w, h) = (file.camera.intrinsics.width_px, file.camera.intrinsics.height_px);

@@ -1,14 +1,14 @@
 //! Calibration images from the simulated head: a planar checkerboard seen by
 //! the head's camera, lit by a lamp and, optionally, by the head's lasers —
 //! rendered from the same model as the rail ([`Camera`], the laser planes of
-//! [`Scene::laser_planes`], the sensor's [`noise`](super::noise)), so that
+//! [`Scene::laser_planes`], the sensor's [`noise`](crate::sim::scene::noise)), so that
 //! the calibration chain (`cms-host calibrate camera|lasers`) can be checked
 //! against the truth.
 //!
 //! # The board
 //!
 //! [`Board`] counts inner corners; corner `(i, j)` is at `(i·S, j·S, 0)` in
-//! the board frame (see [`crate::board`]). The printed board has
+//! the board frame (see [`crate::model::board`]). The printed board has
 //! `(cols + 1) × (rows + 1)` squares — square `(a, b)` covers
 //! `[a·S, (a+1)·S] × [b·S, (b+1)·S]`, `a` in `-1..cols`, `b` in `-1..rows`,
 //! black when `a + b` is even (so square `(-1, -1)` at the first corner is
@@ -58,10 +58,10 @@
 //! the distortion is a third of it) and about 2 s per 4752 × 3168 paper
 //! image (15 M corner rays, the blur, 15 M noise draws).
 
-use super::geom::{Vec3, dot, mat_t_vec, sub};
-use super::noise::{Rng, SensorPattern, ziggurat};
-use super::{Camera, Plane, Scene, SimConfig};
-use crate::board::{Board, BoardPose};
+use crate::model::board::{Board, BoardPose};
+use crate::sim::scene::geom::{Vec3, dot, mat_t_vec, sub};
+use crate::sim::scene::noise::{Rng, SensorPattern, ziggurat};
+use crate::sim::scene::{Camera, Plane, Scene, SimConfig};
 
 /// Stream of the board images' noise.
 const BOARD_NOISE_STREAM: u64 = 0x424f_4152;
@@ -865,7 +865,7 @@ fn pose_k(r: &BoardRenderer, board: &Board, k: usize, n: usize, seed: u64, (phi,
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::NoiseModel;
+    use crate::sim::scene::NoiseModel;
 
     fn quiet_scene(mut cfg: SimConfig) -> Scene {
         cfg.noise = NoiseModel::none();
@@ -1038,7 +1038,7 @@ mod tests {
     #[test]
     fn stripes_on_rail_plane_match_the_sim() {
         let mut cfg = SimConfig::reference();
-        cfg.rail = crate::sim::RailModel::flat();
+        cfg.rail = crate::sim::scene::RailModel::flat();
         cfg.noise = NoiseModel::none();
         let scene = Scene::new(cfg).unwrap();
         let opts = RenderOptions { psf_sigma_px: 0.0, white: 1.0, black: 1.0, laser_gain: 1.0, ..Default::default() };

@@ -2,9 +2,9 @@
 //! `calibrate camera` + `calibrate lasers` should find from its images, and
 //! what the end-to-end tests triangulate with.
 
-use super::file::{CalibrationFile, FILE_VERSION, LaserSection, PlaneSection};
-use crate::sim::Scene;
-use crate::sim::geom::Plane;
+use crate::calib::file::{CalibrationFile, FILE_VERSION, LaserSection, PlaneSection};
+use crate::sim::scene::Scene;
+use crate::sim::scene::geom::Plane;
 
 /// A plane as `[[laser]]`/`[datum]` numbers, oriented so that `d < 0` (the
 /// normal points from the plane towards the camera).
@@ -24,7 +24,7 @@ pub fn truth(scene: &Scene) -> CalibrationFile {
     let mut f = CalibrationFile::camera_only(&scene.camera().intrinsics, 0.0, None);
     f.version = FILE_VERSION;
     f.datum = Some(PlaneSection { nx: n[0], ny: n[1], nz: n[2], d_mm });
-    f.head = Some(super::file::HeadSection {
+    f.head = Some(crate::calib::file::HeadSection {
         laser_diameter_mm: cfg.head.laser_diameter_mm,
         range_min_mm: cfg.head.working_range_mm[0],
         range_max_mm: cfg.head.working_range_mm[1],

@@ -92,14 +92,14 @@
 //! residual shows. Over [`verdict::MAX_BIRGE`] the verdict is doubtful.
 //!
 //! **Starts and bounds.** Linear in all but ω and κ; refined by the
-//! Levenberg–Marquardt of [`crate::lm`] from every line's own start: a
+//! Levenberg–Marquardt of [`crate::model::lm`] from every line's own start: a
 //! 2-D polynomial detrend, then `fit`'s sine of each line on what is left
 //! gives an ω (κ from the lines' phases against their lateral positions);
 //! each rung's linear terms by least squares at that ω and κ. The lowest
 //! residual whose yaw is within ±45° wins; a start that runs beyond is
 //! discarded.
 //!
-//! **The verdict** ([`crate::verdict`]): the residual against the noise
+//! **The verdict** ([`crate::measure::verdict`]): the residual against the noise
 //! the points show (measured without a model), the bounds, convergence
 //! and outliers give good, doubtful or failed, with the reasons.
 //!
@@ -141,9 +141,9 @@ use serde::Serialize;
 
 use cms_core::triangulation::Triangulator;
 
-use crate::fit::{self, FitError, Options};
-use crate::lm;
-use crate::verdict::{self, Evidence, Verdict};
+use crate::measure::fit::{self, FitError, Options};
+use crate::measure::verdict::{self, Evidence, Verdict};
+use crate::model::lm;
 
 type V3 = [f64; 3];
 
@@ -294,7 +294,7 @@ pub struct Joint {
     /// wavelengths and amplitudes against their uncertainties (1 for lines
     /// that agree within the noise; `None` under two line fits).
     pub birge: Option<(f64, f64)>,
-    /// Whether to believe it, and why ([`crate::verdict`]).
+    /// Whether to believe it, and why ([`crate::measure::verdict`]).
     pub verdict: Verdict,
 }
 

@@ -31,7 +31,7 @@ use rand_xoshiro::rand_core::{Rng as _, SeedableRng};
 
 use crate::output::{self, OutputError};
 use crate::progress::Progress;
-use crate::record;
+use crate::recording;
 
 /// The calibration id the synthetic head reports.
 pub const CALIBRATION_ID: u32 = 0x5157_4e54;
@@ -141,7 +141,7 @@ pub fn write_to(w: &mut dyn Write, opts: &Options, progress: &dyn Progress) -> i
         let bytes = protocol::encode(msg, &mut out).map_err(|e| io::Error::other(format!("{e:?}")))?;
         w.write_all(bytes)
     };
-    w.write_all(&record::header())?;
+    w.write_all(&recording::header())?;
     let mut board = heapless::String::new();
     let _ = board.push_str("synthetic");
     let hello = DeviceInfo {

@@ -19,19 +19,19 @@
 //! real test either): the shift minimising the 30–100 mm difference,
 //! searched to 0.01 mm over ±5 mm. Band values within two of a band's
 //! longest wavelengths of either end are left out (the filter's settling,
-//! as in [`crate::standards::en13231`]).
+//! as in [`crate::analyze::standards::en13231`]).
 //!
 //! Cost: one frame (480 rows of three stripes) takes about 40 ms to render
 //! and detect; the default 3 m beam at 30 mm a frame is 100 frames.
 
 use std::fmt::Write as _;
 
+use crate::analyze::standards::en13231;
 use crate::analyze::stitch::{self, Direction, FramePoints, Registration, Stitcher};
-use crate::calib::truth::truth;
-use crate::closed_loop::{detector, frame_profiles};
 use crate::measure::Measurer;
-use crate::sim::{Corrugation, RailModel, Scene, SimConfig};
-use crate::standards::en13231;
+use crate::sim::calibration::truth::truth;
+use crate::sim::closed_loop::{detector, frame_profiles};
+use crate::sim::scene::{Corrugation, RailModel, Scene, SimConfig};
 
 /// The bands Annex A compares, their RMS-difference limits (µm), and what
 /// RailMeasurement's CAT reports for itself (µm).

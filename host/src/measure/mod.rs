@@ -41,7 +41,11 @@
 //! of a recording (decoding only, ~2 000 frames/s) so that a wrong pairing
 //! fails at once rather than after the whole measurement. Damaged frames and
 //! profile messages present twice are skipped and said on stderr
-//! ([`record::warnings`]).
+//! ([`recording::warnings`]).
+
+pub mod corrugation;
+pub mod fit;
+pub mod verdict;
 
 use std::io::{self, Write};
 use std::path::Path;
@@ -54,13 +58,13 @@ use serde::Serialize;
 
 use crate::Error;
 use crate::calib::file::{CalibrationFile, RecordedHeads};
-use crate::corrugation::{Corrected, HeadFrame, Joint, Line, LineFit, joint_fit_from};
-use crate::detect::MAX_ROW;
-use crate::fit::{self, Fit, Options};
+use crate::input::detect::MAX_ROW;
 use crate::input::{self, Row, Rows};
 use crate::progress::Progress;
-use crate::record::{self, FrameCounter};
-use crate::verdict::{self, Evidence, Level, Verdict};
+use crate::recording::{self, FrameCounter};
+use corrugation::{Corrected, HeadFrame, Joint, Line, LineFit, joint_fit_from};
+use fit::{Fit, Options};
+use verdict::{Evidence, Level, Verdict};
 
 /// Per laser, its profile points `(along_mm, height_mm)`.
 pub type Profiles = [Vec<(f64, f64)>; LASERS];
@@ -78,7 +82,7 @@ pub struct LaserResult {
     pub fit: Option<Fit>,
     /// Why there is no fit.
     pub error: Option<String>,
-    /// Whether to believe the fit ([`crate::verdict`]): one line's model
+    /// Whether to believe the fit ([`crate::measure::verdict`]): one line's model
     /// has no surface (a crowned rail crossed obliquely shows as misfit).
     pub verdict: Option<Verdict>,
     /// The line's sine on its corrected profile (along the rail, the joint
@@ -199,7 +203,7 @@ impl Measurer {
         out
     }
 
-    /// The profiles as lines in the head frame, for [`crate::corrugation::joint_fit`].
+    /// The profiles as lines in the head frame, for [`crate::measure::corrugation::joint_fit`].
     pub fn lines(&self, profiles: &Profiles) -> Vec<Line> {
         (0..LASERS)
             .map(|k| Line {
@@ -276,7 +280,7 @@ pub fn measure_recording(
     // The head first: measuring a whole recording with the wrong
     // calibration, to refuse it at the end, would waste its time.
     let mut heads = RecordedHeads::default();
-    record::scan_file(path, |msg| {
+    recording::scan_file(path, |msg| {
         match msg {
             DeviceMsg::Hello(info) => heads.hello(info),
             DeviceMsg::Profile(p) => heads.profile(p),
@@ -290,7 +294,7 @@ pub fn measure_recording(
     let mut results = Vec::new();
     let mut near_mm: Option<f64> = None;
     // The recording's errors name it already.
-    let stats = record::scan_file_with_progress(path, progress, |msg| {
+    let stats = recording::scan_file_with_progress(path, progress, |msg| {
         if let DeviceMsg::Profile(p) = msg {
             if p.part == 0 {
                 parts.clear();
@@ -312,7 +316,7 @@ pub fn measure_recording(
         }
         Ok(())
     })?;
-    let warnings = record::warnings(path, &stats);
+    let warnings = recording::warnings(path, &stats);
     if results.is_empty() {
         let why = warnings.iter().map(|w| w.trim_start_matches("warning: ")).collect::<Vec<_>>().join("; ");
         let why = if why.is_empty() { String::new() } else { format!(" ({why})") };
@@ -333,7 +337,7 @@ pub fn measure_file(
     progress: &dyn Progress,
 ) -> Result<(Vec<Measurement>, Vec<String>), Error> {
     let name = path.display().to_string();
-    let named = path.extension().is_some_and(|e| e.eq_ignore_ascii_case(record::EXTENSION));
+    let named = path.extension().is_some_and(|e| e.eq_ignore_ascii_case(recording::EXTENSION));
     if named || is_recording(path) {
         return measure_recording(m, path, &name, cal_name, progress);
     }
@@ -403,7 +407,7 @@ impl Measurement {
 /// Whether `path` is a recording (by its header).
 fn is_recording(path: &Path) -> bool {
     let mut h = [0u8; 8];
-    std::fs::File::open(path).and_then(|mut f| io::Read::read_exact(&mut f, &mut h)).is_ok() && h == record::MAGIC
+    std::fs::File::open(path).and_then(|mut f| io::Read::read_exact(&mut f, &mut h)).is_ok() && h == recording::MAGIC
 }
 
 /// The text report of one measurement.

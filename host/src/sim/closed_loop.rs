@@ -21,11 +21,11 @@ use cms_core::peak::{Config, Detector, Select, Stripes};
 use cms_core::protocol::LASERS;
 use serde::Serialize;
 
-use crate::calib::truth::truth;
-use crate::corrugation::joint_fit;
-use crate::fit;
+use crate::measure::corrugation::joint_fit;
+use crate::measure::fit;
 use crate::measure::{Measurement, Measurer, Profiles};
-use crate::sim::{Corrugation, Scene, SimConfig};
+use crate::sim::calibration::truth::truth;
+use crate::sim::scene::{Corrugation, Scene, SimConfig};
 
 /// One case of the study.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -127,12 +127,12 @@ pub fn profiles_calibrated_as(
 
 /// The head's detector for `cfg`'s optics, every stripe of a row found,
 /// the strongest kept.
-pub fn detector(cfg: &SimConfig) -> Result<Box<Detector<{ crate::detect::MAX_ROW }>>, String> {
+pub fn detector(cfg: &SimConfig) -> Result<Box<Detector<{ crate::input::detect::MAX_ROW }>>, String> {
     let scales = cfg.optics().scale_range().map_err(|e| e.to_string())?;
     let mut det_cfg = Config::new(cfg.camera.bits, scales);
     det_cfg.max_stripes = LASERS as u8;
     det_cfg.select = Select::Strongest;
-    Ok(Box::new(Detector::<{ crate::detect::MAX_ROW }>::new(det_cfg).map_err(|e| e.to_string())?))
+    Ok(Box::new(Detector::<{ crate::input::detect::MAX_ROW }>::new(det_cfg).map_err(|e| e.to_string())?))
 }
 
 /// Frame `frame` of `scene` (every `row_step`-th row) rendered, detected
@@ -142,7 +142,7 @@ pub fn frame_profiles(
     scene: &mut Scene,
     frame: u64,
     m: &Measurer,
-    det: &mut Detector<{ crate::detect::MAX_ROW }>,
+    det: &mut Detector<{ crate::input::detect::MAX_ROW }>,
     row_step: usize,
 ) -> Result<Profiles, String> {
     let mut row = vec![0u16; scene.width()];
@@ -344,7 +344,7 @@ pub struct SweepRun {
     /// Reported one-σ of the wavelength (mm) and amplitude (µm).
     pub sigma: (Option<f64>, Option<f64>),
     /// The verdict's level, or failed when there is no result.
-    pub level: crate::verdict::Level,
+    pub level: crate::measure::verdict::Level,
     /// The verdict (or why there is no result).
     pub verdict: String,
     /// Each line's own fit on its corrected profile: wavelength error (mm),
@@ -407,7 +407,7 @@ pub fn sweep_run(cell: Cell, run: u64, row_step: usize) -> SweepRun {
             run,
             error: None,
             sigma: (None, None),
-            level: crate::verdict::Level::Failed,
+            level: crate::measure::verdict::Level::Failed,
             verdict: format!("no result: {e}"),
             lines: Vec::new(),
         },
@@ -475,7 +475,7 @@ pub struct SweepSummary {
 
 /// The summary of `runs`.
 pub fn summarize(runs: &[SweepRun]) -> SweepSummary {
-    use crate::verdict::Level;
+    use crate::measure::verdict::Level;
     let all = runs;
     let runs: Vec<&SweepRun> = all.iter().filter(|r| r.in_envelope()).collect();
     let lines = || runs.iter().flat_map(|r| r.lines.iter());
@@ -549,7 +549,7 @@ pub fn sweep_markdown(runs: &[SweepRun]) -> String {
             group.len(),
             max(|e| e.0.abs()),
             max(|e| e.1.abs()),
-            group.iter().filter(|r| r.level == crate::verdict::Level::Good).count(),
+            group.iter().filter(|r| r.level == crate::measure::verdict::Level::Good).count(),
             worst.replace('|', "/"),
         );
     }

@@ -42,9 +42,9 @@ use parquet::file::properties::{WriterProperties, WriterVersion};
 use parquet::file::writer::SerializedFileWriter;
 use parquet::schema::types::Type;
 
-use super::{Analysis, Grid, Source, chainage};
 use crate::Error;
-use crate::standards::en13231;
+use crate::analyze::standards::en13231;
+use crate::analyze::{Analysis, Grid, Source, chainage};
 
 /// Version of the schema below, in each file's key-value metadata as `cms.schema`.
 pub const SCHEMA_VERSION: &str = "cms-host analyze exports 1";

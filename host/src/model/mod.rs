@@ -1,0 +1,11 @@
+//! The geometry and the solver that calibration, measurement and the
+//! simulator share, so that none of them imports another for it.
+//!
+//! * [`camera`] — the `f64` camera model: pinhole, skew, Brown–Conrady
+//!   distortion (OpenCV's), and its one conversion to the head's `f32` model.
+//! * [`board`] — the checkerboard target and its pose.
+//! * [`lm`] — Levenberg–Marquardt, the one nonlinear least-squares solver.
+
+pub mod board;
+pub mod camera;
+pub mod lm;
