@@ -144,41 +144,23 @@ use cms_core::triangulation::Triangulator;
 use crate::measure::fit::{self, FitError, Options};
 use crate::measure::verdict::{self, Evidence, Verdict};
 use crate::model::lm;
-
-type V3 = [f64; 3];
-
-fn dot(a: V3, b: V3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn cross(a: V3, b: V3) -> V3 {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-
-fn unit(a: V3) -> Option<V3> {
-    let n = dot(a, a).sqrt();
-    (n > 0.0 && n.is_finite()).then(|| [a[0] / n, a[1] / n, a[2] / n])
-}
-
-fn axpy(k: f64, a: V3, b: V3) -> V3 {
-    [b[0] + k * a[0], b[1] + k * a[1], b[2] + k * a[2]]
-}
+use crate::model::vec3::{Vec3, axpy, cross, dot, unit};
 
 /// One laser's profile frame, as used to lift a profile point to 3-D.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct LineFrame {
-    origin: V3,
-    along: V3,
+    origin: Vec3,
+    along: Vec3,
     /// In-plane direction across the line, scaled so that one unit of height
     /// is `height · across` (i.e. `w/(up·w)`).
-    across: V3,
+    across: Vec3,
 }
 
 /// The head frame shared by the lasers of one calibration (module docs).
 #[derive(Debug, Clone, PartialEq)]
 pub struct HeadFrame {
-    origin: V3,
-    axes: [V3; 3],
+    origin: Vec3,
+    axes: [Vec3; 3],
     lines: Vec<LineFrame>,
 }
 
@@ -323,7 +305,7 @@ pub struct LineFit {
 
 /// Per line in the surface frame: `(line index, [x, y, z])` points.
 struct Surface {
-    normal: V3,
+    normal: Vec3,
     pitch: f64,
     roll: f64,
     /// `x, y, z` per point and the line it belongs to.

@@ -5,7 +5,9 @@
 //!   distortion (OpenCV's), and its one conversion to the head's `f32` model.
 //! * [`board`] — the checkerboard target and its pose.
 //! * [`lm`] — Levenberg–Marquardt, the one nonlinear least-squares solver.
+//! * [`vec3`] — 3-vectors as `[f64; 3]`: dot, cross, unit, ….
 
 pub mod board;
 pub mod camera;
 pub mod lm;
+pub mod vec3;

@@ -59,7 +59,8 @@
 //! image (15 M corner rays, the blur, 15 M noise draws).
 
 use crate::model::board::{Board, BoardPose};
-use crate::sim::scene::geom::{Vec3, dot, mat_t_vec, sub};
+use crate::model::vec3::{Vec3, cross, dot, normalized, sub};
+use crate::sim::scene::geom::mat_t_vec;
 use crate::sim::scene::noise::{Rng, SensorPattern, ziggurat};
 use crate::sim::scene::{Camera, Plane, Scene, SimConfig};
 
@@ -136,15 +137,6 @@ pub fn board_for(cfg: &SimConfig) -> Board {
     let near_width_mm = cam.width_px() as f64 / cam.intrinsics.fx_px * cfg.head.working_range_mm[0];
     let square_mm = ((near_width_mm * 2.0 / 3.0 / 10.0) * 2.0).round().max(1.0) / 2.0;
     Board { cols: 9, rows: 6, square_mm }
-}
-
-fn cross(a: Vec3, b: Vec3) -> Vec3 {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-
-fn normalize(a: Vec3) -> Vec3 {
-    let n = dot(a, a).sqrt();
-    [a[0] / n, a[1] / n, a[2] / n]
 }
 
 /// The camera-frame point of the board plane that pixel `(u, v)` sees,
@@ -261,13 +253,13 @@ impl BoardRenderer {
         // the aim point is on the optical axis at the standoff.
         let rail_normal = [st, 0.0, -ct];
         let aim = [0.0, 0.0, head.standoff_mm];
-        let along = normalize(cross(rail_normal, [0.0, 1.0, 0.0]));
+        let along = normalized(cross(rail_normal, [0.0, 1.0, 0.0]));
         let sin_alpha = head.alpha_deg.to_radians().sin();
         let mut beams = Vec::new();
         let mut sheet_sigma_mm = Vec::new();
         let mut rail_incidence = Vec::new();
         for p in &planes {
-            let mut b = normalize(cross([0.0, 1.0, 0.0], p.normal));
+            let mut b = normalized(cross([0.0, 1.0, 0.0], p.normal));
             if b[2] < 0.0 {
                 b = [-b[0], -b[1], -b[2]];
             }
@@ -713,7 +705,7 @@ fn pose_quality(r: &BoardRenderer, board: &Board, pose: &BoardPose) -> Option<f6
     // Seen from the front, not too obliquely.
     let (n, _) = pose.plane();
     let centre = pose.to_camera([xm, ym, 0.0]);
-    if dot(n, normalize(centre)) < 0.42 {
+    if dot(n, normalized(centre)) < 0.42 {
         return None;
     }
     // Every laser crosses the inner corners' area, not at grazing incidence.

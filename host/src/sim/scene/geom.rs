@@ -1,30 +1,12 @@
 //! Small 3-D geometry: vectors, planes, rigid poses, and the sensor head's
 //! construction (camera pose on the rail, laser planes in the camera frame).
 //!
-//! Hand-written on `[f64; 3]` (a few dozen operations per image row do not
-//! justify a linear-algebra dependency).
+//! On the plain `[f64; 3]` of [`crate::model::vec3`] (a few dozen operations
+//! per image row).
 
 use super::SimError;
 use super::check;
-
-/// A 3-vector, millimetres unless stated otherwise.
-pub type Vec3 = [f64; 3];
-
-pub(crate) fn dot(a: Vec3, b: Vec3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-pub(crate) fn sub(a: Vec3, b: Vec3) -> Vec3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-pub(crate) fn add(a: Vec3, b: Vec3) -> Vec3 {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
-
-pub(crate) fn scale(a: Vec3, k: f64) -> Vec3 {
-    [a[0] * k, a[1] * k, a[2] * k]
-}
+use crate::model::vec3::{Vec3, add, dot, scale, sub};
 
 /// A 3 × 3 matrix, row-major.
 pub type Mat3 = [[f64; 3]; 3];

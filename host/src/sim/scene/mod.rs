@@ -87,8 +87,9 @@ mod tests;
 
 use std::fmt;
 
+use crate::model::vec3::{self, Vec3};
 pub use camera::Camera;
-pub use geom::{HeadGeometry, Plane, Pose, Vec3};
+pub use geom::{HeadGeometry, Plane, Pose};
 pub use noise::NoiseModel;
 pub use rail::{Corrugation, RailModel};
 
@@ -671,12 +672,12 @@ impl Scene {
     pub fn triangulate(&self, laser: usize, u: f64, v: f64) -> Option<Vec3> {
         let p = self.planes_cam.get(laser)?;
         let ray = self.cfg.camera.intrinsics.unproject(u, v);
-        let den = geom::dot(p.normal, ray);
+        let den = vec3::dot(p.normal, ray);
         if den.abs() < 1e-12 {
             return None;
         }
         let t = p.d_mm / den;
-        (t > 0.0).then(|| geom::scale(ray, t))
+        (t > 0.0).then(|| vec3::scale(ray, t))
     }
 
     /// The surface point of laser `k` at along-rail coordinate `s` (mm from
