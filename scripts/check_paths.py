@@ -55,7 +55,7 @@ SKIP_PREFIXES = ("fuzz/corpus/", "host/tests/data/", "tests/golden/")
 
 PATH_RE = re.compile(
     r"(?<![\w/.:~$@%-])"  # not inside a longer word, an absolute path, a URL, ~/, $VAR/
-    r"((?:\.\.?/)*(?:[A-Za-z0-9_][A-Za-z0-9_.+-]*/)+(?:[A-Za-z0-9_][A-Za-z0-9_.+-]*)?)"
+    r"((?:\.\.?/)*(?:\.?[A-Za-z0-9_][A-Za-z0-9_.+-]*/)+(?:\.?[A-Za-z0-9_][A-Za-z0-9_.+-]*)?)"
 )
 GLOB_NEXT = set("*?{[<…$")
 LINK_RE = re.compile(r"!?\[(?:[^\]\[]|\[[^\]]*\])*\]\(\s*<?([^)\s>]+)>?(?:\s+\"[^\"]*\")?\s*\)")
