@@ -20,7 +20,7 @@
 //! the odometer counts up. The origins of the three lasers' frames sit at
 //! the same track position (the optical axis), so the three profiles share
 //! `x`. On the simulated head `x` is exactly the rail model's track
-//! coordinate (`host/tests/triangulate_sim.rs` checks along = x − odometer
+//! coordinate (`host/tests/it/triangulate_sim.rs` checks along = x − odometer
 //! to 0.5 µm). [`Direction::Auto`] picks `s` from the data: the sign whose
 //! overlapping frames agree better (a corrugated rail disagrees with itself
 //! when mirrored; a flat one cannot tell, and forward is kept).
@@ -60,7 +60,7 @@
 //! registration — the pitch is gone, but the walk costs more than the pitch
 //! did (6.6 µm with offsets only). So [`Registration::Offset`] is the
 //! default and [`Registration::OffsetTilt`] is for heads that really pitch
-//! over short records (`host/tests/analyze.rs` has the figures).
+//! over short records (`host/tests/it/analyze.rs` has the figures).
 //!
 //! # Gaps
 //!

@@ -4,7 +4,7 @@
 //! triangulation with the head's true calibration, then `measure`'s fits —
 //! and the errors against the truth, over runs with different noise seeds
 //! and random phases. `cms-host bench corrugation` writes the table; the
-//! test `host/tests/corrugation_sim.rs` asserts it.
+//! test `host/tests/it/corrugation_sim.rs` asserts it.
 //!
 //! The rail is the simulator's default rail (300 mm crown) with one
 //! corrugation sinusoid and, by default, no roughness (a machined sample

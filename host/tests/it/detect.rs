@@ -528,7 +528,7 @@ mod random_files {
 
     proptest! {
         // Each case spawns a process: keep it modest (the parser itself is
-        // fuzzed much harder in tests/input_props.rs, in-process).
+        // fuzzed much harder in host/tests/it/input_props.rs, in-process).
         #![proptest_config(ProptestConfig { cases: 48, failure_persistence: None, ..ProptestConfig::default() })]
         #[test]
         fn random_bytes_exit_0_or_2(bytes in proptest::collection::vec(any::<u8>(), 0..600), ext in 0usize..3) {
