@@ -1,0 +1,184 @@
+//! `cms-host info`: what a recording holds.
+
+use std::path::Path;
+
+use cms_core::protocol::{DeviceInfo, DeviceMsg, ErrorCode, LASERS};
+
+use super::{FrameCounter, RecordError, ScanStats, points, scan_file_with_progress, survey_of, um_to_mm};
+use crate::progress::Progress;
+
+/// What `cms-host info` reports.
+#[derive(Clone, Debug, Default)]
+pub struct Info {
+    /// What reading found.
+    pub scan: ScanStats,
+    /// The survey block, as stored.
+    pub survey: Option<String>,
+    /// Complete frames.
+    pub frames: u64,
+    /// Profile messages (parts).
+    pub profiles: u64,
+    /// Points, over all profiles.
+    pub points: u64,
+    /// Points per laser.
+    pub laser_points: [u64; LASERS],
+    /// Union of the profiles' laser masks.
+    pub lasers: u8,
+    /// First and last profile time stamp, µs.
+    pub time_us: Option<(u64, u64)>,
+    /// Least and greatest odometer, µm.
+    pub odometer_um: Option<(i64, i64)>,
+    /// First and last sequence number.
+    pub seq: Option<(u32, u32)>,
+    /// Frames missing from the sequence numbers (gaps).
+    pub seq_gaps: u64,
+    /// `Hello` messages (one per session or reconnect).
+    pub hellos: u64,
+    /// The last device information.
+    pub device: Option<DeviceInfo>,
+    /// `Status` messages, and the last one's dropped-frame count.
+    pub statuses: u64,
+    /// Frames the head dropped, from its last status.
+    pub head_dropped: Option<u32>,
+    /// Errors the head reported.
+    pub head_errors: Vec<ErrorCode>,
+    /// `RawRows` chunks.
+    pub raw_chunks: u64,
+}
+
+impl Info {
+    /// Accumulates one message.
+    pub fn add(&mut self, msg: &DeviceMsg, counter: &mut FrameCounter) {
+        match msg {
+            DeviceMsg::Hello(i) => {
+                self.hellos += 1;
+                self.device = Some(i.clone());
+            }
+            DeviceMsg::Profile(p) => {
+                self.profiles += 1;
+                let n = points(p);
+                self.points += n;
+                for l in &p.lasers {
+                    if let Some(c) = self.laser_points.get_mut(l.laser as usize) {
+                        *c += l.points.len() as u64;
+                    }
+                }
+                self.lasers |= p.laser_mask;
+                let t = p.timestamp_us;
+                self.time_us = Some(self.time_us.map_or((t, t), |(a, b)| (a.min(t), b.max(t))));
+                let o = p.odometer_um;
+                self.odometer_um = Some(self.odometer_um.map_or((o, o), |(a, b)| (a.min(o), b.max(o))));
+                if counter.profile(p) {
+                    self.frames += 1;
+                    if let Some((_, last)) = self.seq
+                        && p.seq > last
+                    {
+                        self.seq_gaps += u64::from(p.seq - last - 1);
+                    }
+                    self.seq = Some(self.seq.map_or((p.seq, p.seq), |(first, _)| (first, p.seq)));
+                }
+            }
+            DeviceMsg::Status(s) => {
+                self.statuses += 1;
+                self.head_dropped = Some(s.dropped_frames);
+            }
+            DeviceMsg::Error { code, .. } => self.head_errors.push(*code),
+            DeviceMsg::Ack(_) => {}
+            DeviceMsg::RawRows(_) => self.raw_chunks += 1,
+        }
+    }
+
+    /// Reads a recording.
+    pub fn of_file(path: &Path, progress: &dyn Progress) -> Result<Info, RecordError> {
+        let mut info = Info::default();
+        let mut counter = FrameCounter::default();
+        info.scan = scan_file_with_progress(path, progress, |m| {
+            info.add(m, &mut counter);
+            Ok(())
+        })?;
+        info.survey = survey_of(path)?;
+        Ok(info)
+    }
+
+    /// The report, `key: value` lines.
+    pub fn report(&self, path: &Path) -> String {
+        use std::fmt::Write as _;
+        let mut s = String::new();
+        let _ = writeln!(s, "file: {}", path.display());
+        if let Some(h) = self.scan.header {
+            let _ = writeln!(s, "format: {} (wire protocol {})", h.format, h.protocol);
+        }
+        if let Some(t) = &self.survey {
+            let kv: Vec<&str> = t.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
+            let _ = writeln!(s, "survey: {}", kv.join("; "));
+        }
+        let _ = writeln!(s, "frames: {} ({} profile messages)", self.frames, self.profiles);
+        match self.time_us {
+            Some((a, b)) => {
+                let _ = writeln!(
+                    s,
+                    "time: {:.6} s to {:.6} s (span {:.6} s)",
+                    a as f64 / 1e6,
+                    b as f64 / 1e6,
+                    (b - a) as f64 / 1e6
+                );
+            }
+            None => s.push_str("time: -\n"),
+        }
+        match self.odometer_um {
+            Some((a, b)) => {
+                let span = i64::try_from(b.abs_diff(a)).unwrap_or(i64::MAX);
+                let _ = writeln!(s, "distance: {} mm to {} mm (span {} mm)", um_to_mm(a), um_to_mm(b), um_to_mm(span));
+            }
+            None => s.push_str("distance: -\n"),
+        }
+        match self.seq {
+            Some((a, b)) => {
+                let _ = writeln!(s, "seq: {a} to {b}, {} missing", self.seq_gaps);
+            }
+            None => s.push_str("seq: -\n"),
+        }
+        let lasers: Vec<String> = (0..LASERS)
+            .filter(|&k| self.lasers & (1 << k) != 0)
+            .map(|k| format!("{k} ({} points)", self.laser_points[k]))
+            .collect();
+        let _ = writeln!(s, "lasers: {}", if lasers.is_empty() { "-".to_string() } else { lasers.join(", ") });
+        let per = if self.frames > 0 { self.points as f64 / self.frames as f64 } else { 0.0 };
+        let _ = writeln!(s, "points: {} ({per:.1} per frame)", self.points);
+        if self.points > 0 {
+            let b = self.scan.profile_bytes;
+            let _ = writeln!(s, "profile bytes: {b} ({:.2} per point, frames included)", b as f64 / self.points as f64);
+        }
+        match &self.device {
+            Some(d) => {
+                let _ = writeln!(
+                    s,
+                    "device: firmware {}, board {}, protocol {}, sensor {}x{} at {} bits, calibration {}",
+                    crate::input::one_line(&d.firmware, 16),
+                    crate::input::one_line(&d.board, 24),
+                    d.protocol,
+                    d.sensor_width,
+                    d.sensor_height,
+                    d.bits,
+                    if d.calibration_id == 0 { "none".to_string() } else { format!("{:#010x}", d.calibration_id) }
+                );
+            }
+            None => s.push_str("device: no Hello recorded\n"),
+        }
+        let _ = writeln!(s, "sessions: {} (Hello messages)", self.hellos);
+        if let Some(d) = self.head_dropped {
+            let _ = writeln!(s, "head dropped frames: {d} (last status)");
+        }
+        if !self.head_errors.is_empty() {
+            let list: Vec<String> = self.head_errors.iter().map(|c| c.to_string()).collect();
+            let _ = writeln!(s, "head errors: {} ({})", self.head_errors.len(), list.join("; "));
+        }
+        if self.raw_chunks > 0 {
+            let _ = writeln!(s, "raw image chunks: {}", self.raw_chunks);
+        }
+        let _ = writeln!(s, "damaged frames: {}", self.scan.damaged);
+        let _ = writeln!(s, "duplicated profile messages (skipped): {}", self.scan.duplicates);
+        let _ = writeln!(s, "truncated bytes at the end: {}", self.scan.truncated_tail);
+        s
+    }
+}

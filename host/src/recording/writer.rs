@@ -1,0 +1,123 @@
+//! Appending frames to a recording as they arrive.
+
+use std::fs::{File, OpenOptions};
+use std::io::{self, Read, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use super::{HEADER_LEN, MAX_SURVEY_BYTES, RecordError, SYNC_INTERVAL, header_and_survey, parse_header, read_survey};
+
+/// Appends frames to a recording (see the module docs for what reaches the
+/// file when).
+#[derive(Debug)]
+pub struct Recorder {
+    /// Unbuffered: each frame is one write.
+    out: File,
+    path: PathBuf,
+    /// When the oldest frame not yet committed was written.
+    dirty_since: Option<Instant>,
+    frames: u64,
+}
+
+impl Recorder {
+    /// Creates `path`, or validates its header and appends to it.
+    pub fn open(path: &Path) -> Result<Recorder, RecordError> {
+        Recorder::open_with_survey(path, None)
+    }
+
+    /// [`Recorder::open`], a new file with `survey`'s block; appending to a
+    /// file of another survey (or of none, when one is given) is refused.
+    pub fn open_with_survey(path: &Path, survey: Option<&str>) -> Result<Recorder, RecordError> {
+        let io_err = |what, source| RecordError::Io { path: path.to_path_buf(), what, source };
+        let format = |why: String| RecordError::Format { path: path.to_path_buf(), why };
+        if survey.is_some_and(|t| t.len() > MAX_SURVEY_BYTES) {
+            return Err(format(format!("a survey of more than {MAX_SURVEY_BYTES} bytes")));
+        }
+        let mut file = OpenOptions::new()
+            .read(true)
+            .append(true)
+            .create(true)
+            .open(path)
+            .map_err(|e| io_err("cannot open recording", e))?;
+        let len = file.metadata().map_err(|e| io_err("cannot read", e))?.len();
+        if len == 0 {
+            file.write_all(&header_and_survey(survey)).map_err(|e| io_err("cannot write", e))?;
+        } else {
+            let mut h = Vec::with_capacity(HEADER_LEN);
+            (&mut file).take(HEADER_LEN as u64).read_to_end(&mut h).map_err(|e| io_err("cannot read", e))?;
+            let header = parse_header(&h).map_err(|why| format(format!("{why}; refusing to append")))?;
+            let kept = read_survey(&mut file, &header)
+                .map_err(|e| format(format!("survey block: {e}; refusing to append")))?;
+            if let Some(t) = survey
+                && kept.as_deref() != Some(t)
+            {
+                return Err(format(match kept {
+                    Some(_) => "holds another survey; refusing to append (record this survey to a new file)".into(),
+                    None => "holds no survey; refusing to append one (record the survey to a new file)".into(),
+                }));
+            }
+            if len > HEADER_LEN as u64 + u64::from(header.survey_len) {
+                let mut last = [0u8];
+                file.seek(SeekFrom::End(-1)).map_err(|e| io_err("cannot read", e))?;
+                file.read_exact(&mut last).map_err(|e| io_err("cannot read", e))?;
+                if last[0] != 0 {
+                    // Close the previous writer's unfinished frame.
+                    file.write_all(&[0]).map_err(|e| io_err("cannot write", e))?;
+                }
+            }
+        }
+        Ok(Recorder { out: file, path: path.to_path_buf(), dirty_since: None, frames: 0 })
+    }
+
+    /// The file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Frames written by this recorder.
+    pub fn frames(&self) -> u64 {
+        self.frames
+    }
+
+    fn err(&self, what: &'static str, source: io::Error) -> RecordError {
+        RecordError::Io { path: self.path.clone(), what, source }
+    }
+
+    /// Appends one frame's wire bytes (ending with its 0x00 delimiter): in
+    /// the file (the operating system's) when this returns.
+    pub fn write_frame(&mut self, wire: &[u8]) -> Result<(), RecordError> {
+        debug_assert_eq!(wire.last(), Some(&0));
+        // One write of the whole frame: a kill between two frames leaves
+        // whole frames only (a kill inside leaves a fragment readers skip).
+        self.out.write_all(wire).map_err(|e| self.err("cannot write", e))?;
+        self.frames += 1;
+        self.dirty_since.get_or_insert_with(Instant::now);
+        self.tick()
+    }
+
+    /// Commits once the oldest uncommitted frame is [`SYNC_INTERVAL`] old.
+    /// Call it often (the listener does on every turn of its loop).
+    pub fn tick(&mut self) -> Result<(), RecordError> {
+        if self.dirty_since.is_some_and(|t| t.elapsed() >= SYNC_INTERVAL) {
+            self.sync()?;
+        }
+        Ok(())
+    }
+
+    /// Commits everything written so far.
+    pub fn finish(&mut self) -> Result<(), RecordError> {
+        self.sync()
+    }
+
+    /// Commits to the storage device. A recording into a pipe or a
+    /// character device has nothing to commit.
+    fn sync(&mut self) -> Result<(), RecordError> {
+        self.dirty_since = None;
+        match self.out.sync_data() {
+            Err(e) if !matches!(e.kind(), io::ErrorKind::InvalidInput | io::ErrorKind::Unsupported) => {
+                Err(self.err("cannot commit", e))
+            }
+            _ => Ok(()),
+        }
+    }
+}
