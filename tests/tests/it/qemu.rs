@@ -24,8 +24,8 @@ use cms_core::protocol::{
 };
 use cms_core::synthetic::{Scene, SceneCamera, SceneConfig};
 use cms_host::link::{Client, ClientError, Wait};
-use cms_host::listen::{ListenOptions, RowsRequest, Summary, listen_with};
-use cms_host::qemu::{self, Machine, Qemu};
+use cms_host::device::listen::{ListenOptions, RowsRequest, Summary, listen_with};
+use cms_host::device::qemu::{self, Machine, Qemu};
 
 /// The emulated head's scene seed (`SCENE_SEED` in firmware/qemu/src/bin/head.rs).
 const SCENE_SEED: u32 = 1;
