@@ -23,9 +23,9 @@ use cms_core::protocol::{
     Command, DeviceInfo, DeviceMsg, HeadState, HostMsg, LaserPattern, PROTOCOL_VERSION, Profile, Start, Status,
 };
 use cms_core::synthetic::{Scene, SceneCamera, SceneConfig};
-use cms_host::link::{Client, ClientError, Wait};
 use cms_host::device::listen::{ListenOptions, RowsRequest, Summary, listen_with};
 use cms_host::device::qemu::{self, Machine, Qemu};
+use cms_host::link::{Client, ClientError, Wait};
 
 /// The emulated head's scene seed (`SCENE_SEED` in firmware/qemu/src/bin/head.rs).
 const SCENE_SEED: u32 = 1;
@@ -57,7 +57,7 @@ fn listen_to_qemu(machine: Machine, start: Start, frames: u64) -> Session {
 /// [`listen_to_qemu`] with the listener's `SetReadout` (`None`: none).
 fn listen_to_qemu_reading(machine: Machine, start: Start, frames: u64, readout: Option<RowsRequest>) -> Session {
     let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let image = match qemu::image(qemu::HEAD_BIN, None) {
+    let image = match qemu::find_image(qemu::HEAD_BIN, None) {
         Ok(i) => i,
         Err(e) => panic!("{e}"),
     };

@@ -5,7 +5,7 @@
 //! This module finds or builds its images, starts `qemu-system-arm`, and
 //! hands the listener a serial port:
 //!
-//! 1. **Image** ([`image`]), the first of:
+//! 1. **Image** ([`find_image`]), the first of:
 //!    * `--qemu-image FILE` (`bench qemu --image FILE`);
 //!    * the environment variable [`HEAD_IMAGE_ENV`] (`CMS_QEMU_IMAGE`;
 //!      [`BENCH_IMAGE_ENV`], `CMS_QEMU_BENCH_IMAGE`, for the benchmark);
@@ -41,6 +41,13 @@
 //! (`sleep=off` lets the clock leap over idle time, which would trip the
 //! head's heartbeat watchdog between two host heartbeats: it is not for
 //! `listen`.)
+
+mod bench;
+
+pub use bench::{
+    BenchOptions, BenchReport, BenchRow, WireCost, bench, bench_table, parse_bench, run_bench_image, wire_cost,
+    wire_table,
+};
 
 use std::fmt;
 use std::fs::{File, OpenOptions};
@@ -180,7 +187,7 @@ fn image_env(bin: &str) -> &'static str {
 /// `explicit` if given, the environment variable, beside the binary, or
 /// built (or found up to date) by cargo in the checkout (cargo's messages
 /// go to stderr). A named image must exist.
-pub fn image(bin: &'static str, explicit: Option<&Path>) -> Result<PathBuf, QemuError> {
+pub fn find_image(bin: &'static str, explicit: Option<&Path>) -> Result<PathBuf, QemuError> {
     let named = explicit
         .map(Path::to_path_buf)
         .or_else(|| std::env::var_os(image_env(bin)).filter(|v| !v.is_empty()).map(PathBuf::from));
@@ -236,7 +243,7 @@ pub fn image(bin: &'static str, explicit: Option<&Path>) -> Result<PathBuf, Qemu
 pub struct QemuPort {
     /// With PORT `qemu`: the emulated board.
     pub qemu_machine: Option<Machine>,
-    /// With PORT `qemu`: the head's image (`None`: found as [`image`] says).
+    /// With PORT `qemu`: the head's image (`None`: found as [`find_image`] says).
     pub qemu_image: Option<PathBuf>,
 }
 
@@ -273,7 +280,7 @@ fn spawn_lines(r: impl Read + Send + 'static, tx: mpsc::Sender<String>) {
 /// Starts QEMU on `machine` with `image` and `flags` (the board without
 /// display, default devices or network; semihosting on, so that a panicking
 /// image ends QEMU). Its stdout and stderr come line by line on the channels.
-fn spawn_qemu(
+pub(super) fn spawn_qemu(
     machine: Machine,
     image: &Path,
     flags: &[&str],
@@ -313,7 +320,7 @@ fn spawn_qemu(
     Ok((child, out_rx, err_rx))
 }
 
-fn tail(lines: &[String]) -> String {
+pub(super) fn tail(lines: &[String]) -> String {
     let s = lines.iter().rev().take(3).rev().cloned().collect::<Vec<_>>().join(" | ");
     crate::input::one_line(&s, 400)
 }
@@ -446,7 +453,7 @@ fn pty_of(line: &str) -> Option<PathBuf> {
 /// Starts the emulated head for `cms-host listen qemu`: the image, QEMU
 /// paused, the pty opened, then running. Returns QEMU (drop it to end it).
 pub fn start_head(args: &QemuPort) -> Result<Qemu, QemuError> {
-    let image = image(HEAD_BIN, args.qemu_image.as_deref())?;
+    let image = find_image(HEAD_BIN, args.qemu_image.as_deref())?;
     let mut q = Qemu::start(args.qemu_machine.unwrap_or_default(), &image)?;
     q.resume()?;
     Ok(q)
@@ -488,368 +495,9 @@ pub fn with_port<T>(
     Ok(r)
 }
 
-// ------------------------------------------------------------- bench qemu
-
-/// Options of `cms-host bench qemu`.
-#[derive(Debug, Clone, Default)]
-pub struct BenchOptions {
-    /// The emulated board.
-    pub machine: Machine,
-    /// The benchmark's image (`None`: found as [`image`] says).
-    pub image: Option<PathBuf>,
-    /// Clock of the implied rows per second, MHz (1 instruction per cycle).
-    pub clock_mhz: u32,
-}
-
-/// One configuration's count.
-#[derive(Clone, Debug, PartialEq)]
-pub struct BenchRow {
-    /// Method name.
-    pub method: String,
-    /// Row length, px.
-    pub len: usize,
-    /// Stripes per row.
-    pub stripes: usize,
-    /// Width of the search window per stripe, px (`detect_in`); 0: a
-    /// full-row search (`detect`).
-    pub window_px: usize,
-    /// Half width of the windows' tracks, px (`detect_tracked`); 0: not
-    /// tracked.
-    pub track_px: usize,
-    /// Instructions per `detect` call.
-    pub instructions: f64,
-    /// Rows (of the long run) with exactly `stripes` stripes, and rows.
-    pub found: (u64, u64),
-}
-
-/// What the benchmark image reported.
-#[derive(Clone, Debug, PartialEq)]
-pub struct BenchReport {
-    /// Board and CPU line.
-    pub board: String,
-    /// The calibration loop: iterations, and nanoseconds counted.
-    pub calibration: (u64, u64),
-    /// Every configuration.
-    pub rows: Vec<BenchRow>,
-}
-
-fn field<'a>(line: &'a str, key: &str) -> Option<&'a str> {
-    line.split_whitespace().find_map(|w| w.strip_prefix(key)?.strip_prefix('='))
-}
-
-fn num(line: &str, key: &str) -> Result<u64, QemuError> {
-    field(line, key)
-        .and_then(|v| v.parse().ok())
-        .ok_or_else(|| QemuError::Bench(format!("no number {key}= in {:?}", crate::input::one_line(line, 200))))
-}
-
-/// Parses the benchmark image's output (see firmware/qemu/src/bin/bench.rs).
-pub fn parse_bench(text: &str) -> Result<BenchReport, QemuError> {
-    let mut lines = text.lines().map(str::trim).filter(|l| !l.is_empty());
-    let board = lines
-        .by_ref()
-        .find(|l| l.starts_with("cms-qemu-bench "))
-        .ok_or_else(|| QemuError::Bench("no `cms-qemu-bench` header in the output".into()))?
-        .trim_start_matches("cms-qemu-bench ")
-        .to_string();
-    let mut calibration = None;
-    let mut rows = Vec::new();
-    let mut done = false;
-    for l in lines {
-        if l.starts_with("calibration ") {
-            calibration = Some((num(l, "loop_iterations")?, num(l, "ns")?));
-        } else if l.starts_with("method=") {
-            let method = field(l, "method").unwrap_or_default().to_string();
-            let size = field(l, "size").unwrap_or_default();
-            let (len, stripes) = size
-                .split_once('x')
-                .and_then(|(a, b)| Some((a.parse().ok()?, b.parse().ok()?)))
-                .ok_or_else(|| QemuError::Bench(format!("bad size in {l:?}")))?;
-            let (n, short, long) = (num(l, "rows")?, num(l, "ns_short")?, num(l, "ns_long")?);
-            let found = field(l, "found")
-                .and_then(|f| f.split_once('/'))
-                .and_then(|(a, b)| Some((a.parse().ok()?, b.parse().ok()?)))
-                .ok_or_else(|| QemuError::Bench(format!("bad found= in {l:?}")))?;
-            if n == 0 || long < short {
-                return Err(QemuError::Bench(format!("inconsistent counts in {l:?}")));
-            }
-            // Images from before search windows print no `window=`: full rows.
-            let window_px = match field(l, "window") {
-                None => 0,
-                Some(w) => w.parse().map_err(|_| QemuError::Bench(format!("bad window= in {l:?}")))?,
-            };
-            // Images from before tracking print no `track=`: not tracked.
-            let track_px = match field(l, "track") {
-                None => 0,
-                Some(t) => t.parse().map_err(|_| QemuError::Bench(format!("bad track= in {l:?}")))?,
-            };
-            let instructions = (long - short) as f64 / n as f64;
-            rows.push(BenchRow { method, len, stripes, window_px, track_px, instructions, found });
-        } else if l == "done" {
-            done = true;
-        } else if l.starts_with("panic") || l.contains("panic:") {
-            return Err(QemuError::Bench(format!("the image panicked: {}", crate::input::one_line(l, 300))));
-        }
-    }
-    let calibration = calibration.ok_or_else(|| QemuError::Bench("no calibration line".into()))?;
-    if !done {
-        return Err(QemuError::Bench("the output ends before `done`".into()));
-    }
-    Ok(BenchReport { board, calibration, rows })
-}
-
-/// Runs the benchmark image under `-icount shift=0,sleep=off` and returns its
-/// output.
-pub fn run_bench_image(machine: Machine, image: &Path) -> Result<String, QemuError> {
-    let flags = ["-icount", "shift=0,sleep=off", "-monitor", "none", "-serial", "stdio"];
-    let (mut child, rx, erx) = spawn_qemu(machine, image, &flags, Stdio::null(), false)?;
-    let t0 = Instant::now();
-    let status = loop {
-        if let Some(s) = child.try_wait().map_err(|e| QemuError::Io("waiting for qemu-system-arm", e))? {
-            break s;
-        }
-        if t0.elapsed() > BENCH_TIMEOUT {
-            let _ = child.kill();
-            let _ = child.wait();
-            return Err(QemuError::Bench(format!("no end after {} s", BENCH_TIMEOUT.as_secs())));
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    // The reader threads end with the pipes.
-    let out: Vec<String> = rx.iter().collect();
-    if !status.success() {
-        let errs: Vec<String> = erx.iter().collect();
-        let mut all = out.clone();
-        all.extend(errs);
-        return Err(QemuError::Exited { status, stderr: tail(&all) });
-    }
-    Ok(out.join("\n"))
-}
-
-/// The table of `cms-host bench qemu`.
-pub fn bench_table(r: &BenchReport, clock_mhz: u32) -> String {
-    use std::fmt::Write as _;
-    let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "# Instructions per row on thumbv7em ({}), QEMU -icount shift=0: 1 instruction = 1 emulated ns",
-        r.board
-    );
-    let _ = writeln!(
-        s,
-        "# calibration: {} iterations of a 2-instruction loop counted as {} instructions",
-        r.calibration.0, r.calibration.1
-    );
-    let _ = writeln!(
-        s,
-        "# rows/s at {clock_mhz} MHz assume 1 instruction per cycle (a Cortex-M7 dual-issues some pairs and stalls on others)"
-    );
-    let _ = writeln!(
-        s,
-        "# travel speed for continuous sampling = rows/s × the row pitch along the rail: {REFERENCE_ROW_PITCH_MM} mm \
-         (the reference head: 69 mm over 480 rows) and 1 mm (row skip or binning)"
-    );
-    let mut sizes: Vec<(usize, usize, usize, usize)> =
-        r.rows.iter().map(|b| (b.len, b.stripes, b.window_px, b.track_px)).collect();
-    sizes.sort_unstable();
-    sizes.dedup();
-    let head = |(l, k, w, t): (usize, usize, usize, usize)| match (w, t) {
-        (0, _) => format!("{l} px × {k}"),
-        (w, 0) => format!("{l} px × {k}, {w}-px windows"),
-        (w, t) => format!("{l} px × {k}, {w}-px windows tracked ±{t} px"),
-    };
-    let find = |m: &str, (l, k, w, t): (usize, usize, usize, usize)| {
-        r.rows.iter().find(|b| b.method == m && b.len == l && b.stripes == k && b.window_px == w && b.track_px == t)
-    };
-    let mut methods: Vec<&str> = Vec::new();
-    for b in &r.rows {
-        if !methods.contains(&b.method.as_str()) {
-            methods.push(&b.method);
-        }
-    }
-    let rate = |b: &BenchRow| clock_mhz as f64 * 1e6 / b.instructions;
-    s.push_str("\n| method |");
-    for &z in &sizes {
-        let _ = write!(s, " {} | rows/s |", head(z));
-    }
-    s.push_str("\n|---|");
-    for _ in &sizes {
-        s.push_str("---:|---:|");
-    }
-    s.push('\n');
-    for m in &methods {
-        let _ = write!(s, "| {m} |");
-        for &z in &sizes {
-            match find(m, z) {
-                Some(b) => {
-                    let _ =
-                        write!(s, " {} | {} |", group(b.instructions.round() as u64), group(rate(b).round() as u64));
-                }
-                None => s.push_str(" — | — |"),
-            }
-        }
-        s.push('\n');
-    }
-    let _ = write!(
-        s,
-        "\nTravel speed for continuous sampling, m/s at {REFERENCE_ROW_PITCH_MM} mm / 1 mm per row\n\n| method |"
-    );
-    for &z in &sizes {
-        let _ = write!(s, " {} |", head(z));
-    }
-    s.push_str("\n|---|");
-    for _ in &sizes {
-        s.push_str("---:|");
-    }
-    s.push('\n');
-    for m in &methods {
-        let _ = write!(s, "| {m} |");
-        for &z in &sizes {
-            match find(m, z) {
-                Some(b) => {
-                    let v = rate(b) * 1e-3;
-                    let _ = write!(s, " {:.2} / {:.1} |", v * REFERENCE_ROW_PITCH_MM, v);
-                }
-                None => s.push_str(" — |"),
-            }
-        }
-        s.push('\n');
-    }
-    let misses: Vec<String> = r
-        .rows
-        .iter()
-        .filter(|b| b.found.0 != b.found.1)
-        .map(|b| {
-            let w = match (b.window_px, b.track_px) {
-                (0, _) => String::new(),
-                (w, 0) => format!(" ({w} px windows)"),
-                (w, t) => format!(" ({w} px windows tracked ±{t} px)"),
-            };
-            format!("{} {}x{}{w}: {}/{}", b.method, b.len, b.stripes, b.found.0, b.found.1)
-        })
-        .collect();
-    if !misses.is_empty() {
-        let _ = writeln!(s, "\n# rows without exactly the expected stripes: {}", misses.join(", "));
-    }
-    s
-}
-
-/// 12345678 → "12 345 678" (the thin grouping of the docs' tables).
-fn group(v: u64) -> String {
-    let d = v.to_string();
-    let mut out = String::new();
-    for (i, c) in d.chars().enumerate() {
-        if i > 0 && (d.len() - i).is_multiple_of(3) {
-            out.push(' ');
-        }
-        out.push(c);
-    }
-    out
-}
-
-/// The reference head's row pitch along the rail, mm: each laser's line
-/// covers about 69 mm of rail over the sensor's 480 rows
-/// (docs/corrugation-and-standards.md).
-pub const REFERENCE_ROW_PITCH_MM: f64 = 0.144;
-
-/// What the emulated head's profiles cost on the wire.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct WireCost {
-    /// Frames encoded.
-    pub frames: u64,
-    /// Points in them.
-    pub points: u64,
-    /// Their frames' bytes, delimiters included.
-    pub bytes: u64,
-}
-
-impl WireCost {
-    /// Bytes a point, frame overhead included.
-    pub fn bytes_per_point(&self) -> f64 {
-        self.bytes as f64 / self.points.max(1) as f64
-    }
-}
-
-/// The laser enables of the host's run of the head (nothing to drive).
-struct NoLasers;
-
-impl cms_core::pipeline::LaserDriver for NoLasers {
-    fn set(&mut self, _mask: u8) {}
-}
-
-/// The wire cost of `frames` frames of the emulated head: its scene's rows
-/// (`cms_core::synthetic`, seed 1, three lasers lit) through the host's run
-/// of the same `Head` (the end-to-end test shows the emulated head sends
-/// these profiles bit for bit), each profile encoded as the head encodes it.
-/// Uncalibrated, as the emulated head is.
-pub fn wire_cost(frames: u32) -> Result<WireCost, QemuError> {
-    use cms_core::pipeline::{Head, Identity, default_detector};
-    use cms_core::protocol::{Command as HeadCommand, DeviceMsg, HostMsg, LaserPattern, MAX_FRAME, Start, encode};
-    use cms_core::synthetic::{Scene, SceneCamera, SceneConfig};
-    let fail = |what: String| QemuError::Bench(what);
-    let identity = Identity { firmware: "host", board: "host" };
-    let mut head: Box<Head<752, NoLasers>> =
-        Box::new(Head::new(NoLasers, default_detector(), identity).map_err(|e| fail(format!("detector: {e}")))?);
-    let scene = Scene::new(SceneConfig::reference(1)).map_err(|e| fail(format!("scene: {e:?}")))?;
-    let mut camera = SceneCamera::new(scene);
-    let start = Start { rate_hz: 30, laser_mask: 0b111, pattern: LaserPattern::Simultaneous };
-    let mut sink = |_: &DeviceMsg| {};
-    head.handle(HeadCommand { seq: 1, msg: HostMsg::Start(start) }, 0, &camera, &mut sink);
-    let mut out = vec![0u8; MAX_FRAME];
-    let mut cost = WireCost::default();
-    let mut failed = None;
-    for i in 0..u64::from(frames) {
-        let t = (i + 1) * 1_000_000 / u64::from(start.rate_hz);
-        camera.travel_to(i as i64 * 2_000);
-        head.handle(HeadCommand { seq: 2, msg: HostMsg::Heartbeat }, t, &camera, &mut sink);
-        head.poll(t, &mut camera, &mut || 0, &mut |m| {
-            if let DeviceMsg::Profile(p) = m {
-                match encode(m, &mut out) {
-                    Ok(f) => {
-                        cost.frames += 1;
-                        cost.points += p.lasers.iter().map(|l| l.points.len() as u64).sum::<u64>();
-                        cost.bytes += f.len() as u64;
-                    }
-                    Err(e) => failed = Some(e),
-                }
-            }
-        });
-    }
-    match failed {
-        Some(e) => Err(fail(format!("encoding a profile: {e}"))),
-        None => Ok(cost),
-    }
-}
-
-/// The wire section of `cms-host bench qemu`.
-pub fn wire_table(c: &WireCost) -> String {
-    let per_frame = c.bytes as f64 / c.frames.max(1) as f64;
-    let points = c.points as f64 / c.frames.max(1) as f64;
-    format!(
-        "\n# Wire (protocol 4): the emulated head's frames, {} frames of {points:.0} points, no calibration\n\n\
-         | bytes/point | bytes/frame | at 60 frames/s |\n|---:|---:|---:|\n| {:.2} | {per_frame:.0} | {:.0} kB/s |\n",
-        c.frames,
-        c.bytes_per_point(),
-        60.0 * per_frame / 1000.0
-    )
-}
-
-/// `cms-host bench qemu`: the table on stdout.
-pub fn bench(a: &BenchOptions) -> Result<String, QemuError> {
-    let image = image(BENCH_BIN, a.image.as_deref())?;
-    let out = run_bench_image(a.machine, &image)?;
-    let report = parse_bench(&out)?;
-    let (iters, ns) = report.calibration;
-    if ns != 2 * iters {
-        return Err(QemuError::Bench(format!(
-            "the clock does not count instructions: {iters} iterations of 2 instructions took {ns} ns"
-        )));
-    }
-    Ok(bench_table(&report, a.clock_mhz) + &wire_table(&wire_cost(10)?))
-}
-
 #[cfg(test)]
 mod tests {
+    use super::bench::group;
     use super::*;
 
     /// The emulated head's frames: 1 440 points, under 6 bytes each.
