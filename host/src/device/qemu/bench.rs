@@ -1,7 +1,6 @@
 //! `cms-host bench qemu`: instructions per row of the firmware's detector on
 //! the emulated board, and the bytes per point of its frames on the wire.
 
-use std::io::{BufRead, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::time::{Duration, Instant};

@@ -1,0 +1,453 @@
+//! `cms-host listen PORT`: talk to the sensor head over its serial link,
+//! stream profiles, show the link's health, record and print what arrives.
+//!
+//! # The conversation
+//! The port, the sequence numbers, the handshake's state machine and the
+//! heartbeats are [`link::Client`](crate::link::Client)'s, the same client
+//! `capture` and `calibrate upload` use; this module drives it in its own
+//! loop (see the client's docs for why) and adds the recording, the
+//! reconnects and the display.
+//!
+//! 1. **Handshake**: `GetInfo`, and wait for `Hello` (2 s, three tries); the
+//!    head's protocol version must be this build's. Then `SetExposure` (if
+//!    asked for) and `Start`, acknowledged by `Ack`.
+//! 2. **Streaming**: every 250 ms a `Heartbeat` (the head turns its lasers off
+//!    after 1 s without one). Every intact frame is recorded and, with
+//!    `--json`, printed; damaged frames are counted by the
+//!    [`FrameReader`](cms_core::protocol::FrameReader) and skipped (the
+//!    reader resynchronises on the next 0x00).
+//! 3. **Stop** (Ctrl-C, `--frames`, `--duration`, or a closed stdout): `Stop`
+//!    (lasers off), wait up to 500 ms for its `Ack`, commit the recording,
+//!    print a summary on stderr. A session that fails after greeting the head
+//!    (the port lost for good) still has its summary: [`session`] returns
+//!    both ([`Outcome`]), and the command line prints it before the error.
+//!
+//! Every intact frame is written to the recording before `--json` prints
+//! it, one write per frame ([`Recorder`]): a killed listener's file holds
+//! every frame it printed.
+//!
+//! # When the link misbehaves
+//! * The head goes silent for 2 s while streaming: handshake again
+//!   (`GetInfo` … `Start`), counted as a *stall*.
+//! * The head reports that it stopped by itself (a `Status` that is not
+//!   streaming: heartbeat lost, a damaged command, a camera fault): `Start`
+//!   again, counted as a *head restart*.
+//! * The port fails (unplugged: the path vanishes, a read fails or hits end
+//!   of file): close it, try to open the same path every 200 ms for up to
+//!   `--reconnect-timeout`, handshake again; the recording goes on in the same
+//!   file. Counted as a *reconnect*.
+//!
+//! Nothing that arrives on the link can make the listener panic: every
+//! frame is bounds-checked by the framing and decoded by postcard into
+//! fixed-capacity types.
+
+mod session;
+
+use std::fmt;
+use std::io::{self, Write};
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::time::{Duration, Instant};
+
+use cms_core::peak::ColumnWindow;
+use cms_core::protocol::{DeviceInfo, DeviceMsg, ErrorCode, LASERS, LaserPattern, PROTOCOL_VERSION, Start, Status};
+use cms_core::readout::{Readout, ReadoutError};
+
+use crate::link::{Client, ClientError, Counters, Handshake, LinkError, Wait};
+use crate::recording::{RecordError, Recorder};
+use session::Session;
+
+/// How long to wait for `Hello` after each `GetInfo`.
+pub const HELLO_TIMEOUT: Duration = Duration::from_secs(2);
+/// `GetInfo` requests before giving up.
+pub const HELLO_TRIES: u32 = 3;
+/// The handshake: [`HELLO_TRIES`] `GetInfo` requests [`HELLO_TIMEOUT`] apart.
+pub const HANDSHAKE: Handshake = Handshake { tries: HELLO_TRIES, wait: Wait::Within(HELLO_TIMEOUT) };
+/// How long to wait for the `Ack` of `Start`.
+pub const START_TIMEOUT: Duration = Duration::from_secs(2);
+/// Interval of heartbeats (the head's timeout is 1 s).
+pub const HEARTBEAT_INTERVAL: Duration = Duration::from_millis(250);
+/// Silence while streaming after which the head is asked again.
+pub const STALL_TIMEOUT: Duration = Duration::from_secs(2);
+/// Interval of attempts to reopen a lost port.
+pub const REOPEN_INTERVAL: Duration = Duration::from_millis(200);
+/// How long to wait for the `Ack` of `Stop` (and the `Status` after it)
+/// when finishing.
+pub const STOP_ACK_TIMEOUT: Duration = Duration::from_millis(500);
+
+/// What to do.
+#[derive(Clone, Debug)]
+pub struct ListenOptions {
+    /// Stop after this many complete frames.
+    pub frames: Option<u64>,
+    /// Stop after this long.
+    pub duration: Option<Duration>,
+    /// Record into (append to) this file.
+    pub record: Option<PathBuf>,
+    /// The survey a new recording's header carries (validated TOML,
+    /// [`crate::recording::survey_info`]); appending to one of another survey is refused.
+    pub survey: Option<String>,
+    /// One JSON object per profile message on the output.
+    pub json: bool,
+    /// Baud rate (a USB CDC head ignores it).
+    pub baud: u32,
+    /// Streaming parameters sent with `Start`.
+    pub start: Start,
+    /// Exposure to set before starting, µs.
+    pub exposure_us: Option<u32>,
+    /// Search windows per laser to set (`SetWindows`) before starting;
+    /// `None` sets none (the head keeps what it has; full rows after a
+    /// restart).
+    pub windows: Option<[Option<ColumnWindow>; LASERS]>,
+    /// The sensor rows to read (`SetReadout` before starting: first row,
+    /// rows, skip); `None` sets none (the head keeps what it has; every
+    /// row after a restart).
+    pub readout: Option<RowsRequest>,
+    /// Windows that follow their lines (`SetTracking` before starting):
+    /// how far from the last row's stripe a row looks, px; `None` sets
+    /// nothing (the head keeps what it has; off after a restart).
+    pub track_px: Option<u16>,
+    /// How long a lost port may stay away.
+    pub reconnect_timeout: Duration,
+}
+
+impl Default for ListenOptions {
+    fn default() -> Self {
+        ListenOptions {
+            frames: None,
+            duration: None,
+            record: None,
+            survey: None,
+            json: false,
+            baud: 115_200,
+            start: Start { rate_hz: 30, laser_mask: 0b111, pattern: LaserPattern::Simultaneous },
+            exposure_us: None,
+            windows: None,
+            readout: None,
+            track_px: None,
+            reconnect_timeout: Duration::from_secs(30),
+        }
+    }
+}
+
+/// The readout `listen` asks the head for (`HostMsg::SetReadout`): sensor
+/// rows `first_row .. first_row + rows`, one in `skip`. Checked against
+/// the sensor's height in the head's `Hello` before it is sent (and by the
+/// head again).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RowsRequest {
+    /// First sensor row.
+    pub first_row: u16,
+    /// Sensor rows of the window; `None`: up to the sensor's last row.
+    pub rows: Option<u16>,
+    /// Read one row in `skip` (1, 2 or 4).
+    pub skip: u8,
+}
+
+impl RowsRequest {
+    /// The readout on a sensor `sensor_rows` high.
+    pub fn on(&self, sensor_rows: u16) -> Result<Readout, ReadoutError> {
+        let rows = self.rows.unwrap_or(sensor_rows.saturating_sub(self.first_row));
+        Readout::from_factor(self.first_row, rows, self.skip, sensor_rows)
+    }
+}
+
+/// Why listening failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ListenError {
+    /// The port could not be opened at all.
+    #[error(transparent)]
+    Open(LinkError),
+    /// The head never answered `GetInfo`.
+    #[error(
+        "no answer from {port}: no Hello after {HELLO_TRIES} GetInfo requests {} s apart (is it a CMS sensor head, and is the baud rate right?)",
+        HELLO_TIMEOUT.as_secs()
+    )]
+    NoHello {
+        /// The port.
+        port: String,
+    },
+    /// The head speaks another protocol version.
+    #[error("the head on {port} speaks protocol version {theirs}; this cms-host speaks version {PROTOCOL_VERSION}")]
+    Version {
+        /// The port.
+        port: String,
+        /// The head's version.
+        theirs: u8,
+    },
+    /// The row readout asked for does not fit the head's sensor.
+    #[error("--rows/--row-skip on the head of {port}: {why}")]
+    Readout {
+        /// The port.
+        port: String,
+        /// Why.
+        why: ReadoutError,
+    },
+    /// The head refused a command of the handshake.
+    #[error("the head refused {command}: {code}")]
+    Refused {
+        /// The command.
+        command: &'static str,
+        /// Why.
+        code: ErrorCode,
+    },
+    /// The port went away (or the head stopped answering) and did not come
+    /// back in time.
+    #[error("lost {port} and it did not come back within {} s ({why})", after.as_secs_f64())]
+    Lost {
+        /// The port.
+        port: String,
+        /// How long it was given.
+        after: Duration,
+        /// The last thing that went wrong.
+        why: String,
+    },
+    /// The recording failed.
+    #[error("recording: {0}")]
+    Record(#[source] RecordError),
+    /// Writing the JSON output failed (not a closed pipe, which just stops).
+    #[error("writing output: {0}")]
+    Output(#[source] io::Error),
+}
+
+impl crate::error::Classify for ListenError {
+    fn class(&self) -> crate::Class {
+        match self {
+            ListenError::Output(_) => crate::Class::Output,
+            ListenError::Record(r) => crate::error::Classify::class(r),
+            ListenError::Readout { .. } => crate::Class::Input,
+            _ => crate::Class::Device,
+        }
+    }
+}
+
+impl ListenError {
+    /// The listener's words for a handshake that failed before the head
+    /// was ever greeted.
+    fn from_handshake(e: ClientError, port: &str) -> ListenError {
+        match e {
+            ClientError::Version { port, theirs } => ListenError::Version { port, theirs },
+            _ => ListenError::NoHello { port: port.to_string() },
+        }
+    }
+}
+
+/// What a listening session did.
+#[derive(Clone, Debug, Default)]
+pub struct Summary {
+    /// Complete frames received (all parts).
+    pub frames: u64,
+    /// Profile messages received.
+    pub profiles: u64,
+    /// Points received.
+    pub points: u64,
+    /// First and last sequence number of a complete frame.
+    pub seq: Option<(u32, u32)>,
+    /// Link counters over all connections.
+    pub link: Counters,
+    /// Ports reopened after a failure.
+    pub reconnects: u32,
+    /// Handshakes repeated because the head went silent.
+    pub stalls: u32,
+    /// Restarts after the head stopped by itself.
+    pub head_restarts: u32,
+    /// Frames the head dropped (its last `Status`).
+    pub head_dropped: u32,
+    /// Lasers lit according to the head's last `Status`.
+    pub lasers_on: Option<u8>,
+    /// The head's last `Status` (its telemetry).
+    pub head: Option<Status>,
+    /// The head's description.
+    pub device: Option<DeviceInfo>,
+    /// The row readout the head acknowledged (`SetReadout`; `None`: none
+    /// asked for).
+    pub readout: Option<Readout>,
+    /// Frames written to the recording.
+    pub recorded: u64,
+    /// Whether the head acknowledged the final `Stop`.
+    pub stop_acked: bool,
+    /// The output pipe was closed by its reader.
+    pub output_closed: bool,
+    /// From the call to the end.
+    pub elapsed: Duration,
+    /// From the first to the last profile.
+    pub streaming: Duration,
+}
+
+impl Summary {
+    /// Resynchronisations: decode errors and overflows.
+    pub fn resyncs(&self) -> u64 {
+        self.link.resyncs()
+    }
+
+    /// Frames per second while streaming.
+    pub fn frames_per_s(&self) -> f64 {
+        let t = self.streaming.as_secs_f64();
+        if self.frames > 1 && t > 0.0 { (self.frames - 1) as f64 / t } else { 0.0 }
+    }
+}
+
+impl fmt::Display for Summary {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "frames: {} ({} profile messages, {} points, {:.1} points/frame)",
+            self.frames,
+            self.profiles,
+            self.points,
+            if self.frames > 0 { self.points as f64 / self.frames as f64 } else { 0.0 }
+        )?;
+        writeln!(f, "elapsed: {:.3} s, {:.2} frames/s", self.elapsed.as_secs_f64(), self.frames_per_s())?;
+        writeln!(
+            f,
+            "link: {} CRC errors, {} resyncs ({} decode errors, {} overflows), {} bytes discarded",
+            self.link.crc_errors,
+            self.resyncs(),
+            self.link.decode_errors,
+            self.link.overflows,
+            self.link.discarded_bytes
+        )?;
+        writeln!(
+            f,
+            "reconnects: {}, stalls: {}, head restarts: {}, head dropped frames: {}",
+            self.reconnects, self.stalls, self.head_restarts, self.head_dropped
+        )?;
+        match self.device.as_ref().map(|d| d.calibration_id) {
+            Some(0) => writeln!(f, "calibration: none (positions in pixels only: see cms-host calibrate)")?,
+            Some(id) => writeln!(f, "calibration: {id:#010x} (points in mm along the line, heights in µm)")?,
+            None => {}
+        }
+        if let Some(r) = &self.readout {
+            writeln!(
+                f,
+                "rows: sensor rows {}..{}, one in {} ({} a frame)",
+                r.first_row(),
+                r.end_row(),
+                r.skip().factor(),
+                r.rows_read()
+            )?;
+        }
+        if let Some(h) = &self.head {
+            writeln!(f, "head (last status): {}", telemetry(h))?;
+        }
+        let lasers = match self.lasers_on {
+            Some(0) => "off".to_string(),
+            Some(m) => format!("ON ({m:#05b})"),
+            None => "unknown".to_string(),
+        };
+        write!(f, "lasers: {lasers}{}", if self.stop_acked { " (stop acknowledged)" } else { "" })
+    }
+}
+
+/// The head's telemetry from its `Status`, compact: processing per row (ns,
+/// and core cycles where the head knows its clock), rows lost to the
+/// camera's DMA, link backlog, laser duty over the status window, and a
+/// fault if there is one.
+pub fn telemetry(s: &Status) -> String {
+    let cycles = if s.cycles_per_row > 0 { format!(" ({} cycles)", s.cycles_per_row) } else { String::new() };
+    let fault = s.fault.map(|f| format!(", fault {f:?}")).unwrap_or_default();
+    format!(
+        "{} rows/s, {} ns/row{cycles}, {} rows lost, backlog {} B, laser duty {:.1} %{fault}",
+        s.rows_per_s,
+        s.ns_per_row,
+        s.dropped_rows,
+        s.link_backlog_bytes,
+        f64::from(s.laser_duty_permille) / 10.0
+    )
+}
+
+/// Where the session's live status line goes (the command line draws it;
+/// the session only says when one is due and what it reads).
+pub trait StatusLine {
+    /// Whether a new line is due at `now`.
+    fn due(&self, now: Instant) -> bool;
+    /// Shows `line` (the status at `now`).
+    fn show(&mut self, now: Instant, line: String);
+    /// The session has ended.
+    fn finish(&mut self) {}
+}
+
+/// No status line.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Quiet;
+
+impl StatusLine for Quiet {
+    fn due(&self, _: Instant) -> bool {
+        false
+    }
+    fn show(&mut self, _: Instant, _: String) {}
+}
+
+/// How a session ended: what it did, and why it ended early if it did.
+/// A session that fails after streaming (the port lost for good, the
+/// recording's disk full) still has a summary worth printing.
+#[derive(Debug)]
+pub struct Outcome {
+    /// What the session did, up to its end.
+    pub summary: Summary,
+    /// The failure that ended it, if any.
+    pub result: Result<(), ListenError>,
+}
+
+impl Outcome {
+    fn failed(e: ListenError) -> Outcome {
+        Outcome { summary: Summary::default(), result: Err(e) }
+    }
+
+    /// Whether a head was ever greeted (else there is nothing to sum up).
+    pub fn greeted(&self) -> bool {
+        self.summary.device.is_some()
+    }
+}
+
+/// [`session`] without a status line, its summary only when it did not fail.
+pub fn listen_with(
+    port: &str,
+    opts: &ListenOptions,
+    stop: &AtomicBool,
+    out: &mut dyn Write,
+    observe: &mut dyn FnMut(&DeviceMsg),
+) -> Result<Summary, ListenError> {
+    let o = session(port, opts, stop, out, observe, &mut Quiet);
+    o.result.map(|()| o.summary)
+}
+
+/// Listens on `port` (a device path), writing the `--json` lines to `out`,
+/// showing `observe` every message it keeps (the recorded ones) in order
+/// and `status` the live status line. Returns when `opts` says so, when
+/// `stop` becomes true (Ctrl-C), or when `out` is closed; the head is
+/// stopped first.
+pub fn session(
+    port: &str,
+    opts: &ListenOptions,
+    stop: &AtomicBool,
+    out: &mut dyn Write,
+    observe: &mut dyn FnMut(&DeviceMsg),
+    status: &mut dyn StatusLine,
+) -> Outcome {
+    let t0 = Instant::now();
+    let recorder = match &opts.record {
+        Some(path) => match Recorder::open_with_survey(path, opts.survey.as_deref()) {
+            Ok(r) => Some(r),
+            Err(e) => return Outcome::failed(ListenError::Record(e)),
+        },
+        None => None,
+    };
+    let mut client = match Client::open(port, opts.baud) {
+        Ok(c) => c.with_heartbeat(HEARTBEAT_INTERVAL),
+        Err(e) => return Outcome::failed(ListenError::Open(e)),
+    };
+    let mut s = Session::new(opts, port, out, observe, recorder, client.outbox(), t0);
+    let mut last_open_try = t0;
+    let result = loop {
+        let now = Instant::now();
+        if let Some(end) = s.step(&mut client, stop, now, t0, &mut last_open_try) {
+            break end;
+        }
+        if status.due(now) {
+            let line = s.status_line(now, client.is_open());
+            status.show(now, line);
+        }
+    };
+    s.finish(&mut client, result, status, t0)
+}
