@@ -13,6 +13,10 @@
 //! This module imports no other host module (they all import it): the
 //! classes live with the errors, so the layers have no cycle.
 //!
+//! There is no blanket conversion from `io::Error`: whether a failed read
+//! or write is the user's input (exit 2), an output (exit 1) or the device
+//! (exit 3) depends on the file, so every call site says which.
+//!
 //! Messages are one line, name what was wrong, and do not repeat their
 //! source's text when the source is attached (the command line prints the
 //! chain).
@@ -87,12 +91,6 @@ pub enum Error {
     Module(ModuleError),
 }
 
-impl From<io::Error> for Error {
-    fn from(e: io::Error) -> Self {
-        Error::Output(e)
-    }
-}
-
 impl<E: Classify> From<E> for Error {
     fn from(e: E) -> Self {
         Error::Module(ModuleError { class: e.class(), inner: Box::new(e) })
@@ -137,7 +135,7 @@ mod tests {
     fn classes_and_the_module_error_inside() {
         assert_eq!(Error::Input("x".into()).class(), Class::Input);
         assert_eq!(Error::Device("x".into()).class(), Class::Device);
-        assert_eq!(Error::from(io::Error::from(io::ErrorKind::BrokenPipe)).class(), Class::Output);
+        assert_eq!(Error::Output(io::Error::from(io::ErrorKind::BrokenPipe)).class(), Class::Output);
         let e = Error::from(Gone);
         assert_eq!(e.class(), Class::Device);
         assert_eq!(e.to_string(), "the head went away");

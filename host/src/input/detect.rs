@@ -145,7 +145,7 @@ pub fn write_csv(args: &Options, out: &mut impl Write, warn: &mut impl Write) ->
             );
         }
         if !header {
-            writeln!(out, "{HEADER}")?;
+            writeln!(out, "{HEADER}").map_err(Error::Output)?;
             header = true;
         }
         let source = csv_field(&name.to_string());
@@ -156,7 +156,8 @@ pub fn write_csv(args: &Options, out: &mut impl Write, warn: &mut impl Write) ->
             };
             r.map_err(|e| Error::Input(format!("{name}: row {i}: {e}")))?;
             for (k, s) in stripes.iter().enumerate() {
-                writeln!(out, "{source},{i},{k},{},{},{},{}", s.position, s.strength, s.width, flag_names(s.flags))?;
+                writeln!(out, "{source},{i},{k},{},{},{},{}", s.position, s.strength, s.width, flag_names(s.flags))
+                    .map_err(Error::Output)?;
             }
         }
     }
