@@ -70,7 +70,7 @@
 // `!(x > limit)` rejects NaN along with the out-of-range values, on purpose.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use crate::fixed::Px;
+use crate::fixed::{Px, Q48_16};
 use crate::optics::{Optics, OpticsError, ScaleRange, sin};
 use crate::protocol::LASERS;
 use micromath::F32;
@@ -490,11 +490,11 @@ impl Triangulator {
         self.profile_q32(laser, position, (row as i64) << 32)
     }
 
-    /// [`Self::profile`] at a fractional row (`row_q16`: rows in Q16.16,
-    /// wide enough for any `u16` row and its fraction): the centre of a
-    /// binned row (`readout::RowSampling::Bin`).
-    pub fn profile_at(&self, laser: usize, position: Px, row_q16: i64) -> Option<ProfilePoint> {
-        self.profile_q32(laser, position, row_q16 << 16)
+    /// [`Self::profile`] at a fractional `row` (wide enough for any `u16`
+    /// row and its fraction): the centre of a binned row
+    /// ([`RowSampling::Bin`](crate::readout::RowSampling::Bin)).
+    pub fn profile_at(&self, laser: usize, position: Px, row: Q48_16) -> Option<ProfilePoint> {
+        self.profile_q32(laser, position, row.0 << 16)
     }
 
     fn profile_q32(&self, laser: usize, position: Px, row_q32: i64) -> Option<ProfilePoint> {
