@@ -83,7 +83,7 @@ fn half_len(s: f64) -> usize {
     (CUT * s).ceil() as usize
 }
 
-/// Half length of the paper's kernels (Eq. 2 taken to 5 s, as before).
+/// Half length of the paper's kernels (Eq. 2 taken to 5 s).
 fn paper_half_len(s: f64) -> usize {
     (5.0 * s).ceil() as usize
 }

@@ -21,7 +21,7 @@
 //! triangulation and every host tool that maps a row to a position along
 //! the rail see the same rows as with a full readout: a skipped readout's
 //! points are a subset of a full one's rows. Recordings of either protocol
-//! version read as before; a profile of a skipped readout spends a skip
+//! version decode alike; a profile of a skipped readout spends a skip
 //! byte on each row record (`protocol::compact`).
 //!
 //! # Validation

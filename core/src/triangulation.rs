@@ -31,7 +31,7 @@
 //! # Precision
 //! The per-point path is `f32` (the STM32H743 has a single-precision FPU) and
 //! stays within 0.1 µm of an `f64` evaluation over the paper's working range
-//! (350–550 mm; `tests/tests/triangulation.rs` measures max 0.06 µm along,
+//! (350–550 mm; `tests/tests/it/triangulation.rs` measures max 0.06 µm along,
 //! 0.05 µm height, 0.07 µm |ΔX|). One ulp of `f32` at 512 mm is 61 nm, so the
 //! camera-frame point itself cannot be stored better than ~0.03 µm, and the
 //! naive `t = d/(n·r), X = t r` — even on the same carefully undistorted ray —

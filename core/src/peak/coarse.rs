@@ -99,12 +99,12 @@ pub fn load_window<P: Pixel>(row: &[P], sat: i32, level: i32, x: &mut [i32], hit
 /// the repair's tests (`SpikeTest::worth_testing`: the top of a bright
 /// stripe passes the first test and fails that one). Where this holds the
 /// repair changes nothing, since it touches only pixels worth testing; where
-/// it does not, the detector copies and repairs as before. One pass, four
+/// it does not, the detector copies the window and repairs it. One pass, four
 /// pixels per iteration, no store.
 ///
 /// Where the pixels are narrow enough (a saturation level `2^b − 1` below
 /// 2^13, the default for sensors of up to 13 bits) and `level` small enough,
-/// two pixels are tested per 32-bit word ([`window_is_clean_pairs`]): the
+/// two pixels are tested per 32-bit word (`window_is_clean_pairs`): the
 /// same answer at about 5 instead of 8.5 instructions a pixel.
 #[inline(never)]
 pub fn window_is_clean<P: Pixel>(row: &[P], sat: i32, level: i32) -> bool {
@@ -114,10 +114,10 @@ pub fn window_is_clean<P: Pixel>(row: &[P], sat: i32, level: i32) -> bool {
     window_is_clean_scalar(row, sat, level)
 }
 
-/// `sat` must be below this for [`window_is_clean_pairs`] (2^13: the
+/// `sat` must be below this for `window_is_clean_pairs` (2^13: the
 /// pixels then fit the lanes with the second difference's range).
 pub const PAIR_SAT_LIMIT: i32 = 1 << 13;
-/// The largest `level` [`window_is_clean_pairs`] takes.
+/// The largest `level` `window_is_clean_pairs` takes.
 pub const PAIR_LEVEL_MAX: i32 = 0x4001;
 
 /// [`window_is_clean`] two pixels per 32-bit word, for `sat = 2^b − 1 <
@@ -188,12 +188,12 @@ struct PairScan {
     all: u32,
 }
 
-/// [`window_is_clean_pairs`]'s loop over chunks of four pixels (`e`: the
+/// `window_is_clean_pairs`'s loop over chunks of four pixels (`e`: the
 /// pair before the first chunk, `k`: the test's constant in both halves),
 /// up to the first chunk with a bit set. A loop of its own with the rare
 /// path's call outside it keeps its five values in registers (with the call
-/// inside, they were spilled to the stack every chunk); inlined, as a call
-/// per scan cost more than the spills.
+/// inside, they are spilled to the stack every chunk); inlined, as a call
+/// per scan costs more than the spills.
 #[inline(always)]
 fn scan_pairs<P: Pixel>(ps: &[[P; 4]], mut e: u32, k: u32) -> PairScan {
     const SIGNS: u32 = 0x8000_8000;

@@ -88,7 +88,7 @@ pub fn response_q8<S: Sample>(x: &[S], c: usize, k: usize) -> Q56_8 {
 /// # Range
 /// The caller guarantees every sample in `0..=sat` with `2·sat < 2^15`
 /// (a sum of two is an i16) and `sat × (ricker_abs + 2^15) < 2^31` on
-/// this rung ([`super::Plan`]'s `ricker32_k`): every partial sum is within
+/// this rung (`Plan`'s `ricker32_k`): every partial sum is within
 /// `±sat × (Σ|ψ| + |ψ(0)|)`, so the sum is exact, the same as the 64-bit
 /// one.
 #[inline(always)]
@@ -340,7 +340,7 @@ fn hi16(w: u32) -> i32 {
 /// # Range
 /// The caller guarantees every sample in `0..=sat` with `sat < 2^15` (so
 /// [`Sample::get16`] is the value) and `sat × deriv_abs < 2^31` for this
-/// rung ([`super::Plan`]'s `slope32_k`): then each of the four sums, and
+/// rung (`Plan`'s `slope32_k`): then each of the four sums, and
 /// every partial sum on the way, is within `±sat × Σ|D|` of its phase's
 /// taps, below 2^31. The sums are exact, so the values equal
 /// [`slope_pair`]'s. Each tap is an i16 half of a word and each sample an

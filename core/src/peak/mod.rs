@@ -15,8 +15,8 @@
 //!    [`NOISE_ROWS`] rows): a robust pixel-noise σ (the median absolute
 //!    second difference, read straight from the row: [`screen::pixel_noise_q8`],
 //!    [`median`]) and the robust σ of the screen's response. Noise and fixed
-//!    pattern are stationary within a frame; a median per row was a fifth of
-//!    the old cost.
+//!    pattern are stationary within a frame, and a median on every row would
+//!    add about a fifth to the detector's cost.
 //! 2. **Screen** ([`screen`]): block sums at the stripe's scale (one load and
 //!    one add per pixel, from the sensor's `u8`/`u16` row, no copy) and a
 //!    difference of boxes over them; candidates are its local maxima above a
@@ -555,7 +555,7 @@ pub struct Candidate {
 /// pixels repaired) at row offset `off`; it reaches further than any
 /// estimator reads ([`Plan::reach_px`]), so within it every estimator sees
 /// what it would see in the whole row, except where the window ends at the
-/// row's own ends (edges replicate there, as before).
+/// row's own ends (edges replicate there, as in the whole row).
 pub(crate) struct RowView<'a, S = i32> {
     /// The window (hot pixels repaired): the detector's copy, or the row
     /// itself where the copy would equal it ([`coarse::window_is_clean`]).
