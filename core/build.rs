@@ -83,7 +83,7 @@ fn half_len(s: f64) -> usize {
     (CUT * s).ceil() as usize
 }
 
-/// Half length of the paper's kernels (Eq. 2 taken to 5 s, as before).
+/// Half length of the paper's kernels (Eq. 2 taken to 5 s).
 fn paper_half_len(s: f64) -> usize {
     (5.0 * s).ceil() as usize
 }
@@ -291,7 +291,7 @@ fn main() {
         let cnoise: f64 = resp.iter().map(|v| v * v).sum::<f64>().sqrt() * scale_down;
         writeln!(
             rungs,
-            "    Rung {{ scale_q16: {}, half_len: {l}, ricker_off: {r_off}, deriv_off: {d_off}, deriv_abs: {deriv_abs}, ricker_abs: {ricker_abs}, norm: {norm}, amp_inv: {amp_inv}, noise_q8: {noise_q8}, box_half: {h}, box_shift: {shift}, lag: {lag}, coarse_gain_q8: {}, coarse_noise_q8: {} }},",
+            "    Rung {{ scale_q16: Px({}), half_len: {l}, ricker_off: {r_off}, deriv_off: {d_off}, deriv_abs: {deriv_abs}, ricker_abs: {ricker_abs}, norm: {norm}, amp_inv: {amp_inv}, noise_q8: Q56_8({noise_q8}), box_half: {h}, box_shift: {shift}, lag: {lag}, coarse_gain_q8: Q56_8({}), coarse_noise_q8: Q56_8({}) }},",
             (s * 65536.0).round() as i64,
             (cgain * 256.0).round() as i64,
             (cnoise * 256.0).round() as i64,

@@ -18,7 +18,7 @@
 //! erasing or writing therefore damages only the slot being written: its CRC
 //! fails, and the previous record is still there and still newest.
 //!
-//! What a load reports ([`Health`]): both slots erased → `Missing`; a valid
+//! What a load reports ([`StoreHealth`]): both slots erased → `Missing`; a valid
 //! record and a damaged slot → `Recovered` (a write was interrupted; the
 //! older record is used); no valid record but damage → `Corrupt` (nothing is
 //! used). A record that decodes but whose content the head refuses (a
@@ -37,7 +37,7 @@
 //! the other slot is used and the load says `Recovered`, and the next save
 //! erases exactly that slot (it never holds the newest valid record) and makes
 //! it readable again. Tested with a flash model whose damaged word "faults"
-//! (`tests/tests/persist.rs`).
+//! (`tests/tests/it/persist.rs`).
 //!
 //! # Cost
 //! One erase (128 KB sector on the STM32H743: about 1–2 s, done while the

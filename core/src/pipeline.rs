@@ -38,7 +38,7 @@
 //! its rows' centre ([`RowSampling`]).
 
 use crate::duty::DutyLimit;
-use crate::fixed::Px;
+use crate::fixed::{Px, Q16_16, Q48_16};
 use crate::odometer::DistanceTrigger;
 use crate::peak::{ColumnWindow, Config, Detector, Select, Stripes, Track, Windows};
 use crate::persist::Stored;
@@ -655,7 +655,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         let parts = height.div_ceil(MAX_ROWS_PER_PROFILE).clamp(1, 255) as u8;
         // A binned row is triangulated at its rows' centre; a whole-frame
         // camera's rows outside the readout are passed over unprocessed.
-        let centre_q16 = if sampling == RowSampling::Bin { readout.bin_centre_q16() } else { 0 };
+        let centre = if sampling == RowSampling::Bin { readout.bin_centre_q16() } else { Q16_16::ZERO };
         let mut next_sensor_row = 0u16;
         self.profile.seq = self.frame_seq;
         self.profile.parts = parts;
@@ -713,7 +713,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 }
                 assign(&stripes, lit, &mut self.track, &mut self.profile.lasers, r);
                 if let Some((_, t)) = &self.calibration {
-                    triangulate(t, &mut self.profile.lasers, r, centre_q16);
+                    triangulate(t, &mut self.profile.lasers, r, centre);
                 }
             }
             // Lend the profile to the message without copying it twice.
@@ -896,16 +896,16 @@ fn assign(
 }
 
 /// Fills in the triangulated point of each laser's point of this row
-/// (sensor row `row`, its centre `centre_q16` rows below: a binned row's).
-fn triangulate(t: &Triangulator, out: &mut Vec<LaserPoints, LASERS>, row: u16, centre_q16: i32) {
+/// (sensor row `row`, its centre `centre` rows below: a binned row's).
+fn triangulate(t: &Triangulator, out: &mut Vec<LaserPoints, LASERS>, row: u16, centre: Q16_16) {
     for lp in out.iter_mut() {
         if let Some(p) = lp.points.last_mut()
             && p.row == row
         {
-            let at = if centre_q16 == 0 {
+            let at = if centre == Q16_16::ZERO {
                 t.profile(lp.laser as usize, p.position, row)
             } else {
-                t.profile_at(lp.laser as usize, p.position, (i64::from(row) << 16) + i64::from(centre_q16))
+                t.profile_at(lp.laser as usize, p.position, Q48_16((i64::from(row) << 16) + i64::from(centre.0)))
             };
             p.metric =
                 at.map(|q| Metric { along_um: round_i32(q.along_mm * 1e3), height_nm: round_i32(q.height_mm * 1e6) });

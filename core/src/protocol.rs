@@ -412,8 +412,8 @@ pub enum HostMsg {
     Start(Start),
     /// Stop streaming (lasers off).
     Stop,
-    /// Exposure time (postcard encodes a one-field struct variant as it
-    /// did the newtype variant this was: the wire bytes are the same).
+    /// Exposure time (postcard encodes a one-field struct variant as a
+    /// newtype variant: version 3's wire bytes are the same).
     SetExposure {
         /// Exposure, µs.
         exposure_us: u32,

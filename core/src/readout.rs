@@ -21,7 +21,7 @@
 //! triangulation and every host tool that maps a row to a position along
 //! the rail see the same rows as with a full readout: a skipped readout's
 //! points are a subset of a full one's rows. Recordings of either protocol
-//! version read as before; a profile of a skipped readout spends a skip
+//! version decode alike; a profile of a skipped readout spends a skip
 //! byte on each row record (`protocol::compact`).
 //!
 //! # Validation
@@ -29,6 +29,8 @@
 //! command (`protocol::HostMsg::SetReadout`) carries the plain numbers and
 //! the head builds the [`Readout`] from them, refusing (`OutOfRange`) what
 //! [`ReadoutError`] names.
+
+use crate::fixed::Q16_16;
 
 /// Read one sensor row in 1, 2 or 4 (the MT9V034's read mode offers ×2
 /// and ×4; `firmware/src/camera.rs` says how it does it).
@@ -211,9 +213,9 @@ pub enum RowSampling {
 
 impl Readout {
     /// Where a binned output row's centre lies below its first sensor row,
-    /// Q16.16 rows: `(skip − 1) / 2`.
-    pub const fn bin_centre_q16(&self) -> i32 {
-        (self.skip.factor() as i32 - 1) << 15
+    /// rows: `(skip − 1) / 2`.
+    pub const fn bin_centre_q16(&self) -> Q16_16 {
+        Q16_16((self.skip.factor() as i32 - 1) << 15)
     }
 }
 
@@ -227,7 +229,7 @@ mod tests {
         assert_eq!((r.rows_read(), r.sensor_row(0), r.sensor_row(199), r.end_row()), (200, 40, 438, 440));
         assert!(r.reads(40) && r.reads(42) && !r.reads(41) && !r.reads(440) && !r.reads(38));
         assert_eq!(Readout::full(480).rows_read(), 480);
-        assert_eq!(Readout::new(0, 480, RowSkip::X4, 480).unwrap().bin_centre_q16(), 3 << 15);
+        assert_eq!(Readout::new(0, 480, RowSkip::X4, 480).unwrap().bin_centre_q16(), Q16_16(3 << 15));
     }
 
     #[test]

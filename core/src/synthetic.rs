@@ -34,7 +34,7 @@
 //! instructions for a 752-px row with three stripes (a third of the
 //! detector's cost).
 
-use crate::fixed::Px;
+use crate::fixed::{Px, UQ8_8};
 use crate::pipeline::Camera;
 use crate::protocol::LASERS;
 use crate::readout::{Readout, RowSampling};
@@ -87,8 +87,8 @@ pub struct SceneConfig {
     pub background: u16,
     /// Background rise across the row, counts.
     pub background_rise: u16,
-    /// Noise RMS, counts × 256.
-    pub noise_q8: u16,
+    /// Noise RMS, counts.
+    pub noise_q8: UQ8_8,
     /// Exposure at which the stripes have their `amplitude`, µs.
     pub nominal_exposure_us: u32,
     /// Travel speed of the head along the rail, µm per ms (= mm/s).
@@ -144,7 +144,7 @@ impl SceneConfig {
             ],
             background: 60,
             background_rise: 60,
-            noise_q8: 640, // 2.5 counts
+            noise_q8: UQ8_8(640), // 2.5 counts
             nominal_exposure_us: 200,
             speed_um_per_ms: 1000,
         }
@@ -259,7 +259,7 @@ impl Scene {
             let b = rng.to_le_bytes();
             let sum = b.iter().map(|&v| v as i64).sum::<i64>() - 510;
             // Irwin–Hall of four bytes: RMS 255·√(4/12) = 147.2 (147 here).
-            let noise = sum * c.noise_q8 as i64 / (147 * 256);
+            let noise = sum * c.noise_q8.0 as i64 / (147 * 256);
             *px = (bg + noise).clamp(0, full) as u16;
         }
         let gain_q16 = ((exposure_us as i64) << 16) / c.nominal_exposure_us as i64;

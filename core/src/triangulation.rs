@@ -31,7 +31,7 @@
 //! # Precision
 //! The per-point path is `f32` (the STM32H743 has a single-precision FPU) and
 //! stays within 0.1 µm of an `f64` evaluation over the paper's working range
-//! (350–550 mm; `tests/tests/triangulation.rs` measures max 0.06 µm along,
+//! (350–550 mm; `tests/tests/it/triangulation.rs` measures max 0.06 µm along,
 //! 0.05 µm height, 0.07 µm |ΔX|). One ulp of `f32` at 512 mm is 61 nm, so the
 //! camera-frame point itself cannot be stored better than ~0.03 µm, and the
 //! naive `t = d/(n·r), X = t r` — even on the same carefully undistorted ray —
@@ -70,7 +70,7 @@
 // `!(x > limit)` rejects NaN along with the out-of-range values, on purpose.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use crate::fixed::Px;
+use crate::fixed::{Px, Q48_16};
 use crate::optics::{Optics, OpticsError, ScaleRange, sin};
 use crate::protocol::LASERS;
 use micromath::F32;
@@ -490,11 +490,11 @@ impl Triangulator {
         self.profile_q32(laser, position, (row as i64) << 32)
     }
 
-    /// [`Self::profile`] at a fractional row (`row_q16`: rows in Q16.16,
-    /// wide enough for any `u16` row and its fraction): the centre of a
-    /// binned row (`readout::RowSampling::Bin`).
-    pub fn profile_at(&self, laser: usize, position: Px, row_q16: i64) -> Option<ProfilePoint> {
-        self.profile_q32(laser, position, row_q16 << 16)
+    /// [`Self::profile`] at a fractional `row` (wide enough for any `u16`
+    /// row and its fraction): the centre of a binned row
+    /// ([`RowSampling::Bin`](crate::readout::RowSampling::Bin)).
+    pub fn profile_at(&self, laser: usize, position: Px, row: Q48_16) -> Option<ProfilePoint> {
+        self.profile_q32(laser, position, row.0 << 16)
     }
 
     fn profile_q32(&self, laser: usize, position: Px, row_q32: i64) -> Option<ProfilePoint> {

@@ -48,7 +48,6 @@ use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, dcmi, dma, i2c, pac, timer, usb};
 use static_cell::StaticCell;
 
-use crate::camera;
 use crate::lasers::Lasers;
 use crate::link::UsbDriver;
 
@@ -56,7 +55,6 @@ bind_interrupts!(pub struct Irqs {
     OTG_FS => usb::InterruptHandler<peripherals::USB_OTG_FS>;
     DCMI => dcmi::InterruptHandler<peripherals::DCMI>;
     DMA1_STREAM0 => dma::InterruptHandler<peripherals::DMA1_CH0>;
-    DMA2_STREAM1 => camera::RingInterrupt;
     I2C1_EV => i2c::EventInterruptHandler<peripherals::I2C1>;
     I2C1_ER => i2c::ErrorInterruptHandler<peripherals::I2C1>;
 });

@@ -65,10 +65,10 @@ use embassy_stm32::dcmi::Dcmi;
 use embassy_stm32::gpio::Output;
 use embassy_stm32::i2c::{I2c, Master};
 use embassy_stm32::mode::Blocking;
-use embassy_stm32::pac;
 use embassy_stm32::pac::dma::vals::{Dir, Dmdis, Fth, Pl, Size};
 use embassy_stm32::peripherals::{DCMI, TIM5};
 use embassy_stm32::timer::qei::Qei;
+use embassy_stm32::{bind_interrupts, pac};
 use static_cell::StaticCell;
 
 use crate::board;
@@ -104,8 +104,17 @@ static HALVES: AtomicU32 = AtomicU32::new(0);
 /// A DMA transfer error happened.
 static DMA_ERROR: AtomicBool = AtomicBool::new(false);
 
-/// Handler of the ring's DMA interrupt (bound in `main.rs`).
-pub struct RingInterrupt;
+/// Handler of the ring's DMA interrupt, bound here with the stream it
+/// serves (the board binds the interrupts of the drivers it creates).
+struct RingInterrupt;
+
+bind_interrupts!(
+    /// The binding's proof, which nothing asks for: the ring's DMA is
+    /// driven through the PAC, not by an embassy driver.
+    struct RingIrqs {
+        DMA2_STREAM1 => RingInterrupt;
+    }
+);
 
 impl embassy_stm32::interrupt::typelevel::Handler<embassy_stm32::interrupt::typelevel::DMA2_STREAM1> for RingInterrupt {
     unsafe fn on_interrupt() {

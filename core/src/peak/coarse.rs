@@ -17,6 +17,7 @@
 
 use super::Pixel;
 use super::kernels::Rung;
+use crate::fixed::{Q24_8, Q48_16};
 use core::cell::Cell;
 use heapless::Vec;
 
@@ -24,10 +25,10 @@ use heapless::Vec;
 pub const MAX_SPIKES: usize = 64;
 
 /// The spike screen's first test, `2x₀ − x₋ − x₊ > 7 σ√6` (8.6 σ above the
-/// neighbours' mean): its threshold for a pixel noise of `noise_q8`
-/// (counts × 256).
-pub fn spike_screen_level(noise_q8: i32) -> i32 {
-    ((noise_q8 as i64 * 7 * 627) >> 16).clamp(1, i32::MAX as i64) as i32 // 627/256 = √6
+/// neighbours' mean): its threshold, counts, for a pixel noise σ of
+/// `noise` counts.
+pub fn spike_screen_level(noise: Q24_8) -> i32 {
+    ((noise.to_bits() as i64 * 7 * 627) >> 16).clamp(1, i32::MAX as i64) as i32 // 627/256 = √6
 }
 
 /// Copies `row` into `x` (as long), values above `sat` clamped, and lists
@@ -98,12 +99,12 @@ pub fn load_window<P: Pixel>(row: &[P], sat: i32, level: i32, x: &mut [i32], hit
 /// the repair's tests (`SpikeTest::worth_testing`: the top of a bright
 /// stripe passes the first test and fails that one). Where this holds the
 /// repair changes nothing, since it touches only pixels worth testing; where
-/// it does not, the detector copies and repairs as before. One pass, four
+/// it does not, the detector copies the window and repairs it. One pass, four
 /// pixels per iteration, no store.
 ///
 /// Where the pixels are narrow enough (a saturation level `2^b − 1` below
 /// 2^13, the default for sensors of up to 13 bits) and `level` small enough,
-/// two pixels are tested per 32-bit word ([`window_is_clean_pairs`]): the
+/// two pixels are tested per 32-bit word (`window_is_clean_pairs`): the
 /// same answer at about 5 instead of 8.5 instructions a pixel.
 #[inline(never)]
 pub fn window_is_clean<P: Pixel>(row: &[P], sat: i32, level: i32) -> bool {
@@ -113,10 +114,10 @@ pub fn window_is_clean<P: Pixel>(row: &[P], sat: i32, level: i32) -> bool {
     window_is_clean_scalar(row, sat, level)
 }
 
-/// `sat` must be below this for [`window_is_clean_pairs`] (2^13: the
+/// `sat` must be below this for `window_is_clean_pairs` (2^13: the
 /// pixels then fit the lanes with the second difference's range).
 pub const PAIR_SAT_LIMIT: i32 = 1 << 13;
-/// The largest `level` [`window_is_clean_pairs`] takes.
+/// The largest `level` `window_is_clean_pairs` takes.
 pub const PAIR_LEVEL_MAX: i32 = 0x4001;
 
 /// [`window_is_clean`] two pixels per 32-bit word, for `sat = 2^b − 1 <
@@ -187,12 +188,12 @@ struct PairScan {
     all: u32,
 }
 
-/// [`window_is_clean_pairs`]'s loop over chunks of four pixels (`e`: the
+/// `window_is_clean_pairs`'s loop over chunks of four pixels (`e`: the
 /// pair before the first chunk, `k`: the test's constant in both halves),
 /// up to the first chunk with a bit set. A loop of its own with the rare
 /// path's call outside it keeps its five values in registers (with the call
-/// inside, they were spilled to the stack every chunk); inlined, as a call
-/// per scan cost more than the spills.
+/// inside, they are spilled to the stack every chunk); inlined, as a call
+/// per scan costs more than the spills.
 #[inline(always)]
 fn scan_pairs<P: Pixel>(ps: &[[P; 4]], mut e: u32, k: u32) -> PairScan {
     const SIGNS: u32 = 0x8000_8000;
@@ -303,15 +304,16 @@ fn push_hits(w: &[i32; 6], i: usize, level: i32, hits: &mut Vec<usize, MAX_SPIKE
 /// level up to full scale — in place; returns how many pixels. Screens the
 /// whole of `x` first ([`load_window`] does that while copying; see
 /// [`repair_spikes`] for the tests).
-pub fn remove_spikes(x: &mut [i32], noise_q8: i32, k_q16: i64) -> u16 {
-    let level = spike_screen_level(noise_q8);
+pub fn remove_spikes(x: &mut [i32], noise: Q24_8, k: Q48_16) -> u16 {
+    let level = spike_screen_level(noise);
     let mut hits: Vec<usize, MAX_SPIKES> = Vec::new();
     scan3(x, |a, b, c| 2 * b - a - c > level, |i, _, _, _| hits.push(i).is_ok());
-    repair_spikes(x, &hits, noise_q8, k_q16)
+    repair_spikes(x, &hits, noise, k)
 }
 
 /// Repairs the hot and stuck pixels among `hits` (pixels that passed the
-/// screen's first test, ascending); returns how many pixels.
+/// screen's first test, ascending) for a pixel noise σ of `noise` counts and
+/// the factor `k` (`K` below); returns how many pixels.
 ///
 /// After subtracting the local background (the minimum over ±3 px of the
 /// pixel or pair):
@@ -342,14 +344,15 @@ pub fn remove_spikes(x: &mut [i32], noise_q8: i32, k_q16: i64) -> u16 {
 /// Gaussian top of σ ≳ 1 px has positive ones there. A candidate goes on
 /// to the background and products only when the flanks' sum is below
 /// `level − D/4` (`level` the first test's threshold).
-pub fn repair_spikes(x: &mut [i32], hits: &[usize], noise_q8: i32, k_q16: i64) -> u16 {
+pub fn repair_spikes(x: &mut [i32], hits: &[usize], noise: Q24_8, k: Q48_16) -> u16 {
+    let (noise_q8, k_q16) = (noise.to_bits(), k.to_bits());
     let n = x.len();
     if n < 3 {
         return 0;
     }
     let t = SpikeTest {
         margin: 3 * ((noise_q8 as i64 + 128) >> 8),
-        level: spike_screen_level(noise_q8) as i64,
+        level: spike_screen_level(noise) as i64,
         k_q16,
         k2_q16: (k_q16 * k_q16) >> 16,
     };
@@ -706,8 +709,8 @@ mod tests {
         // A hot pixel on a flat background of 100 with noise 0.
         let mut x = [100i32; 16];
         x[8] = 900;
-        let k = (core::f64::consts::E * 65536.0) as i64; // σ_min = 1
-        assert_eq!(remove_spikes(&mut x, 256, k), 1);
+        let k = Q48_16((core::f64::consts::E * 65536.0) as i64); // σ_min = 1
+        assert_eq!(remove_spikes(&mut x, Q24_8::ONE, k), 1);
         assert!(x[8] < 110);
         // Gaussians of σ = 1.05 … 4 at any sub-pixel offset are untouched,
         // even 20 times above the noise.
@@ -718,28 +721,28 @@ mod tests {
                     let t = i as f64 - 20.0 - tenth as f64 / 10.0;
                     (100.0 + 3000.0 * std::primitive::f64::exp(-t * t / (2.0 * sigma * sigma))) as i32
                 });
-                assert_eq!(remove_spikes(&mut g, 256, k), 0, "σ {sigma}");
+                assert_eq!(remove_spikes(&mut g, Q24_8::ONE, k), 0, "σ {sigma}");
             }
         }
     }
 
     #[test]
     fn stuck_pixels_and_pairs_at_full_scale_are_repaired() {
-        let k = (core::f64::consts::E * 65536.0) as i64; // σ_min = 1
+        let k = Q48_16((core::f64::consts::E * 65536.0) as i64); // σ_min = 1
         // A single pixel and a pair at full scale on a flat background.
         let mut x = [100i32; 24];
         x[6] = 4095;
         x[15] = 4095;
         x[16] = 4095;
-        assert_eq!(remove_spikes(&mut x, 256, k), 3);
+        assert_eq!(remove_spikes(&mut x, Q24_8::ONE, k), 3);
         assert!(x.iter().all(|&v| v < 110), "{x:?}");
         // The same copied by load_window, clamped to a lower saturation.
         let row: [u16; 24] = core::array::from_fn(|i| if i == 9 { 4095 } else { 100 });
         let (mut y, mut hits) = ([0i32; 24], Vec::new());
-        load_window(&row, 1000, spike_screen_level(256), &mut y, &mut hits);
+        load_window(&row, 1000, spike_screen_level(Q24_8::ONE), &mut y, &mut hits);
         assert_eq!(y[9], 1000);
         assert_eq!(&hits[..], &[9]);
-        assert_eq!(repair_spikes(&mut y, &hits, 256, k), 1);
+        assert_eq!(repair_spikes(&mut y, &hits, Q24_8::ONE, k), 1);
         assert!(y[9] < 110);
     }
 }

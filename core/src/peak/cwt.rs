@@ -52,11 +52,11 @@
 
 use super::kernels::{self, Deriv, NORM_SHIFT, PHASES, RUNGS};
 use super::{Flags, RowView, Sample, Stripe};
-use crate::fixed::Px;
+use crate::fixed::{Px, Q56_8};
 
 /// The `s^(−3/2)`-normalised Ricker response at integer `c` on rung `k`,
-/// counts × 256. Taps past the row's edge read the edge pixel.
-pub fn response_q8<S: Sample>(x: &[S], c: usize, k: usize) -> i64 {
+/// counts. Taps past the row's edge read the edge pixel.
+pub fn response_q8<S: Sample>(x: &[S], c: usize, k: usize) -> Q56_8 {
     let h = kernels::ricker(k);
     let n = x.len();
     let l = h.len() - 1;
@@ -76,7 +76,7 @@ pub fn response_q8<S: Sample>(x: &[S], c: usize, k: usize) -> i64 {
             acc += w as i64 * (a + b) as i64;
         }
     }
-    (acc * RUNGS[k].norm) >> NORM_SHIFT
+    Q56_8((acc * RUNGS[k].norm) >> NORM_SHIFT)
 }
 
 /// `Σ x[i] ψ(i − c)` on rung `k` (before the normalisation of
@@ -88,7 +88,7 @@ pub fn response_q8<S: Sample>(x: &[S], c: usize, k: usize) -> i64 {
 /// # Range
 /// The caller guarantees every sample in `0..=sat` with `2·sat < 2^15`
 /// (a sum of two is an i16) and `sat × (ricker_abs + 2^15) < 2^31` on
-/// this rung ([`super::Plan`]'s `ricker32_k`): every partial sum is within
+/// this rung (`Plan`'s `ricker32_k`): every partial sum is within
 /// `±sat × (Σ|ψ| + |ψ(0)|)`, so the sum is exact, the same as the 64-bit
 /// one.
 #[inline(always)]
@@ -182,7 +182,7 @@ impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
 
     /// [`response_q8`] at the current position on rung `k`.
     #[inline(always)]
-    pub fn response_q8(&mut self, k: usize) -> i64 {
+    pub fn response_q8(&mut self, k: usize) -> Q56_8 {
         let l = RUNGS[k].half_len;
         if l >= self.len && !self.extend(l) {
             return response_q8(self.x, self.c, k);
@@ -200,7 +200,7 @@ impl<'a, 'b, S: Sample> Folded<'a, 'b, S> {
             acc += w as i64 * p as i64;
         }
         let acc = acc + acc2;
-        (acc * RUNGS[k].norm) >> NORM_SHIFT
+        Q56_8((acc * RUNGS[k].norm) >> NORM_SHIFT)
     }
 }
 
@@ -340,7 +340,7 @@ fn hi16(w: u32) -> i32 {
 /// # Range
 /// The caller guarantees every sample in `0..=sat` with `sat < 2^15` (so
 /// [`Sample::get16`] is the value) and `sat × deriv_abs < 2^31` for this
-/// rung ([`super::Plan`]'s `slope32_k`): then each of the four sums, and
+/// rung (`Plan`'s `slope32_k`): then each of the four sums, and
 /// every partial sum on the way, is within `±sat × Σ|D|` of its phase's
 /// taps, below 2^31. The sums are exact, so the values equal
 /// [`slope_pair`]'s. Each tap is an i16 half of a word and each sample an
@@ -683,7 +683,7 @@ pub(crate) fn confirm<S: Sample>(
                 return r32((acc as i64 * (RUNGS[k].norm as i32) as i64) >> NORM_SHIFT);
             }
             folded.at(c);
-            r32(folded.response_q8(k))
+            r32(folded.response_q8(k).0)
         };
         let mut k = k0;
         let mut here = response(k);
@@ -734,22 +734,22 @@ pub(crate) fn confirm<S: Sample>(
             0
         }
     };
-    let guess = if RUNGS[kb].scale_q16 < 4 << 16 {
+    let guess = if RUNGS[kb].scale_q16.0 < 4 << 16 {
         if c > 0 && c + 1 < n { vertex(x[c - 1].get(), x[c].get(), x[c + 1].get()) } else { 0 }
     } else {
         let mut best = resp[1];
-        let mut left = if c > 0 { r32(response_q8(x, c - 1, kb)) } else { i32::MIN };
-        let mut right = if c + 1 < n { r32(response_q8(x, c + 1, kb)) } else { i32::MIN };
+        let mut left = if c > 0 { r32(response_q8(x, c - 1, kb).0) } else { i32::MIN };
+        let mut right = if c + 1 < n { r32(response_q8(x, c + 1, kb).0) } else { i32::MIN };
         let mut moved = 0;
         while moved < 6 {
             if right > best && right >= left {
                 c += 1;
                 (left, best) = (best, right);
-                right = if c + 1 < n { r32(response_q8(x, c + 1, kb)) } else { i32::MIN };
+                right = if c + 1 < n { r32(response_q8(x, c + 1, kb).0) } else { i32::MIN };
             } else if left > best {
                 c -= 1;
                 (right, best) = (best, left);
-                left = if c > 0 { r32(response_q8(x, c - 1, kb)) } else { i32::MIN };
+                left = if c > 0 { r32(response_q8(x, c - 1, kb).0) } else { i32::MIN };
             } else {
                 break;
             }
@@ -790,10 +790,10 @@ pub(crate) fn confirm<S: Sample>(
     // σ̂ = s_kb · 2^(dk/4) ≈ s_kb (1 + y + y²/2), y = dk · ln2/4 (11357/65536).
     let y = (dk_q16 * 11357) >> 16;
     let factor = 65536 + y + ((y * y) >> 17);
-    let width = Px(((RUNGS[kb].scale_q16 as i64 * factor) >> 16) as i32);
+    let width = Px(((RUNGS[kb].scale_q16.0 as i64 * factor) >> 16) as i32);
 
     // Detection test at the best scale: response above threshold × its noise.
-    let noise_resp_q8 = (v.noise_q8 as i64 * RUNGS[kb].noise_q8) >> 8;
+    let noise_resp_q8 = (v.noise_q8 as i64 * RUNGS[kb].noise_q8.0) >> 8;
     let thr = (noise_resp_q8 * v.cfg.threshold_sigma_q8 as i64) >> 8;
     let amplitude = (r0 as i64 * RUNGS[kb].amp_inv) >> 24;
     let r0 = r0 as i64;
@@ -806,7 +806,7 @@ pub(crate) fn confirm<S: Sample>(
         // wide, weak stripe (1 row in about 2 000 of white noise σ 5 put
         // one within 2 s of the end). There a stripe must pass twice the
         // threshold.
-        let reach_px = ((3 * RUNGS[kb].scale_q16 as i64) >> 16) as usize + 1;
+        let reach_px = ((3 * RUNGS[kb].scale_q16.0 as i64) >> 16) as usize + 1;
         if v.clipped(c, reach_px) {
             return Ok(None);
         }
@@ -877,7 +877,7 @@ mod tests {
         extern crate std;
         let mut worst = [0.0f64; 3];
         for sigma in [1.5f64, 2.5, 4.0, 10.0] {
-            let j = kernels::nearest_rung((1.5 * sigma * 65536.0) as i32);
+            let j = kernels::nearest_rung(Px::from_f64(1.5 * sigma));
             let d = kernels::deriv(j);
             for o in 0..64 {
                 let x0 = 80.0 + o as f64 / 64.0;
@@ -936,7 +936,7 @@ mod tests {
                     for c in 0..x.len() {
                         match ricker_sum32(x, c, k) {
                             Some(acc) => {
-                                assert_eq!((acc as i64 * rung.norm) >> NORM_SHIFT, response_q8(x, c, k), "k {k} c {c}")
+                                assert_eq!((acc as i64 * rung.norm) >> NORM_SHIFT, response_q8(x, c, k).0, "{k} {c}")
                             }
                             None => assert!(c < reach || c + reach >= x.len(), "k {k} c {c}"),
                         }
@@ -961,7 +961,7 @@ mod tests {
                         let sum: i64 = (-(h.len() as isize - 1)..h.len() as isize)
                             .map(|m| h[m.unsigned_abs()] as i64 * at(c as isize + m))
                             .sum();
-                        assert_eq!(response_q8(x, c, k), (sum * RUNGS[k].norm) >> NORM_SHIFT, "k {k} c {c} n {n}");
+                        assert_eq!(response_q8(x, c, k).0, (sum * RUNGS[k].norm) >> NORM_SHIFT, "k {k} c {c} n {n}");
                         let mut buf = [0i32; 160];
                         let mut f = Folded::new(x, c, &mut buf[..n]);
                         for k2 in [k, k + 2, k + 1] {

@@ -8,11 +8,13 @@
 
 #![allow(missing_docs)]
 
+use crate::fixed::{Px, Q56_8};
+
 /// One rung of the scale ladder `s_k = 2^(k/4)` px.
 #[derive(Clone, Copy, Debug)]
 pub struct Rung {
-    /// The scale, Q16.16 px.
-    pub scale_q16: i32,
+    /// The scale.
+    pub scale_q16: Px,
     /// Half length of the kernels: taps at offsets −half_len..=half_len (= ceil(4 s)).
     pub half_len: usize,
     /// Start of this rung's half-kernel in [`RICKER`] (offsets 0..=half_len).
@@ -31,18 +33,18 @@ pub struct Rung {
     pub norm: i64,
     /// Amplitude from response: `A = R_q8 · amp_inv >> 24` counts.
     pub amp_inv: i64,
-    /// Standard deviation of `R` (counts, Q8) per count of white pixel noise.
-    pub noise_q8: i64,
+    /// Standard deviation of `R`, counts, per count of white pixel noise.
+    pub noise_q8: Q56_8,
     /// Coarse pass: box half-width (three boxes of width 2h+1).
     pub box_half: usize,
     /// Coarse pass: right shift after each box pass.
     pub box_shift: u32,
     /// Coarse pass: lag of the second difference.
     pub lag: usize,
-    /// Coarse response to a unit-amplitude Gaussian of σ = s, Q8.
-    pub coarse_gain_q8: i64,
-    /// Coarse response std per count of white pixel noise, Q8.
-    pub coarse_noise_q8: i64,
+    /// Coarse response to a unit-amplitude Gaussian of σ = s.
+    pub coarse_gain_q8: Q56_8,
+    /// Coarse response std per count of white pixel noise.
+    pub coarse_noise_q8: Q56_8,
 }
 
 include!(concat!(env!("OUT_DIR"), "/kernels.rs"));
@@ -195,13 +197,14 @@ pub fn paper(s: usize) -> &'static [i16] {
 }
 
 /// The rung whose scale is nearest to `px` on the log axis, clamped to the ladder.
-pub fn nearest_rung(px_q16: i32) -> usize {
+pub fn nearest_rung(px: Px) -> usize {
+    let px_q16 = px.0;
     let mut best = 0;
     for (k, r) in RUNGS.iter().enumerate() {
         // Compare on the log axis: geometric midpoints between rungs.
         if k > 0 {
-            let lo = RUNGS[k - 1].scale_q16 as i64;
-            let mid_sq = lo * r.scale_q16 as i64; // midpoint² on the log axis
+            let lo = RUNGS[k - 1].scale_q16.0 as i64;
+            let mid_sq = lo * r.scale_q16.0 as i64; // midpoint² on the log axis
             if (px_q16 as i64) * (px_q16 as i64) >= mid_sq {
                 best = k;
             }
@@ -262,11 +265,11 @@ mod tests {
 
     #[test]
     fn ladder_and_nearest() {
-        assert_eq!(RUNGS[0].scale_q16, 65536);
-        assert_eq!(RUNGS[4].scale_q16, 131072);
-        assert_eq!(nearest_rung(65536 * 2), 4);
-        assert_eq!(nearest_rung(65536 * 3), 6); // 2^(6/4) = 2.83
-        assert_eq!(nearest_rung(1), 0);
-        assert_eq!(nearest_rung(i32::MAX), LADDER_LEN - 1);
+        assert_eq!(RUNGS[0].scale_q16, Px::ONE);
+        assert_eq!(RUNGS[4].scale_q16, Px::from_int(2));
+        assert_eq!(nearest_rung(Px::from_int(2)), 4);
+        assert_eq!(nearest_rung(Px::from_int(3)), 6); // 2^(6/4) = 2.83
+        assert_eq!(nearest_rung(Px(1)), 0);
+        assert_eq!(nearest_rung(Px(i32::MAX)), LADDER_LEN - 1);
     }
 }

@@ -15,8 +15,8 @@
 //!    [`NOISE_ROWS`] rows): a robust pixel-noise σ (the median absolute
 //!    second difference, read straight from the row: [`screen::pixel_noise_q8`],
 //!    [`median`]) and the robust σ of the screen's response. Noise and fixed
-//!    pattern are stationary within a frame; a median per row was a fifth of
-//!    the old cost.
+//!    pattern are stationary within a frame, and a median on every row would
+//!    add about a fifth to the detector's cost.
 //! 2. **Screen** ([`screen`]): block sums at the stripe's scale (one load and
 //!    one add per pixel, from the sensor's `u8`/`u16` row, no copy) and a
 //!    difference of boxes over them; candidates are its local maxima above a
@@ -51,7 +51,7 @@ pub mod screen;
 pub mod subpixel;
 pub mod window;
 
-use crate::fixed::Px;
+use crate::fixed::{Px, Q24_8, Q48_16, UQ8_8Bits};
 use crate::optics::ScaleRange;
 use heapless::Vec;
 pub use window::{ColumnWindow, Track, WindowError, Windows};
@@ -280,8 +280,8 @@ pub struct Config {
     pub max_stripes: u8,
     /// Which stripes to keep when there are more.
     pub select: Select,
-    /// Detection threshold in multiples of the robust noise σ, Q8 (×256).
-    pub threshold_sigma_q8: u16,
+    /// Detection threshold in multiples of the robust noise σ: [`UQ8_8`](crate::fixed::UQ8_8) bits.
+    pub threshold_sigma_q8: UQ8_8Bits,
     /// Absolute floor: smallest stripe height above background, counts.
     pub min_amplitude: u16,
     /// Stripes closer than this are one (the stronger is kept).
@@ -366,8 +366,8 @@ impl core::error::Error for Error {}
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct RowStats {
-    /// Robust pixel-noise σ, counts × 256.
-    pub noise_q8: i32,
+    /// Robust pixel-noise σ, counts.
+    pub noise_q8: Q24_8,
     /// Candidates above threshold after the coarse pass.
     pub candidates: u16,
     /// Hot pixels replaced.
@@ -423,7 +423,7 @@ pub(crate) struct Plan {
 fn rung_floor(px: Px) -> usize {
     let mut k = 0;
     for (i, r) in kernels::RUNGS.iter().enumerate() {
-        if r.scale_q16 <= px.0 {
+        if r.scale_q16 <= px {
             k = i;
         }
     }
@@ -431,7 +431,7 @@ fn rung_floor(px: Px) -> usize {
 }
 
 fn rung_ceil(px: Px) -> usize {
-    kernels::RUNGS.iter().position(|r| r.scale_q16 >= px.0).unwrap_or(kernels::LADDER_LEN - 1)
+    kernels::RUNGS.iter().position(|r| r.scale_q16 >= px).unwrap_or(kernels::LADDER_LEN - 1)
 }
 
 /// exp(x) for 0 ≤ x ≤ 4 by series (configuration only).
@@ -472,7 +472,7 @@ impl Plan {
         let k_lo = rung_floor(smin);
         let k_hi = rung_ceil(smax).max(k_lo + 1);
         let geo = (smin.0 as u64 * smax.0 as u64).isqrt();
-        let k_coarse = kernels::nearest_rung(geo as i32);
+        let k_coarse = kernels::nearest_rung(Px(geo as i32));
         let paper_lo = (smin.0 as usize).div_ceil(65536).max(1);
         let paper_hi = (smax.0 as usize >> 16).max(paper_lo);
         let w = cfg.min_width.to_f64().max(0.5);
@@ -521,8 +521,8 @@ impl Plan {
             slope32_k,
             ricker32_k,
             smin_floor_px: ((smin.0 as usize) >> 16).max(1),
-            block_log2: screen::block_log2(geo as i32),
-            screen_white_q8: (((4u64 << screen::block_log2(geo as i32)) << 16).isqrt()) as i64,
+            block_log2: screen::block_log2(Px(geo as i32)),
+            screen_white_q8: (((4u64 << screen::block_log2(Px(geo as i32))) << 16).isqrt()) as i64,
             reach_px,
             typ_reach_px,
             method_reach_px,
@@ -555,7 +555,7 @@ pub struct Candidate {
 /// pixels repaired) at row offset `off`; it reaches further than any
 /// estimator reads ([`Plan::reach_px`]), so within it every estimator sees
 /// what it would see in the whole row, except where the window ends at the
-/// row's own ends (edges replicate there, as before).
+/// row's own ends (edges replicate there, as in the whole row).
 pub(crate) struct RowView<'a, S = i32> {
     /// The window (hot pixels repaired): the detector's copy, or the row
     /// itself where the copy would equal it ([`coarse::window_is_clean`]).
@@ -786,7 +786,7 @@ impl<const W: usize> Detector<W> {
         let lb = self.plan.block_log2;
         let screened = screen::screens(n, lb);
         if self.refresh_in == 0 || self.noise_len != n {
-            self.noise_q8 = screen::pixel_noise_q8(row, sat, &mut self.s[..n]);
+            self.noise_q8 = screen::pixel_noise_q8(row, sat, &mut self.s[..n]).to_bits();
             // Robust σ of the screen's block response, counts × 256.
             let screen_sigma_q8 = if screened {
                 let m = screen::responses(row, lb, &mut self.s[..n]);
@@ -796,20 +796,20 @@ impl<const W: usize> Detector<W> {
                 // σ gives (`R` sums 4B pixels of weight ±1: σ·√(4B)); fixed
                 // pattern that the difference of boxes passes stays in.
                 let white_q8 = (self.noise_q8 as i64 * self.plan.screen_white_q8) >> 8;
-                (screen::sigma_q8(&mut self.s[..m]) as i64).min(2 * white_q8).clamp(0, i32::MAX as i64) as i32
+                (screen::sigma_q8(&mut self.s[..m]).to_bits() as i64).min(2 * white_q8).clamp(0, i32::MAX as i64) as i32
             } else {
                 0
             };
             if self.noise_len != n {
                 // It depends on the row's length only (a square root and a
                 // division in software on the M7: once per length).
-                self.margin_q8 = screen::detection_margin_q8(screen::noise_samples(n));
+                self.margin_q8 = screen::detection_margin_q8(screen::noise_samples(n)).to_bits();
             }
             // What the thresholds use: the estimates with their
             // small-sample margin (the statistics report the estimate itself).
             let margin = |q8: i32| ((q8 as i64 * self.margin_q8 as i64) >> 8).min(i32::MAX as i64) as i32;
             self.detect_noise_q8 = margin(self.noise_q8);
-            self.spike_level = coarse::spike_screen_level(self.detect_noise_q8);
+            self.spike_level = coarse::spike_screen_level(Q24_8(self.detect_noise_q8));
             let thr_noise =
                 (margin(screen_sigma_q8) as i64 * self.cfg.threshold_sigma_q8 as i64 * SCREEN_FRACTION_Q8) >> 24;
             let thr_abs = self.cfg.min_amplitude as i64 * self.plan.smin_floor_px as i64;
@@ -818,7 +818,7 @@ impl<const W: usize> Detector<W> {
             self.noise_len = n;
         }
         self.refresh_in -= 1;
-        self.stats.noise_q8 = self.noise_q8;
+        self.stats.noise_q8 = Q24_8(self.noise_q8);
         screened
     }
 
@@ -942,7 +942,7 @@ impl<const W: usize> Detector<W> {
         };
         if let Some(s) = stripe
             && (s.width >= self.cfg.min_width && s.width <= self.cfg.max_width || s.flags.contains(Flags::SATURATED))
-            && windows.is_none_or(|w| w.contains(s.position.0))
+            && windows.is_none_or(|w| w.contains(s.position))
         {
             let _ = found.push(s);
         }
@@ -977,7 +977,7 @@ impl<const W: usize> Detector<W> {
         let needs_g = matches!(self.cfg.method, Method::CogFiltered | Method::FirZero);
         let x = &mut self.x[..w];
         coarse::load_window(&row[lo..hi], sat, level, x, &mut hits);
-        let spikes = coarse::repair_spikes(x, &hits, noise_q8, self.plan.spike_k_q16);
+        let spikes = coarse::repair_spikes(x, &hits, Q24_8(noise_q8), Q48_16(self.plan.spike_k_q16));
         if needs_g {
             let rung = &kernels::RUNGS[self.plan.k_coarse];
             coarse::response(x, &mut self.r[..w], &mut self.s[..w], &mut self.g[..w], rung);

@@ -44,14 +44,15 @@
 
 use super::median::Histogram;
 use super::{Candidate, MAX_CANDIDATES, Pixel};
+use crate::fixed::{Px, Q24_8};
 use heapless::Vec;
 
-/// log2 of the block width for a coarse scale of `s_q16` (Q16.16 px): the
-/// power of two nearest to 2.8 s (on a log axis; see the module doc), at
-/// least 2 px, at most 32 px.
-pub fn block_log2(s_q16: i32) -> u32 {
+/// log2 of the block width for a coarse scale of `s` px: the power of two
+/// nearest to 2.8 s (on a log axis; see the module doc), at least 2 px, at
+/// most 32 px.
+pub fn block_log2(s: Px) -> u32 {
     // 2.8 s in Q16, then the nearest power of two: compare with 2^(k + ½).
-    let target = (s_q16 as i64 * 28 / 10).max(1);
+    let target = (s.0 as i64 * 28 / 10).max(1);
     let mut k = 1u32;
     // 2^(k+½) in Q16 = 2^k · 92682 (√2 · 65536).
     while k < 5 && target > ((1i64 << k) * 92_682) {
@@ -292,9 +293,9 @@ pub fn responses<P: Pixel>(row: &[P], log2_b: u32, out: &mut [i32]) -> usize {
     m
 }
 
-/// Robust σ of the block responses (Q8): 1.4826 · median |R| (380/256).
+/// Robust σ of the block responses, counts: 1.4826 · median |R| (380/256).
 /// `scratch` holds the responses on entry (reordered).
-pub fn sigma_q8(scratch: &mut [i32]) -> i32 {
+pub fn sigma_q8(scratch: &mut [i32]) -> Q24_8 {
     let mut h = Histogram::new();
     for v in scratch.iter_mut() {
         *v = v.saturating_abs();
@@ -303,9 +304,9 @@ pub fn sigma_q8(scratch: &mut [i32]) -> i32 {
     h.set_total(scratch.len());
     let m = scratch.len();
     if m == 0 {
-        return 0;
+        return Q24_8::ZERO;
     }
-    h.kth(scratch, m / 2).saturating_mul(380)
+    Q24_8(h.kth(scratch, m / 2).saturating_mul(380))
 }
 
 /// Rows shorter than this measure their noise on every second difference
@@ -321,7 +322,7 @@ pub const fn noise_samples(n: usize) -> usize {
     if n < NOISE_EVERY_TRIPLE_BELOW { n.saturating_sub(2) } else { n / 3 }
 }
 
-/// Robust pixel-noise σ (Q8) straight from the sensor's row, values above
+/// Robust pixel-noise σ, counts, straight from the sensor's row, values above
 /// `sat` clamped: for white noise `x[i−1] − 2x[i] + x[i+1]` has σ√6 and
 /// median |·| = 0.6745 σ√6, so σ = 0.6053 × the median (155/256). Every
 /// third window (the row's chunks of three): the median of 250 samples of
@@ -332,7 +333,7 @@ pub const fn noise_samples(n: usize) -> usize {
 /// do not move the median.
 /// `scratch` needs [`noise_samples`] of the row.
 #[inline(never)]
-pub fn pixel_noise_q8<P: Pixel>(row: &[P], sat: i32, scratch: &mut [i32]) -> i32 {
+pub fn pixel_noise_q8<P: Pixel>(row: &[P], sat: i32, scratch: &mut [i32]) -> Q24_8 {
     let mut h = Histogram::new();
     let mut m = 0;
     let d2 = |a: P, b: P, c: P| (a.value().min(sat) - 2 * b.value().min(sat) + c.value().min(sat)).abs();
@@ -352,10 +353,10 @@ pub fn pixel_noise_q8<P: Pixel>(row: &[P], sat: i32, scratch: &mut [i32]) -> i32
         }
     }
     h.set_total(m);
-    h.kth(&mut scratch[..m], m / 2).saturating_mul(155)
+    Q24_8(h.kth(&mut scratch[..m], m / 2).saturating_mul(155))
 }
 
-/// The factor (Q8) the detection thresholds put on a noise σ estimated
+/// The factor the detection thresholds put on a noise σ estimated
 /// from `m` second differences, so that a row whose few samples happen to
 /// read low does not turn its noise into stripes: the median of `m`
 /// samples has a relative standard error of about 1.17/√m (the half-normal
@@ -365,11 +366,11 @@ pub fn pixel_noise_q8<P: Pixel>(row: &[P], sat: i32, scratch: &mut [i32]) -> i32
 /// threshold as it stands), 1.14 for a 96-px window, 1.7 for 16 px. On
 /// uniform bytes it takes 16-px rows from 1–2 % "stripes" to under 0.02 %
 /// (`white_noise_in_short_rows_is_rarely_a_stripe`).
-pub fn detection_margin_q8(m: usize) -> i32 {
+pub fn detection_margin_q8(m: usize) -> Q24_8 {
     // 1/√m in Q16 from an integer square root of m in Q8; 1/√250 = 4145/65536.
     let sqrt_q8 = ((m.max(1) as u64) << 16).isqrt();
     let inv_q16 = ((1u64 << 24) / sqrt_q8) as i64;
-    256 + ((MARGIN_Q8 * (inv_q16 - 4145).max(0)) >> 16) as i32
+    Q24_8(256 + ((MARGIN_Q8 * (inv_q16 - 4145).max(0)) >> 16) as i32)
 }
 
 /// `k` of [`detection_margin_q8`], Q8: 3 × 1.17 × 256 = 898.6.
@@ -383,20 +384,20 @@ mod tests {
     fn the_detection_margin_follows_its_formula() {
         for m in [1usize, 2, 6, 14, 30, 94, 189, 249, 250, 251, 683, 10_000] {
             let want = 1.0 + 3.0 * 1.17 * (1.0 / (m as f64).sqrt() - 1.0 / 250f64.sqrt()).max(0.0);
-            let got = detection_margin_q8(m) as f64 / 256.0;
+            let got = detection_margin_q8(m).to_f64();
             assert!((got - want).abs() < 2.0 / 256.0, "{m}: {got} vs {want}");
         }
-        assert_eq!(detection_margin_q8(noise_samples(752)), 256);
+        assert_eq!(detection_margin_q8(noise_samples(752)), Q24_8::ONE);
         assert_eq!(noise_samples(96), 94);
         assert_eq!(noise_samples(749), 747);
         assert_eq!(noise_samples(750), 250);
-        assert!(detection_margin_q8(noise_samples(200)) > 256);
-        assert_eq!(detection_margin_q8(noise_samples(252)), 256);
+        assert!(detection_margin_q8(noise_samples(200)) > Q24_8::ONE);
+        assert_eq!(detection_margin_q8(noise_samples(252)), Q24_8::ONE);
     }
 
     #[test]
     fn block_width_follows_the_scale() {
-        let px = |v: f64| (v * 65536.0) as i32;
+        let px = |v: f64| Px((v * 65536.0) as i32);
         assert_eq!(block_log2(px(0.5)), 1);
         assert_eq!(block_log2(px(1.0)), 1); // 2.8 px → 2 (2^1.49)
         assert_eq!(block_log2(px(1.1)), 2); // 3.1 px → 4 (2^1.62)

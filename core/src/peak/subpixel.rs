@@ -25,17 +25,17 @@
 
 use super::kernels::LOG2_Q16;
 use super::{Flags, Method, RowView, Stripe};
-use crate::fixed::Px;
+use crate::fixed::{Px, Q16_16};
 
-/// log2(v) in Q16 for v ≥ 1 (error < 3·10⁻⁶).
-pub fn log2_q16(v: u32) -> i32 {
+/// log2(v) for v ≥ 1 (error < 3·10⁻⁶).
+pub fn log2_q16(v: u32) -> Q16_16 {
     debug_assert!(v > 0);
     let e = 31 - v.leading_zeros();
     let m = (v as u64) << (31 - e); // 1.xxx in bit 31
     let idx = ((m >> 23) & 0xff) as usize;
     let rem = ((m >> 7) & 0xffff) as i64;
     let (t0, t1) = (LOG2_Q16[idx] as i64, LOG2_Q16[idx + 1] as i64);
-    ((e as i64) << 16) as i32 + (t0 + (((t1 - t0) * rem) >> 16)) as i32
+    Q16_16(((e as i64) << 16) as i32 + (t0 + (((t1 - t0) * rem) >> 16)) as i32)
 }
 
 fn ratio_q16(num: i64, den: i64) -> Option<Px> {
@@ -51,7 +51,7 @@ pub fn gaussian3(a: i32, b: i32, c: i32) -> Option<Px> {
     if a <= 0 || b <= 0 || c <= 0 {
         return None;
     }
-    let (la, lb, lc) = (log2_q16(a as u32) as i64, log2_q16(b as u32) as i64, log2_q16(c as u32) as i64);
+    let (la, lb, lc) = (log2_q16(a as u32).0 as i64, log2_q16(b as u32).0 as i64, log2_q16(c as u32).0 as i64);
     ratio_q16(la - lc, 2 * (la - 2 * lb + lc))
 }
 
@@ -239,7 +239,7 @@ mod tests {
     fn log2_is_accurate() {
         for v in [1u32, 2, 3, 10, 255, 1000, 4095, 65535, 1 << 20] {
             let want = (v as f64).log2();
-            let got = log2_q16(v) as f64 / 65536.0;
+            let got = log2_q16(v).to_f64();
             assert!((got - want).abs() < 3e-5, "{v}: {got} vs {want}");
         }
     }

@@ -55,6 +55,7 @@
 //! one column in four, then ±3 px) where the screen cost about 500
 //! (docs/benchmarks.md).
 
+use crate::fixed::Px;
 use heapless::Vec;
 
 /// Most windows per row (one per laser of the head).
@@ -231,11 +232,11 @@ impl Windows {
         &self.list
     }
 
-    /// Whether column `px` (Q16.16 position) lies inside a window.
-    pub fn contains(&self, position_q16: i32) -> bool {
+    /// Whether the column at `position` lies inside a window.
+    pub fn contains(&self, position: Px) -> bool {
         // `first ≤ position < end` in Q16.16 is `first ≤ ⌊position⌋ < end`
         // for a position ≥ 0 (and no window holds a negative one).
-        let Ok(px) = u32::try_from(position_q16 >> 16) else {
+        let Ok(px) = u32::try_from(position.floor()) else {
             return false;
         };
         self.list.iter().any(|w| (w.first_px as u32..w.end_px()).contains(&px))
@@ -273,7 +274,7 @@ mod tests {
         let ok = Windows::new(&[w(600, 96), w(10, 96), w(50, 96)], 752).unwrap();
         assert_eq!(ok.as_slice(), &[w(10, 96), w(50, 96), w(600, 96)]);
         assert_eq!(ok.covered_px(), 136 + 96);
-        assert!(ok.contains(10 << 16) && !ok.contains(9 << 16) && !ok.contains(146 << 16));
+        assert!(ok.contains(Px::from_int(10)) && !ok.contains(Px::from_int(9)) && !ok.contains(Px::from_int(146)));
         assert!(Windows::new(&[w(656, 96)], 752).is_ok());
         assert_eq!(ColumnWindow::around(20, 48), w(0, 68));
         assert_eq!(ColumnWindow::around(376, 48), w(328, 96));

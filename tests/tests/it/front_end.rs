@@ -7,6 +7,7 @@
 //! block and box output, clamped indices everywhere — so any input on which
 //! the fast code differs from the definition fails here.
 
+use cms_core::fixed::{Q24_8, Q48_16};
 use cms_core::peak::kernels::{LADDER_LEN, RUNGS};
 use cms_core::peak::median::Histogram;
 use cms_core::peak::{MAX_CANDIDATES, coarse, screen};
@@ -20,16 +21,16 @@ fn kth_sorted(v: &[i32], k: usize) -> i32 {
 }
 
 /// Robust pixel noise: median |second difference| of every third window, × 155.
-fn pixel_noise_ref(x: &[i32]) -> i32 {
+fn pixel_noise_ref(x: &[i32]) -> Q24_8 {
     let step = if x.len() < screen::NOISE_EVERY_TRIPLE_BELOW { 1 } else { 3 };
     let v: Vec<i32> = x.windows(3).step_by(step).map(|w| (w[0] - 2 * w[1] + w[2]).abs()).collect();
-    if v.is_empty() { 0 } else { kth_sorted(&v, v.len() / 2).saturating_mul(155) }
+    Q24_8(if v.is_empty() { 0 } else { kth_sorted(&v, v.len() / 2).saturating_mul(155) })
 }
 
 /// Robust σ of the screen's responses: median |R| of all of them, × 380.
-fn screen_sigma_ref(r: &[i32]) -> i32 {
+fn screen_sigma_ref(r: &[i32]) -> Q24_8 {
     let v: Vec<i32> = r.iter().map(|v| v.saturating_abs()).collect();
-    if v.is_empty() { 0 } else { kth_sorted(&v, v.len() / 2).saturating_mul(380) }
+    Q24_8(if v.is_empty() { 0 } else { kth_sorted(&v, v.len() / 2).saturating_mul(380) })
 }
 
 /// The screen's block responses by definition: block sums of `B` pixels
@@ -101,15 +102,15 @@ fn spike_hits_ref(x: &[i32], level: i32) -> Vec<usize> {
 
 /// The hot- and stuck-pixel repair by definition (`coarse::repair_spikes`'s
 /// documentation), with plain indices.
-fn repair_ref(x: &mut [i32], hits: &[usize], noise_q8: i32, k_q16: i64) -> u16 {
+fn repair_ref(x: &mut [i32], hits: &[usize], noise: Q24_8, k: Q48_16) -> u16 {
     let n = x.len();
     if n < 3 {
         return 0;
     }
-    let sigma = (noise_q8 as i64 + 128) >> 8;
-    let level = coarse::spike_screen_level(noise_q8) as i64;
+    let sigma = (noise.0 as i64 + 128) >> 8;
+    let level = coarse::spike_screen_level(noise) as i64;
     let margin = 3 * sigma;
-    let k2 = (k_q16 * k_q16) >> 16;
+    let (k_q16, k2) = (k.0, (k.0 * k.0) >> 16);
     let v = |x: &[i32], i: usize| x[i] as i64;
     let d = |x: &[i32], i: usize| 2 * v(x, i) - v(x, i - 1) - v(x, i + 1);
     let bg =
@@ -340,18 +341,19 @@ proptest! {
     ) {
         let row: Vec<u16> = x.iter().map(|&v| v as u16).collect();
         let copy: Vec<i32> = x.iter().map(|&v| v.min(sat)).collect();
-        let level = coarse::spike_screen_level(noise_q8);
+        let (noise, k) = (Q24_8(noise_q8), Q48_16(k_q16));
+        let level = coarse::spike_screen_level(noise);
         let (mut w, mut hits) = (vec![0; x.len()], heapless::Vec::new());
         coarse::load_window(&row, sat, level, &mut w, &mut hits);
         prop_assert_eq!(&w, &copy);
         let want_hits = spike_hits_ref(&copy, level);
         prop_assert_eq!(&hits[..], &want_hits[..]);
         let mut want = copy.clone();
-        let n_want = repair_ref(&mut want, &want_hits, noise_q8, k_q16);
-        prop_assert_eq!(coarse::repair_spikes(&mut w, &hits, noise_q8, k_q16), n_want);
+        let n_want = repair_ref(&mut want, &want_hits, noise, k);
+        prop_assert_eq!(coarse::repair_spikes(&mut w, &hits, noise, k), n_want);
         prop_assert_eq!(&w, &want);
         let mut again = copy.clone();
-        prop_assert_eq!(coarse::remove_spikes(&mut again, noise_q8, k_q16), n_want);
+        prop_assert_eq!(coarse::remove_spikes(&mut again, noise, k), n_want);
         prop_assert_eq!(&again, &want);
         // A window the detector reads in place is one the copy and the
         // repair leave as it is.

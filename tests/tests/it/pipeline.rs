@@ -393,7 +393,7 @@ fn a_calibrated_head_triangulates_every_point_and_refuses_bad_calibrations() {
     through.planes[1][3] = 0.0;
     let mut above = calibration(6);
     above.datum = [0.0, 0.0, 1.0, 200.0];
-    // Refused too (issue 16): three identical planes, and two swapped
+    // Refused too: three identical planes, and two swapped
     // (stripes are numbered left to right), which the host refuses as well.
     let mut same = calibration(10);
     same.planes = [same.planes[0]; 3];
@@ -682,7 +682,7 @@ fn encoded_frame_sizes_for_the_link_budget() {
         sizes.push(bytes);
     }
     // Protocol 4: at least position, strength and width (3 bytes) a point,
-    // at most 6 with the metric point (issue 14's budget: 60 frames/s of
+    // at most 6 with the metric point (the link's budget: 60 frames/s of
     // 1 440 points within 60 % of USB full speed's 1 MB/s); calibration
     // adds the two metric varints, a byte each at least.
     assert!(sizes[0] >= 1440 * 3 && sizes[1] <= 1440 * 6, "{sizes:?}");

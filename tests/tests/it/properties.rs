@@ -145,11 +145,11 @@ fn configuration_is_validated_once() {
     assert!(Detector::<64>::new(ok).is_ok());
 }
 
-/// Two rows the properties above once drew (one in about 2 000): white
-/// noise of σ 5 whose last or first pixels stand a little high. The
+/// Two rows of a kind the properties above draw (one in about 2 000):
+/// white noise of σ 5 whose last or first pixels stand a little high. The
 /// Ricker kernel near the row's end reads the edge pixel repeated past
-/// it and took them for a wide, weak, clipped stripe; near an end a
-/// stripe must now pass twice the threshold, and each row has its one
+/// it and can take them for a wide, weak, clipped stripe; so near an end
+/// a stripe must pass twice the threshold, and each row has its one
 /// stripe only.
 #[test]
 fn a_noisy_edge_pixel_is_no_stripe() {

@@ -127,7 +127,7 @@ fn three_stripes_with_hot_pixels_banding_gradient_and_glow() {
     assert!(spikes > 500, "hot pixels were not repaired: {spikes}");
 }
 
-/// Issue 14: single pixels and pairs stuck at full scale, on every third
+/// Single pixels and pairs stuck at full scale, on every third
 /// row — at fixed random columns, and one single and one pair on two
 /// stripes' flanks (2–6 σ from the centre) — among three stripes of unequal
 /// brightness with banding, hot pixels, an ambient gradient and glow: every

@@ -24,6 +24,7 @@
 use core::fmt::Write as _;
 use core::hint::black_box;
 
+use cms_core::fixed::{Px, Q48_16};
 use cms_core::peak::{Config, Detector, Stripes, coarse, cwt, kernels, screen};
 use cms_qemu::board::SYSCLK_HZ;
 use cms_qemu::{clock, uart};
@@ -88,17 +89,17 @@ fn main() -> ! {
         let sat = cfg.saturation as i32;
         let geo = ((cfg.scales.min().0 as u64) * (cfg.scales.max().0 as u64)).isqrt();
         let Bufs { rows, x, r } = bu;
-        let lb = screen::block_log2(geo as i32);
+        let lb = screen::block_log2(Px(geo as i32));
         let refresh = per_call(|i| {
             let row = black_box(&rows[i][..]);
             black_box(screen::pixel_noise_q8(row, sat, r));
             let m = screen::responses(row, lb, r);
             black_box(screen::sigma_q8(&mut r[..m]));
         });
-        let noise_q8 = screen::pixel_noise_q8(&rows[0][..], sat, r);
+        let noise = screen::pixel_noise_q8(&rows[0][..], sat, r);
         let m = screen::responses(&rows[0][..], lb, r);
-        let sigma_q8 = screen::sigma_q8(&mut r[..m]);
-        let threshold = ((sigma_q8 as i64 * cfg.threshold_sigma_q8 as i64 * 154) >> 24).max(1) as i32;
+        let sigma = screen::sigma_q8(&mut r[..m]);
+        let threshold = ((sigma.0 as i64 * cfg.threshold_sigma_q8 as i64 * 154) >> 24).max(1) as i32;
         let mut cands = heapless::Vec::new();
         let candidates = per_call(|i| {
             screen::candidates(black_box(&rows[i][..]), lb, true, threshold, &mut cands);
@@ -107,7 +108,7 @@ fn main() -> ! {
         screen::candidates(&rows[0][..], lb, true, threshold, &mut cands);
         let c0 = cands.first().map_or(N / 2, |c| c.pos);
         let (lo, hi) = (c0.saturating_sub(WINDOW / 2), (c0 + WINDOW / 2).min(N));
-        let level = coarse::spike_screen_level(noise_q8);
+        let level = coarse::spike_screen_level(noise);
         let mut hits = heapless::Vec::<usize, { coarse::MAX_SPIKES }>::new();
         let load = per_call(|i| {
             let w = &mut x[..hi - lo];
@@ -117,7 +118,7 @@ fn main() -> ! {
         let window = per_call(|i| {
             let w = &mut x[..hi - lo];
             coarse::load_window(black_box(&rows[i][lo..hi]), sat, level, w, &mut hits);
-            black_box(coarse::repair_spikes(black_box(w), &hits, noise_q8, 120_000));
+            black_box(coarse::repair_spikes(black_box(w), &hits, noise, Q48_16(120_000)));
         });
         let copy_only = per_call(|i| {
             let w = &mut x[..hi - lo];
