@@ -51,7 +51,7 @@ pub mod screen;
 pub mod subpixel;
 pub mod window;
 
-use crate::fixed::{Px, Q24_8, Q48_16, UQ8_8Bits};
+use crate::fixed::{Px, Q24_8, Q48_16, UQ8_8};
 use crate::optics::ScaleRange;
 use heapless::Vec;
 pub use window::{ColumnWindow, Track, WindowError, Windows};
@@ -281,7 +281,7 @@ pub struct Config {
     /// Which stripes to keep when there are more.
     pub select: Select,
     /// Detection threshold in multiples of the robust noise σ: [`UQ8_8`](crate::fixed::UQ8_8) bits.
-    pub threshold_sigma_q8: UQ8_8Bits,
+    pub threshold_sigma_q8: UQ8_8,
     /// Absolute floor: smallest stripe height above background, counts.
     pub min_amplitude: u16,
     /// Stripes closer than this are one (the stronger is kept).
@@ -307,7 +307,7 @@ impl Config {
             scales,
             max_stripes: 3,
             select: Select::Strongest,
-            threshold_sigma_q8: 6 * 256,
+            threshold_sigma_q8: UQ8_8::from_bits(6 * 256),
             min_amplitude: 4,
             min_separation: Px((2 * smax) as i32),
             min_width: Px((smin * 6 / 10).max(45875) as i32),
@@ -463,7 +463,7 @@ impl Plan {
         if cfg.min_width.0 <= 0 || cfg.min_width >= cfg.max_width {
             return Err(Error::WidthRange);
         }
-        if cfg.threshold_sigma_q8 == 0 {
+        if cfg.threshold_sigma_q8.to_bits() == 0 {
             return Err(Error::Threshold);
         }
         if cfg.saturation == 0 || (cfg.saturation as u32) > (1u32 << cfg.bits) - 1 {
@@ -811,7 +811,8 @@ impl<const W: usize> Detector<W> {
             self.detect_noise_q8 = margin(self.noise_q8);
             self.spike_level = coarse::spike_screen_level(Q24_8(self.detect_noise_q8));
             let thr_noise =
-                (margin(screen_sigma_q8) as i64 * self.cfg.threshold_sigma_q8 as i64 * SCREEN_FRACTION_Q8) >> 24;
+                (margin(screen_sigma_q8) as i64 * self.cfg.threshold_sigma_q8.to_bits() as i64 * SCREEN_FRACTION_Q8)
+                    >> 24;
             let thr_abs = self.cfg.min_amplitude as i64 * self.plan.smin_floor_px as i64;
             self.screen_threshold = thr_noise.max(thr_abs).max(1).min(i32::MAX as i64) as i32;
             self.refresh_in = NOISE_ROWS;
@@ -1284,7 +1285,8 @@ fn saturated_stripe(v: &RowView<'_>, (s, e): (usize, usize), sat: i32) -> Option
     // (at the pixel level: the height above the background over `threshold
     // × σ`): a stuck pixel or pair at full scale is neither.
     let strength = (sat - bg).max(0) as i64;
-    let floor = ((v.noise_q8 as i64 * v.cfg.threshold_sigma_q8 as i64) >> 16).max(v.cfg.min_amplitude as i64).max(1);
+    let floor =
+        ((v.noise_q8 as i64 * v.cfg.threshold_sigma_q8.to_bits() as i64) >> 16).max(v.cfg.min_amplitude as i64).max(1);
     if width < v.cfg.min_width || strength < floor {
         return None;
     }
