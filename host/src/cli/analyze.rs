@@ -112,7 +112,7 @@ pub struct AnalyzeArgs {
 }
 
 fn placement(s: &str) -> Result<Placement, String> {
-    s.parse()
+    s.parse().map_err(|e: cms_host::recording::survey_info::SurveyError| e.to_string())
 }
 
 fn positive(s: &str) -> Result<f64, String> {
@@ -242,7 +242,7 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
         for (k, (_, rec)) in recs.iter().enumerate() {
             if k >= placements.len() {
                 let p = match &rec.survey {
-                    Some(sv) => sv.placement().map_err(Error::Input)?,
+                    Some(sv) => sv.placement().map_err(|e| Error::Input(e.to_string()))?,
                     None => Placement::default(),
                 };
                 placements.push(p);

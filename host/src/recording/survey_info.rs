@@ -51,28 +51,56 @@ pub struct Survey {
     pub notes: Option<String>,
 }
 
+/// What is wrong with a survey file, a chainage or a placement; the text
+/// names the key or quotes the value.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum SurveyError {
+    /// A survey file longer than a recording's survey block holds.
+    #[error("{0} bytes: a survey file holds at most {MAX_BYTES}")]
+    TooLong(usize),
+    /// Not TOML, or a key this format does not have.
+    #[error("{0}")]
+    Toml(String),
+    /// Neither `km+m` nor metres.
+    #[error("`{0}` is not a chainage (km+m, e.g. 12+345.678, or metres)")]
+    NotAChainage(String),
+    /// `km+m` with the metres outside 0 to 1000.
+    #[error("`{0}`: the metres after + must be 0 to under 1000")]
+    Metres(String),
+    /// The survey's `start_chainage`.
+    #[error("start_chainage: {0}")]
+    StartChainage(Box<SurveyError>),
+    /// The survey's `chainage`, neither up nor down.
+    #[error("chainage: `{0}` is neither up nor down")]
+    Heading(String),
+    /// A placement's heading, neither up nor down.
+    #[error("`{0}`: heading `{1}` is neither up nor down")]
+    PlacementHeading(String, String),
+}
+
 impl Survey {
     /// Parses and checks a survey file's text; the error names the key.
-    pub fn parse(text: &str) -> Result<Survey, String> {
+    pub fn parse(text: &str) -> Result<Survey, SurveyError> {
         if text.len() > MAX_BYTES {
-            return Err(format!("{} bytes: a survey file holds at most {MAX_BYTES}", text.len()));
+            return Err(SurveyError::TooLong(text.len()));
         }
-        let s: Survey = toml::from_str(text).map_err(|e| e.message().to_string())?;
+        let s: Survey = toml::from_str(text).map_err(|e| SurveyError::Toml(e.message().to_string()))?;
         s.placement()?;
         Ok(s)
     }
 
     /// The placement of the run it describes.
-    pub fn placement(&self) -> Result<Placement, String> {
+    pub fn placement(&self) -> Result<Placement, SurveyError> {
         let start_m = match &self.start_chainage {
-            Some(c) => Some(c.parse::<Chainage>().map_err(|e| format!("start_chainage: {e}"))?.0),
+            Some(c) => Some(c.parse::<Chainage>().map_err(|e| SurveyError::StartChainage(Box::new(e)))?.0),
             None => None,
         };
         let heading = match self.chainage.as_deref().map(str::to_ascii_lowercase).as_deref() {
             None => None,
             Some("up") => Some(Heading::Up),
             Some("down") => Some(Heading::Down),
-            Some(o) => return Err(format!("chainage: `{o}` is neither up nor down")),
+            Some(o) => return Err(SurveyError::Heading(o.to_string())),
         };
         Ok(Placement { start_m, heading })
     }
@@ -153,12 +181,12 @@ impl fmt::Display for Chainage {
 }
 
 impl FromStr for Chainage {
-    type Err = String;
+    type Err = SurveyError;
 
     /// `12+345.678` (km + m) or `12345.678` (m).
-    fn from_str(s: &str) -> Result<Self, String> {
+    fn from_str(s: &str) -> Result<Self, SurveyError> {
         let t = s.trim();
-        let bad = || format!("`{s}` is not a chainage (km+m, e.g. 12+345.678, or metres)");
+        let bad = || SurveyError::NotAChainage(s.to_string());
         let (neg, body) = match t.strip_prefix('-') {
             Some(b) => (true, b),
             None => (false, t),
@@ -168,7 +196,7 @@ impl FromStr for Chainage {
                 let km: u32 = km.parse().map_err(|_| bad())?;
                 let m: f64 = m.parse().map_err(|_| bad())?;
                 if !(0.0..1000.0).contains(&m) {
-                    return Err(format!("`{s}`: the metres after + must be 0 to under 1000"));
+                    return Err(SurveyError::Metres(s.to_string()));
                 }
                 f64::from(km) * 1000.0 + m
             }
@@ -191,10 +219,10 @@ pub struct Placement {
 }
 
 impl FromStr for Placement {
-    type Err = String;
+    type Err = SurveyError;
 
     /// `KM+M`, `KM+M:up`, `KM+M:down`, `:down` or `auto`.
-    fn from_str(s: &str) -> Result<Self, String> {
+    fn from_str(s: &str) -> Result<Self, SurveyError> {
         let t = s.trim();
         if t.eq_ignore_ascii_case("auto") {
             return Ok(Placement::default());
@@ -207,7 +235,7 @@ impl FromStr for Placement {
             None => None,
             Some("up") => Some(Heading::Up),
             Some("down") => Some(Heading::Down),
-            Some(o) => return Err(format!("`{s}`: heading `{o}` is neither up nor down")),
+            Some(o) => return Err(SurveyError::PlacementHeading(s.to_string(), o.to_string())),
         };
         let start_m = if c.is_empty() { None } else { Some(c.parse::<Chainage>()?.0) };
         Ok(Placement { start_m, heading })
@@ -239,7 +267,7 @@ mod tests {
             ("line = 3\n", "string"),
         ] {
             let e = Survey::parse(text).unwrap_err();
-            assert!(e.contains(want), "{text}: {e}");
+            assert!(e.to_string().contains(want), "{text}: {e}");
         }
     }
 }
