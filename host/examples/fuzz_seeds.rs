@@ -68,8 +68,8 @@ fn kind(m: &DeviceMsg) -> &'static str {
     }
 }
 
-fn run(dir: &Path) -> Result<usize, String> {
-    std::fs::create_dir_all(dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+/// The seeds' head: a 160-pixel camera of 12 rows with three stripes.
+fn seed_head() -> Result<(Box<Head<160, NoLasers>>, Cam), String> {
     let mut rng = Rng::new(1);
     let rows = (0..12)
         .map(|r| {
@@ -82,12 +82,15 @@ fn run(dir: &Path) -> Result<usize, String> {
             quantise(&clean_row(160, 100.0, &g), 6.0, 12, &mut rng)
         })
         .collect();
-    let mut cam = Cam { rows, next: 0, odometer_um: 0 };
+    let cam = Cam { rows, next: 0, odometer_um: 0 };
     let identity = Identity { firmware: "0.1.0", board: "seed" };
-    let mut head: Box<Head<160, NoLasers>> =
+    let head: Box<Head<160, NoLasers>> =
         Box::new(Head::new(NoLasers, default_detector(), identity).map_err(|e| format!("head: {e:?}"))?);
-    let mut msgs: Vec<DeviceMsg> = Vec::new();
-    let mut clock = || 0u64;
+    Ok((head, cam))
+}
+
+/// Every command the head takes, a few it refuses among them.
+fn commands() -> [HostMsg; 18] {
     let calibration = Calibration {
         id: 7,
         intrinsics: [1400.0, 1400.0, 376.0, 240.0, 0.0],
@@ -101,7 +104,7 @@ fn run(dir: &Path) -> Result<usize, String> {
         ],
         datum: [0.0, 0.0, -1.0, -200.0],
     };
-    let commands = [
+    [
         HostMsg::GetInfo,
         HostMsg::SetExposure { exposure_us: 300 },
         HostMsg::SetDetector(default_detector()),
@@ -120,19 +123,27 @@ fn run(dir: &Path) -> Result<usize, String> {
         HostMsg::SetReadout { first_row: 0, rows: 12, skip: 3 }, // refused
         HostMsg::SetTracking { half_width_px: 8 },
         HostMsg::SetTracking { half_width_px: 1 }, // refused
-    ];
+    ]
+}
+
+/// The commands' frames, named, and every message the head answered with
+/// (the heartbeat rule's Error and Status at the end).
+fn drive(head: &mut Head<160, NoLasers>, cam: &mut Cam) -> Result<(Vec<(String, Vec<u8>)>, Vec<DeviceMsg>), String> {
+    let mut msgs: Vec<DeviceMsg> = Vec::new();
+    let mut clock = || 0u64;
+    let cam = cam;
     let mut cmd_frames = Vec::new();
     let mut t = 0u64;
-    for (seq, c) in commands.into_iter().enumerate() {
+    for (seq, c) in commands().into_iter().enumerate() {
         let cmd = Command { seq: seq as u16, msg: c };
         cmd_frames.push((format!("cmd-{seq:02}"), frame(&cmd)?));
         t += 10_000;
         let streaming = matches!(cmd.msg, HostMsg::Start(_));
-        head.handle(cmd, t, &cam, &mut |m: &DeviceMsg| msgs.push(m.clone()));
+        head.handle(cmd, t, cam, &mut |m: &DeviceMsg| msgs.push(m.clone()));
         let polls = if streaming { 4 } else { 1 };
         for _ in 0..polls {
             t += 10_000;
-            head.poll(t, &mut cam, &mut clock, &mut |m: &DeviceMsg| msgs.push(m.clone()));
+            head.poll(t, cam, &mut clock, &mut |m: &DeviceMsg| msgs.push(m.clone()));
         }
     }
     // Silence: the heartbeat rule's Error and Status.
@@ -142,14 +153,20 @@ fn run(dir: &Path) -> Result<usize, String> {
             msg: HostMsg::Start(Start { rate_hz: 10, laser_mask: 1, pattern: LaserPattern::Simultaneous }),
         },
         t,
-        &cam,
+        cam,
         &mut |m: &DeviceMsg| msgs.push(m.clone()),
     );
-    head.poll(t + 2_000_000, &mut cam, &mut clock, &mut |m: &DeviceMsg| msgs.push(m.clone()));
+    head.poll(t + 2_000_000, cam, &mut clock, &mut |m: &DeviceMsg| msgs.push(m.clone()));
 
+    Ok((cmd_frames, msgs))
+}
+
+/// The seed files: a few frames of each message kind, the commands, and
+/// streams with garbage, a cut frame and another protocol version.
+fn seed_files(cmd_frames: &[(String, Vec<u8>)], msgs: &[DeviceMsg]) -> Result<Vec<(String, Vec<u8>)>, String> {
     let mut files: Vec<(String, Vec<u8>)> = Vec::new();
     let mut count = std::collections::BTreeMap::<&str, usize>::new();
-    for m in &msgs {
+    for m in msgs {
         let k = kind(m);
         let n = count.entry(k).or_default();
         *n += 1;
@@ -180,6 +197,14 @@ fn run(dir: &Path) -> Result<usize, String> {
         other[1] = PROTOCOL_VERSION + 1;
     }
     files.push(("dev-other-version".into(), other));
+    Ok(files)
+}
+
+fn run(dir: &Path) -> Result<usize, String> {
+    std::fs::create_dir_all(dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+    let (mut head, mut cam) = seed_head()?;
+    let (cmd_frames, msgs) = drive(&mut head, &mut cam)?;
+    let files = seed_files(&cmd_frames, &msgs)?;
     for (name, bytes) in &files {
         let p: PathBuf = dir.join(name);
         std::fs::write(&p, bytes).map_err(|e| format!("cannot write {}: {e}", p.display()))?;
