@@ -68,6 +68,9 @@ fn kind(m: &DeviceMsg) -> &'static str {
     }
 }
 
+/// A seed file: its name and bytes.
+type Seed = (String, Vec<u8>);
+
 /// The seeds' head: a 160-pixel camera of 12 rows with three stripes.
 fn seed_head() -> Result<(Box<Head<160, NoLasers>>, Cam), String> {
     let mut rng = Rng::new(1);
@@ -128,10 +131,9 @@ fn commands() -> [HostMsg; 18] {
 
 /// The commands' frames, named, and every message the head answered with
 /// (the heartbeat rule's Error and Status at the end).
-fn drive(head: &mut Head<160, NoLasers>, cam: &mut Cam) -> Result<(Vec<(String, Vec<u8>)>, Vec<DeviceMsg>), String> {
+fn drive(head: &mut Head<160, NoLasers>, cam: &mut Cam) -> Result<(Vec<Seed>, Vec<DeviceMsg>), String> {
     let mut msgs: Vec<DeviceMsg> = Vec::new();
     let mut clock = || 0u64;
-    let cam = cam;
     let mut cmd_frames = Vec::new();
     let mut t = 0u64;
     for (seq, c) in commands().into_iter().enumerate() {
@@ -163,7 +165,7 @@ fn drive(head: &mut Head<160, NoLasers>, cam: &mut Cam) -> Result<(Vec<(String, 
 
 /// The seed files: a few frames of each message kind, the commands, and
 /// streams with garbage, a cut frame and another protocol version.
-fn seed_files(cmd_frames: &[(String, Vec<u8>)], msgs: &[DeviceMsg]) -> Result<Vec<(String, Vec<u8>)>, String> {
+fn seed_files(cmd_frames: &[Seed], msgs: &[DeviceMsg]) -> Result<Vec<Seed>, String> {
     let mut files: Vec<(String, Vec<u8>)> = Vec::new();
     let mut count = std::collections::BTreeMap::<&str, usize>::new();
     for m in msgs {
