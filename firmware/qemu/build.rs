@@ -33,7 +33,8 @@ const DISTINCT: usize = 64;
 const BITS: u8 = 12;
 /// Seed of the rows (`bench speed`'s default).
 const SEED: u64 = 1;
-/// Search window per laser of the windowed runs, px (issue 14: 96).
+/// Search window per laser of the windowed runs, px: wide enough for a
+/// line over the head's working range (docs/benchmarks.md).
 const WINDOW_PX: u16 = 96;
 
 fn main() {

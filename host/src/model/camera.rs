@@ -22,11 +22,10 @@
 //! point, until the distortion of the estimate reproduces the input to
 //! [`UNDISTORT_TOLERANCE`] (normalised units: 1e-12 px at a 1000 px focal
 //! length): 3–4 steps inside an image with the usual few-percent
-//! distortion. The calibration code used to take the Jacobian by central
-//! differences (four more distortions a step) and the simulator a
-//! fixed-point iteration (OpenCV's `undistortPoints`, linear convergence,
-//! up to 100 steps); both stopped at a residual of 1e-15 and 1e-14, so
-//! their results differ from this one by less than that.
+//! distortion. Newton with the analytic Jacobian rather than central
+//! differences (four more distortions a step) or OpenCV's fixed-point
+//! `undistortPoints` (linear convergence, up to 100 steps): the same
+//! answer to within 1e-14, in fewer steps.
 //!
 //! The model is [`serde`]-serialisable with OpenCV's names (`width`,
 //! `height`, `fx`, `fy`, `cx`, `cy`, `skew`, `k1`, `k2`, `p1`, `p2`, `k3`):

@@ -446,7 +446,7 @@ fn sim_recording_end_to_end() {
     assert!(e.contains("0x00003039") && e.contains("recorded with calibration"), "{e}");
 }
 
-/// A frame present twice is analysed once, and said (issue 16); a damaged
+/// A frame present twice is analysed once, and said; a damaged
 /// one is said too.
 #[test]
 fn duplicated_and_damaged_frames_are_reported() {

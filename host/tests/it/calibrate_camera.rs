@@ -396,7 +396,7 @@ fn cli_writes_the_calibration_file() {
 }
 
 // ---------------------------------------------------------------------------
-// The checks a metrologist makes (issue 16).
+// The checks a metrologist makes.
 
 /// One photograph given three times is one view: the copies are named and
 /// left out, and one view does not calibrate (it gave fx 1512 for 1400,

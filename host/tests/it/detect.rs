@@ -199,7 +199,7 @@ fn eight_bit_png_default_bits_and_saturation() {
         assert!(l.flags.split('|').any(|f| f == "saturated"), "{l:?}");
         assert!((l.position - 100.3).abs() < 0.2, "{l:?}");
     }
-    // --bits 16: 255 is no longer the saturation level.
+    // --bits 16: 255 is not the saturation level.
     let out = detect(&[OsArg::from("--bits"), "16".into(), path.as_os_str().into()]);
     assert!(lines(&out).iter().all(|l| !l.flags.contains("saturated")));
 }

@@ -212,7 +212,7 @@ fn bad_inputs_are_one_line_errors() {
     assert_eq!(cms_host(&["measure", "--calibration", s(&cal)]).status.code(), Some(2));
 }
 
-// ------------------------------------------------------------ inputs that do not belong together (issue 16)
+// ------------------------------------------------------------ inputs that do not belong together
 
 /// A `Hello` of the reference head (752 × 480) with calibration `id`.
 fn hello(id: u32) -> DeviceMsg {

@@ -1,6 +1,6 @@
-//! Bad files and bad numbers (issue 16): outputs only to regular files,
-//! inputs read under a cap, and the messages of the cases that once gave a
-//! wrong answer or a confusing line. Each test runs the `cms-host` binary
+//! Bad files and bad numbers: outputs only to regular files, inputs read
+//! under a cap, and the messages of cases easy to get wrong (a wrong answer
+//! or a confusing line). Each test runs the `cms-host` binary
 //! as a user would and checks the one `error:` line and the exit status.
 
 use crate::common::{one_line_error, run};
