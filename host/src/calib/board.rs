@@ -351,7 +351,7 @@ fn nearest(pts: &[[f64; 2]], p: [f64; 2], radius: f64, used: &HashSet<usize>) ->
 }
 
 /// A labelled grid: `(i, j)` → point.
-type Grid = HashMap<(i32, i32), [f64; 2]>;
+type CornerGrid = HashMap<(i32, i32), [f64; 2]>;
 
 /// Tries seeds strongest first; returns a full `cols × rows` grid as a
 /// `cols`-wide, `rows`-high array of points, row by row (not yet oriented).
@@ -379,7 +379,7 @@ fn best_grid(pts: &[[f64; 2]], board: &Board) -> Result<Vec<Vec<[f64; 2]>>, Corn
 }
 
 /// Grows a grid from one seed point (`None` if the seed spans no first cell).
-fn grow(pts: &[[f64; 2]], seed: usize) -> Option<Grid> {
+fn grow(pts: &[[f64; 2]], seed: usize) -> Option<CornerGrid> {
     let s = pts[seed];
     let mut near: Vec<(f64, usize)> =
         pts.iter().enumerate().filter(|&(k, _)| k != seed).map(|(k, &q)| (dist2(s, q), k)).collect();
@@ -404,7 +404,7 @@ fn grow(pts: &[[f64; 2]], seed: usize) -> Option<Grid> {
     let l2 = (d2[0] * d2[0] + d2[1] * d2[1]).sqrt();
     let n3 = nearest(pts, fourth, 0.3 * l1.min(l2), &used)?;
     used.insert(n3);
-    let mut grid: Grid = HashMap::new();
+    let mut grid: CornerGrid = HashMap::new();
     grid.insert((0, 0), s);
     grid.insert((1, 0), pts[n1]);
     grid.insert((0, 1), pts[n2]);
@@ -454,7 +454,7 @@ fn grow(pts: &[[f64; 2]], seed: usize) -> Option<Grid> {
 /// The board's `cols × rows` array out of a grown grid, if the grid holds
 /// exactly one complete window of that size (either way round): two would
 /// make the board's position on the grid ambiguous.
-fn extract(grid: &Grid, board: &Board) -> Result<Vec<Vec<[f64; 2]>>, CornerError> {
+fn extract(grid: &CornerGrid, board: &Board) -> Result<Vec<Vec<[f64; 2]>>, CornerError> {
     let expected = board.cols * board.rows;
     let (mut i0, mut i1, mut j0, mut j1) = (i32::MAX, i32::MIN, i32::MAX, i32::MIN);
     for &(i, j) in grid.keys() {
