@@ -280,7 +280,7 @@ pub struct Config {
     pub max_stripes: u8,
     /// Which stripes to keep when there are more.
     pub select: Select,
-    /// Detection threshold in multiples of the robust noise σ: [`UQ8_8`](crate::fixed::UQ8_8) bits.
+    /// Detection threshold in multiples of the robust noise σ: [`UQ8_8`].
     pub threshold_sigma_q8: UQ8_8,
     /// Absolute floor: smallest stripe height above background, counts.
     pub min_amplitude: u16,

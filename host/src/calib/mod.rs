@@ -7,11 +7,11 @@
 //!   refinement of intrinsics, distortion and board poses; board pose from
 //!   corners with known intrinsics; `cms-host calibrate camera`.
 //! * [`lasers`] — laser planes from laser-on/laser-off pairs; `cms-host calibrate lasers`.
-//! * [`file`] — the TOML calibration file: versioned, units in the keys,
-//!   validated on load.
-//! * [`truth`] — the true calibration of a simulated head.
-//! * [`render`] — `cms-host calibrate render`: calibration images from the
-//!   simulated head, with the truth beside them.
+//! * [`file`](mod@file) — the TOML calibration file: versioned, units in
+//!   the keys, validated on load.
+//!
+//! The true calibration of a simulated head, and calibration images rendered
+//! from it, are the simulator's ([`crate::sim::calibration`]).
 //!
 //! They share OpenCV's conventions: the camera model and frame of
 //! [`crate::model::camera`], the board frame and pose of [`crate::model::board`].
