@@ -173,7 +173,7 @@ pub fn slide_frame(f: &mut FramePoints, m: &Measurer) -> bool {
 #[derive(Debug, Clone)]
 pub struct LaserAnalysis {
     pub stitched: Stitched,
-    pub bands: Result<en13231::Analysis, StandardsError>,
+    pub bands: Result<en13231::BandAnalysis, StandardsError>,
     pub roughness: Result<en15610::Roughness, StandardsError>,
 }
 
@@ -186,7 +186,7 @@ pub struct Analysis {
     pub joins: Vec<survey::RunJoin>,
     pub lasers: Vec<LaserAnalysis>,
     /// Zones, the reprofiling table and blocks over all the lines.
-    pub verdict: reprofiling::Verdict,
+    pub verdict: reprofiling::ReprofilingVerdict,
 }
 
 /// The lines' profiles on one grid: sample `i` at chainage
@@ -514,7 +514,7 @@ pub fn describe_roughness(r: &Result<en15610::Roughness, StandardsError>) -> Str
 }
 
 /// One laser's EN 13231-3 outcome.
-pub fn describe_bands(b: &Result<en13231::Analysis, StandardsError>) -> String {
+pub fn describe_bands(b: &Result<en13231::BandAnalysis, StandardsError>) -> String {
     match b {
         Ok(a) => en13231::band_table(a),
         Err(e) => format!("EN 13231-3 bands not evaluated: {e}\n"),
@@ -538,7 +538,7 @@ pub fn summary(source: &Source, a: &Analysis) -> String {
     s
 }
 
-fn verdict_json(v: &reprofiling::Verdict) -> Value {
+fn verdict_json(v: &reprofiling::ReprofilingVerdict) -> Value {
     let e = v.options.edition;
     json!({
         "edition": e.name(),

@@ -148,7 +148,7 @@ pub struct Block {
 
 /// The whole verdict.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Verdict {
+pub struct ReprofilingVerdict {
     pub options: Options,
     pub rows: Vec<BandRow>,
     pub zones: Vec<Zone>,
@@ -160,9 +160,9 @@ pub struct Verdict {
 
 /// Judges the lines' analyses: zones, table, blocks. All lines share one
 /// grid spacing; their positions are chainage mm.
-pub fn judge(lasers: &[LaserAnalysis], opts: &Options) -> Verdict {
+pub fn judge(lasers: &[LaserAnalysis], opts: &Options) -> ReprofilingVerdict {
     let Some(dx) = lasers.first().map(|l| l.stitched.dx_mm) else {
-        return Verdict {
+        return ReprofilingVerdict {
             options: *opts,
             rows: vec![],
             zones: vec![],
@@ -272,7 +272,7 @@ pub fn judge(lasers: &[LaserAnalysis], opts: &Options) -> Verdict {
     }
     zones.sort_by(|a, b| a.start_mm.total_cmp(&b.start_mm));
     let blocks = blocks(lasers, opts, origin, len, dx);
-    Verdict {
+    ReprofilingVerdict {
         options: *opts,
         rows,
         zones,
@@ -346,7 +346,7 @@ fn band_name(b: &en13231::Band) -> String {
 
 /// The verdict as text: the edition and its source, the reprofiling table,
 /// the zones, the blocks.
-pub fn describe(v: &Verdict) -> String {
+pub fn describe(v: &ReprofilingVerdict) -> String {
     let mut s = String::new();
     let e = v.options.edition;
     let _ = writeln!(s, "verdict by {} — {}", e.name(), e.source());

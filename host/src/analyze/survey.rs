@@ -108,14 +108,14 @@ fn oriented(s: &Stitched, heading: Heading) -> (f64, Vec<f64>) {
 
 /// One line of the joined survey: sample `i` at chainage `(base + i)·dx` mm.
 #[derive(Debug, Clone)]
-struct Line {
+struct JoinedLine {
     line: usize,
     base: i64,
     z: Vec<f64>,
     n: Vec<u32>,
 }
 
-impl Line {
+impl JoinedLine {
     fn at(&self, i: i64) -> Option<f64> {
         let j = usize::try_from(i - self.base).ok()?;
         let (&s, &n) = (self.z.get(j)?, self.n.get(j)?);
@@ -177,7 +177,7 @@ fn line_fit(pts: &[(f64, f64)]) -> (f64, f64, f64) {
 /// The run's differences from the joined lines over the overlap when its
 /// sample 0 sits at chainage index `lo`: per line, the points (index, run −
 /// joined), empty when the line does not overlap.
-fn differences(lines: &[Line], run: &[(usize, Vec<f64>)], lo: i64) -> Vec<Vec<(f64, f64)>> {
+fn differences(lines: &[JoinedLine], run: &[(usize, Vec<f64>)], lo: i64) -> Vec<Vec<(f64, f64)>> {
     run.iter()
         .map(|(k, v)| {
             let Some(l) = lines.iter().find(|l| l.line == *k) else { return Vec::new() };
@@ -309,7 +309,7 @@ fn on_grid(run: &Stitching, h: Heading, g0: f64, dx: f64) -> Vec<(usize, i64, Ve
 /// peak). `e` is the run's grid offset (fraction of a sample), `nominal`
 /// the given start as a grid index.
 fn search(
-    joined: &[Line],
+    joined: &[JoinedLine],
     run: &Stitching,
     headings: &[Heading],
     grid: (f64, f64),
@@ -384,7 +384,7 @@ pub fn join(
     let (start0_mm, heading0) = (p0.start_m.unwrap_or(0.0) * 1000.0, p0.heading.unwrap_or(Heading::Up));
     // The grid: run 0's samples exactly on it.
     let g0 = (start0_mm + oriented(first, heading0).0).rem_euclid(dx);
-    let mut joined: Vec<Line> = Vec::new();
+    let mut joined: Vec<JoinedLine> = Vec::new();
     // Per line: frames, points, fits and joins of every run, on chainage.
     let mut meta: Vec<(usize, Stitched)> = Vec::new();
     let mut report = Vec::new();
@@ -482,7 +482,7 @@ pub fn join(
             match joined.iter_mut().find(|j| j.line == l.laser) {
                 Some(j) => j.add(at, &v),
                 None => {
-                    let mut j = Line { line: l.laser, base: 0, z: Vec::new(), n: Vec::new() };
+                    let mut j = JoinedLine { line: l.laser, base: 0, z: Vec::new(), n: Vec::new() };
                     j.add(at, &v);
                     joined.push(j);
                 }

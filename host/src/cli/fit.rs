@@ -7,7 +7,7 @@ use clap::{Args, ValueEnum};
 use cms_host::Error;
 
 use super::exit::Usage;
-use cms_host::measure::fit::{Fit, Method, Model, Options, Start, fit, fit_jacquelin, parse_profile};
+use cms_host::measure::fit::{Fit, FitMethod, Model, Options, Start, fit, fit_jacquelin, parse_profile};
 
 /// `--model`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -97,8 +97,8 @@ pub fn write_text(out: &mut impl Write, f: &Fit) -> io::Result<()> {
         Model::Sine => "sine (IEEE 1057)",
     };
     let method = match f.method {
-        Method::Lsq => "least squares",
-        Method::Jacquelin => "Jacquelin (non-iterative)",
+        FitMethod::Lsq => "least squares",
+        FitMethod::Jacquelin => "Jacquelin (non-iterative)",
     };
     writeln!(out, "model        {model}, {method}, {} points, {} component(s)", f.points, f.components.len())?;
     let d = &f.components[0];

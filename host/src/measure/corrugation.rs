@@ -418,7 +418,7 @@ fn line_fit(c: &Corrected, j: &Joint) -> Option<LineFit> {
         start,
         &free,
         fit::MAX_ITERATIONS,
-        &mut lm::Joint::new(|p: &[f64]| evaluate_surface(&s, p, &free)),
+        &mut lm::WithJacobian::new(|p: &[f64]| evaluate_surface(&s, p, &free)),
     )?;
     let (a, b, w) = (got.p[q::A], got.p[q::B], got.p[q::OMEGA]);
     let amp = a.hypot(b);
@@ -995,7 +995,7 @@ fn fit_once(lines: &[Line], near_mm: Option<f64>) -> Result<(Joint, Vec<Correcte
                 start,
                 &free,
                 fit::MAX_ITERATIONS,
-                &mut lm::Joint::new(|p: &[f64]| evaluate_surface(&s, p, &free)),
+                &mut lm::WithJacobian::new(|p: &[f64]| evaluate_surface(&s, p, &free)),
             ) else {
                 continue;
             };
@@ -1127,14 +1127,14 @@ mod tests {
         mul(mul(rz, ry), rx)
     }
 
-    struct Rail {
+    struct RailCase {
         lambda: f64,
         amp: f64,
         phase: f64,
         crown_r: f64,
     }
 
-    impl Rail {
+    impl RailCase {
         fn height(&self, s: f64, y: f64) -> f64 {
             self.amp * (std::f64::consts::TAU * s / self.lambda + self.phase).sin() - y * y / (2.0 * self.crown_r)
         }
@@ -1144,7 +1144,7 @@ mod tests {
     /// laser planes `v = v_l + t·h` containing the head's u axis (t =
     /// tan 42°), the exact intersection with the surface for each u, plus
     /// seeded Gaussian noise of `noise_mm`.
-    fn lines(rail: &Rail, angles: (f64, f64, f64), noise_mm: f64, seed: u64) -> Vec<Line> {
+    fn lines(rail: &RailCase, angles: (f64, f64, f64), noise_mm: f64, seed: u64) -> Vec<Line> {
         let r = rotation(angles.0, angles.1, angles.2);
         let t = 42f64.to_radians().tan();
         let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
@@ -1182,7 +1182,7 @@ mod tests {
             .collect()
     }
 
-    const RAIL: Rail = Rail { lambda: 50.0, amp: 0.1, phase: 0.7, crown_r: 300.0 };
+    const RAIL: RailCase = RailCase { lambda: 50.0, amp: 0.1, phase: 0.7, crown_r: 300.0 };
 
     #[test]
     fn aligned_head_exact_data() {
@@ -1202,7 +1202,7 @@ mod tests {
     /// alone sees the yaw-stretched wavelength and the roll-scaled amplitude.
     #[test]
     fn misaligned_head_is_corrected() {
-        let flat = Rail { crown_r: 1e12, ..RAIL };
+        let flat = RailCase { crown_r: 1e12, ..RAIL };
         let (yaw, pitch, roll) = (5f64.to_radians(), 2f64.to_radians(), 3f64.to_radians());
         let cases = [(&flat, yaw, 2e-4, 1e-3, 1e-3), (&RAIL, 2f64.to_radians(), 1e-3, 1e-3, 5e-3)];
         for (rail, yaw, tol_l, tol_a, tol_angle) in cases {
@@ -1323,7 +1323,7 @@ mod tests {
             for (pitch, roll) in [(0.0, 0.0), (2.0, -2.0)] {
                 for crown in [1e12, 200.0] {
                     for (lambda, amp, phase) in [(50.0, 0.05, 0.3), (100.0, 0.1, 2.5)] {
-                        let rail = Rail { lambda, amp, phase, crown_r: crown };
+                        let rail = RailCase { lambda, amp, phase, crown_r: crown };
                         let angles = (yaw * 1f64.to_radians(), pitch * 1f64.to_radians(), roll * 1f64.to_radians());
                         let (j, _) = joint_fit(&lines(&rail, angles, 0.001, 7)).unwrap();
                         let (el, ea) = (j.wavelength_mm - lambda, (j.amplitude_mm - amp) * 1e3);

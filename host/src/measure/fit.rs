@@ -203,7 +203,7 @@ pub enum Start {
 /// How `cms-host fit` estimates the parameters: [`fit`] or [`fit_jacquelin`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
 #[serde(rename_all = "lowercase")]
-pub enum Method {
+pub enum FitMethod {
     /// Least squares: the best of several starts refined by Levenberg–Marquardt (the default).
     #[default]
     Lsq,
@@ -257,7 +257,7 @@ pub struct Fit {
     /// The model fitted.
     pub model: Model,
     /// Least squares, or Jacquelin's non-iterative estimate.
-    pub method: Method,
+    pub method: FitMethod,
     /// Points fitted.
     pub points: usize,
     /// Dominant component's wavelength, mm.
@@ -297,7 +297,7 @@ pub struct Fit {
 
 /// A profile: `x_mm[i], z_mm[i]` is one point.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct Profile {
+pub struct ProfilePoints {
     /// Longitudinal positions, mm.
     pub x_mm: Vec<f64>,
     /// Heights, mm.
@@ -307,8 +307,8 @@ pub struct Profile {
 /// Parses a profile CSV: lines `x_mm,z_mm` (two finite numbers, spaces
 /// around fields allowed, `\n` or `\r\n`), blank lines and `#` comments
 /// skipped, an optional header (a first line whose fields are not numbers).
-pub fn parse_profile(text: &str) -> Result<Profile, FitError> {
-    let mut p = Profile::default();
+pub fn parse_profile(text: &str) -> Result<ProfilePoints, FitError> {
+    let mut p = ProfilePoints::default();
     let mut first = true;
     for (i, raw) in text.lines().enumerate() {
         let line = raw.trim();
@@ -874,7 +874,7 @@ struct Refined {
 /// Levenberg–Marquardt on the model of [`evaluate`].
 fn refine(x: &[f64], z: &[f64], p0: Params, fit_rotation: bool) -> Option<Refined> {
     let free: Vec<usize> = (0..p0.0.len()).filter(|&i| fit_rotation || i != 1).collect();
-    let mut problem = lm::Joint::new(|p: &[f64]| evaluate(x, z, &Params(p.to_vec()), fit_rotation, true));
+    let mut problem = lm::WithJacobian::new(|p: &[f64]| evaluate(x, z, &Params(p.to_vec()), fit_rotation, true));
     lm::levenberg_marquardt(p0.0, &free, MAX_ITERATIONS, &mut problem).map(|o| Refined {
         p: Params(o.p),
         rss: o.rss,
@@ -993,7 +993,7 @@ pub fn fit_jacquelin(x_mm: &[f64], z_mm: &[f64]) -> Result<Fit, FitError> {
     let j = jacquelin(x_mm, z_mm).ok_or(FitError::Degenerate("Jacquelin's method found no oscillation"))?;
     let p = Params(vec![j.linear.offset, 0.0, j.linear.sin, j.linear.cos, j.omega]);
     let mut f = report(Model::Sine, x_mm.len(), &p, None, j.linear.rss, Start::Jacquelin, 0, true);
-    f.method = Method::Jacquelin;
+    f.method = FitMethod::Jacquelin;
     Ok(f)
 }
 
@@ -1059,7 +1059,7 @@ fn report(
     let d = &components[0];
     Fit {
         model,
-        method: Method::Lsq,
+        method: FitMethod::Lsq,
         points,
         wavelength_mm: d.wavelength_mm,
         amplitude_mm: d.amplitude_mm,

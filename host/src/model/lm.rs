@@ -156,22 +156,22 @@ fn stationary(jtj: &DMatrix<f64>, g: &DVector<f64>, rss: f64) -> bool {
 
 /// A [`Problem`] whose residuals and Jacobian one function computes
 /// together (as the sine fits' do): `eval(p)` returns both.
-pub struct Joint<F> {
+pub struct WithJacobian<F> {
     eval: F,
     jacobian: Option<DMatrix<f64>>,
 }
 
-impl<F> Joint<F>
+impl<F> WithJacobian<F>
 where
     F: FnMut(&[f64]) -> Option<(DVector<f64>, DMatrix<f64>)>,
 {
     /// The problem of `eval`.
     pub fn new(eval: F) -> Self {
-        Joint { eval, jacobian: None }
+        WithJacobian { eval, jacobian: None }
     }
 }
 
-impl<F> Problem for Joint<F>
+impl<F> Problem for WithJacobian<F>
 where
     F: FnMut(&[f64]) -> Option<(DVector<f64>, DMatrix<f64>)>,
 {
@@ -252,7 +252,7 @@ mod tests {
             rosenbrock(p, r.as_mut_slice());
             Some((r, DMatrix::from_row_slice(2, 2, &[-20.0 * p[0], 10.0, -1.0, 0.0])))
         };
-        let a = levenberg_marquardt(vec![-1.2, 1.0], &[0, 1], 200, &mut Joint::new(exact)).unwrap();
+        let a = levenberg_marquardt(vec![-1.2, 1.0], &[0, 1], 200, &mut WithJacobian::new(exact)).unwrap();
         let b =
             levenberg_marquardt(vec![-1.2, 1.0], &[0, 1], 200, &mut CentralDifferences::new(2, rosenbrock)).unwrap();
         for f in [&a, &b] {
@@ -269,9 +269,9 @@ mod tests {
                 (DVector::from_vec(vec![p[0] - 3.0, p[2] - 1.0]), DMatrix::from_row_slice(2, 2, &[1.0, 0.0, 0.0, 1.0]))
             })
         };
-        let f = levenberg_marquardt(vec![-40.0, 7.0, 0.0], &[0, 2], 200, &mut Joint::new(eval)).unwrap();
+        let f = levenberg_marquardt(vec![-40.0, 7.0, 0.0], &[0, 2], 200, &mut WithJacobian::new(eval)).unwrap();
         assert!(f.converged && (f.p[0] - 3.0).abs() < 1e-9 && f.p[1] == 7.0 && (f.p[2] - 1.0).abs() < 1e-9, "{f:?}");
         assert!(f.iterations > 2, "the rejected first step counts: {f:?}");
-        assert!(levenberg_marquardt(vec![2.95, 0.0, 0.0], &[0, 2], 200, &mut Joint::new(eval)).is_none());
+        assert!(levenberg_marquardt(vec![2.95, 0.0, 0.0], &[0, 2], 200, &mut WithJacobian::new(eval)).is_none());
     }
 }

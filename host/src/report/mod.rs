@@ -140,7 +140,7 @@ impl Figure for ProfileFig {
 struct BandsFig<'a> {
     laser: usize,
     x0: f64,
-    a: &'a en13231::Analysis,
+    a: &'a en13231::BandAnalysis,
 }
 
 impl Figure for BandsFig<'_> {

@@ -100,13 +100,13 @@ impl BandDifference {
 
 /// The outcome.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Outcome {
+pub struct AnnexAOutcome {
     pub frames: usize,
     /// Per line: the alignment shift found (mm) and its bands.
     pub lines: Vec<(usize, f64, Vec<BandDifference>)>,
 }
 
-impl Outcome {
+impl AnnexAOutcome {
     /// Whether every line meets every limit.
     pub fn passes(&self) -> bool {
         self.lines.iter().all(|(_, _, b)| b.iter().all(BandDifference::passes))
@@ -123,7 +123,7 @@ pub fn config(beam: &Beam) -> SimConfig {
 }
 
 /// Drives the head over the beam and compares.
-pub fn measure(beam: &Beam) -> Result<Outcome, String> {
+pub fn measure(beam: &Beam) -> Result<AnnexAOutcome, String> {
     if !(beam.length_mm.is_finite() && beam.step_mm > 0.0 && beam.length_mm >= 2.0 * 2.0 * 300.0 + 1.0) {
         return Err(format!(
             "a {} mm beam at {} mm per frame: the 100–300 mm band needs more than 2.4 m",
@@ -198,11 +198,11 @@ pub fn measure(beam: &Beam) -> Result<Outcome, String> {
             .collect::<Result<Vec<_>, String>>()?;
         lines.push((s.laser, shift, bands));
     }
-    Ok(Outcome { frames: frames as usize, lines })
+    Ok(AnnexAOutcome { frames: frames as usize, lines })
 }
 
 /// The comparison as a Markdown table, beside the limits and CAT's figures.
-pub fn table(o: &Outcome) -> String {
+pub fn table(o: &AnnexAOutcome) -> String {
     let mut s = String::from(
         "| line | band mm | beam RMS µm | RMS difference µm | Annex A limit µm | CAT µm | pass |\n|---|---|---:|---:|---:|---:|---|\n",
     );

@@ -293,7 +293,7 @@ pub fn csv(stats: &[CaseStats]) -> String {
 /// A head turned and tilted against the datum it was calibrated with,
 /// degrees (the simulator's `HeadGeometry` angles).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct Pose {
+pub struct Misalignment {
     pub yaw_deg: f64,
     pub pitch_deg: f64,
     pub roll_deg: f64,
@@ -302,7 +302,7 @@ pub struct Pose {
 /// One cell of the misalignment sweep.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Cell {
-    pub pose: Pose,
+    pub pose: Misalignment,
     /// Crown radius, mm (`None`: flat across).
     pub crown_mm: Option<f64>,
     pub case: Case,
@@ -325,7 +325,7 @@ pub fn sweep_cells() -> Vec<Cell> {
             for roll_deg in [0.0, 2.0, -2.0] {
                 for crown_mm in [None, Some(300.0), Some(200.0)] {
                     for case in PAPER_CASES {
-                        cells.push(Cell { pose: Pose { yaw_deg, pitch_deg, roll_deg }, crown_mm, case });
+                        cells.push(Cell { pose: Misalignment { yaw_deg, pitch_deg, roll_deg }, crown_mm, case });
                     }
                 }
             }

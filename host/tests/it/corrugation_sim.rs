@@ -46,7 +46,7 @@ fn paper_samples_within_the_limits() {
 #[test]
 fn misaligned_heads_over_crowns_are_right_or_flagged() {
     use cms_host::measure::verdict::Level;
-    use cms_host::sim::closed_loop::{Case, Cell, Pose, summarize, sweep, sweep_markdown};
+    use cms_host::sim::closed_loop::{Case, Cell, Misalignment, summarize, sweep, sweep_markdown};
     let mut cells = Vec::new();
     for yaw_deg in [0.0, 5.0, 10.0, 15.0] {
         for (pitch_deg, roll_deg) in [(0.0, 0.0), (2.0, -2.0), (-2.0, 2.0)] {
@@ -55,7 +55,7 @@ fn misaligned_heads_over_crowns_are_right_or_flagged() {
                     Case { wavelength_mm: 100.0, amplitude_um: 50.0 },
                     Case { wavelength_mm: 50.0, amplitude_um: 100.0 },
                 ] {
-                    cells.push(Cell { pose: Pose { yaw_deg, pitch_deg, roll_deg }, crown_mm, case });
+                    cells.push(Cell { pose: Misalignment { yaw_deg, pitch_deg, roll_deg }, crown_mm, case });
                 }
             }
         }

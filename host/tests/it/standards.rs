@@ -14,7 +14,7 @@ fn sine(len_mm: f64, dx_mm: f64, wavelength_mm: f64, amp_um: f64, phase: f64) ->
     (0..n).map(|i| amp_um * (2.0 * PI * i as f64 * dx_mm / wavelength_mm + phase).sin()).collect()
 }
 
-fn band(a: &en13231::Analysis, lo_mm: f64) -> &en13231::BandStats {
+fn band(a: &en13231::BandAnalysis, lo_mm: f64) -> &en13231::BandStats {
     let b = a.bands.iter().find(|b| b.band.lo_mm == lo_mm).expect("band");
     b.outcome.as_ref().expect("band evaluated")
 }

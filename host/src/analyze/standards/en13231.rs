@@ -114,7 +114,7 @@ const ORDER: usize = 6;
 
 /// The whole analysis of one profile.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Analysis {
+pub struct BandAnalysis {
     pub dx_mm: f64,
     /// Length of the longest continuous run, mm (what "too short" is judged on).
     pub record_mm: f64,
@@ -170,7 +170,7 @@ pub struct BandStats {
 /// Analyses a profile (heights µm, spacing mm, NaN for gaps) in all four
 /// bands. Fails only when the spacing is not usable or nothing is finite;
 /// a band that cannot be evaluated carries its own error.
-pub fn analyze(z_um: &[f64], dx_mm: f64) -> Result<Analysis, StandardsError> {
+pub fn analyze(z_um: &[f64], dx_mm: f64) -> Result<BandAnalysis, StandardsError> {
     check_dx(dx_mm)?;
     let runs = segments(z_um);
     if runs.is_empty() {
@@ -187,7 +187,14 @@ pub fn analyze(z_um: &[f64], dx_mm: f64) -> Result<Analysis, StandardsError> {
             outcome: band_stats(z_um, dx_mm, band, longest),
         })
         .collect();
-    Ok(Analysis { dx_mm, record_mm, finite_mm: run_mm(finite, dx_mm), runs: runs.len(), samples: z_um.len(), bands })
+    Ok(BandAnalysis {
+        dx_mm,
+        record_mm,
+        finite_mm: run_mm(finite, dx_mm),
+        runs: runs.len(),
+        samples: z_um.len(),
+        bands,
+    })
 }
 
 fn band_stats(z_um: &[f64], dx_mm: f64, band: &Band, longest: usize) -> Result<BandStats, StandardsError> {
@@ -429,7 +436,7 @@ fn moving_mean_pp(y: &[f64], w: usize, fallback: &[f64]) -> Vec<f64> {
 
 /// The band table as plain text: one line per band with the criteria and
 /// the figures, or why the band could not be evaluated.
-pub fn band_table(a: &Analysis) -> String {
+pub fn band_table(a: &BandAnalysis) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
@@ -489,12 +496,12 @@ pub fn band_table(a: &Analysis) -> String {
 
 /// The band-filtered profiles as CSV: `x_mm` and one column per band (mm),
 /// empty where a sample is a gap or a band was not evaluated.
-pub fn bands_csv(a: &Analysis) -> String {
+pub fn bands_csv(a: &BandAnalysis) -> String {
     bands_csv_from(a, 0.0)
 }
 
 /// [`bands_csv`] with sample 0 at track position `x0_mm`.
-pub fn bands_csv_from(a: &Analysis, x0_mm: f64) -> String {
+pub fn bands_csv_from(a: &BandAnalysis, x0_mm: f64) -> String {
     let mut s = String::from("x_mm");
     for b in &a.bands {
         let _ = write!(s, ",band_{}_{}_mm", fmt_mm(b.band.lo_mm), fmt_mm(b.band.hi_mm));

@@ -62,7 +62,7 @@ use crate::model::board::{Board, BoardPose};
 use crate::model::vec3::{Vec3, cross, dot, normalized, sub};
 use crate::sim::scene::geom::mat_t_vec;
 use crate::sim::scene::noise::{Rng, SensorPattern, ziggurat};
-use crate::sim::scene::{Camera, Plane, Scene, SimConfig};
+use crate::sim::scene::{Camera, Scene, ScenePlane, SimConfig};
 
 /// Stream of the board images' noise.
 const BOARD_NOISE_STREAM: u64 = 0x424f_4152;
@@ -162,7 +162,7 @@ pub fn board_point(cam: &Camera, pose: &BoardPose, u: f64, v: f64) -> Option<[f6
 
 /// The signed distance (mm) from `plane` of the board point that pixel
 /// `(u, v)` sees.
-fn plane_distance_at(cam: &Camera, pose: &BoardPose, plane: &Plane, u: f64, v: f64) -> Option<f64> {
+fn plane_distance_at(cam: &Camera, pose: &BoardPose, plane: &ScenePlane, u: f64, v: f64) -> Option<f64> {
     ray_on_board(cam, pose, u, v).map(|x| plane.distance_mm(x))
 }
 
@@ -172,7 +172,7 @@ fn plane_distance_at(cam: &Camera, pose: &BoardPose, plane: &Plane, u: f64, v: f
 /// distortion), solved to 1e-9 px. `None` if it does not cross the row inside
 /// the image. Whether that point is on the printed board is the caller's
 /// question ([`board_point`]).
-pub fn laser_column(cam: &Camera, plane: &Plane, pose: &BoardPose, row: f64) -> Option<f64> {
+pub fn laser_column(cam: &Camera, plane: &ScenePlane, pose: &BoardPose, row: f64) -> Option<f64> {
     let f = |u: f64| plane_distance_at(cam, pose, plane, u, row);
     let (lo, hi) = (-0.5, cam.width_px() as f64 - 0.5);
     let step = 8.0;
@@ -216,7 +216,7 @@ pub fn laser_column(cam: &Camera, plane: &Plane, pose: &BoardPose, row: f64) -> 
 #[derive(Clone, Copy, Debug)]
 struct LaserOnBoard {
     /// Its plane, camera frame.
-    plane: Plane,
+    plane: ScenePlane,
     /// δ = g0 + gx·x + gy·y on the board (x, y in mm, board frame).
     g: [f64; 3],
     /// Sheet σ, mm.
@@ -230,7 +230,7 @@ struct LaserOnBoard {
 #[derive(Clone, Debug)]
 pub struct BoardRenderer {
     cfg: SimConfig,
-    planes: Vec<Plane>,
+    planes: Vec<ScenePlane>,
     /// Per laser: the sheet's direction of propagation (unit, camera frame, z > 0).
     beams: Vec<Vec3>,
     /// Per laser: the sheet σ, mm.
@@ -292,7 +292,7 @@ impl BoardRenderer {
     }
 
     /// The laser planes, camera frame (as [`Scene::laser_planes`]).
-    pub fn laser_planes(&self) -> &[Plane] {
+    pub fn laser_planes(&self) -> &[ScenePlane] {
         &self.planes
     }
 

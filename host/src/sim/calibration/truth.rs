@@ -4,11 +4,11 @@
 
 use crate::calib::file::{CalibrationFile, FILE_VERSION, LaserSection, PlaneSection};
 use crate::sim::scene::Scene;
-use crate::sim::scene::geom::Plane;
+use crate::sim::scene::geom::ScenePlane;
 
 /// A plane as `[[laser]]`/`[datum]` numbers, oriented so that `d < 0` (the
 /// normal points from the plane towards the camera).
-fn oriented(p: &Plane) -> ([f64; 3], f64) {
+fn oriented(p: &ScenePlane) -> ([f64; 3], f64) {
     let s = if p.d_mm > 0.0 { -1.0 } else { 1.0 };
     ([s * p.normal[0], s * p.normal[1], s * p.normal[2]], s * p.d_mm)
 }
@@ -18,7 +18,7 @@ fn oriented(p: &Plane) -> ([f64; 3], f64) {
 /// `StripeTruth::height_um`), with the head's optics.
 pub fn truth(scene: &Scene) -> CalibrationFile {
     let cfg = scene.config();
-    let rail_top = Plane { normal: [0.0, 0.0, 1.0], d_mm: 0.0 };
+    let rail_top = ScenePlane { normal: [0.0, 0.0, 1.0], d_mm: 0.0 };
     let datum = scene.camera_pose().plane_to_cam(&rail_top);
     let (n, d_mm) = oriented(&datum);
     let mut f = CalibrationFile::camera_only(&scene.camera().intrinsics, 0.0, None);

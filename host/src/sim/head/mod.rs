@@ -23,7 +23,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 
 pub use scene::SceneCamera;
-pub use server::{MAX_WIDTH, Pty, RowRenderer, ServeOptions, Summary, serve};
+pub use server::{MAX_WIDTH, Pty, RowRenderer, ServeOptions, ServeSummary, serve};
 
 use crate::sim::scene::{Corrugation, SimConfig};
 
@@ -169,7 +169,7 @@ pub fn serve_on_new_pty(
     args: &HeadOptions,
     stop: &AtomicBool,
     on_open: impl FnOnce(&std::path::Path) -> io::Result<()>,
-) -> Result<Summary, SimulateError> {
+) -> Result<ServeSummary, SimulateError> {
     let built = scene::build(args)?;
     let pty = Pty::open()?;
     on_open(pty.path()).map_err(|e| SimulateError::Io("printing the pty path", e))?;
@@ -192,7 +192,7 @@ fn calibration_file(args: &HeadOptions) -> Option<PathBuf> {
 /// the server (lasers off) and waits for the thread.
 pub struct SimHandle {
     stop: Arc<AtomicBool>,
-    thread: Option<JoinHandle<Result<Summary, SimulateError>>>,
+    thread: Option<JoinHandle<Result<ServeSummary, SimulateError>>>,
 }
 
 impl SimHandle {
@@ -202,17 +202,17 @@ impl SimHandle {
     }
 
     /// Stops the server and returns what it did.
-    pub fn stop(mut self) -> Result<Summary, SimulateError> {
+    pub fn stop(mut self) -> Result<ServeSummary, SimulateError> {
         self.join()
     }
 
-    fn join(&mut self) -> Result<Summary, SimulateError> {
+    fn join(&mut self) -> Result<ServeSummary, SimulateError> {
         self.stop.store(true, Ordering::Relaxed);
         match self.thread.take() {
             Some(t) => {
                 t.join().unwrap_or_else(|_| Err(SimulateError::Io("simulated head", io::Error::other("panicked"))))
             }
-            None => Ok(Summary::default()),
+            None => Ok(ServeSummary::default()),
         }
     }
 }

@@ -11,7 +11,7 @@
 //! # Back-pressure
 //! The head never blocks on the link. Replies wait in a bounded queue; when
 //! nobody reads the slave and the pty's buffer is full, new `Profile`
-//! frames are dropped whole (counted in [`Summary::link_dropped_profiles`])
+//! frames are dropped whole (counted in [`ServeSummary::link_dropped_profiles`])
 //! rather than stalling the head: the head's watchdog and command handling
 //! keep running. Small messages (acks, errors, status) have a larger
 //! allowance so a slow reader still sees every answer.
@@ -250,7 +250,7 @@ impl Default for ServeOptions {
 
 /// What a server did, for the closing line.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct Summary {
+pub struct ServeSummary {
     /// Wall time served.
     pub elapsed: Duration,
     /// CPU time of the serving thread (commands, detection, framing, pty).
@@ -277,14 +277,14 @@ pub struct Summary {
     pub lasers_at_exit: u8,
 }
 
-impl Summary {
+impl ServeSummary {
     /// CPU time per produced frame, every thread of the head.
     pub fn cpu_per_frame(&self) -> Duration {
         (self.cpu + self.render_cpu) / (self.frames.max(1) as u32)
     }
 }
 
-impl std::fmt::Display for Summary {
+impl std::fmt::Display for ServeSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let secs = self.elapsed.as_secs_f64();
         write!(
@@ -324,7 +324,7 @@ struct LinkShared {
 /// to the pty while the head goes on with the next frame (written between
 /// frames only, a pty of a few tens of KB would cap the link at one
 /// buffer-full per frame).
-struct Outbox {
+struct PtyOutbox {
     frame: Vec<u8>,
     tx: Option<mpsc::Sender<Vec<u8>>>,
     shared: Arc<LinkShared>,
@@ -335,7 +335,7 @@ struct Outbox {
     dropped_other: u64,
 }
 
-impl Outbox {
+impl PtyOutbox {
     fn new(master: &File, cap: usize) -> Result<Self, SimulateError> {
         let file = master.try_clone().map_err(|e| SimulateError::Io("duplicating the pty master", e))?;
         let shared = Arc::new(LinkShared::default());
@@ -345,7 +345,7 @@ impl Outbox {
             .name("cms-sim-write".into())
             .spawn(move || write_loop(file, rx, &sh))
             .map_err(|e| SimulateError::Io("starting the pty writer", e))?;
-        Ok(Outbox {
+        Ok(PtyOutbox {
             frame: vec![0; MAX_FRAME],
             tx: Some(tx),
             shared,
@@ -413,7 +413,7 @@ impl Outbox {
     }
 }
 
-impl Drop for Outbox {
+impl Drop for PtyOutbox {
     fn drop(&mut self) {
         self.close();
     }
@@ -485,7 +485,7 @@ pub fn serve<R: RowRenderer>(
     detector: cms_core::peak::Config,
     stop: &AtomicBool,
     opts: &ServeOptions,
-) -> Result<Summary, SimulateError> {
+) -> Result<ServeSummary, SimulateError> {
     let start = Instant::now();
     let cpu0 = thread_cpu();
     let mut camera = SimCamera::new(renderer, start);
@@ -526,13 +526,13 @@ pub fn serve<R: RowRenderer>(
     }
     // A tall sensor sends a frame in several parts: room for all of them.
     let parts = (camera.height() as usize).div_ceil(MAX_ROWS_PER_PROFILE).max(1);
-    let mut out = Outbox::new(&pty.master, opts.queue_bytes.max(MAX_FRAME) * parts)?;
+    let mut out = PtyOutbox::new(&pty.master, opts.queue_bytes.max(MAX_FRAME) * parts)?;
     let mut reader: Box<FrameReader<MAX_COMMAND_FRAME>> = Box::default();
     let mut rx = vec![0u8; 4096];
     let mut decoded: Vec<Result<Command, WireError>> = Vec::new();
     let mut clock_ns = || start.elapsed().as_nanos() as u64;
     let (mut lit_acc, mut logged) = (0u8, 0u8);
-    let mut summary = Summary::default();
+    let mut summary = ServeSummary::default();
 
     while !stop.load(Ordering::Relaxed) {
         // Host → head.

@@ -50,14 +50,14 @@ fn rot_z(a: f64) -> Mat3 {
 
 /// A plane `normal · X = d_mm` (unit normal).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Plane {
+pub struct ScenePlane {
     /// Unit normal.
     pub normal: Vec3,
     /// Offset along the normal, mm.
     pub d_mm: f64,
 }
 
-impl Plane {
+impl ScenePlane {
     /// Signed distance of `p` from the plane, mm.
     pub fn distance_mm(&self, p: Vec3) -> f64 {
         dot(self.normal, p) - self.d_mm
@@ -84,14 +84,14 @@ impl Pose {
         mat_t_vec(&self.rot, sub(p, self.origin_mm))
     }
     /// A camera-frame plane in the rail frame.
-    pub fn plane_to_rail(&self, p: &Plane) -> Plane {
+    pub fn plane_to_rail(&self, p: &ScenePlane) -> ScenePlane {
         let n = mat_vec(&self.rot, p.normal);
-        Plane { normal: n, d_mm: p.d_mm + dot(n, self.origin_mm) }
+        ScenePlane { normal: n, d_mm: p.d_mm + dot(n, self.origin_mm) }
     }
     /// A rail-frame plane in the camera frame.
-    pub fn plane_to_cam(&self, p: &Plane) -> Plane {
+    pub fn plane_to_cam(&self, p: &ScenePlane) -> ScenePlane {
         let n = mat_t_vec(&self.rot, p.normal);
-        Plane { normal: n, d_mm: p.d_mm - dot(p.normal, self.origin_mm) }
+        ScenePlane { normal: n, d_mm: p.d_mm - dot(p.normal, self.origin_mm) }
     }
 }
 
@@ -224,13 +224,13 @@ impl HeadGeometry {
     /// The plane of a laser whose line falls `offset_mm` across the rail
     /// from the aim point on the nominal rail top, in the camera frame (a
     /// property of the head: independent of its misalignment).
-    pub fn laser_plane_cam(&self, offset_mm: f64) -> Plane {
+    pub fn laser_plane_cam(&self, offset_mm: f64) -> ScenePlane {
         let lean = (self.camera_tilt_deg + self.alpha_deg).to_radians();
         let (s, c) = lean.sin_cos();
         // Contains the rail axis and the direction (0, sin, -cos): normal (0, cos, sin).
         let normal = [0.0, c, s];
         let through = [0.0, self.lateral_offset_mm + offset_mm, 0.0];
-        let rail = Plane { normal, d_mm: dot(normal, through) };
+        let rail = ScenePlane { normal, d_mm: dot(normal, through) };
         self.nominal_pose().plane_to_cam(&rail)
     }
 }

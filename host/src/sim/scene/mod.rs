@@ -89,12 +89,12 @@ use std::fmt;
 
 use crate::model::vec3::{self, Vec3};
 pub use camera::Camera;
-pub use geom::{HeadGeometry, Plane, Pose};
+pub use geom::{HeadGeometry, Pose, ScenePlane};
 pub use noise::NoiseModel;
 pub use rail::{Corrugation, RailModel};
 
 use noise::{Rng, SensorPattern};
-use rail::Surface;
+use rail::RailSurface;
 
 /// Most lasers a head can have (one bit each of the laser mask).
 pub const MAX_LASERS: usize = 8;
@@ -396,10 +396,10 @@ impl FrameTruth {
 #[derive(Clone)]
 pub struct Scene {
     cfg: SimConfig,
-    surface: Surface,
+    surface: RailSurface,
     pose: Pose,
-    planes_cam: Vec<Plane>,
-    planes_rail: Vec<Plane>,
+    planes_cam: Vec<ScenePlane>,
+    planes_rail: Vec<ScenePlane>,
     /// Initial guess of the along-rail coordinate of a laser's point on a
     /// row: `s ≈ a + b·row`.
     guess: Vec<(f64, f64)>,
@@ -426,10 +426,10 @@ impl Scene {
     /// not land on the rail inside the image.
     pub fn new(cfg: SimConfig) -> Result<Scene, SimError> {
         cfg.validate()?;
-        let surface = Surface::new(&cfg.rail, cfg.seed)?;
+        let surface = RailSurface::new(&cfg.rail, cfg.seed)?;
         let pose = cfg.head.camera_pose();
-        let planes_cam: Vec<Plane> = cfg.lasers.iter().map(|l| cfg.head.laser_plane_cam(l.offset_mm)).collect();
-        let planes_rail: Vec<Plane> = planes_cam.iter().map(|p| pose.plane_to_rail(p)).collect();
+        let planes_cam: Vec<ScenePlane> = cfg.lasers.iter().map(|l| cfg.head.laser_plane_cam(l.offset_mm)).collect();
+        let planes_rail: Vec<ScenePlane> = planes_cam.iter().map(|p| pose.plane_to_rail(p)).collect();
         let cam = &cfg.camera;
         let sensor = SensorPattern::new(&cfg.noise, cam.width_px(), cam.height_px(), cfg.seed);
         let mut scene = Scene {
@@ -504,7 +504,7 @@ impl Scene {
     }
 
     /// The laser planes in the camera frame (what a calibration would find).
-    pub fn laser_planes(&self) -> &[Plane] {
+    pub fn laser_planes(&self) -> &[ScenePlane] {
         &self.planes_cam
     }
 
@@ -683,7 +683,7 @@ impl Scene {
     /// The surface point of laser `k` at along-rail coordinate `s` (mm from
     /// the aim point) with longitudinal profile `h_mm` there, rail frame.
     fn point_on_laser(&self, k: usize, s: f64, h_mm: f64) -> Option<Vec3> {
-        let Plane { normal: n, d_mm } = self.planes_rail[k];
+        let ScenePlane { normal: n, d_mm } = self.planes_rail[k];
         if n[1].abs() < 1e-6 {
             return None;
         }

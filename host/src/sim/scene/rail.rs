@@ -98,7 +98,7 @@ const PERIOD_IN_MAX_WAVELENGTHS: f64 = 40.0;
 
 /// The surface, ready to evaluate.
 #[derive(Clone, Debug)]
-pub(crate) struct Surface {
+pub(crate) struct RailSurface {
     /// (2π/λ per mm, amplitude mm, phase).
     corrugation: Vec<(f64, f64, f64)>,
     /// Roughness samples, mm, periodic (empty: none).
@@ -108,8 +108,8 @@ pub(crate) struct Surface {
     crown_radius_mm: Option<f64>,
 }
 
-impl Surface {
-    pub(crate) fn new(rail: &RailModel, seed: u64) -> Result<Surface, SimError> {
+impl RailSurface {
+    pub(crate) fn new(rail: &RailModel, seed: u64) -> Result<RailSurface, SimError> {
         rail.validate()?;
         let corrugation = rail
             .corrugation
@@ -149,7 +149,7 @@ impl Surface {
             let k = rail.roughness_rms_um * 1e-3 / rms;
             rough = re.into_iter().map(|v| v * k).collect();
         }
-        Ok(Surface { corrugation, rough, step_mm, inv_step: 1.0 / step_mm, crown_radius_mm: rail.crown_radius_mm })
+        Ok(RailSurface { corrugation, rough, step_mm, inv_step: 1.0 / step_mm, crown_radius_mm: rail.crown_radius_mm })
     }
 
     /// Longitudinal profile `h(x)` at track position `x_mm`, mm.
@@ -207,7 +207,7 @@ mod tests {
     #[test]
     fn roughness_rms_band_and_period() {
         let rail = RailModel { corrugation: Vec::new(), roughness_rms_um: 3.0, ..RailModel::default() };
-        let s = Surface::new(&rail, 7).unwrap();
+        let s = RailSurface::new(&rail, 7).unwrap();
         let period = s.rough.len() as f64 * s.step_mm;
         assert!(period >= 40.0 * 500.0, "{period}");
         // RMS over the table, sampled off the grid.
@@ -219,14 +219,14 @@ mod tests {
         assert!((s.profile_mm(123.4) - s.profile_mm(123.4 + period)).abs() < 1e-12);
         assert!((s.profile_mm(-0.001) - s.profile_mm(0.001)).abs() < 1e-5);
         // Another seed, another profile.
-        let t = Surface::new(&rail, 8).unwrap();
+        let t = RailSurface::new(&rail, 8).unwrap();
         assert!((0..50).any(|i| (s.profile_mm(i as f64) - t.profile_mm(i as f64)).abs() > 1e-4));
     }
 
     #[test]
     fn crown() {
         let rail = RailModel { crown_radius_mm: Some(300.0), ..RailModel::flat() };
-        let s = Surface::new(&rail, 0).unwrap();
+        let s = RailSurface::new(&rail, 0).unwrap();
         let (z, slope) = s.crown_mm(10.0).unwrap();
         assert!((z + 100.0 / 600.0).abs() < 1e-3 && (slope + 10.0 / 300.0).abs() < 1e-3);
         assert!(s.crown_mm(301.0).is_none());
