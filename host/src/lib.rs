@@ -28,8 +28,13 @@
 //! * [`sim`] — everything simulated: the scene, the simulated head, closed
 //!   loops against the truth, calibration images, synthetic recordings.
 //! * [`device`] — sessions with a head: listen, capture, upload, the emulated head.
+//!
+//! **Benchmarks**
+//! * [`bench`] — `cms-host bench`: detection accuracy against the Cramér–Rao
+//!   bound, speed, corrugation through the simulated head.
 
 pub mod analyze;
+pub mod bench;
 pub mod calib;
 pub mod device;
 pub mod error;
