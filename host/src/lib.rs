@@ -30,7 +30,7 @@
 //! * [`device`] — sessions with a head: listen, capture, upload, the emulated head.
 //!
 //! **Benchmarks**
-//! * [`bench`] — `cms-host bench`: detection accuracy against the Cramér–Rao
+//! * [`bench`](mod@bench) — `cms-host bench`: detection accuracy against the Cramér–Rao
 //!   bound, speed, corrugation through the simulated head.
 
 pub mod analyze;

@@ -6,8 +6,8 @@
 //! limit ([`crate::analyze::standards`]). A summary goes to stdout (or one JSON
 //! object with `--json`); `--report DIR` writes a Markdown and a
 //! self-contained HTML report with SVG and PNG plots, and CSV exports
-//! ([`report`]); `--parquet DIR` (and the report) the stitched profile,
-//! the blocks and the zones as Parquet files ([`exports`], docs/exports.md).
+//! ([`crate::report`]); `--parquet DIR` (and the report) the stitched profile,
+//! the blocks and the zones as Parquet files ([`crate::report::exports`], docs/exports.md).
 //!
 //! Whatever the recording holds, nothing here panics: a file that is not a
 //! recording, a recording without calibrated points or absurd options are a

@@ -67,7 +67,7 @@
 //! F test asks for it (F > 12) over the highest rung kept so far; a rung
 //! that does not pay is passed over, not the end of the ladder; a rung
 //! whose columns the lines cannot tell apart (the column-normalised normal
-//! matrix's reciprocal condition under [`MIN_RCOND`], e.g. `u³` against
+//! matrix's reciprocal condition under `MIN_RCOND`, e.g. `u³` against
 //! `u` with three lines along the rail) is not tried. With two lines there
 //! is no `u²` in the first rung (it is a level across), with one line no
 //! term across and κ = 0.
@@ -81,8 +81,8 @@
 //!
 //! **Uncertainties.** From the Jacobian at the solution, but not as if the
 //! points' errors were white: each point's influence on the result,
-//! correlated along its line over [`HAC_LAG`] points (Newey–West,
-//! [`hac_variance`]), because a stripe's position error depends on where
+//! correlated along its line over `HAC_LAG` points (Newey–West,
+//! `hac_variance`), because a stripe's position error depends on where
 //! it falls on the pixel grid, which changes slowly along a line. Then
 //! each line is fitted alone on its corrected profile ([`LineFit`]: the
 //! same wave seen by one line), and where the three disagree beyond their
@@ -133,7 +133,7 @@
 //! n points in all: the plane and the start's detrend O(n), the start fits
 //! (`fit`, per line), then per start one refinement per rung of the
 //! ladder (three), each LM iteration O(n·12²); the uncertainties
-//! O(n·(12² + [`HAC_LAG`])); the lines' own fits O(n·4²). A
+//! O(n·(12² + `HAC_LAG`)); the lines' own fits O(n·4²). A
 //! paper-geometry image (3 × 3168 points) fits in tens of milliseconds.
 
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
@@ -282,7 +282,7 @@ pub struct Joint {
 
 /// One line's sine on its corrected profile: `z = c + a sin(ω s) + b
 /// cos(ω s)` over `(s_mm, z_mm)`, from the joint result; uncertainties as
-/// the joint's ([`hac_variance`]).
+/// the joint's (`hac_variance`).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct LineFit {
     /// Laser index.
@@ -733,7 +733,7 @@ fn evaluate_surface(s: &Surface, p: &[f64], free: &[usize]) -> Option<(DVector<f
 /// The linear parameters over `free` (all but ω and κ) by least squares
 /// at `p`'s ω and κ: a start for the refinement, or `None` when the
 /// columns are not independent (reciprocal condition of the
-/// column-normalised normal matrix under [`MIN_RCOND`]: the lines cannot
+/// column-normalised normal matrix under `MIN_RCOND`: the lines cannot
 /// tell those terms apart, e.g. `u³` from `u` with three lines along the
 /// rail).
 fn linear_start(s: &Surface, p: &[f64], free: &[usize]) -> Option<Vec<f64>> {
@@ -829,7 +829,7 @@ fn start_detrend(s: &Surface, across: usize) -> Option<Vec<f64>> {
 /// The one-σ uncertainties of quantities derived from the parameters
 /// (one gradient over them each) of a least-squares solution `p` over
 /// `free` with residual sum `rss`: the residuals' own correlation along each
-/// line ([`hac_variance`]), never below the white-noise figure `σ² gᵀ
+/// line (`hac_variance`), never below the white-noise figure `σ² gᵀ
 /// (JᵀJ)⁻¹ g`. `None` where the normal matrix is singular.
 fn sigmas(s: &Surface, p: &[f64], free: &[usize], rss: f64, grads: &[&[(usize, f64)]]) -> Vec<Option<f64>> {
     let n = s.x.len();
@@ -863,7 +863,7 @@ fn sigmas(s: &Surface, p: &[f64], free: &[usize], rss: f64, grads: &[&[(usize, f
 /// falls on the pixel grid, which changes slowly along a line, and
 /// residuals averaged over 100 rows scatter 1.4–1.8× what white noise of
 /// their RMS would give (the simulated paper head at 30 dB); the white
-/// figure then claims 1.5–2× too little. `L` = [`HAC_LAG`] points.
+/// figure then claims 1.5–2× too little. `L` = `HAC_LAG` points.
 fn hac_variance(h: &[f64], line: &[usize]) -> f64 {
     let mut v = 0.0;
     for (i, (&hi, &li)) in h.iter().zip(line).enumerate() {

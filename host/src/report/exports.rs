@@ -303,7 +303,7 @@ pub fn to_parquet(name: &str, t: &Table, meta: &[(&str, String)]) -> Result<Vec<
     Ok(buf)
 }
 
-/// The file names written by [`write`].
+/// The file names written by [`write()`].
 pub const FILES: [&str; 3] = ["profile.parquet", "blocks.parquet", "zones.parquet"];
 
 /// Writes `profile.parquet`, `blocks.parquet` and `zones.parquet` into

@@ -6,8 +6,8 @@
 //! talking the wire protocol over a pty instead of USB. A listener cannot
 //! tell the difference except by the `board` name in `Hello` (`cms-sim`).
 //!
-//! * [`run`] — the subcommand: prints the pty's slave path as the first line
-//!   of stdout, serves until SIGINT/SIGTERM, prints a summary on stderr.
+//! * [`serve_on_new_pty`] — `cms-host simulate`: the server on a new pty,
+//!   until stopped (the command line prints the pty's path and the summary).
 //! * [`spawn_on_pty`] — the same server on a thread of this process (for
 //!   `cms-host listen sim` and tests); [`resolve_port`] turns a `listen`
 //!   PORT argument into a device path, starting the simulator for `sim`.
@@ -331,7 +331,7 @@ pub fn with_port<T>(port: &str, sim: &SimPort, f: impl FnOnce(&str) -> T) -> Res
 
 /// The scene's configuration these options describe: the preset, then
 /// every option given on top of it. Values are checked here and by
-/// [`Scene::new`].
+/// [`Scene::new`](crate::sim::scene::Scene::new).
 pub fn sim_config(args: &HeadOptions) -> Result<SimConfig, SimulateError> {
     let mut cfg = match args.preset {
         Preset::Reference => SimConfig::reference(),
