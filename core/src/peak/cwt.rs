@@ -335,6 +335,8 @@ pub(crate) fn confirm<S: Sample>(
     scratch: &mut [i32],
 ) -> Result<Option<Confirmed>, Wider> {
     let x = v.x;
+    let n = x.len();
+    let (k_lo, k_hi) = (v.plan.k_lo, v.plan.k_hi);
     let (w_lo, w_hi) = (v.plan.k_width_lo, v.plan.k_width_hi);
     // Climb in scale from rung `k0` at position `c`: the best rung and the
     // responses at it and at both its neighbours (`i32::MIN` where not
@@ -398,12 +400,40 @@ pub(crate) fn confirm<S: Sample>(
     // maximum of the best scale's response (its top is flat, the brightest
     // pixel can be several pixels off), and take the guess from the
     // parabola through the responses at c − 1, c, c + 1.
+    let vertex = |l: i32, m: i32, r: i32| -> i32 {
+        // (l − r) / (2 (l − 2m + r)) in phases, when the three bend down.
+        let (den, num) = (l - 2 * m + r, l - r);
+        if den < 0 && num.unsigned_abs() < den.unsigned_abs() {
+            // |δ| · 16 = |num| / |den| · 8; δ has the sign of r − l.
+            // Rounded down to a phase: the zero is then expected between
+            // the guess and the next phase (what `slope_zero_near` reads first).
+            let q = ratio_q32(num.unsigned_abs(), den.unsigned_abs(), 3) as i32;
+            if num < 0 { q } else { -q - 1 }
+        } else {
+            0
+        }
+    };
     let guess = if RUNGS[kb].scale_q16.0 < 4 << 16 {
-        if c > 0 && c + 1 < x.len() { vertex(x[c - 1].get(), x[c].get(), x[c + 1].get()) } else { 0 }
+        if c > 0 && c + 1 < n { vertex(x[c - 1].get(), x[c].get(), x[c + 1].get()) } else { 0 }
     } else {
-        let moved;
-        let [left, best, right];
-        (c, moved, [left, best, right]) = climb_position(x, c, kb, resp[1]);
+        let mut best = resp[1];
+        let mut left = if c > 0 { r32(response_q8(x, c - 1, kb).0) } else { i32::MIN };
+        let mut right = if c + 1 < n { r32(response_q8(x, c + 1, kb).0) } else { i32::MIN };
+        let mut moved = 0;
+        while moved < 6 {
+            if right > best && right >= left {
+                c += 1;
+                (left, best) = (best, right);
+                right = if c + 1 < n { r32(response_q8(x, c + 1, kb).0) } else { i32::MIN };
+            } else if left > best {
+                c -= 1;
+                (right, best) = (best, left);
+                left = if c > 0 { r32(response_q8(x, c - 1, kb).0) } else { i32::MIN };
+            } else {
+                break;
+            }
+            moved += 1;
+        }
         if moved > 0 {
             (kb, resp) = climb_scale(c, kb);
         }
@@ -418,74 +448,8 @@ pub(crate) fn confirm<S: Sample>(
         return Ok(None);
     }
     let mut flags = Flags::NONE;
-    let (dk_q16, width) = width_of(kb, resp);
-    if (kb <= v.plan.k_lo && dk_q16 <= 0) || (kb >= v.plan.k_hi && dk_q16 >= 0) {
-        // Width at or beyond the scale range's edge.
-        flags.insert(Flags::LOW_CONFIDENCE);
-    }
-    let Some(amplitude) = detection_test(v, c, kb, r0, width, &mut flags) else {
-        return Ok(None);
-    };
-    Ok(Some(Confirmed { c, kb, dk_q16, width, amplitude, flags, guess }))
-}
-
-/// The first guess of the sub-pixel search from three samples `l, m, r`
-/// about the maximum: the vertex of their parabola, in phases from `m`
-/// (0 where they do not bend down or the vertex is beyond them).
-#[inline(always)]
-fn vertex(l: i32, m: i32, r: i32) -> i32 {
-    // (l − r) / (2 (l − 2m + r)) in phases, when the three bend down.
-    let (den, num) = (l - 2 * m + r, l - r);
-    if den < 0 && num.unsigned_abs() < den.unsigned_abs() {
-        // |δ| · 16 = |num| / |den| · 8; δ has the sign of r − l.
-        // Rounded down to a phase: the zero is then expected between
-        // the guess and the next phase (what `slope_zero_near` reads first).
-        let q = ratio_q32(num.unsigned_abs(), den.unsigned_abs(), 3) as i32;
-        if num < 0 { q } else { -q - 1 }
-    } else {
-        0
-    }
-}
-
-/// [`confirm`]'s climb in position for a stripe of 4 px or wider (its top
-/// is flat, the brightest pixel can be several pixels off): from `c`, whose
-/// response on rung `kb` is `best`, up to 6 px towards the larger
-/// neighbouring response. The pixel reached, how far it moved, and the
-/// responses at its left, itself and its right (`i32::MIN` past the
-/// window's ends).
-#[inline(always)]
-fn climb_position<S: Sample>(x: &[S], mut c: usize, kb: usize, mut best: i32) -> (usize, i32, [i32; 3]) {
-    let n = x.len();
-    // Exact in 32 bits (see `confirm`).
-    let r32 = |r: i64| r as i32;
-    let mut left = if c > 0 { r32(response_q8(x, c - 1, kb).0) } else { i32::MIN };
-    let mut right = if c + 1 < n { r32(response_q8(x, c + 1, kb).0) } else { i32::MIN };
-    let mut moved = 0;
-    while moved < 6 {
-        if right > best && right >= left {
-            c += 1;
-            (left, best) = (best, right);
-            right = if c + 1 < n { r32(response_q8(x, c + 1, kb).0) } else { i32::MIN };
-        } else if left > best {
-            c -= 1;
-            (right, best) = (best, left);
-            left = if c > 0 { r32(response_q8(x, c - 1, kb).0) } else { i32::MIN };
-        } else {
-            break;
-        }
-        moved += 1;
-    }
-    (c, moved, [left, best, right])
-}
-
-/// The width σ̂ from the responses `resp` at the best rung `kb` and its
-/// neighbours (`i32::MIN` where not evaluated): the vertex of the parabola
-/// through them on the log-scale axis, as the rung offset (Q16) and the
-/// width.
-#[inline(always)]
-fn width_of(kb: usize, resp: [i32; 3]) -> (i64, Px) {
     // Width: parabola through the neighbouring rungs (log-scale axis).
-    let [rm, r0, rp] = resp;
+    let [rm, _, rp] = resp;
     let dk_q16: i64 = if kb > 0 && rm != i32::MIN && rp != i32::MIN {
         let (den, num) = (rm - 2 * r0 + rp, rm - rp);
         // (rm − rp) / (2 den) in Q16, |·| ≤ ½: a 32-bit division (`ratio_q32`).
@@ -498,24 +462,22 @@ fn width_of(kb: usize, resp: [i32; 3]) -> (i64, Px) {
     } else {
         0
     };
+    if (kb <= k_lo && dk_q16 <= 0) || (kb >= k_hi && dk_q16 >= 0) {
+        // Width at or beyond the scale range's edge.
+        flags.insert(Flags::LOW_CONFIDENCE);
+    }
     // σ̂ = s_kb · 2^(dk/4) ≈ s_kb (1 + y + y²/2), y = dk · ln2/4 (11357/65536).
     let y = (dk_q16 * 11357) >> 16;
     let factor = 65536 + y + ((y * y) >> 17);
-    (dk_q16, Px(((RUNGS[kb].scale_q16.0 as i64 * factor) >> 16) as i32))
-}
+    let width = Px(((RUNGS[kb].scale_q16.0 as i64 * factor) >> 16) as i32);
 
-/// [`confirm`]'s detection test at the best scale, rung `kb`, whose
-/// response at `c` is `r0`: above `threshold ×` its noise, amplitude above
-/// the floor, width within the limits. The amplitude if it passes (weak
-/// ones flagged in `flags`).
-#[inline(always)]
-fn detection_test<S>(v: &RowView<'_, S>, c: usize, kb: usize, r0: i32, width: Px, flags: &mut Flags) -> Option<i64> {
+    // Detection test at the best scale: response above threshold × its noise.
     let noise_resp_q8 = (v.noise_q8 as i64 * RUNGS[kb].noise_q8.0) >> 8;
     let thr = (noise_resp_q8 * v.cfg.threshold_sigma_q8.to_bits() as i64) >> 8;
     let amplitude = (r0 as i64 * RUNGS[kb].amp_inv) >> 24;
     let r0 = r0 as i64;
     if r0 <= thr || amplitude < v.cfg.min_amplitude as i64 || width < v.cfg.min_width || width > v.cfg.max_width {
-        return None;
+        return Ok(None);
     }
     if r0 < 2 * thr {
         // Near an end of the row the kernel (to 3 s) reads the edge pixel
@@ -525,11 +487,11 @@ fn detection_test<S>(v: &RowView<'_, S>, c: usize, kb: usize, r0: i32, width: Px
         // threshold.
         let reach_px = ((3 * RUNGS[kb].scale_q16.0 as i64) >> 16) as usize + 1;
         if v.clipped(c, reach_px) {
-            return None;
+            return Ok(None);
         }
         flags.insert(Flags::LOW_CONFIDENCE);
     }
-    Some(amplitude)
+    Ok(Some(Confirmed { c, kb, dk_q16, width, amplitude, flags, guess }))
 }
 
 #[cfg(test)]
