@@ -64,9 +64,9 @@ pub type Stripes<const N: usize> = Vec<Stripe, N>;
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Method {
     /// Multi-scale Ricker CWT, maximum of the response over continuous
-    /// position at the best-matching scale (the default; see [`cwt`]).
+    /// position at the best-matching scale (the default; see [`cwt`](super::cwt)).
     Cwt,
-    /// The paper's Eq. (12)–(13) as written (see [`paper`]).
+    /// The paper's Eq. (12)–(13) as written (see [`paper`](super::paper)).
     CwtPaper,
     /// Brightest pixel.
     Max,
@@ -138,7 +138,7 @@ pub enum Select {
     All,
 }
 
-/// Detector configuration, validated by [`Detector::new`].
+/// Detector configuration, validated by [`Detector::new`](super::Detector::new).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Config {
