@@ -43,13 +43,19 @@ use crate::odometer::DistanceTrigger;
 use crate::peak::{ColumnWindow, Config, Detector, Select, Stripes, Track, Windows};
 use crate::persist::Stored;
 use crate::protocol::{
-    Calibration, Command, DeviceInfo, DeviceMsg, ErrorCode, HeadState, HostMsg, LASERS, LaserPattern, LaserPoints,
-    MAX_ROWS_PER_PROFILE, Metric, PROTOCOL_VERSION, Point, Profile, RAW_CHUNK_BYTES, RawRows, Start, Status,
-    StoreHealth, Trigger,
+    Calibration, DeviceInfo, DeviceMsg, ErrorCode, HeadState, LASERS, LaserPattern, LaserPoints, MAX_ROWS_PER_PROFILE,
+    Metric, PROTOCOL_VERSION, Point, Profile, RAW_CHUNK_BYTES, RawRows, Start, Status, StoreHealth, Trigger,
 };
 use crate::readout::{Readout, RowSampling};
-use crate::triangulation::{CameraModel, Plane, Triangulator};
+use crate::triangulation::Triangulator;
 use heapless::{String, Vec};
+
+mod calibration;
+mod command;
+pub use calibration::{
+    CalibrationError, MIN_LINE_SEPARATION_PX, WORKING_DEPTH_FRACTION, calibration_is_valid, check_laser_lines,
+    triangulator, working_depth_mm,
+};
 
 /// Longest silence from the host before the lasers go off, µs.
 pub const HEARTBEAT_TIMEOUT_US: u64 = 1_000_000;
@@ -393,173 +399,6 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         self.fail(ErrorCode::Storage, None, reply);
     }
 
-    /// Carries out one command.
-    pub fn handle<C: Camera>(&mut self, cmd: Command, now_us: u64, camera: &C, reply: &mut impl FnMut(&DeviceMsg)) {
-        self.last_heard_us = now_us;
-        let seq = cmd.seq;
-        match cmd.msg {
-            HostMsg::Heartbeat => {}
-            HostMsg::GetInfo => reply(&DeviceMsg::Hello(self.info(camera))),
-            HostMsg::Start(s) => {
-                if self.capture.is_some() {
-                    return self.fail(ErrorCode::Busy, Some(seq), reply);
-                }
-                let valid_mask = s.laser_mask != 0 && s.laser_mask < (1 << LASERS);
-                if !(1..=1000).contains(&s.rate_hz) || !valid_mask {
-                    return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
-                }
-                if camera.width() as usize > W {
-                    return self.fail(ErrorCode::SensorFault, Some(seq), reply);
-                }
-                if !self.duty.sustainable(self.exposure_us, 1_000_000 / s.rate_hz as u64) {
-                    return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
-                }
-                self.distance = match self.trigger {
-                    Trigger::Timed => None,
-                    Trigger::Distance { every_um } => {
-                        match camera.odometer_um().map(|p| DistanceTrigger::new(every_um, p)) {
-                            Some(Ok(t)) => Some(t),
-                            _ => return self.fail(ErrorCode::OutOfRange, Some(seq), reply),
-                        }
-                    }
-                };
-                // The detector's saturation level and noise floor assume its
-                // bit depth: streaming with another camera depth is refused.
-                if self.detector.config().bits != camera.bits() {
-                    return self.fail(ErrorCode::InvalidConfig, Some(seq), reply);
-                }
-                self.start = s;
-                self.frame_readout = self.readout;
-                self.state = HeadState::Streaming;
-                self.fault = None;
-                self.epoch_us = if self.frames == 0 { now_us } else { self.epoch_us };
-                self.next_frame_us = now_us;
-                self.next_status_us = now_us + STATUS_INTERVAL_US;
-                self.window_start_us = now_us;
-                self.window_on_us = 0;
-                self.sequential_next = 0;
-                let w = camera.width() as i32;
-                let lit = s.laser_mask.count_ones() as i32;
-                let mut k = 0;
-                for (i, t) in self.track.iter_mut().enumerate() {
-                    if s.laser_mask & (1 << i) != 0 {
-                        k += 1;
-                        *t = Px::from_int(w * k / (lit + 1));
-                    }
-                }
-                reply(&DeviceMsg::Ack(seq));
-                reply(&DeviceMsg::Status(self.status(now_us)));
-            }
-            HostMsg::Stop => {
-                self.state = HeadState::Idle;
-                self.capture = None;
-                self.set_lasers(0);
-                reply(&DeviceMsg::Ack(seq));
-                reply(&DeviceMsg::Status(self.status(now_us)));
-            }
-            HostMsg::SetExposure { exposure_us: us } => {
-                let period_us = 1_000_000 / self.start.rate_hz as u64;
-                let streaming = self.state == HeadState::Streaming;
-                if !(EXPOSURE_RANGE_US.0..=EXPOSURE_RANGE_US.1).contains(&us)
-                    || (streaming && !self.duty.sustainable(us, period_us))
-                {
-                    return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
-                }
-                self.exposure_us = us;
-                self.store_dirty = true;
-                reply(&DeviceMsg::Ack(seq));
-            }
-            HostMsg::SetDetector(cfg) => {
-                if self.state == HeadState::Streaming {
-                    return self.fail(ErrorCode::Busy, Some(seq), reply);
-                }
-                match Detector::new(cfg) {
-                    Ok(d) => {
-                        self.detector = d;
-                        self.store_dirty = true;
-                        reply(&DeviceMsg::Ack(seq));
-                    }
-                    Err(_) => self.fail(ErrorCode::InvalidConfig, Some(seq), reply),
-                }
-            }
-            HostMsg::SetCalibration(c) => {
-                if self.state == HeadState::Streaming {
-                    return self.fail(ErrorCode::Busy, Some(seq), reply);
-                }
-                if self.load_calibration(c).is_err() {
-                    return self.fail(ErrorCode::InvalidConfig, Some(seq), reply);
-                }
-                self.store_dirty = true;
-                reply(&DeviceMsg::Ack(seq));
-            }
-            HostMsg::CaptureImage(mask) => {
-                if self.state == HeadState::Streaming {
-                    return self.fail(ErrorCode::Busy, Some(seq), reply);
-                }
-                if mask >= (1 << LASERS) {
-                    return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
-                }
-                if self.capture.is_some() {
-                    return self.fail(ErrorCode::Busy, Some(seq), reply);
-                }
-                // The rows go through the head's row buffer, as for Start.
-                if camera.width() as usize > W {
-                    return self.fail(ErrorCode::SensorFault, Some(seq), reply);
-                }
-                self.capture = Some(CaptureJob { seq, mask, next_row: 0 });
-                reply(&DeviceMsg::Ack(seq));
-            }
-            HostMsg::SetWindows(w) => {
-                if self.state == HeadState::Streaming {
-                    return self.fail(ErrorCode::Busy, Some(seq), reply);
-                }
-                let given: Vec<ColumnWindow, LASERS> = w.iter().flatten().copied().collect();
-                if !given.is_empty() && Windows::new(&given, camera.width()).is_err() {
-                    return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
-                }
-                self.windows = w;
-                reply(&DeviceMsg::Ack(seq));
-            }
-            HostMsg::SetReadout { first_row, rows, skip } => {
-                if self.state == HeadState::Streaming {
-                    return self.fail(ErrorCode::Busy, Some(seq), reply);
-                }
-                match Readout::from_factor(first_row, rows, skip, camera.height()) {
-                    Ok(r) => {
-                        self.readout = Some(r);
-                        reply(&DeviceMsg::Ack(seq));
-                    }
-                    Err(_) => self.fail(ErrorCode::OutOfRange, Some(seq), reply),
-                }
-            }
-            HostMsg::SetTracking { half_width_px } => {
-                if self.state == HeadState::Streaming {
-                    return self.fail(ErrorCode::Busy, Some(seq), reply);
-                }
-                if half_width_px == 0 {
-                    self.tracking = None;
-                } else {
-                    match Track::new(half_width_px) {
-                        Ok(t) => self.tracking = Some(t),
-                        Err(_) => return self.fail(ErrorCode::OutOfRange, Some(seq), reply),
-                    }
-                }
-                reply(&DeviceMsg::Ack(seq));
-            }
-            HostMsg::SetTrigger(t) => {
-                if self.state == HeadState::Streaming {
-                    return self.fail(ErrorCode::Busy, Some(seq), reply);
-                }
-                if !valid_trigger(t) {
-                    return self.fail(ErrorCode::OutOfRange, Some(seq), reply);
-                }
-                self.trigger = t;
-                self.store_dirty = true;
-                reply(&DeviceMsg::Ack(seq));
-            }
-        }
-    }
-
     /// Runs the head: the heartbeat watchdog, a due frame, a pending capture,
     /// a due status. `now_us` is the head's clock; `clock_ns` measures
     /// processing time.
@@ -618,18 +457,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         clock_ns: &mut impl FnMut() -> u64,
         reply: &mut impl FnMut(&DeviceMsg),
     ) {
-        let mask = match self.start.pattern {
-            LaserPattern::Simultaneous => self.start.laser_mask,
-            LaserPattern::Sequential => {
-                // The next laser of the mask, in turn.
-                let mut k = self.sequential_next;
-                while self.start.laser_mask & (1 << k) == 0 {
-                    k = (k + 1) % LASERS as u8;
-                }
-                self.sequential_next = (k + 1) % LASERS as u8;
-                1 << k
-            }
-        };
+        let mask = self.frame_lasers();
         // The rows this frame reads, set on the camera (lasers off) if they
         // are not the ones it has.
         let readout = self.frame_readout.unwrap_or(Readout::full(camera.height()));
@@ -653,9 +481,6 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         let width = camera.width() as usize;
         let height = readout.rows_read() as usize;
         let parts = height.div_ceil(MAX_ROWS_PER_PROFILE).clamp(1, 255) as u8;
-        // A binned row is triangulated at its rows' centre; a whole-frame
-        // camera's rows outside the readout are passed over unprocessed.
-        let centre = if sampling == RowSampling::Bin { readout.bin_centre_q16() } else { Q16_16::ZERO };
         let mut next_sensor_row = 0u16;
         self.profile.seq = self.frame_seq;
         self.profile.parts = parts;
@@ -677,7 +502,6 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         if let Some(t) = &mut self.tracking {
             t.reset();
         }
-        let lit = mask.count_ones() as usize;
         for part in 0..parts {
             self.profile.part = part;
             self.profile.lasers.clear();
@@ -688,33 +512,8 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             }
             let first = part as usize * MAX_ROWS_PER_PROFILE;
             let last = (first + MAX_ROWS_PER_PROFILE).min(height);
-            for i in first..last {
-                let r = readout.sensor_row(i as u16);
-                if sampling == RowSampling::WholeFrame {
-                    while next_sensor_row < r {
-                        if camera.read_row(&mut self.row[..width]).is_err() {
-                            return self.fail(ErrorCode::SensorFault, None, reply);
-                        }
-                        next_sensor_row += 1;
-                    }
-                    next_sensor_row += 1;
-                }
-                if camera.read_row(&mut self.row[..width]).is_err() {
-                    return self.fail(ErrorCode::SensorFault, None, reply);
-                }
-                let mut stripes: Stripes<LASERS> = Stripes::new();
-                let found = match (&self.frame_windows, &mut self.tracking) {
-                    (None, _) => self.detector.detect(&self.row[..width], &mut stripes),
-                    (Some(w), None) => self.detector.detect_in(&self.row[..width], w, &mut stripes),
-                    (Some(w), Some(t)) => self.detector.detect_tracked(&self.row[..width], w, t, &mut stripes),
-                };
-                if found.is_err() {
-                    return self.fail(ErrorCode::SensorFault, None, reply);
-                }
-                assign(&stripes, lit, &mut self.track, &mut self.profile.lasers, r);
-                if let Some((_, t)) = &self.calibration {
-                    triangulate(t, &mut self.profile.lasers, r, centre);
-                }
+            if self.measure_rows(camera, (readout, sampling), first..last, &mut next_sensor_row).is_err() {
+                return self.fail(ErrorCode::SensorFault, None, reply);
             }
             // Lend the profile to the message without copying it twice.
             let msg = DeviceMsg::Profile(core::mem::replace(&mut self.profile, Profile::empty()));
@@ -729,6 +528,64 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         self.window_frames = self.window_frames.wrapping_add(1);
         self.window_rows = self.window_rows.wrapping_add(height as u32);
         self.window_ns = self.window_ns.wrapping_add(dt);
+    }
+
+    /// The lasers a frame lights: every laser of the mask, or the next of
+    /// them in turn.
+    fn frame_lasers(&mut self) -> u8 {
+        match self.start.pattern {
+            LaserPattern::Simultaneous => self.start.laser_mask,
+            LaserPattern::Sequential => {
+                // The next laser of the mask, in turn.
+                let mut k = self.sequential_next;
+                while self.start.laser_mask & (1 << k) == 0 {
+                    k = (k + 1) % LASERS as u8;
+                }
+                self.sequential_next = (k + 1) % LASERS as u8;
+                1 << k
+            }
+        }
+    }
+
+    /// Reads the frame's rows `rows` (indices into the readout; the sensor
+    /// row of the next one to read in `next_sensor_row`), finds their
+    /// stripes and adds their points to the profile's lasers. `Err`: the
+    /// camera or the detector failed (a sensor fault).
+    fn measure_rows<C: Camera>(
+        &mut self,
+        camera: &mut C,
+        (readout, sampling): (Readout, RowSampling),
+        rows: core::ops::Range<usize>,
+        next_sensor_row: &mut u16,
+    ) -> Result<(), ()> {
+        let width = camera.width() as usize;
+        let lit = self.profile.laser_mask.count_ones() as usize;
+        // A binned row is triangulated at its rows' centre; a whole-frame
+        // camera's rows outside the readout are passed over unprocessed.
+        let centre = if sampling == RowSampling::Bin { readout.bin_centre_q16() } else { Q16_16::ZERO };
+        for i in rows {
+            let r = readout.sensor_row(i as u16);
+            if sampling == RowSampling::WholeFrame {
+                while *next_sensor_row < r {
+                    camera.read_row(&mut self.row[..width]).map_err(|_| ())?;
+                    *next_sensor_row += 1;
+                }
+                *next_sensor_row += 1;
+            }
+            camera.read_row(&mut self.row[..width]).map_err(|_| ())?;
+            let mut stripes: Stripes<LASERS> = Stripes::new();
+            let found = match (&self.frame_windows, &mut self.tracking) {
+                (None, _) => self.detector.detect(&self.row[..width], &mut stripes),
+                (Some(w), None) => self.detector.detect_in(&self.row[..width], w, &mut stripes),
+                (Some(w), Some(t)) => self.detector.detect_tracked(&self.row[..width], w, t, &mut stripes),
+            };
+            found.map_err(|_| ())?;
+            assign(&stripes, lit, &mut self.track, &mut self.profile.lasers, r);
+            if let Some((_, t)) = &self.calibration {
+                triangulate(t, &mut self.profile.lasers, r, centre);
+            }
+        }
+        Ok(())
     }
 
     /// One band of an image capture (the whole image for a camera that
@@ -918,155 +775,6 @@ fn triangulate(t: &Triangulator, out: &mut Vec<LaserPoints, LASERS>, row: u16, c
 fn round_i32(v: f32) -> i32 {
     if v >= 0.0 { (v + 0.5) as i32 } else { (v - 0.5) as i32 }
 }
-
-/// The triangulator of a calibration: what the head checks before it keeps
-/// one (a zero id is refused too: 0 means "none" in `DeviceInfo`), and the
-/// laser lines apart in the working depth ([`check_laser_lines`] over
-/// [`working_depth_mm`]).
-pub fn triangulator(c: &Calibration) -> Result<Triangulator, CalibrationError> {
-    if c.id == 0 {
-        return Err(CalibrationError::ZeroId);
-    }
-    let camera = CameraModel::from_arrays(c.intrinsics, c.distortion);
-    let planes = c.planes.map(Plane::from);
-    let t = Triangulator::new(&camera, &planes, &Plane::from(c.datum)).map_err(CalibrationError::Geometry)?;
-    check_laser_lines(c, working_depth_mm(c))?;
-    Ok(t)
-}
-
-/// Laser lines closer than this in an image row, px, are refused: the
-/// detector would merge their stripes (σ up to ~2 px on the reference head,
-/// a stripe ±3σ wide) and nothing could tell which laser a stripe is.
-pub const MIN_LINE_SEPARATION_PX: f64 = 8.0;
-
-/// The working depth [`triangulator`] checks the laser lines over: the
-/// datum's depth on the optical axis ± this fraction (the rail moves mm,
-/// the head is mounted at a fixed height: ±25 % is generous).
-pub const WORKING_DEPTH_FRACTION: f64 = 0.25;
-
-/// The depth range (along the optical axis, mm) the head checks the laser
-/// lines over: the datum's depth on the axis ± [`WORKING_DEPTH_FRACTION`]
-/// (`(NaN, NaN)` for a datum the axis misses, which [`Triangulator::new`]
-/// refuses first).
-pub fn working_depth_mm(c: &Calibration) -> (f64, f64) {
-    let z = f64::from(c.datum[3]) / f64::from(c.datum[2]);
-    (z * (1.0 - WORKING_DEPTH_FRACTION), z * (1.0 + WORKING_DEPTH_FRACTION))
-}
-
-/// Checks that the three laser lines are where the head's pipeline needs
-/// them for every surface depth `z` in `depth_mm` and every image row: in
-/// laser order left to right (the pipeline and `measure` number the
-/// stripes of a row that way), at least [`MIN_LINE_SEPARATION_PX`] apart,
-/// and each laser's line inside the image in the middle row at the middle
-/// of `depth_mm`.
-///
-/// In the undistorted normalised image, laser `k` (`n·X = d`) on a surface
-/// at depth `z` in the row of normalised `y` lies at
-/// `x = (d/z − n_y·y − n_z)/n_x`: affine in `(y, 1/z)`, so the gap between
-/// two lines is least at a corner of the rectangle rows × depths, and the
-/// four corners decide (no sampling, a few dozen flops). The rows are
-/// `y ∈ ±c_y/f_y` and the columns `±c_x/f_x` (the principal point taken as
-/// the image centre: the message carries no image size; distortion
-/// ignored, which moves the edges by a few px).
-pub fn check_laser_lines(c: &Calibration, depth_mm: (f64, f64)) -> Result<(), CalibrationError> {
-    let [fx, fy, cx, cy, _] = c.intrinsics.map(f64::from);
-    let x_at = |k: usize, y: f64, z: f64| {
-        let [nx, ny, nz, d] = c.planes[k].map(f64::from);
-        (d / z - ny * y - nz) / nx
-    };
-    let z_datum = 0.5 * (depth_mm.0 + depth_mm.1);
-    for k in 0..LASERS {
-        let u = fx * x_at(k, 0.0, z_datum);
-        if !(u.is_finite() && u.abs() <= cx) {
-            return Err(CalibrationError::LineOutOfView { laser: k as u8, depth_mm: z_datum as f32 });
-        }
-    }
-    let y_edge = cy / fy;
-    for k in 0..LASERS - 1 {
-        for z in [depth_mm.0, depth_mm.1] {
-            for y in [-y_edge, y_edge] {
-                let gap_px = fx * (x_at(k + 1, y, z) - x_at(k, y, z));
-                // NaN (a degenerate plane) fails too.
-                if gap_px.is_nan() || gap_px < MIN_LINE_SEPARATION_PX {
-                    return Err(CalibrationError::LinesTooClose {
-                        left: k as u8,
-                        gap_px: gap_px as f32,
-                        depth_mm: z as f32,
-                        row_px: (fy * y + cy) as f32,
-                    });
-                }
-            }
-        }
-    }
-    Ok(())
-}
-
-/// A calibration is usable when [`triangulator`] accepts it.
-pub fn calibration_is_valid(c: &Calibration) -> bool {
-    triangulator(c).is_ok()
-}
-
-/// Why a head refuses a calibration (`PartialEq` only: it carries the
-/// figures of a refusal as `f32`).
-#[non_exhaustive]
-#[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum CalibrationError {
-    /// The identifier is 0.
-    ZeroId,
-    /// The camera or the planes are unusable.
-    Geometry(crate::triangulation::Error),
-    /// Laser `left`'s line and the next laser's are less than
-    /// [`MIN_LINE_SEPARATION_PX`] apart (negative: crossed, or out of laser
-    /// order) in image row `row_px` on a surface at `depth_mm`.
-    LinesTooClose {
-        /// The left laser of the pair (the other is `left + 1`).
-        left: u8,
-        /// Column of laser `left + 1` minus that of laser `left`, px.
-        gap_px: f32,
-        /// Depth along the optical axis, mm.
-        depth_mm: f32,
-        /// Image row, px.
-        row_px: f32,
-    },
-    /// The laser's line is outside the image in its middle row at the
-    /// middle of the working depth.
-    LineOutOfView {
-        /// The laser.
-        laser: u8,
-        /// Depth along the optical axis, mm.
-        depth_mm: f32,
-    },
-}
-
-impl core::fmt::Display for CalibrationError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match self {
-            CalibrationError::ZeroId => f.write_str("calibration id is 0"),
-            CalibrationError::Geometry(e) => write!(f, "calibration: {e}"),
-            CalibrationError::LinesTooClose { left, gap_px, depth_mm, row_px } if *gap_px <= 0.0 => write!(
-                f,
-                "laser planes {left} and {} cross, coincide or are out of laser order in the working depth: at {depth_mm:.0} mm, \
-                 row {row_px:.0}, laser {} is {:.1} px left of laser {left} (the lines must run left to right in laser order, \
-                 at least {MIN_LINE_SEPARATION_PX} px apart)",
-                left + 1,
-                left + 1,
-                -gap_px
-            ),
-            CalibrationError::LinesTooClose { left, gap_px, depth_mm, row_px } => write!(
-                f,
-                "laser planes {left} and {} are {gap_px:.1} px apart at {depth_mm:.0} mm, row {row_px:.0} \
-                 (at least {MIN_LINE_SEPARATION_PX} px needed to tell their stripes apart)",
-                left + 1
-            ),
-            CalibrationError::LineOutOfView { laser, depth_mm } => {
-                write!(f, "laser plane {laser} puts its line outside the image at {depth_mm:.0} mm depth")
-            }
-        }
-    }
-}
-
-impl core::error::Error for CalibrationError {}
 
 /// The detector configuration a head starts with: 12-bit pixels, stripes
 /// σ 1.5–4 px, the three strongest.
