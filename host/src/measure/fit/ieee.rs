@@ -54,7 +54,7 @@ pub struct FourParam {
 
 /// The plain IEEE 1057 four-parameter iteration from `omega0`: at each step,
 /// linear least squares on `[sin ωx, cos ωx, 1, x(a cos ωx − b sin ωx)]`, then
-/// `ω += Δω`. No safeguard: it may wander off or diverge (that is why [`fit`]
+/// `ω += Δω`. No safeguard: it may wander off or diverge (that is why [`fit`](super::fit)
 /// keeps a fallback). `None` if it breaks down (singular system, ω ≤ 0 or not
 /// finite).
 pub fn four_param_ieee(x: &[f64], z: &[f64], omega0: f64, max_iterations: usize) -> Option<FourParam> {

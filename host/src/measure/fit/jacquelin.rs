@@ -33,7 +33,7 @@ pub struct Jacquelin {
 /// 3. The three-parameter fit ([`three_param`]) at ω₂.
 ///
 /// ω₂ is *not* the least-squares ω (the residual is generally lower nearby;
-/// [`fit`] uses it as one more start value and refines). On the public test
+/// [`fit`](super::fit) uses it as one more start value and refines). On the public test
 /// vector of docs/reference.md §3 it gives ω = 2.02074, offset −0.405617, coefficients
 /// 1.27520 and −0.577491. Its weakness is step 1's numerical integration: it
 /// needs several points per period (ω₁ is biased by about 1/n² at n points
