@@ -1,7 +1,7 @@
 //! Calibration images from the simulated head: a planar checkerboard seen by
 //! the head's camera, lit by a lamp and, optionally, by the head's lasers —
 //! rendered from the same model as the rail ([`Camera`], the laser planes of
-//! [`Scene::laser_planes`], the sensor's [`noise`](crate::sim::scene::noise)), so that
+//! [`Scene::laser_planes`](crate::sim::scene::Scene::laser_planes), the sensor's [`noise`](crate::sim::scene::noise)), so that
 //! the calibration chain (`cms-host calibrate camera|lasers`) can be checked
 //! against the truth.
 //!
@@ -47,7 +47,7 @@
 //!   stripes without moving them;
 //! * **sensor**: the sim's ambient light (behind the band-pass filter, with
 //!   its gradient), hot pixels, column and row banding, shot and read noise,
-//!   saturation and quantisation, exactly as [`Scene`] reads out a row (the
+//!   saturation and quantisation, exactly as [`Scene`](crate::sim::scene::Scene) reads out a row (the
 //!   same sensor pattern: same seed). The random noise of an image depends on
 //!   `(config seed, shot)` only.
 //!
