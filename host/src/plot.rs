@@ -30,6 +30,36 @@ pub trait Figure {
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String>;
 }
 
+/// Why a plot could not be made.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum PlotError {
+    /// plotters could not draw it (its error, as text: plotters' errors
+    /// borrow the backend and cannot be kept).
+    #[error("{0}")]
+    Draw(String),
+    /// The PNG could not be encoded.
+    #[error("{}: {source}", path.display())]
+    Encode {
+        /// The PNG's file.
+        path: std::path::PathBuf,
+        /// The encoder's error.
+        source: image::ImageError,
+    },
+    /// A file could not be written.
+    #[error(transparent)]
+    Output(#[from] crate::output::OutputError),
+}
+
+impl crate::error::Classify for PlotError {
+    fn class(&self) -> crate::Class {
+        match self {
+            PlotError::Output(e) => e.class(),
+            PlotError::Draw(_) | PlotError::Encode { .. } => crate::Class::Other,
+        }
+    }
+}
+
 /// plotters' drawing error as text.
 pub fn err<E: std::fmt::Debug>(e: E) -> String {
     format!("plotting: {e:?}")
@@ -37,21 +67,21 @@ pub fn err<E: std::fmt::Debug>(e: E) -> String {
 
 /// Renders `fig` at `size` px as `BASE.svg` and `BASE.png`. Returns the SVG
 /// text too (for embedding in HTML).
-pub fn svg_and_png(base: &Path, size: (u32, u32), fig: &impl Figure) -> Result<String, String> {
+pub fn svg_and_png(base: &Path, size: (u32, u32), fig: &impl Figure) -> Result<String, PlotError> {
     fonts();
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, size).into_drawing_area();
-        fig.draw(&root)?;
-        root.present().map_err(err)?;
+        fig.draw(&root).map_err(PlotError::Draw)?;
+        root.present().map_err(|e| PlotError::Draw(err(e)))?;
     }
     let svg_path = base.with_extension("svg");
-    crate::output::write_atomically(&svg_path, |w| w.write_all(svg.as_bytes())).map_err(|e| e.to_string())?;
+    crate::output::write_atomically(&svg_path, |w| w.write_all(svg.as_bytes()))?;
     let mut rgb = vec![0u8; size.0 as usize * size.1 as usize * 3];
     {
         let root = BitMapBackend::with_buffer(&mut rgb, size).into_drawing_area();
-        fig.draw(&root)?;
-        root.present().map_err(err)?;
+        fig.draw(&root).map_err(PlotError::Draw)?;
+        root.present().map_err(|e| PlotError::Draw(err(e)))?;
     }
     let png_path = base.with_extension("png");
     let mut png = std::io::Cursor::new(Vec::new());
@@ -63,7 +93,7 @@ pub fn svg_and_png(base: &Path, size: (u32, u32), fig: &impl Figure) -> Result<S
         image::ExtendedColorType::Rgb8,
         image::ImageFormat::Png,
     )
-    .map_err(|e| format!("{}: {e}", png_path.display()))?;
-    crate::output::write_atomically(&png_path, |w| w.write_all(png.get_ref())).map_err(|e| e.to_string())?;
+    .map_err(|source| PlotError::Encode { path: png_path.clone(), source })?;
+    crate::output::write_atomically(&png_path, |w| w.write_all(png.get_ref()))?;
     Ok(svg)
 }

@@ -55,7 +55,7 @@ pub struct LaserEstimate {
     /// Stitched track length fitted, mm.
     pub length_mm: f64,
     /// The sine, or why there is none.
-    pub fit: Result<Sine, String>,
+    pub fit: Result<Sine, SineError>,
 }
 
 /// A fitted sine.
@@ -96,11 +96,29 @@ fn fft_omega(x: &[f64], z: &[f64]) -> Option<f64> {
     Some(std::f64::consts::TAU * (k as f64 + delta) / (m as f64 * dx))
 }
 
+/// Why the quick sine fit gave nothing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum SineError {
+    /// Too few samples (or unequal lengths).
+    #[error("{0} samples")]
+    TooFew(usize),
+    /// The spectrum has no peak.
+    #[error("no spectral peak")]
+    NoPeak,
+    /// The linear fit at the peak is singular.
+    #[error("singular fit")]
+    Singular,
+    /// The fit is not finite.
+    #[error("no finite fit")]
+    NotFinite,
+}
+
 /// The quick sine fit of a profile (x mm, z µm); see the module docs.
-pub fn quick_sine(x: &[f64], z_um: &[f64]) -> Result<Sine, String> {
+pub fn quick_sine(x: &[f64], z_um: &[f64]) -> Result<Sine, SineError> {
     let n = x.len() as f64;
     if x.len() < MIN_SAMPLES || x.len() != z_um.len() {
-        return Err(format!("{} samples", x.len()));
+        return Err(SineError::TooFew(x.len()));
     }
     let xm = x.iter().sum::<f64>() / n;
     let zm = z_um.iter().sum::<f64>() / n;
@@ -108,13 +126,13 @@ pub fn quick_sine(x: &[f64], z_um: &[f64]) -> Result<Sine, String> {
     let sxx: f64 = xc.iter().map(|v| v * v).sum();
     let slope = xc.iter().zip(z_um).map(|(x, z)| x * (z - zm)).sum::<f64>() / sxx;
     let zd: Vec<f64> = xc.iter().zip(z_um).map(|(x, z)| z - zm - slope * x).collect();
-    let w0 = fft_omega(&xc, &zd).ok_or("no spectral peak")?;
+    let w0 = fft_omega(&xc, &zd).ok_or(SineError::NoPeak)?;
     let (w, lin) = match fit::four_param_ieee(&xc, &zd, w0, 20) {
         Some(f) if (f.omega / w0 - 1.0).abs() < 0.2 => (f.omega, f.linear),
-        _ => (w0, fit::three_param(&xc, &zd, w0).ok_or("singular fit")?),
+        _ => (w0, fit::three_param(&xc, &zd, w0).ok_or(SineError::Singular)?),
     };
     let s = Sine { wavelength_mm: std::f64::consts::TAU / w, amplitude_um: lin.sin.hypot(lin.cos) };
-    if s.wavelength_mm.is_finite() && s.amplitude_um.is_finite() { Ok(s) } else { Err("no finite fit".into()) }
+    if s.wavelength_mm.is_finite() && s.amplitude_um.is_finite() { Ok(s) } else { Err(SineError::NotFinite) }
 }
 
 impl LiveEstimate {

@@ -69,8 +69,22 @@ fn split(line: &str, sep: Option<char>) -> Vec<&str> {
     }
 }
 
+/// What is wrong with a profile CSV: the line, column or rule, in words.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ProfileError {
+    /// The text is not a profile this reader takes.
+    #[error("{0}")]
+    Format(String),
+}
+
 /// Parses a profile's text (see the module docs); errors say where.
-pub fn parse(text: &str, dx_mm: Option<f64>) -> Result<(ProfileFile, Stitching), String> {
+pub fn parse(text: &str, dx_mm: Option<f64>) -> Result<(ProfileFile, Stitching), ProfileError> {
+    parse_text(text, dx_mm).map_err(ProfileError::Format)
+}
+
+/// [`parse`], its errors as text.
+fn parse_text(text: &str, dx_mm: Option<f64>) -> Result<(ProfileFile, Stitching), String> {
     let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
     let Some((_, header)) = lines.next() else { return Err("no header line (and no data)".into()) };
     let sep = [',', ';', '\t'].into_iter().find(|c| header.contains(*c));
@@ -286,7 +300,7 @@ mod tests {
             ("x_mm,height_um\n,1\n1,2\n", None, "column `x_mm`"),
         ] {
             let e = parse(text, dx).unwrap_err();
-            assert!(e.contains(want), "{text:?}: {e}");
+            assert!(e.to_string().contains(want), "{text:?}: {e}");
         }
     }
 }

@@ -59,7 +59,7 @@ pub fn corrugation(a: &CorrugationOptions) -> Result<String, BenchError> {
         roughness_um: a.roughness_um,
     };
     let t = Instant::now();
-    let stats = cl::study(&PAPER_CASES, &study).map_err(BenchError::ClosedLoop)?;
+    let stats = cl::study(&PAPER_CASES, &study)?;
     let secs = t.elapsed().as_secs_f64();
     let mut md = format!(
         "Closed loop through the simulated head: paper geometry (Table 4), 30 dB stripes, {} runs per case, every \
@@ -74,9 +74,9 @@ pub fn corrugation(a: &CorrugationOptions) -> Result<String, BenchError> {
     put(&path("corrugation.csv"), &cl::csv(&stats))?;
     // One measured frame: λ 50 mm, A 50 µm, run 0.
     let cfg = cl::config(PAPER_CASES[0], 0, study.roughness_um);
-    let m = cl::measure_frame(&cfg, study.row_step).map_err(BenchError::ClosedLoop)?;
+    let m = cl::measure_frame(&cfg, study.row_step)?;
     crate::measure::plot(&path("frame_l50_a50"), &m)
-        .map_err(|why| BenchError::Plot { path: path("frame_l50_a50.png"), why })?;
+        .map_err(|why| BenchError::Plot { path: path("frame_l50_a50.png"), why: why.to_string() })?;
     md += &format!("\nPlot of one frame (λ 50 mm, A 50 µm): {} and .svg\n", path("frame_l50_a50.png").display());
     Ok(md)
 }

@@ -64,8 +64,8 @@ pub enum BenchError {
         source: cms_core::peak::Error,
     },
     /// The closed loop failed.
-    #[error("{0}")]
-    ClosedLoop(String),
+    #[error(transparent)]
+    ClosedLoop(#[from] crate::sim::closed_loop::ClosedLoopError),
 }
 
 impl crate::error::Classify for BenchError {

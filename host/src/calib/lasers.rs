@@ -338,6 +338,38 @@ fn fit(k: usize, pts: &[[f64; 3]], poses: usize, max_rms_mm: f64) -> Result<Lase
     })
 }
 
+/// Why the laser planes could not be calibrated; each says the option,
+/// the laser or the image pair concerned.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum LaserCalibError {
+    /// The detector's scale range (`--scales`).
+    #[error("--scales: {0}")]
+    Scales(cms_core::optics::OpticsError),
+    /// The detector refused its configuration for images of this depth.
+    #[error("detector for {bits}-bit images: {source}")]
+    Detector {
+        /// The images' bit depth.
+        bits: u8,
+        /// The detector's error.
+        source: cms_core::peak::Error,
+    },
+    /// A laser's points make no plane.
+    #[error("{0}")]
+    Plane(String),
+    /// The pose chosen for the datum (`--datum-pose`, from 1) is not usable.
+    #[error("--datum-pose {pose}: {why}")]
+    DatumPose {
+        /// The pose, from 1.
+        pose: usize,
+        /// Why.
+        why: String,
+    },
+    /// No datum without `--datum-pose`.
+    #[error("the middle laser's plane contains the optical axis: give --datum-pose")]
+    NoDatum,
+}
+
 /// Calibrates the laser planes from image pairs of `board` seen by a camera
 /// with intrinsics `intr`.
 pub fn calibrate_lasers(
@@ -345,15 +377,15 @@ pub fn calibrate_lasers(
     board: &Board,
     pairs: &[Pair],
     opts: &LaserOptions,
-) -> Result<LaserCalibration, String> {
-    let scales = ScaleRange::new(Px::from_f64(opts.scales.0), Px::from_f64(opts.scales.1))
-        .map_err(|e| format!("--scales: {e}"))?;
+) -> Result<LaserCalibration, LaserCalibError> {
+    let scales =
+        ScaleRange::new(Px::from_f64(opts.scales.0), Px::from_f64(opts.scales.1)).map_err(LaserCalibError::Scales)?;
     let bits = pairs.first().map_or(8, |p| p.on.bits());
     let mut cfg = Config::new(bits, scales);
     cfg.max_stripes = LASERS as u8 + 1; // one more than lasers: a spurious stripe makes the row ambiguous
     cfg.select = Select::Strongest;
     let mut det: Box<Detector<MAX_WIDTH>> =
-        Box::new(Detector::new(cfg).map_err(|e| format!("detector for {bits}-bit images: {e}"))?);
+        Box::new(Detector::new(cfg).map_err(|source| LaserCalibError::Detector { bits, source })?);
     let mut all: [Vec<[f64; 3]>; LASERS] = Default::default();
     let mut contributing = [0usize; LASERS];
     let mut poses = Vec::new();
@@ -377,7 +409,7 @@ pub fn calibrate_lasers(
     }
     let mut planes = Vec::with_capacity(LASERS);
     for k in 0..LASERS {
-        planes.push(fit(k, &all[k], contributing[k], opts.max_rms_mm)?);
+        planes.push(fit(k, &all[k], contributing[k], opts.max_rms_mm).map_err(LaserCalibError::Plane)?);
     }
     let planes: [LaserPlane; LASERS] = [planes[0], planes[1], planes[2]];
     let datum = match opts.datum_pose {
@@ -386,13 +418,16 @@ pub fn calibrate_lasers(
                 let (n, d) = r.pose.plane();
                 if d > 0.0 { ([-n[0], -n[1], -n[2]], -d) } else { (n, d) }
             }
-            Some(Err(e)) => return Err(format!("--datum-pose {}: {e}", i + 1)),
-            None => return Err(format!("--datum-pose {}: there are {} pairs", i + 1, poses.len())),
+            Some(Err(e)) => return Err(LaserCalibError::DatumPose { pose: i + 1, why: e.clone() }),
+            None => {
+                let why = format!("there are {} pairs", poses.len());
+                return Err(LaserCalibError::DatumPose { pose: i + 1, why });
+            }
         },
         None => {
             let m = &planes[LASERS / 2];
             if m.normal[2].abs() < 1e-6 {
-                return Err("the middle laser's plane contains the optical axis: give --datum-pose".into());
+                return Err(LaserCalibError::NoDatum);
             }
             ([0.0, 0.0, -1.0], -(m.d_mm / m.normal[2]).abs())
         }

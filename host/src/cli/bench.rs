@@ -221,7 +221,7 @@ fn annex_a(a: &AnnexAArgs) -> Result<String> {
         seed: a.seed,
         ..cms_host::sim::annex_a::Beam::default()
     };
-    let o = cms_host::sim::annex_a::measure(&beam).map_err(cms_host::Error::Input)?;
+    let o = cms_host::sim::annex_a::measure(&beam).map_err(|e| cms_host::Error::Input(e.to_string()))?;
     let mut text = String::from(
         "EN 13231-3 Annex A through the simulated head (limits and CAT's figures as RailMeasurement quotes them)\n\n",
     );

@@ -13,6 +13,7 @@ use cms_host::calib::file::{CalibrationFile, HeadSection, LaserSection, PlaneSec
 use cms_host::calib::lasers::{LaserOptions, Pair, calibrate_lasers};
 use cms_host::device::upload;
 use cms_host::input::read_rows;
+use cms_host::model::board::Board;
 use cms_host::sim::calibration::images as render;
 
 use super::exit::input;
@@ -86,7 +87,7 @@ pub struct CameraArgs {
 pub fn camera(args: &CameraArgs) -> anyhow::Result<()> {
     // A device, FIFO or directory as --out is refused before the work.
     cms_host::output::check_target(&args.out)?;
-    let board = calib::camera::parse_board(&args.board, args.square_mm).map_err(Error::Input)?;
+    let board = parse_board(&args.board, args.square_mm).map_err(Error::Input)?;
     if let Some(m) = args.max_view_rms
         && !(m.is_finite() && m > 0.0)
     {
@@ -97,7 +98,7 @@ pub fn camera(args: &CameraArgs) -> anyhow::Result<()> {
     let mut names = Vec::new();
     let mut size: Option<(u32, u32, &Path)> = None;
     for path in &args.images {
-        let (px, w, h) = calib::camera::load_gray(path).map_err(Error::Input)?;
+        let (px, w, h) = load_gray(path).map_err(Error::Input)?;
         match size {
             None => size = Some((w, h, path)),
             Some((w0, h0, first)) if (w0, h0) != (w, h) => {
@@ -250,7 +251,7 @@ pub fn lasers(args: &LasersArgs) -> anyhow::Result<()> {
     cms_host::output::check_target(&args.out)?;
     let mut file = CalibrationFile::load(&args.camera).map_err(Error::from)?;
     let board = match (&args.board, args.square_mm, file.board()) {
-        (Some(b), Some(s), _) => calib::camera::parse_board(b, s).map_err(usage)?,
+        (Some(b), Some(s), _) => parse_board(b, s).map_err(usage)?,
         (None, None, Some(b)) => b,
         (None, None, None) => {
             return Err(usage(format!("{} has no [board]: give --board and --square-mm", args.camera.display())));
@@ -288,7 +289,7 @@ pub fn lasers(args: &LasersArgs) -> anyhow::Result<()> {
         return Err(usage("--datum-pose counts from 1".into()));
     }
     let intr = file.intrinsics();
-    let cal = calibrate_lasers(&intr, &board, &pairs, &opts).map_err(usage)?;
+    let cal = calibrate_lasers(&intr, &board, &pairs, &opts).map_err(|e| usage(e.to_string()))?;
     let mut report = String::new();
     for (i, p) in cal.poses.iter().enumerate() {
         let _ = match p {
@@ -390,4 +391,32 @@ pub struct RenderArgs {
     /// Output directory (created if missing).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
+}
+
+/// Parses `COLSxROWS`.
+fn parse_board(s: &str, square_mm: f64) -> Result<Board, String> {
+    let bad = || format!("--board {s:?}: expected COLSxROWS inner corners, e.g. 9x6");
+    let (c, r) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let cols: usize = c.trim().parse().map_err(|_| bad())?;
+    let rows: usize = r.trim().parse().map_err(|_| bad())?;
+    if !(2..=1000).contains(&cols) || !(2..=1000).contains(&rows) {
+        return Err(format!("--board {s}: needs 2 to 1000 inner corners each way"));
+    }
+    if !(square_mm.is_finite() && square_mm > 0.0) {
+        return Err(format!("--square-mm {square_mm}: must be a positive length"));
+    }
+    Ok(Board { cols, rows, square_mm })
+}
+
+/// Reads an image as grayscale `0..1` (8- or 16-bit, colour converted by luma).
+fn load_gray(path: &Path) -> Result<(Vec<f32>, u32, u32), String> {
+    let bytes = cms_host::input::read_capped(path, cms_host::input::MAX_INPUT_BYTES).map_err(|e| e.to_string())?;
+    let img = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| format!("{}: {e}", path.display()))?
+        .decode()
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    let g = img.to_luma32f();
+    let (w, h) = g.dimensions();
+    Ok((g.into_raw(), w, h))
 }

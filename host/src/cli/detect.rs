@@ -91,7 +91,7 @@ fn method_parser() -> impl TypedValueParser<Value = Method> {
 }
 
 /// Parses `MIN:MAX` (stripe σ, px) into a scale range the detector accepts.
-pub fn parse_scales(s: &str) -> Result<ScaleRange, String> {
+fn parse_scales(s: &str) -> Result<ScaleRange, String> {
     let usage = || format!("expected MIN:MAX, two positive numbers of pixels such as 1.5:4, got `{s}`");
     let (a, b) = s.split_once(':').ok_or_else(usage)?;
     let min: f64 = a.trim().parse().map_err(|_| usage())?;

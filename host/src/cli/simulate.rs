@@ -8,9 +8,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Args, ValueEnum};
-use cms_host::sim::head::{
-    self, CorrugationSpec, HeadOptions, Preset, SimPort, SimulateError, parse_corrugation, parse_gains,
-};
+use cms_host::sim::head::{self, CorrugationSpec, HeadOptions, Preset, SimPort, SimulateError};
 
 /// `--preset`: camera and head geometry.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ValueEnum)]
@@ -201,9 +199,57 @@ impl SimPortArgs {
     }
 }
 
+/// Parses `--corrugation`.
+fn parse_corrugation(s: &str) -> Result<CorrugationSpec, String> {
+    let parts: Vec<&str> = s.split(':').collect();
+    if !(2..=3).contains(&parts.len()) {
+        return Err("expected WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG], e.g. 50:30 or 50:30:90".into());
+    }
+    let wavelength_mm = finite(parts[0], "wavelength")?;
+    let amplitude_um = finite(parts[1], "amplitude")?;
+    let phase_deg = parts.get(2).map_or(Ok(0.0), |p| finite(p, "phase"))?;
+    if wavelength_mm <= 0.0 {
+        return Err(format!("wavelength must be > 0 mm, got {wavelength_mm}"));
+    }
+    if !(0.0..=10_000.0).contains(&amplitude_um) {
+        return Err(format!("amplitude must be in 0..=10000 µm, got {amplitude_um}"));
+    }
+    Ok(CorrugationSpec { wavelength_mm, amplitude_um, phase_deg })
+}
+
+/// Parses `--laser-gain a,b,c`.
+fn parse_gains(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<&str> = s.split(',').collect();
+    if v.len() != 3 {
+        return Err(format!("expected three comma-separated gains (one per laser), got {}", v.len()));
+    }
+    let mut g = [0.0; 3];
+    for (o, p) in g.iter_mut().zip(v) {
+        *o = finite(p, "gain")?;
+        if !(0.0..=100.0).contains(o) {
+            return Err(format!("gain must be in 0..=100, got {o}"));
+        }
+    }
+    Ok(g)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn corrugation_and_gains_parse_or_explain() {
+        let c = parse_corrugation("50:30:90").unwrap();
+        assert_eq!((c.wavelength_mm, c.amplitude_um, c.phase_deg), (50.0, 30.0, 90.0));
+        assert_eq!(parse_corrugation(" 80 : 5 ").unwrap().phase_deg, 0.0);
+        for bad in ["", "50", "50:30:1:2", "0:30", "-5:30", "50:-1", "50:nan", "inf:3", "50:30:x"] {
+            assert!(parse_corrugation(bad).is_err(), "{bad}");
+        }
+        assert_eq!(parse_gains("1,0.5,2").unwrap(), [1.0, 0.5, 2.0]);
+        for bad in ["1,2", "1,2,3,4", "1,x,1", "1,-1,1", "1,nan,1"] {
+            assert!(parse_gains(bad).is_err(), "{bad}");
+        }
+    }
 
     #[test]
     fn option_values_parse_or_explain() {

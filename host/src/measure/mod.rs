@@ -124,18 +124,53 @@ pub struct Measurer {
     scales: Option<cms_core::optics::ScaleRange>,
 }
 
+/// Why a calibration cannot measure, or an image's rows cannot be measured.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum MeasureError {
+    /// The calibration file cannot give the head's calibration.
+    #[error(transparent)]
+    File(#[from] crate::calib::file::FileError),
+    /// The head's own check of the calibration refused it.
+    #[error("{0}")]
+    Calibration(String),
+    /// The laser planes give no profile frame.
+    #[error("the laser planes give no profile frame")]
+    NoFrame,
+    /// The `[head]` section's optics give no detector scale range.
+    #[error("[head]: {0}")]
+    Head(String),
+    /// No `[head]` section: no detector scale range for images.
+    #[error("the calibration has no [head] section (the detector's scale range)")]
+    NoHead,
+    /// Rows wider than the detector takes.
+    #[error("rows of {0} px exceed the detector's {MAX_ROW} px")]
+    TooWide(usize),
+    /// The detector refused its configuration.
+    #[error("detector: {0}")]
+    Detector(cms_core::peak::Error),
+    /// The detector failed on a row.
+    #[error("row {row}: {source}")]
+    Row {
+        /// The row.
+        row: usize,
+        /// The detector's error.
+        source: cms_core::peak::Error,
+    },
+}
+
 impl Measurer {
     /// From a calibration file: needs `[camera]`, `[datum]` and three
     /// `[[laser]]`s.
-    pub fn new(cal: &CalibrationFile) -> Result<Measurer, String> {
-        let head = cal.to_head().map_err(|e| e.to_string())?;
-        let tri = triangulator(&head).map_err(|e| e.to_string())?;
-        let frame = HeadFrame::new(&tri).ok_or("the laser planes give no profile frame")?;
+    pub fn new(cal: &CalibrationFile) -> Result<Measurer, MeasureError> {
+        let head = cal.to_head()?;
+        let tri = triangulator(&head).map_err(|e| MeasureError::Calibration(e.to_string()))?;
+        let frame = HeadFrame::new(&tri).ok_or(MeasureError::NoFrame)?;
         let scales = cal
             .head
             .map(|h| tri.scale_range(h.laser_diameter_mm, (h.range_min_mm, h.range_max_mm)))
             .transpose()
-            .map_err(|e| format!("[head]: {e}"))?;
+            .map_err(|e| MeasureError::Head(e.to_string()))?;
         Ok(Measurer { file: cal.clone(), tri, frame, scales })
     }
 
@@ -145,15 +180,15 @@ impl Measurer {
     }
 
     /// Per-laser profiles of an image: `(profiles, rows skipped)`.
-    pub fn image_profiles(&self, rows: &Rows) -> Result<(Profiles, usize), String> {
-        let scales = self.scales.ok_or("the calibration has no [head] section (the detector's scale range)")?;
+    pub fn image_profiles(&self, rows: &Rows) -> Result<(Profiles, usize), MeasureError> {
+        let scales = self.scales.ok_or(MeasureError::NoHead)?;
         if rows.width() > MAX_ROW {
-            return Err(format!("rows of {} px exceed the detector's {MAX_ROW} px", rows.width()));
+            return Err(MeasureError::TooWide(rows.width()));
         }
         let mut cfg = Config::new(rows.bits(), scales);
         cfg.max_stripes = LASERS as u8;
         cfg.select = Select::Strongest;
-        let mut det = Box::new(Detector::<MAX_ROW>::new(cfg).map_err(|e| format!("detector: {e}"))?);
+        let mut det = Box::new(Detector::<MAX_ROW>::new(cfg).map_err(MeasureError::Detector)?);
         let mut out: Profiles = Default::default();
         let mut skipped = 0;
         let mut stripes: Stripes<LASERS> = Stripes::new();
@@ -162,7 +197,7 @@ impl Measurer {
                 Row::U8(v) => det.detect(v, &mut stripes),
                 Row::U16(v) => det.detect(v, &mut stripes),
             }
-            .map_err(|e| format!("row {r}: {e}"))?;
+            .map_err(|source| MeasureError::Row { row: r, source })?;
             let Ok(r16) = u16::try_from(r) else { break };
             if stripes.len() != LASERS {
                 skipped += 1;
@@ -506,7 +541,7 @@ const COLOURS: [(u8, u8, u8); 3] = [(31, 119, 180), (214, 39, 40), (44, 160, 44)
 
 /// Writes `BASE.svg` and `BASE.png`: the corrected profiles (µm, each line's
 /// offset removed) with the joint sine, and the residuals below.
-pub fn plot(base: &Path, r: &Measurement) -> Result<(), String> {
+pub fn plot(base: &Path, r: &Measurement) -> Result<(), crate::plot::PlotError> {
     crate::plot::svg_and_png(base, (1400, 900), &Plot(r)).map(|_| ())
 }
 

@@ -616,7 +616,7 @@ fn html_escape(s: &str) -> String {
 
 /// Writes the report into `dir`.
 pub fn write(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result<(), Error> {
-    let out_err = |what: &str, e: String| Error::Output(std::io::Error::other(format!("{what}: {e}")));
+    let out_err = |what: &str, e: crate::plot::PlotError| Error::Output(std::io::Error::other(format!("{what}: {e}")));
     std::fs::create_dir_all(dir)
         .map_err(|e| Error::Input(format!("cannot create report directory {}: {e}", dir.display())))?;
     // Each file whole or not at all, and never over a device or FIFO of that name.

@@ -24,6 +24,7 @@
 //! Cost: one frame (480 rows of three stripes) takes about 40 ms to render
 //! and detect; the default 3 m beam at 30 mm a frame is 100 frames.
 
+use crate::sim::closed_loop::ClosedLoopError;
 use std::fmt::Write as _;
 
 use crate::analyze::standards::en13231;
@@ -123,15 +124,15 @@ pub fn config(beam: &Beam) -> SimConfig {
 }
 
 /// Drives the head over the beam and compares.
-pub fn measure(beam: &Beam) -> Result<AnnexAOutcome, String> {
+pub fn measure(beam: &Beam) -> Result<AnnexAOutcome, ClosedLoopError> {
     if !(beam.length_mm.is_finite() && beam.step_mm > 0.0 && beam.length_mm >= 2.0 * 2.0 * 300.0 + 1.0) {
-        return Err(format!(
+        return Err(ClosedLoopError::Options(format!(
             "a {} mm beam at {} mm per frame: the 100–300 mm band needs more than 2.4 m",
             beam.length_mm, beam.step_mm
-        ));
+        )));
     }
     let cfg = config(beam);
-    let mut scene = Scene::new(cfg.clone()).map_err(|e| e.to_string())?;
+    let mut scene = Scene::new(cfg.clone())?;
     let m = Measurer::new(&truth(&scene))?;
     let mut det = detector(&cfg)?;
     let opts = stitch::Options {
@@ -139,7 +140,7 @@ pub fn measure(beam: &Beam) -> Result<AnnexAOutcome, String> {
         registration: Registration::Offset,
         ..stitch::Options::default()
     };
-    let mut stitcher = Stitcher::new(&opts).map_err(|e| e.to_string())?;
+    let mut stitcher = Stitcher::new(&opts).map_err(|e| ClosedLoopError::Analysis(e.to_string()))?;
     let frames = (beam.length_mm / beam.step_mm).ceil() as u64 + 1;
     for n in 0..frames {
         let p = frame_profiles(&mut scene, n, &m, &mut det, beam.row_step)?;
@@ -149,16 +150,18 @@ pub fn measure(beam: &Beam) -> Result<AnnexAOutcome, String> {
         }
         stitcher.push(&f);
     }
-    let stitching = stitcher.finish().map_err(|e| e.to_string())?;
+    let stitching = stitcher.finish().map_err(|e| ClosedLoopError::Analysis(e.to_string()))?;
     let mut lines = Vec::new();
     for s in &stitching.lasers {
         let dx = s.dx_mm;
         let measured = &s.z_um;
         let truth_at =
             |shift: f64| -> Vec<f64> { (0..measured.len()).map(|i| scene.profile_um(s.x_mm(i) + shift)).collect() };
-        let diff_rms = |band: (f64, f64), shift: f64| -> Result<(f64, f64, usize), String> {
-            let a = en13231::band_pass(measured, dx, band.0, band.1).map_err(|e| e.to_string())?;
-            let b = en13231::band_pass(&truth_at(shift), dx, band.0, band.1).map_err(|e| e.to_string())?;
+        let diff_rms = |band: (f64, f64), shift: f64| -> Result<(f64, f64, usize), ClosedLoopError> {
+            let a = en13231::band_pass(measured, dx, band.0, band.1)
+                .map_err(|e| ClosedLoopError::Analysis(e.to_string()))?;
+            let b = en13231::band_pass(&truth_at(shift), dx, band.0, band.1)
+                .map_err(|e| ClosedLoopError::Analysis(e.to_string()))?;
             let edge = (2.0 * band.1 / dx).ceil() as usize;
             let (mut sd, mut sb, mut n) = (0.0, 0.0, 0usize);
             for i in edge..a.len().saturating_sub(edge) {
@@ -169,7 +172,7 @@ pub fn measure(beam: &Beam) -> Result<AnnexAOutcome, String> {
                 }
             }
             if n == 0 {
-                return Err(format!("no settled samples in {}–{} mm", band.0, band.1));
+                return Err(ClosedLoopError::Analysis(format!("no settled samples in {}–{} mm", band.0, band.1)));
             }
             Ok(((sd / n as f64).sqrt(), (sb / n as f64).sqrt(), n))
         };
@@ -195,7 +198,7 @@ pub fn measure(beam: &Beam) -> Result<AnnexAOutcome, String> {
                 let (rms_difference_um, beam_rms_um, samples) = diff_rms((lo, hi), shift)?;
                 Ok(BandDifference { lo_mm: lo, hi_mm: hi, rms_difference_um, beam_rms_um, limit_um, cat_um, samples })
             })
-            .collect::<Result<Vec<_>, String>>()?;
+            .collect::<Result<Vec<_>, ClosedLoopError>>()?;
         lines.push((s.laser, shift, bands));
     }
     Ok(AnnexAOutcome { frames: frames as usize, lines })

@@ -104,9 +104,45 @@ pub fn config(case: Case, run: u64, roughness_um: f64) -> SimConfig {
     cfg
 }
 
+/// Why a closed loop through the simulated head could not run.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ClosedLoopError {
+    /// Options that make no closed loop.
+    #[error("{0}")]
+    Options(String),
+    /// The scene refused its configuration.
+    #[error(transparent)]
+    Scene(#[from] crate::sim::scene::SimError),
+    /// The true calibration cannot measure.
+    #[error(transparent)]
+    Measure(#[from] crate::measure::MeasureError),
+    /// The head's optics give no detector scale range.
+    #[error("{0}")]
+    Optics(String),
+    /// The detector refused its configuration or a row.
+    #[error(transparent)]
+    Detector(#[from] cms_core::peak::Error),
+    /// A fit failed.
+    #[error(transparent)]
+    Fit(#[from] crate::measure::fit::FitError),
+    /// Stitching or band-filtering the measured profile failed.
+    #[error("{0}")]
+    Analysis(String),
+}
+
+impl crate::error::Classify for ClosedLoopError {
+    fn class(&self) -> crate::Class {
+        match self {
+            ClosedLoopError::Options(_) => crate::Class::Input,
+            _ => crate::Class::Other,
+        }
+    }
+}
+
 /// Renders frame 0 of `cfg` (every `row_step`-th row), detects and
 /// triangulates with the true calibration: the measurer and the profiles.
-pub fn profiles(cfg: &SimConfig, row_step: usize) -> Result<(Measurer, Profiles), String> {
+pub fn profiles(cfg: &SimConfig, row_step: usize) -> Result<(Measurer, Profiles), ClosedLoopError> {
     profiles_calibrated_as(cfg, cfg, row_step)
 }
 
@@ -116,9 +152,9 @@ pub fn profiles_calibrated_as(
     cfg: &SimConfig,
     calibrated: &SimConfig,
     row_step: usize,
-) -> Result<(Measurer, Profiles), String> {
-    let mut scene = Scene::new(cfg.clone()).map_err(|e| e.to_string())?;
-    let cal = truth(&Scene::new(calibrated.clone()).map_err(|e| e.to_string())?);
+) -> Result<(Measurer, Profiles), ClosedLoopError> {
+    let mut scene = Scene::new(cfg.clone())?;
+    let cal = truth(&Scene::new(calibrated.clone())?);
     let m = Measurer::new(&cal)?;
     let mut det = detector(cfg)?;
     let profiles = frame_profiles(&mut scene, 0, &m, &mut det, row_step)?;
@@ -127,12 +163,12 @@ pub fn profiles_calibrated_as(
 
 /// The head's detector for `cfg`'s optics, every stripe of a row found,
 /// the strongest kept.
-pub fn detector(cfg: &SimConfig) -> Result<Box<Detector<{ crate::input::detect::MAX_ROW }>>, String> {
-    let scales = cfg.optics().scale_range().map_err(|e| e.to_string())?;
+pub fn detector(cfg: &SimConfig) -> Result<Box<Detector<{ crate::input::detect::MAX_ROW }>>, ClosedLoopError> {
+    let scales = cfg.optics().scale_range().map_err(|e| ClosedLoopError::Optics(e.to_string()))?;
     let mut det_cfg = Config::new(cfg.camera.bits, scales);
     det_cfg.max_stripes = LASERS as u8;
     det_cfg.select = Select::Strongest;
-    Ok(Box::new(Detector::<{ crate::input::detect::MAX_ROW }>::new(det_cfg).map_err(|e| e.to_string())?))
+    Ok(Box::new(Detector::<{ crate::input::detect::MAX_ROW }>::new(det_cfg)?))
 }
 
 /// Frame `frame` of `scene` (every `row_step`-th row) rendered, detected
@@ -144,13 +180,13 @@ pub fn frame_profiles(
     m: &Measurer,
     det: &mut Detector<{ crate::input::detect::MAX_ROW }>,
     row_step: usize,
-) -> Result<Profiles, String> {
+) -> Result<Profiles, ClosedLoopError> {
     let mut row = vec![0u16; scene.width()];
     let mut profiles: Profiles = Default::default();
     for r in (0..scene.height()).step_by(row_step.max(1)) {
         scene.render_row(frame, r, scene.all_lasers_mask(), &mut row);
         let mut s: Stripes<LASERS> = Stripes::new();
-        det.detect(&row, &mut s).map_err(|e| e.to_string())?;
+        det.detect(&row, &mut s)?;
         if s.len() != LASERS {
             continue;
         }
@@ -166,18 +202,18 @@ pub fn frame_profiles(
 
 /// Renders, detects, triangulates and measures frame 0 of `cfg` (all fits,
 /// as `cms-host measure` does).
-pub fn measure_frame(cfg: &SimConfig, row_step: usize) -> Result<Measurement, String> {
+pub fn measure_frame(cfg: &SimConfig, row_step: usize) -> Result<Measurement, ClosedLoopError> {
     let (m, p) = profiles(cfg, row_step)?;
     Ok(m.measure("simulated head", &p))
 }
 
 /// One run: its errors; the middle laser's own fit only if `single`.
-pub fn run(case: Case, run: u64, study: &Study) -> Result<RunError, String> {
+pub fn run(case: Case, run: u64, study: &Study) -> Result<RunError, ClosedLoopError> {
     let (m, p) = profiles(&config(case, run, study.roughness_um), study.row_step)?;
-    let (j, _) = joint_fit(&m.lines(&p)).map_err(|e| e.to_string())?;
+    let (j, _) = joint_fit(&m.lines(&p))?;
     let one = if study.single {
         let (x, z): (Vec<f64>, Vec<f64>) = p[1].iter().copied().unzip();
-        let f = fit::fit(&x, &z, &fit::Options::default()).map_err(|e| e.to_string())?;
+        let f = fit::fit(&x, &z, &fit::Options::default())?;
         Some((f.wavelength_mm - case.wavelength_mm, f.amplitude_mm * 1e3 - case.amplitude_um))
     } else {
         None
@@ -199,7 +235,7 @@ fn mean_std(v: impl Iterator<Item = f64> + Clone) -> (f64, f64) {
 
 /// Runs `runs` runs of each case on `threads` threads (`single`: also
 /// the middle laser's own fit, for comparison).
-pub fn study(cases: &[Case], study: &Study) -> Result<Vec<CaseStats>, String> {
+pub fn study(cases: &[Case], study: &Study) -> Result<Vec<CaseStats>, ClosedLoopError> {
     let (runs, single) = (study.runs, study.single);
     let jobs: Vec<(usize, u64)> = (0..cases.len()).flat_map(|c| (0..runs as u64).map(move |r| (c, r))).collect();
     let results = in_parallel(jobs.len(), study.threads, |i| {
@@ -379,8 +415,7 @@ pub fn sweep_run(cell: Cell, run: u64, row_step: usize) -> SweepRun {
     cfg.head.yaw_deg = cell.pose.yaw_deg;
     cfg.head.pitch_deg = cell.pose.pitch_deg;
     cfg.head.roll_deg = cell.pose.roll_deg;
-    let fitted = profiles_calibrated_as(&cfg, &calibrated, row_step)
-        .and_then(|(m, p)| joint_fit(&m.lines(&p)).map_err(|e| e.to_string()));
+    let fitted = profiles_calibrated_as(&cfg, &calibrated, row_step).and_then(|(m, p)| Ok(joint_fit(&m.lines(&p))?));
     match fitted {
         Ok((j, _)) => SweepRun {
             cell,

@@ -12,7 +12,7 @@ use cms_core::protocol::{DeviceMsg, LaserPoints, MAX_FRAME, Metric, Point, Profi
 use cms_host::analyze::stitch::{self, Direction, FramePoints, Options, Registration};
 use cms_host::recording;
 use cms_host::sim::calibration::truth::truth;
-use cms_host::sim::head::{HeadOptions, parse_corrugation, sim_config};
+use cms_host::sim::head::{CorrugationSpec, HeadOptions, sim_config};
 use cms_host::sim::scene::Scene;
 
 /// A small deterministic generator (xorshift64*), uniform and normal.
@@ -265,7 +265,7 @@ fn bad_input_is_one_line_and_exit_2() {
 fn sim_args(state: &Path) -> HeadOptions {
     HeadOptions {
         speed_mm_s: Some(SIM_SPEED_MM_S),
-        corrugation: vec![parse_corrugation("50:30").unwrap()],
+        corrugation: vec![CorrugationSpec { wavelength_mm: 50.0, amplitude_um: 30.0, phase_deg: 0.0 }],
         roughness_um: Some(1.0),
         rate: 1000,
         state: Some(state.to_path_buf()),

@@ -63,7 +63,6 @@ mod geometry;
 mod refine;
 
 use std::fmt;
-use std::path::Path;
 
 use nalgebra::Matrix3;
 
@@ -442,35 +441,4 @@ pub fn board_pose(intr: &Intrinsics, board: &Board, corners: &[[f64; 2]]) -> Res
         return Err(CalibError::Degenerate("the pose fit diverged"));
     }
     Ok((pose_from([x[0], x[1], x[2]], [x[3], x[4], x[5]]), rms))
-}
-
-// ---------------------------------------------------------------------------
-// The command.
-
-/// Parses `COLSxROWS`.
-pub fn parse_board(s: &str, square_mm: f64) -> Result<Board, String> {
-    let bad = || format!("--board {s:?}: expected COLSxROWS inner corners, e.g. 9x6");
-    let (c, r) = s.split_once(['x', 'X']).ok_or_else(bad)?;
-    let cols: usize = c.trim().parse().map_err(|_| bad())?;
-    let rows: usize = r.trim().parse().map_err(|_| bad())?;
-    if !(2..=1000).contains(&cols) || !(2..=1000).contains(&rows) {
-        return Err(format!("--board {s}: needs 2 to 1000 inner corners each way"));
-    }
-    if !(square_mm.is_finite() && square_mm > 0.0) {
-        return Err(format!("--square-mm {square_mm}: must be a positive length"));
-    }
-    Ok(Board { cols, rows, square_mm })
-}
-
-/// Reads an image as grayscale `0..1` (8- or 16-bit, colour converted by luma).
-pub fn load_gray(path: &Path) -> Result<(Vec<f32>, u32, u32), String> {
-    let bytes = crate::input::read_capped(path, crate::input::MAX_INPUT_BYTES).map_err(|e| e.to_string())?;
-    let img = image::ImageReader::new(std::io::Cursor::new(bytes))
-        .with_guessed_format()
-        .map_err(|e| format!("{}: {e}", path.display()))?
-        .decode()
-        .map_err(|e| format!("{}: {e}", path.display()))?;
-    let g = img.to_luma32f();
-    let (w, h) = g.dimensions();
-    Ok((g.into_raw(), w, h))
 }

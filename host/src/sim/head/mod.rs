@@ -60,47 +60,6 @@ pub struct CorrugationSpec {
     pub phase_deg: f64,
 }
 
-fn finite(s: &str, what: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(v) if v.is_finite() => Ok(v),
-        _ => Err(format!("{what} {s:?} is not a finite number")),
-    }
-}
-
-/// Parses `--corrugation`.
-pub fn parse_corrugation(s: &str) -> Result<CorrugationSpec, String> {
-    let parts: Vec<&str> = s.split(':').collect();
-    if !(2..=3).contains(&parts.len()) {
-        return Err("expected WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG], e.g. 50:30 or 50:30:90".into());
-    }
-    let wavelength_mm = finite(parts[0], "wavelength")?;
-    let amplitude_um = finite(parts[1], "amplitude")?;
-    let phase_deg = parts.get(2).map_or(Ok(0.0), |p| finite(p, "phase"))?;
-    if wavelength_mm <= 0.0 {
-        return Err(format!("wavelength must be > 0 mm, got {wavelength_mm}"));
-    }
-    if !(0.0..=10_000.0).contains(&amplitude_um) {
-        return Err(format!("amplitude must be in 0..=10000 µm, got {amplitude_um}"));
-    }
-    Ok(CorrugationSpec { wavelength_mm, amplitude_um, phase_deg })
-}
-
-/// Parses `--laser-gain a,b,c`.
-pub fn parse_gains(s: &str) -> Result<[f64; 3], String> {
-    let v: Vec<&str> = s.split(',').collect();
-    if v.len() != 3 {
-        return Err(format!("expected three comma-separated gains (one per laser), got {}", v.len()));
-    }
-    let mut g = [0.0; 3];
-    for (o, p) in g.iter_mut().zip(v) {
-        *o = finite(p, "gain")?;
-        if !(0.0..=100.0).contains(o) {
-            return Err(format!("gain must be in 0..=100, got {o}"));
-        }
-    }
-    Ok(g)
-}
-
 /// The simulated head: its scene, camera and state directory (`cms-host
 /// simulate`, and the scene part of `listen sim`). `Default` is the command
 /// line without options; `None` keeps the preset's value.
@@ -478,20 +437,6 @@ mod tests {
     use crate::sim::scene::Scene;
 
     #[test]
-    fn option_values_parse_or_explain() {
-        let c = parse_corrugation("50:30:90").unwrap();
-        assert_eq!((c.wavelength_mm, c.amplitude_um, c.phase_deg), (50.0, 30.0, 90.0));
-        assert_eq!(parse_corrugation(" 80 : 5 ").unwrap().phase_deg, 0.0);
-        for bad in ["", "50", "50:30:1:2", "0:30", "-5:30", "50:-1", "50:nan", "inf:3", "50:30:x"] {
-            assert!(parse_corrugation(bad).is_err(), "{bad}");
-        }
-        assert_eq!(parse_gains("1,0.5,2").unwrap(), [1.0, 0.5, 2.0]);
-        for bad in ["1,2", "1,2,3,4", "1,x,1", "1,-1,1", "1,nan,1"] {
-            assert!(parse_gains(bad).is_err(), "{bad}");
-        }
-    }
-
-    #[test]
     fn counts_are_codes_at_the_chosen_depth() {
         let args = HeadOptions {
             bits: Some(12),
@@ -499,7 +444,7 @@ mod tests {
             banding: Some(1.0),
             ambient: Some(40.0),
             laser_gain: Some([1.0, 1.0, 0.5]),
-            corrugation: vec![parse_corrugation("60:25:180").unwrap()],
+            corrugation: vec![CorrugationSpec { wavelength_mm: 60.0, amplitude_um: 25.0, phase_deg: 180.0 }],
             ..HeadOptions::default()
         };
         let cfg = sim_config(&args).unwrap();

@@ -11,7 +11,7 @@ use std::io;
 use std::path::{Path, PathBuf};
 
 use cms_core::protocol::v3::AnyCommand;
-use cms_core::protocol::{Calibration, Command, HostMsg, MAX_COMMAND_FRAME, decode_frame, encode};
+use cms_core::protocol::{Calibration, Command, HostMsg, MAX_COMMAND_FRAME, WireError, decode_frame, encode};
 
 /// The calibration file inside a state directory.
 pub const FILE_NAME: &str = "calibration.frame";
@@ -29,8 +29,48 @@ pub fn default_dir() -> Option<PathBuf> {
     Some(base.join("cms-host/sim-head"))
 }
 
+/// Why the stored calibration could not be read or kept.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum StoredError {
+    /// The file is not one calibration record (`detail` says how, with
+    /// its leading space).
+    #[error("{}: not a calibration record{detail}", path.display())]
+    NotARecord {
+        /// The file.
+        path: PathBuf,
+        /// How it is not one.
+        detail: String,
+    },
+    /// The record's frame is damaged.
+    #[error("{}: damaged calibration record ({source})", path.display())]
+    Damaged {
+        /// The file.
+        path: PathBuf,
+        /// The frame's error.
+        source: WireError,
+    },
+    /// The file could not be read.
+    #[error(transparent)]
+    Read(#[from] crate::input::InputError),
+    /// The calibration could not be encoded.
+    #[error("encoding the calibration: {0}")]
+    Encode(WireError),
+    /// The folder could not be made.
+    #[error("{}: {source}", path.display())]
+    CreateDir {
+        /// The folder.
+        path: PathBuf,
+        /// Why.
+        source: io::Error,
+    },
+    /// The file could not be written.
+    #[error(transparent)]
+    Write(#[from] crate::output::OutputError),
+}
+
 /// The stored calibration, `None` if there is none.
-pub fn load(path: &Path) -> Result<Option<Calibration>, String> {
+pub fn load(path: &Path) -> Result<Option<Calibration>, StoredError> {
     // One frame at most (and one byte more, to tell a longer file).
     let mut bytes = match crate::input::read_capped(path, MAX_COMMAND_FRAME as u64 + 1) {
         Ok(b) => b,
@@ -40,32 +80,33 @@ pub fn load(path: &Path) -> Result<Option<Calibration>, String> {
             return Ok(None);
         }
         Err(crate::input::InputError { kind: crate::input::InputErrorKind::TooBig { .. }, .. }) => {
-            return Err(format!("{}: not a calibration record (longer than a frame)", path.display()));
+            return Err(StoredError::NotARecord { path: path.to_path_buf(), detail: " (longer than a frame)".into() });
         }
-        Err(e) => return Err(e.to_string()),
+        Err(e) => return Err(e.into()),
     };
     if bytes.len() > MAX_COMMAND_FRAME || bytes.last() != Some(&0) {
-        return Err(format!("{}: not a calibration record ({} bytes)", path.display(), bytes.len()));
+        let detail = format!(" ({} bytes)", bytes.len());
+        return Err(StoredError::NotARecord { path: path.to_path_buf(), detail });
     }
     let n = bytes.len() - 1;
     // A record of protocol 3 (an earlier build's) reads too: the command's
     // bytes are the same.
     match decode_frame::<AnyCommand>(&mut bytes[..n]) {
         Ok(AnyCommand(Command { msg: HostMsg::SetCalibration(c), .. })) => Ok(Some(c)),
-        Ok(_) => Err(format!("{}: not a calibration record", path.display())),
-        Err(e) => Err(format!("{}: damaged calibration record ({e})", path.display())),
+        Ok(_) => Err(StoredError::NotARecord { path: path.to_path_buf(), detail: String::new() }),
+        Err(source) => Err(StoredError::Damaged { path: path.to_path_buf(), source }),
     }
 }
 
 /// Stores a calibration (atomically: temporary file, then rename).
-pub fn save(path: &Path, c: &Calibration) -> Result<(), String> {
+pub fn save(path: &Path, c: &Calibration) -> Result<(), StoredError> {
     let mut frame = [0u8; MAX_COMMAND_FRAME];
-    let bytes = encode(&Command { seq: 0, msg: HostMsg::SetCalibration(*c) }, &mut frame)
-        .map_err(|e| format!("encoding the calibration: {e}"))?;
+    let bytes =
+        encode(&Command { seq: 0, msg: HostMsg::SetCalibration(*c) }, &mut frame).map_err(StoredError::Encode)?;
     if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        std::fs::create_dir_all(dir).map_err(|source| StoredError::CreateDir { path: dir.to_path_buf(), source })?;
     }
-    crate::output::write_atomically(path, |w| w.write_all(bytes)).map_err(|e| e.to_string())
+    Ok(crate::output::write_atomically(path, |w| w.write_all(bytes))?)
 }
 
 #[cfg(test)]
@@ -86,16 +127,16 @@ mod tests {
     fn round_trip_missing_and_damaged() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("sub").join(FILE_NAME);
-        assert_eq!(load(&path), Ok(None));
+        assert_eq!(load(&path).unwrap(), None);
         save(&path, &cal()).unwrap();
-        assert_eq!(load(&path), Ok(Some(cal())));
+        assert_eq!(load(&path).unwrap(), Some(cal()));
         let mut bytes = std::fs::read(&path).unwrap();
         bytes[5] ^= 0x40;
         std::fs::write(&path, &bytes).unwrap();
         let e = load(&path).unwrap_err();
-        assert!(e.contains("damaged"), "{e}");
+        assert!(e.to_string().contains("damaged"), "{e}");
         std::fs::write(&path, b"hello").unwrap();
-        assert!(load(&path).unwrap_err().contains("not a calibration record"));
+        assert!(load(&path).unwrap_err().to_string().contains("not a calibration record"));
     }
 
     /// A record an earlier build wrote (protocol 3) still loads.
@@ -108,6 +149,6 @@ mod tests {
         let bytes = cms_core::protocol::v3::encode_command(&cmd, &mut frame).unwrap();
         assert_eq!(bytes[1], 3, "the version byte (after COBS's first code byte)");
         std::fs::write(&path, bytes).unwrap();
-        assert_eq!(load(&path), Ok(Some(cal())));
+        assert_eq!(load(&path).unwrap(), Some(cal()));
     }
 }
