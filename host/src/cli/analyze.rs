@@ -254,7 +254,7 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
     let (stitching, joins) =
         survey::join(runs, &placements, &join_opts).map_err(|e| Error::Input(format!("{}: {e}", source.name())))?;
     let a = analyze::judge(stitching, joins, &opts);
-    let text = analyze::summary(&source, &a);
+    let text = cms_host::report::text::summary(&source, &a);
     if let Some(dir) = &args.report {
         cms_host::report::write(dir, &source, &a, &text)?;
     }
@@ -263,7 +263,7 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
     }
     let mut out = std::io::stdout().lock();
     if args.json {
-        writeln!(out, "{}", analyze::to_json(&source, &a)).map_err(Error::Output)?;
+        writeln!(out, "{}", cms_host::report::json::to_json(&source, &a)).map_err(Error::Output)?;
     } else {
         out.write_all(text.as_bytes()).map_err(Error::Output)?;
         if let Some(dir) = &args.report {

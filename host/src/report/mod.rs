@@ -23,6 +23,8 @@
 //! [`MAX_PLOT_POINTS`] points per line (the CSVs keep every sample).
 
 pub mod exports;
+pub mod json;
+pub mod text;
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -386,7 +388,7 @@ fn survey_html(source: &Source, a: &Analysis) -> String {
                 .enumerate()
                 .map(|(i, (p, r))| {
                     let (olo, ohi) = r.odometer_range_mm.unwrap_or((0.0, 0.0));
-                    let placed = a.joins.iter().find(|j| j.run == i).map_or("-".into(), crate::analyze::describe_join);
+                    let placed = a.joins.iter().find(|j| j.run == i).map_or("-".into(), text::describe_join);
                     vec![
                         format!("{}", i + 1),
                         p.display().to_string(),
@@ -407,7 +409,7 @@ fn survey_html(source: &Source, a: &Analysis) -> String {
             let rows = vec![vec![p.display().to_string(), f.rows.to_string(), f.columns.join(", ")]];
             s.push_str(&html_table("inputs", &["profile", "rows", "lines"], &rows));
             for j in &a.joins {
-                let _ = writeln!(s, "<p>{}</p>", html_escape(&crate::analyze::describe_join(j)));
+                let _ = writeln!(s, "<p>{}</p>", html_escape(&text::describe_join(j)));
             }
         }
     }
@@ -673,7 +675,7 @@ pub fn write(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result
     };
 
     let title = format!("Rail corrugation analysis: {}", source.name());
-    let head = crate::analyze::describe(source, a);
+    let head = text::describe(source, a);
     let verdict_text = reprofiling::describe(&a.verdict);
     let mut md = format!("# {title}\n\n## Survey\n\n```text\n{head}```\n\n## Verdict\n\n```text\n{verdict_text}```\n");
     if !zone_svg.is_empty() {
@@ -694,9 +696,9 @@ pub fn write(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result
         let k = l.stitched.laser;
         let text = format!(
             "{}\n{}\n{}",
-            crate::analyze::describe_stitched(&l.stitched),
-            crate::analyze::describe_bands(&l.bands),
-            crate::analyze::describe_roughness(&l.roughness)
+            text::describe_stitched(&l.stitched),
+            text::describe_bands(&l.bands),
+            text::describe_roughness(&l.roughness)
         );
         let _ = write!(md, "\n## Laser {k}\n\n```text\n{text}```\n");
         let _ = write!(html, "<h2>Laser {k}</h2>\n<pre>{}</pre>\n", html_escape(&text));

@@ -1,0 +1,214 @@
+//! An analysis as one JSON object (`cms-host analyze --json`).
+
+use std::path::Path;
+
+use serde_json::{Value, json};
+
+use super::text::rms;
+use crate::analyze::stitch::{Direction, Registration};
+use crate::analyze::{
+    Analysis, LaserAnalysis, Recording, Source, chainage, iso3095_not_evaluated, reprofiling, spectrum_peak, survey,
+};
+
+fn verdict_json(v: &reprofiling::ReprofilingVerdict) -> Value {
+    let e = v.options.edition;
+    json!({
+        "edition": e.name(),
+        "source": e.source(),
+        "reprofile_mm": v.reprofile_mm,
+        "measured_mm": v.measured_mm,
+        "bands": v.rows.iter().map(|r| json!({
+            "lo_mm": r.band.lo_mm,
+            "hi_mm": r.band.hi_mm,
+            "limit_mm": r.limit_mm,
+            "measured_mm": r.measured_mm,
+            "exceeding_mm": r.exceeding_mm,
+            "exceeding_percent": r.exceeding_percent(),
+            "passes": r.passes(e),
+            "not_evaluated": r.not_evaluated,
+        })).collect::<Vec<_>>(),
+        "zones": v.zones.iter().map(|z| json!({
+            "lo_mm": z.band.lo_mm,
+            "hi_mm": z.band.hi_mm,
+            "start_mm": z.start_mm,
+            "end_mm": z.end_mm,
+            "start_chainage": chainage(z.start_mm),
+            "end_chainage": chainage(z.end_mm),
+            "exceeding_mm": z.exceeding_mm,
+            "worst_pp_mm": z.worst_pp_mm,
+        })).collect::<Vec<_>>(),
+        "block_mm": v.options.block_mm,
+        "blocks": v.blocks.iter().map(|b| json!({
+            "start_mm": b.start_mm,
+            "end_mm": b.end_mm,
+            "rms_mm": b.rms_mm,
+            "iso3095_exceeded_mm": b.iso3095_exceeded,
+        })).collect::<Vec<_>>(),
+    })
+}
+
+fn num(v: f64) -> Value {
+    if v.is_finite() { json!(v) } else { Value::Null }
+}
+
+/// The analysis as one JSON object.
+pub fn to_json(source: &Source, a: &Analysis) -> Value {
+    let lasers: Vec<Value> = a.lasers.iter().map(laser_json).collect();
+    let mut o = source_json(source, a);
+    o["dx_mm"] = json!(a.options.stitch.dx_mm);
+    o["run_joins"] = json!(
+        a.joins
+            .iter()
+            .map(|j| json!({
+                "run": j.run,
+                "heading": j.heading.name(),
+                "heading_found": j.heading_found,
+                "start_m": j.start_m,
+                "start_chainage": survey::Chainage(j.start_m).to_string(),
+                "moved_mm": j.moved_mm,
+                "overlap_mm": j.overlap_mm,
+                "residual_um": j.residual_um,
+                "correlation": j.correlation.map(|(b, s)| json!({ "best": b, "second": s })),
+                "ambiguous": j.ambiguous(),
+            }))
+            .collect::<Vec<_>>()
+    );
+    o["lasers"] = json!(lasers);
+    o["verdict"] = verdict_json(&a.verdict);
+    o
+}
+
+/// One laser's stitched profile, EN 13231-3 bands and EN 15610 roughness.
+fn laser_json(l: &LaserAnalysis) -> Value {
+    let s = &l.stitched;
+    json!({
+        "laser": s.laser,
+        "x0_mm": s.x0_mm,
+        "dx_mm": s.dx_mm,
+        "samples": s.z_um.len(),
+        "length_mm": s.length_mm(),
+        "covered_mm": s.covered_mm(),
+        "frames": s.frames,
+        "points": s.points,
+        "registered": s.fits.len(),
+        "registration_residual_median_um": s.median_residual_um(),
+        "offset_rms_um": rms(s.fits.iter().map(|f| f.offset_um)),
+        "tilt_rms_um_per_mm": rms(s.fits.iter().map(|f| f.tilt_um_per_mm)),
+        "unregistered_joins": s.joins.iter().map(|j| json!({
+            "seq": j.seq, "at_mm": j.at_mm, "overlap_mm": j.overlap_mm,
+        })).collect::<Vec<_>>(),
+        "gaps": s.gaps.iter().map(|g| json!({ "start_mm": g.start_mm, "length_mm": g.length_mm })).collect::<Vec<_>>(),
+        "en13231": bands_json(l),
+        "en15610": roughness_json(l),
+    })
+}
+
+/// The EN 13231-3 band analysis of one laser.
+fn bands_json(l: &LaserAnalysis) -> Value {
+    match &l.bands {
+        Ok(b) => json!({
+            "record_mm": b.record_mm,
+            "runs": b.runs,
+            "bands": b.bands.iter().map(|r| {
+                let mut o = json!({
+                    "lo_mm": r.band.lo_mm, "hi_mm": r.band.hi_mm, "window_mm": r.band.window_mm,
+                    "mean_pp_limit_mm": r.band.mean_pp_limit_mm, "edge_mm": r.edge_mm,
+                });
+                match &r.outcome {
+                    Ok(st) => {
+                        o["average_mean_pp_mm"] = num(st.average_mean_pp_mm);
+                        o["worst_mean_pp_mm"] = num(st.worst_mean_pp_mm);
+                        o["worst_max_pp_mm"] = num(st.worst_max_pp_mm);
+                        o["rms_mm"] = num(st.rms_mm);
+                        o["exceeding_percent"] = num(st.exceeding_percent);
+                        o["exceeding_mm"] = num(st.exceeding_mm);
+                        o["windows"] = json!(st.windows);
+                        o["passes"] = json!(st.passes);
+                        if let Some(p) = st.abs_exceeding_percent {
+                            o["abs_limit_mm"] = json!(r.band.abs_limit_mm);
+                            o["abs_exceeding_percent"] = num(p);
+                        }
+                    }
+                    Err(e) => o["error"] = json!(e.to_string()),
+                }
+                o
+            }).collect::<Vec<_>>(),
+        }),
+        Err(e) => json!({ "error": e.to_string() }),
+    }
+}
+
+/// The EN 15610 roughness of one laser.
+fn roughness_json(l: &LaserAnalysis) -> Value {
+    match &l.roughness {
+        Ok(r) => json!({
+            "segments": r.spectrum.segments,
+            "segment_mm": r.spectrum.segment_mm,
+            "spikes_removed": r.spikes_removed,
+            "bands": r.spectrum.bands.iter().map(|b| json!({
+                "nominal_wavelength_mm": b.nominal_wavelength_mm,
+                "wavelength_mm": b.wavelength_mm,
+                "level_db": num(b.level_db),
+                "iso3095_limit_db": b.iso3095_limit_db,
+                "exceeds": b.exceeds(),
+            })).collect::<Vec<_>>(),
+            "not_evaluated": iso3095_not_evaluated(r).iter().map(|(w, why)| json!({
+                "nominal_wavelength_mm": w, "why": why,
+            })).collect::<Vec<_>>(),
+            "peak_wavelength_mm": spectrum_peak(r).map(|p| p.nominal_wavelength_mm),
+        }),
+        Err(e) => json!({ "error": e.to_string() }),
+    }
+}
+
+/// What was analysed: the recordings (with the stitching's choices) or
+/// the profile file.
+fn source_json(source: &Source, a: &Analysis) -> Value {
+    match source {
+        Source::Recordings(runs) => {
+            let mut o = json!({ "runs": runs.iter().map(|(p, r)| recording_json(p, r)).collect::<Vec<_>>() });
+            // One recording: its fields at the top as well (as before runs).
+            if let [(p, r)] = runs.as_slice()
+                && let (Value::Object(top), Value::Object(one)) = (&mut o, recording_json(p, r))
+            {
+                top.extend(one);
+            }
+            o["direction"] = json!(match a.stitching.direction {
+                Direction::Reverse => "reverse",
+                _ => "forward",
+            });
+            o["auto_residuals_um"] =
+                json!(a.stitching.auto_residuals_um.map(|(f, r)| json!({ "forward": f, "reverse": r })));
+            o["registration"] = json!(match a.options.stitch.registration {
+                Registration::OffsetTilt => "offset-tilt",
+                Registration::Offset => "offset",
+                Registration::None => "none",
+            });
+            o
+        }
+        Source::Profile(p, f) => json!({
+            "profile": p.display().to_string(),
+            "rows": f.rows,
+            "columns": f.columns,
+            "data_dx_mm": f.data_dx_mm,
+            "resampled": f.resampled,
+        }),
+    }
+}
+
+fn recording_json(path: &Path, rec: &Recording) -> Value {
+    let (olo, ohi) = rec.odometer_range_mm.unwrap_or((f64::NAN, f64::NAN));
+    json!({
+        "recording": path.display().to_string(),
+        "frames": rec.frames,
+        "profiles": rec.profiles,
+        "calibrated_points": rec.calibrated_points,
+        "uncalibrated_points": rec.uncalibrated_points,
+        "calibration_id": rec.calibration_id,
+        "slid_across_frames": rec.slid_across.as_ref().map(|(n, _)| n),
+        "odometer_mm": [num(olo), num(ohi)],
+        "damaged_frames": rec.stats.damaged,
+        "duplicate_profiles": rec.stats.duplicates,
+        "survey": rec.survey,
+    })
+}

@@ -1,0 +1,261 @@
+//! An analysis as text: the summary `cms-host analyze` prints, and the
+//! descriptions the reports reuse.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use crate::analyze::standards::{StandardsError, en13231, en15610};
+use crate::analyze::stitch::{Direction, Registration, Stitched};
+use crate::analyze::{
+    Analysis, Recording, Source, chainage, fmt_len, iso3095_not_evaluated, reprofiling, spectrum_peak, stitch, survey,
+};
+use crate::recording;
+
+pub(crate) fn rms(v: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
+    if n == 0 { 0.0 } else { (s / n as f64).sqrt() }
+}
+
+fn direction_name(d: Direction) -> &'static str {
+    match d {
+        Direction::Forward => "x = odometer + along",
+        Direction::Reverse => "x = odometer − along",
+        Direction::Auto => "auto",
+    }
+}
+
+fn registration_name(r: Registration) -> &'static str {
+    match r {
+        Registration::OffsetTilt => "offset and tilt",
+        Registration::Offset => "offset",
+        Registration::None => "none",
+    }
+}
+
+fn opt_um(v: Option<f64>) -> String {
+    v.map_or("-".into(), |v| format!("{v:.2} µm"))
+}
+
+/// The input's and the stitching's description (a few lines).
+pub fn describe(source: &Source, a: &Analysis) -> String {
+    let mut s = String::new();
+    match source {
+        Source::Recordings(runs) => {
+            for (path, rec) in runs {
+                describe_recording(&mut s, path, rec);
+            }
+            let st = &a.stitching;
+            let auto = match st.auto_residuals_um {
+                Some((f, r)) => format!(
+                    " (chosen from the data: median overlap residual forward {}, reverse {})",
+                    opt_um(f),
+                    opt_um(r)
+                ),
+                None => String::new(),
+            };
+            let _ = writeln!(
+                s,
+                "stitching: {}{auto}; registration: {}; samples every {} mm",
+                direction_name(st.direction),
+                registration_name(a.options.stitch.registration),
+                fmt_len(a.options.stitch.dx_mm)
+            );
+        }
+        Source::Profile(path, p) => {
+            let _ = writeln!(
+                s,
+                "profile {}: {} rows, {} line(s) ({}), {}; samples every {} mm{}",
+                path.display(),
+                p.rows,
+                p.columns.len(),
+                p.columns.join(", "),
+                if p.has_x {
+                    format!("positions every {} mm (median step)", fmt_len(p.data_dx_mm))
+                } else {
+                    "no position column".into()
+                },
+                fmt_len(a.options.stitch.dx_mm),
+                if p.resampled { " (interpolated onto that grid; never across a gap)" } else { "" }
+            );
+        }
+    }
+    // One run where the user put it by default needs no placement line.
+    let placed = a.joins.len() > 1 || a.joins.iter().any(|j| j.start_m != 0.0 || j.heading == survey::Heading::Down);
+    if placed {
+        for j in &a.joins {
+            let _ = writeln!(s, "{}", describe_join(j));
+        }
+    }
+    s
+}
+
+/// One run's placement on the line, in a line.
+pub fn describe_join(j: &survey::RunJoin) -> String {
+    let mut s = format!(
+        "run {}: position 0 at chainage {} ({:.3} m), chainage {} with track position{}",
+        j.run + 1,
+        survey::Chainage(j.start_m),
+        j.start_m,
+        j.heading.name(),
+        if j.heading_found { " (found by registration)" } else { "" }
+    );
+    if let Some(m) = j.moved_mm
+        && j.overlap_mm > 0.0
+    {
+        let _ = write!(s, "; registered {:+.1} mm from its given start", m);
+    }
+    if j.overlap_mm > 0.0 {
+        let _ = write!(s, "; overlap {:.1} m, residual {}", j.overlap_mm / 1000.0, opt_um(j.residual_um));
+    } else if j.run > 0 {
+        s.push_str("; overlaps no earlier run: placed as given");
+    }
+    if j.ambiguous() {
+        s.push_str("; AMBIGUOUS: another placement matched nearly as well (give its start chainage)");
+    }
+    s
+}
+
+fn describe_recording(s: &mut String, path: &Path, rec: &Recording) {
+    let (smin, smax) = rec.seq_range.unwrap_or((0, 0));
+    let (olo, ohi) = rec.odometer_range_mm.unwrap_or((0.0, 0.0));
+    let _ = writeln!(
+        s,
+        "recording {}: {} frames with calibrated points (seq {smin}–{smax}), {} points, odometer {olo:.3}–{ohi:.3} mm{}",
+        path.display(),
+        rec.frames,
+        rec.calibrated_points,
+        match rec.calibration_id {
+            Some(id) => format!(", calibration {id:#010x}"),
+            None => String::new(),
+        }
+    );
+    if let Some(sv) = &rec.survey {
+        let _ = writeln!(s, "  survey: {}", sv.describe());
+    }
+    if rec.uncalibrated_points > 0 {
+        let _ = writeln!(s, "  {} points without a calibrated position were left out", rec.uncalibrated_points);
+    }
+    match &rec.slid_across {
+        Some((n, cal)) => {
+            let _ = writeln!(
+                s,
+                "  heights slid across the rail head's lateral slope with {} ({n} of {} frames)",
+                cal.display(),
+                rec.frames
+            );
+        }
+        None => {
+            let _ = writeln!(
+                s,
+                "  heights as the head measured them (no --calibration: the outer lines keep their lateral-slope scale)"
+            );
+        }
+    }
+    for w in recording::warnings(path, &rec.stats) {
+        let _ = writeln!(s, "  {w}");
+    }
+}
+
+/// One laser's stitching in a few lines.
+pub fn describe_stitched(l: &Stitched) -> String {
+    let mut s = String::new();
+    let overlap = stitch::median(l.fits.iter().map(|f| f.overlap_mm).collect());
+    let _ = writeln!(
+        s,
+        "laser {}: {:.0} mm of track from chainage {} ({:.0} mm covered), {} frames, {} points; {} registered \
+         (median overlap {}, residual median {}, offsets RMS {:.2} µm, tilts RMS {:.4} µm/mm), {} unregistered join(s), {} gap(s)",
+        l.laser,
+        l.length_mm(),
+        chainage(l.x0_mm),
+        l.covered_mm(),
+        l.frames,
+        l.points,
+        l.fits.len(),
+        overlap.map_or("-".into(), |v| format!("{v:.0} mm")),
+        opt_um(l.median_residual_um()),
+        rms(l.fits.iter().map(|f| f.offset_um)),
+        rms(l.fits.iter().map(|f| f.tilt_um_per_mm)),
+        l.joins.len(),
+        l.gaps.len()
+    );
+    for g in l.gaps.iter().take(20) {
+        let _ = writeln!(s, "  gap at {}, {} mm long", chainage(g.start_mm), fmt_len(g.length_mm));
+    }
+    if l.gaps.len() > 20 {
+        let _ = writeln!(s, "  … and {} more gaps (see the report)", l.gaps.len() - 20);
+    }
+    for j in l.joins.iter().take(10) {
+        let _ = writeln!(
+            s,
+            "  frame {} joined unregistered at {} (overlap {:.1} mm)",
+            j.seq,
+            chainage(j.at_mm),
+            j.overlap_mm
+        );
+    }
+    if l.joins.len() > 10 {
+        let _ = writeln!(s, "  … and {} more unregistered joins", l.joins.len() - 10);
+    }
+    s
+}
+
+/// One laser's EN 15610 outcome: the table, the wavelengths not evaluated,
+/// the peak; or why there is none.
+pub fn describe_roughness(r: &Result<en15610::Roughness, StandardsError>) -> String {
+    let mut s = String::new();
+    match r {
+        Ok(r) => {
+            s.push_str(&en15610::spectrum_table(r));
+            let missing = iso3095_not_evaluated(r);
+            if !missing.is_empty() {
+                let list: Vec<String> = missing.iter().map(|(w, why)| format!("{} mm ({why})", fmt_len(*w))).collect();
+                let _ = writeln!(s, "ISO 3095 wavelengths not evaluated: {}", list.join("; "));
+            }
+            if let Some(p) = spectrum_peak(r) {
+                let over = r.spectrum.bands.iter().filter(|b| b.exceeds() == Some(true)).count();
+                let _ = writeln!(
+                    s,
+                    "spectrum peak: {} mm one-third octave at {:.1} dB{}; {over} of {} bands over the ISO 3095 limit",
+                    fmt_len(p.nominal_wavelength_mm),
+                    p.level_db,
+                    match p.margin_db() {
+                        Some(m) if m < 0.0 =>
+                            format!(" (ISO 3095 limit {:.1} dB: over by {:.1} dB)", p.level_db + m, -m),
+                        Some(m) => format!(" (ISO 3095 limit {:.1} dB: {:.1} dB below)", p.level_db + m, m),
+                        None => String::new(),
+                    },
+                    r.spectrum.bands.iter().filter(|b| b.iso3095_limit_db.is_some()).count()
+                );
+            }
+        }
+        Err(e) => {
+            let _ = writeln!(s, "EN 15610 roughness not evaluated: {e}");
+        }
+    }
+    s
+}
+
+/// One laser's EN 13231-3 outcome.
+pub fn describe_bands(b: &Result<en13231::BandAnalysis, StandardsError>) -> String {
+    match b {
+        Ok(a) => en13231::band_table(a),
+        Err(e) => format!("EN 13231-3 bands not evaluated: {e}\n"),
+    }
+}
+
+/// The printed summary.
+pub fn summary(source: &Source, a: &Analysis) -> String {
+    let mut s = describe(source, a);
+    for l in &a.lasers {
+        s.push('\n');
+        s.push_str(&describe_stitched(&l.stitched));
+        for part in [describe_bands(&l.bands), describe_roughness(&l.roughness)] {
+            for line in part.lines() {
+                let _ = writeln!(s, "  {line}");
+            }
+        }
+    }
+    s.push('\n');
+    s.push_str(&reprofiling::describe(&a.verdict));
+    s
+}
