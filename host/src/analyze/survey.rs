@@ -450,61 +450,8 @@ pub fn join(
             }
         };
         let start_mm = (lo as f64 + frac - e(heading)) * dx;
-        // Merge: each line interpolated at the fraction, offset and tilt removed over the overlap.
-        let mut residual_sum = (0.0, 0usize);
-        let mut overlap_samples = 0usize;
-        for l in &run.lasers {
-            let (x0, v) = oriented(l, heading);
-            let o = ((x0 - g0) / dx).round() as i64;
-            // The run's sample j sits at grid index lo + frac + o + j: the grid
-            // point lo + o + j takes the run `frac` of a sample earlier.
-            let mut v = if frac > 0.0 {
-                let mut w = vec![f64::NAN];
-                w.extend(shifted(&v, 1.0 - frac).iter().take(v.len() - 1).copied());
-                w
-            } else {
-                v
-            };
-            let at = lo + o;
-            if let Some(j) = joined.iter().find(|j| j.line == l.laser) {
-                let d = differences(std::slice::from_ref(j), &[(l.laser, v.clone())], at).remove(0);
-                if d.len() >= 3 {
-                    let (xm, a, b) = line_fit(&d);
-                    let rss: f64 = d.iter().map(|&(x, y)| (y - a - b * (x - xm)).powi(2)).sum();
-                    residual_sum.0 += (rss / d.len() as f64).sqrt();
-                    residual_sum.1 += 1;
-                    overlap_samples = overlap_samples.max(d.len());
-                    for (jj, x) in v.iter_mut().enumerate() {
-                        *x -= a + b * ((at + jj as i64) as f64 - xm);
-                    }
-                }
-            }
-            match joined.iter_mut().find(|j| j.line == l.laser) {
-                Some(j) => j.add(at, &v),
-                None => {
-                    let mut j = JoinedLine { line: l.laser, base: 0, z: Vec::new(), n: Vec::new() };
-                    j.add(at, &v);
-                    joined.push(j);
-                }
-            }
-            let m = match meta.iter_mut().find(|m| m.0 == l.laser) {
-                Some(m) => m,
-                None => {
-                    meta.push((l.laser, profile::stitched(l.laser, 0.0, dx, Vec::new())));
-                    meta.last_mut().expect("just pushed")
-                }
-            };
-            m.1.frames += l.frames;
-            m.1.fits.extend(
-                l.fits
-                    .iter()
-                    .map(|f| super::stitch::FrameFit { centre_mm: to_chainage(start_mm, heading, f.centre_mm), ..*f }),
-            );
-            m.1.joins.extend(
-                l.joins.iter().map(|j| super::stitch::Join { at_mm: to_chainage(start_mm, heading, j.at_mm), ..*j }),
-            );
-            m.1.points += l.points;
-        }
+        let (residual_sum, overlap_samples) =
+            merge_run(&mut joined, &mut meta, &run, (heading, lo, frac, start_mm), (g0, dx));
         report.push(RunJoin {
             run: r,
             heading,
@@ -516,8 +463,84 @@ pub fn join(
             correlation,
         });
     }
+    let lasers = joined_lines(joined, meta, g0, dx);
+    Ok((Stitching { direction, auto_residuals_um, lasers }, report))
+}
+
+/// Merges one run's lines into the joined ones at grid index `lo` + `frac`
+/// (`start_mm` its chainage, `heading` its direction): each line
+/// interpolated at the fraction, offset and tilt removed over the overlap;
+/// its frames, fits and joins kept on chainage in `meta`. Returns the sum
+/// and count of the overlaps' residuals, and the longest overlap, samples.
+fn merge_run(
+    joined: &mut Vec<JoinedLine>,
+    meta: &mut Vec<(usize, Stitched)>,
+    run: &Stitching,
+    (heading, lo, frac, start_mm): (Heading, i64, f64, f64),
+    (g0, dx): (f64, f64),
+) -> ((f64, usize), usize) {
+    let mut residual_sum = (0.0, 0usize);
+    let mut overlap_samples = 0usize;
+    for l in &run.lasers {
+        let (x0, v) = oriented(l, heading);
+        let o = ((x0 - g0) / dx).round() as i64;
+        // The run's sample j sits at grid index lo + frac + o + j: the grid
+        // point lo + o + j takes the run `frac` of a sample earlier.
+        let mut v = if frac > 0.0 {
+            let mut w = vec![f64::NAN];
+            w.extend(shifted(&v, 1.0 - frac).iter().take(v.len() - 1).copied());
+            w
+        } else {
+            v
+        };
+        let at = lo + o;
+        if let Some(j) = joined.iter().find(|j| j.line == l.laser) {
+            let d = differences(std::slice::from_ref(j), &[(l.laser, v.clone())], at).remove(0);
+            if d.len() >= 3 {
+                let (xm, a, b) = line_fit(&d);
+                let rss: f64 = d.iter().map(|&(x, y)| (y - a - b * (x - xm)).powi(2)).sum();
+                residual_sum.0 += (rss / d.len() as f64).sqrt();
+                residual_sum.1 += 1;
+                overlap_samples = overlap_samples.max(d.len());
+                for (jj, x) in v.iter_mut().enumerate() {
+                    *x -= a + b * ((at + jj as i64) as f64 - xm);
+                }
+            }
+        }
+        match joined.iter_mut().find(|j| j.line == l.laser) {
+            Some(j) => j.add(at, &v),
+            None => {
+                let mut j = JoinedLine { line: l.laser, base: 0, z: Vec::new(), n: Vec::new() };
+                j.add(at, &v);
+                joined.push(j);
+            }
+        }
+        let m = match meta.iter_mut().find(|m| m.0 == l.laser) {
+            Some(m) => m,
+            None => {
+                meta.push((l.laser, profile::stitched(l.laser, 0.0, dx, Vec::new())));
+                meta.last_mut().expect("just pushed")
+            }
+        };
+        m.1.frames += l.frames;
+        m.1.fits.extend(
+            l.fits
+                .iter()
+                .map(|f| super::stitch::FrameFit { centre_mm: to_chainage(start_mm, heading, f.centre_mm), ..*f }),
+        );
+        m.1.joins.extend(
+            l.joins.iter().map(|j| super::stitch::Join { at_mm: to_chainage(start_mm, heading, j.at_mm), ..*j }),
+        );
+        m.1.points += l.points;
+    }
+    (residual_sum, overlap_samples)
+}
+
+/// The joined lines as stitched profiles on chainage, their ends without
+/// data trimmed, with their runs' frames, fits and joins.
+fn joined_lines(mut joined: Vec<JoinedLine>, mut meta: Vec<(usize, Stitched)>, g0: f64, dx: f64) -> Vec<Stitched> {
     joined.sort_by_key(|l| l.line);
-    let lasers = joined
+    joined
         .into_iter()
         .map(|l| {
             let z = l.values();
@@ -534,6 +557,5 @@ pub fn join(
             }
             s
         })
-        .collect();
-    Ok((Stitching { direction, auto_residuals_um, lasers }, report))
+        .collect()
 }
