@@ -504,26 +504,7 @@ pub fn serve<R: RowRenderer>(
         // camera's nominal exposure as a host would (the Ack goes nowhere).
         head.handle(Command { seq: 0, msg: HostMsg::SetExposure { exposure_us: us } }, 0, &camera, &mut |_| {});
     }
-    let mut kept = false;
-    if let Some(path) = &opts.calibration_file {
-        match stored::load(path) {
-            Ok(Some(c)) => match head.load_calibration(c) {
-                Ok(()) => {
-                    kept = true;
-                    log(format_args!("calibration {:#010x} restored from {}", c.id, path.display()));
-                }
-                Err(e) => log(format_args!("stored calibration in {} not used: {e}", path.display())),
-            },
-            Ok(None) => {}
-            Err(e) => log(format_args!("stored calibration not used: {e}")),
-        }
-    }
-    if !kept && let Some(c) = opts.factory_calibration {
-        match head.load_calibration(c) {
-            Ok(()) => log(format_args!("factory calibration {:#010x} loaded", c.id)),
-            Err(e) => log(format_args!("factory calibration not used: {e}")),
-        }
-    }
+    restore_calibration(&mut head, opts);
     // A tall sensor sends a frame in several parts: room for all of them.
     let parts = (camera.height() as usize).div_ceil(MAX_ROWS_PER_PROFILE).max(1);
     let mut out = PtyOutbox::new(&pty.master, opts.queue_bytes.max(MAX_FRAME) * parts)?;
@@ -536,49 +517,10 @@ pub fn serve<R: RowRenderer>(
 
     while !stop.load(Ordering::Relaxed) {
         // Host → head.
-        loop {
-            match pty.master.read(&mut rx) {
-                Ok(0) => break,
-                Ok(n) => {
-                    reader.feed::<Command, _>(&rx[..n], |r| decoded.push(r));
-                    if n < rx.len() {
-                        break;
-                    }
-                }
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                Err(e) if e.kind() == io::ErrorKind::WouldBlock => break,
-                Err(e) if e.raw_os_error() == Some(nix::libc::EIO) => break,
-                Err(e) => return Err(SimulateError::Io("reading the pty", e)),
-            }
-        }
+        read_commands(&mut pty, &mut reader, &mut rx, &mut decoded)?;
         let now_us = start.elapsed().as_micros() as u64;
         for r in decoded.drain(..) {
-            match r {
-                Ok(mut cmd) => {
-                    summary.commands += 1;
-                    if let HostMsg::Start(s) = &mut cmd.msg
-                        && s.rate_hz > opts.max_rate_hz
-                    {
-                        // Faster than the camera: let the head refuse it
-                        // (and apply its fault rules) as out of range.
-                        s.rate_hz = 0;
-                    }
-                    let kept = head.calibration().copied();
-                    // An upload is kept even when it equals the factory calibration.
-                    let upload = matches!(cmd.msg, HostMsg::SetCalibration(_));
-                    head.handle(cmd, now_us, &camera, &mut |m| out.push(m));
-                    if let (Some(path), Some(c)) = (&opts.calibration_file, head.calibration())
-                        && (upload || Some(*c) != kept)
-                        && let Err(e) = stored::save(path, c)
-                    {
-                        log(format_args!("keeping the calibration: {e}"));
-                    }
-                }
-                Err(e) => {
-                    summary.link_errors += 1;
-                    head.link_error(wire_to_code(e), &mut |m| out.push(m));
-                }
-            }
+            handle_command(&mut head, r, now_us, &camera, &mut out, opts, &mut summary);
         }
         // The head: watchdog, due frame, status.
         head.poll(now_us, &mut camera, &mut clock_ns, &mut |m| out.push(m));
@@ -603,18 +545,7 @@ pub fn serve<R: RowRenderer>(
             return Err(SimulateError::Io("writing the pty", e));
         }
 
-        // Sleep until the host writes or the next tick: 1 ms while
-        // streaming (frame times are the head's business), 20 ms idle.
-        let tick: u16 = if head.state() == HeadState::Streaming { 1 } else { 20 };
-        let mut fds = [PollFd::new(pty.master.as_fd(), PollFlags::POLLIN)];
-        match nix::poll::poll(&mut fds, PollTimeout::from(tick)) {
-            Ok(_) | Err(nix::Error::EINTR) => {}
-            Err(e) => return Err(SimulateError::Io("poll on the pty", e.into())),
-        }
-        // A hung-up or failing master would make poll return at once: pace it.
-        if fds[0].revents().is_some_and(|r| r.intersects(PollFlags::POLLHUP | PollFlags::POLLERR)) {
-            std::thread::sleep(Duration::from_millis(tick as u64));
-        }
+        wait_for_host(&pty, head.state() == HeadState::Streaming)?;
     }
 
     let now_us = start.elapsed().as_micros() as u64;
@@ -635,4 +566,109 @@ pub fn serve<R: RowRenderer>(
     // Best effort: the last replies (a Stop's ack) if the pty takes them.
     summary.bytes_written = out.close();
     Ok(summary)
+}
+
+/// The calibration kept in the state file, else the factory one.
+fn restore_calibration(head: &mut Head<MAX_WIDTH, SimLasers>, opts: &ServeOptions) {
+    let mut kept = false;
+    if let Some(path) = &opts.calibration_file {
+        match stored::load(path) {
+            Ok(Some(c)) => match head.load_calibration(c) {
+                Ok(()) => {
+                    kept = true;
+                    log(format_args!("calibration {:#010x} restored from {}", c.id, path.display()));
+                }
+                Err(e) => log(format_args!("stored calibration in {} not used: {e}", path.display())),
+            },
+            Ok(None) => {}
+            Err(e) => log(format_args!("stored calibration not used: {e}")),
+        }
+    }
+    if !kept && let Some(c) = opts.factory_calibration {
+        match head.load_calibration(c) {
+            Ok(()) => log(format_args!("factory calibration {:#010x} loaded", c.id)),
+            Err(e) => log(format_args!("factory calibration not used: {e}")),
+        }
+    }
+}
+
+/// Whatever the host has written, decoded into `decoded`.
+fn read_commands(
+    pty: &mut Pty,
+    reader: &mut FrameReader<MAX_COMMAND_FRAME>,
+    rx: &mut [u8],
+    decoded: &mut Vec<Result<Command, WireError>>,
+) -> Result<(), SimulateError> {
+    loop {
+        match pty.master.read(rx) {
+            Ok(0) => break,
+            Ok(n) => {
+                reader.feed::<Command, _>(&rx[..n], |r| decoded.push(r));
+                if n < rx.len() {
+                    break;
+                }
+            }
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock => break,
+            Err(e) if e.raw_os_error() == Some(nix::libc::EIO) => break,
+            Err(e) => return Err(SimulateError::Io("reading the pty", e)),
+        }
+    }
+    Ok(())
+}
+
+/// One decoded command handled by the head (a start faster than the
+/// camera refused as out of range), the calibration kept when it changes;
+/// or the link error it was.
+fn handle_command<R: RowRenderer>(
+    head: &mut Head<MAX_WIDTH, SimLasers>,
+    r: Result<Command, WireError>,
+    now_us: u64,
+    camera: &SimCamera<R>,
+    out: &mut PtyOutbox,
+    opts: &ServeOptions,
+    summary: &mut ServeSummary,
+) {
+    match r {
+        Ok(mut cmd) => {
+            summary.commands += 1;
+            if let HostMsg::Start(s) = &mut cmd.msg
+                && s.rate_hz > opts.max_rate_hz
+            {
+                // Faster than the camera: let the head refuse it
+                // (and apply its fault rules) as out of range.
+                s.rate_hz = 0;
+            }
+            let kept = head.calibration().copied();
+            // An upload is kept even when it equals the factory calibration.
+            let upload = matches!(cmd.msg, HostMsg::SetCalibration(_));
+            head.handle(cmd, now_us, camera, &mut |m| out.push(m));
+            if let (Some(path), Some(c)) = (&opts.calibration_file, head.calibration())
+                && (upload || Some(*c) != kept)
+                && let Err(e) = stored::save(path, c)
+            {
+                log(format_args!("keeping the calibration: {e}"));
+            }
+        }
+        Err(e) => {
+            summary.link_errors += 1;
+            head.link_error(wire_to_code(e), &mut |m| out.push(m));
+        }
+    }
+}
+
+/// Sleeps until the host writes or the next tick: 1 ms while streaming
+/// (frame times are the head's business), 20 ms idle.
+fn wait_for_host(pty: &Pty, streaming: bool) -> Result<(), SimulateError> {
+    let tick: u16 = if streaming { 1 } else { 20 };
+    let mut fds = [PollFd::new(pty.master.as_fd(), PollFlags::POLLIN)];
+    match nix::poll::poll(&mut fds, PollTimeout::from(tick)) {
+        Ok(_) | Err(nix::Error::EINTR) => {}
+        Err(e) => return Err(SimulateError::Io("poll on the pty", e.into())),
+    }
+    // A hung-up or failing master would make poll return at once: pace it.
+    if fds[0].revents().is_some_and(|r| r.intersects(PollFlags::POLLHUP | PollFlags::POLLERR)) {
+        std::thread::sleep(Duration::from_millis(tick as u64));
+    }
+    Ok(())
 }
