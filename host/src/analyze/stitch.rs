@@ -60,7 +60,7 @@
 //! registration — the pitch is gone, but the walk costs more than the pitch
 //! did (6.6 µm with offsets only). So [`Registration::Offset`] is the
 //! default and [`Registration::OffsetTilt`] is for heads that really pitch
-//! over short records (`host/tests/it/analyze.rs` has the figures).
+//! over short records (`host/tests/it/analyze/recordings.rs` has the figures).
 //!
 //! # Gaps
 //!

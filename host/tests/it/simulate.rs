@@ -496,7 +496,7 @@ fn listen_sim_crosses_the_pty() {
     assert!(sim.ends_with("lasers off"), "{sim}");
     // The head's telemetry from its last status (the one after Stop: its
     // window may be a few ms since the last periodic status, so its rates
-    // may be 0; the live line in host/tests/it/analyze.rs checks them).
+    // may be 0; the live line in host/tests/it/analyze/sim.rs checks them).
     let head = err.lines().find(|l| l.starts_with("listen: head (last status): ")).unwrap_or_else(|| panic!("{err}"));
     let rows_per_s: Result<u64, _> = head.split(": ").nth(2).unwrap().split(' ').next().unwrap().parse();
     assert!(rows_per_s.is_ok() && head.contains(" ns/row") && head.contains(" rows lost, backlog "), "{head}");
