@@ -180,51 +180,7 @@ pub fn judge(lasers: &[LaserAnalysis], opts: &Options) -> ReprofilingVerdict {
     for (b, band) in en13231::BANDS.iter().enumerate() {
         let limit = opts.edition.limit_mm(band);
         // Per position: measured on some line; over on some line; worst window p-p.
-        let mut measured = vec![false; len];
-        let mut over = vec![false; len];
-        let mut worst = vec![0.0f64; len];
-        let mut why = None;
-        for l in lasers {
-            let off = grid.offset(&l.stitched);
-            let stats = match &l.bands {
-                Ok(a) => a.bands.get(b).map(|r| r.outcome.as_ref()),
-                Err(e) => {
-                    why = Some(e.to_string());
-                    None
-                }
-            };
-            let st = match stats {
-                Some(Ok(st)) => st,
-                Some(Err(e)) => {
-                    why = Some(e.to_string());
-                    continue;
-                }
-                None => continue,
-            };
-            for (i, (&mean, &maxpp)) in st.mean_pp_mm.iter().zip(&st.max_pp_mm).enumerate() {
-                let value = match opts.edition {
-                    Edition::En2006 => mean,
-                    // Isolated points are judged where the window statistics are
-                    // (inside the settled part), on the displacement itself.
-                    Edition::En2012 => {
-                        if mean.is_finite() {
-                            st.band_mm[i].abs()
-                        } else {
-                            f64::NAN
-                        }
-                    }
-                };
-                if !value.is_finite() {
-                    continue;
-                }
-                let k = off + i;
-                measured[k] = true;
-                worst[k] = worst[k].max(maxpp);
-                if limit.is_some_and(|lim| value > lim) {
-                    over[k] = true;
-                }
-            }
-        }
+        let BandMarks { measured, over, worst, why } = mark_band(lasers, &grid, b, opts.edition, limit);
         let measured_n = measured.iter().filter(|&&m| m).count();
         let over_n = over.iter().filter(|&&o| o).count();
         rows.push(BandRow {
@@ -242,33 +198,7 @@ pub fn judge(lasers: &[LaserAnalysis], opts: &Options) -> ReprofilingVerdict {
                 *a |= m;
             }
         }
-        // Zones: exceeding positions closer than one window merged.
-        let merge = (band.window_mm / dx).round() as usize;
-        let mut i = 0;
-        while i < len {
-            if !over[i] {
-                i += 1;
-                continue;
-            }
-            let (start, mut end, mut count, mut pp) = (i, i, 0usize, 0.0f64);
-            let mut j = i;
-            while j < len && j <= end + merge {
-                if over[j] {
-                    end = j;
-                    count += 1;
-                    pp = pp.max(worst[j]);
-                }
-                j += 1;
-            }
-            zones.push(Zone {
-                band: *band,
-                start_mm: origin + start as f64 * dx,
-                end_mm: origin + end as f64 * dx,
-                exceeding_mm: count as f64 * dx,
-                worst_pp_mm: pp,
-            });
-            i = end + 1;
-        }
+        zones.extend(band_zones(band, &over, &worst, origin, dx));
     }
     zones.sort_by(|a, b| a.start_mm.total_cmp(&b.start_mm));
     let blocks = blocks(lasers, opts, origin, len, dx);
@@ -280,6 +210,100 @@ pub fn judge(lasers: &[LaserAnalysis], opts: &Options) -> ReprofilingVerdict {
         measured_mm: any_measured.iter().filter(|&&m| m).count() as f64 * dx,
         blocks,
     }
+}
+
+/// One band's marks along the grid: where some line measured it, where
+/// some line exceeds its limit, the worst window peak-to-peak, and why no
+/// line evaluated it (if none did).
+struct BandMarks {
+    measured: Vec<bool>,
+    over: Vec<bool>,
+    worst: Vec<f64>,
+    why: Option<String>,
+}
+
+/// Marks band `b` of every line on `grid` by `edition`'s criterion against `limit`.
+fn mark_band(lasers: &[LaserAnalysis], grid: &Grid, b: usize, edition: Edition, limit: Option<f64>) -> BandMarks {
+    let len = grid.len;
+    let mut measured = vec![false; len];
+    let mut over = vec![false; len];
+    let mut worst = vec![0.0f64; len];
+    let mut why = None;
+    for l in lasers {
+        let off = grid.offset(&l.stitched);
+        let stats = match &l.bands {
+            Ok(a) => a.bands.get(b).map(|r| r.outcome.as_ref()),
+            Err(e) => {
+                why = Some(e.to_string());
+                None
+            }
+        };
+        let st = match stats {
+            Some(Ok(st)) => st,
+            Some(Err(e)) => {
+                why = Some(e.to_string());
+                continue;
+            }
+            None => continue,
+        };
+        for (i, (&mean, &maxpp)) in st.mean_pp_mm.iter().zip(&st.max_pp_mm).enumerate() {
+            let value = match edition {
+                Edition::En2006 => mean,
+                // Isolated points are judged where the window statistics are
+                // (inside the settled part), on the displacement itself.
+                Edition::En2012 => {
+                    if mean.is_finite() {
+                        st.band_mm[i].abs()
+                    } else {
+                        f64::NAN
+                    }
+                }
+            };
+            if !value.is_finite() {
+                continue;
+            }
+            let k = off + i;
+            measured[k] = true;
+            worst[k] = worst[k].max(maxpp);
+            if limit.is_some_and(|lim| value > lim) {
+                over[k] = true;
+            }
+        }
+    }
+    BandMarks { measured, over, worst, why }
+}
+
+/// A band's zones: exceeding positions closer than one window merged.
+fn band_zones(band: &en13231::Band, over: &[bool], worst: &[f64], origin: f64, dx: f64) -> Vec<Zone> {
+    let len = over.len();
+    let mut zones = Vec::new();
+    let merge = (band.window_mm / dx).round() as usize;
+    let mut i = 0;
+    while i < len {
+        if !over[i] {
+            i += 1;
+            continue;
+        }
+        let (start, mut end, mut count, mut pp) = (i, i, 0usize, 0.0f64);
+        let mut j = i;
+        while j < len && j <= end + merge {
+            if over[j] {
+                end = j;
+                count += 1;
+                pp = pp.max(worst[j]);
+            }
+            j += 1;
+        }
+        zones.push(Zone {
+            band: *band,
+            start_mm: origin + start as f64 * dx,
+            end_mm: origin + end as f64 * dx,
+            exceeding_mm: count as f64 * dx,
+            worst_pp_mm: pp,
+        });
+        i = end + 1;
+    }
+    zones
 }
 
 fn blocks(lasers: &[LaserAnalysis], opts: &Options, origin: f64, len: usize, dx: f64) -> Vec<Block> {
