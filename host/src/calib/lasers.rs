@@ -34,6 +34,7 @@
 //! through the point where the middle laser's plane crosses it (a head
 //! mounted square to the rail, paper §2.2).
 
+use crate::calib::file::{CalibrationFile, HeadSection, LaserSection, PlaneSection};
 use cms_core::fixed::Px;
 use cms_core::optics::ScaleRange;
 use cms_core::peak::{Config, Detector, Select, Stripes};
@@ -368,6 +369,12 @@ pub enum LaserCalibError {
     /// No datum without `--datum-pose`.
     #[error("the middle laser's plane contains the optical axis: give --datum-pose")]
     NoDatum,
+    /// The completed file gives no calibration message for the head.
+    #[error(transparent)]
+    File(crate::calib::file::FileError),
+    /// The head's triangulation cannot use the fitted planes.
+    #[error("the fitted planes are unusable: {0}")]
+    Unusable(String),
 }
 
 /// Calibrates the laser planes from image pairs of `board` seen by a camera
@@ -433,6 +440,39 @@ pub fn calibrate_lasers(
         }
     };
     Ok(LaserCalibration { planes, datum, poses })
+}
+
+impl LaserCalibration {
+    /// Completes a camera-only calibration `file` with these planes, their
+    /// datum and, if given, the `[head]` section; refuses planes the head's
+    /// triangulation could not use (the head would refuse them too).
+    pub fn complete(&self, file: &mut CalibrationFile, head: Option<HeadSection>) -> Result<(), LaserCalibError> {
+        let (n, d_mm) = self.datum;
+        file.datum = Some(PlaneSection { nx: n[0], ny: n[1], nz: n[2], d_mm });
+        file.lasers = self
+            .planes
+            .iter()
+            .enumerate()
+            .map(|(k, l)| LaserSection {
+                id: k as u32,
+                nx: l.normal[0],
+                ny: l.normal[1],
+                nz: l.normal[2],
+                d_mm: l.d_mm,
+                rms_mm: l.rms_mm,
+                points: Some(l.points as u64),
+                spread_mm: Some(l.spread_mm),
+                depth_min_mm: Some(l.depth_mm.0),
+                depth_max_mm: Some(l.depth_mm.1),
+            })
+            .collect();
+        if head.is_some() {
+            file.head = head;
+        }
+        let msg = file.to_head().map_err(LaserCalibError::File)?;
+        cms_core::pipeline::triangulator(&msg).map_err(|e| LaserCalibError::Unusable(e.to_string()))?;
+        Ok(())
+    }
 }
 
 #[cfg(test)]

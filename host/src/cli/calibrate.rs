@@ -7,9 +7,8 @@ use std::path::{Path, PathBuf};
 
 use cms_host::Error;
 use cms_host::calib;
-use cms_host::calib::board::{CornerError, find_corners};
-use cms_host::calib::camera::{CalibOptions, calibrate};
-use cms_host::calib::file::{CalibrationFile, HeadSection, LaserSection, PlaneSection, SigmaSection};
+use cms_host::calib::camera::{BoardViews, CalibOptions, calibrate};
+use cms_host::calib::file::{CalibrationFile, HeadSection, SigmaSection};
 use cms_host::calib::lasers::{LaserOptions, Pair, calibrate_lasers};
 use cms_host::device::upload;
 use cms_host::input::read_rows;
@@ -94,43 +93,14 @@ pub fn camera(args: &CameraArgs) -> anyhow::Result<()> {
         return Err(input(format!("--max-view-rms {m}: must be a positive number of pixels")));
     }
     let mut out = std::io::stdout().lock();
-    let mut views = Vec::new();
-    let mut names = Vec::new();
-    let mut size: Option<(u32, u32, &Path)> = None;
-    for path in &args.images {
-        let (px, w, h) = load_gray(path).map_err(Error::Input)?;
-        match size {
-            None => size = Some((w, h, path)),
-            Some((w0, h0, first)) if (w0, h0) != (w, h) => {
-                return Err(input(format!(
-                    "{}: {w} x {h}, but {} is {w0} x {h0}; all images must come from one camera mode",
-                    path.display(),
-                    first.display()
-                )));
-            }
-            Some(_) => {}
+    let mut rejected = Ok(());
+    let found = calib::camera::board_views(&args.images, &board, load_gray, |path, e| {
+        if rejected.is_ok() {
+            rejected = writeln!(out, "{}: rejected: {e}", path.display());
         }
-        match find_corners(&px, w as usize, h as usize, &board) {
-            Ok(c) => {
-                views.push(c);
-                names.push(path.display().to_string());
-            }
-            Err(e @ (CornerError::Incomplete { .. } | CornerError::Inconsistent)) => {
-                writeln!(out, "{}: rejected: {e}", path.display()).map_err(Error::Output)?;
-            }
-            Err(e) => return Err(input(format!("{}: {e}", path.display()))),
-        }
-    }
-    let Some((w, h, _)) = size else { return Err(input("no images".into())) };
-    if views.len() < 3 {
-        return Err(input(format!(
-            "the board ({}x{}) was found in {} of {} images; calibration needs at least 3",
-            board.cols,
-            board.rows,
-            views.len(),
-            args.images.len()
-        )));
-    }
+    });
+    rejected.map_err(Error::Output)?;
+    let BoardViews { views, names, size: (w, h) } = found.map_err(|e| input(e.to_string()))?;
     let opts = CalibOptions {
         fix_skew: !args.free_skew,
         fix_aspect: args.fix_aspect.then_some(1.0),
@@ -323,30 +293,7 @@ pub fn lasers(args: &LasersArgs) -> anyhow::Result<()> {
             l.depth_mm.1
         );
     }
-    file.datum = Some(PlaneSection { nx: cal.datum.0[0], ny: cal.datum.0[1], nz: cal.datum.0[2], d_mm: cal.datum.1 });
-    file.lasers = cal
-        .planes
-        .iter()
-        .enumerate()
-        .map(|(k, l)| LaserSection {
-            id: k as u32,
-            nx: l.normal[0],
-            ny: l.normal[1],
-            nz: l.normal[2],
-            d_mm: l.d_mm,
-            rms_mm: l.rms_mm,
-            points: Some(l.points as u64),
-            spread_mm: Some(l.spread_mm),
-            depth_min_mm: Some(l.depth_mm.0),
-            depth_max_mm: Some(l.depth_mm.1),
-        })
-        .collect();
-    if head.is_some() {
-        file.head = head;
-    }
-    // The head would refuse a calibration its triangulation cannot use: say so now.
-    let msg = file.to_head().map_err(|e| usage(e.to_string()))?;
-    cms_core::pipeline::triangulator(&msg).map_err(|e| usage(format!("the fitted planes are unusable: {e}")))?;
+    cal.complete(&mut file, head).map_err(|e| usage(e.to_string()))?;
     // The report first: a file refused on saving (a [head] range no
     // detector scale fits, say) still shows what was fitted.
     print!("{report}");

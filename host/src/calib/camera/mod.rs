@@ -63,6 +63,9 @@ mod geometry;
 mod refine;
 
 use std::fmt;
+use std::path::{Path, PathBuf};
+
+use crate::calib::board::{CornerError, find_corners};
 
 use nalgebra::Matrix3;
 
@@ -441,4 +444,100 @@ pub fn board_pose(intr: &Intrinsics, board: &Board, corners: &[[f64; 2]]) -> Res
         return Err(CalibError::Degenerate("the pose fit diverged"));
     }
     Ok((pose_from([x[0], x[1], x[2]], [x[3], x[4], x[5]]), rms))
+}
+
+/// The board's corners in a set of photographs, as camera calibration
+/// takes them: every image of one size, the views where the whole board
+/// was found, and their files' names.
+#[derive(Debug, Clone)]
+pub struct BoardViews {
+    /// Each view's corners, px, in [`Board::object_points`] order.
+    pub views: Vec<Vec<[f64; 2]>>,
+    /// Each view's file, as given.
+    pub names: Vec<String>,
+    /// The images' size, px.
+    pub size: (u32, u32),
+}
+
+/// Why a set of photographs gives no views to calibrate with.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ViewsError {
+    /// An image could not be read.
+    #[error("{0}")]
+    Read(String),
+    /// Images of different sizes: not one camera mode.
+    #[error("{}: {} x {}, but {} is {} x {}; all images must come from one camera mode", path.display(), size.0, size.1, first.display(), first_size.0, first_size.1)]
+    Size {
+        /// The image of another size.
+        path: PathBuf,
+        /// Its size.
+        size: (u32, u32),
+        /// The first image.
+        first: PathBuf,
+        /// The first image's size.
+        first_size: (u32, u32),
+    },
+    /// The corner search failed on an image (not merely a board not found).
+    #[error("{}: {source}", path.display())]
+    Corners {
+        /// The image.
+        path: PathBuf,
+        /// Why.
+        source: CornerError,
+    },
+    /// No images.
+    #[error("no images")]
+    NoImages,
+    /// Fewer than three views.
+    #[error("the board ({}x{}) was found in {found} of {images} images; calibration needs at least 3", board.0, board.1)]
+    TooFew {
+        /// The board's inner corners.
+        board: (usize, usize),
+        /// Views found.
+        found: usize,
+        /// Images given.
+        images: usize,
+    },
+}
+
+/// Finds `board` in each image of `paths` (read one at a time by `load` as
+/// grayscale `0..1`); an image where the board is incomplete or
+/// inconsistent is passed to `rejected` and left out.
+pub fn board_views<E: std::fmt::Display>(
+    paths: &[PathBuf],
+    board: &Board,
+    mut load: impl FnMut(&Path) -> Result<(Vec<f32>, u32, u32), E>,
+    mut rejected: impl FnMut(&Path, &CornerError),
+) -> Result<BoardViews, ViewsError> {
+    let (mut views, mut names) = (Vec::new(), Vec::new());
+    let mut size: Option<(u32, u32, &Path)> = None;
+    for path in paths {
+        let (px, w, h) = load(path).map_err(|e| ViewsError::Read(e.to_string()))?;
+        match size {
+            None => size = Some((w, h, path)),
+            Some((w0, h0, first)) if (w0, h0) != (w, h) => {
+                return Err(ViewsError::Size {
+                    path: path.clone(),
+                    size: (w, h),
+                    first: first.to_path_buf(),
+                    first_size: (w0, h0),
+                });
+            }
+            Some(_) => {}
+        }
+        match find_corners(&px, w as usize, h as usize, board) {
+            Ok(c) => {
+                views.push(c);
+                names.push(path.display().to_string());
+            }
+            Err(e @ (CornerError::Incomplete { .. } | CornerError::Inconsistent)) => rejected(path, &e),
+            Err(source) => return Err(ViewsError::Corners { path: path.clone(), source }),
+        }
+    }
+    let Some((w, h, _)) = size else { return Err(ViewsError::NoImages) };
+    if views.len() < 3 {
+        return Err(ViewsError::TooFew { board: (board.cols, board.rows), found: views.len(), images: paths.len() });
+    }
+    Ok(BoardViews { views, names, size: (w, h) })
 }
