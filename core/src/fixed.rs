@@ -167,6 +167,12 @@ q_format!(
     Q48_16, i64, 16
 );
 
+/// Raw bits of a [`UQ8_8`] for a public field that users outside this crate
+/// still assign as a plain `u16`
+/// ([`Config::threshold_sigma_q8`](crate::peak::Config::threshold_sigma_q8)):
+/// read it with [`UQ8_8::from_bits`].
+pub type UQ8_8Bits = u16;
+
 #[cfg(test)]
 mod tests {
     use super::*;

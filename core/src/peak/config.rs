@@ -4,7 +4,7 @@
 //! statistics ([`RowStats`]). Plain data, kept apart from the detector
 //! itself (`peak/mod.rs`), which is the per-row work.
 
-use crate::fixed::{Px, Q24_8, UQ8_8};
+use crate::fixed::{Px, Q24_8, UQ8_8Bits};
 use crate::optics::ScaleRange;
 use heapless::Vec;
 
@@ -153,7 +153,7 @@ pub struct Config {
     /// Which stripes to keep when there are more.
     pub select: Select,
     /// Detection threshold in multiples of the robust noise σ: [`UQ8_8`](crate::fixed::UQ8_8) bits.
-    pub threshold_sigma_q8: UQ8_8,
+    pub threshold_sigma_q8: UQ8_8Bits,
     /// Absolute floor: smallest stripe height above background, counts.
     pub min_amplitude: u16,
     /// Stripes closer than this are one (the stronger is kept).
@@ -179,7 +179,7 @@ impl Config {
             scales,
             max_stripes: 3,
             select: Select::Strongest,
-            threshold_sigma_q8: UQ8_8::from_bits(6 * 256),
+            threshold_sigma_q8: 6 * 256,
             min_amplitude: 4,
             min_separation: Px((2 * smax) as i32),
             min_width: Px((smin * 6 / 10).max(45875) as i32),

@@ -473,7 +473,7 @@ pub(crate) fn confirm<S: Sample>(
 
     // Detection test at the best scale: response above threshold × its noise.
     let noise_resp_q8 = (v.noise_q8 as i64 * RUNGS[kb].noise_q8.0) >> 8;
-    let thr = (noise_resp_q8 * v.cfg.threshold_sigma_q8.to_bits() as i64) >> 8;
+    let thr = (noise_resp_q8 * v.cfg.threshold_sigma_q8 as i64) >> 8;
     let amplitude = (r0 as i64 * RUNGS[kb].amp_inv) >> 24;
     let r0 = r0 as i64;
     if r0 <= thr || amplitude < v.cfg.min_amplitude as i64 || width < v.cfg.min_width || width > v.cfg.max_width {

@@ -416,8 +416,7 @@ impl<const W: usize> Detector<W> {
             self.detect_noise_q8 = margin(self.noise_q8);
             self.spike_level = coarse::spike_screen_level(Q24_8(self.detect_noise_q8));
             let thr_noise =
-                (margin(screen_sigma_q8) as i64 * self.cfg.threshold_sigma_q8.to_bits() as i64 * SCREEN_FRACTION_Q8)
-                    >> 24;
+                (margin(screen_sigma_q8) as i64 * self.cfg.threshold_sigma_q8 as i64 * SCREEN_FRACTION_Q8) >> 24;
             let thr_abs = self.cfg.min_amplitude as i64 * self.plan.smin_floor_px as i64;
             self.screen_threshold = thr_noise.max(thr_abs).max(1).min(i32::MAX as i64) as i32;
             self.refresh_in = NOISE_ROWS;

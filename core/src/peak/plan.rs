@@ -94,7 +94,7 @@ impl Plan {
         if cfg.min_width.0 <= 0 || cfg.min_width >= cfg.max_width {
             return Err(Error::WidthRange);
         }
-        if cfg.threshold_sigma_q8.to_bits() == 0 {
+        if cfg.threshold_sigma_q8 == 0 {
             return Err(Error::Threshold);
         }
         if cfg.saturation == 0 || (cfg.saturation as u32) > (1u32 << cfg.bits) - 1 {

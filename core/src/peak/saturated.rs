@@ -49,8 +49,7 @@ pub(super) fn saturated_stripe(v: &RowView<'_>, (s, e): (usize, usize), sat: i32
     // (at the pixel level: the height above the background over `threshold
     // × σ`): a stuck pixel or pair at full scale is neither.
     let strength = (sat - bg).max(0) as i64;
-    let floor =
-        ((v.noise_q8 as i64 * v.cfg.threshold_sigma_q8.to_bits() as i64) >> 16).max(v.cfg.min_amplitude as i64).max(1);
+    let floor = ((v.noise_q8 as i64 * v.cfg.threshold_sigma_q8 as i64) >> 16).max(v.cfg.min_amplitude as i64).max(1);
     if width < v.cfg.min_width || strength < floor {
         return None;
     }

@@ -151,7 +151,7 @@ impl DetectArgs {
                 AxisArg::Columns => Axis::Columns,
             },
             bits: self.bits,
-            threshold_sigma_q8: cms_core::fixed::UQ8_8::from_bits(self.threshold.0),
+            threshold_sigma_q8: self.threshold.0,
             inputs: self.inputs.clone(),
         }
     }

@@ -48,7 +48,7 @@ pub struct Options {
     /// Bit depth of the pixels (`None`: the input's own).
     pub bits: Option<u8>,
     /// Detection threshold in multiples of the robust noise σ, Q8 (1/256 σ).
-    pub threshold_sigma_q8: cms_core::fixed::UQ8_8,
+    pub threshold_sigma_q8: u16,
     /// Grayscale PNG or TIFF images, or CSV files of rows.
     pub inputs: Vec<PathBuf>,
 }

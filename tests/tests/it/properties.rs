@@ -137,7 +137,7 @@ fn configuration_is_validated_once() {
     check(&|c| c.bits = 7, Error::BitDepth(7));
     check(&|c| c.bits = 17, Error::BitDepth(17));
     check(&|c| c.max_stripes = 0, Error::MaxStripes);
-    check(&|c| c.threshold_sigma_q8 = cms_core::fixed::UQ8_8::from_bits(0), Error::Threshold);
+    check(&|c| c.threshold_sigma_q8 = 0, Error::Threshold);
     check(&|c| c.saturation = 5000, Error::Saturation);
     check(&|c| c.min_width = c.max_width, Error::WidthRange);
     check(&|c| c.scales = ScaleRange::new(Px::from_f64(0.5), Px::from_f64(4.0)).unwrap(), Error::ScaleTooSmall);

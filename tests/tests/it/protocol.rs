@@ -381,7 +381,7 @@ fn encoded_sizes_are_bounded() {
         }),
     };
     let mut det = default_detector();
-    det.threshold_sigma_q8 = cms_core::fixed::UQ8_8::from_bits(u16::MAX);
+    det.threshold_sigma_q8 = u16::MAX;
     det.saturation = u16::MAX;
     let det = Command { seq: u16::MAX, msg: HostMsg::SetDetector(det) };
     let trig = Command { seq: u16::MAX, msg: HostMsg::SetTrigger(Trigger::Distance { every_um: u32::MAX }) };

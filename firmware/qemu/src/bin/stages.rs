@@ -99,7 +99,7 @@ fn main() -> ! {
         let noise = screen::pixel_noise_q8(&rows[0][..], sat, r);
         let m = screen::responses(&rows[0][..], lb, r);
         let sigma = screen::sigma_q8(&mut r[..m]);
-        let threshold = ((sigma.0 as i64 * cfg.threshold_sigma_q8.to_bits() as i64 * 154) >> 24).max(1) as i32;
+        let threshold = ((sigma.0 as i64 * cfg.threshold_sigma_q8 as i64 * 154) >> 24).max(1) as i32;
         let mut cands = heapless::Vec::new();
         let candidates = per_call(|i| {
             screen::candidates(black_box(&rows[i][..]), lb, true, threshold, &mut cands);
@@ -147,7 +147,7 @@ fn main() -> ! {
         });
         // The front end alone: a threshold no candidate passes.
         let mut quiet = cfg;
-        quiet.threshold_sigma_q8 = cms_core::fixed::UQ8_8::from_bits(u16::MAX);
+        quiet.threshold_sigma_q8 = u16::MAX;
         quiet.min_amplitude = u16::MAX;
         let mut det = match Detector::<N>::new(quiet) {
             Ok(d) => d,
