@@ -31,14 +31,14 @@ pub struct AccuracyOptions {
     /// Trials of the paper's protocol.
     pub paper_trials: u64,
     /// Which table the report prints.
-    pub table: Table,
+    pub table: ReportTable,
     /// Worker threads (`None`: one a core); the results do not depend on it.
     pub threads: Option<usize>,
 }
 
 /// Which Markdown table the accuracy report prints.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Table {
+pub enum ReportTable {
     /// RMS/CRLB, methods as rows, SNR as columns, one table per σ.
     Pivot,
     /// One row per method × σ × SNR with bias, std, RMS, max |e|, misses.
@@ -75,8 +75,8 @@ pub fn accuracy(a: &AccuracyOptions) -> Result<String, BenchError> {
     let mut r = String::new();
     report_header(&mut r, &study);
     match a.table {
-        Table::Pivot => pivot_tables(&mut r, &cells),
-        Table::Full => full_table(&mut r, &cells),
+        ReportTable::Pivot => pivot_tables(&mut r, &cells),
+        ReportTable::Full => full_table(&mut r, &cells),
     }
     paper_section(&mut r, &study, &fixed, &random);
     let md_path = a.out.join("accuracy.md");
@@ -384,7 +384,7 @@ mod tests {
             amplitude: None,
             background: None,
             paper_trials: 5,
-            table: Table::Pivot,
+            table: ReportTable::Pivot,
             threads: Some(threads),
         }
     }

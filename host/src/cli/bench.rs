@@ -23,7 +23,7 @@ use clap::{Args, Subcommand, ValueEnum};
 use cms_core::peak::Method;
 use cms_host::bench::{
     self,
-    accuracy::{AccuracyOptions, Table},
+    accuracy::{AccuracyOptions, ReportTable},
     corrugation::CorrugationOptions,
     speed::SpeedOptions,
 };
@@ -263,8 +263,8 @@ impl AccuracyArgs {
             background: self.background,
             paper_trials: self.paper_trials,
             table: match self.table {
-                TableKind::Pivot => Table::Pivot,
-                TableKind::Full => Table::Full,
+                TableKind::Pivot => ReportTable::Pivot,
+                TableKind::Full => ReportTable::Full,
             },
             threads: self.threads.map(|t| t as usize),
         }

@@ -351,7 +351,7 @@ pub const LIMITS: (f64, f64) = (0.05, 2.0);
 /// (15°) must be right or flagged, not within the limits.
 pub const ENVELOPE_YAW_DEG: f64 = 10.0;
 
-/// The full sweep (issue 15): yaw {0, 2, 5, 10}° and 15° beyond the
+/// The full sweep: yaw {0, 2, 5, 10}° and 15° beyond the
 /// envelope, pitch and roll {0, ±2}°, crown {flat, 300, 200} mm, λ {50,
 /// 100} mm × A {50, 100} µm: 540 cells.
 pub fn sweep_cells() -> Vec<Cell> {
@@ -481,7 +481,7 @@ fn in_parallel<T: Send>(jobs: usize, threads: usize, f: impl Fn(usize) -> T + Sy
     out.into_iter().map(|r| r.1).collect()
 }
 
-/// What the sweep shows against issue 15's criteria: within, coverage
+/// What the sweep shows against its criteria: within, coverage
 /// and flags over the envelope's runs (yaw to [`ENVELOPE_YAW_DEG`]), good
 /// but wrong over all of them.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
