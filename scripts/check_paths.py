@@ -152,6 +152,32 @@ def join(base: str, rel: str) -> str | None:
 # Comments
 
 
+def block_comment_end(text: str, i: int) -> int:
+    """The index just after the (nested) block comment that opens at `i`."""
+    depth, j, n = 1, i + 2, len(text)
+    while j < n and depth:
+        if text.startswith("/*", j):
+            depth, j = depth + 1, j + 2
+        elif text.startswith("*/", j):
+            depth, j = depth - 1, j + 2
+        else:
+            j += 1
+    return j
+
+
+def raw_string_end(text: str, i: int) -> int | None:
+    """The index just after the raw string (`r"…"`, `r#"…"#`, `br…`) that
+    opens at `i`, or `None` if none opens there."""
+    if i > 0 and (text[i - 1].isalnum() or text[i - 1] == "_"):
+        return None
+    m = re.match(r'(?:br|rb|r)(#*)"', text[i:i + 260])
+    if not m:
+        return None
+    end = '"' + m.group(1)
+    j = text.find(end, i + m.end())
+    return len(text) if j < 0 else j + len(end)
+
+
 def rust_comments(text: str) -> list[tuple[int, str]]:
     """(line, text) of each comment of Rust source (strings and chars skipped)."""
     out: list[tuple[int, str]] = []
@@ -167,28 +193,14 @@ def rust_comments(text: str) -> list[tuple[int, str]]:
             out.append((line, text[i:j]))
             i = j
         elif text.startswith("/*", i):
-            depth, j, start_line, buf_start = 1, i + 2, line, i
-            while j < n and depth:
-                if text.startswith("/*", j):
-                    depth, j = depth + 1, j + 2
-                elif text.startswith("*/", j):
-                    depth, j = depth - 1, j + 2
-                else:
-                    j += 1
-            for k, part in enumerate(text[buf_start:j].split("\n")):
-                out.append((start_line + k, part))
+            j = block_comment_end(text, i)
+            for k, part in enumerate(text[i:j].split("\n")):
+                out.append((line + k, part))
             line += text.count("\n", i, j)
             i = j
-        elif c == "r" or c == "b":
-            m = re.match(r'(?:br|rb|r)(#*)"', text[i:i + 260]) if (i == 0 or not (text[i - 1].isalnum() or text[i - 1] == "_")) else None
-            if m:
-                end = '"' + m.group(1)
-                j = text.find(end, i + m.end())
-                j = n if j < 0 else j + len(end)
-                line += text.count("\n", i, j)
-                i = j
-            else:
-                i += 1
+        elif (c == "r" or c == "b") and (j := raw_string_end(text, i)) is not None:
+            line += text.count("\n", i, j)
+            i = j
         elif c == '"':
             j = i + 1
             while j < n and text[j] != '"':

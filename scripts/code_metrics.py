@@ -70,26 +70,12 @@ def strip_rust(text: str) -> str:
             blank(i, j)
             i = j
         elif text.startswith("/*", i):
-            depth, j = 1, i + 2
-            while j < n and depth:
-                if text.startswith("/*", j):
-                    depth, j = depth + 1, j + 2
-                elif text.startswith("*/", j):
-                    depth, j = depth - 1, j + 2
-                else:
-                    j += 1
+            j = check_paths.block_comment_end(text, i)
             blank(i, j)
             i = j
-        elif (c == "r" or c == "b") and (i == 0 or not (text[i - 1].isalnum() or text[i - 1] == "_")):
-            m = re.match(r'(?:br|rb|r)(#*)"', text[i:i + 260])
-            if m:
-                end = '"' + m.group(1)
-                j = text.find(end, i + m.end())
-                j = n if j < 0 else j + len(end)
-                blank(i, j)
-                i = j
-            else:
-                i += 1
+        elif (c == "r" or c == "b") and (j := check_paths.raw_string_end(text, i)) is not None:
+            blank(i, j)
+            i = j
         elif c == '"':
             j = i + 1
             while j < n and text[j] != '"':
