@@ -84,11 +84,15 @@ pub enum Method {
     Linear,
     /// Zero crossing of the FIR first derivative (Table 2, Forest et al.).
     FirZero,
+    /// Centroid over ±3σ of the optics' scale, re-centred: the estimator
+    /// for laser light, which speckle does not pull onto single speckles
+    /// (see [`centroid`](super::centroid)).
+    Centroid,
 }
 
 impl Method {
     /// Every method, default first.
-    pub const ALL: [Method; 10] = [
+    pub const ALL: [Method; 11] = [
         Method::Cwt,
         Method::CwtPaper,
         Method::Max,
@@ -99,6 +103,7 @@ impl Method {
         Method::BlaisRioux,
         Method::Linear,
         Method::FirZero,
+        Method::Centroid,
     ];
 
     /// The name used on the command line and in reports.
@@ -114,6 +119,7 @@ impl Method {
             Method::BlaisRioux => "blais-rioux",
             Method::Linear => "linear",
             Method::FirZero => "fir-zero",
+            Method::Centroid => "centroid",
         }
     }
 

@@ -51,7 +51,7 @@
 //! stored phase-major, so an evaluation reads two contiguous runs.
 
 use super::kernels::{self, NORM_SHIFT, RUNGS};
-use super::{Flags, RowView, Sample, Stripe};
+use super::{Flags, Method, RowView, Sample, Stripe};
 use crate::fixed::{Px, Q56_8};
 
 mod slope;
@@ -476,7 +476,10 @@ pub(crate) fn confirm<S: Sample>(
     let thr = (noise_resp_q8 * v.cfg.threshold_sigma_q8 as i64) >> 8;
     let amplitude = (r0 as i64 * RUNGS[kb].amp_inv) >> 24;
     let r0 = r0 as i64;
-    if r0 <= thr || amplitude < v.cfg.min_amplitude as i64 || width < v.cfg.min_width || width > v.cfg.max_width {
+    // The centroid measures the width over the whole stripe and is judged
+    // by it; the best scale of a speckled stripe is a speckle's.
+    let width_out = (width < v.cfg.min_width || width > v.cfg.max_width) && v.cfg.method != Method::Centroid;
+    if r0 <= thr || amplitude < v.cfg.min_amplitude as i64 || width_out {
         return Ok(None);
     }
     if r0 < 2 * thr {

@@ -43,6 +43,7 @@
 //! repaired before it can be taken for one.
 
 mod brightest;
+mod centroid;
 pub mod coarse;
 mod config;
 pub mod cwt;
@@ -582,7 +583,16 @@ impl<const W: usize> Detector<W> {
         let needs_g = matches!(self.cfg.method, Method::CogFiltered | Method::FirZero);
         let x = &mut self.x[..w];
         coarse::load_window(&row[lo..hi], sat, level, x, &mut hits);
-        let spikes = coarse::repair_spikes(x, &hits, Q24_8(noise_q8), Q48_16(self.plan.spike_k_q16));
+        // Within a speckled line a speckle is as peaked as a hot pixel
+        // (its grain is the lens's Airy disc, 0.3–0.5 px at F/4–F/8): no
+        // test on one row tells them apart, and repairing speckles moved
+        // the centroid's points by a quarter of their error. The centroid
+        // reads the pixels as they are.
+        let spikes = if self.cfg.method == Method::Centroid {
+            0
+        } else {
+            coarse::repair_spikes(x, &hits, Q24_8(noise_q8), Q48_16(self.plan.spike_k_q16))
+        };
         if needs_g {
             let rung = &kernels::RUNGS[self.plan.k_coarse];
             coarse::response(x, &mut self.r[..w], &mut self.s[..w], &mut self.g[..w], rung);
@@ -632,7 +642,14 @@ impl<const W: usize> Detector<W> {
             && ((start == 0 && lo > 0)
                 || (start + 1 == w && hi < n)
                 || (spikes > 0 && hidden.is_none() && first_window));
-        let run = if x[start] >= sat { coarse::saturated_run(view.x, start, near, sat) } else { None };
+        // A speckled line saturates in single speckles long before the
+        // line itself does: the centroid takes the clipped pixels as they
+        // are (and flags them) rather than centring on one speckle's run.
+        let run = if x[start] >= sat && self.cfg.method != Method::Centroid {
+            coarse::saturated_run(view.x, start, near, sat)
+        } else {
+            None
+        };
         let got = match run {
             _ if cut => Err(cwt::Wider),
             Some((s, e)) => {
@@ -746,6 +763,7 @@ fn refine(v: &RowView<'_>, start: usize, scratch: &mut [i32]) -> Result<Option<S
             }
             let Some(mut s) = (match m {
                 Method::CwtPaper => paper::refine(v, ok.c),
+                Method::Centroid => centroid::refine(v, ok.c, ok.amplitude, ok.flags),
                 m => subpixel::refine(v, ok.c, m),
             }) else {
                 return Ok(None);

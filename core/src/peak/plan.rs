@@ -25,6 +25,10 @@ pub(crate) struct Plan {
     pub spike_k_q16: i64,
     /// Largest scale rounded up, px.
     pub smax_px: usize,
+    /// The centroid's half-window, 3σ of the scale range's geometric
+    /// middle, Q16 px; and where it reads its background, 5σ rounded, px.
+    pub centroid_half_q16: i64,
+    pub centroid_outer_px: usize,
     /// Smallest scale rounded down (at least 1), px: the screen's absolute
     /// floor is `min_amplitude` × this.
     pub smin_floor_px: usize,
@@ -122,9 +126,12 @@ impl Plan {
         let paper_reach = 2 * smax_px + kernels::PAPER_RUNGS[paper_hi.min(kernels::PAPER_MAX_SCALE) - 1].1 + 2;
         let c = &kernels::RUNGS[k_coarse];
         let base_reach = 4 * smax_px + 3 + 3 * c.box_half + c.lag + 2;
+        let centroid_outer_px = ((5 * geo + 32_768) >> 16) as usize;
         let method_reach_px = match cfg.method {
             Method::Cwt => 0,
             Method::CwtPaper => paper_reach,
+            // The background's pixels, and two for the re-centring.
+            Method::Centroid => centroid_outer_px + 2,
             _ => base_reach,
         };
         let reach_px = cwt_reach.max(method_reach_px + 6);
@@ -167,6 +174,8 @@ impl Plan {
             paper_hi,
             spike_k_q16,
             smax_px,
+            centroid_half_q16: 3 * geo as i64,
+            centroid_outer_px,
         })
     }
 }

@@ -218,7 +218,7 @@ pub(crate) fn refine(v: &RowView<'_>, c: usize, method: Method) -> Option<Stripe
                 }
             }
         }
-        Method::Cwt | Method::CwtPaper => None,
+        Method::Cwt | Method::CwtPaper | Method::Centroid => None,
     };
     let position = position.unwrap_or_else(|| {
         flags.insert(Flags::LOW_CONFIDENCE);

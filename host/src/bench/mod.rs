@@ -15,6 +15,7 @@
 
 pub mod accuracy;
 pub mod corrugation;
+pub mod speckle;
 pub mod speed;
 
 use std::path::{Path, PathBuf};

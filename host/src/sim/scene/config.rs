@@ -1,7 +1,7 @@
 //! The scene's configuration: camera, head, lasers, rail and motion, its
 //! presets, and the checks that refuse what cannot be rendered.
 
-use super::{Camera, HeadGeometry, MAX_LASERS, NoiseModel, RailModel};
+use super::{Camera, HeadGeometry, LightModel, MAX_LASERS, NoiseModel, RailModel};
 
 /// Why a configuration was refused.
 #[non_exhaustive]
@@ -98,6 +98,9 @@ pub struct SimConfig {
     pub rail: RailModel,
     /// Noise and ambient light.
     pub noise: NoiseModel,
+    /// What the rail does to the lasers' light: speckle, focus, finish,
+    /// glints, secondary reflections (default: none, incoherent light).
+    pub light: LightModel,
     /// Stripe peak per mW of laser power per µs of exposure at the standoff
     /// on a rail of reflectance 1, electrons (lumps reflection, optics, QE).
     pub signal_e_per_mw_us: f64,
@@ -130,6 +133,7 @@ impl SimConfig {
             lasers: three_lasers(10.0, [1.0, 0.8, 0.65]),
             rail: RailModel::default(),
             noise: NoiseModel::default(),
+            light: LightModel::incoherent(),
             signal_e_per_mw_us: 2.6,
             pixel_integration: true,
             speed_mm_s: 2000.0,
@@ -153,6 +157,7 @@ impl SimConfig {
             lasers: three_lasers(15.0, [1.0, 0.85, 0.7]),
             rail: RailModel::default(),
             noise: NoiseModel { read_noise_e: 24.0, ambient_e_per_us: 4.0, ..NoiseModel::default() },
+            light: LightModel::incoherent(),
             signal_e_per_mw_us: 1.28,
             pixel_integration: true,
             speed_mm_s: 500.0,
@@ -205,6 +210,7 @@ impl SimConfig {
         }
         self.rail.validate()?;
         self.noise.validate()?;
+        self.light.validate(self.lasers.len())?;
         let g = self.signal_e_per_mw_us;
         check("signal_e_per_mw_us", g, g >= 0.0, "finite and ≥ 0")?;
         check("speed_mm_s", self.speed_mm_s, self.speed_mm_s.is_finite(), "finite")?;

@@ -79,6 +79,7 @@
 
 pub mod camera;
 pub mod geom;
+pub mod light;
 pub mod noise;
 pub mod rail;
 
@@ -92,9 +93,11 @@ use std::fmt;
 use crate::model::vec3::{self, Vec3};
 pub use camera::Camera;
 pub use geom::{HeadGeometry, Pose, ScenePlane};
+pub use light::{Ghost, Glints, LightModel, Patches, RunningBand, Speckle};
 pub use noise::NoiseModel;
 pub use rail::{Corrugation, RailModel};
 
+use light::{LightCache, TileShot};
 use noise::{Rng, SensorPattern};
 use rail::RailSurface;
 
@@ -195,6 +198,8 @@ pub struct Scene {
     sigma0_px: f64,
     sin_alpha: f64,
     row_buf: Vec<f64>,
+    /// The light model's stripes of the last shot rendered.
+    light_cache: LightCache,
 }
 
 impl fmt::Debug for Scene {
@@ -224,6 +229,7 @@ impl Scene {
             sigma0_px: cfg.nominal_sigma_px(),
             sin_alpha: cfg.head.alpha_deg.to_radians().sin(),
             row_buf: vec![0.0; cam.width_px()],
+            light_cache: LightCache::default(),
             cfg,
             surface,
             pose,
@@ -446,8 +452,11 @@ impl Scene {
         assert!(row < self.height(), "render_row: row {row} is outside the image");
         assert_eq!(out.len(), self.width(), "render_row: output must hold one row");
         let truth = self.shot_row_truth(shot, row);
+        if !self.cfg.light.is_clean() {
+            self.light_tiles(shot);
+        }
         let mut buf = std::mem::take(&mut self.row_buf);
-        self.photo_signal(row, sane_exposure(shot.exposure_us), &truth, &mut buf);
+        self.photo_signal(shot, row, &truth, &mut buf);
         self.read_out(shot.frame_index, row, &buf, out);
         self.row_buf = buf;
         truth
@@ -572,7 +581,8 @@ impl Scene {
 
     /// Photo-signal of a row in electrons: ambient light, hot pixels' dark
     /// signal, stripes.
-    fn photo_signal(&self, row: usize, exposure_us: f64, truth: &RowTruth, buf: &mut [f64]) {
+    fn photo_signal(&self, shot: &Shot, row: usize, truth: &RowTruth, buf: &mut [f64]) {
+        let exposure_us = sane_exposure(shot.exposure_us);
         let cam = &self.cfg.camera;
         let nm = &self.cfg.noise;
         let a0 = nm.ambient_e_per_us * exposure_us;
@@ -584,9 +594,75 @@ impl Scene {
         for &(c, e) in self.sensor.hot_in_row(row) {
             buf[c as usize] += e * exposure_us;
         }
-        for s in truth.stripes.iter().flatten() {
-            add_stripe(buf, s.column_px, s.sigma_px, s.peak_dn * self.gain_e_per_dn, self.cfg.pixel_integration);
+        let light = &self.cfg.light;
+        if light.is_clean() {
+            for s in truth.stripes.iter().flatten() {
+                add_stripe(buf, s.column_px, s.sigma_px, s.peak_dn * self.gain_e_per_dn, self.cfg.pixel_integration);
+            }
+        } else if let Some(tiles) = self.light_cache.tiles_for(self.light_key(shot)) {
+            for tile in tiles.iter().flatten() {
+                tile.add_row(row, buf);
+            }
         }
+        if light.glints.per_m > 0.0 {
+            for (k, s) in truth.stripes.iter().enumerate() {
+                let Some(s) = s else { continue };
+                let at = light::surface::GlintRow {
+                    laser: k,
+                    column_px: s.column_px,
+                    sigma_px: s.sigma_px,
+                    peak_e: s.peak_dn * self.gain_e_per_dn,
+                    x0_mm: s.x_mm,
+                    mm_per_row: self.guess[k].1,
+                    travel_mm: self.cfg.speed_mm_s * exposure_us * 1e-6,
+                };
+                light::surface::add_glints(&light.glints, self.cfg.seed, &at, buf);
+            }
+        }
+    }
+
+    fn light_key(&self, shot: &Shot) -> (u64, u64, u64, u8) {
+        LightCache::key(shot.frame_index, shot.odometer_mm, sane_exposure(shot.exposure_us), shot.laser_mask)
+    }
+
+    /// Makes the light model's stripes of a shot, once per shot: every
+    /// row's line of every lit laser, imaged as a whole (speckle couples
+    /// neighbouring rows).
+    fn light_tiles(&mut self, shot: &Shot) {
+        let key = self.light_key(shot);
+        if self.light_cache.tiles_for(key).is_some() {
+            return;
+        }
+        let exposure = sane_exposure(shot.exposure_us);
+        let cam = &self.cfg.camera;
+        let mut tiles = Vec::with_capacity(self.laser_count());
+        let mut cache = std::mem::take(&mut self.light_cache);
+        for k in 0..self.laser_count() {
+            if shot.laser_mask & (1 << k) == 0 {
+                tiles.push(None);
+                continue;
+            }
+            let lines: Vec<Option<StripeTruth>> =
+                (0..self.height()).map(|r| self.solve(k, Some(shot.odometer_mm), r as f64, exposure)).collect();
+            let ts = TileShot {
+                light: &self.cfg.light,
+                seed: self.cfg.seed,
+                laser: k,
+                wavelength_um: self.cfg.lasers[k].wavelength_nm * 1e-3,
+                pixel_pitch_um: cam.pixel_pitch_um,
+                fx_px: cam.intrinsics.fx_px,
+                focus_mm: self.cfg.light.focus_mm.unwrap_or(self.cfg.head.standoff_mm),
+                lines: &lines,
+                gain_e_per_dn: self.gain_e_per_dn,
+                odometer_mm: shot.odometer_mm,
+                travel_mm: self.cfg.speed_mm_s * exposure * 1e-6,
+                row_mm: self.guess[k],
+                width_px: self.width(),
+            };
+            tiles.push(cache.render(&ts));
+        }
+        cache.keep(key, tiles);
+        self.light_cache = cache;
     }
 
     /// Noise, banding, saturation and quantisation of a row.

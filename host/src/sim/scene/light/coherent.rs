@@ -1,0 +1,372 @@
+//! Coherent imaging of a laser-lit rough surface: speckle.
+//!
+//! Steel ground or worn rough at the scale of the wavelength returns a
+//! laser's light with a random phase from every point (fully developed
+//! speckle). The lens passes only the spatial frequencies inside its pupil:
+//! the image's field is the surface's field low-passed by the coherent
+//! transfer function, a disc of radius `f_c = 1 / (2 λ N_eff)` cycles per
+//! µm with `N_eff = N (1 + M)`, times the defocus phase `exp(i 2π W₀₂₀ ρ²)`
+//! over it. The camera records the intensity, integrated over each pixel
+//! and over the exposure (Goodman, *Speckle Phenomena in Optics*, 2007,
+//! ch. 4–5). So:
+//!
+//! * one sample's intensity is exponentially distributed (contrast 1);
+//! * a speckle (the first zero of the intensity's correlation, an Airy
+//!   disc) is `2.44 λ N_eff` across;
+//! * a pixel averages `M` speckles' worth of independent patterns, and its
+//!   contrast is `1/√M` ([`pixel_contrast`], Goodman eq. 4.5-9 with the
+//!   circular pupil's `|μ|²`);
+//! * motion during the exposure moves the surface, and with it the pattern,
+//!   under the fixed illumination: a longer integration window, so `M`
+//!   grows and the contrast falls as `1/√K`.
+//!
+//! The field lives on a grid of `q` samples per pixel in both directions,
+//! with `q` above twice the intensity's bandwidth (`4 f_c`), so the pixel
+//! sums are a midpoint rule on a band-limited function. The filtering is
+//! an FFT over the whole grid (`rustfft`), which guard bands of several
+//! speckles keep from wrapping round.
+
+use rustfft::num_complex::Complex;
+use rustfft::{Fft, FftPlanner};
+use std::sync::Arc;
+
+/// A lens's coherent transfer function in pixel units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Pupil {
+    /// Cut-off of the field's spectrum, cycles per pixel.
+    pub cutoff_per_px: f64,
+    /// Defocus: the wavefront error at the pupil's edge, waves (`W₀₂₀ / λ`).
+    pub defocus_waves: f64,
+}
+
+impl Pupil {
+    /// The pupil of a lens at F-number `f_number` imaging at magnification
+    /// `magnification` onto pixels of `pitch_um`, light of `wavelength_um`;
+    /// `image_defocus_um` is the image-side focus error (the object's
+    /// distance from the plane of best focus times `M²`).
+    pub fn new(wavelength_um: f64, f_number: f64, magnification: f64, pitch_um: f64, image_defocus_um: f64) -> Pupil {
+        let n_eff = f_number * (1.0 + magnification);
+        Pupil {
+            cutoff_per_px: pitch_um / (2.0 * wavelength_um * n_eff),
+            // W₀₂₀ = Δz·NA²/2 = Δz / (8 N_eff²).
+            defocus_waves: image_defocus_um / (8.0 * n_eff * n_eff) / wavelength_um,
+        }
+    }
+
+    /// A speckle's diameter (the Airy disc's first dark ring), px:
+    /// `2.44 λ N_eff / pitch`.
+    pub fn speckle_px(&self) -> f64 {
+        1.22 / self.cutoff_per_px
+    }
+
+    /// Samples per pixel that resolve the intensity (above `4 f_c`), at least 2.
+    pub fn samples_per_px(&self) -> usize {
+        ((4.0 * self.cutoff_per_px).floor() as usize + 1).max(2)
+    }
+}
+
+/// A size at least `n` whose factors are 2, 3 and 5 only (fast FFTs).
+pub(crate) fn fft_size(n: usize) -> usize {
+    let mut m = n.max(1);
+    loop {
+        let mut k = m;
+        for p in [2, 3, 5] {
+            while k % p == 0 {
+                k /= p;
+            }
+        }
+        if k == 1 {
+            return m;
+        }
+        m += 1;
+    }
+}
+
+/// The pupil filter for one grid size: plans and the transfer function,
+/// made once and applied to many fields.
+pub(crate) struct Filter {
+    w: usize,
+    h: usize,
+    fwd_w: Arc<dyn Fft<f64>>,
+    inv_w: Arc<dyn Fft<f64>>,
+    fwd_h: Arc<dyn Fft<f64>>,
+    inv_h: Arc<dyn Fft<f64>>,
+    /// Transfer function, transposed (`h` frequencies along each of `w`
+    /// columns), divided by `w·h` (the unnormalised transforms) and scaled
+    /// so that a field of unit-amplitude random phases keeps unit mean
+    /// intensity: the light the pupil collects is in the stripe's peak
+    /// already.
+    transfer: Vec<Complex<f64>>,
+    scratch: Vec<Complex<f64>>,
+}
+
+impl Filter {
+    /// A filter for fields of `w × h` samples (`q` per pixel), row-major.
+    pub fn new(pupil: &Pupil, q: usize, w: usize, h: usize) -> Filter {
+        let mut planner = FftPlanner::new();
+        let freq = |k: usize, n: usize| {
+            let s = if k <= n / 2 { k as f64 } else { k as f64 - n as f64 };
+            s * q as f64 / n as f64
+        };
+        let fc2 = pupil.cutoff_per_px * pupil.cutoff_per_px;
+        let mut transfer = vec![Complex::new(0.0, 0.0); w * h];
+        let mut inside = 0usize;
+        for ku in 0..w {
+            let fu = freq(ku, w);
+            for kv in 0..h {
+                let fv = freq(kv, h);
+                let rho2 = (fu * fu + fv * fv) / fc2;
+                if rho2 <= 1.0 {
+                    inside += 1;
+                    let phase = 2.0 * std::f64::consts::PI * pupil.defocus_waves * rho2;
+                    transfer[ku * h + kv] = Complex::from_polar(1.0, phase);
+                }
+            }
+        }
+        // |E|² of white unit phasors after the filter: inside / (w h).
+        let scale = 1.0 / ((w * h) as f64 * (inside.max(1) as f64 / (w * h) as f64).sqrt());
+        transfer.iter_mut().for_each(|t| *t *= scale);
+        Filter {
+            w,
+            h,
+            fwd_w: planner.plan_fft_forward(w),
+            inv_w: planner.plan_fft_inverse(w),
+            fwd_h: planner.plan_fft_forward(h),
+            inv_h: planner.plan_fft_inverse(h),
+            transfer,
+            scratch: vec![Complex::new(0.0, 0.0); w * h],
+        }
+    }
+
+    /// Images `field` (row-major, `h` rows of `w`) through the pupil, in place.
+    pub fn apply(&mut self, field: &mut [Complex<f64>]) {
+        let (w, h) = (self.w, self.h);
+        assert_eq!(field.len(), w * h, "field size");
+        self.fwd_w.process(field);
+        transpose(field, &mut self.scratch, h, w);
+        self.fwd_h.process(&mut self.scratch);
+        for (s, t) in self.scratch.iter_mut().zip(&self.transfer) {
+            *s *= *t;
+        }
+        self.inv_h.process(&mut self.scratch);
+        transpose(&self.scratch, field, w, h);
+        self.inv_w.process(field);
+    }
+}
+
+/// `dst` (cols × rows) = `src` (rows × cols) transposed.
+fn transpose(src: &[Complex<f64>], dst: &mut [Complex<f64>], rows: usize, cols: usize) {
+    const B: usize = 16;
+    for r0 in (0..rows).step_by(B) {
+        for c0 in (0..cols).step_by(B) {
+            for r in r0..(r0 + B).min(rows) {
+                for c in c0..(c0 + B).min(cols) {
+                    dst[c * rows + r] = src[r * cols + c];
+                }
+            }
+        }
+    }
+}
+
+/// A uniform random phasor for surface cell `(a, b)` of stream `stream`
+/// (SplitMix64's finaliser over the mixed indices: independent of the
+/// order cells are drawn in, so a surface point keeps its phase from frame
+/// to frame).
+#[inline]
+pub(crate) fn phasor(seed: u64, stream: u64, a: i64, b: i64) -> Complex<f64> {
+    let mut z = seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = mix(z ^ (a as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
+    z = mix(z ^ (b as u64).wrapping_mul(0x8CB9_2BA7_2F3D_8DD7));
+    let phase = (z >> 11) as f64 * (std::f64::consts::TAU / (1u64 << 53) as f64);
+    Complex::from_polar(1.0, phase)
+}
+
+fn mix(mut x: u64) -> u64 {
+    x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    x ^ (x >> 31)
+}
+
+/// `J₁(x)` by its integral `(1/π) ∫₀^π cos(τ − x sin τ) dτ` (Simpson,
+/// 400 intervals: 1e-10 for |x| ≤ 30).
+pub(crate) fn bessel_j1(x: f64) -> f64 {
+    let n = 400;
+    let h = std::f64::consts::PI / n as f64;
+    let f = |t: f64| (t - x * t.sin()).cos();
+    let mut s = f(0.0) + f(std::f64::consts::PI);
+    for i in 1..n {
+        s += f(i as f64 * h) * if i % 2 == 1 { 4.0 } else { 2.0 };
+    }
+    s * h / 3.0 / std::f64::consts::PI
+}
+
+/// `|μ(r)|²` of a circular pupil: the normalised intensity correlation of
+/// the speckle at a distance `r_px` (`[2 J₁(π r/(λN))/(π r/(λN))]²`, with
+/// `λN = 1/(2 f_c)`).
+pub(crate) fn mu2(pupil: &Pupil, r_px: f64) -> f64 {
+    let x = std::f64::consts::PI * r_px * 2.0 * pupil.cutoff_per_px;
+    if x < 1e-9 {
+        return 1.0;
+    }
+    let j = 2.0 * bessel_j1(x) / x;
+    j * j
+}
+
+/// The speckle contrast of an integration window of `lx × ly` px (a pixel,
+/// lengthened along the rail by the motion during the exposure): `1/√M`
+/// with `1/M = (1/(lx ly)²) ∬ (lx − |Δx|)(ly − |Δy|) |μ(Δx, Δy)|²`
+/// (Goodman 2007, eq. 4.5-9), by the midpoint rule.
+pub(crate) fn pixel_contrast(pupil: &Pupil, lx: f64, ly: f64) -> f64 {
+    let n = 160;
+    let (hx, hy) = (2.0 * lx / n as f64, 2.0 * ly / n as f64);
+    let mut s = 0.0;
+    for i in 0..n {
+        let dx = -lx + (i as f64 + 0.5) * hx;
+        for j in 0..n {
+            let dy = -ly + (j as f64 + 0.5) * hy;
+            s += (lx - dx.abs()) * (ly - dy.abs()) * mu2(pupil, (dx * dx + dy * dy).sqrt());
+        }
+    }
+    (s * hx * hy / (lx * ly * lx * ly)).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// F/8 at 685 nm on 6 µm pixels, M = 0.044 (the reference head).
+    fn f8() -> Pupil {
+        Pupil::new(0.685, 8.0, 0.044, 6.0, 0.0)
+    }
+
+    /// A uniformly lit field of `w × h` samples imaged through `pupil`:
+    /// the sample intensities.
+    fn uniform_speckle(pupil: &Pupil, w: usize, h: usize, seed: u64) -> Vec<f64> {
+        let q = pupil.samples_per_px();
+        let mut f = Filter::new(pupil, q, w, h);
+        let mut field: Vec<Complex<f64>> =
+            (0..w * h).map(|k| phasor(seed, 1, (k % w) as i64, (k / w) as i64)).collect();
+        f.apply(&mut field);
+        field.iter().map(|e| e.norm_sqr()).collect()
+    }
+
+    #[test]
+    fn the_reference_lens_speckle_is_2_33_px_at_f8() {
+        let p = f8();
+        assert!((p.speckle_px() - 2.44 * 0.685 * 8.0 * 1.044 / 6.0).abs() < 1e-12);
+        assert!((p.speckle_px() - 2.33).abs() < 0.01, "{}", p.speckle_px());
+        assert_eq!(p.samples_per_px(), 3);
+        assert_eq!(Pupil::new(0.685, 4.0, 0.044, 6.0, 0.0).samples_per_px(), 5);
+        assert!((bessel_j1(3.831_705_970_207_512)).abs() < 1e-9);
+        assert!((bessel_j1(1.0) - 0.440_050_585_744_933_5).abs() < 1e-10);
+    }
+
+    #[test]
+    fn fully_developed_speckle_has_unit_mean_and_contrast_per_sample() {
+        let p = f8();
+        let i = uniform_speckle(&p, 240, 240, 7);
+        let n = i.len() as f64;
+        let mean = i.iter().sum::<f64>() / n;
+        let var = i.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / n;
+        // About 240²/(q·2.33)² ≈ 1200 independent speckles: ±3 % on each.
+        assert!((mean - 1.0).abs() < 0.06, "mean {mean}");
+        assert!((var.sqrt() / mean - 1.0).abs() < 0.06, "contrast {}", var.sqrt() / mean);
+        // Exponential statistics: P(I > 2⟨I⟩) = e⁻² = 0.135.
+        let tail = i.iter().filter(|&&v| v > 2.0 * mean).count() as f64 / n;
+        assert!((tail - 0.135).abs() < 0.02, "{tail}");
+    }
+
+    #[test]
+    fn speckle_size_is_the_airy_disc() {
+        // The intensity's autocovariance along a row falls to its first
+        // zero at the Airy radius 1.22 λ N_eff (half a speckle's diameter).
+        let p = f8();
+        let q = p.samples_per_px();
+        let (w, h) = (360, 360);
+        let mut cov = vec![0.0; 12];
+        for seed in 0..4 {
+            let i = uniform_speckle(&p, w, h, seed);
+            let mean = i.iter().sum::<f64>() / i.len() as f64;
+            for (lag, c) in cov.iter_mut().enumerate() {
+                let mut s = 0.0;
+                for r in 0..h {
+                    for u in 0..w - lag {
+                        s += (i[r * w + u] - mean) * (i[r * w + u + lag] - mean);
+                    }
+                }
+                *c += s / (h * (w - lag)) as f64;
+            }
+        }
+        let first_min = (1..cov.len()).find(|&k| cov[k] < cov[k + 1]).unwrap();
+        let radius_px = first_min as f64 / q as f64;
+        let want = p.speckle_px() / 2.0;
+        assert!((radius_px - want).abs() <= 0.5 / q as f64 + 0.05, "{radius_px} vs {want}");
+        // And the whole curve follows |μ|²: at one sample, and half the radius.
+        for lag in [1, 2] {
+            let want = mu2(&p, lag as f64 / q as f64);
+            assert!((cov[lag] / cov[0] - want).abs() < 0.05, "lag {lag}: {} vs {want}", cov[lag] / cov[0]);
+        }
+    }
+
+    /// Per-pixel contrast, at rest and with the window lengthened by motion.
+    #[test]
+    fn pixel_contrast_follows_goodman_and_motion_averages() {
+        let p = f8();
+        let q = p.samples_per_px();
+        let (w, h) = (360, 720);
+        for stretch_px in [0usize, 4, 12] {
+            let (mut s, mut s2, mut n) = (0.0, 0.0, 0.0);
+            for seed in 0..3 {
+                let i = uniform_speckle(&p, w, h, 100 + seed);
+                // Windows of 1 × (1 + stretch) px, every window-length apart.
+                let rows_per = q * (1 + stretch_px);
+                for r0 in (0..h - rows_per).step_by(rows_per) {
+                    for c0 in (0..w - q).step_by(q) {
+                        let mut v = 0.0;
+                        for r in r0..r0 + rows_per {
+                            for c in c0..c0 + q {
+                                v += i[r * w + c];
+                            }
+                        }
+                        v /= (rows_per * q) as f64;
+                        s += v;
+                        s2 += v * v;
+                        n += 1.0;
+                    }
+                }
+            }
+            let mean = s / n;
+            let contrast = (s2 / n - mean * mean).sqrt() / mean;
+            let want = pixel_contrast(&p, 1.0, 1.0 + stretch_px as f64);
+            assert!((contrast / want - 1.0).abs() < 0.05, "stretch {stretch_px}: {contrast} vs {want}");
+            if stretch_px == 0 {
+                // 0.70 for the reference lens at F/8 (2.33 px speckle on 1 px).
+                assert!((want - 0.70).abs() < 0.02, "{want}");
+            }
+        }
+        // Long windows: M grows with the length, contrast as 1/√K.
+        let (c4, c16) = (pixel_contrast(&p, 1.0, 4.0), pixel_contrast(&p, 1.0, 16.0));
+        assert!((c4 / c16 - 2.0).abs() < 0.2, "{c4} {c16}");
+    }
+
+    #[test]
+    fn defocus_blurs_but_keeps_the_light() {
+        let sharp = Pupil::new(0.685, 4.0, 0.044, 6.0, 0.0);
+        let blurred = Pupil::new(0.685, 4.0, 0.044, 6.0, 60.0);
+        assert!((blurred.defocus_waves - 60.0 / (8.0 * 4.176 * 4.176) / 0.685).abs() < 1e-3);
+        for p in [sharp, blurred] {
+            let i = uniform_speckle(&p, 200, 200, 3);
+            let mean = i.iter().sum::<f64>() / i.len() as f64;
+            assert!((mean - 1.0).abs() < 0.05, "{mean}");
+        }
+    }
+
+    #[test]
+    fn fft_sizes_are_smooth() {
+        assert_eq!(fft_size(7), 8);
+        assert_eq!(fft_size(241), 243);
+        assert_eq!(fft_size(1), 1);
+        assert_eq!(fft_size(1441), 1458);
+    }
+}

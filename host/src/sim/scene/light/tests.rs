@@ -1,0 +1,186 @@
+//! The light model against theory and against the clean renderer.
+
+use super::coherent::{Pupil, pixel_contrast};
+use super::*;
+use crate::sim::scene::{NoiseModel, Scene, SimConfig};
+
+fn quiet(light: LightModel, speed_mm_s: f64) -> SimConfig {
+    SimConfig { light, speed_mm_s, noise: NoiseModel::none(), ..SimConfig::reference() }
+}
+
+fn frame(cfg: &SimConfig, index: u64) -> (Vec<u16>, crate::sim::scene::FrameTruth) {
+    let mut scene = Scene::new(cfg.clone()).unwrap();
+    let mut img = vec![0u16; scene.width() * scene.height()];
+    let t = scene.render_frame(index, scene.all_lasers_mask(), &mut img);
+    (img, t)
+}
+
+/// Sum of a line's pixels within ±4σ of its true centre, per row.
+fn line_sums(img: &[u16], t: &crate::sim::scene::FrameTruth, laser: usize, w: usize) -> Vec<f64> {
+    (0..t.stripes[laser].len())
+        .filter_map(|r| {
+            let s = t.stripes[laser][r]?;
+            let (lo, hi) = ((s.column_px - 4.0 * s.sigma_px) as usize, (s.column_px + 4.0 * s.sigma_px) as usize);
+            Some((lo..=hi).map(|c| f64::from(img[r * w + c])).sum())
+        })
+        .collect()
+}
+
+#[test]
+fn the_incoherent_tile_path_is_the_clean_renderer() {
+    // A running band of reflectance 1 on both sides: the tile path (sampled
+    // illumination, pixel sums) with nothing to change.
+    let band = RunningBand { centre_mm: 0.0, half_width_mm: 10.0, outside: 1.0, edge_mm: 0.0 };
+    let light = LightModel { band: Some(band), ..LightModel::default() };
+    assert!(!light.is_clean());
+    let (a, _) = frame(&quiet(LightModel::incoherent(), 2000.0), 3);
+    let (b, _) = frame(&quiet(light, 2000.0), 3);
+    let worst = a.iter().zip(&b).map(|(x, y)| x.abs_diff(*y)).max().unwrap();
+    assert!(worst <= 1, "largest difference {worst} codes");
+    assert!(a.iter().zip(&b).filter(|(x, y)| x != y).count() < a.len() / 500);
+}
+
+#[test]
+fn speckle_keeps_the_light_and_is_fully_developed() {
+    // A short exposure (the lines peak at 30–50 codes), so that no speckle
+    // clips at 255.
+    let dim = |light: LightModel| {
+        let mut c = quiet(light, 0.0);
+        c.camera.exposure_us = 30.0;
+        c
+    };
+    let (clean, t) = frame(&dim(LightModel::incoherent()), 0);
+    let (speckled, _) = frame(&dim(LightModel::speckle(8.0)), 0);
+    let w = 752;
+    for laser in 0..3 {
+        let (a, b) = (line_sums(&clean, &t, laser, w), line_sums(&speckled, &t, laser, w));
+        let (sa, sb) = (a.iter().sum::<f64>(), b.iter().sum::<f64>());
+        // 480 rows of speckles 2.3 rows long, about 4 across: ±2 %.
+        assert!((sb / sa - 1.0).abs() < 0.03, "laser {laser}: {sb} vs {sa}");
+    }
+    // The peak pixels of the brightest line, row to row: contrast as the
+    // pupil and the pixel predict (0.70 at F/8) within sampling.
+    let p = Pupil::new(0.685, 8.0, 1400.0 * 6e-3 / (200.0 - 8.4), 6.0, 0.0);
+    let (mut s, mut s2, mut n) = (0.0, 0.0, 0.0);
+    let (img, _) = frame(&quiet(LightModel::speckle(8.0), 0.0), 0);
+    for r in 0..480 {
+        let Some(st) = t.stripes[1][r] else { continue };
+        let c = st.column_px.round() as usize;
+        // Scaled to the line's clean value at that pixel (below clipping:
+        // the middle line peaks at 133 codes).
+        let v = f64::from(img[r * w + c]) / f64::from(clean[r * w + c]);
+        s += v;
+        s2 += v * v;
+        n += 1.0;
+    }
+    let mean = s / n;
+    let contrast = (s2 / n - mean * mean).sqrt() / mean;
+    let want = pixel_contrast(&p, 1.0, 1.0);
+    // 480 rows of speckles 2.3 rows long: about 200 independent samples.
+    assert!((contrast / want - 1.0).abs() < 0.2, "{contrast} vs {want}");
+}
+
+#[test]
+fn speckle_is_frozen_at_rest_and_averages_out_in_motion() {
+    let still = quiet(LightModel::speckle(8.0), 0.0);
+    let (a, _) = frame(&still, 0);
+    let (b, _) = frame(&still, 5);
+    assert_eq!(a, b, "a head at rest sees the same speckle every frame");
+    let contrast = |speed: f64| {
+        let cfg = quiet(LightModel::speckle(8.0), speed);
+        let (img, t) = frame(&cfg, 0);
+        let (clean, _) = frame(&quiet(LightModel::incoherent(), speed), 0);
+        let (mut s, mut s2, mut n) = (0.0, 0.0, 0.0);
+        for (r, st) in t.stripes[2].iter().enumerate() {
+            let Some(st) = st else { continue };
+            let c = st.column_px.round() as usize;
+            let v = f64::from(img[r * 752 + c]) / f64::from(clean[r * 752 + c]);
+            (s, s2, n) = (s + v, s2 + v * v, n + 1.0);
+        }
+        let m = s / n;
+        (s2 / n - m * m).sqrt() / m
+    };
+    // 20 m/s × 100 µs = 2 mm = 14 rows of travel: the window 1 × 15 px.
+    let p = Pupil::new(0.685, 8.0, 8.4 / (200.0 - 8.4), 6.0, 0.0);
+    let rows = 2000.0 * 1e-3 / 0.1429;
+    let want = pixel_contrast(&p, 1.0, 1.0 + rows) / pixel_contrast(&p, 1.0, 1.0);
+    let got = contrast(20_000.0) / contrast(0.0);
+    assert!((got / want - 1.0).abs() < 0.3, "{got} vs {want}");
+    assert!(got < 0.45, "{got}");
+}
+
+#[test]
+fn oxidation_darkens_the_lines_where_patches_are() {
+    let light = LightModel { oxidation: LightModel::oxidation(), ..LightModel::default() };
+    let (clean, t) = frame(&quiet(LightModel::incoherent(), 2000.0), 0);
+    let mut darkest: f64 = 1.0;
+    let mut touched = 0;
+    for f in 0..4 {
+        let (img, t2) = frame(&quiet(light.clone(), 2000.0), f);
+        let (c2, _) = frame(&quiet(LightModel::incoherent(), 2000.0), f);
+        for laser in 0..3 {
+            let (a, b) = (line_sums(&c2, &t2, laser, 752), line_sums(&img, &t2, laser, 752));
+            for (x, y) in a.iter().zip(&b) {
+                let r = y / x;
+                assert!(r <= 1.01 && r > 0.0, "{r}");
+                darkest = darkest.min(r);
+                touched += usize::from(r < 0.95);
+            }
+        }
+    }
+    let _ = (clean, t);
+    // Patches 5–40 % bright over about 8 % of the rail top.
+    assert!(darkest < 0.45, "{darkest}");
+    assert!(touched > 20, "{touched}");
+}
+
+#[test]
+fn glints_are_small_bright_and_saturate() {
+    let light = LightModel { glints: Glints { per_m: 200.0, ..LightModel::glints() }, ..LightModel::default() };
+    let (img, t) = frame(&quiet(light, 0.0), 0);
+    let (clean, _) = frame(&quiet(LightModel::incoherent(), 0.0), 0);
+    let changed: Vec<(usize, usize)> =
+        (0..480 * 752).filter(|&k| img[k] > clean[k] + 20).map(|k| (k / 752, k % 752)).collect();
+    assert!(!changed.is_empty());
+    assert!(changed.iter().any(|&(r, c)| img[r * 752 + c] == 255), "no glint saturates");
+    // Every changed pixel is within a few σ of a line, and few are changed:
+    // 200 glints a metre over 68 mm is about 14 per line, a few pixels each.
+    for &(r, c) in &changed {
+        let near = t.stripes.iter().any(|l| l[r].is_some_and(|s| (s.column_px - c as f64).abs() < 4.0 * s.sigma_px));
+        assert!(near, "glint at ({r}, {c}) off the lines");
+    }
+    assert!(changed.len() < 3 * 14 * 12, "{}", changed.len());
+}
+
+#[test]
+fn a_ghost_line_stands_beside_its_laser() {
+    let light =
+        LightModel { ghosts: vec![Ghost { tilt_px_per_row: 0.0, ..LightModel::ghost() }], ..LightModel::default() };
+    let (img, t) = frame(&quiet(light, 2000.0), 0);
+    let (clean, _) = frame(&quiet(LightModel::incoherent(), 2000.0), 0);
+    let r = 240;
+    let s = t.stripes[1][r].unwrap();
+    let c = (s.column_px + 12.0).round() as usize;
+    let extra = f64::from(img[r * 752 + c]) - f64::from(clean[r * 752 + c]);
+    let peak = f64::from(clean[r * 752 + s.column_px.round() as usize]) - 13.0;
+    // 30 % of the line's peak (sampled within half a pixel of its centre).
+    assert!((extra / peak - 0.3).abs() < 0.05, "{extra} of {peak}");
+}
+
+#[test]
+fn nonsense_is_refused() {
+    let bad = [
+        LightModel::speckle(0.5),
+        LightModel { speckle: Some(Speckle { f_number: 8.0, patterns: 0 }), ..LightModel::default() },
+        LightModel { focus_mm: Some(-1.0), ..LightModel::default() },
+        LightModel {
+            oxidation: Patches { reflectance: [0.5, 0.2], ..LightModel::oxidation() },
+            ..LightModel::default()
+        },
+        LightModel { glints: Glints { sigma_px: 0.0, ..LightModel::glints() }, ..LightModel::default() },
+        LightModel { ghosts: vec![Ghost { laser: 3, ..LightModel::ghost() }], ..LightModel::default() },
+    ];
+    for light in bad {
+        assert!(Scene::new(SimConfig { light: light.clone(), ..SimConfig::reference() }).is_err(), "{light:?}");
+    }
+}
