@@ -159,11 +159,21 @@ mod tests {
     #[test]
     #[ignore]
     fn explore() {
+        let sp = LightModel::speckle(8.0);
         for (name, light, speed) in [
             ("clean", LightModel::incoherent(), 0.0),
             ("F/8 rest", LightModel::speckle(8.0), 0.0),
             ("F/4 rest", LightModel::speckle(4.0), 0.0),
             ("F/8 5 m/s", LightModel::speckle(8.0), 5000.0),
+            ("ox", LightModel { oxidation: LightModel::oxidation(), ..sp.clone() }, 2000.0),
+            (
+                "grease+band",
+                LightModel { grease: LightModel::grease(), band: Some(LightModel::running_band()), ..sp.clone() },
+                2000.0,
+            ),
+            ("glints", LightModel { glints: LightModel::glints(), ..sp.clone() }, 2000.0),
+            ("ghost", LightModel { ghosts: vec![LightModel::ghost()], ..sp.clone() }, 2000.0),
+            ("focus 230", LightModel { focus_mm: Some(230.0), ..LightModel::speckle(4.0) }, 2000.0),
         ] {
             let cfg = SimConfig { light, speed_mm_s: speed, ..SimConfig::reference() };
             let mut det = Config::new(8, cfg.optics().scale_range().unwrap());
@@ -185,6 +195,55 @@ mod tests {
                 s.detector,
                 s.oracle
             );
+        }
+    }
+}
+
+#[cfg(test)]
+mod corr_explore {
+    use crate::measure::corrugation::joint_fit;
+    use crate::sim::closed_loop::profiles;
+    use crate::sim::scene::{Corrugation, LightModel, SimConfig};
+
+    #[test]
+    #[ignore]
+    fn corr() {
+        for (name, light, speed) in [
+            ("clean", LightModel::incoherent(), 2000.0),
+            ("F/8 rest", LightModel::speckle(8.0), 0.0),
+            ("F/4 rest", LightModel::speckle(4.0), 0.0),
+            ("F/8 5m/s", LightModel::speckle(8.0), 5000.0),
+            ("ox", LightModel { oxidation: LightModel::oxidation(), ..LightModel::speckle(8.0) }, 2000.0),
+            ("ghost", LightModel { ghosts: vec![LightModel::ghost()], ..LightModel::speckle(8.0) }, 2000.0),
+        ] {
+            for (l, a) in [(15.0, 20.0), (30.0, 50.0), (50.0, 50.0)] {
+                for run in 0..3u64 {
+                    let mut cfg = SimConfig {
+                        light: light.clone(),
+                        speed_mm_s: speed,
+                        seed: 100 + run,
+                        ..SimConfig::reference()
+                    };
+                    cfg.rail.roughness_rms_um = 0.0;
+                    let phase = (run as f64 * 0.618).fract() * 6.283;
+                    cfg.rail.corrugation = vec![Corrugation { wavelength_mm: l, amplitude_um: a, phase_rad: phase }];
+                    let r = profiles(&cfg, 1).map_err(|e| e.to_string()).and_then(|(m, p)| {
+                        let n = p.iter().map(|v| v.len()).sum::<usize>();
+                        joint_fit(&m.lines(&p)).map(|(j, _)| (j, n)).map_err(|e| e.to_string())
+                    });
+                    match r {
+                        Ok((j, n)) => println!(
+                            "{name} λ{l} A{a} run{run}: pts {n} λ {:+.3}±{:.3} A {:+.1}±{:.1} {}",
+                            j.wavelength_mm - l,
+                            j.wavelength_sigma_mm.unwrap_or(f64::NAN),
+                            j.amplitude_mm * 1e3 - a,
+                            j.amplitude_sigma_mm.unwrap_or(f64::NAN) * 1e3,
+                            j.verdict
+                        ),
+                        Err(e) => println!("{name} λ{l} A{a} run{run}: {e}"),
+                    }
+                }
+            }
         }
     }
 }

@@ -161,11 +161,13 @@ pub fn profiles_calibrated_as(
     Ok((m, profiles))
 }
 
-/// The head's detector for `cfg`'s optics, every stripe of a row found,
-/// the strongest kept.
+/// The head's detector for `cfg`'s optics and light (laser light is
+/// speckled: the centroid; incoherent light: the CWT), every stripe of a
+/// row found, the strongest kept.
 pub fn detector(cfg: &SimConfig) -> Result<Box<Detector<{ crate::input::detect::MAX_ROW }>>, ClosedLoopError> {
     let scales = cfg.optics().scale_range().map_err(|e| ClosedLoopError::Optics(e.to_string()))?;
     let mut det_cfg = Config::new(cfg.camera.bits, scales);
+    det_cfg.method = cfg.light.method();
     det_cfg.max_stripes = LASERS as u8;
     det_cfg.select = Select::Strongest;
     Ok(Box::new(Detector::<{ crate::input::detect::MAX_ROW }>::new(det_cfg)?))

@@ -184,6 +184,12 @@ impl LightModel {
         Ghost { laser: 1, fraction: 0.3, offset_px: 12.0, tilt_px_per_row: -0.05, sigma_factor: 1.5 }
     }
 
+    /// The detector's estimator for this light: the centroid where the
+    /// lines are speckled, the CWT (best under white noise) where not.
+    pub fn method(&self) -> cms_core::peak::Method {
+        if self.speckle.is_some() { cms_core::peak::Method::Centroid } else { cms_core::peak::Method::Cwt }
+    }
+
     /// Whether the stripes are the clean renderer's (no speckle, no
     /// reflectance map, no ghost): glints alone still add to them.
     pub(crate) fn is_clean(&self) -> bool {
