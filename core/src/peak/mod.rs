@@ -499,7 +499,8 @@ impl<const W: usize> Detector<W> {
         let near = (1usize << lb) + 1;
         let (a0, b0) = (pos.saturating_sub(near), (pos + near).min(n - 1));
         let noise_q8 = self.detect_noise_q8;
-        let in_place = self.cfg.method == Method::Cwt;
+        let method = self.cfg.method;
+        let in_place = matches!(method, Method::Cwt | Method::Centroid);
         let level = self.spike_level;
         // The first window is centred on the brightest pixel of the raw
         // row where the screen responded: the estimators start there, so
@@ -513,11 +514,13 @@ impl<const W: usize> Detector<W> {
             // The default method reads a window that the copy and the
             // repair would leave as it is (the common case) in place,
             // from the row: the same values, no copy.
+            // The centroid repairs nothing (see `copied`) and clamps
+            // what it reads: any window it can read in place.
             let in_place = in_place
                 && screened
                 && (lo..hi).contains(&bright)
-                && row[bright].value() < sat
-                && coarse::window_is_clean(&row[lo..hi], sat, level);
+                && (method == Method::Centroid
+                    || row[bright].value() < sat && coarse::window_is_clean(&row[lo..hi], sat, level));
             let (got, spikes) = if in_place {
                 let view = RowView {
                     x: &row[lo..hi],
@@ -528,7 +531,12 @@ impl<const W: usize> Detector<W> {
                     off: lo,
                     row_len: n,
                 };
-                (cwt::refine(&view, bright - lo, &mut self.s), 0)
+                let got = if method == Method::Centroid {
+                    centroid::detect(&view, bright - lo, &mut self.s)
+                } else {
+                    cwt::refine(&view, bright - lo, &mut self.s)
+                };
+                (got, 0)
             } else {
                 let first_window = reach < self.plan.reach_px + near;
                 self.copied(row, (lo, hi), (a0, b0), at.map(|_| bright), first_window, runs_used)
@@ -763,7 +771,7 @@ fn refine(v: &RowView<'_>, start: usize, scratch: &mut [i32]) -> Result<Option<S
             }
             let Some(mut s) = (match m {
                 Method::CwtPaper => paper::refine(v, ok.c),
-                Method::Centroid => centroid::refine(v, ok.c, ok.amplitude, ok.flags),
+                Method::Centroid => return centroid::detect(v, start, scratch),
                 m => subpixel::refine(v, ok.c, m),
             }) else {
                 return Ok(None);

@@ -14,6 +14,10 @@
 //!   wavelength and amplitude errors over runs (`corrugation.md`,
 //!   `corrugation.csv`) and one measured frame's plot (`frame_l50_a50.png`,
 //!   `.svg`).
+//! * `bench speckle` — the speckle budget of the reference head (the
+//!   per-point bound against aperture, speed, exposure and angle, beside
+//!   what the detector achieves) and the real-light sweep
+//!   (`cms_host::sim::real_light`): `speckle.md`, `speckle.csv`.
 //! * `bench recording` — writes a synthetic calibrated recording of any
 //!   length (`cms_host::sim::synthetic`), the input of the scale benchmarks of
 //!   `analyze` and `export` (docs/benchmarks.md).
@@ -25,6 +29,7 @@ use cms_host::bench::{
     self,
     accuracy::{AccuracyOptions, ReportTable},
     corrugation::CorrugationOptions,
+    speckle::SpeckleOptions,
     speed::SpeedOptions,
 };
 use cms_study::montecarlo as mc;
@@ -45,6 +50,9 @@ pub enum BenchCmd {
     /// Corrugation through the simulated head (paper geometry, 30 dB): wavelength and amplitude errors of the
     /// paper's four samples over runs; writes corrugation.md, corrugation.csv and a plot of one frame.
     Corrugation(CorrugationArgs),
+    /// Real light on the reference head: the speckle budget (bound per point against aperture, speed, exposure and
+    /// triangulation angle, beside the detector) and the real-light sweep; writes speckle.md and speckle.csv.
+    Speckle(SpeckleArgs),
     /// Writes a synthetic calibrated recording (a known rail, no rendering) to time analyze and export at scale.
     Recording(RecordingArgs),
     /// EN 13231-3 Annex A: the simulated head over a reference beam; the band RMS differences against the
@@ -115,6 +123,23 @@ pub struct CorrugationArgs {
     pub sweep: bool,
     /// Output directory (created if missing).
     #[arg(long, default_value = "out/corrugation")]
+    pub out: PathBuf,
+}
+
+/// Options of `bench speckle`.
+#[derive(Args, Debug, Clone)]
+pub struct SpeckleArgs {
+    /// Runs per light and corrugation (seeds 100.., golden-ratio phases).
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    pub runs: u64,
+    /// The reduced sweep: speckle alone and every disturbance together, F/8, at rest and 5 m/s.
+    #[arg(long)]
+    pub reduced: bool,
+    /// Worker threads [default: all cores].
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=256))]
+    pub threads: Option<u64>,
+    /// Output directory (created if missing).
+    #[arg(long, default_value = "out/speckle")]
     pub out: PathBuf,
 }
 
@@ -204,6 +229,12 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
         BenchCmd::Speed(s) => bench::speed::speed(&s.options())?,
         BenchCmd::Qemu(q) => cms_host::device::qemu::bench(&q.options())?,
         BenchCmd::Corrugation(c) => bench::corrugation::corrugation(&c.options())?,
+        BenchCmd::Speckle(s) => bench::speckle::speckle(&SpeckleOptions {
+            runs: s.runs,
+            reduced: s.reduced,
+            threads: s.threads.map(|t| t as usize),
+            out: s.out.clone(),
+        })?,
         BenchCmd::Recording(r) => recording(&r)?,
         BenchCmd::AnnexA(a) => annex_a(&a)?,
     };

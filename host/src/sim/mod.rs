@@ -9,6 +9,9 @@
 //!   true calibration.
 //! * [`closed_loop`] — corrugation measured through the simulated head
 //!   against its truth (`bench corrugation`).
+//! * [`real_light`] — the reference head through speckle, oxidation,
+//!   grease, glints and ghost lines, points and corrugation against the
+//!   truth (`bench speckle`).
 //! * [`annex_a`] — EN 13231-3 Annex A: the simulated head over a reference
 //!   beam (`bench annex-a`).
 //! * [`synthetic`] — a calibrated recording of any length over a known rail,
@@ -18,5 +21,6 @@ pub mod annex_a;
 pub mod calibration;
 pub mod closed_loop;
 pub mod head;
+pub mod real_light;
 pub mod scene;
 pub mod synthetic;
