@@ -71,9 +71,11 @@ fn build_selftest_detector() -> Result<Detector<{ board::WIDTH }>, StartError> {
     Detector::new(Config::new(12, scales)).map_err(StartError::Config)
 }
 
-/// The head's detector: the core's default at the sensor's 8 bits.
+/// The head's detector: the core's default at the sensor's 8 bits, with
+/// the estimator for laser light (its lines are speckled: the centroid).
 fn head_detector() -> Config {
     let mut c = default_detector();
+    c.method = peak::Method::Centroid;
     c.bits = board::BITS;
     c.saturation = (1 << board::BITS) - 1;
     c

@@ -15,6 +15,7 @@ mod fit;
 mod input_props;
 mod listen;
 mod measure;
+mod real_light;
 mod record;
 mod render;
 mod robust;

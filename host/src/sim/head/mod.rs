@@ -375,6 +375,9 @@ mod scene {
         let scales =
             scene.config().optics().scale_range().map_err(|e| SimulateError::Usage(format!("scene optics: {e}")))?;
         let mut detector = Config::new(scene.bits(), scales);
+        // The estimator the scene's light calls for (laser light is
+        // speckled: the centroid).
+        detector.method = scene.config().light.method();
         detector.max_stripes = LASERS as u8;
         detector.select = Select::Strongest;
         cms_core::peak::Detector::<1>::new(detector)
