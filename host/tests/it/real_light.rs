@@ -1,7 +1,7 @@
 //! The head's points under real light (speckle and what a rail adds to it),
 //! against a ±3σ centroid placed on the true centre of the same rows: what
 //! the light allows a row-by-row estimator. The full sweep is
-//! `cms-host bench speckle` (docs/light.md).
+//! `cms-host bench speckle`.
 
 use cms_host::sim::closed_loop::Case;
 use cms_host::sim::real_light::{LightCase, config, disturbances, frame_points};

@@ -98,6 +98,9 @@ pub struct HeadOptions {
     /// calibration, as a real profiler's factory calibration): used
     /// whenever no calibration is kept in its state directory.
     pub factory_calibration: bool,
+    /// What the rail does to the lasers' light (speckle, finish, glints,
+    /// ghosts); `None` keeps the preset's (incoherent light).
+    pub light: Option<crate::sim::scene::LightModel>,
 }
 
 impl Default for HeadOptions {
@@ -117,6 +120,7 @@ impl Default for HeadOptions {
             laser_gain: None,
             state: None,
             factory_calibration: true,
+            light: None,
         }
     }
 }
@@ -225,6 +229,8 @@ pub struct SimPort {
     pub sim_roughness_um: Option<f64>,
     /// With PORT `sim`: the simulated head starts without its factory calibration.
     pub sim_uncalibrated: bool,
+    /// With PORT `sim`: the light on the simulated rail (speckle, finish, glints, ghosts).
+    pub sim_light: Option<crate::sim::scene::LightModel>,
 }
 
 impl SimPort {
@@ -237,6 +243,7 @@ impl SimPort {
             || !self.sim_corrugation.is_empty()
             || self.sim_roughness_um.is_some()
             || self.sim_uncalibrated
+            || self.sim_light.is_some()
     }
 }
 
@@ -246,7 +253,7 @@ impl SimPort {
 pub fn resolve_port(port: &str, sim: &SimPort) -> Result<(PathBuf, Option<SimHandle>), SimulateError> {
     if port != "sim" {
         if sim.any() {
-            return Err(SimulateError::Usage("--sim-seed, --sim-preset, --sim-state, --sim-speed-mm-s, --sim-corrugation, --sim-roughness-um and --sim-uncalibrated need PORT `sim`".into()));
+            return Err(SimulateError::Usage("--sim-seed, --sim-preset, --sim-state, --sim-speed-mm-s, --sim-corrugation, --sim-roughness-um, --sim-uncalibrated and --sim-light need PORT `sim`".into()));
         }
         return Ok((PathBuf::from(port), None));
     }
@@ -260,6 +267,7 @@ pub fn resolve_port(port: &str, sim: &SimPort) -> Result<(PathBuf, Option<SimHan
         corrugation: sim.sim_corrugation.clone(),
         roughness_um: sim.sim_roughness_um,
         factory_calibration: !sim.sim_uncalibrated,
+        light: sim.sim_light.clone(),
         ..HeadOptions::default()
     };
     let (path, handle) = spawn_on_pty(&args)?;
@@ -296,6 +304,9 @@ pub fn sim_config(args: &HeadOptions) -> Result<SimConfig, SimulateError> {
         Preset::Reference => SimConfig::reference(),
         Preset::Paper => SimConfig::paper(),
     };
+    if let Some(light) = &args.light {
+        cfg.light = light.clone();
+    }
     cfg.seed = args.seed;
     cfg.frame_rate_hz = args.rate as f64;
     if let Some(b) = args.bits {

@@ -71,7 +71,7 @@ pub(crate) fn fft_size(n: usize) -> usize {
     loop {
         let mut k = m;
         for p in [2, 3, 5] {
-            while k % p == 0 {
+            while k.is_multiple_of(p) {
                 k /= p;
             }
         }
@@ -284,7 +284,7 @@ mod tests {
         let p = f8();
         let q = p.samples_per_px();
         let (w, h) = (360, 360);
-        let mut cov = vec![0.0; 12];
+        let mut cov = [0.0; 12];
         for seed in 0..4 {
             let i = uniform_speckle(&p, w, h, seed);
             let mean = i.iter().sum::<f64>() / i.len() as f64;

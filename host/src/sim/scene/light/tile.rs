@@ -258,13 +258,13 @@ impl LightCache {
                 let j0 = u0 * q as i64;
                 for k in 0..patterns {
                     let stream = SPECKLE_STREAM ^ ((s.laser as u64) << 32) ^ ((k as u64) << 48);
-                    for m in 0..steps {
+                    for (m, &n0) in n_m.iter().enumerate() {
                         for i in 0..h {
                             for j in 0..w {
                                 let a = amp[i * w + j];
                                 field[i * w + j] = if a > 0.0 {
                                     let r = if finish { reflect(m, i, j).sqrt() } else { 1.0 };
-                                    phasor(s.seed, stream, j0 + j as i64, n_m[m] + i as i64) * (a * r)
+                                    phasor(s.seed, stream, j0 + j as i64, n0 + i as i64) * (a * r)
                                 } else {
                                     Complex::new(0.0, 0.0)
                                 };
