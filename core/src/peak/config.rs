@@ -86,7 +86,7 @@ pub enum Method {
     FirZero,
     /// Centroid over ±3σ of the optics' scale, re-centred: the estimator
     /// for laser light, which speckle does not pull onto single speckles
-    /// (see [`centroid`](super::centroid)).
+    /// (`core/src/peak/centroid.rs`).
     Centroid,
 }
 
