@@ -1,7 +1,7 @@
 //! What a rail does to a laser line, beyond a clean Gaussian stripe: the
 //! light model of the simulated head, from physics.
 //!
-//! * **Speckle** ([`coherent`]): a 685 nm line on steel rough at the
+//! * **Speckle** (`coherent.rs`): a 685 nm line on steel rough at the
 //!   wavelength's scale is imaged coherently through the lens's pupil; the
 //!   pattern is tied to the surface, so motion during the exposure averages
 //!   it and a head at rest sees the same one frame after frame. Several
@@ -10,7 +10,7 @@
 //! * **Focus**: the coherent transfer function carries the defocus of a
 //!   rail outside the plane the lens is focused on (image-side focus error
 //!   `M² Δz`, wavefront error `W₀₂₀ = Δz_img / (8 N_eff²)`).
-//! * **Surface finish** ([`surface`]): oxidation and rust patches, grease
+//! * **Surface finish** (`surface.rs`): oxidation and rust patches, grease
 //!   films and the shiny running band, as a reflectance over the rail top
 //!   (5–100 %, sharp or soft edges) that multiplies the illumination.
 //! * **Glints**: specular facets in the lit band, a few pixels, bright
