@@ -409,7 +409,7 @@ mod tests {
         );
         let mut lines = c1.lines();
         assert_eq!(lines.next(), Some(mc::CSV_HEADER));
-        assert_eq!(lines.count(), 10 * 4 * 4);
+        assert_eq!(lines.count(), Method::ALL.len() * 4 * 4);
         let svg = std::fs::read_to_string(d1.join("accuracy.svg")).unwrap();
         assert!(svg.starts_with("<svg") && svg.contains("cwt-paper"));
         assert!(report.contains("measured over the whole 480-sample row"));
