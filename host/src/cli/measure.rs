@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use clap::Args;
 use cms_host::Error;
 use cms_host::calib::file::CalibrationFile;
+use cms_host::measure::image::MethodChoice;
 use cms_host::measure::verdict::Level;
 use cms_host::measure::{self, Measurer};
 
@@ -28,6 +29,12 @@ pub struct MeasureArgs {
     #[arg(long)]
     pub strict: bool,
 
+    /// The images' sub-pixel method: `auto` (by the light the image shows:
+    /// `centroid` for a speckled laser line, `cwt` otherwise) or a method's
+    /// name as `detect --method` takes it.
+    #[arg(long, default_value = "auto", value_name = "METHOD", value_parser = choice_parser())]
+    pub method: MethodChoice,
+
     /// Images (PNG, TIFF, JPEG, CSV rows) or recordings (.cmsrec).
     #[arg(required = true, value_name = "INPUT")]
     pub inputs: Vec<PathBuf>,
@@ -46,7 +53,7 @@ pub fn run(args: &MeasureArgs) -> anyhow::Result<()> {
     let (mut all, mut not_good) = (0usize, 0usize);
     for path in &args.inputs {
         let (results, warnings) =
-            measure::measure_file(&m, path, &cal_name.to_string(), &super::progress::Bar::stderr())?;
+            measure::measure_file(&m, path, &cal_name.to_string(), args.method, &super::progress::Bar::stderr())?;
         for w in warnings {
             // Not eprintln!: it panics if stderr is closed.
             let _ = writeln!(io::stderr(), "{w}");
@@ -76,4 +83,15 @@ pub fn run(args: &MeasureArgs) -> anyhow::Result<()> {
         anyhow::bail!("--strict: {not_good} of {all} results are not good (see their verdicts)");
     }
     Ok(())
+}
+
+fn choice_parser() -> impl clap::builder::TypedValueParser<Value = MethodChoice> {
+    use clap::builder::TypedValueParser as _;
+    let names = std::iter::once("auto").chain(cms_core::peak::Method::ALL.map(cms_core::peak::Method::name));
+    clap::builder::PossibleValuesParser::new(names).try_map(|s| match s.as_str() {
+        "auto" => Ok(MethodChoice::Auto),
+        name => cms_core::peak::Method::from_name(name)
+            .map(MethodChoice::Fixed)
+            .ok_or_else(|| format!("unknown method `{name}`")),
+    })
 }

@@ -6,11 +6,13 @@
 //!
 //! INPUT is an image (PNG, TIFF, JPEG or CSV rows, as `detect` reads them)
 //! or a recording (`.cmsrec`). An image's rows go through the head's own
-//! detector (`cms_core::peak`, the CWT method, with the scale range of the
-//! calibration's `[head]` optics, the three strongest stripes); a row with
-//! exactly one stripe per laser gives each laser its point, in position
-//! order (the lasers are mounted left to right in laser order), other rows
-//! are skipped (counted). A recording's complete frames (every part of a
+//! detector (`cms_core::peak`, with the scale range of the calibration's
+//! `[head]` optics), its method chosen by the light the image shows — the
+//! centroid for a speckled laser line, the CWT otherwise — unless
+//! `--method` names one; each row's stripes go to the lasers whose lines
+//! they continue, so a row where one line is missing keeps the others
+//! ([`image`]; rows with no stripe and rows with a line missing are
+//! counted). A recording's complete frames (every part of a
 //! sequence number) give their points' `metric` (triangulated by the head),
 //! or, for frames recorded without a calibration, the raw peaks
 //! triangulated here with the calibration.
@@ -45,12 +47,12 @@
 
 pub mod corrugation;
 pub mod fit;
+pub mod image;
 pub mod verdict;
 
 use std::io::{self, Write};
 use std::path::Path;
 
-use cms_core::peak::{Config, Detector, Select, Stripes};
 use cms_core::pipeline::triangulator;
 use cms_core::protocol::{DeviceMsg, LASERS, Profile};
 use cms_core::triangulation::Triangulator;
@@ -58,8 +60,8 @@ use serde::Serialize;
 
 use crate::Error;
 use crate::calib::file::{CalibrationFile, RecordedHeads};
+use crate::input;
 use crate::input::detect::MAX_ROW;
-use crate::input::{self, Row, Rows};
 use crate::progress::Progress;
 use crate::recording::{self, FrameCounter};
 use corrugation::{Corrected, HeadFrame, Joint, Line, LineFit, joint_fit_from};
@@ -103,6 +105,9 @@ pub struct Measurement {
     pub odometer_mm: Option<f64>,
     /// Image rows without one stripe per laser (images).
     pub rows_skipped: Option<usize>,
+    /// How an image's stripes were found: the sub-pixel method and the
+    /// light the image showed (images).
+    pub detection: Option<ImageDetection>,
     /// Per laser.
     pub lasers: Vec<LaserResult>,
     /// The joint result of the lines.
@@ -112,6 +117,17 @@ pub struct Measurement {
     pub corrected: Vec<Corrected>,
     /// Why there is no joint result.
     pub joint_error: Option<String>,
+}
+
+/// How an image's stripes were found ([`image`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ImageDetection {
+    /// The sub-pixel method (its name).
+    pub method: &'static str,
+    /// The light test, when the method was chosen by it.
+    pub light: Option<image::LightJudgement>,
+    /// Rows where some laser had no point (the others kept theirs).
+    pub rows_partial: usize,
 }
 
 /// The calibration, ready to measure with.
@@ -177,40 +193,6 @@ impl Measurer {
     /// The triangulator of the calibration.
     pub fn triangulator(&self) -> &Triangulator {
         &self.tri
-    }
-
-    /// Per-laser profiles of an image: `(profiles, rows skipped)`.
-    pub fn image_profiles(&self, rows: &Rows) -> Result<(Profiles, usize), MeasureError> {
-        let scales = self.scales.ok_or(MeasureError::NoHead)?;
-        if rows.width() > MAX_ROW {
-            return Err(MeasureError::TooWide(rows.width()));
-        }
-        let mut cfg = Config::new(rows.bits(), scales);
-        cfg.max_stripes = LASERS as u8;
-        cfg.select = Select::Strongest;
-        let mut det = Box::new(Detector::<MAX_ROW>::new(cfg).map_err(MeasureError::Detector)?);
-        let mut out: Profiles = Default::default();
-        let mut skipped = 0;
-        let mut stripes: Stripes<LASERS> = Stripes::new();
-        for (r, row) in rows.rows().enumerate() {
-            match row {
-                Row::U8(v) => det.detect(v, &mut stripes),
-                Row::U16(v) => det.detect(v, &mut stripes),
-            }
-            .map_err(|source| MeasureError::Row { row: r, source })?;
-            let Ok(r16) = u16::try_from(r) else { break };
-            if stripes.len() != LASERS {
-                skipped += 1;
-                continue;
-            }
-            stripes.sort_unstable_by_key(|s| s.position);
-            for (k, s) in stripes.iter().enumerate() {
-                if let Some(p) = self.tri.profile(k, s.position, r16) {
-                    out[k].push((f64::from(p.along_mm), f64::from(p.height_mm)));
-                }
-            }
-        }
-        Ok((out, skipped))
     }
 
     /// Per-laser profiles of a recorded frame (its parts in order): the
@@ -293,6 +275,7 @@ impl Measurer {
             seq: None,
             odometer_mm: None,
             rows_skipped: None,
+            detection: None,
             lasers,
             joint,
             corrected,
@@ -369,6 +352,7 @@ pub fn measure_file(
     m: &Measurer,
     path: &Path,
     cal_name: &str,
+    method: image::MethodChoice,
     progress: &dyn Progress,
 ) -> Result<(Vec<Measurement>, Vec<String>), Error> {
     let name = path.display().to_string();
@@ -378,9 +362,11 @@ pub fn measure_file(
     }
     let rows = input::read_rows(path)?;
     m.file.check_image(cal_name, &name, rows.width(), rows.height())?;
-    let (profiles, skipped) = m.image_profiles(&rows).map_err(|e| Error::Input(format!("{name}: {e}")))?;
-    let mut r = m.measure(&name, &profiles);
-    r.rows_skipped = Some(skipped);
+    let found = m.image_profiles(&rows, method).map_err(|e| Error::Input(format!("{name}: {e}")))?;
+    let mut r = m.measure(&name, &found.profiles);
+    r.rows_skipped = Some(found.rows_skipped);
+    r.detection =
+        Some(ImageDetection { method: found.method.name(), light: found.light, rows_partial: found.rows_partial });
     Ok((vec![r], Vec::new()))
 }
 
@@ -455,7 +441,22 @@ pub fn write_text(out: &mut impl Write, r: &Measurement) -> io::Result<()> {
         head += &format!(" at {o:.3} mm");
     }
     if let Some(s) = r.rows_skipped {
-        head += &format!(" ({s} rows without one stripe per laser skipped)");
+        head += &format!(" ({s} rows without a stripe skipped");
+        if let Some(d) = &r.detection {
+            head += &format!(", {} with a line missing", d.rows_partial);
+        }
+        head += ")";
+    }
+    if let Some(d) = &r.detection {
+        head += &format!("; detector {}", d.method);
+        if let Some(l) = &d.light {
+            let light = if l.speckled { "speckled" } else { "incoherent" };
+            head += &format!(
+                " (light {light}: the lines' strength changes {:.0} % from sample to sample, noise {:.0} %)",
+                l.change * 100.0,
+                l.noise_share * 100.0
+            );
+        }
     }
     writeln!(out, "{head}")?;
     let pm = |s: Option<f64>, k: f64| s.map_or_else(String::new, |s| format!(" ± {:.4}", s * k));

@@ -402,3 +402,53 @@ fn a_frame_with_a_step_is_not_good_and_strict_says_so() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.starts_with("error: --strict: ") && err.contains("results are not good"), "{err}");
 }
+
+/// `measure` reads the light off the image: a speckled laser line is
+/// measured with the centroid and an incoherent one with the CWT (`auto`,
+/// the default), `--method` overrides it, and a speckled image keeps a
+/// point in nearly every row of every line, with the joint result's
+/// interval holding the truth.
+#[test]
+fn the_light_picks_the_method() {
+    use cms_host::sim::scene::LightModel;
+    let dir = tempfile::tempdir().unwrap();
+    let (clean, cal) = image_and_calibration(dir.path());
+    let mut cfg = config();
+    cfg.light = LightModel::speckle(8.0);
+    let mut scene = Scene::new(cfg).unwrap();
+    let (w, h) = (scene.width(), scene.height());
+    let mut px = vec![0u16; w * h];
+    scene.render_frame(0, scene.all_lasers_mask(), &mut px);
+    let bytes: Vec<u8> = px.iter().map(|&v| v.min(255) as u8).collect();
+    let speckled = dir.path().join("speckled.png");
+    image::save_buffer(&speckled, &bytes, w as u32, h as u32, image::ExtendedColorType::L8).unwrap();
+
+    let json = |args: &[&str]| -> serde_json::Value {
+        let out = cms_host(&[&["measure", "--calibration", s(&cal), "--json"], args].concat());
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_str(String::from_utf8(out.stdout).unwrap().trim()).unwrap()
+    };
+    let v = json(&[s(&clean)]);
+    assert_eq!(v["detection"]["method"], "cwt", "{}", v["detection"]);
+    assert_eq!(v["detection"]["light"]["speckled"], false, "{}", v["detection"]);
+    let v = json(&[s(&speckled)]);
+    let d = &v["detection"];
+    assert_eq!(d["method"], "centroid", "{d}");
+    assert_eq!(d["light"]["speckled"], true, "{d}");
+    assert!(d["light"]["change"].as_f64().unwrap() > 0.2, "{d}");
+    for l in v["lasers"].as_array().unwrap() {
+        let n = l["along_mm"].as_array().unwrap().len();
+        assert!(n * 10 >= h * 9, "laser {}: {n} points of {h} rows", l["laser"]);
+    }
+    let j = &v["joint"];
+    let (wl, sl) = (j["wavelength_mm"].as_f64().unwrap(), j["wavelength_sigma_mm"].as_f64().unwrap());
+    let (amp, sa) = (j["amplitude_mm"].as_f64().unwrap(), j["amplitude_sigma_mm"].as_f64().unwrap());
+    println!("speckled: λ {wl} ± {sl} mm, A {} ± {} µm, {}", amp * 1e3, sa * 1e3, j["verdict"]);
+    assert!((wl - LAMBDA_MM).abs() <= 3.0 * sl && (amp * 1e3 - AMP_UM).abs() <= 3.0 * sa * 1e3, "{j}");
+
+    let v = json(&["--method", "cwt", s(&speckled)]);
+    assert_eq!(v["detection"]["method"], "cwt");
+    assert!(v["detection"]["light"].is_null(), "{}", v["detection"]);
+    let out = cms_host(&["measure", "--calibration", s(&cal), "--method", "centriod", s(&speckled)]);
+    assert_eq!(out.status.code(), Some(2));
+}
