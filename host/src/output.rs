@@ -254,3 +254,27 @@ mod tests {
         assert_eq!(fs::metadata(&f).unwrap().permissions().mode() & 0o777, 0o600);
     }
 }
+
+/// `s` with every character that would act rather than print — control
+/// characters (C0 with ESC, DEL, C1) and the bidirectional overrides — as
+/// its `\u{…}` escape: text a user or a file supplied (a survey's notes, a
+/// line's name) then cannot move the terminal's cursor, change its colours
+/// or reorder what a report shows around it.
+pub fn printable(s: &str) -> std::borrow::Cow<'_, str> {
+    let acts = |c: char| c.is_control() || matches!(c, '\u{202a}'..='\u{202e}' | '\u{2066}'..='\u{2069}');
+    if !s.chars().any(acts) {
+        return s.into();
+    }
+    s.chars().map(|c| if acts(c) { c.escape_unicode().to_string() } else { c.to_string() }).collect::<String>().into()
+}
+
+#[cfg(test)]
+mod printable_tests {
+    use super::printable;
+
+    #[test]
+    fn escapes_are_shown_not_acted_on() {
+        assert_eq!(printable("after grinding, pass 2 – Nordstrecke"), "after grinding, pass 2 – Nordstrecke");
+        assert_eq!(printable("a\u{1b}[2Jb\nc\u{7f}\u{9b}d\u{202e}e"), "a\\u{1b}[2Jb\\u{a}c\\u{7f}\\u{9b}d\\u{202e}e");
+    }
+}

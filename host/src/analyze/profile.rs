@@ -62,6 +62,11 @@ pub fn read(path: &Path, dx_mm: Option<f64>) -> Result<(ProfileFile, Stitching),
     parse(&text, dx_mm).map_err(|e| Error::Input(format!("{name}: {e}")))
 }
 
+/// Largest height a profile may hold, µm: 100 mm, beyond the range of any
+/// profiler of a rail head — a larger value is a unit or a file gone wrong,
+/// and would otherwise overflow the spectra into a meaningless verdict.
+pub const MAX_HEIGHT_UM: f64 = 1e5;
+
 fn split(line: &str, sep: Option<char>) -> Vec<&str> {
     match sep {
         Some(c) => line.split(c).map(str::trim).collect(),
@@ -85,6 +90,8 @@ pub fn parse(text: &str, dx_mm: Option<f64>) -> Result<(ProfileFile, Stitching),
 
 /// [`parse`], its errors as text.
 fn parse_text(text: &str, dx_mm: Option<f64>) -> Result<(ProfileFile, Stitching), String> {
+    // Spreadsheets write a byte-order mark before the header.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
     let Some((_, header)) = lines.next() else { return Err("no header line (and no data)".into()) };
     let sep = [',', ';', '\t'].into_iter().find(|c| header.contains(*c));
@@ -152,7 +159,15 @@ fn parse_text(text: &str, dx_mm: Option<f64>) -> Result<(ProfileFile, Stitching)
         }
         xs.push(x);
         for (z, &(i, scale, _)) in zs.iter_mut().zip(&heights) {
-            z.push(number(i, true)? * scale);
+            let h_um = number(i, true)? * scale;
+            if h_um.abs() > MAX_HEIGHT_UM {
+                return Err(format!(
+                    "line {}, column `{}`: {h_um:e} µm is beyond any rail profile's ±{MAX_HEIGHT_UM:e} µm",
+                    ln + 1,
+                    names[i]
+                ));
+            }
+            z.push(h_um);
         }
     }
     if xs.len() < 2 {
@@ -286,6 +301,13 @@ mod tests {
     }
 
     #[test]
+    fn a_byte_order_mark_is_not_part_of_the_header() {
+        let (info, s) = parse("\u{feff}x_mm,height_um\n0,1\n1,2\n", None).unwrap();
+        assert!(info.has_x);
+        assert_eq!((info.rows, s.lasers[0].z_um.clone()), (2, vec![1.0, 2.0]));
+    }
+
+    #[test]
     fn bad_files_are_named_where_they_are_wrong() {
         for (text, dx, want) in [
             ("", None, "no header"),
@@ -298,6 +320,8 @@ mod tests {
             ("x_mm,height_um\n0,1\n", None, "at least 2"),
             ("x_mm,height_um\n0,1\n1e9,2\n", Some(1e-3), "more than"),
             ("x_mm,height_um\n,1\n1,2\n", None, "column `x_mm`"),
+            ("x_mm,height_um\n0,1\n1,1e300\n", None, "line 3, column `height_um`: 1e300 µm is beyond"),
+            ("x_mm,height_mm\n0,-1e300\n1,2\n", None, "line 2, column `height_mm`: -1e303 µm"),
         ] {
             let e = parse(text, dx).unwrap_err();
             assert!(e.to_string().contains(want), "{text:?}: {e}");

@@ -67,11 +67,11 @@ pub struct AnalyzeArgs {
     /// The EN 13231-3 edition whose criterion gives the verdict (zones, reprofiling table).
     #[arg(long, value_enum, default_value_t = EditionArg::En2006)]
     pub edition: EditionArg,
-    /// Block length for block RMS and the per-block EN 15610 spectrum, m.
-    #[arg(long = "block-m", value_name = "M", default_value_t = 50.0, value_parser = positive)]
+    /// Block length for block RMS and the per-block EN 15610 spectrum, m (1 to 1000).
+    #[arg(long = "block-m", value_name = "M", default_value_t = 50.0, value_parser = block_m)]
     pub block_m: f64,
-    /// How far from its given start chainage a run's registration looks, m.
-    #[arg(long = "search-m", value_name = "M", default_value_t = 25.0, value_parser = positive)]
+    /// How far from its given start chainage a run's registration looks, m (above 0, at most 1000).
+    #[arg(long = "search-m", value_name = "M", default_value_t = 25.0, value_parser = search_m)]
     pub search_m: f64,
     /// Write a report (report.md, report.html, SVG and PNG plots, CSV and the Parquet exports) into DIR (created if missing).
     #[arg(long, value_name = "DIR")]
@@ -85,17 +85,18 @@ pub struct AnalyzeArgs {
     #[arg(long)]
     pub json: bool,
     /// Sample spacing of the stitched profile, mm (EN 15610 needs ≤ 1);
-    /// default 1 for recordings and the data's own spacing for a profile.
-    #[arg(long = "dx-mm", value_name = "MM", value_parser = positive)]
+    /// default 1 for recordings and the data's own spacing for a profile
+    /// (0.05 to 10).
+    #[arg(long = "dx-mm", value_name = "MM", value_parser = dx_mm)]
     pub dx_mm: Option<f64>,
-    /// How image rows map onto the track.
-    #[arg(long, value_enum, default_value_t = DirectionArg::Auto)]
-    pub direction: DirectionArg,
-    /// What registration corrects per frame.
-    #[arg(long, value_enum, default_value_t = RegisterArg::Offset)]
-    pub register: RegisterArg,
-    /// EN 15610 Welch segment length, mm (≥ 1000; wavelengths up to a quarter of it).
-    #[arg(long = "segment-mm", value_name = "MM", default_value_t = en15610::MIN_SEGMENT_MM, value_parser = positive)]
+    /// How image rows map onto the track (recordings; default auto).
+    #[arg(long, value_enum)]
+    pub direction: Option<DirectionArg>,
+    /// What registration corrects per frame (recordings; default offset).
+    #[arg(long, value_enum)]
+    pub register: Option<RegisterArg>,
+    /// EN 15610 Welch segment length, mm (1000 to 1e6; wavelengths up to a quarter of it).
+    #[arg(long = "segment-mm", value_name = "MM", default_value_t = en15610::MIN_SEGMENT_MM, value_parser = segment_mm)]
     pub segment_mm: f64,
     /// Skip EN 15610 spike removal.
     #[arg(long = "no-spike-removal")]
@@ -115,11 +116,35 @@ fn placement(s: &str) -> Result<Placement, String> {
     s.parse().map_err(|e: cms_host::recording::survey_info::SurveyError| e.to_string())
 }
 
-fn positive(s: &str) -> Result<f64, String> {
+/// A number in `lo..=hi` (`lo` itself excluded when `open`), else an
+/// error naming the value and the range.
+fn in_range(s: &str, (lo, hi): (f64, f64), open: bool, what: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
-        Ok(v) if v.is_finite() && v > 0.0 && v <= 1e6 => Ok(v),
-        _ => Err(format!("`{s}` is not a positive length in mm (at most 1e6)")),
+        Ok(v) if v.is_finite() && (v > lo || (!open && v == lo)) && v <= hi => Ok(v),
+        _ => Err(format!("`{s}` is not {what} ({}{lo} to {hi})", if open { "above " } else { "" })),
     }
+}
+
+/// A block shorter than a metre holds under one period of the longest
+/// band's wavelengths (300–1000 mm); one longer than a kilometre is no
+/// longer a place on the track a verdict can point at.
+fn block_m(s: &str) -> Result<f64, String> {
+    in_range(s, (1.0, 1000.0), false, "a block length in m")
+}
+
+fn search_m(s: &str) -> Result<f64, String> {
+    in_range(s, (0.0, 1000.0), true, "a search distance in m")
+}
+
+/// Finer than 0.05 mm is below every head's sampling along the rail (the
+/// reference head's rows are 0.144 mm apart) and only multiplies the work;
+/// coarser than 10 mm cannot show the shortest wavelength judged (10 mm).
+fn dx_mm(s: &str) -> Result<f64, String> {
+    in_range(s, (0.05, 10.0), false, "a sample spacing in mm")
+}
+
+fn segment_mm(s: &str) -> Result<f64, String> {
+    in_range(s, (en15610::MIN_SEGMENT_MM, 1e6), false, "an EN 15610 segment length in mm")
 }
 
 impl AnalyzeArgs {
@@ -128,12 +153,12 @@ impl AnalyzeArgs {
         Options {
             stitch: stitch::Options {
                 dx_mm: self.dx_mm.unwrap_or(1.0),
-                direction: match self.direction {
+                direction: match self.direction.unwrap_or(DirectionArg::Auto) {
                     DirectionArg::Auto => Direction::Auto,
                     DirectionArg::Forward => Direction::Forward,
                     DirectionArg::Reverse => Direction::Reverse,
                 },
-                registration: match self.register {
+                registration: match self.register.unwrap_or(RegisterArg::Offset) {
                     RegisterArg::OffsetTilt => Registration::OffsetTilt,
                     RegisterArg::Offset => Registration::Offset,
                     RegisterArg::None => Registration::None,
@@ -184,7 +209,7 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
         && dir.exists()
         && !dir.is_dir()
     {
-        return Err(Error::Output(std::io::Error::other(format!("{}: not a directory", dir.display()))).into());
+        return Err(Error::Input(format!("--parquet {}: not a directory", dir.display())).into());
     }
     // The calibration is checked before any input is read.
     let calibration = match &args.calibration {
@@ -208,9 +233,16 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
             ))
             .into());
         };
-        if args.calibration.is_some() {
+        // Options that only recordings have are refused, not ignored: the
+        // user asked for something this input cannot give.
+        let only_recordings = [
+            ("--calibration", args.calibration.is_some()),
+            ("--direction", args.direction.is_some()),
+            ("--register", args.register.is_some()),
+        ];
+        if let Some((flag, _)) = only_recordings.iter().find(|(_, given)| *given) {
             return Err(Error::Input(format!(
-                "{}: --calibration applies to recordings, not to a profile file",
+                "{}: {flag} applies to recordings, not to a profile file",
                 path.display()
             ))
             .into());

@@ -64,8 +64,8 @@ pub enum BenchCmd {
 /// Options of `bench annex-a`.
 #[derive(Args, Debug, Clone)]
 pub struct AnnexAArgs {
-    /// Length of beam driven over, m (at least 2.4: the 100–300 mm band's settling).
-    #[arg(long = "length-m", default_value_t = 3.0)]
+    /// Length of beam driven over, m (2.4 to 100: the 100–300 mm band's settling, and a real beam's length).
+    #[arg(long = "length-m", default_value_t = 3.0, value_parser = beam_length_m)]
     pub length_m: f64,
     /// Travel between frames, mm (a frame sees about 69 mm).
     #[arg(long = "step-mm", default_value_t = 30.0, value_parser = step_mm)]
@@ -93,6 +93,18 @@ pub struct RecordingArgs {
     /// The recording to write.
     #[arg(long, value_name = "FILE.cmsrec")]
     pub out: PathBuf,
+}
+
+/// A beam shorter than 2.4 m leaves the 100–300 mm band no settled
+/// stretch (1.2 m settling at each end); Annex A's beams are a few metres,
+/// and 100 m is already an hour of rendering.
+fn beam_length_m(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if (cms_host::sim::annex_a::MIN_BEAM_MM..=cms_host::sim::annex_a::MAX_BEAM_MM).contains(&(v * 1e3)) => {
+            Ok(v)
+        }
+        _ => Err(format!("`{s}` is not a beam length in m (2.4 to 100)")),
+    }
 }
 
 fn step_mm(s: &str) -> Result<f64, String> {

@@ -58,7 +58,9 @@ pub struct ListenArgs {
     /// How the lasers are lit.
     #[arg(long, value_enum, default_value_t = PatternArg::Simultaneous)]
     pub pattern: PatternArg,
-    /// Exposure time to set before starting, µs (1..=1000000).
+    /// Exposure time to set before starting, µs (1..=1000000; the head
+    /// also holds the lasers to a quarter of the time: exposure × rate at
+    /// most 250 000 µs/s, and refuses more).
     #[arg(long = "exposure", value_name = "US", value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
     pub exposure_us: Option<u32>,
     /// A search window for laser LASER: its stripes are sought in columns

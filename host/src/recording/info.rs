@@ -104,13 +104,14 @@ impl Info {
     pub fn report(&self, path: &Path) -> String {
         use std::fmt::Write as _;
         let mut s = String::new();
-        let _ = writeln!(s, "file: {}", path.display());
+        // A name or a stored survey may hold anything: shown, not acted on.
+        let _ = writeln!(s, "file: {}", crate::output::printable(&path.display().to_string()));
         if let Some(h) = self.scan.header {
             let _ = writeln!(s, "format: {} (wire protocol {})", h.format, h.protocol);
         }
         if let Some(t) = &self.survey {
             let kv: Vec<&str> = t.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
-            let _ = writeln!(s, "survey: {}", kv.join("; "));
+            let _ = writeln!(s, "survey: {}", crate::output::printable(&kv.join("; ")));
         }
         let _ = writeln!(s, "frames: {} ({} profile messages)", self.frames, self.profiles);
         match self.time_us {

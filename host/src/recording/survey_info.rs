@@ -110,14 +110,17 @@ impl Survey {
         toml::to_string(self).unwrap_or_default()
     }
 
-    /// One line for people: "line …, track …, left rail, from 12+345.600 up, operator …".
+    /// One line for people: "line …, track …, left rail, from 12+345.600 up,
+    /// operator …"; what the user wrote shown, never acted on
+    /// ([`crate::output::printable`]: no terminal escapes, no line breaks).
     pub fn describe(&self) -> String {
+        use crate::output::printable;
         let mut parts = Vec::new();
         if let Some(l) = &self.line {
-            parts.push(format!("line {l}"));
+            parts.push(format!("line {}", printable(l)));
         }
         if let Some(t) = &self.track {
-            parts.push(format!("track {t}"));
+            parts.push(format!("track {}", printable(t)));
         }
         if let Some(r) = self.rail {
             parts.push(format!("{} rail", if r == RailSide::Left { "left" } else { "right" }));
@@ -134,13 +137,13 @@ impl Survey {
             }
         }
         if let Some(o) = &self.operator {
-            parts.push(format!("operator {o}"));
+            parts.push(format!("operator {}", printable(o)));
         }
         if let Some(i) = &self.instrument {
-            parts.push(format!("instrument {i}"));
+            parts.push(format!("instrument {}", printable(i)));
         }
         if let Some(n) = &self.notes {
-            parts.push(format!("notes: {n}"));
+            parts.push(format!("notes: {}", printable(n)));
         }
         if parts.is_empty() { "no survey details".into() } else { parts.join(", ") }
     }
@@ -191,22 +194,32 @@ impl FromStr for Chainage {
             Some(b) => (true, b),
             None => (false, t),
         };
+        // Plain decimals only: Rust's float syntax would also take a sign,
+        // an exponent, `inf` and `NaN` (`--5`, `12+1e2`), none of which a
+        // chainage is written with.
         let m = match body.split_once('+') {
             Some((km, m)) => {
-                let km: u32 = km.parse().map_err(|_| bad())?;
-                let m: f64 = m.parse().map_err(|_| bad())?;
+                let km = decimal(km).filter(|_| !km.contains('.')).ok_or_else(bad)?;
+                let m = decimal(m).ok_or_else(bad)?;
                 if !(0.0..1000.0).contains(&m) {
                     return Err(SurveyError::Metres(s.to_string()));
                 }
-                f64::from(km) * 1000.0 + m
+                km * 1000.0 + m
             }
-            None => body.parse::<f64>().map_err(|_| bad())?,
+            None => decimal(body).ok_or_else(bad)?,
         };
         if !m.is_finite() || m.abs() > 1e8 {
             return Err(bad());
         }
         Ok(Chainage(if neg { -m } else { m }))
     }
+}
+
+/// A plain decimal: digits, then optionally a point and digits.
+fn decimal(s: &str) -> Option<f64> {
+    let (int, frac) = s.split_once('.').unwrap_or((s, "0"));
+    let digits = |t: &str| !t.is_empty() && t.bytes().all(|b| b.is_ascii_digit());
+    (digits(int) && digits(frac)).then(|| s.parse().ok()).flatten()
 }
 
 /// Where a run lies on the line, as far as its user said.
@@ -255,6 +268,37 @@ mod tests {
         assert_eq!(s.placement().unwrap(), Placement { start_m: Some(12_345.6), heading: Some(Heading::Down) });
         assert_eq!(Survey::parse(&s.to_text()).unwrap(), s);
         assert!(s.describe().contains("line LN 1, track up main, left rail, odometer 0 at 12+345.600, chainage down"));
+    }
+
+    #[test]
+    fn what_the_user_wrote_is_shown_not_acted_on() {
+        let s = Survey::parse(
+            r#"line = "LN\u001b[31m 1"
+notes = "pass 2\u001b]0;owned\u0007\nsecond line"
+"#,
+        )
+        .unwrap();
+        let d = s.describe();
+        assert!(!d.chars().any(char::is_control), "{d:?}");
+        assert!(
+            d.contains("line LN\\u{1b}[31m 1") && d.contains("pass 2\\u{1b}]0;owned\\u{7}\\u{a}second line"),
+            "{d}"
+        );
+    }
+
+    #[test]
+    fn chainages_are_plain_decimals() {
+        for (text, m) in
+            [("12+345.678", 12_345.678), ("0+000", 0.0), ("12345.5", 12_345.5), ("-0+250", -250.0), ("7", 7.0)]
+        {
+            assert_eq!(text.parse::<Chainage>().unwrap().0, m, "{text}");
+        }
+        for text in [
+            "--5", "12+1e2", "1e3", "+5", "12+-3", "1.5+200", "inf", "NaN", "12+", "+", "", "-", "12+3.", ".5", "0x10",
+            "1_000",
+        ] {
+            assert!(text.parse::<Chainage>().is_err(), "{text} was taken");
+        }
     }
 
     #[test]

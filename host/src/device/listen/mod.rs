@@ -184,7 +184,7 @@ pub enum ListenError {
         why: ReadoutError,
     },
     /// The head refused a command of the handshake.
-    #[error("the head refused {command}: {code}")]
+    #[error("the head refused {command}: {code}{}", refused_hint(command, *code))]
     Refused {
         /// The command.
         command: &'static str,
@@ -210,12 +210,27 @@ pub enum ListenError {
     Output(#[source] io::Error),
 }
 
+/// Which option set what the head refused as out of range.
+fn refused_hint(command: &str, code: ErrorCode) -> &'static str {
+    match (command, code) {
+        ("SetWindows", ErrorCode::OutOfRange) => " (a --window or --windows-from beyond the head's sensor)",
+        ("SetExposure" | "Start", ErrorCode::OutOfRange) => {
+            " (--exposure × --rate above the lasers' duty limit, or a rate the head does not run at)"
+        }
+        ("SetTracking", ErrorCode::OutOfRange) => " (--track)",
+        _ => "",
+    }
+}
+
 impl crate::error::Classify for ListenError {
     fn class(&self) -> crate::Class {
         match self {
             ListenError::Output(_) => crate::Class::Output,
             ListenError::Record(r) => crate::error::Classify::class(r),
             ListenError::Readout { .. } => crate::Class::Input,
+            // What the user asked for (an exposure, a window, a rate) is
+            // beyond what the head takes: bad usage, not a broken link.
+            ListenError::Refused { code: ErrorCode::OutOfRange | ErrorCode::InvalidConfig, .. } => crate::Class::Input,
             _ => crate::Class::Device,
         }
     }

@@ -1,0 +1,146 @@
+//! Hostile input to the survey layer, as a careless or malicious user gives
+//! it: values that look like numbers but are not what the option means,
+//! files a spreadsheet or a hand wrote, text that would drive the terminal.
+//! Each gets a one-line error naming the value and exit status 2, or is
+//! read as the user meant it — never ignored, never a silent change.
+
+use crate::common::run;
+use std::path::Path;
+use std::process::Output;
+
+/// Asserts exit status 2 with one `error: ` line (clap adds its usage
+/// lines, `listen` its summary), and returns that line.
+fn one_line_error(o: &Output) -> String {
+    assert_eq!(o.status.code(), Some(2), "{o:?}");
+    let e = String::from_utf8_lossy(&o.stderr);
+    let errors: Vec<&str> = e.lines().filter(|l| l.starts_with("error: ")).collect();
+    assert_eq!(errors.len(), 1, "{e}");
+    errors[0].to_string()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A profile CSV of `metres` at 1 mm: a 50 mm corrugation of 20 µm.
+fn profile_csv(path: &Path, header: &str, metres: usize) {
+    let mut t = format!("{header}\n");
+    for i in 0..metres * 1000 {
+        let x = i as f64;
+        t += &format!("{x},{:.3}\n", 20.0 * (std::f64::consts::TAU * x / 50.0).sin());
+    }
+    std::fs::write(path, t).unwrap();
+}
+
+#[test]
+fn chainages_are_plain_km_plus_metres() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("p.csv");
+    profile_csv(&csv, "x_mm,height_um", 3);
+    for bad in ["--5", "12+1e2", "1e3", "12+-3", "inf", "12+1000"] {
+        let e = one_line_error(&run(&["analyze", s(&csv), &format!("--chainage={bad}")]));
+        assert!(e.contains(bad), "{bad}: {e}");
+    }
+    let o = run(&["analyze", s(&csv), "--chainage", "12+345.5", "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+#[test]
+fn lengths_outside_their_meaning_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("p.csv");
+    profile_csv(&csv, "x_mm,height_um", 3);
+    for (flag, value) in [
+        ("--block-m", "1e6"),
+        ("--block-m", "0.5"),
+        ("--search-m", "0"),
+        ("--search-m", "5000"),
+        ("--dx-mm", "0.001"),
+        ("--dx-mm", "50"),
+        ("--segment-mm", "10"),
+        ("--segment-mm", "nan"),
+    ] {
+        let e = one_line_error(&run(&["analyze", s(&csv), flag, value]));
+        assert!(e.contains(value) && e.contains(flag), "{flag} {value}: {e}");
+    }
+    for value in ["2.3", "1e9", "-3"] {
+        let e = one_line_error(&run(&["bench", "annex-a", &format!("--length-m={value}")]));
+        assert!(e.contains(value) && e.contains("2.4 to 100"), "--length-m {value}: {e}");
+    }
+}
+
+/// A spreadsheet's byte-order mark is not part of the header; heights no
+/// rail has are refused with their line; options only recordings have are
+/// refused for a profile, not ignored.
+#[test]
+fn profile_files_as_spreadsheets_and_hands_write_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("bom.csv");
+    profile_csv(&csv, "\u{feff}x_mm,height_um", 3);
+    let o = run(&["analyze", s(&csv), "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["lasers"].as_array().unwrap().len(), 1, "{v}");
+
+    let huge = dir.path().join("huge.csv");
+    std::fs::write(&huge, "x_mm,height_um\n0,1\n1,1e300\n2,-1e300\n").unwrap();
+    let e = one_line_error(&run(&["analyze", s(&huge)]));
+    assert!(e.contains("line 3") && e.contains("1e300"), "{e}");
+
+    for flag in [["--direction", "reverse"], ["--register", "none"]] {
+        let e = one_line_error(&run(&["analyze", s(&csv), flag[0], flag[1]]));
+        assert!(e.contains(flag[0]) && e.contains("applies to recordings"), "{e}");
+    }
+}
+
+/// A survey's text reaches the terminal and the report shown, never acted
+/// on: an escape that would clear the screen or retitle the terminal is
+/// printed as `\u{1b}`.
+#[test]
+fn survey_text_cannot_drive_the_terminal() {
+    let dir = tempfile::tempdir().unwrap();
+    let survey = dir.path().join("survey.toml");
+    std::fs::write(&survey, "line = \"LN\\u001b[2J 7\"\nnotes = \"pass 2\\u001b]0;owned\\u0007\\u009b31m\\u202e\"\n")
+        .unwrap();
+    let rec = dir.path().join("run.cmsrec");
+    let state = dir.path().join("state");
+    let l = run(&[
+        "listen",
+        "sim",
+        "--sim-state",
+        s(&state),
+        "--frames",
+        "12",
+        "--record",
+        s(&rec),
+        "--survey",
+        s(&survey),
+    ]);
+    assert!(l.status.success(), "{}", String::from_utf8_lossy(&l.stderr));
+    let acts = |t: &str| t.chars().any(|c| (c.is_control() && c != '\n' && c != '\t') || c == '\u{202e}');
+    let info = String::from_utf8(run(&["info", s(&rec)]).stdout).unwrap();
+    assert!(!acts(&info) && info.contains("\\u{9b}31m"), "{info:?}");
+    let report = dir.path().join("report");
+    let o = run(&["analyze", s(&rec), "--report", s(&report)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8(o.stdout).unwrap();
+    assert!(!acts(&text) && text.contains("notes: pass 2\\u{1b}]0;owned"), "{text:?}");
+    for f in ["report.md", "report.html", "summary.txt"] {
+        let t = std::fs::read_to_string(report.join(f)).unwrap();
+        assert!(!acts(&t), "{f}: {t:?}");
+    }
+}
+
+/// Settings beyond what the head takes are the user's to fix (exit 2, the
+/// option named), not a broken link (3).
+#[test]
+fn settings_the_head_refuses_are_bad_usage() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let e =
+        one_line_error(&run(&["listen", "sim", "--sim-state", s(&state), "--frames", "2", "--window", "0:700-1000"]));
+    assert!(e.contains("SetWindows") && e.contains("--window"), "{e}");
+    let e =
+        one_line_error(&run(&["listen", "sim", "--sim-state", s(&state), "--frames", "2", "--exposure", "1000000"]));
+    assert!(e.contains("--exposure"), "{e}");
+}
