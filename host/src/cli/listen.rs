@@ -319,8 +319,19 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
         let _ = writeln!(io::stderr(), "listen: search windows from {}: {}", path.display(), said.join(", "));
         opts.windows = Some(w);
     }
-    if opts.track_px.is_some_and(|px| px > 0) && opts.windows.is_none() {
-        return Err(Usage("--track follows search windows: give --window or --windows-from too".to_string()).into());
+    if opts.track_px.is_some_and(|px| px > 0) {
+        let Some(w) = &opts.windows else {
+            return Err(Usage("--track follows search windows: give --window or --windows-from too".to_string()).into());
+        };
+        if let Some((a, b)) = listen::overlapping_windows(w) {
+            let span = |k: usize| w[k].map_or(String::new(), |c| format!("{}–{} px", c.first_px, c.end_px()));
+            return Err(Usage(format!(
+                "--track needs search windows that do not overlap: laser {a}'s ({}) and laser {b}'s ({}) do, and a track would take both lines' stripes for one (track without --track, or give narrower --window)",
+                span(a),
+                span(b)
+            ))
+            .into());
+        }
     }
     let mut display = Display::new(opts.json);
     let stdout = io::stdout();

@@ -144,3 +144,39 @@ fn settings_the_head_refuses_are_bad_usage() {
         one_line_error(&run(&["listen", "sim", "--sim-state", s(&state), "--frames", "2", "--exposure", "1000000"]));
     assert!(e.contains("--exposure"), "{e}");
 }
+
+/// Tracking follows one line per window: windows that share columns would
+/// give every line's stripes to one laser and drop the others, so the
+/// combination is refused before anything streams; without tracking the
+/// same windows stream every laser.
+#[test]
+fn tracking_overlapping_windows_is_refused_not_lossy() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let cal = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/v3/cal.toml");
+    let st = s(&state);
+    let e = one_line_error(&run(&[
+        "listen",
+        "sim",
+        "--sim-state",
+        st,
+        "--windows-from",
+        cal,
+        "--track",
+        "8",
+        "--frames",
+        "2",
+    ]));
+    assert!(e.contains("--track") && e.contains("overlap") && e.contains("laser 0"), "{e}");
+    let manual = ["--window", "0:250-400", "--window", "1:330-450", "--window", "2:440-520", "--track", "8"];
+    let e = one_line_error(&run(&[&["listen", "sim", "--sim-state", st, "--frames", "2"][..], &manual].concat()));
+    assert!(e.contains("laser 0") && e.contains("laser 1"), "{e}");
+    let o = run(&["listen", "sim", "--sim-state", st, "--windows-from", cal, "--frames", "3", "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for line in String::from_utf8(o.stdout).unwrap().lines() {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        for l in v["lasers"].as_array().unwrap() {
+            assert!(l["points"].as_array().unwrap().len() >= 470, "laser {}", l["laser"]);
+        }
+    }
+}

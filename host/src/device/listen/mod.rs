@@ -210,6 +210,17 @@ pub enum ListenError {
     Output(#[source] io::Error),
 }
 
+/// The first two lasers whose search windows share columns, if any.
+/// Tracking follows one line per window and takes a stripe in the columns
+/// two windows share for the first of them, so the second loses its line:
+/// windows that overlap cannot be tracked.
+pub fn overlapping_windows(windows: &[Option<ColumnWindow>; LASERS]) -> Option<(usize, usize)> {
+    (0..LASERS).flat_map(|a| (a + 1..LASERS).map(move |b| (a, b))).find(|&(a, b)| match (windows[a], windows[b]) {
+        (Some(x), Some(y)) => u32::from(x.first_px) < y.end_px() && u32::from(y.first_px) < x.end_px(),
+        _ => false,
+    })
+}
+
 /// Which option set what the head refused as out of range.
 fn refused_hint(command: &str, code: ErrorCode) -> &'static str {
     match (command, code) {
