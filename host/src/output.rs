@@ -255,6 +255,20 @@ mod tests {
     }
 }
 
+/// Whether `file` lies directly in the folder `dir` (through links: by
+/// device and inode, not by the names given). An output set written into a
+/// folder that holds one of its inputs could replace that input (`analyze
+/// clob/profile.csv --report clob` writes a `profile.csv`), so commands
+/// that write a set refuse such a folder.
+pub fn folder_holds(dir: &Path, file: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt as _;
+    let parent = fs::canonicalize(file).ok().and_then(|f| f.parent().map(Path::to_path_buf));
+    match (parent.and_then(|p| fs::metadata(p).ok()), fs::metadata(dir)) {
+        (Some(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+        _ => false,
+    }
+}
+
 /// `s` with every character that would act rather than print — control
 /// characters (C0 with ESC, DEL, C1) and the bidirectional overrides — as
 /// its `\u{…}` escape: text a user or a file supplied (a survey's notes, a

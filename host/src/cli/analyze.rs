@@ -211,6 +211,19 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
     {
         return Err(Error::Input(format!("--parquet {}: not a directory", dir.display())).into());
     }
+    // An output set never goes where it could replace an input.
+    let outputs = [("--report", &args.report), ("--parquet", &args.parquet)];
+    for (flag, dir) in outputs.iter().filter_map(|(f, d)| d.as_ref().map(|d| (f, d))) {
+        let inputs = args.inputs.iter().chain(&args.calibration);
+        if let Some(input) = inputs.into_iter().find(|i| cms_host::output::folder_holds(dir, i)) {
+            return Err(Error::Input(format!(
+                "{flag} {}: the folder holds the input {}; write the output set into another folder",
+                dir.display(),
+                input.display()
+            ))
+            .into());
+        }
+    }
     // The calibration is checked before any input is read.
     let calibration = match &args.calibration {
         Some(path) => {

@@ -180,3 +180,25 @@ fn tracking_overlapping_windows_is_refused_not_lossy() {
         }
     }
 }
+
+/// An output set never goes into the folder of one of its inputs (the
+/// report writes a `profile.csv` of its own): refused before any work, the
+/// input untouched, whatever name the folder is given by.
+#[test]
+fn an_output_folder_never_holds_an_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let clob = dir.path().join("clob");
+    std::fs::create_dir(&clob).unwrap();
+    let csv = clob.join("profile.csv");
+    profile_csv(&csv, "x_mm,height_um", 3);
+    let before = std::fs::read(&csv).unwrap();
+    let via = format!("{}/../clob/.", clob.display());
+    for (flag, out) in [("--report", s(&clob)), ("--parquet", s(&clob)), ("--report", via.as_str())] {
+        let e = one_line_error(&run(&["analyze", s(&csv), flag, out]));
+        assert!(e.contains(flag) && e.contains("holds the input"), "{e}");
+    }
+    assert_eq!(std::fs::read(&csv).unwrap(), before);
+    assert_eq!(std::fs::read_dir(&clob).unwrap().count(), 1);
+    let o = run(&["analyze", s(&csv), "--report", s(&dir.path().join("report"))]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
