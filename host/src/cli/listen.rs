@@ -14,6 +14,7 @@ use cms_core::protocol::{LASERS, LaserPattern, Start};
 use cms_core::readout::RowSkip;
 use cms_host::calib::file::CalibrationFile;
 use cms_host::device::listen::{self, ListenOptions, RowsRequest, StatusLine, Summary};
+use cms_host::recording::survey_info::MAX_BYTES as MAX_SURVEY_BYTES;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::exit::Usage;
@@ -299,7 +300,13 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
     let mut opts = args.options();
     if let Some(path) = &args.survey {
         let name = path.display();
-        let text = std::fs::read_to_string(path).map_err(|e| Usage(format!("cannot read {name}: {e}")))?;
+        // Read at most one byte past the limit: a device (`/dev/zero`) or a
+        // huge file is refused by its size, not read without end.
+        let mut bytes = Vec::new();
+        std::fs::File::open(path)
+            .and_then(|f| io::Read::read_to_end(&mut io::Read::take(f, MAX_SURVEY_BYTES as u64 + 1), &mut bytes))
+            .map_err(|e| Usage(format!("cannot read {name}: {e}")))?;
+        let text = String::from_utf8(bytes).map_err(|_| Usage(format!("{name}: not UTF-8 text")))?;
         let survey =
             cms_host::recording::survey_info::Survey::parse(&text).map_err(|e| Usage(format!("{name}: {e}")))?;
         opts.survey = Some(survey.to_text());

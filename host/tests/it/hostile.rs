@@ -202,3 +202,20 @@ fn an_output_folder_never_holds_an_input() {
     let o = run(&["analyze", s(&csv), "--report", s(&dir.path().join("report"))]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
+
+/// A survey "file" that never ends (a device) is refused by its size, at
+/// once; so is one that is not text.
+#[test]
+fn a_survey_file_is_read_within_its_limit() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let rec = dir.path().join("r.cmsrec");
+    let base = ["listen", "sim", "--sim-state", s(&state), "--frames", "1", "--record", s(&rec), "--survey"];
+    let e = one_line_error(&run(&[&base[..], &["/dev/zero"]].concat()));
+    assert!(e.contains("/dev/zero") && e.contains("at most 16384"), "{e}");
+    let big = dir.path().join("big.toml");
+    std::fs::write(&big, format!("notes = \"{}\"\n", "x".repeat(20_000))).unwrap();
+    let e = one_line_error(&run(&[&base[..], &[s(&big)]].concat()));
+    assert!(e.contains("at most 16384"), "{e}");
+    assert!(!rec.exists());
+}
