@@ -1,13 +1,13 @@
 //! `cms-host export`: a recording's profiles as JSON lines or CSV.
 
 use std::fs::File;
-use std::io::{Read, Seek, SeekFrom, Write};
+use std::io::{Read, Write};
 use std::path::Path;
 
 use cms_core::protocol::DeviceMsg;
 
 use super::{
-    CSV_HEADER, HEADER_LEN, Header, RecordError, ScanStats, parse_header, read_survey, scan_file_with_progress,
+    CSV_HEADER, HEADER_LEN, Header, RecordError, ScanStats, parse_header, read_block, scan_file_with_progress,
     write_csv, write_json_line,
 };
 use crate::progress::Progress;
@@ -38,21 +38,19 @@ pub fn check_header(path: &Path) -> Result<Header, RecordError> {
     parse_header(&h).map_err(|why| RecordError::Format { path: path.to_path_buf(), why: why.to_string() })
 }
 
-/// The survey block of a recording, as stored (`None`: version 1, or none given).
+/// The survey block of a recording, as stored (`None`: version 1, or none
+/// given); a damaged block is an error naming the damage.
 pub fn survey_of(path: &Path) -> Result<Option<String>, RecordError> {
-    let mut f = File::open(path).map_err(|source| RecordError::Io {
-        path: path.to_path_buf(),
-        what: "cannot open recording",
-        source,
-    })?;
     let header = check_header(path)?;
-    f.seek(SeekFrom::Start(HEADER_LEN as u64)).map_err(|source| RecordError::Io {
-        path: path.to_path_buf(),
-        what: "cannot read",
-        source,
-    })?;
-    read_survey(&mut f, &header)
-        .map_err(|e| RecordError::Format { path: path.to_path_buf(), why: format!("survey block: {e}") })
+    let io_err = |what, source| RecordError::Io { path: path.to_path_buf(), what, source };
+    let mut f = File::open(path).map_err(|e| io_err("cannot open recording", e))?;
+    let mut raw = [0u8; HEADER_LEN];
+    f.read_exact(&mut raw).map_err(|e| io_err("cannot read", e))?;
+    let block = read_block(&mut f, &raw, &header).map_err(|e| io_err("cannot read", e))?;
+    match block.damage {
+        Some((why, _)) => Err(RecordError::Format { path: path.to_path_buf(), why: format!("survey block: {why}") }),
+        None => Ok(block.survey),
+    }
 }
 
 /// Whether two paths name the same existing file.

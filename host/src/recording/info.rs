@@ -14,6 +14,8 @@ pub struct Info {
     pub scan: ScanStats,
     /// The survey block, as stored.
     pub survey: Option<String>,
+    /// Why the survey block is not to be trusted (damaged).
+    pub survey_damage: Option<String>,
     /// Complete frames.
     pub frames: u64,
     /// Profile messages (parts).
@@ -96,7 +98,13 @@ impl Info {
             info.add(m, &mut counter);
             Ok(())
         })?;
-        info.survey = survey_of(path)?;
+        // A damaged survey block is reported, not a reason to say nothing
+        // of the frames.
+        match survey_of(path) {
+            Ok(s) => info.survey = s,
+            Err(RecordError::Format { why, .. }) => info.survey_damage = Some(why),
+            Err(e) => return Err(e),
+        }
         Ok(info)
     }
 
@@ -107,7 +115,11 @@ impl Info {
         // A name or a stored survey may hold anything: shown, not acted on.
         let _ = writeln!(s, "file: {}", crate::output::printable(&path.display().to_string()));
         if let Some(h) = self.scan.header {
-            let _ = writeln!(s, "format: {} (wire protocol {})", h.format, h.protocol);
+            let unprotected = if h.checksummed() { "" } else { "; header and survey without a checksum" };
+            let _ = writeln!(s, "format: {} (wire protocol {}{unprotected})", h.format, h.protocol);
+        }
+        if let Some(why) = &self.survey_damage {
+            let _ = writeln!(s, "survey: {why}; not used");
         }
         if let Some(t) = &self.survey {
             let kv: Vec<&str> = t.lines().map(str::trim).filter(|l| !l.is_empty()).collect();

@@ -1,19 +1,31 @@
 //! Recordings of the sensor link: the file format, its writer, its reader,
 //! and `cms-host export` / `cms-host info`.
 //!
-//! # File format (`.cmsrec`, format version 2; version 1 is read too)
+//! # File format (`.cmsrec`, format version 3; versions 1 and 2 are read too)
 //!
 //! ```text
 //! offset 0   8 bytes  magic  "CMSREC" 0x00 0x01
-//! offset 8   2 bytes  format version, u16 little-endian (2; 1 before survey blocks)
+//! offset 8   2 bytes  format version, u16 little-endian (3; 2 without the checksum; 1 before survey blocks)
 //! offset 10  1 byte   wire protocol version of the writer (cms_core::protocol::PROTOCOL_VERSION)
 //! offset 11  1 byte   reserved, written as 0, ignored by readers
-//! offset 12  4 bytes  version 2: length L of the survey block, u32 little-endian (0: none);
+//! offset 12  4 bytes  versions 2, 3: length L of the survey block, u32 little-endian (0: none);
 //!                     version 1: reserved (0)
-//! offset 16  L bytes  version 2: the survey (crate::recording::survey_info), UTF-8 TOML, at most 16 KiB
-//! 16 + L     frames   every intact device → host frame, exactly its wire bytes:
+//! offset 16  L bytes  versions 2, 3: the survey (crate::recording::survey_info), UTF-8 TOML, at most 16 KiB
+//! 16 + L     4 bytes  version 3: CRC-32 (ISO-HDLC, as the wire's) of bytes 0 to 16 + L, little-endian
+//! then       frames   every intact device → host frame, exactly its wire bytes:
 //!                     COBS(version ‖ postcard(DeviceMsg) ‖ CRC-32) ‖ 0x00
 //! ```
+//!
+//! **Damage.** Every byte of a version-3 file is under a checksum: the
+//! header and survey block under theirs, each frame under its own. A
+//! damaged frame is skipped and counted; a damaged header or survey block
+//! (a flipped digit of the start chainage would move the run) is reported
+//! as damaged — `info` says so, `analyze` refuses to place the run by it —
+//! while the frames after it are still read: the reader resynchronises on
+//! the first frame delimiter after the header, wherever a damaged length
+//! says the block ends. Versions 1 and 2 carry no such checksum: their
+//! header and survey are read as they are, and `info` says they are
+//! unprotected.
 //!
 //! The survey block says what the recording is of (line, track, rail,
 //! start chainage, operator: `listen --survey FILE.toml`); it is written
@@ -89,19 +101,24 @@ pub const EXTENSION: &str = "cmsrec";
 pub const MAGIC: [u8; 8] = *b"CMSREC\0\x01";
 /// Length of the header.
 pub const HEADER_LEN: usize = 16;
-/// The format version this build writes (it reads 1 as well).
-pub const FORMAT_VERSION: u16 = 2;
+/// The format version this build writes (it reads 1 and 2 as well).
+pub const FORMAT_VERSION: u16 = 3;
+/// The first format whose header and survey block carry a checksum.
+pub const CHECKSUMMED_FORMAT: u16 = 3;
+/// Bytes of the header and survey block's checksum.
+const BLOCK_CRC_LEN: usize = 4;
 /// The largest survey block, bytes.
 pub const MAX_SURVEY_BYTES: usize = crate::recording::survey_info::MAX_BYTES;
 /// Longest time a written frame waits for its `fdatasync` while recording.
 pub const SYNC_INTERVAL: Duration = Duration::from_secs(1);
 
-/// The header of format version 2 without a survey block.
-pub fn header() -> [u8; HEADER_LEN] {
-    header_with(0)
+/// The start of a new recording without a survey: the header and the
+/// checksum of its empty survey block; the frames follow.
+pub fn header() -> Vec<u8> {
+    header_and_survey(None)
 }
 
-/// The header of format version 2 announcing a survey block of `survey_len` bytes.
+/// The header of the current format announcing a survey block of `survey_len` bytes.
 fn header_with(survey_len: u32) -> [u8; HEADER_LEN] {
     let mut h = [0u8; HEADER_LEN];
     h[..8].copy_from_slice(&MAGIC);
@@ -111,11 +128,13 @@ fn header_with(survey_len: u32) -> [u8; HEADER_LEN] {
     h
 }
 
-/// The header and survey block of a new recording.
+/// The header, survey block and their checksum of a new recording.
 pub fn header_and_survey(survey: Option<&str>) -> Vec<u8> {
     let text = survey.unwrap_or("").as_bytes();
     let mut out = header_with(text.len() as u32).to_vec();
     out.extend_from_slice(text);
+    let crc = cms_core::protocol::CRC.checksum(&out);
+    out.extend_from_slice(&crc.to_le_bytes());
     out
 }
 
@@ -128,6 +147,19 @@ pub struct Header {
     pub protocol: u8,
     /// Length of the survey block that follows the header, bytes.
     pub survey_len: u32,
+}
+
+impl Header {
+    /// Bytes between the header and the first frame: the survey block
+    /// and, from format 3, its checksum.
+    pub fn block_len(&self) -> u64 {
+        u64::from(self.survey_len) + if self.checksummed() { BLOCK_CRC_LEN as u64 } else { 0 }
+    }
+
+    /// Whether the header and survey block carry a checksum (format 3 on).
+    pub fn checksummed(&self) -> bool {
+        self.format >= CHECKSUMMED_FORMAT
+    }
 }
 
 /// Why a header is not one this build reads.
@@ -167,19 +199,46 @@ pub fn parse_header(h: &[u8]) -> Result<Header, HeaderError> {
     Ok(Header { format, protocol: h[10], survey_len })
 }
 
-/// Reads the survey block after a header (`None` when there is none).
-fn read_survey(r: &mut impl Read, h: &Header) -> io::Result<Option<String>> {
-    if h.survey_len == 0 {
-        return Ok(None);
+/// The survey block after a header, as read.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub(crate) struct Block {
+    /// The survey's text (`None`: none, or the block is damaged).
+    pub survey: Option<String>,
+    /// Why the block cannot be trusted, with the bytes read for it (the
+    /// frames' reader starts on them: a damaged length may have taken
+    /// frames into the block).
+    pub damage: Option<(String, Vec<u8>)>,
+}
+
+/// Reads the block after the header `raw` (parsed as `h`): the survey
+/// text and, from format 3, the checksum over header and text. A block cut
+/// short, not UTF-8 or failing its checksum is damage, not an error: only
+/// the reading itself fails with an error.
+pub(crate) fn read_block(r: &mut impl Read, raw: &[u8], h: &Header) -> io::Result<Block> {
+    let want = h.block_len() as usize;
+    let mut bytes = Vec::with_capacity(want);
+    r.take(want as u64).read_to_end(&mut bytes)?;
+    let damaged = |why: &str, bytes: Vec<u8>| Block { survey: None, damage: Some((why.to_string(), bytes)) };
+    if bytes.len() != want {
+        return Ok(damaged("cut short", bytes));
     }
-    let mut text = Vec::with_capacity(h.survey_len as usize);
-    r.take(u64::from(h.survey_len)).read_to_end(&mut text)?;
-    if text.len() != h.survey_len as usize {
-        return Err(io::Error::new(io::ErrorKind::UnexpectedEof, "the survey block is cut short"));
+    let text_len = h.survey_len as usize;
+    if h.checksummed() {
+        let mut digest = cms_core::protocol::CRC.digest();
+        digest.update(&raw[..HEADER_LEN]);
+        digest.update(&bytes[..text_len]);
+        let stored = u32::from_le_bytes(bytes[text_len..].try_into().expect("four checksum bytes"));
+        if digest.finalize() != stored {
+            return Ok(damaged("damaged (its checksum does not match)", bytes));
+        }
     }
-    String::from_utf8(text)
-        .map(Some)
-        .map_err(|_| io::Error::new(io::ErrorKind::InvalidData, "the survey block is not UTF-8"))
+    if text_len == 0 {
+        return Ok(Block { survey: None, damage: None });
+    }
+    match std::str::from_utf8(&bytes[..text_len]) {
+        Ok(t) => Ok(Block { survey: Some(t.to_string()), damage: None }),
+        Err(_) => Ok(damaged("not UTF-8", bytes)),
+    }
 }
 
 /// Why a recording could not be written or read.
@@ -224,16 +283,16 @@ mod tests {
 
     #[test]
     fn header_round_trip_and_refusals() {
-        let h = header();
+        let h: [u8; HEADER_LEN] = header()[..HEADER_LEN].try_into().unwrap();
         assert_eq!(&h[..8], b"CMSREC\0\x01");
-        assert_eq!(parse_header(&h).unwrap(), Header { format: 2, protocol: PROTOCOL_VERSION, survey_len: 0 });
+        assert_eq!(parse_header(&h).unwrap(), Header { format: 3, protocol: PROTOCOL_VERSION, survey_len: 0 });
         assert!(parse_header(&h[..10]).unwrap_err().to_string().contains("shorter"));
         let mut bad = h;
         bad[0] = b'X';
         assert!(parse_header(&bad).unwrap_err().to_string().contains("CMSREC"));
-        let mut v3 = h;
-        v3[8] = 3;
-        assert!(parse_header(&v3).unwrap_err().to_string().contains("version 3"));
+        let mut v4 = h;
+        v4[8] = 4;
+        assert!(parse_header(&v4).unwrap_err().to_string().contains("version 4"));
         // Version 1: the same header, its reserved bytes never a survey length.
         let mut v1 = h;
         v1[8] = 1;
@@ -242,10 +301,39 @@ mod tests {
         // A survey block: its length after the header, then the text.
         let with = header_and_survey(Some("line = \"A\"\n"));
         assert_eq!(&with[12..16], &11u32.to_le_bytes());
-        assert_eq!(&with[16..], b"line = \"A\"\n");
+        assert_eq!(&with[16..27], b"line = \"A\"\n");
+        // Byte for byte: the checksum of header and text, little-endian.
+        assert_eq!(&with[27..], &cms_core::protocol::CRC.checksum(&with[..27]).to_le_bytes());
+        assert_eq!(header().len(), HEADER_LEN + 4);
         let mut huge = h;
         huge[12..16].copy_from_slice(&(MAX_SURVEY_BYTES as u32 + 1).to_le_bytes());
         assert!(parse_header(&huge).unwrap_err().to_string().contains("survey block"));
+    }
+
+    /// Format 2 (no checksum) is still read, as it is; format 3's block is
+    /// checked, and its damage reported with the bytes read for it.
+    #[test]
+    fn survey_blocks_of_both_formats() {
+        let text = "line = \"A\"\n";
+        let mut v2 = header_with(text.len() as u32).to_vec();
+        v2[8] = 2;
+        v2.extend_from_slice(text.as_bytes());
+        let h = parse_header(&v2).unwrap();
+        assert!(!h.checksummed() && h.block_len() == 11);
+        let b = read_block(&mut &v2[HEADER_LEN..], &v2, &h).unwrap();
+        assert_eq!((b.survey.as_deref(), b.damage), (Some(text), None));
+
+        let v3 = header_and_survey(Some(text));
+        let h = parse_header(&v3).unwrap();
+        assert!(h.checksummed() && h.block_len() == 15);
+        assert_eq!(read_block(&mut &v3[HEADER_LEN..], &v3, &h).unwrap().survey.as_deref(), Some(text));
+        for i in 0..v3.len() {
+            let mut bad = v3.clone();
+            bad[i] ^= 0x04;
+            let Ok(h) = parse_header(&bad) else { continue };
+            let b = read_block(&mut &bad[HEADER_LEN..], &bad, &h).unwrap();
+            assert!(b.survey.is_none() || h.format < 3, "byte {i}: {b:?}");
+        }
     }
 
     #[test]

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use cms_core::protocol::{DeviceMsg, Profile, WireError};
 
-use super::{HEADER_LEN, Header, RecordError, parse_header, read_survey};
+use super::{HEADER_LEN, Header, RecordError, parse_header, read_block};
 use crate::link::{Counters, Deframer};
 use crate::progress::Progress;
 
@@ -31,6 +31,9 @@ pub struct ScanStats {
     pub profile_bytes: u64,
     /// The reader's counters.
     pub counters: Counters,
+    /// The header's survey block is damaged (cut short, not UTF-8, or its
+    /// checksum does not match): its survey is not to be used.
+    pub survey_damaged: bool,
 }
 
 /// Reads a recording from `r` (header first) and calls `on_msg` with every
@@ -53,20 +56,41 @@ pub fn scan_reader(
     (&mut r).take(HEADER_LEN as u64).read_to_end(&mut h).map_err(io_err)?;
     let header =
         parse_header(&h).map_err(|why| RecordError::Format { path: path.to_path_buf(), why: why.to_string() })?;
-    // The survey block is read by `survey_of`; here it is passed over.
-    read_survey(&mut r, &header)
-        .map_err(|e| RecordError::Format { path: path.to_path_buf(), why: format!("survey block: {e}") })?;
-    let mut stats = ScanStats { header: Some(header), ..ScanStats::default() };
+    // The survey is read by `survey_of`; here the block is passed over, or,
+    // damaged, read as frames: a damaged length may have taken frames in.
+    let block = read_block(&mut r, &h, &header).map_err(io_err)?;
+    let mut stats = ScanStats { header: Some(header), survey_damaged: block.damage.is_some(), ..ScanStats::default() };
     let mut d = Deframer::new();
     let mut buf = vec![0u8; 64 << 10];
     let mut failed: Option<io::Error> = None;
     let mut seen: std::collections::HashSet<u64> = std::collections::HashSet::new();
+    // A delimiter where the block says it ends: with the length intact the
+    // first frame starts there whole; with a damaged length at most the
+    // frame it cuts is lost.
+    // A block the file's end cut short has no frames after it: its bytes
+    // are a truncated tail.
+    let mut cut_short = 0;
+    let mut first = block.damage.and_then(|(_, mut bytes)| {
+        if (bytes.len() as u64) < header.block_len() {
+            cut_short = bytes.len() as u64;
+            return None;
+        }
+        bytes.push(0);
+        Some(bytes)
+    });
     loop {
-        let n = match r.read(&mut buf) {
-            Ok(0) => break,
-            Ok(n) => n,
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
-            Err(e) => return Err(io_err(e)),
+        let n = match first.take() {
+            Some(bytes) => {
+                let n = bytes.len();
+                buf[..n].copy_from_slice(&bytes);
+                n
+            }
+            None => match r.read(&mut buf) {
+                Ok(0) => break,
+                Ok(n) => n,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(io_err(e)),
+            },
         };
         d.feed(&buf[..n], |res, raw| {
             if failed.is_some() {
@@ -100,7 +124,7 @@ pub fn scan_reader(
     }
     stats.counters = d.counters();
     stats.damaged = stats.counters.damaged();
-    stats.truncated_tail = d.pending();
+    stats.truncated_tail = d.pending() + cut_short;
     Ok(stats)
 }
 
@@ -160,6 +184,9 @@ pub fn warnings(path: &Path, s: &ScanStats) -> Vec<String> {
             String::new()
         };
         w.push(format!("warning: {name}: {} damaged frames were skipped{other}", s.damaged));
+    }
+    if s.survey_damaged {
+        w.push(format!("warning: {name}: the survey block is damaged; its survey is not used"));
     }
     if s.truncated_tail > 0 {
         w.push(format!("warning: {name}: {} bytes of a truncated frame at the end were ignored", s.truncated_tail));

@@ -5,7 +5,7 @@ use std::io::{self, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use super::{HEADER_LEN, MAX_SURVEY_BYTES, RecordError, SYNC_INTERVAL, header_and_survey, parse_header, read_survey};
+use super::{HEADER_LEN, MAX_SURVEY_BYTES, RecordError, SYNC_INTERVAL, header_and_survey, parse_header, read_block};
 
 /// Appends frames to a recording (see the module docs for what reaches the
 /// file when).
@@ -46,8 +46,11 @@ impl Recorder {
             let mut h = Vec::with_capacity(HEADER_LEN);
             (&mut file).take(HEADER_LEN as u64).read_to_end(&mut h).map_err(|e| io_err("cannot read", e))?;
             let header = parse_header(&h).map_err(|why| format(format!("{why}; refusing to append")))?;
-            let kept = read_survey(&mut file, &header)
-                .map_err(|e| format(format!("survey block: {e}; refusing to append")))?;
+            let block = read_block(&mut file, &h, &header).map_err(|e| io_err("cannot read", e))?;
+            if let Some((why, _)) = block.damage {
+                return Err(format(format!("survey block: {why}; refusing to append")));
+            }
+            let kept = block.survey;
             if let Some(t) = survey
                 && kept.as_deref() != Some(t)
             {
@@ -56,7 +59,7 @@ impl Recorder {
                     None => "holds no survey; refusing to append one (record the survey to a new file)".into(),
                 }));
             }
-            if len > HEADER_LEN as u64 + u64::from(header.survey_len) {
+            if len > HEADER_LEN as u64 + header.block_len() {
                 let mut last = [0u8];
                 file.seek(SeekFrom::End(-1)).map_err(|e| io_err("cannot read", e))?;
                 file.read_exact(&mut last).map_err(|e| io_err("cannot read", e))?;

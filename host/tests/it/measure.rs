@@ -249,9 +249,11 @@ fn recording_with_hello(dir: &Path, cal: &Path, id: u32) -> (PathBuf, Vec<u8>) {
         .join()
         .unwrap();
     let body = std::fs::read(&plain).unwrap();
-    let mut bytes = body[..cms_host::recording::HEADER_LEN].to_vec();
+    // The frames start after the header and its survey block's checksum.
+    let start = cms_host::recording::header().len();
+    let mut bytes = body[..start].to_vec();
     bytes.extend(wire(&hello(id)));
-    bytes.extend(&body[cms_host::recording::HEADER_LEN..]);
+    bytes.extend(&body[start..]);
     let rec = dir.join(format!("hello-{id}.cmsrec"));
     std::fs::write(&rec, &bytes).unwrap();
     (rec, bytes)
@@ -310,7 +312,7 @@ fn damaged_and_duplicated_frames_are_reported() {
     // The frames: header, Hello, frame 7, frame 8. Frame 8 written twice
     // (as a writer retrying would), then frame 7's first data byte flipped.
     let ends: Vec<usize> = bytes.iter().enumerate().filter(|(_, b)| **b == 0).map(|(i, _)| i + 1).collect();
-    let frames: Vec<usize> = ends.into_iter().filter(|&e| e > cms_host::recording::HEADER_LEN).collect();
+    let frames: Vec<usize> = ends.into_iter().filter(|&e| e > cms_host::recording::header().len()).collect();
     let (f7, f8) = (frames[0]..frames[1], frames[1]..frames[2]);
     let mut dup = bytes.clone();
     dup.extend_from_slice(&bytes[f8.clone()]);

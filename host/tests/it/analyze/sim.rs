@@ -204,10 +204,11 @@ fn duplicated_and_damaged_frames_are_reported() {
     write_recording(&path, &frames(33.3, 4, &[], 1.0, 5), true);
     let mut bytes = std::fs::read(&path).unwrap();
     // Frame 3 again (a writer retrying), then one damaged frame.
-    let body = &bytes[recording::HEADER_LEN..];
+    let first = recording::header().len();
+    let body = &bytes[first..];
     let starts: Vec<usize> =
         std::iter::once(0).chain(body.iter().enumerate().filter(|(_, b)| **b == 0).map(|(i, _)| i + 1)).collect();
-    let last = bytes[recording::HEADER_LEN + starts[3]..recording::HEADER_LEN + starts[4]].to_vec();
+    let last = bytes[first + starts[3]..first + starts[4]].to_vec();
     bytes.extend(&last);
     let mut broken = last.clone();
     broken[5] ^= 0x40;
@@ -444,7 +445,7 @@ fn a_survey_file_travels_with_the_recording() {
     let l = run(&["listen", "sim", "--sim-state", st, "--frames", "20", "--record", r, "--survey", s]);
     assert!(l.status.success(), "{}", String::from_utf8_lossy(&l.stderr));
     let info = String::from_utf8(run(&["info", r]).stdout).unwrap();
-    assert!(info.contains("format: 2") && info.contains("survey: line = \"LN 1234\""), "{info}");
+    assert!(info.contains("format: 3 (wire protocol 4)\n") && info.contains("survey: line = \"LN 1234\""), "{info}");
     let o = run(&["analyze", r, "--json"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
