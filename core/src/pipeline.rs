@@ -20,7 +20,9 @@
 //!
 //! # Cost
 //! Per row: the detector (see `peak`), plus a stripe-to-laser assignment of at
-//! most 3 × 3 comparisons. Profiles are built in place in the head.
+//! most 3 × 3 comparisons. Profiles are built in place in the head. Per
+//! frame: the line pass ([`line`]) over each laser's points, which flags
+//! glints, ghosts and points off the line before the profile goes out.
 //!
 //! # Triggers and persistence
 //! Frames come every `1 / rate_hz` ([`Trigger::Timed`]) or every N µm of
@@ -52,6 +54,7 @@ use heapless::{String, Vec};
 
 mod calibration;
 mod command;
+pub mod line;
 pub use calibration::{
     CalibrationError, MIN_LINE_SEPARATION_PX, WORKING_DEPTH_FRACTION, calibration_is_valid, check_laser_lines,
     triangulator, working_depth_mm,
@@ -193,6 +196,11 @@ pub struct Head<const W: usize, L: LaserDriver> {
     dropped_rows: u32,
     row: [u16; W],
     profile: Profile,
+    /// The line pass's scratch, the part's second candidates, and what the
+    /// pass found in the last frame.
+    line: line::LineCheck,
+    seconds: line::Seconds,
+    line_counts: line::Counts,
 }
 
 impl<const W: usize, L: LaserDriver> Drop for Head<W, L> {
@@ -247,6 +255,9 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             dropped_rows: 0,
             row: [0; W],
             profile: Profile::empty(),
+            line: line::LineCheck::default(),
+            seconds: line::Seconds::new(),
+            line_counts: line::Counts::default(),
         })
     }
 
@@ -339,6 +350,12 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
     /// The duty-cycle limiter (for inspection).
     pub fn duty_limit(&self) -> &DutyLimit {
         &self.duty
+    }
+
+    /// What the line pass flagged in the last frame ([`line`]): the
+    /// counts its profiles' flags carry.
+    pub fn line_counts(&self) -> line::Counts {
+        self.line_counts
     }
 
     /// The laser driver (for inspection by tests and the simulator).
@@ -512,9 +529,14 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             }
             let first = part as usize * MAX_ROWS_PER_PROFILE;
             let last = (first + MAX_ROWS_PER_PROFILE).min(height);
+            self.seconds.clear();
             if self.measure_rows(camera, (readout, sampling), first..last, &mut next_sensor_row).is_err() {
                 return self.fail(ErrorCode::SensorFault, None, reply);
             }
+            // The part's lines as a whole: what is not a line is flagged.
+            let rules = line::Rules::new(self.detector.config(), self.calibration.as_ref().map(|c| &c.0));
+            let counts = self.line.check(&rules, &mut self.profile.lasers, &self.seconds);
+            self.line_counts = if part == 0 { counts } else { self.line_counts.plus(counts) };
             // Lend the profile to the message without copying it twice.
             let msg = DeviceMsg::Profile(core::mem::replace(&mut self.profile, Profile::empty()));
             reply(&msg);
@@ -580,9 +602,9 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 (Some(w), Some(t)) => self.detector.detect_tracked(&self.row[..width], w, t, &mut stripes),
             };
             found.map_err(|_| ())?;
-            assign(&stripes, lit, &mut self.track, &mut self.profile.lasers, r);
+            assign(&stripes, lit, &mut self.track, &mut self.profile.lasers, r, &mut self.seconds);
             if let Some((_, t)) = &self.calibration {
-                triangulate(t, &mut self.profile.lasers, r, centre);
+                triangulate(t, &mut self.profile.lasers, &mut self.seconds, r, centre);
             }
         }
         Ok(())
@@ -720,12 +742,19 @@ fn valid_trigger(t: Trigger) -> bool {
 /// Assigns a row's stripes to the lit lasers: in order when every lit laser
 /// has one stripe (the lasers are mounted left to right in laser order),
 /// otherwise each stripe to the lit laser whose last position is nearest.
-fn assign(
-    stripes: &Stripes<LASERS>,
+/// A stripe for a laser that already has this row's point is a second
+/// candidate, kept in `seconds` for the line pass ([`line::LineCheck`]) to
+/// judge; with `seconds` full it is dropped and the kept point says so
+/// ([`Flags::SECOND_DROPPED`](crate::peak::Flags::SECOND_DROPPED)).
+/// The head's assignment, public so that a simulation can give its points
+/// to the lasers as the head does.
+pub fn assign<const N: usize>(
+    stripes: &Stripes<N>,
     lit: usize,
     track: &mut [Px; LASERS],
     out: &mut Vec<LaserPoints, LASERS>,
     row: u16,
+    seconds: &mut line::Seconds,
 ) {
     let point = |s: &crate::peak::Stripe| Point {
         row,
@@ -743,30 +772,50 @@ fn assign(
         return;
     }
     for s in stripes {
-        if let Some(lp) = out.iter_mut().min_by_key(|lp| track[lp.laser as usize].abs_diff(s.position))
-            && lp.points.last().is_none_or(|p| p.row != row)
-        {
-            track[lp.laser as usize] = s.position;
-            let _ = lp.points.push(point(s));
+        let Some(lp) = out.iter_mut().min_by_key(|lp| track[lp.laser as usize].abs_diff(s.position)) else {
+            continue;
+        };
+        match lp.points.last_mut() {
+            Some(p) if p.row == row => {
+                if seconds.push((lp.laser, point(s))).is_err() {
+                    p.flags.insert(crate::peak::Flags::SECOND_DROPPED);
+                }
+            }
+            _ => {
+                track[lp.laser as usize] = s.position;
+                let _ = lp.points.push(point(s));
+            }
         }
     }
 }
 
-/// Fills in the triangulated point of each laser's point of this row
-/// (sensor row `row`, its centre `centre` rows below: a binned row's).
-fn triangulate(t: &Triangulator, out: &mut Vec<LaserPoints, LASERS>, row: u16, centre: Q16_16) {
+/// Fills in the triangulated point of each laser's point of this row, and
+/// of the row's second candidates (sensor row `row`, its centre `centre`
+/// rows below: a binned row's).
+fn triangulate(
+    t: &Triangulator,
+    out: &mut Vec<LaserPoints, LASERS>,
+    seconds: &mut line::Seconds,
+    row: u16,
+    centre: Q16_16,
+) {
+    let metric = |laser: u8, p: &Point| {
+        let at = if centre == Q16_16::ZERO {
+            t.profile(laser as usize, p.position, row)
+        } else {
+            t.profile_at(laser as usize, p.position, Q48_16((i64::from(row) << 16) + i64::from(centre.0)))
+        };
+        at.map(|q| Metric { along_um: round_i32(q.along_mm * 1e3), height_nm: round_i32(q.height_mm * 1e6) })
+    };
     for lp in out.iter_mut() {
         if let Some(p) = lp.points.last_mut()
             && p.row == row
         {
-            let at = if centre == Q16_16::ZERO {
-                t.profile(lp.laser as usize, p.position, row)
-            } else {
-                t.profile_at(lp.laser as usize, p.position, Q48_16((i64::from(row) << 16) + i64::from(centre.0)))
-            };
-            p.metric =
-                at.map(|q| Metric { along_um: round_i32(q.along_mm * 1e3), height_nm: round_i32(q.height_mm * 1e6) });
+            p.metric = metric(lp.laser, p);
         }
+    }
+    for (laser, p) in seconds.iter_mut().rev().take_while(|(_, p)| p.row == row) {
+        p.metric = metric(*laser, p);
     }
 }
 
