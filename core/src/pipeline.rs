@@ -743,8 +743,8 @@ fn valid_trigger(t: Trigger) -> bool {
 /// has one stripe (the lasers are mounted left to right in laser order),
 /// otherwise each stripe to the lit laser whose last position is nearest.
 /// A stripe for a laser that already has this row's point is a second
-/// candidate, kept in `seconds` for the line pass ([`line::LineCheck`]) to
-/// judge; with `seconds` full it is dropped and the kept point says so
+/// candidate (the weaker of the two), kept in `seconds` for the line pass
+/// ([`line::LineCheck`]) to judge; with `seconds` full it is dropped and the kept point says so
 /// ([`Flags::SECOND_DROPPED`](crate::peak::Flags::SECOND_DROPPED)).
 /// The head's assignment, public so that a simulation can give its points
 /// to the lasers as the head does.
@@ -777,7 +777,15 @@ pub fn assign<const N: usize>(
         };
         match lp.points.last_mut() {
             Some(p) if p.row == row => {
-                if seconds.push((lp.laser, point(s))).is_err() {
+                // The stronger is the row's point (a secondary reflection
+                // is weaker than the line, but for speckle): the line pass
+                // then has the line in most rows to judge the others by.
+                let mut second = point(s);
+                if second.strength > p.strength {
+                    core::mem::swap(p, &mut second);
+                    track[lp.laser as usize] = s.position;
+                }
+                if seconds.push((lp.laser, second)).is_err() {
                     p.flags.insert(crate::peak::Flags::SECOND_DROPPED);
                 }
             }

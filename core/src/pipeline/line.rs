@@ -7,11 +7,14 @@
 //! rule, the ones that are not its line:
 //!
 //! * **Glint** ([`Flags::GLINT`]): a saturated stripe narrower than the
-//!   narrowest line the optics allow in the working range (the detector's
-//!   smallest scale, [`Rules::glint_width`]). A saturated line is measured
-//!   by its half-level crossings, which err wide (`peak::saturated`), so a
-//!   real line is never narrower than its σ; a specular facet is a spot of
-//!   about the diffraction limit, far narrower than the line.
+//!   line allows: narrower than the narrowest line the optics give in the
+//!   working range (the detector's smallest scale, [`Rules::glint_width`]),
+//!   or than [`GLINT_WIDTH_Q8`] of the line's own width at this range (the
+//!   median σ of the laser's unsaturated stripes in the frame). A saturated
+//!   line is measured by its half-level crossings, which err wide
+//!   (`peak::saturated`), so a real line is never narrower than its σ; a
+//!   specular facet is a spot of about the diffraction limit, far narrower
+//!   than the line.
 //! * **Ghost** ([`Flags::GHOST`]): a stripe outside the band of columns the
 //!   laser's calibration allows in its row over the working depth
 //!   ([`Band`]: the plane's line at both ends of
@@ -46,7 +49,8 @@
 //! Per laser and frame: one median of [`BLOCK_POINTS`] positions per point
 //! (a sort of 8 values), a prediction and two comparisons per point, and one
 //! selection (the median absolute deviation) over the points: O(points),
-//! once per frame, not per row. Scratch: [`LineCheck`], 5 KB.
+//! once per frame, not per row. Scratch: [`LineCheck`], 5 KB, and the head's
+//! [`Seconds`], 15 KB.
 //!
 //! # Scaling
 //! Positions are [`Px`] (Q16.16 px), rows whole rows; block centres are
@@ -68,12 +72,19 @@ pub const MIN_BOUND: Px = Px(1 << 15);
 /// Fewest residuals the bound is measured on; with fewer points the
 /// continuity rule does not judge.
 pub const MIN_SCATTER_POINTS: usize = 2 * BLOCK_POINTS;
+/// A saturated stripe narrower than this fraction of its line's own width
+/// (Q8: 3/4) is a glint. A saturated line is measured at least as wide as
+/// it is; a glint on the line is measured wider than the glint (the line
+/// under it lifts its flanks), so the bound sits below the line, not at
+/// the glint.
+pub const GLINT_WIDTH_Q8: i64 = 192;
 /// Margin on each side of a laser's calibrated band (Q16.16 px): 8 px, what
 /// lens distortion and the stripe's half-width move a line by.
 pub const BAND_MARGIN: Px = Px(8 << 16);
-/// Second candidates a head keeps for one profile part (beyond them a
-/// second candidate is dropped unjudged; the kept point says so).
-pub const MAX_SECONDS: usize = 96;
+/// Second candidates a head keeps for one profile part: one a row (one
+/// laser lit with a ghost beside its line in every row). Beyond them a
+/// second candidate is dropped unjudged; the kept point says so.
+pub const MAX_SECONDS: usize = MAX_ROWS_PER_PROFILE;
 
 /// Second candidates: a laser and a stripe in a row where that laser
 /// already has its point.
@@ -241,8 +252,9 @@ impl LineCheck {
             let k = usize::from(lp.laser);
             let band = rules.bands.get(k).copied().flatten();
             let points = lp.points.as_mut_slice();
+            let glint = self.glint_width(rules, points);
             for p in points.iter_mut() {
-                p.flags.insert(single_rule(rules, band, p));
+                p.flags.insert(single_rule(glint, band, p));
             }
             self.index(points);
             let mut swapped = false;
@@ -255,6 +267,23 @@ impl LineCheck {
             self.continuity(points);
         }
         Counts::of(lasers)
+    }
+
+    /// The width below which a saturated stripe of this laser is a glint:
+    /// the optics' smallest, or [`GLINT_WIDTH_Q8`] of the line's own
+    /// (the median σ of the laser's unsaturated stripes in the frame: the
+    /// line at this range), whichever is wider.
+    fn glint_width(&mut self, rules: &Rules, points: &[Point]) -> Px {
+        let mut n = 0;
+        for p in points.iter().filter(|p| !p.flags.contains(Flags::SATURATED)) {
+            self.res[n] = p.width.0;
+            n += 1;
+        }
+        if n < MIN_SCATTER_POINTS {
+            return rules.glint_width;
+        }
+        let (_, &mut median, _) = self.res[..n].select_nth_unstable(n / 2);
+        Px(((i64::from(median) * GLINT_WIDTH_Q8) >> 8) as i32).max(rules.glint_width)
     }
 
     /// The good points' list and their blocks' medians.
@@ -317,7 +346,7 @@ impl LineCheck {
     fn second(&mut self, rules: &Rules, band: Option<Band>, points: &mut [Point], alt: &Point) -> bool {
         let Ok(i) = points.binary_search_by_key(&alt.row, |p| p.row) else { return false };
         let mut alt = *alt;
-        alt.flags.insert(single_rule(rules, band, &alt));
+        alt.flags.insert(single_rule(self.glint_width(rules, points), band, &alt));
         let (before, after) = self.split(points, alt.row);
         let [left, right, centred] = self.predictions(points, alt.row, before, after);
         let swap = match centred.or(left).or(right) {
@@ -377,9 +406,10 @@ impl LineCheck {
     }
 }
 
-/// The rules that judge a point alone: glint, then band.
-fn single_rule(rules: &Rules, band: Option<Band>, p: &Point) -> Flags {
-    if p.flags.contains(Flags::SATURATED) && p.width < rules.glint_width {
+/// The rules that judge a point alone: glint (narrower than `glint`),
+/// then band.
+fn single_rule(glint: Px, band: Option<Band>, p: &Point) -> Flags {
+    if p.flags.contains(Flags::SATURATED) && p.width < glint {
         Flags::GLINT
     } else if band.is_some_and(|b| !b.contains(p.row, p.position)) {
         Flags::GHOST

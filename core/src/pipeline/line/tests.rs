@@ -248,3 +248,4 @@ fn the_reference_calibration_bands_hold_its_lines() {
         assert!(!band.contains(0, Px::from_f64(f64::from(u(375.0)) - 9.0)));
     }
 }
+
