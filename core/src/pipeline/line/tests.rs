@@ -43,7 +43,13 @@ fn line(laser: u8, noise_px: f64, f: impl Fn(f64) -> f64) -> LaserPoints {
 fn sine(x: f64) -> f64 {
     use core::f64::consts::{FRAC_PI_2, PI, TAU};
     let x = x - TAU * ((x + PI) / TAU).floor();
-    crate::optics::sin(if x > FRAC_PI_2 { PI - x } else if x < -FRAC_PI_2 { -PI - x } else { x })
+    crate::optics::sin(if x > FRAC_PI_2 {
+        PI - x
+    } else if x < -FRAC_PI_2 {
+        -PI - x
+    } else {
+        x
+    })
 }
 
 fn rules() -> Rules {
@@ -248,4 +254,3 @@ fn the_reference_calibration_bands_hold_its_lines() {
         assert!(!band.contains(0, Px::from_f64(f64::from(u(375.0)) - 9.0)));
     }
 }
-
