@@ -46,10 +46,11 @@
 //! ([`Counts::of`]).
 //!
 //! # Cost
-//! Per laser and frame: one median of [`BLOCK_POINTS`] positions per point
-//! (a sort of 8 values), a prediction and two comparisons per point, and one
-//! selection (the median absolute deviation) over the points: O(points),
-//! once per frame, not per row. Scratch: [`LineCheck`], 5 KB, and the head's
+//! Per laser and frame: a running median of [`BLOCK_POINTS`] positions (one
+//! value out and one in per point), a prediction and a comparison per point
+//! (two more for the few off the line either side), and one selection (the
+//! median absolute deviation) over the points: O(points), once per frame,
+//! not per row. Scratch: [`LineCheck`], 7 KB, and the head's
 //! [`Seconds`], 15 KB.
 //!
 //! # Scaling
@@ -213,6 +214,9 @@ pub struct LineCheck {
     med: [i32; MAX_ROWS_PER_PROFILE],
     /// Residuals for the bound, Q16.16 px.
     res: [i32; MAX_ROWS_PER_PROFILE],
+    /// Each good point's distance from the line either side, Q16.16 px
+    /// (negative: none, or the point's verdict).
+    off: [i32; MAX_ROWS_PER_PROFILE],
     n_good: usize,
 }
 
@@ -222,12 +226,13 @@ impl Default for LineCheck {
             good: [0; MAX_ROWS_PER_PROFILE],
             med: [0; MAX_ROWS_PER_PROFILE],
             res: [0; MAX_ROWS_PER_PROFILE],
+            off: [0; MAX_ROWS_PER_PROFILE],
             n_good: 0,
         }
     }
 }
 
-/// The median of a block (the mean of its two middle values).
+/// The median of a block (the mean of its two middle values), sorting it.
 fn block_median(v: &mut [i32; BLOCK_POINTS]) -> i32 {
     // Insertion sort: 8 values, nearly sorted along a line.
     for i in 1..BLOCK_POINTS {
@@ -259,7 +264,7 @@ impl LineCheck {
             self.index(points);
             let mut swapped = false;
             for (_, alt) in seconds.iter().filter(|(l, _)| usize::from(*l) == k) {
-                swapped |= self.second(rules, band, points, alt);
+                swapped |= self.second(glint, band, points, alt);
             }
             if swapped {
                 self.index(points);
@@ -296,12 +301,30 @@ impl LineCheck {
             }
         }
         self.n_good = n;
-        for j in 0..(n + 1).saturating_sub(BLOCK_POINTS) {
-            let mut v = [0i32; BLOCK_POINTS];
-            for (x, &g) in v.iter_mut().zip(&self.good[j..j + BLOCK_POINTS]) {
-                *x = points[usize::from(g)].position.0;
+        if n < BLOCK_POINTS {
+            return;
+        }
+        // The block slides one point at a time: its sorted positions lose
+        // the point that leaves and take the one that enters.
+        let at = |i: usize| points[usize::from(self.good[i])].position.0;
+        let mut v = [0i32; BLOCK_POINTS];
+        for (i, x) in v.iter_mut().enumerate() {
+            *x = at(i);
+        }
+        self.med[0] = block_median(&mut v);
+        for j in 1..=n - BLOCK_POINTS {
+            let (out, new) = (at(j - 1), at(j + BLOCK_POINTS - 1));
+            let mut h = v.iter().position(|&x| x == out).unwrap_or(0);
+            while h + 1 < BLOCK_POINTS && v[h + 1] < new {
+                v[h] = v[h + 1];
+                h += 1;
             }
-            self.med[j] = block_median(&mut v);
+            while h > 0 && v[h - 1] > new {
+                v[h] = v[h - 1];
+                h -= 1;
+            }
+            v[h] = new;
+            self.med[j] = ((i64::from(v[BLOCK_POINTS / 2 - 1]) + i64::from(v[BLOCK_POINTS / 2])) >> 1) as i32;
         }
     }
 
@@ -316,7 +339,17 @@ impl LineCheck {
     fn line_at(&self, points: &[Point], (a, b): (usize, usize), row: u16) -> Option<i64> {
         let (ca, cb) = (self.centre2(points, a), self.centre2(points, b));
         let (ma, mb) = (i64::from(self.med[a]), i64::from(self.med[b]));
-        (cb > ca).then(|| ma + (mb - ma) * (2 * i64::from(row) - ca) / (cb - ca))
+        if cb <= ca {
+            return None;
+        }
+        // 32-bit division where it fits (a hardware divide on a Cortex-M;
+        // the 64-bit one is a library call ten times slower).
+        let num = (mb - ma) * (2 * i64::from(row) - ca);
+        let q = match (i32::try_from(num), i32::try_from(cb - ca)) {
+            (Ok(n), Ok(d)) => i64::from(n / d),
+            _ => num / (cb - ca),
+        };
+        Some(ma + q)
     }
 
     /// The local lines' predictions at `row`, whose good points before it
@@ -324,12 +357,23 @@ impl LineCheck {
     /// the two blocks just before, the one through the two just after, and
     /// the one through the block either side.
     fn predictions(&self, points: &[Point], row: u16, before: usize, after: usize) -> [Option<i64>; 3] {
+        let [left, right] = self.sides(points, row, before, after);
+        [left, right, self.centred(points, row, before, after)]
+    }
+
+    /// The line through the two blocks just before `row`, and the one
+    /// through the two just after ([`LineCheck::predictions`]).
+    fn sides(&self, points: &[Point], row: u16, before: usize, after: usize) -> [Option<i64>; 2] {
         let k = BLOCK_POINTS;
-        let n = self.n_good;
         let left = (before >= 2 * k).then(|| self.line_at(points, (before - 2 * k, before - k), row)).flatten();
-        let right = (after + 2 * k <= n).then(|| self.line_at(points, (after, after + k), row)).flatten();
-        let centred = (before >= k && after + k <= n).then(|| self.line_at(points, (before - k, after), row)).flatten();
-        [left, right, centred]
+        let right = (after + 2 * k <= self.n_good).then(|| self.line_at(points, (after, after + k), row)).flatten();
+        [left, right]
+    }
+
+    /// The line through the block either side of `row`.
+    fn centred(&self, points: &[Point], row: u16, before: usize, after: usize) -> Option<i64> {
+        let k = BLOCK_POINTS;
+        (before >= k && after + k <= self.n_good).then(|| self.line_at(points, (before - k, after), row)).flatten()
     }
 
     /// Where `row` falls in the good list: `(before, after)`.
@@ -343,10 +387,10 @@ impl LineCheck {
     /// Judges a second candidate `alt` against the point of its row: the
     /// one nearer the local line stays, flagged [`Flags::SECOND_DROPPED`].
     /// Returns whether the second replaced the point.
-    fn second(&mut self, rules: &Rules, band: Option<Band>, points: &mut [Point], alt: &Point) -> bool {
+    fn second(&mut self, glint: Px, band: Option<Band>, points: &mut [Point], alt: &Point) -> bool {
         let Ok(i) = points.binary_search_by_key(&alt.row, |p| p.row) else { return false };
         let mut alt = *alt;
-        alt.flags.insert(single_rule(self.glint_width(rules, points), band, &alt));
+        alt.flags.insert(single_rule(glint, band, &alt));
         let (before, after) = self.split(points, alt.row);
         let [left, right, centred] = self.predictions(points, alt.row, before, after);
         let swap = match centred.or(left).or(right) {
@@ -371,35 +415,40 @@ impl LineCheck {
     fn continuity(&mut self, points: &mut [Point]) {
         let n = self.n_good;
         let mut m = 0;
+        // Each point's distance from the line through the blocks either
+        // side (−1: none), and those distances for the bound.
         for i in 0..n {
             let p = &points[usize::from(self.good[i])];
-            if let [_, _, Some(line)] = self.predictions(points, p.row, i, i + 1) {
-                self.res[m] = (i64::from(p.position.0) - line).unsigned_abs().min(i32::MAX as u64) as i32;
-                m += 1;
-            }
+            self.off[i] = match self.centred(points, p.row, i, i + 1) {
+                Some(line) => {
+                    let d = (i64::from(p.position.0) - line).unsigned_abs().min(i32::MAX as u64) as i32;
+                    self.res[m] = d;
+                    m += 1;
+                    d
+                }
+                None => -1,
+            };
         }
         if m < MIN_SCATTER_POINTS {
             return;
         }
         let (_, &mut mad, _) = self.res[..m].select_nth_unstable(m / 2);
         let bound = ((i64::from(mad) * BOUND_MADS_Q8) >> 8).max(i64::from(MIN_BOUND.0));
+        // Flagged after every judgement: the medians are of the points as
+        // they came, so one outlier cannot hide another.
         for i in 0..n {
-            let g = usize::from(self.good[i]);
-            let p = &points[g];
-            let [left, right, centred] = self.predictions(points, p.row, i, i + 1);
-            let sides = [left, right, centred];
-            let off = |line: i64| (i64::from(p.position.0) - line).abs() > bound;
-            let judged = sides.iter().flatten().count() > 0;
-            if judged && sides.iter().flatten().all(|&line| off(line)) {
-                // Flagged after every judgement: the medians are of the
-                // points as they came, so one outlier cannot hide another.
-                self.res[i] = -1;
-            } else {
-                self.res[i] = 0;
+            if self.off[i] >= 0 && i64::from(self.off[i]) <= bound {
+                self.off[i] = 0;
+                continue;
             }
+            let p = &points[usize::from(self.good[i])];
+            let [left, right] = self.sides(points, p.row, i, i + 1);
+            let near = |line: &Option<i64>| line.is_some_and(|l| (i64::from(p.position.0) - l).abs() <= bound);
+            let judged = self.off[i] >= 0 || left.is_some() || right.is_some();
+            self.off[i] = if judged && !near(&left) && !near(&right) { -2 } else { 0 };
         }
         for i in 0..n {
-            if self.res[i] < 0 {
+            if self.off[i] == -2 {
                 points[usize::from(self.good[i])].flags.insert(Flags::OFF_LINE);
             }
         }
