@@ -21,7 +21,7 @@
 //! # Cost
 //! Per row: the detector (see `peak`), plus a stripe-to-laser assignment of at
 //! most 3 × 3 comparisons. Profiles are built in place in the head. Per
-//! frame: the line pass ([`line`]) over each laser's points, which flags
+//! frame: the line pass ([`mod@line`]) over each laser's points, which flags
 //! glints, ghosts and points off the line before the profile goes out.
 //!
 //! # Triggers and persistence
@@ -355,7 +355,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
         &self.duty
     }
 
-    /// What the line pass flagged in the last frame ([`line`]): the
+    /// What the line pass flagged in the last frame ([`mod@line`]): the
     /// counts its profiles' flags carry.
     pub fn line_counts(&self) -> line::Counts {
         self.line_counts
