@@ -20,7 +20,9 @@
 //!
 //! # Cost
 //! Per row: the detector (see `peak`), plus a stripe-to-laser assignment of at
-//! most 3 × 3 comparisons. Profiles are built in place in the head.
+//! most 3 × 3 comparisons. Profiles are built in place in the head. Per
+//! frame: the line pass ([`mod@line`]) over each laser's points, which flags
+//! glints, ghosts and points off the line before the profile goes out.
 //!
 //! # Triggers and persistence
 //! Frames come every `1 / rate_hz` ([`Trigger::Timed`]) or every N µm of
@@ -38,20 +40,24 @@
 //! its rows' centre ([`RowSampling`]).
 
 use crate::duty::DutyLimit;
-use crate::fixed::{Px, Q16_16, Q48_16};
+use crate::fixed::{Px, Q16_16};
 use crate::odometer::DistanceTrigger;
 use crate::peak::{ColumnWindow, Config, Detector, Select, Stripes, Track, Windows};
 use crate::persist::Stored;
 use crate::protocol::{
     Calibration, DeviceInfo, DeviceMsg, ErrorCode, HeadState, LASERS, LaserPattern, LaserPoints, MAX_ROWS_PER_PROFILE,
-    Metric, PROTOCOL_VERSION, Point, Profile, RAW_CHUNK_BYTES, RawRows, Start, Status, StoreHealth, Trigger,
+    PROTOCOL_VERSION, Profile, RAW_CHUNK_BYTES, RawRows, Start, Status, StoreHealth, Trigger,
 };
 use crate::readout::{Readout, RowSampling};
 use crate::triangulation::Triangulator;
 use heapless::{String, Vec};
 
+mod assign;
 mod calibration;
 mod command;
+pub mod line;
+pub use assign::assign;
+use assign::triangulate;
 pub use calibration::{
     CalibrationError, MIN_LINE_SEPARATION_PX, WORKING_DEPTH_FRACTION, calibration_is_valid, check_laser_lines,
     triangulator, working_depth_mm,
@@ -193,6 +199,11 @@ pub struct Head<const W: usize, L: LaserDriver> {
     dropped_rows: u32,
     row: [u16; W],
     profile: Profile,
+    /// The line pass's scratch, the part's second candidates, and what the
+    /// pass found in the last frame.
+    line: line::LineCheck,
+    seconds: line::Seconds,
+    line_counts: line::Counts,
 }
 
 impl<const W: usize, L: LaserDriver> Drop for Head<W, L> {
@@ -247,6 +258,9 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             dropped_rows: 0,
             row: [0; W],
             profile: Profile::empty(),
+            line: line::LineCheck::default(),
+            seconds: line::Seconds::new(),
+            line_counts: line::Counts::default(),
         })
     }
 
@@ -339,6 +353,12 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
     /// The duty-cycle limiter (for inspection).
     pub fn duty_limit(&self) -> &DutyLimit {
         &self.duty
+    }
+
+    /// What the line pass flagged in the last frame ([`mod@line`]): the
+    /// counts its profiles' flags carry.
+    pub fn line_counts(&self) -> line::Counts {
+        self.line_counts
     }
 
     /// The laser driver (for inspection by tests and the simulator).
@@ -512,9 +532,14 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             }
             let first = part as usize * MAX_ROWS_PER_PROFILE;
             let last = (first + MAX_ROWS_PER_PROFILE).min(height);
+            self.seconds.clear();
             if self.measure_rows(camera, (readout, sampling), first..last, &mut next_sensor_row).is_err() {
                 return self.fail(ErrorCode::SensorFault, None, reply);
             }
+            // The part's lines as a whole: what is not a line is flagged.
+            let rules = line::Rules::new(self.detector.config(), self.calibration.as_ref().map(|c| &c.0));
+            let counts = self.line.check(&rules, &mut self.profile.lasers, &self.seconds);
+            self.line_counts = if part == 0 { counts } else { self.line_counts.plus(counts) };
             // Lend the profile to the message without copying it twice.
             let msg = DeviceMsg::Profile(core::mem::replace(&mut self.profile, Profile::empty()));
             reply(&msg);
@@ -580,9 +605,9 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
                 (Some(w), Some(t)) => self.detector.detect_tracked(&self.row[..width], w, t, &mut stripes),
             };
             found.map_err(|_| ())?;
-            assign(&stripes, lit, &mut self.track, &mut self.profile.lasers, r);
+            assign(&stripes, lit, &mut self.track, &mut self.profile.lasers, r, &mut self.seconds);
             if let Some((_, t)) = &self.calibration {
-                triangulate(t, &mut self.profile.lasers, r, centre);
+                triangulate(t, &mut self.profile.lasers, &mut self.seconds, r, centre);
             }
         }
         Ok(())
@@ -715,65 +740,6 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
 /// A trigger the head accepts: a distance trigger needs a non-zero interval.
 fn valid_trigger(t: Trigger) -> bool {
     !matches!(t, Trigger::Distance { every_um: 0 })
-}
-
-/// Assigns a row's stripes to the lit lasers: in order when every lit laser
-/// has one stripe (the lasers are mounted left to right in laser order),
-/// otherwise each stripe to the lit laser whose last position is nearest.
-fn assign(
-    stripes: &Stripes<LASERS>,
-    lit: usize,
-    track: &mut [Px; LASERS],
-    out: &mut Vec<LaserPoints, LASERS>,
-    row: u16,
-) {
-    let point = |s: &crate::peak::Stripe| Point {
-        row,
-        position: s.position,
-        strength: s.strength.min(u16::MAX as u32) as u16,
-        width: s.width,
-        flags: s.flags,
-        metric: None,
-    };
-    if stripes.len() == lit {
-        for (s, lp) in stripes.iter().zip(out.iter_mut()) {
-            track[lp.laser as usize] = s.position;
-            let _ = lp.points.push(point(s));
-        }
-        return;
-    }
-    for s in stripes {
-        if let Some(lp) = out.iter_mut().min_by_key(|lp| track[lp.laser as usize].abs_diff(s.position))
-            && lp.points.last().is_none_or(|p| p.row != row)
-        {
-            track[lp.laser as usize] = s.position;
-            let _ = lp.points.push(point(s));
-        }
-    }
-}
-
-/// Fills in the triangulated point of each laser's point of this row
-/// (sensor row `row`, its centre `centre` rows below: a binned row's).
-fn triangulate(t: &Triangulator, out: &mut Vec<LaserPoints, LASERS>, row: u16, centre: Q16_16) {
-    for lp in out.iter_mut() {
-        if let Some(p) = lp.points.last_mut()
-            && p.row == row
-        {
-            let at = if centre == Q16_16::ZERO {
-                t.profile(lp.laser as usize, p.position, row)
-            } else {
-                t.profile_at(lp.laser as usize, p.position, Q48_16((i64::from(row) << 16) + i64::from(centre.0)))
-            };
-            p.metric =
-                at.map(|q| Metric { along_um: round_i32(q.along_mm * 1e3), height_nm: round_i32(q.height_mm * 1e6) });
-        }
-    }
-}
-
-/// Nearest integer, saturating (`as` saturates and truncates towards zero;
-/// `core` has no `f32::round`).
-fn round_i32(v: f32) -> i32 {
-    if v >= 0.0 { (v + 0.5) as i32 } else { (v - 0.5) as i32 }
 }
 
 /// The detector configuration a head starts with: 12-bit pixels, stripes

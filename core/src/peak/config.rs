@@ -22,8 +22,34 @@ impl Flags {
     /// range, or no sub-pixel solution (integer position reported).
     pub const LOW_CONFIDENCE: Flags = Flags(4);
 
+    /// Rejected by the line pass ([`crate::pipeline::line`]): saturated and
+    /// narrower than the optics allow a line (a specular glint).
+    pub const GLINT: Flags = Flags(8);
+    /// Rejected by the line pass: outside the band of columns the laser's
+    /// calibration allows over the working depth (a secondary reflection,
+    /// or another laser's stripe).
+    pub const GHOST: Flags = Flags(16);
+    /// Rejected by the line pass: off the line its neighbouring rows draw
+    /// by more than the frame's scatter allows (an outlier).
+    pub const OFF_LINE: Flags = Flags(32);
+    /// Kept by the line pass, which dropped a second candidate for this
+    /// laser in this row that broke the line (a ghost beside it): the
+    /// point itself is good, the flag counts the one not carried.
+    pub const SECOND_DROPPED: Flags = Flags(64);
+    /// The flags that reject a point: a profile, a fit or an export built
+    /// from points leaves out every point with one of them.
+    pub const REJECTED: Flags = Flags(8 | 16 | 32);
+
     /// No flag.
     pub const NONE: Flags = Flags(0);
+    /// Whether any bit of `other` is set.
+    pub const fn intersects(self, other: Flags) -> bool {
+        self.0 & other.0 != 0
+    }
+    /// Whether the line pass rejected the point ([`Flags::REJECTED`]).
+    pub const fn rejected(self) -> bool {
+        self.intersects(Flags::REJECTED)
+    }
     /// Whether every bit of `other` is set.
     pub const fn contains(self, other: Flags) -> bool {
         self.0 & other.0 == other.0
@@ -33,8 +59,15 @@ impl Flags {
         self.0 |= other.0;
     }
     /// Every flag with its name, as printed by the host tools.
-    pub const NAMES: [(Flags, &'static str); 3] =
-        [(Flags::SATURATED, "saturated"), (Flags::CLIPPED, "clipped"), (Flags::LOW_CONFIDENCE, "low-confidence")];
+    pub const NAMES: [(Flags, &'static str); 7] = [
+        (Flags::SATURATED, "saturated"),
+        (Flags::CLIPPED, "clipped"),
+        (Flags::LOW_CONFIDENCE, "low-confidence"),
+        (Flags::GLINT, "glint"),
+        (Flags::GHOST, "ghost"),
+        (Flags::OFF_LINE, "off-line"),
+        (Flags::SECOND_DROPPED, "second-dropped"),
+    ];
     /// The names of the flags set, in bit order.
     pub fn names(self) -> impl Iterator<Item = &'static str> {
         Flags::NAMES.into_iter().filter(move |(f, _)| self.contains(*f)).map(|(_, n)| n)

@@ -101,7 +101,9 @@ impl FramePoints {
 
 /// Gathers the calibrated points of profile messages into frames (the parts
 /// of one frame share its `seq` and odometer). Points without a metric
-/// (no calibration loaded) are counted and left out.
+/// (no calibration loaded) and points the head's line pass rejected
+/// ([`Flags::rejected`](cms_core::peak::Flags::rejected)) are counted and
+/// left out.
 #[derive(Debug, Default)]
 pub struct FrameAssembler {
     current: Option<FramePoints>,
@@ -109,6 +111,8 @@ pub struct FrameAssembler {
     pub uncalibrated_points: u64,
     /// Points with one.
     pub calibrated_points: u64,
+    /// Points the line pass rejected.
+    pub rejected_points: u64,
 }
 
 impl FrameAssembler {
@@ -125,6 +129,7 @@ impl FrameAssembler {
             let Some(dst) = f.lasers.get_mut(l.laser as usize) else { continue };
             for pt in &l.points {
                 match pt.metric {
+                    _ if pt.flags.rejected() => self.rejected_points += 1,
                     Some(m) => {
                         dst.push((m.along_um as f64 / 1000.0, m.height_nm as f64 / 1000.0));
                         self.calibrated_points += 1;

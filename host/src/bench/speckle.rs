@@ -160,7 +160,7 @@ fn budget_tables() -> Result<String, ClosedLoopError> {
 /// The sweep's table: one row per light.
 pub fn sweep_markdown(lights: &[LightCase], runs: &[LightRun]) -> String {
     let mut md = String::from(
-        "| light | F | speed | runs | rows kept | RMS / oracle | robust / oracle | robust, px | worst λ error, mm | worst A error, µm | λ covered | A covered | worst error / σ | good / doubtful / failed | good but wrong |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|\n",
+        "| light | F | speed | runs | rows kept | RMS / oracle | robust / oracle | robust, px | worst λ error, mm | worst A error, µm | λ covered | A covered | worst error / σ | good / doubtful / failed | good but wrong | line pass per frame: glint / ghost / off-line / second dropped |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---|\n",
     );
     let pct = |a: usize, b: usize| {
         if b == 0 { "–".to_string() } else { format!("{:.0} % of {b}", 100.0 * a as f64 / b as f64) }
@@ -170,7 +170,7 @@ pub fn sweep_markdown(lights: &[LightCase], runs: &[LightRun]) -> String {
         let s = rl::summarize(&mine);
         let _ = writeln!(
             md,
-            "| {} | {} | {:.0} m/s | {} | {:.0} % | {:.2} | {:.2} | {:.3} | {:.2} | {:.1} | {} | {} | {:.1} | {} / {} / {} | {} |",
+            "| {} | {} | {:.0} m/s | {} | {:.0} % | {:.2} | {:.2} | {:.3} | {:.2} | {:.1} | {} | {} | {:.1} | {} / {} / {} | {} | {} |",
             l.disturbance,
             l.f_number,
             l.speed_mm_s / 1000.0,
@@ -188,13 +188,14 @@ pub fn sweep_markdown(lights: &[LightCase], runs: &[LightRun]) -> String {
             s.levels.1,
             s.levels.2,
             s.good_but_wrong,
+            line_cell(&s.line_per_frame),
         );
     }
     let all: Vec<&LightRun> = runs.iter().collect();
     let s = rl::summarize(&all);
     let _ = writeln!(
         md,
-        "| **all** | | | {} | {:.0} % | {:.2} | {:.2} | {:.3} | {:.2} | {:.1} | {} | {} | {:.1} | {} / {} / {} | {} |",
+        "| **all** | | | {} | {:.0} % | {:.2} | {:.2} | {:.3} | {:.2} | {:.1} | {} | {} | {:.1} | {} / {} / {} | {} | {} |",
         s.runs,
         100.0 * s.rows_kept,
         s.rms_ratio,
@@ -209,20 +210,26 @@ pub fn sweep_markdown(lights: &[LightCase], runs: &[LightRun]) -> String {
         s.levels.1,
         s.levels.2,
         s.good_but_wrong,
+        line_cell(&s.line_per_frame),
     );
     md
 }
 
+/// The line pass's counts per frame, `a / b / c / d`.
+fn line_cell(c: &[f64; 4]) -> String {
+    c.iter().map(|v| format!("{v:.1}")).collect::<Vec<_>>().join(" / ")
+}
+
 fn sweep_csv(lights: &[LightCase], runs: &[LightRun]) -> String {
     let mut csv = String::from(
-        "disturbance,f_number,speed_mm_s,wavelength_mm,amplitude_um,run,rows_kept,detector_rms_px,detector_robust_px,oracle_rms_px,oracle_robust_px,wavelength_error_mm,wavelength_sigma_mm,amplitude_error_um,amplitude_sigma_um,level,verdict\n",
+        "disturbance,f_number,speed_mm_s,wavelength_mm,amplitude_um,run,rows_kept,detector_rms_px,detector_robust_px,oracle_rms_px,oracle_robust_px,glint,ghost,off_line,second_dropped,wavelength_error_mm,wavelength_sigma_mm,amplitude_error_um,amplitude_sigma_um,level,verdict\n",
     );
     let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.6}"));
     for r in runs {
         let l = &lights[r.light];
         let _ = writeln!(
             csv,
-            "{},{},{},{},{},{},{:.4},{:.5},{:.5},{:.5},{:.5},{},{},{},{},{},\"{}\"",
+            "{},{},{},{},{},{},{:.4},{:.5},{:.5},{:.5},{:.5},{},{},{},{},{},{},{},{},{},\"{}\"",
             l.disturbance,
             l.f_number,
             l.speed_mm_s,
@@ -234,6 +241,10 @@ fn sweep_csv(lights: &[LightCase], runs: &[LightRun]) -> String {
             r.detector.robust_px,
             r.oracle.rms_px,
             r.oracle.robust_px,
+            r.line.glint,
+            r.line.ghost,
+            r.line.off_line,
+            r.line.second_dropped,
             opt(r.error.map(|e| e.0)),
             opt(r.sigma.0),
             opt(r.error.map(|e| e.1)),

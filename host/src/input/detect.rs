@@ -173,7 +173,7 @@ mod tests {
         assert_eq!(flag_names(Flags::NONE), "");
         assert_eq!(flag_names(Flags(1 | 4)), "saturated|low-confidence");
         assert_eq!(flag_names(Flags(7)), "saturated|clipped|low-confidence");
-        assert_eq!(flag_names(Flags(2 | 8)), "clipped|flag3");
+        assert_eq!(flag_names(Flags(2 | 128)), "clipped|flag7");
     }
 
     #[test]

@@ -196,7 +196,10 @@ impl Measurer {
     }
 
     /// Per-laser profiles of a recorded frame (its parts in order): the
-    /// head's metric points, or the raw peaks triangulated here.
+    /// head's metric points, or the raw peaks triangulated here. Points the
+    /// head's line pass rejected (a glint, a ghost, off the line:
+    /// [`Flags::rejected`](cms_core::peak::Flags::rejected)) are left out;
+    /// `info` and `export` count them.
     pub fn frame_profiles(&self, parts: &[Profile]) -> Profiles {
         let mut out: Profiles = Default::default();
         for p in parts {
@@ -205,7 +208,7 @@ impl Measurer {
                 if k >= LASERS {
                     continue;
                 }
-                for q in &l.points {
+                for q in l.points.iter().filter(|q| !q.flags.rejected()) {
                     let pt = match q.metric {
                         Some(m) => Some((f64::from(m.along_um) * 1e-3, f64::from(m.height_nm) * 1e-6)),
                         None => self

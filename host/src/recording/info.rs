@@ -2,6 +2,7 @@
 
 use std::path::Path;
 
+use cms_core::pipeline::line::Counts;
 use cms_core::protocol::{DeviceInfo, DeviceMsg, ErrorCode, LASERS};
 
 use super::{FrameCounter, RecordError, ScanStats, points, scan_file_with_progress, survey_of, um_to_mm};
@@ -46,6 +47,12 @@ pub struct Info {
     pub head_errors: Vec<ErrorCode>,
     /// `RawRows` chunks.
     pub raw_chunks: u64,
+    /// What the head's line pass flagged, over all profiles.
+    pub line: Counts,
+    /// The most points one frame had rejected by it.
+    pub line_worst_frame: u32,
+    /// The rejections of the frame being read.
+    line_frame: u32,
 }
 
 impl Info {
@@ -66,6 +73,10 @@ impl Info {
                     }
                 }
                 self.lasers |= p.laser_mask;
+                let line = Counts::of(&p.lasers);
+                self.line = self.line.plus(line);
+                self.line_frame = if p.part == 0 { line.rejected() } else { self.line_frame + line.rejected() };
+                self.line_worst_frame = self.line_worst_frame.max(self.line_frame);
                 let t = p.timestamp_us;
                 self.time_us = Some(self.time_us.map_or((t, t), |(a, b)| (a.min(t), b.max(t))));
                 let o = p.odometer_um;
@@ -106,6 +117,25 @@ impl Info {
             Err(e) => return Err(e),
         }
         Ok(info)
+    }
+
+    /// The line pass's line of the report: its counts, per frame, and the
+    /// worst frame.
+    pub fn line_report(&self) -> String {
+        let f = self.frames.max(1) as f64;
+        let c = &self.line;
+        format!(
+            "line pass: {} glint, {} ghost, {} off-line points rejected ({:.2} / {:.2} / {:.2} per frame, at most {} in a frame), {} kept with a second candidate dropped ({:.2} per frame)",
+            c.glint,
+            c.ghost,
+            c.off_line,
+            f64::from(c.glint) / f,
+            f64::from(c.ghost) / f,
+            f64::from(c.off_line) / f,
+            self.line_worst_frame,
+            c.second_dropped,
+            f64::from(c.second_dropped) / f,
+        )
     }
 
     /// The report, `key: value` lines.
@@ -158,6 +188,7 @@ impl Info {
         let _ = writeln!(s, "lasers: {}", if lasers.is_empty() { "-".to_string() } else { lasers.join(", ") });
         let per = if self.frames > 0 { self.points as f64 / self.frames as f64 } else { 0.0 };
         let _ = writeln!(s, "points: {} ({per:.1} per frame)", self.points);
+        let _ = writeln!(s, "{}", self.line_report());
         if self.points > 0 {
             let b = self.scan.profile_bytes;
             let _ = writeln!(s, "profile bytes: {b} ({:.2} per point, frames included)", b as f64 / self.points as f64);

@@ -2,6 +2,7 @@
 
 use std::io::{self, Write};
 
+use cms_core::pipeline::line::Counts;
 use cms_core::protocol::Profile;
 use serde::Serialize;
 use serde::ser::{SerializeSeq, SerializeStruct, Serializer};
@@ -17,7 +18,7 @@ pub struct JsonProfile<'a>(pub &'a Profile);
 impl Serialize for JsonProfile<'_> {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         let p = self.0;
-        let mut o = s.serialize_struct("Profile", 9)?;
+        let mut o = s.serialize_struct("Profile", 10)?;
         o.serialize_field("seq", &p.seq)?;
         o.serialize_field("part", &p.part)?;
         o.serialize_field("parts", &p.parts)?;
@@ -26,6 +27,9 @@ impl Serialize for JsonProfile<'_> {
         o.serialize_field("exposure_us", &p.exposure_us)?;
         o.serialize_field("laser_mask", &p.laser_mask)?;
         o.serialize_field("lasers", &JsonLasers(p))?;
+        // What the head's line pass flagged in this message (the points
+        // stay, flagged): a frame's counts are those of its parts.
+        o.serialize_field("line", &Counts::of(&p.lasers))?;
         o.end()
     }
 }

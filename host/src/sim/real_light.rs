@@ -7,8 +7,11 @@
 //! against the truth with its σ and verdict. `cms-host bench speckle`
 //! writes the table; `host/tests/it/real_light.rs` runs a reduced sweep.
 
+use cms_core::fixed::Px;
 use cms_core::peak::Stripes;
-use cms_core::protocol::LASERS;
+use cms_core::pipeline::assign;
+use cms_core::pipeline::line::{Counts, LineCheck, Rules, Seconds};
+use cms_core::protocol::{LASERS, LaserPoints};
 use serde::Serialize;
 
 use crate::measure::corrugation::joint_fit;
@@ -139,6 +142,8 @@ pub struct LightRun {
     pub oracle: Scatter,
     /// Fewest rows of a line that gave a point, as a fraction of the rows the line crosses.
     pub rows_kept: f64,
+    /// What the head's line pass flagged in the frame.
+    pub line: Counts,
     /// Wavelength (mm) and amplitude (µm) errors; `None`: no result.
     pub error: Option<(f64, f64)>,
     /// Their reported one-σ.
@@ -192,6 +197,8 @@ pub struct FramePoints {
     pub oracle: Scatter,
     /// Fewest rows of a line that gave a point, as a fraction of the rows the line crosses.
     pub rows_kept: f64,
+    /// What the head's line pass flagged.
+    pub line: Counts,
     /// The measurer of the head's true calibration.
     pub measurer: Measurer,
     /// Each laser's profile.
@@ -199,17 +206,27 @@ pub struct FramePoints {
 }
 
 /// Renders frame `frame` of `cfg` and measures every point against its
-/// truth and the oracle, with the detector the light calls for.
+/// truth and the oracle, with the detector the light calls for. The points
+/// are the head's: its detector row by row, its assignment to the lasers
+/// ([`assign`]) and its line pass ([`LineCheck`], with the true
+/// calibration's bands); a point the pass rejects is no point, one farther
+/// than 3σ from its laser's true centre is a wrong one.
 pub fn frame_points(cfg: &SimConfig, frame: u64) -> Result<FramePoints, ClosedLoopError> {
     let mut scene = Scene::new(cfg.clone())?;
-    let m = Measurer::new(&truth(&scene))?;
+    let file = truth(&scene);
+    let m = Measurer::new(&file)?;
     let mut det = detector(cfg)?;
+    let rules = Rules::new(det.config(), Some(&file.to_head().map_err(crate::measure::MeasureError::from)?));
     let w = scene.width();
     let mut row = vec![0u16; w];
     let mut sorted = vec![0u16; w];
     let (mut de, mut oe, mut dw, mut ow) = (Vec::new(), Vec::new(), 0, 0);
     let (mut crossed, mut kept) = ([0usize; LASERS], [0usize; LASERS]);
-    let mut profiles: Profiles = Default::default();
+    let mut lasers: heapless::Vec<LaserPoints, LASERS> =
+        (0..LASERS as u8).map(|laser| LaserPoints { laser, points: heapless::Vec::new() }).collect();
+    let (mut track, mut seconds) = ([Px::ZERO; LASERS], Seconds::new());
+    // Each row's true stripes: (centre, σ) px.
+    let mut truths = Vec::with_capacity(scene.height());
     det.refresh_noise();
     for r in 0..scene.height() {
         let truth = scene.render_row(frame, r, scene.all_lasers_mask(), &mut row);
@@ -218,32 +235,34 @@ pub fn frame_points(cfg: &SimConfig, frame: u64) -> Result<FramePoints, ClosedLo
         sorted.copy_from_slice(&row);
         sorted.sort_unstable();
         let background = f64::from(sorted[w / 2]);
+        let mut t_row = [None; LASERS];
         for (laser, t) in truth.stripes.iter().enumerate().take(LASERS) {
             let Some(t) = t else { continue };
             crossed[laser] += 1;
-            let near = s.iter().map(|x| x.position.to_f64() - t.column_px).min_by(|a, b| a.abs().total_cmp(&b.abs()));
-            match near {
-                Some(e) if e.abs() <= 3.0 * t.sigma_px => {
-                    de.push(e);
-                    kept[laser] += 1;
-                }
-                Some(e) if e.abs() <= 8.0 * t.sigma_px => dw += 1,
-                _ => {}
-            }
+            t_row[laser] = Some((t.column_px, t.sigma_px));
             match centroid_at(&row, t.column_px, t.sigma_px, background) {
                 Some(c) if (c - t.column_px).abs() <= 3.0 * t.sigma_px => oe.push(c - t.column_px),
                 Some(_) => ow += 1,
                 None => {}
             }
         }
-        // As the head does: a row with one stripe per laser gives each
-        // laser its point, in position order.
-        if s.len() == LASERS {
-            s.sort_unstable_by_key(|x| x.position);
-            for (k, stripe) in s.iter().enumerate() {
-                if let Some(p) = m.triangulator().profile(k, stripe.position, r as u16) {
-                    profiles[k].push((f64::from(p.along_mm), f64::from(p.height_mm)));
+        truths.push(t_row);
+        assign(&s, LASERS, &mut track, &mut lasers, r as u16, &mut seconds);
+    }
+    let line = LineCheck::default().check(&rules, &mut lasers, &seconds);
+    let mut profiles: Profiles = Default::default();
+    for lp in &lasers {
+        let k = usize::from(lp.laser);
+        for p in lp.points.iter().filter(|p| !p.flags.rejected()) {
+            match truths[usize::from(p.row)][k] {
+                Some((c, sigma)) if (p.position.to_f64() - c).abs() <= 3.0 * sigma => {
+                    de.push(p.position.to_f64() - c);
+                    kept[k] += 1;
                 }
+                _ => dw += 1,
+            }
+            if let Some(q) = m.triangulator().profile(k, p.position, p.row) {
+                profiles[k].push((f64::from(q.along_mm), f64::from(q.height_mm)));
             }
         }
     }
@@ -251,6 +270,7 @@ pub fn frame_points(cfg: &SimConfig, frame: u64) -> Result<FramePoints, ClosedLo
         detector: Scatter::of(&mut de, dw),
         oracle: Scatter::of(&mut oe, ow),
         rows_kept: (0..LASERS).map(|k| kept[k] as f64 / crossed[k].max(1) as f64).fold(1.0, f64::min),
+        line,
         measurer: m,
         profiles,
     })
@@ -275,6 +295,7 @@ pub fn run(lights: &[LightCase], light: usize, case: Case, run: u64) -> Result<L
         detector: f.detector,
         oracle: f.oracle,
         rows_kept: f.rows_kept,
+        line: f.line,
         error,
         sigma,
         level,
@@ -333,6 +354,10 @@ pub struct LightSummary {
     pub levels: (usize, usize, usize),
     /// Good results off by more than 3σ or 0.15 mm / 6 µm.
     pub good_but_wrong: usize,
+    /// Points the line pass flagged per frame (mean of the runs): glint,
+    /// ghost (outside the band), off the line, kept with a second
+    /// candidate dropped.
+    pub line_per_frame: [f64; 4],
 }
 
 /// The summary of one light's runs.
@@ -371,5 +396,10 @@ pub fn summarize(runs: &[&LightRun]) -> LightSummary {
                         || r.error.is_some_and(|(l, a)| l.abs() > 0.15 || a.abs() > 6.0))
             })
             .count(),
+        line_per_frame: {
+            let n = runs.len().max(1) as f64;
+            let sum = |f: fn(&Counts) -> u32| runs.iter().map(|r| f64::from(f(&r.line))).sum::<f64>() / n;
+            [sum(|c| c.glint), sum(|c| c.ghost), sum(|c| c.off_line), sum(|c| c.second_dropped)]
+        },
     }
 }

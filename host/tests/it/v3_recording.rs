@@ -36,17 +36,28 @@ fn fnv1a(bytes: &[u8]) -> u64 {
 fn info_reads_a_v3_recording() {
     let o = run_in_data(&["info", "calibrated.cmsrec"]);
     let out = String::from_utf8_lossy(&o.stdout);
-    // Everything the version-3 build printed, and the wire cost it did not.
-    let old: String = out.lines().filter(|l| !l.starts_with("profile bytes: ")).map(|l| format!("{l}\n")).collect();
+    // Everything the version-3 build printed, and the wire cost and the
+    // line pass's counts (none: that head had no line pass) it did not.
+    let new = |l: &str| l.starts_with("profile bytes: ") || l.starts_with("line pass: ");
+    let old: String = out.lines().filter(|l| !new(l)).map(|l| format!("{l}\n")).collect();
     assert_eq!(old, expected("info.txt"));
     assert!(out.contains("profile bytes: 102741 (17.84 per point, frames included)"), "{out}");
+    assert!(out.contains("line pass: 0 glint, 0 ghost, 0 off-line points rejected"), "{out}");
 }
 
 #[test]
 fn export_reads_a_v3_recording() {
+    // The JSON lines as the version-3 build wrote them, once the line
+    // pass's counts (all zero) each line now ends with are taken off.
+    const LINE: &str = r#","line":{"glint":0,"ghost":0,"off_line":0,"second_dropped":0}}"#;
     for (format, len, hash) in [("csv", 355_302, 0xa349_26db_97cf_d53d), ("jsonl", 786_780, 0xb436_b4c7_f118_6578)] {
         let o = run_in_data(&["export", "calibrated.cmsrec", "--format", format, "--out", "-"]);
-        assert_eq!((o.stdout.len(), fnv1a(&o.stdout)), (len, hash), "{format}");
+        let mut out = String::from_utf8(o.stdout).unwrap();
+        if format == "jsonl" {
+            assert!(out.lines().all(|l| l.ends_with(LINE)), "{format}");
+            out = out.replace(&format!("{LINE}\n"), "}\n");
+        }
+        assert_eq!((out.len(), fnv1a(out.as_bytes())), (len, hash), "{format}");
     }
 }
 

@@ -12,6 +12,7 @@ use proptest::prelude::*;
 use std::cell::{Cell, RefCell};
 use std::rc::Rc;
 
+mod line;
 mod model;
 mod readout;
 mod safety;

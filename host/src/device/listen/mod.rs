@@ -50,6 +50,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use cms_core::peak::ColumnWindow;
+use cms_core::pipeline::line::Counts;
 use cms_core::protocol::{DeviceInfo, DeviceMsg, ErrorCode, LASERS, LaserPattern, PROTOCOL_VERSION, Start, Status};
 use cms_core::readout::{Readout, ReadoutError};
 
@@ -267,6 +268,8 @@ pub struct Summary {
     pub profiles: u64,
     /// Points received.
     pub points: u64,
+    /// What the head's line pass flagged in them.
+    pub line: Counts,
     /// First and last sequence number of a complete frame.
     pub seq: Option<(u32, u32)>,
     /// Link counters over all connections.
@@ -322,6 +325,18 @@ impl fmt::Display for Summary {
             self.profiles,
             self.points,
             if self.frames > 0 { self.points as f64 / self.frames as f64 } else { 0.0 }
+        )?;
+        let per = |n: u32| if self.frames > 0 { f64::from(n) / self.frames as f64 } else { 0.0 };
+        writeln!(
+            f,
+            "line pass: {} glint, {} ghost, {} off-line points rejected ({:.2} / {:.2} / {:.2} per frame), {} kept with a second candidate dropped",
+            self.line.glint,
+            self.line.ghost,
+            self.line.off_line,
+            per(self.line.glint),
+            per(self.line.ghost),
+            per(self.line.off_line),
+            self.line.second_dropped
         )?;
         writeln!(f, "elapsed: {:.3} s, {:.2} frames/s", self.elapsed.as_secs_f64(), self.frames_per_s())?;
         writeln!(

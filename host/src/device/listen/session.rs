@@ -5,6 +5,7 @@ use std::io::{self, Write};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use cms_core::pipeline::line::Counts;
 use cms_core::protocol::{DeviceMsg, HeadState, HostMsg, Profile, WireError};
 use cms_core::readout::Readout;
 
@@ -21,6 +22,8 @@ use super::{
 struct WindowRates {
     frames_per_s: f64,
     points_per_frame: f64,
+    /// Points the line pass rejected per frame.
+    rejected_per_frame: f64,
 }
 
 enum Phase {
@@ -64,6 +67,7 @@ pub(super) struct Session<'a> {
     window_start: Instant,
     window_frames: u64,
     window_points: u64,
+    window_rejected: u64,
     /// Frames per second and points per frame over the last window.
     window_rates: WindowRates,
     /// The recent calibrated frames, for the corrugation estimate.
@@ -215,6 +219,9 @@ impl Session<'_> {
         let n = recording::points(p);
         self.sum.points += n;
         self.window_points += n;
+        let line = Counts::of(&p.lasers);
+        self.sum.line = self.sum.line.plus(line);
+        self.window_rejected += u64::from(line.rejected());
         if self.counter.profile(p) {
             self.sum.frames += 1;
             self.window_frames += 1;
@@ -279,11 +286,16 @@ impl Session<'_> {
     pub(super) fn status_line(&mut self, now: Instant, connected: bool) -> String {
         let dt = now.duration_since(self.window_start).as_secs_f64();
         if dt >= 1.0 {
-            let ppf = if self.window_frames > 0 { self.window_points as f64 / self.window_frames as f64 } else { 0.0 };
-            self.window_rates = WindowRates { frames_per_s: self.window_frames as f64 / dt, points_per_frame: ppf };
+            let per = |n: u64| if self.window_frames > 0 { n as f64 / self.window_frames as f64 } else { 0.0 };
+            self.window_rates = WindowRates {
+                frames_per_s: self.window_frames as f64 / dt,
+                points_per_frame: per(self.window_points),
+                rejected_per_frame: per(self.window_rejected),
+            };
             self.window_start = now;
             self.window_frames = 0;
             self.window_points = 0;
+            self.window_rejected = 0;
         }
         let state = if !connected {
             "reconnecting"
@@ -308,9 +320,10 @@ impl Session<'_> {
             _ => String::new(),
         };
         format!(
-            "{state}: {:.1} frames/s, {:.0} points/frame, {} frames, CRC errors {}, resyncs {}, dropped {}, reconnects {}, lasers {lasers}{head}{}{corrugation}",
+            "{state}: {:.1} frames/s, {:.0} points/frame ({:.1} rejected), {} frames, CRC errors {}, resyncs {}, dropped {}, reconnects {}, lasers {lasers}{head}{}{corrugation}",
             self.window_rates.frames_per_s,
             self.window_rates.points_per_frame,
+            self.window_rates.rejected_per_frame,
             self.sum.frames,
             self.sum.link.crc_errors,
             self.sum.link.resyncs(),
@@ -359,6 +372,7 @@ impl<'a> Session<'a> {
             window_start: t0,
             window_frames: 0,
             window_points: 0,
+            window_rejected: 0,
             window_rates: WindowRates::default(),
             live: LiveEstimate::default(),
         }
