@@ -481,9 +481,41 @@ impl<const W: usize> Detector<W> {
     /// brightest pixel near it (`None`: the whole row, too short to
     /// screen): refined, and its stripe added to `found` if it is one
     /// (within the width limits or saturated, and inside a window if there
-    /// are windows).
+    /// are windows). The centroid's candidates out of line: the default
+    /// method's path stays as it is compiled without them.
     #[inline(always)]
     fn candidate<P: Pixel>(
+        &mut self,
+        row: &[P],
+        at: Option<(usize, usize)>,
+        windows: Option<&Windows>,
+        found: &mut Vec<Stripe, MAX_CANDIDATES>,
+        runs_used: &mut Vec<(usize, usize), MAX_CANDIDATES>,
+    ) {
+        if self.cfg.method == Method::Centroid {
+            self.centroid_candidate(row, at, windows, found, runs_used);
+        } else {
+            self.candidate_as::<P, false>(row, at, windows, found, runs_used);
+        }
+    }
+
+    /// [`Detector::candidate`] for the centroid.
+    #[inline(never)]
+    fn centroid_candidate<P: Pixel>(
+        &mut self,
+        row: &[P],
+        at: Option<(usize, usize)>,
+        windows: Option<&Windows>,
+        found: &mut Vec<Stripe, MAX_CANDIDATES>,
+        runs_used: &mut Vec<(usize, usize), MAX_CANDIDATES>,
+    ) {
+        self.candidate_as::<P, true>(row, at, windows, found, runs_used);
+    }
+
+    /// [`Detector::candidate`], for the centroid (`CENTROID`) or any other
+    /// method.
+    #[inline(always)]
+    fn candidate_as<P: Pixel, const CENTROID: bool>(
         &mut self,
         row: &[P],
         at: Option<(usize, usize)>,
@@ -499,8 +531,7 @@ impl<const W: usize> Detector<W> {
         let near = (1usize << lb) + 1;
         let (a0, b0) = (pos.saturating_sub(near), (pos + near).min(n - 1));
         let noise_q8 = self.detect_noise_q8;
-        let method = self.cfg.method;
-        let in_place = matches!(method, Method::Cwt | Method::Centroid);
+        let in_place = CENTROID || self.cfg.method == Method::Cwt;
         let level = self.spike_level;
         // The first window is centred on the brightest pixel of the raw
         // row where the screen responded: the estimators start there, so
@@ -519,8 +550,7 @@ impl<const W: usize> Detector<W> {
             let in_place = in_place
                 && screened
                 && (lo..hi).contains(&bright)
-                && (method == Method::Centroid
-                    || row[bright].value() < sat && coarse::window_is_clean(&row[lo..hi], sat, level));
+                && (CENTROID || row[bright].value() < sat && coarse::window_is_clean(&row[lo..hi], sat, level));
             let (got, spikes) = if in_place {
                 let view = RowView {
                     x: &row[lo..hi],
@@ -531,8 +561,8 @@ impl<const W: usize> Detector<W> {
                     off: lo,
                     row_len: n,
                 };
-                let got = if method == Method::Centroid {
-                    centroid::detect(&view, bright - lo, &mut self.s)
+                let got = if CENTROID {
+                    centroid::detect(&view, bright - lo)
                 } else {
                     cwt::refine(&view, bright - lo, &mut self.s)
                 };
@@ -759,6 +789,7 @@ fn hidden_candidate(x: &[i32], block: usize, threshold: i32, near_to: usize) -> 
 fn refine(v: &RowView<'_>, start: usize, scratch: &mut [i32]) -> Result<Option<Stripe>, cwt::Wider> {
     Ok(match v.cfg.method {
         Method::Cwt => return cwt::refine(v, start, scratch),
+        Method::Centroid => return centroid::detect(v, start),
         // The other methods detect through the same multi-scale test, then
         // apply their own sub-pixel estimate; a coarse candidate that the
         // test rejects (noise, a hot pixel, a glow) is no stripe for any.
@@ -771,7 +802,6 @@ fn refine(v: &RowView<'_>, start: usize, scratch: &mut [i32]) -> Result<Option<S
             }
             let Some(mut s) = (match m {
                 Method::CwtPaper => paper::refine(v, ok.c),
-                Method::Centroid => return centroid::detect(v, start, scratch),
                 m => subpixel::refine(v, ok.c, m),
             }) else {
                 return Ok(None);
