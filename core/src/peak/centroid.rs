@@ -19,6 +19,10 @@
 //! means of three pixels at ±5σ (a neighbour's tail or a ghost on one side
 //! does not lift it).
 //!
+//! The passes start at the candidate's brightest pixel; the stripe is then
+//! detected at the optics' scale, at the centroid's centre ([`detected`]),
+//! not by the CWT's climb to the best-matching scale (a speckle's).
+//!
 //! Under white noise alone it is a plain centroid: about 1.6× the
 //! Cramér–Rao bound where the CWT reaches 1.0–1.2× (`cms-host bench speckle` and `bench accuracy` have
 //! both under both lights).
@@ -29,14 +33,14 @@ use super::plan::Plan;
 use super::{Flags, RowView, Sample, Stripe};
 use crate::fixed::Px;
 
-/// Centroids, each on the last one's centre. A window of ±3σ moves the
-/// centroid by a fraction ρ of its own move (ρ = 2h·f(h)/∫f ≈ 0.13 for a
-/// stripe of the window's σ, 0.25 for one 1.5× wider), so from the
-/// detection's whole pixel (at most half a pixel from the stripe's centre
-/// on white noise) three leave under ρ³/2 ≤ 0.008 px, typically 0.001;
-/// under speckle more change the points' scatter by under 1 %. Starting
-/// from a whole pixel, not the detection's sub-pixel guess, keeps a row
-/// and its mirror image exactly symmetric.
+/// Centroids, each on the last one's centre, the last on the fixed point
+/// extrapolated from the first two ([`extrapolated`]). A window of ±3σ
+/// moves the centroid by a fraction ρ of its own move (ρ = 2h·f(h)/∫f, up
+/// to 0.25 for a stripe 1.5× wider than the window's σ), so from the
+/// brightest pixel (at most half a pixel from the stripe's centre on
+/// white noise, about σ under speckle) three plain ones left up to
+/// ρ³/2 ≤ 0.008 px; the extrapolation leaves ρ times the variation of ρ
+/// over the steps.
 const ITERATIONS: usize = 3;
 
 /// A centroid of ±3σ's relative second moment: `1 − 6φ(3)/(2Φ(3) − 1)`,
@@ -81,13 +85,13 @@ pub(crate) fn detect<S: Sample>(v: &RowView<'_, S>, start: usize) -> Result<Opti
         && let Some(near) = v.x.get(a..=b)
         && !any_at_least(near, sat)
     {
-        match in_place(near, v.plan, ((start - a) as i32) << 16) {
+        match in_place(near, v.plan, (((start - a) as i32) << 16) + toward_brighter(v.x, start) as i32) {
             Passes::Fit(fit) => return detected(v, fit.moved_by(a), Some((near, a)), false),
             Passes::NoLight => return Ok(None),
             Passes::Leaves => {}
         }
     }
-    let Some((fit, brightest)) = clamped_passes(v, (start as i64) << 16) else {
+    let Some((fit, brightest)) = clamped_passes(v, ((start as i64) << 16) + toward_brighter(v.x, start)) else {
         return Ok(None);
     };
     if brightest > sat {
@@ -96,6 +100,20 @@ pub(crate) fn detect<S: Sample>(v: &RowView<'_, S>, start: usize) -> Result<Opti
         return detect_clamped(v, start);
     }
     detected(v, fit, None, brightest >= sat)
+}
+
+/// Where the passes start from the brightest pixel `b`, Q16 from it: half a
+/// pixel towards the brighter of its neighbours (none where they are
+/// equal). Then a row and its mirror image start at mirrored positions
+/// even where the two brightest pixels are equal and each takes its first
+/// (the two start at the pair's middle); from a pixel a pixel apart,
+/// three passes leave each up to ρ³ (10⁻³ px at σ 3 px) from the other.
+fn toward_brighter<S: Sample>(x: &[S], b: usize) -> i64 {
+    match (b.checked_sub(1).and_then(|l| x.get(l)), x.get(b + 1)) {
+        (Some(l), Some(r)) if r.get() > l.get() => 32_768,
+        (Some(l), Some(r)) if l.get() > r.get() => -32_768,
+        _ => 0,
+    }
 }
 
 /// How far beyond the estimator's reach from the start ([`Plan`]'s
@@ -111,7 +129,7 @@ const FAST_REACH_PX: usize = 4;
 /// optics, so it is tested at that one scale, not at the best-matching
 /// one: under speckle the best match is a speckle's, and the climb over
 /// scales cost more than the centroid. At the centre the response sees
-/// the whole envelope; a stripe up to half a pixel off keeps 98 % of it at
+/// the whole envelope; a stripe up to half a pixel off keeps 97 % of it at
 /// σ = 2.5 px.
 ///
 /// `checked`: pixels (and where they start in the window) known to be
@@ -284,17 +302,41 @@ fn sums64<S: Sample>(inner: &[S], bg3: i64, brightest: &mut i32) -> (i64, i64, i
 /// 10⁻⁵ px on a stripe of 300 counts).
 #[inline(always)]
 fn in_place<S: Sample>(x: &[S], plan: &Plan, start_q16: i32) -> Passes {
-    let mut pos_q16 = start_q16;
-    for _ in 1..ITERATIONS {
-        match pass::<S, false>(x, plan, pos_q16) {
-            Ok((p, _)) => pos_q16 = p,
-            Err(p) => return p,
-        }
+    let p1 = match pass::<S, true, false>(x, plan, start_q16) {
+        Ok((q, _)) => q,
+        Err(e) => return e,
+    };
+    let p2 = match pass::<S, false, false>(x, plan, p1) {
+        Ok((q, _)) => q,
+        Err(e) => return e,
+    };
+    match pass::<S, false, true>(x, plan, extrapolated([start_q16, p1, p2])) {
+        Ok((q, var_q16)) => Passes::Fit(Fit { pos_q16: q as i64, var_q16 }),
+        Err(e) => e,
     }
-    match pass::<S, true>(x, plan, pos_q16) {
-        Ok((p, var_q16)) => Passes::Fit(Fit { pos_q16: p as i64, var_q16 }),
-        Err(p) => p,
+}
+
+/// The fixed point of the line through two passes `p₀ → p₁ → p₂`
+/// (Aitken's Δ²): a pass contracts the distance to the fixed point by ρ
+/// (the steps' ratio), so it lies at `p₂ + d₂·ρ/(1 − ρ)`. Starting from
+/// the brightest pixel, the residual ρ³ of three plain passes (10⁻³ px at
+/// σ 3 px where the brightest pixel is one of two equal ones, and a row
+/// and its mirror image start a pixel apart) becomes its variation over
+/// the steps. A fixed point stays one (no step, no move), and the
+/// arithmetic is odd in the steps (divisions truncate towards zero), so a
+/// mirrored row moves the mirrored way. Where the steps do not contract
+/// (|ρ| ≥ ½: noise, a jump) or are long (8 px), `p₂`.
+#[inline(always)]
+fn extrapolated([p0, p1, p2]: [i32; 3]) -> i32 {
+    let (Some(d1), Some(d2)) = (p1.checked_sub(p0), p2.checked_sub(p1)) else {
+        return p2;
+    };
+    if d2 == 0 || 2 * d2.unsigned_abs() >= d1.unsigned_abs() || d2.unsigned_abs() >= 1 << 19 {
+        return p2;
     }
+    // ρ in Q12 (|ρ| < ½), then d₂·ρ/(1 − ρ): |d₂·ρ| < 2^30.
+    let rho_q12 = (d2 << 12) / d1;
+    p2.saturating_add(d2 * rho_q12 / (4096 - rho_q12))
 }
 
 /// One pass of [`in_place`] from `pos_q16`: the centroid and (on the
@@ -307,21 +349,29 @@ fn in_place<S: Sample>(x: &[S], plan: &Plan, start_q16: i32) -> Passes {
 /// Σw < 2^26.3 and Σw·d < 2^31 − 2^26, so the quotient's digits come by
 /// 32-bit divisions ([`q16_ratio32`]).
 #[inline(always)]
-fn pass<S: Sample, const LAST: bool>(x: &[S], plan: &Plan, pos_q16: i32) -> Result<(i32, i64), Passes> {
+fn pass<S: Sample, const FIRST: bool, const LAST: bool>(
+    x: &[S],
+    plan: &Plan,
+    pos_q16: i32,
+) -> Result<(i32, i64), Passes> {
     let outer = plan.centroid_outer_px;
     let centre = ((pos_q16 + 32_768) >> 16) as usize;
-    let (Some(l), r) = (centre.checked_sub(outer), centre + outer) else {
+    // On a half pixel (the `FIRST` pass's start between two pixels), both
+    // roundings.
+    let halfway = FIRST && pos_q16 & 0xFFFF == 0x8000;
+    let (Some(l), r) = (centre.checked_sub(outer + halfway as usize), centre + outer) else {
         return Err(Passes::Leaves);
     };
     let Some(span_px) = x.get(l..=r) else {
         return Err(Passes::Leaves);
     };
     // Background ×3: the lower of the three-pixel sums at ±5σ.
-    let (Some(a), Some(b)) = (span_px.first_chunk::<3>(), span_px.last_chunk::<3>()) else {
+    let (Some(a), Some(b)) = (span_px.first_chunk::<4>(), span_px.last_chunk::<4>()) else {
         return Err(Passes::Leaves);
     };
-    let (bl, br) = (a[0].get() + a[1].get() + a[2].get(), b[0].get() + b[1].get() + b[2].get());
-    let bg3 = bl.min(br);
+    let sum3 = |p: &[S]| p[0].get() + p[1].get() + p[2].get();
+    let (bl, br) = (sum3(&a[halfway as usize..]), sum3(&b[1..]));
+    let bg3 = if halfway { bl.min(br).min(sum3(a)).min(sum3(b)) } else { bl.min(br) };
     // The window `[pos − half, pos + half]` over whole pixels (as
     // [`Window::at`]) within the background's span (3σ < 5σ − 1 for σ ≥ 1).
     let (wa, wb) = (pos_q16 - plan.centroid_half_q16 as i32, pos_q16 + plan.centroid_half_q16 as i32);
@@ -487,16 +537,25 @@ fn clamped_passes<S: Sample>(v: &RowView<'_, S>, start_q16: i64) -> Option<(Fit,
         let v = x[i.clamp(0, last) as usize].get();
         if v > sat { sat } else { v }
     } as i64;
-    let mut pos_q16 = start_q16.clamp(0, last << 16);
     let mut win = Window::default();
     let mut moments = (0i64, 0i64, 0i64);
     let mut brightest = 0;
-    for _ in 0..ITERATIONS {
+    let mut p = [start_q16.clamp(0, last << 16); ITERATIONS];
+    let mut pos_q16 = p[0];
+    for i in 0..ITERATIONS {
+        if i + 1 == ITERATIONS {
+            // The last pass from the fixed point extrapolated from the
+            // first two ([`extrapolated`]).
+            let q = p.map(|q| i32::try_from(q).unwrap_or(i32::MAX));
+            pos_q16 = if q.contains(&i32::MAX) { p[i] } else { extrapolated(q) as i64 };
+        }
         let centre = (pos_q16 + 32_768) >> 16;
-        // Background ×3: the lower of the three-pixel sums at ±5σ.
+        // Background ×3: the lower of the three-pixel sums at ±5σ (on a
+        // half pixel, of both roundings', as [`pass`]).
         let (l, r) = (centre - outer, centre + outer);
-        let (bl, br) = (at(l) + at(l + 1) + at(l + 2), at(r - 2) + at(r - 1) + at(r));
-        let bg3 = if bl < br { bl } else { br };
+        let sum3 = |i: i64| at(i) + at(i + 1) + at(i + 2);
+        let bg3 = sum3(l).min(sum3(r - 2));
+        let bg3 = if pos_q16 & 0xFFFF == 0x8000 { bg3.min(sum3(l - 1)).min(sum3(r - 3)) } else { bg3 };
         win = Window::at(pos_q16, half_q16, n);
         // A window past the row's end (a centre moved off it by noise):
         // no stripe.
@@ -513,6 +572,9 @@ fn clamped_passes<S: Sample>(v: &RowView<'_, S>, start_q16: i64) -> Option<(Fit,
             return None;
         }
         pos_q16 = (win.lo << 16) + q16_ratio(moments.1, moments.0);
+        if i + 1 < ITERATIONS {
+            p[i + 1] = pos_q16;
+        }
     }
     // Σw·d²/Σw − mean², d from the window's first pixel.
     let (m0, _, m2) = moments;
@@ -585,5 +647,41 @@ mod tests {
             let dw = (fast.width().to_f64() - slow.width().to_f64()).abs();
             assert!(dw < 1e-3, "trial {trial}: width {} against {}", fast.width(), slow.width());
         }
+    }
+
+    /// A row whose two brightest pixels are equal: it and its mirror image
+    /// take their first maxima a pixel apart, and still give mirrored
+    /// positions to 10⁻⁴ px (the rounding of a few divisions: a few
+    /// 2^−16 px), σ 1.6–3.8 px; three plain passes from those pixels left
+    /// up to 10⁻³ px.
+    #[test]
+    fn a_tie_at_the_top_still_mirrors() {
+        extern crate std;
+        let cfg = Config::new(12, ScaleRange::new(Px::from_f64(1.5), Px::from_f64(4.0)).unwrap());
+        let plan = Plan::new(&cfg).unwrap();
+        let mut s = 5u64;
+        let mut worst = 0.0f64;
+        for trial in 0..2_000 {
+            let sigma = 1.6 + 2.2 * (xorshift(&mut s) % 1000) as f64 / 1000.0;
+            let x0 = 40.5 + ((xorshift(&mut s) % 200) as f64 - 100.0) / 1000.0;
+            let mut x: [u16; 81] = core::array::from_fn(|i| {
+                let t = (i as f64 - x0) / sigma;
+                let noise = (xorshift(&mut s) % 11) as f64 - 5.0;
+                (300.0 + 2500.0 * std::primitive::f64::exp(-0.5 * t * t) + noise) as u16
+            });
+            let top = x[40].max(x[41]);
+            (x[40], x[41]) = (top, top);
+            let mut m = x;
+            m.reverse();
+            let at = |x: &[u16]| {
+                let start = (0..x.len()).fold(0, |b, i| if x[i] > x[b] { i } else { b });
+                let v = RowView { x, g: &[], cfg: &cfg, plan: &plan, noise_q8: 5 << 8, off: 0, row_len: x.len() };
+                detect(&v, start).unwrap().unwrap().position.to_f64()
+            };
+            let d = at(&x[..]) + at(&m[..]) - 80.0;
+            worst = worst.max(d.abs());
+            assert!(d.abs() < 1e-4, "trial {trial}: σ {sigma:.2} x0 {x0:.3}: mirror error {d:e} px");
+        }
+        std::println!("worst mirror error {worst:e} px");
     }
 }
