@@ -103,16 +103,19 @@ pub(crate) fn detect<S: Sample>(v: &RowView<'_, S>, start: usize) -> Result<Opti
 }
 
 /// Where the passes start from the brightest pixel `b`, Q16 from it: half a
-/// pixel towards the brighter of its neighbours (none where they are
-/// equal). Then a row and its mirror image start at mirrored positions
-/// even where the two brightest pixels are equal and each takes its first
-/// (the two start at the pair's middle); from a pixel a pixel apart,
-/// three passes leave each up to ρ³ (10⁻³ px at σ 3 px) from the other.
+/// pixel towards a neighbour as bright as it (none where there is none).
+/// Where the two brightest pixels are equal, a row and its mirror image
+/// each take the first of them, a pixel apart, and three passes left each
+/// up to ρ³ (10⁻³ px at σ 3 px) from the other: both start at the pair's
+/// middle instead. Elsewhere the brightest pixel itself.
 fn toward_brighter<S: Sample>(x: &[S], b: usize) -> i64 {
-    match (b.checked_sub(1).and_then(|l| x.get(l)), x.get(b + 1)) {
-        (Some(l), Some(r)) if r.get() > l.get() => 32_768,
-        (Some(l), Some(r)) if l.get() > r.get() => -32_768,
-        _ => 0,
+    let top = x.get(b).map(|p| p.get());
+    if x.get(b + 1).map(|p| p.get()) == top {
+        32_768
+    } else if b.checked_sub(1).and_then(|l| x.get(l)).map(|p| p.get()) == top {
+        -32_768
+    } else {
+        0
     }
 }
 
