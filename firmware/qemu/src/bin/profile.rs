@@ -1,4 +1,5 @@
-//! `cms-qemu-profile`: `cwt` on the benchmark's three-stripe rows with their
+//! `cms-qemu-profile`: `cwt` (or another method: `--method`) on the
+//! benchmark's three-stripe rows with their
 //! three 96-px search windows (`Detector::detect_in`), 64 rows between two
 //! marker functions, for a trace of every instruction under QEMU; where the
 //! instructions go is then read off the trace:
