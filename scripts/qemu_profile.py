@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Where the instructions of a `cwt` row go on thumbv7em (QEMU, exact counts).
 
-    scripts/qemu_profile.py [--full] [--lines N] [--annotate FN]
+    scripts/qemu_profile.py [--full] [--track] [--method NAME] [--lines N] [--annotate FN]
 
 Builds `cms-qemu-profile` (firmware/qemu/src/bin/profile.rs: 64 of the
 benchmark's three-stripe rows through `detect_in` with three 96-px windows,
@@ -21,6 +21,7 @@ import argparse
 import collections
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -34,13 +35,17 @@ TARGET = "thumbv7em-none-eabihf"
 def llvm(tool):
     sysroot = subprocess.check_output(["rustc", "--print", "sysroot"], cwd=QEMU_DIR, text=True).strip()
     host = re.search(r"host: (\S+)", subprocess.check_output(["rustc", "-vV"], text=True)).group(1)
-    return os.path.join(sysroot, "lib", "rustlib", host, "bin", tool)
+    path = os.path.join(sysroot, "lib", "rustlib", host, "bin", tool)
+    # Without the toolchain's llvm-tools, the system's LLVM (any recent
+    # one disassembles Thumb-2).
+    return path if os.path.exists(path) else shutil.which(tool) or path
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="the full-row search instead of the windows")
     ap.add_argument("--track", action="store_true", help="the windows tracked (detect_tracked, ±20 px)")
+    ap.add_argument("--method", default="cwt", help="the method profiled (its name in `bench qemu`)")
     ap.add_argument("--lines", type=int, default=30, help="source lines to print")
     ap.add_argument("--dump", metavar="FILE", help="write the per-row count of every address executed to FILE")
     ap.add_argument("--annotate", metavar="FN", action="append", default=[],
@@ -52,6 +57,7 @@ def main():
         env["CMS_PROFILE_FULL_ROW"] = "1"
     if args.track:
         env["CMS_PROFILE_TRACK"] = "1"
+    env["CMS_PROFILE_METHOD"] = args.method
     target_dir = os.path.join(QEMU_DIR, "target")
     subprocess.check_call(
         ["cargo", "build", "--release", "--quiet", "--bin", "cms-qemu-profile", "--target-dir", target_dir],
@@ -103,7 +109,7 @@ def main():
         sys.exit("marker_start never ran")
     what = "detect (full row)" if args.full else (
         "detect_tracked, three 96-px windows, ±20 px tracks" if args.track else "detect_in, three 96-px windows")
-    print(f"cwt, 752 px x 3 stripes, {what}: {total / ROWS:.0f} instructions per row ({ROWS} rows)")
+    print(f"{args.method}, 752 px x 3 stripes, {what}: {total / ROWS:.0f} instructions per row ({ROWS} rows)")
     print("\nper function (inlined code in its caller):")
     for f, c in per_fn.most_common(20):
         name = re.sub(r"17h[0-9a-f]{16}E$", "", f)

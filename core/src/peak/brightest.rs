@@ -14,6 +14,7 @@ use super::Pixel;
 /// which the window's spike screen is there for, or, on the flat top of a
 /// wide stripe, a pixel that noise makes brightest further away (the
 /// estimators climb to the response's maximum from there).
+#[inline(always)]
 pub(super) fn brightest_of_track<P: Pixel>(x: &[P]) -> usize {
     let (quads, _) = x.as_chunks::<4>();
     let n = x.len();

@@ -334,18 +334,6 @@ pub(crate) fn confirm<S: Sample>(
     c0: usize,
     scratch: &mut [i32],
 ) -> Result<Option<Confirmed>, Wider> {
-    confirm_as::<S, true>(v, c0, scratch)
-}
-
-/// [`confirm`], with the width limits tested (`WIDTH`) or not: the
-/// centroid measures the width over the whole stripe and is judged by it,
-/// where the best scale of a speckled stripe is a speckle's.
-#[inline(always)]
-pub(crate) fn confirm_as<S: Sample, const WIDTH: bool>(
-    v: &RowView<'_, S>,
-    c0: usize,
-    scratch: &mut [i32],
-) -> Result<Option<Confirmed>, Wider> {
     let x = v.x;
     let n = x.len();
     let (k_lo, k_hi) = (v.plan.k_lo, v.plan.k_hi);
@@ -488,8 +476,7 @@ pub(crate) fn confirm_as<S: Sample, const WIDTH: bool>(
     let thr = (noise_resp_q8 * v.cfg.threshold_sigma_q8 as i64) >> 8;
     let amplitude = (r0 as i64 * RUNGS[kb].amp_inv) >> 24;
     let r0 = r0 as i64;
-    let width_out = WIDTH && (width < v.cfg.min_width || width > v.cfg.max_width);
-    if r0 <= thr || amplitude < v.cfg.min_amplitude as i64 || width_out {
+    if r0 <= thr || amplitude < v.cfg.min_amplitude as i64 || width < v.cfg.min_width || width > v.cfg.max_width {
         return Ok(None);
     }
     if r0 < 2 * thr {

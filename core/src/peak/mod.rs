@@ -309,7 +309,37 @@ impl<const W: usize> Detector<W> {
     /// follow (a second one, a reflection) is not sought while the track
     /// holds. Call [`Track::reset`] where the stripes may have jumped (a
     /// new frame, other lasers lit).
+    #[inline(always)]
     pub fn detect_tracked<P: Pixel, const N: usize>(
+        &mut self,
+        row: &[P],
+        windows: &Windows,
+        track: &mut Track,
+        out: &mut Stripes<N>,
+    ) -> Result<(), Error> {
+        if self.cfg.method == Method::Centroid {
+            self.detect_tracked_centroid(row, windows, track, out)
+        } else {
+            self.detect_tracked_as::<P, N, false>(row, windows, track, out)
+        }
+    }
+
+    /// [`Detector::detect_tracked`] for the centroid (out of line).
+    #[inline(never)]
+    fn detect_tracked_centroid<P: Pixel, const N: usize>(
+        &mut self,
+        row: &[P],
+        windows: &Windows,
+        track: &mut Track,
+        out: &mut Stripes<N>,
+    ) -> Result<(), Error> {
+        self.detect_tracked_as::<P, N, true>(row, windows, track, out)
+    }
+
+    /// [`Detector::detect_tracked`], the centroid's (`CENTROID`) or any
+    /// other method's: each compiled on its own, so that the default
+    /// method's loop holds nothing of the centroid's.
+    fn detect_tracked_as<P: Pixel, const N: usize, const CENTROID: bool>(
         &mut self,
         row: &[P],
         windows: &Windows,
@@ -323,7 +353,7 @@ impl<const W: usize> Detector<W> {
         let lb = self.plan.block_log2;
         if !screen::screens(n, lb) {
             track.reset();
-            return self.detect_spans(row, Some(windows), out);
+            return self.detect_spans_as::<P, N, CENTROID>(row, Some(windows), out);
         }
         self.refresh_if_due(row);
         let mut found: Vec<Stripe, MAX_CANDIDATES> = Vec::new();
@@ -345,7 +375,13 @@ impl<const W: usize> Detector<W> {
                 let edge = (bright == a && a > first) || (bright + 1 == b && b < end);
                 if a < b && !edge {
                     count += 1;
-                    self.candidate(row, Some((bright, bright)), Some(windows), &mut found, &mut runs_used);
+                    self.candidate::<P, CENTROID>(
+                        row,
+                        Some((bright, bright)),
+                        Some(windows),
+                        &mut found,
+                        &mut runs_used,
+                    );
                 }
             }
             let in_window = |s: &Stripe| (first..end).contains(&((s.position.0 >> 16) as usize));
@@ -361,7 +397,13 @@ impl<const W: usize> Detector<W> {
                 count += cands.len() as u16;
                 for c in &cands {
                     let bright = self.brightest_near(row, c.pos);
-                    self.candidate(row, Some((c.pos, bright)), Some(windows), &mut found, &mut runs_used);
+                    self.candidate::<P, CENTROID>(
+                        row,
+                        Some((c.pos, bright)),
+                        Some(windows),
+                        &mut found,
+                        &mut runs_used,
+                    );
                 }
             }
         }
@@ -432,13 +474,41 @@ impl<const W: usize> Detector<W> {
     /// `pos`: its stripe peaks within the response's centre window, ±B of
     /// the block boundary (not less: a stuck pixel on a stripe's flank pulls
     /// the screen's candidate towards itself).
+    #[inline(always)]
     fn brightest_near<P: Pixel>(&self, row: &[P], pos: usize) -> usize {
         let near = (1usize << self.plan.block_log2) + 1;
         let (a0, b0) = (pos.saturating_sub(near), (pos + near).min(row.len() - 1));
         argmax_raw(&row[a0..=b0]) + a0
     }
 
+    #[inline(always)]
     fn detect_spans<P: Pixel, const N: usize>(
+        &mut self,
+        row: &[P],
+        windows: Option<&Windows>,
+        out: &mut Stripes<N>,
+    ) -> Result<(), Error> {
+        if self.cfg.method == Method::Centroid {
+            self.detect_spans_centroid(row, windows, out)
+        } else {
+            self.detect_spans_as::<P, N, false>(row, windows, out)
+        }
+    }
+
+    /// [`Detector::detect_spans_as`] for the centroid (out of line).
+    #[inline(never)]
+    fn detect_spans_centroid<P: Pixel, const N: usize>(
+        &mut self,
+        row: &[P],
+        windows: Option<&Windows>,
+        out: &mut Stripes<N>,
+    ) -> Result<(), Error> {
+        self.detect_spans_as::<P, N, true>(row, windows, out)
+    }
+
+    /// The full-row and the windowed search, the centroid's (`CENTROID`)
+    /// or any other method's (as [`Detector::detect_tracked_as`]).
+    fn detect_spans_as<P: Pixel, const N: usize, const CENTROID: bool>(
         &mut self,
         row: &[P],
         windows: Option<&Windows>,
@@ -468,9 +538,9 @@ impl<const W: usize> Detector<W> {
         for c in &cands {
             if screened {
                 let bright = self.brightest_near(row, c.pos);
-                self.candidate(row, Some((c.pos, bright)), windows, &mut found, &mut runs_used);
+                self.candidate::<P, CENTROID>(row, Some((c.pos, bright)), windows, &mut found, &mut runs_used);
             } else {
-                self.candidate(row, None, windows, &mut found, &mut runs_used);
+                self.candidate::<P, CENTROID>(row, None, windows, &mut found, &mut runs_used);
             }
         }
         select(&mut found, &self.cfg, out);
@@ -481,9 +551,9 @@ impl<const W: usize> Detector<W> {
     /// brightest pixel near it (`None`: the whole row, too short to
     /// screen): refined, and its stripe added to `found` if it is one
     /// (within the width limits or saturated, and inside a window if there
-    /// are windows).
+    /// are windows). `CENTROID`: the method is the centroid.
     #[inline(always)]
-    fn candidate<P: Pixel>(
+    fn candidate<P: Pixel, const CENTROID: bool>(
         &mut self,
         row: &[P],
         at: Option<(usize, usize)>,
@@ -499,8 +569,7 @@ impl<const W: usize> Detector<W> {
         let near = (1usize << lb) + 1;
         let (a0, b0) = (pos.saturating_sub(near), (pos + near).min(n - 1));
         let noise_q8 = self.detect_noise_q8;
-        let method = self.cfg.method;
-        let in_place = matches!(method, Method::Cwt | Method::Centroid);
+        let in_place = CENTROID || self.cfg.method == Method::Cwt;
         let level = self.spike_level;
         // The first window is centred on the brightest pixel of the raw
         // row where the screen responded: the estimators start there, so
@@ -519,8 +588,7 @@ impl<const W: usize> Detector<W> {
             let in_place = in_place
                 && screened
                 && (lo..hi).contains(&bright)
-                && (method == Method::Centroid
-                    || row[bright].value() < sat && coarse::window_is_clean(&row[lo..hi], sat, level));
+                && (CENTROID || row[bright].value() < sat && coarse::window_is_clean(&row[lo..hi], sat, level));
             let (got, spikes) = if in_place {
                 let view = RowView {
                     x: &row[lo..hi],
@@ -531,8 +599,8 @@ impl<const W: usize> Detector<W> {
                     off: lo,
                     row_len: n,
                 };
-                let got = if method == Method::Centroid {
-                    centroid::detect(&view, bright - lo, &mut self.s)
+                let got = if CENTROID {
+                    centroid::detect(&view, bright - lo)
                 } else {
                     cwt::refine(&view, bright - lo, &mut self.s)
                 };
@@ -759,6 +827,7 @@ fn hidden_candidate(x: &[i32], block: usize, threshold: i32, near_to: usize) -> 
 fn refine(v: &RowView<'_>, start: usize, scratch: &mut [i32]) -> Result<Option<Stripe>, cwt::Wider> {
     Ok(match v.cfg.method {
         Method::Cwt => return cwt::refine(v, start, scratch),
+        Method::Centroid => return centroid::detect(v, start),
         // The other methods detect through the same multi-scale test, then
         // apply their own sub-pixel estimate; a coarse candidate that the
         // test rejects (noise, a hot pixel, a glow) is no stripe for any.
@@ -771,7 +840,6 @@ fn refine(v: &RowView<'_>, start: usize, scratch: &mut [i32]) -> Result<Option<S
             }
             let Some(mut s) = (match m {
                 Method::CwtPaper => paper::refine(v, ok.c),
-                Method::Centroid => return centroid::detect(v, start, scratch),
                 m => subpixel::refine(v, ok.c, m),
             }) else {
                 return Ok(None);

@@ -29,6 +29,9 @@ pub(crate) struct Plan {
     /// middle, Q16 px; and where it reads its background, 5σ rounded, px.
     pub centroid_half_q16: i64,
     pub centroid_outer_px: usize,
+    /// The rung the centroid's detection test responds on: the one nearest
+    /// that middle (the optics' scale).
+    pub centroid_k: usize,
     /// Smallest scale rounded down (at least 1), px: the screen's absolute
     /// floor is `min_amplitude` × this.
     pub smin_floor_px: usize,
@@ -176,6 +179,7 @@ impl Plan {
             smax_px,
             centroid_half_q16: 3 * geo as i64,
             centroid_outer_px,
+            centroid_k: k_coarse,
         })
     }
 }

@@ -131,6 +131,7 @@ impl Track {
 
     /// After a row: each window's stripe is the strongest of `stripes`
     /// inside it.
+    #[inline(always)]
     pub(crate) fn follow(&mut self, windows: &Windows, stripes: &[super::Stripe]) {
         for (w, last) in windows.as_slice().iter().zip(self.last_px.iter_mut()) {
             let (first, end) = (w.first_px as i32, w.end_px() as i32);

@@ -1,4 +1,5 @@
-//! `cms-qemu-profile`: `cwt` on the benchmark's three-stripe rows with their
+//! `cms-qemu-profile`: `cwt` (or another method: `--method`) on the
+//! benchmark's three-stripe rows with their
 //! three 96-px search windows (`Detector::detect_in`), 64 rows between two
 //! marker functions, for a trace of every instruction under QEMU; where the
 //! instructions go is then read off the trace:
@@ -7,6 +8,7 @@
 //! scripts/qemu_profile.py            # builds this, runs QEMU, prints the profile
 //! scripts/qemu_profile.py --full     # the full-row search (`detect`) instead
 //! scripts/qemu_profile.py --track    # `detect_tracked`, a track of ±20 px
+//! scripts/qemu_profile.py --method centroid   # another method's configuration
 //! ```
 //!
 //! QEMU runs with `-singlestep -d exec,nochain` (one translation block per
@@ -68,8 +70,13 @@ fn main() -> ! {
         Ok(w) => w,
         Err(e) => panic!("benchmark windows: {e}"),
     };
-    let Ok(cfg) = postcard::from_bytes::<Config>(set.configs[0]) else {
-        panic!("the cwt configuration does not decode");
+    // The method profiled (`--method`; `cwt` by default): the set's
+    // configuration of that name.
+    let method = option_env!("CMS_PROFILE_METHOD").unwrap_or("cwt");
+    let Some(cfg) =
+        set.configs.iter().filter_map(|c| postcard::from_bytes::<Config>(c).ok()).find(|c| c.method.name() == method)
+    else {
+        panic!("no configuration of that method");
     };
     let mut det = match Detector::<{ data::LEN }>::new(cfg) {
         Ok(d) => d,
