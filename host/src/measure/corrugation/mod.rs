@@ -94,7 +94,9 @@
 //! **Starts and bounds.** Linear in all but ω and κ; refined by the
 //! Levenberg–Marquardt of [`crate::model::lm`] from every line's own start: a
 //! 2-D polynomial detrend, then `fit`'s sine of each line on what is left
-//! gives an ω (κ from the lines' phases against their lateral positions);
+//! gives an ω (κ from the lines' phases against their lateral positions),
+//! and so do the highest peaks of the lines' joint periodogram (`spectrum`:
+//! what one line's start misses under speckle and over short frames);
 //! each rung's linear terms by least squares at that ω and κ. The lowest
 //! residual whose yaw is within ±45° wins; a start that runs beyond is
 //! discarded.
@@ -114,7 +116,9 @@
 //! ([`slide_across`]), `γ_l` from the parabola through the three lines'
 //! mean heights: exact to first order in the crown's curvature.
 //!
-//! **Outliers.** A misdetected stripe in one row (a glint, a spurious peak
+//! **Outliers.** Before any fit, points far from the median of their
+//! neighbours along their line are left out (`screen`: a stripe taken in
+//! the wrong place that the crown's terms would bend to). A misdetected stripe in one row (a glint, a spurious peak
 //! taken for a line) gives a height tens of µm to millimetres off; least
 //! squares weighs it by its square, and at the paper's geometry a handful of
 //! such points in 9 504 made the wavelength scatter of a 100 mm × 50 µm
