@@ -69,7 +69,7 @@ fn keep(points: &[[f64; 3]]) -> Vec<bool> {
     let (_, med, _) = sorted.select_nth_unstable_by(mid, f64::total_cmp);
     let limit = (SCREEN_SIGMA * 1.4826 * *med).max(SCREEN_FLOOR_MM);
     // A non-finite height is kept for the fit to name.
-    d.iter().map(|v| !(*v > limit)).collect()
+    d.iter().map(|v| v.is_nan() || *v <= limit).collect()
 }
 
 #[cfg(test)]

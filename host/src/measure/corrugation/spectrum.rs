@@ -49,7 +49,7 @@ pub(super) fn periodogram_starts(s: &Surface) -> Vec<f64> {
         .collect();
     let (lo, hi) = s.x.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
     let span = hi - lo;
-    if !(span > verdict::MIN_WAVELENGTH_MM) {
+    if span.is_nan() || span <= verdict::MIN_WAVELENGTH_MM {
         return Vec::new();
     }
     let d = step(span);
