@@ -263,8 +263,29 @@ pub fn speckle(a: &SpeckleOptions) -> Result<String, BenchError> {
     let t = Instant::now();
     let budget = budget_tables()?;
     let lights = rl::light_cases(a.reduced);
-    let runs: Vec<LightRun> =
-        rl::sweep(&lights, a.runs, super::threads(a.threads)).into_iter().collect::<Result<_, _>>()?;
+    // Runs that panicked are listed apart (a defect, not a result);
+    // any other error ends the benchmark.
+    let mut runs: Vec<LightRun> = Vec::new();
+    let mut panicked: Vec<String> = Vec::new();
+    let jobs = (0..lights.len())
+        .flat_map(|l| (0..rl::CORRUGATIONS.len()).flat_map(move |c| (0..a.runs).map(move |r| (l, c, r))));
+    for ((l, c, r), got) in jobs.zip(rl::sweep(&lights, a.runs, super::threads(a.threads))) {
+        match got {
+            Ok(run) => runs.push(run),
+            Err(ClosedLoopError::Panicked(what)) => {
+                let (li, case) = (&lights[l], rl::CORRUGATIONS[c]);
+                panicked.push(format!(
+                    "{} F/{} {} m/s, {} mm / {} µm, run {r}: {what}",
+                    li.disturbance,
+                    li.f_number,
+                    li.speed_mm_s / 1e3,
+                    case.wavelength_mm,
+                    case.amplitude_um
+                ));
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
     let mut md = format!(
         "# Real light: the reference head under speckle\n\n`cms-host bench speckle --runs {}{}`: {:.0} s. The bound is Dorsch et al.'s with C = 1; µm are of height (4.9 px per mm at α = 35°). Per point: every row of one frame of each line, the head's detector (the centroid for laser light) against the true stripe centre, beside a ±3σ centroid placed on that centre. The per-result bound of the amplitude is the point bound × √(2 / independent points), a point's error staying correlated over a speckle plus the travel in the exposure.\n\n## Speckle budget\n\n",
         a.runs,
@@ -283,6 +304,12 @@ pub fn speckle(a: &SpeckleOptions) -> Result<String, BenchError> {
         a.runs
     );
     md += &sweep_markdown(&lights, &runs);
+    if !panicked.is_empty() {
+        let _ = writeln!(md, "\n**{} run(s) panicked** (not in the table):\n", panicked.len());
+        for p in &panicked {
+            let _ = writeln!(md, "- {p}");
+        }
+    }
     put(&a.out.join("speckle.md"), &md)?;
     put(&a.out.join("speckle.csv"), &sweep_csv(&lights, &runs))?;
     Ok(md)

@@ -14,8 +14,13 @@
 //!   doubtful (its uncertainty does not cover the misfit), beyond failed.
 //! * **Bounds with a physical meaning**: the lines within 45° of the rail
 //!   (yaw), a wavelength the frame can show (at least [`MIN_PERIODS`]
-//!   periods along it for good, half a period at all; at least four point
-//!   spacings).
+//!   periods along it for good, [`MIN_PERIODS_AT_ALL`] at all; at least
+//!   four point spacings) and that is judged ([`MIN_WAVELENGTH_MM`]: under
+//!   it failed).
+//! * **A wave told from the noise**: the amplitude over its σ at least
+//!   [`detection_snr`] (4.2 over a 68.6 mm frame), the level noise alone
+//!   reaches once in a thousand frames over the wavelengths searched;
+//!   under it failed, since the wavelength fitted is then the noise's.
 //! * **Starts that disagree**: another start's minimum as good within the
 //!   noise at a wavelength more than 3 σ away (doubtful: the data do not
 //!   decide).
@@ -67,6 +72,35 @@ pub const PRECISION_WAVELENGTH_SHARE: f64 = 1e-3;
 pub const PRECISION_AMPLITUDE_SHARE: f64 = 0.05;
 /// Largest yaw of the lines against the rail, rad (45°).
 pub const MAX_YAW_RAD: f64 = std::f64::consts::FRAC_PI_4;
+/// Fewest periods in the frame for a result at all: under one period the
+/// wave never returns to itself in the data, and a sine is told from the
+/// surface's own trend (the plane, the curvature along) only by its shape
+/// over part of a period, which the trend terms take up.
+pub const MIN_PERIODS_AT_ALL: f64 = 1.0;
+/// The shortest wavelength trusted, mm. EN 13231-3's shortest band starts
+/// at 10 mm, and nothing shorter is judged; under real light shorter
+/// structure is what the light itself makes (a speckle and the travel in
+/// the exposure span 0.2–0.7 mm along the rail, and their sum over a
+/// frame peaks at 1–3 mm at a height that a small corrugation does not
+/// reach). 10 % below the band's edge, so that a 10 mm wave read a few
+/// per cent short stays a result: no result kept here is that far off.
+pub const MIN_WAVELENGTH_MM: f64 = 9.0;
+/// The chance that noise alone, over all the wavelengths searched, makes
+/// an amplitude pass [`detection_snr`].
+pub const FALSE_ALARM: f64 = 1e-3;
+
+/// The amplitude over its σ below which a wave is not told from the noise
+/// over a frame of `span_mm`: the starts search the wavelengths from
+/// [`MIN_WAVELENGTH_MM`] to twice the frame, `M = span (1/λ_min −
+/// 1/(2 span))` independent Fourier frequencies (at least one), and noise
+/// alone gives at one frequency an `A/σ_A` distributed as Rayleigh's, over
+/// `M` of them exceeding `x` with probability `M e^{−x²/2}`; so `x =
+/// √(2 ln(M / FALSE_ALARM))`: 4.2 over a 68.6 mm frame, 4.5 over 280 mm.
+/// Under it the fitted wavelength is the noise's, whatever the amplitude.
+pub fn detection_snr(span_mm: f64) -> f64 {
+    let m = (span_mm / MIN_WAVELENGTH_MM - 0.5).max(1.0);
+    (2.0 * (m / FALSE_ALARM).ln()).sqrt()
+}
 
 /// How far a result is to be believed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
@@ -111,6 +145,12 @@ pub enum Reason {
     /// The lines' own results differ by `ratio` (Birge) × their
     /// uncertainties.
     LinesDisagree { quantity: &'static str, ratio: f64 },
+    /// The wavelength is under [`MIN_WAVELENGTH_MM`], where the light's
+    /// own structure lies and nothing is judged.
+    BelowRange { wavelength_mm: f64 },
+    /// The amplitude is `snr` × its σ, under the `needed` of
+    /// [`detection_snr`]: the wave is not told from the noise.
+    NotDetected { snr: f64, needed: f64 },
     /// The 95 % interval (half-width `half_mm`) is wider than
     /// [`PRECISION_WAVELENGTH_SHARE`] / [`PRECISION_AMPLITUDE_SHARE`] of
     /// the value.
@@ -141,6 +181,14 @@ impl fmt::Display for Reason {
             Reason::LinesDisagree { quantity, ratio } => {
                 write!(f, "the lines disagree on the {quantity} by {ratio:.1}× their uncertainties")
             }
+            Reason::BelowRange { wavelength_mm } => write!(
+                f,
+                "wavelength {wavelength_mm:.3} mm is under the {MIN_WAVELENGTH_MM} mm trusted (the light's own structure, not corrugation)"
+            ),
+            Reason::NotDetected { snr, needed } => write!(
+                f,
+                "the amplitude is {snr:.1}× its σ, under the {needed:.1}× that noise alone does not reach: the wave is not told from the noise"
+            ),
             Reason::Imprecise { quantity, half_mm, value_mm } => write!(
                 f,
                 "the {quantity}'s 95 % interval ±{} is {:.2} % of it",
@@ -225,7 +273,7 @@ pub fn judge(e: &Evidence) -> Verdict {
         reasons.push((Level::Failed, Reason::YawOutOfBounds { yaw_deg: e.yaw_rad.to_degrees() }));
     }
     let periods = e.span_mm / e.wavelength_mm;
-    if periods.is_nan() || periods < 0.5 {
+    if periods.is_nan() || periods < MIN_PERIODS_AT_ALL {
         reasons.push((Level::Failed, Reason::FewPeriods { periods }));
     } else if periods < MIN_PERIODS {
         reasons.push((Level::Doubtful, Reason::FewPeriods { periods }));
@@ -233,6 +281,15 @@ pub fn judge(e: &Evidence) -> Verdict {
     if e.wavelength_mm < 4.0 * e.spacing_mm {
         reasons
             .push((Level::Failed, Reason::BelowSampling { wavelength_mm: e.wavelength_mm, spacing_mm: e.spacing_mm }));
+    }
+    if e.wavelength_mm < MIN_WAVELENGTH_MM {
+        reasons.push((Level::Failed, Reason::BelowRange { wavelength_mm: e.wavelength_mm }));
+    }
+    if let Some(sa) = e.sigma_mm.1.filter(|s| *s > 0.0) {
+        let (snr, needed) = (e.amplitude_mm.abs() / sa, detection_snr(e.span_mm));
+        if snr < needed {
+            reasons.push((Level::Failed, Reason::NotDetected { snr, needed }));
+        }
     }
     if let Some(other_mm) = e.alternative_wavelength_mm {
         reasons.push((Level::Doubtful, Reason::StartsDisagree { wavelength_mm: e.wavelength_mm, other_mm }));
@@ -298,6 +355,49 @@ pub fn point_noise(points: &[(f64, f64)]) -> Option<f64> {
     Some(1.4826 * *m)
 }
 
+/// The longest lag, points, over which [`residual_noise`] follows the
+/// residuals' correlation: 16 points are 2.3 mm at the reference head's
+/// 0.144 mm, beyond a speckle and the travel in a 100 µs exposure at
+/// 5 m/s together (under 1 mm), short against the shortest wavelength
+/// trusted.
+pub const MAX_NOISE_LAG: usize = 16;
+
+/// The noise of a fit's residuals where the points' errors are correlated
+/// along a line (laser speckle, stretched by the travel in the exposure):
+/// [`point_noise`]'s neighbours then share most of a point's error, and it
+/// measures only the part that changes from row to row (at 5 m/s a
+/// quarter of the error). Here each residual is set against the mean of
+/// the residuals `m` points either side, `m` the first lag at which the
+/// residuals' correlation (pooled over the lines) falls under 0.1, at most
+/// [`MAX_NOISE_LAG`]; the difference has variance `σ² (3/2 − 2ρ(m) +
+/// ρ(2m)/2)`, about `3σ²/2`, and σ is 1.4826 × its median over √(3/2). A
+/// model that does not fit leaves a residual smooth over a wavelength,
+/// which a difference over `2m` points takes out: the misfit still shows
+/// against this noise. `residuals` per line, in the order of the points
+/// along it; `None` under 8 differences. Returns σ and `m`.
+pub fn residual_noise(residuals: &[Vec<f64>]) -> Option<(f64, usize)> {
+    let rho = |k: usize| {
+        let (mut num, mut den) = (0.0, 0.0);
+        for r in residuals {
+            den += r.iter().map(|v| v * v).sum::<f64>();
+            num += r.iter().zip(r.iter().skip(k)).map(|(a, b)| a * b).sum::<f64>();
+        }
+        num / den
+    };
+    let m = (1..=MAX_NOISE_LAG).find(|&k| rho(k) < 0.1).unwrap_or(MAX_NOISE_LAG);
+    let mut d: Vec<f64> = residuals
+        .iter()
+        .flat_map(|r| (m..r.len().saturating_sub(m)).map(move |i| (r[i] - 0.5 * (r[i - m] + r[i + m])).abs()))
+        .filter(|v| v.is_finite())
+        .collect();
+    if d.len() < 8 {
+        return None;
+    }
+    let mid = d.len() / 2;
+    let (_, med, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
+    Some((1.4826 * *med / 1.5f64.sqrt(), m))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -327,6 +427,94 @@ mod tests {
         assert_eq!(point_noise(&pts[..7]), None);
     }
 
+    /// The detection threshold is what its docs say, and noise alone
+    /// passes it as rarely as [`FALSE_ALARM`] says: the largest `A/σ_A`
+    /// of independent Gaussian (a, b) pairs over `M` frequencies, in many
+    /// frames.
+    #[test]
+    fn noise_alone_is_rarely_detected() {
+        assert!((detection_snr(68.6) - 4.2).abs() < 0.05, "{}", detection_snr(68.6));
+        assert!((detection_snr(280.0) - 4.55).abs() < 0.05, "{}", detection_snr(280.0));
+        let mut s = 0x2545_f491_4f6c_dd1du64;
+        let mut normal = || {
+            let mut u = || {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                (s >> 11) as f64 / (1u64 << 53) as f64
+            };
+            let (a, b) = (u().max(1e-300), u());
+            (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+        };
+        let (frames, m) = (20_000, 7);
+        let needed = detection_snr(68.6);
+        let passed =
+            (0..frames).filter(|_| (0..m).map(|_| normal().hypot(normal())).fold(0.0, f64::max) >= needed).count();
+        // 1e-3 of 20 000 is 20; Poisson's 5σ above is 42.
+        assert!(passed <= 42, "{passed} of {frames}");
+        assert!(passed >= 5, "{passed} of {frames}: the threshold is needlessly high");
+    }
+
+    #[test]
+    fn what_cannot_be_right_has_failed() {
+        let e = Evidence {
+            rms_residual_mm: 0.1,
+            noise_mm: Some(0.1),
+            wavelength_mm: 12.0,
+            span_mm: 68.6,
+            spacing_mm: 0.144,
+            yaw_rad: 0.0,
+            converged: true,
+            rejected: 0,
+            points: 1440,
+            alternative_wavelength_mm: None,
+            birge: None,
+            sigma_mm: (Some(0.3), Some(0.005)),
+            amplitude_mm: 0.03,
+        };
+        assert_eq!(judge(&e).level, Level::Doubtful, "{}", judge(&e));
+        // Noise's own scale along the rail.
+        let v = judge(&Evidence { wavelength_mm: 1.07, ..e });
+        assert_eq!(v.level, Level::Failed);
+        assert!(v.reasons.iter().any(|r| matches!(r, Reason::BelowRange { .. })), "{v}");
+        // 20 µm at σ 5 µm: 4σ, which noise reaches once in 300 frames.
+        let v = judge(&Evidence { amplitude_mm: 0.02, ..e });
+        assert_eq!(v.level, Level::Failed);
+        assert!(v.to_string().contains("the amplitude is 4.0× its σ, under the 4.2×"), "{v}");
+        // Under one period.
+        let v = judge(&Evidence { wavelength_mm: 70.0, ..e });
+        assert!(v.reasons.iter().any(|r| matches!(r, Reason::FewPeriods { .. })) && v.level == Level::Failed, "{v}");
+    }
+
+    /// White noise: lag 1 and its σ. Noise averaged over 6 points (as the
+    /// travel in the exposure averages speckle): `point_noise` sees a
+    /// fraction, `residual_noise` the whole, at a lag beyond the averaging.
+    #[test]
+    fn residual_noise_follows_the_correlation() {
+        let mut s = 0x9e37_79b9_7f4a_7c15u64;
+        let mut normal = || {
+            let mut u = || {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                (s >> 11) as f64 / (1u64 << 53) as f64
+            };
+            let (a, b) = (u().max(1e-300), u());
+            (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+        };
+        let white: Vec<Vec<f64>> = (0..3).map(|_| (0..2000).map(|_| normal()).collect()).collect();
+        let (n, m) = residual_noise(&white).unwrap();
+        assert_eq!(m, 1);
+        assert!((n - 1.0).abs() < 0.06, "{n}");
+        let smooth: Vec<Vec<f64>> =
+            white.iter().map(|w| w.windows(6).map(|v| v.iter().sum::<f64>() / 6f64.sqrt()).collect()).collect();
+        let (n, m) = residual_noise(&smooth).unwrap();
+        assert!((6..=7).contains(&m), "{m}");
+        assert!((n - 1.0).abs() < 0.08, "{n}");
+        let pts: Vec<(f64, f64)> = smooth[0].iter().enumerate().map(|(i, &z)| (i as f64, z)).collect();
+        assert!(point_noise(&pts).unwrap() < 0.5);
+    }
+
     #[test]
     fn levels_follow_the_evidence() {
         let e = Evidence {
@@ -351,7 +539,8 @@ mod tests {
         assert_eq!(v.reasons.len(), 2, "{v}");
         assert!(v.to_string().starts_with("failed: residual 43.00 µm RMS is 43.0× the 1.00 µm noise"), "{v}");
         assert_eq!(judge(&Evidence { converged: false, ..e }).level, Level::Doubtful);
-        assert_eq!(judge(&Evidence { wavelength_mm: 300.0, ..e }).level, Level::Doubtful);
+        assert_eq!(judge(&Evidence { wavelength_mm: 250.0, ..e }).level, Level::Doubtful);
+        assert_eq!(judge(&Evidence { wavelength_mm: 300.0, ..e }).level, Level::Failed);
         assert_eq!(judge(&Evidence { wavelength_mm: 600.0, ..e }).level, Level::Failed);
         assert_eq!(judge(&Evidence { wavelength_mm: 0.3, ..e }).level, Level::Failed);
         assert_eq!(judge(&Evidence { noise_mm: None, ..e }).level, Level::Doubtful);

@@ -129,6 +129,10 @@ pub enum ClosedLoopError {
     /// Stitching or band-filtering the measured profile failed.
     #[error("{0}")]
     Analysis(String),
+    /// A run of a sweep panicked: a defect of what it ran, reported with
+    /// its run rather than ending the sweep.
+    #[error("a run panicked: {0}")]
+    Panicked(String),
 }
 
 impl crate::error::Classify for ClosedLoopError {

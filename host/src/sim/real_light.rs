@@ -317,7 +317,21 @@ pub fn sweep(lights: &[LightCase], runs: u64, threads: usize) -> Vec<Result<Ligh
                     loop {
                         let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                         let Some(&(l, c, r)) = jobs.get(i) else { break };
-                        mine.push((i, run(lights, l, CORRUGATIONS[c], r)));
+                        // A panic in one run (a defect of the head it
+                        // runs) is that run's error, named in the report,
+                        // not the end of the sweep.
+                        let got = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                            run(lights, l, CORRUGATIONS[c], r)
+                        }))
+                        .unwrap_or_else(|p| {
+                            let what = p
+                                .downcast_ref::<String>()
+                                .cloned()
+                                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                                .unwrap_or_default();
+                            Err(ClosedLoopError::Panicked(what))
+                        });
+                        mine.push((i, got));
                     }
                     mine
                 })

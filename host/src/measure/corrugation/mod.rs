@@ -94,7 +94,9 @@
 //! **Starts and bounds.** Linear in all but ω and κ; refined by the
 //! Levenberg–Marquardt of [`crate::model::lm`] from every line's own start: a
 //! 2-D polynomial detrend, then `fit`'s sine of each line on what is left
-//! gives an ω (κ from the lines' phases against their lateral positions);
+//! gives an ω (κ from the lines' phases against their lateral positions),
+//! and so do the highest peaks of the lines' joint periodogram (`spectrum`:
+//! what one line's start misses under speckle and over short frames);
 //! each rung's linear terms by least squares at that ω and κ. The lowest
 //! residual whose yaw is within ±45° wins; a start that runs beyond is
 //! discarded.
@@ -114,7 +116,9 @@
 //! ([`slide_across`]), `γ_l` from the parabola through the three lines'
 //! mean heights: exact to first order in the crown's curvature.
 //!
-//! **Outliers.** A misdetected stripe in one row (a glint, a spurious peak
+//! **Outliers.** Before any fit, points far from the median of their
+//! neighbours along their line are left out (`screen`: a stripe taken in
+//! the wrong place that the crown's terms would bend to). A misdetected stripe in one row (a glint, a spurious peak
 //! taken for a line) gives a height tens of µm to millimetres off; least
 //! squares weighs it by its square, and at the paper's geometry a handful of
 //! such points in 9 504 made the wavelength scatter of a 100 mm × 50 µm
@@ -137,7 +141,9 @@
 //! paper-geometry image (3 × 3168 points) fits in tens of milliseconds.
 
 mod across;
+mod screen;
 mod solve;
+mod spectrum;
 mod surface;
 #[cfg(test)]
 mod tests;
@@ -419,6 +425,26 @@ fn judge(j: &Joint, lines: &[Line], corrected: &[Corrected]) -> Verdict {
             n += pts.len();
         }
     }
+    // The points' errors correlated along a line (speckle) hide from the
+    // neighbours `point_noise` compares: the residuals' own noise at the
+    // lag where their correlation ends (`verdict::residual_noise`) is the
+    // larger then.
+    let k = std::f64::consts::TAU / j.wavelength_mm;
+    let residuals: Vec<Vec<f64>> = corrected
+        .iter()
+        .map(|c| {
+            c.s_mm
+                .iter()
+                .zip(&c.z_mm)
+                .map(|(s, z)| z - c.offset_mm - j.amplitude_mm * (k * s + j.phase_rad).sin())
+                .collect()
+        })
+        .collect();
+    let point = (n > 0).then(|| (ss / n as f64).sqrt());
+    let noise_mm = match (point, verdict::residual_noise(&residuals)) {
+        (Some(p), Some((r, _))) => Some(p.max(r)),
+        (p, r) => p.or(r.map(|r| r.0)),
+    };
     let (lo, hi) = corrected
         .iter()
         .flat_map(|c| c.s_mm.iter())
@@ -426,7 +452,7 @@ fn judge(j: &Joint, lines: &[Line], corrected: &[Corrected]) -> Verdict {
     let longest = corrected.iter().map(|c| c.s_mm.len()).max().unwrap_or(0);
     verdict::judge(&Evidence {
         rms_residual_mm: j.rms_residual_mm,
-        noise_mm: (n > 0).then(|| (ss / n as f64).sqrt()),
+        noise_mm,
         wavelength_mm: j.wavelength_mm,
         span_mm: hi - lo,
         spacing_mm: (hi - lo) / longest.saturating_sub(1).max(1) as f64,
@@ -450,7 +476,10 @@ fn judge(j: &Joint, lines: &[Line], corrected: &[Corrected]) -> Verdict {
 
 /// [`fit_once`], then again without the outliers (module docs).
 fn fit_rejecting(lines: &[Line], near_mm: Option<f64>) -> Result<(Joint, Vec<Corrected>), FitError> {
-    let (joint, corrected, residuals) = fit_once(lines, near_mm)?;
+    let (lines, screened) = screen::screen(lines);
+    let lines = &lines[..];
+    let (mut joint, corrected, residuals) = fit_once(lines, near_mm, None)?;
+    joint.rejected = screened;
     // Outliers (module docs): points beyond REJECT_SIGMA robust standard
     // deviations of the first fit's residuals are dropped and the whole fit,
     // plane included, is done again on the rest — once: a second pass would
@@ -469,8 +498,10 @@ fn fit_rejecting(lines: &[Line], near_mm: Option<f64>) -> Result<(Joint, Vec<Cor
     if rejected == 0 {
         return Ok((joint, corrected));
     }
-    let (mut joint, corrected, _) = fit_once(&inliers, near_mm)?;
-    joint.rejected = rejected;
+    // The first fit's wavelength is one more start: what the outliers
+    // left of it is a better guess than a line's own start on the rest.
+    let (mut joint, corrected, _) = fit_once(&inliers, near_mm, Some(joint.wavelength_mm))?;
+    joint.rejected = rejected + screened;
     Ok((joint, corrected))
 }
 

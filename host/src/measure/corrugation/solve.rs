@@ -2,7 +2,7 @@
 //! rungs refined from each start, and the joint result of the best.
 
 use super::surface::{Surface, Terms, direction, evaluate_surface, linear_start, q, sigmas, start_detrend, surface};
-use super::{Corrected, Joint, Line};
+use super::{Corrected, Joint, Line, spectrum};
 use crate::measure::fit::{self, FitError, Options};
 use crate::measure::verdict::{self, Verdict};
 use crate::model::lm;
@@ -14,12 +14,16 @@ pub(super) const F_TREND: f64 = 12.0;
 
 /// One joint fit with the rail's surface (module docs): the result, the
 /// corrected profiles and the residuals in the order of the lines' points.
-pub(super) fn fit_once(lines: &[Line], near_mm: Option<f64>) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitError> {
+pub(super) fn fit_once(
+    lines: &[Line],
+    near_mm: Option<f64>,
+    also_mm: Option<f64>,
+) -> Result<(Joint, Vec<Corrected>, Vec<f64>), FitError> {
     let lines = usable_lines(lines)?;
     let s = surface(&lines)?;
     let nl = lines.len();
     let ladder = ladder(nl);
-    let (per_line, omegas) = start_wavelengths(&s, nl, near_mm)?;
+    let (per_line, omegas) = start_wavelengths(&s, nl, &[near_mm, also_mm])?;
     let mut best: Option<(lm::Lm, Vec<usize>, usize)> = None;
     // Every start's minimum: (wavelength, rss).
     let mut minima: Vec<(f64, f64)> = Vec::new();
@@ -103,12 +107,13 @@ pub(super) fn ladder(nl: usize) -> [Vec<usize>; 3] {
 pub(super) type Detrended = (Vec<f64>, Vec<f64>, f64);
 
 /// The starts: on what a 2-D polynomial leaves, `fit`'s sine of every line
-/// (each gives an ω), and `near_mm` if given; with each line's detrended
+/// (each gives an ω), the lines' joint periodogram's peaks, and each of
+/// `near_mm` given; with each line's detrended
 /// profile.
 pub(super) fn start_wavelengths(
     s: &Surface,
     nl: usize,
-    near_mm: Option<f64>,
+    near_mm: &[Option<f64>],
 ) -> Result<(Vec<Detrended>, Vec<f64>), FitError> {
     let rest = start_detrend(s, nl.min(3) - 1).ok_or(FitError::Degenerate("the lines do not span a surface"))?;
     let per_line: Vec<Detrended> = (0..nl)
@@ -129,10 +134,19 @@ pub(super) fn start_wavelengths(
             }
         }
     }
-    if let Some(w) = near_mm.map(|l| std::f64::consts::TAU / l).filter(|w| w.is_finite() && *w > 0.0)
-        && !omegas.iter().any(|o| (o / w - 1.0).abs() < 1e-3)
-    {
-        omegas.push(w);
+    // The joint periodogram's peaks (`spectrum`): a start within a grid
+    // step of one already there ends in the same basin.
+    let (lo, hi) = s.x.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+    let near = spectrum::step(hi - lo);
+    for w in spectrum::periodogram_starts(s) {
+        if !omegas.iter().any(|o| (o - w).abs() < near) {
+            omegas.push(w);
+        }
+    }
+    for w in near_mm.iter().flatten().map(|l| std::f64::consts::TAU / l).filter(|w| w.is_finite() && *w > 0.0) {
+        if !omegas.iter().any(|o| (o / w - 1.0).abs() < 1e-3) {
+            omegas.push(w);
+        }
     }
     if omegas.is_empty() {
         return Err(FitError::Degenerate("no line has a sine"));

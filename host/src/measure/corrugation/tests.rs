@@ -167,7 +167,7 @@ fn outliers_are_left_out() {
     let kept: usize = corrected.iter().map(|l| l.s_mm.len()).sum();
     assert_eq!(kept + j.rejected, bad.iter().map(|l| l.points.len()).sum::<usize>());
     // Without the second pass the same data fit far worse.
-    let (once, ..) = fit_once(&bad, None).unwrap();
+    let (once, ..) = fit_once(&bad, None, None).unwrap();
     assert!(once.rms_residual_mm > 3.0 * c.rms_residual_mm, "{once:?}");
 }
 
