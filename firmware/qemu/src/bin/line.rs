@@ -74,7 +74,8 @@ fn build(frame: &mut Lasers, seconds: &mut Seconds, n_seconds: usize) {
         for r in 0..MAX_ROWS_PER_PROFILE as u16 {
             let rr = i32::from(r);
             // 200 + 180 k px, 0.05 px a row, a crown of 5 px.
-            let mut x = ((200 + 180 * i32::from(k)) << 16) + rr * 3277 - ((rr - 240) * (rr - 240) * 5) / 58 * 65536 / 1000;
+            let mut x =
+                ((200 + 180 * i32::from(k)) << 16) + rr * 3277 - ((rr - 240) * (rr - 240) * 5) / 58 * 65536 / 1000;
             x += scatter(&mut s, 39_322);
             if r % 40 == 17 {
                 x += 6 << 16;
@@ -97,7 +98,8 @@ fn main() -> ! {
     uart::init(SYSCLK_HZ, 115_200);
     let mut w = uart::Writer;
     let _ = writeln!(w, "cms-qemu-line");
-    let b = BUFS.init(Bufs { frame: Vec::new(), work: Vec::new(), seconds: Seconds::new(), check: LineCheck::default() });
+    let b =
+        BUFS.init(Bufs { frame: Vec::new(), work: Vec::new(), seconds: Seconds::new(), check: LineCheck::default() });
     let rules = Rules::new(&default_detector(), None);
     for n_seconds in [0, 48, 480] {
         build(&mut b.frame, &mut b.seconds, n_seconds);
