@@ -59,7 +59,8 @@ const MAX_STRIPES: usize = 2 * LASERS;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum MethodChoice {
-    /// By the light the image shows ([`judge_light`]).
+    /// By the light the image shows (the module docs: the strength of each
+    /// line from one sampled row to the next).
     #[default]
     Auto,
     /// This method, whatever the light.
