@@ -177,12 +177,13 @@ impl Lanes {
 /// then in position order), the nearer of two; the lanes follow what they
 /// are given. Without lanes, only a row with one stripe per laser.
 fn assign<const N: usize>(stripes: &Stripes<N>, lanes: Option<&mut Lanes>) -> [Option<Px>; LASERS] {
-    let mut sorted: Stripes<N> = stripes.clone();
-    sorted.sort_unstable_by_key(|s| s.position);
     let mut out = [None; LASERS];
     let Some(lanes) = lanes else {
-        // No lanes (no row had one stripe per laser): only complete rows.
-        if sorted.len() == LASERS {
+        // No lanes (no row had one stripe per laser): only complete rows,
+        // in position order.
+        if stripes.len() == LASERS {
+            let mut sorted: Stripes<N> = stripes.clone();
+            sorted.sort_unstable_by_key(|s| s.position);
             for (o, s) in out.iter_mut().zip(&sorted) {
                 *o = Some(s.position);
             }
@@ -190,7 +191,7 @@ fn assign<const N: usize>(stripes: &Stripes<N>, lanes: Option<&mut Lanes>) -> [O
         return out;
     };
     let mut dist = [f64::INFINITY; LASERS];
-    for s in &sorted {
+    for s in stripes {
         let x = s.position.to_f64();
         let (k, d) = (0..LASERS)
             .map(|k| (k, (x - lanes.at_px[k]).abs()))
