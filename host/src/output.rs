@@ -26,10 +26,16 @@
 //! a command offers it (`export --out -`, by [`is_stdout`]); elsewhere `-`
 //! is refused rather than taken as a file name.
 //!
+//! Folders of files written together (`analyze --report DIR`) are output
+//! sets ([`set`]): written into a hidden folder beside the target and put in
+//! place as a whole, never a mix of an old set and a new one.
+//!
 //! **Cost.** Two `fsync`s per file (the file and its directory): a few
 //! milliseconds on a disk, nothing next to the work that produced the file.
 //! The content is produced by the caller's closure straight into a buffered
 //! writer, so large exports are not held in memory.
+
+pub mod set;
 
 use std::fs::{self, File, OpenOptions};
 use std::io::{self, BufWriter, Write};
@@ -46,6 +52,27 @@ pub enum OutputError {
         path: PathBuf,
         /// What it is ("a directory", "a character device", …).
         what: &'static str,
+    },
+    /// An output set's folder exists and is not a folder.
+    #[error("{}: {what}, not a folder; refusing to write an output set over it", path.display())]
+    NotAFolder {
+        /// The target, as given.
+        path: PathBuf,
+        /// What it is ("a regular file", "a character device", …).
+        what: &'static str,
+    },
+    /// An output set's folder holds something the set does not write:
+    /// replacing the folder whole would delete it.
+    #[error(
+        "{}: the folder holds {entry}, which is no file of this output set; refusing to replace it \
+         (give a new or empty folder, or one an earlier run of this command wrote)",
+        path.display()
+    )]
+    NotASet {
+        /// The folder, as given.
+        path: PathBuf,
+        /// The first entry that is not the set's.
+        entry: String,
     },
     /// `-` (stdout) given for an output that cannot go there (a command whose
     /// stdout carries its report, a binary file).
@@ -74,9 +101,11 @@ impl crate::error::Classify for OutputError {
     fn class(&self) -> crate::Class {
         match self {
             // The user named something that cannot be an output.
-            OutputError::NotRegular { .. } | OutputError::Stdout | OutputError::NoDirectory { .. } => {
-                crate::Class::Input
-            }
+            OutputError::NotRegular { .. }
+            | OutputError::NotAFolder { .. }
+            | OutputError::NotASet { .. }
+            | OutputError::Stdout
+            | OutputError::NoDirectory { .. } => crate::Class::Input,
             OutputError::Write { .. } => crate::Class::Output,
         }
     }
@@ -86,7 +115,10 @@ impl OutputError {
     /// The I/O error underneath, if any (a closed pipe is told by it).
     pub fn io(&self) -> Option<&io::Error> {
         match self {
-            OutputError::NotRegular { .. } | OutputError::Stdout => None,
+            OutputError::NotRegular { .. }
+            | OutputError::NotAFolder { .. }
+            | OutputError::NotASet { .. }
+            | OutputError::Stdout => None,
             OutputError::NoDirectory { source, .. } | OutputError::Write { source, .. } => Some(source),
         }
     }

@@ -73,12 +73,14 @@ pub struct AnalyzeArgs {
     /// How far from its given start chainage a run's registration looks, m (above 0, at most 1000).
     #[arg(long = "search-m", value_name = "M", default_value_t = 25.0, value_parser = search_m)]
     pub search_m: f64,
-    /// Write a report (report.md, report.html, SVG and PNG plots, CSV and the Parquet exports) into DIR (created if missing).
+    /// Write a report (report.md, report.html, SVG and PNG plots, CSV and the Parquet exports) into DIR
+    /// (created if missing; an existing report is replaced whole, never mixed with the new one).
     #[arg(long, value_name = "DIR")]
     pub report: Option<PathBuf>,
     /// Write the stitched profile, the blocks and the zones as Parquet
     /// (profile.parquet, blocks.parquet, zones.parquet; docs/exports.md)
-    /// into DIR (created if missing). The report writes them too.
+    /// into DIR (created if missing; an existing DIR is replaced whole).
+    /// The report writes them too: the same DIR as --report writes the report once.
     #[arg(long, value_name = "DIR")]
     pub parquet: Option<PathBuf>,
     /// Print one JSON object instead of the text summary.
@@ -204,13 +206,6 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
         ))
         .into());
     }
-    // A --parquet directory that cannot be one fails before the work.
-    if let Some(dir) = &args.parquet
-        && dir.exists()
-        && !dir.is_dir()
-    {
-        return Err(Error::Input(format!("--parquet {}: not a directory", dir.display())).into());
-    }
     // An output set never goes where it could replace an input.
     let outputs = [("--report", &args.report), ("--parquet", &args.parquet)];
     for (flag, dir) in outputs.iter().filter_map(|(f, d)| d.as_ref().map(|d| (f, d))) {
@@ -223,6 +218,32 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
             ))
             .into());
         }
+    }
+    // An output folder that cannot take its set fails before the work: a
+    // file, a device, a folder holding what the set does not write.
+    if let Some(dir) = &args.report {
+        cms_host::output::set::check_set(dir, cms_host::report::owns)
+            .map_err(|e| anyhow::Error::from(Error::from(e)).context("--report"))?;
+    }
+    let parquet_in_report = match (&args.report, &args.parquet) {
+        (Some(r), Some(p)) => {
+            let (r, p) = (resolved(r), resolved(p));
+            if r != p && (r.starts_with(&p) || p.starts_with(&r)) {
+                return Err(Error::Input(format!(
+                    "--report {} and --parquet {}: one folder inside the other; each is replaced whole, give folders side by side",
+                    r.display(),
+                    p.display()
+                ))
+                .into());
+            }
+            r == p
+        }
+        _ => false,
+    };
+    // The same folder as --report: the report holds the Parquet files.
+    if let Some(dir) = args.parquet.as_ref().filter(|_| !parquet_in_report) {
+        cms_host::output::set::check_set(dir, cms_host::report::exports::owns)
+            .map_err(|e| anyhow::Error::from(Error::from(e)).context("--parquet"))?;
     }
     // The calibration is checked before any input is read.
     let calibration = match &args.calibration {
@@ -303,7 +324,7 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
     if let Some(dir) = &args.report {
         cms_host::report::write(dir, &source, &a, &text)?;
     }
-    if let Some(dir) = &args.parquet {
+    if let Some(dir) = args.parquet.as_ref().filter(|_| !parquet_in_report) {
         cms_host::report::exports::write(dir, &source, &a)?;
     }
     let mut out = std::io::stdout().lock();
@@ -317,6 +338,26 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
     }
     out.flush().map_err(Error::Output)?;
     Ok(())
+}
+
+/// `p` made absolute with its links resolved as far as it exists (an
+/// output folder may not exist yet), to tell whether two folders are one.
+fn resolved(p: &std::path::Path) -> PathBuf {
+    let abs = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let mut tail = Vec::new();
+    let mut head = abs.as_path();
+    loop {
+        if let Ok(real) = std::fs::canonicalize(head) {
+            return tail.iter().rev().fold(real, |acc: PathBuf, part| acc.join(part));
+        }
+        match (head.parent(), head.file_name()) {
+            (Some(up), Some(name)) => {
+                tail.push(name.to_os_string());
+                head = up;
+            }
+            _ => return abs,
+        }
+    }
 }
 
 /// One recording read and stitched (slid across with a calibration).

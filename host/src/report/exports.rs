@@ -21,8 +21,9 @@
 //! - Gaps are nulls (definition level 0), never NaN: `AVG`, `COUNT` and
 //!   `IS NULL` then mean what an analyst expects.
 //! - Each file is built in memory and written through
-//!   [`crate::output::write_atomically`]: whole or not at all, only over a
-//!   regular file. Nothing here panics on any analysis.
+//!   [`crate::output::write_atomically`], the three as one output set
+//!   ([`crate::output::set`]): the folder holds the old files or the new
+//!   ones, never a mix. Nothing here panics on any analysis.
 //!
 //! # Cost
 //!
@@ -306,11 +307,22 @@ pub fn to_parquet(name: &str, t: &Table, meta: &[(&str, String)]) -> Result<Vec<
 /// The file names written by [`write()`].
 pub const FILES: [&str; 3] = ["profile.parquet", "blocks.parquet", "zones.parquet"];
 
+/// Whether a file of this name is one of [`FILES`].
+pub fn owns(name: &str) -> bool {
+    FILES.contains(&name)
+}
+
 /// Writes `profile.parquet`, `blocks.parquet` and `zones.parquet` into
-/// `dir` (created if missing). Any failure is an output error naming the file.
+/// `dir` (created if missing) as one output set ([`crate::output::set`]):
+/// the folder then holds these three files and nothing else, or — on any
+/// failure, or a crash — what it held before. Any failure is an error
+/// naming the file.
 pub fn write(dir: &Path, source: &Source, a: &Analysis) -> Result<(), Error> {
-    std::fs::create_dir_all(dir)
-        .map_err(|e| Error::Output(std::io::Error::new(e.kind(), format!("cannot create {}: {e}", dir.display()))))?;
+    crate::output::set::write_set(dir, owns, |d| write_files(d, source, a))
+}
+
+/// Writes the three files into `dir` (one file at a time, each whole).
+pub(crate) fn write_files(dir: &Path, source: &Source, a: &Analysis) -> Result<(), Error> {
     let meta = vec![
         ("cms.source", source.name()),
         ("cms.dx_mm", a.options.stitch.dx_mm.to_string()),

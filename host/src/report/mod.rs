@@ -1,7 +1,10 @@
 //! The `analyze --report DIR` report: what the summary says, with plots and
 //! the data behind them.
 //!
-//! Files written into `DIR`:
+//! Files written into `DIR`, as one output set ([`crate::output::set`]: a
+//! hidden folder beside `DIR` put in its place whole, so `DIR` holds the
+//! old report or the new one, never a mix; a `DIR` holding anything else
+//! is refused):
 //!
 //! | file | what |
 //! |---|---|
@@ -616,11 +619,46 @@ fn html_escape(s: &str) -> String {
     s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
 }
 
-/// Writes the report into `dir`.
+/// Whether a file of this name is one a report writes (the files of the
+/// table above): a folder holding only such files can be replaced by a
+/// new report ([`crate::output::set`]).
+pub fn owns(name: &str) -> bool {
+    const FIXED: [&str; 12] = [
+        "report.html",
+        "report.md",
+        "summary.txt",
+        "profile.svg",
+        "profile.png",
+        "profile.csv",
+        "spectrum.svg",
+        "spectrum.png",
+        "zones.svg",
+        "zones.png",
+        "registration.csv",
+        "gaps.csv",
+    ];
+    // `PREFIXK.EXT` with K a line's number.
+    let per_line = |prefix: &str, exts: &[&str]| {
+        name.strip_prefix(prefix)
+            .and_then(|rest| rest.split_once('.'))
+            .is_some_and(|(k, ext)| !k.is_empty() && k.bytes().all(|b| b.is_ascii_digit()) && exts.contains(&ext))
+    };
+    FIXED.contains(&name)
+        || exports::owns(name)
+        || per_line("bands_laser", &["csv", "svg", "png"])
+        || per_line("spectrum_laser", &["csv"])
+}
+
+/// Writes the report into `dir` as one output set
+/// ([`crate::output::set`]): the folder then holds this report and nothing
+/// else, or — on any failure, or a crash — what it held before.
 pub fn write(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result<(), Error> {
+    crate::output::set::write_set(dir, owns, |d| write_files(d, source, a, summary))
+}
+
+/// Writes the report's files into the (new, empty) folder `dir`.
+fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result<(), Error> {
     let out_err = |what: &str, e: crate::plot::PlotError| Error::Output(std::io::Error::other(format!("{what}: {e}")));
-    std::fs::create_dir_all(dir)
-        .map_err(|e| Error::Input(format!("cannot create report directory {}: {e}", dir.display())))?;
     // Each file whole or not at all, and never over a device or FIFO of that name.
     let put = |name: &str, text: &str| -> Result<(), Error> {
         Ok(crate::output::write_atomically(&dir.join(name), |w| w.write_all(text.as_bytes()))?)
@@ -629,7 +667,7 @@ pub fn write(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result
     put("profile.csv", &profile_csv(a))?;
     put("registration.csv", &registration_csv(a))?;
     put("gaps.csv", &gaps_csv(a))?;
-    exports::write(dir, source, a)?;
+    exports::write_files(dir, source, a)?;
 
     // (title, svg file stem, svg text)
     let mut figures: Vec<(String, String, String)> = Vec::new();

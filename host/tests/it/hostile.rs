@@ -219,3 +219,159 @@ fn a_survey_file_is_read_within_its_limit() {
     assert!(e.contains("at most 16384"), "{e}");
     assert!(!rec.exists());
 }
+
+/// A profile CSV of `lines` lines over `metres` at 1 mm, each a
+/// corrugation of its own wavelength.
+fn lines_csv(path: &Path, lines: usize, metres: usize) {
+    use std::fmt::Write as _;
+    let mut t = String::from("x_mm");
+    for k in 0..lines {
+        let _ = write!(t, ",height_um_{k}");
+    }
+    t.push('\n');
+    for i in 0..metres * 1000 {
+        let x = i as f64;
+        let _ = write!(t, "{x}");
+        for k in 0..lines {
+            let _ = write!(t, ",{:.3}", 20.0 * (std::f64::consts::TAU * x / (40.0 + 10.0 * k as f64)).sin());
+        }
+        t.push('\n');
+    }
+    std::fs::write(path, t).unwrap();
+}
+
+/// Every file of a folder, by name.
+fn files_of(dir: &Path) -> std::collections::BTreeMap<String, Vec<u8>> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| {
+            let e = e.unwrap();
+            (e.file_name().into_string().unwrap(), std::fs::read(e.path()).unwrap())
+        })
+        .collect()
+}
+
+/// The names in a folder.
+fn names_in(dir: &Path) -> Vec<String> {
+    let mut n: Vec<String> =
+        std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    n.sort();
+    n
+}
+
+/// A rerun over an existing report replaces it whole: a report of three
+/// lines, then one of one line, leaves no `bands_laser2.csv` of the first;
+/// the folder holds what a report into a new folder holds, and nothing is
+/// left beside it. A folder holding what no report writes (a user's notes,
+/// a report where Parquet files alone should go) is refused before the
+/// work, untouched.
+#[test]
+fn a_rerun_replaces_an_output_set_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let (three, one) = (dir.path().join("three.csv"), dir.path().join("one.csv"));
+    lines_csv(&three, 3, 3);
+    lines_csv(&one, 1, 3);
+    let out = dir.path().join("out");
+    let o = run(&["analyze", s(&three), "--report", s(&out)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.join("bands_laser2.csv").exists());
+    let o = run(&["analyze", s(&one), "--report", s(&out)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let fresh = dir.path().join("fresh");
+    assert!(run(&["analyze", s(&one), "--report", s(&fresh)]).status.success());
+    assert_eq!(names_in(&out), names_in(&fresh));
+    assert!(!out.join("bands_laser1.csv").exists() && !out.join("bands_laser2.csv").exists());
+    assert_eq!(std::fs::read(out.join("profile.csv")).unwrap(), std::fs::read(fresh.join("profile.csv")).unwrap());
+    assert_eq!(names_in(dir.path()), ["fresh", "one.csv", "out", "three.csv"], "nothing left beside the sets");
+
+    // The same for --parquet, and a report folder is no Parquet set.
+    let pq = dir.path().join("pq");
+    std::fs::create_dir(&pq).unwrap();
+    std::fs::write(pq.join("zones.parquet"), b"old").unwrap();
+    assert!(run(&["analyze", s(&one), "--parquet", s(&pq)]).status.success());
+    assert_eq!(names_in(&pq), ["blocks.parquet", "profile.parquet", "zones.parquet"]);
+    assert_ne!(std::fs::read(pq.join("zones.parquet")).unwrap(), b"old");
+    let before = files_of(&out);
+    let e = one_line_error(&run(&["analyze", s(&one), "--parquet", s(&out)]));
+    assert!(
+        e.contains("--parquet") && e.contains("no file of this output set") && e.contains("refusing to replace it"),
+        "{e}"
+    );
+    assert_eq!(files_of(&out), before);
+
+    // A user's file in the folder: refused, kept.
+    std::fs::write(out.join("notes.txt"), b"mine").unwrap();
+    let e = one_line_error(&run(&["analyze", s(&one), "--report", s(&out)]));
+    assert!(e.contains("--report") && e.contains("holds notes.txt"), "{e}");
+    assert_eq!(std::fs::read(out.join("notes.txt")).unwrap(), b"mine");
+    std::fs::remove_file(out.join("notes.txt")).unwrap();
+
+    // One folder for both: the report (which holds the Parquet files), once;
+    // one inside the other: refused (each is replaced whole).
+    let o = run(&["analyze", s(&one), "--report", s(&out), "--parquet", s(&out)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(names_in(&out), names_in(&fresh));
+    let inner = out.join("pq");
+    let e = one_line_error(&run(&["analyze", s(&one), "--report", s(&out), "--parquet", s(&inner)]));
+    assert!(e.contains("one folder inside the other"), "{e}");
+    let file = dir.path().join("one.csv");
+    let e = one_line_error(&run(&["analyze", s(&three), "--parquet", s(&file)]));
+    assert!(e.contains("a regular file, not a folder"), "{e}");
+}
+
+/// `analyze --report` killed (SIGKILL) while it writes a large report over
+/// an old one: the folder holds the old report whole, byte for byte, or the
+/// new one whole — never a mix; at most a hidden folder of the unfinished
+/// set is left beside it, and a rerun completes.
+#[test]
+fn an_interrupted_report_leaves_the_old_set_or_the_new_whole() {
+    use nix::sys::signal::{Signal, kill};
+    use nix::unistd::Pid;
+    let dir = tempfile::tempdir().unwrap();
+    let (small, big) = (dir.path().join("small.csv"), dir.path().join("big.csv"));
+    lines_csv(&small, 1, 3);
+    lines_csv(&big, 3, 150);
+    let out = dir.path().join("out");
+    assert!(run(&["analyze", s(&small), "--report", s(&out)]).status.success());
+    let old = files_of(&out);
+    let mut child = std::process::Command::new(crate::common::bin())
+        .args(["analyze", s(&big), "--report", s(&out)])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // The event: the hidden folder of the new set holds its first file.
+    let hidden = |d: &Path| {
+        std::fs::read_dir(d)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .find(|p| p.file_name().unwrap().to_str().unwrap().starts_with(".out."))
+    };
+    let caught = loop {
+        if child.try_wait().unwrap().is_some() {
+            break false;
+        }
+        if let Some(h) = hidden(dir.path())
+            && std::fs::read_dir(&h).is_ok_and(|mut r| r.next().is_some())
+        {
+            kill(Pid::from_raw(child.id() as i32), Signal::SIGKILL).unwrap();
+            break true;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    };
+    child.wait().unwrap();
+    assert!(caught, "the report was written before the test saw it begin");
+    let now = files_of(&out);
+    if now != old {
+        // The kill came after the exchange: the new set, whole.
+        let fresh = dir.path().join("fresh");
+        assert!(run(&["analyze", s(&big), "--report", s(&fresh)]).status.success());
+        assert_eq!(now, files_of(&fresh), "neither the old report nor the new one");
+        std::fs::remove_dir_all(&fresh).unwrap();
+    }
+    let beside: Vec<String> = names_in(dir.path()).into_iter().filter(|n| n.starts_with('.')).collect();
+    assert!(beside.len() <= 1 && beside.iter().all(|n| n.starts_with(".out.") && n.ends_with(".tmp")), "{beside:?}");
+    let o = run(&["analyze", s(&big), "--report", s(&out)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.join("bands_laser2.csv").exists() && !files_of(&out).keys().any(|n| n.starts_with('.')));
+}
