@@ -53,9 +53,9 @@ pub enum OutputError {
         /// What it is ("a directory", "a character device", …).
         what: &'static str,
     },
-    /// An output set's folder exists and is not a folder.
-    #[error("{}: {what}, not a folder; refusing to write an output set over it", path.display())]
-    NotAFolder {
+    /// An output set's folder exists and is not a directory.
+    #[error("{}: {what}, not a directory; refusing to write an output set over it", path.display())]
+    NotADirectory {
         /// The target, as given.
         path: PathBuf,
         /// What it is ("a regular file", "a character device", …).
@@ -102,7 +102,7 @@ impl crate::error::Classify for OutputError {
         match self {
             // The user named something that cannot be an output.
             OutputError::NotRegular { .. }
-            | OutputError::NotAFolder { .. }
+            | OutputError::NotADirectory { .. }
             | OutputError::NotASet { .. }
             | OutputError::Stdout
             | OutputError::NoDirectory { .. } => crate::Class::Input,
@@ -116,7 +116,7 @@ impl OutputError {
     pub fn io(&self) -> Option<&io::Error> {
         match self {
             OutputError::NotRegular { .. }
-            | OutputError::NotAFolder { .. }
+            | OutputError::NotADirectory { .. }
             | OutputError::NotASet { .. }
             | OutputError::Stdout => None,
             OutputError::NoDirectory { source, .. } | OutputError::Write { source, .. } => Some(source),

@@ -51,10 +51,13 @@ pub fn check_set(path: &Path, owns: fn(&str) -> bool) -> Result<PathBuf, OutputE
     let meta = match fs::metadata(path) {
         Err(e) if e.kind() == io::ErrorKind::NotFound => {
             if fs::symlink_metadata(path).is_ok() {
-                return Err(OutputError::NotAFolder { path: path.to_path_buf(), what: "a symbolic link to nothing" });
+                return Err(OutputError::NotADirectory {
+                    path: path.to_path_buf(),
+                    what: "a symbolic link to nothing",
+                });
             }
             if path.file_name().is_none() {
-                return Err(OutputError::NotAFolder { path: path.to_path_buf(), what: "not a folder name" });
+                return Err(OutputError::NotADirectory { path: path.to_path_buf(), what: "not a folder name" });
             }
             return Ok(path.to_path_buf());
         }
@@ -63,11 +66,11 @@ pub fn check_set(path: &Path, owns: fn(&str) -> bool) -> Result<PathBuf, OutputE
     };
     if !meta.is_dir() {
         let what = if meta.is_file() { "a regular file" } else { kind_of(&meta) };
-        return Err(OutputError::NotAFolder { path: path.to_path_buf(), what });
+        return Err(OutputError::NotADirectory { path: path.to_path_buf(), what });
     }
     let resolved = fs::canonicalize(path).map_err(|source| OutputError::Write { path: path.to_path_buf(), source })?;
     if resolved.parent().is_none() {
-        return Err(OutputError::NotAFolder { path: path.to_path_buf(), what: "the root folder" });
+        return Err(OutputError::NotADirectory { path: path.to_path_buf(), what: "the root folder" });
     }
     let entries = fs::read_dir(&resolved).map_err(|source| OutputError::Write { path: path.to_path_buf(), source })?;
     for entry in entries {
@@ -308,12 +311,12 @@ mod tests {
         fs::write(&file, "x").unwrap();
         let e = check_set(&file, owns).unwrap_err();
         assert!(
-            e.to_string().ends_with("a regular file, not a folder; refusing to write an output set over it"),
+            e.to_string().ends_with("a regular file, not a directory; refusing to write an output set over it"),
             "{e}"
         );
-        assert!(matches!(check_set(Path::new("/dev/null"), owns), Err(OutputError::NotAFolder { .. })));
+        assert!(matches!(check_set(Path::new("/dev/null"), owns), Err(OutputError::NotADirectory { .. })));
         assert!(matches!(check_set(Path::new("-"), owns), Err(OutputError::Stdout)));
-        assert!(matches!(check_set(Path::new("/"), owns), Err(OutputError::NotAFolder { .. })));
+        assert!(matches!(check_set(Path::new("/"), owns), Err(OutputError::NotADirectory { .. })));
     }
 
     #[test]
@@ -329,6 +332,6 @@ mod tests {
         // A set given by a dangling link is refused, not created elsewhere.
         let dangling = root.path().join("dangling");
         std::os::unix::fs::symlink(root.path().join("nothing"), &dangling).unwrap();
-        assert!(matches!(check_set(&dangling, owns), Err(OutputError::NotAFolder { .. })));
+        assert!(matches!(check_set(&dangling, owns), Err(OutputError::NotADirectory { .. })));
     }
 }

@@ -41,12 +41,23 @@ pub fn check_header(path: &Path) -> Result<Header, RecordError> {
 /// The survey block of a recording, as stored (`None`: version 1, or none
 /// given); a damaged block is an error naming the damage.
 pub fn survey_of(path: &Path) -> Result<Option<String>, RecordError> {
-    let header = check_header(path)?;
-    let io_err = |what, source| RecordError::Io { path: path.to_path_buf(), what, source };
-    let mut f = File::open(path).map_err(|e| io_err("cannot open recording", e))?;
-    let mut raw = [0u8; HEADER_LEN];
-    f.read_exact(&mut raw).map_err(|e| io_err("cannot read", e))?;
-    let block = read_block(&mut f, &raw, &header).map_err(|e| io_err("cannot read", e))?;
+    let f = File::open(path).map_err(|source| RecordError::Io {
+        path: path.to_path_buf(),
+        what: "cannot open recording",
+        source,
+    })?;
+    survey_from(path, f)
+}
+
+/// [`survey_of`] the recording read from `r` (its header first); `path`
+/// names it in errors.
+pub fn survey_from(path: &Path, mut r: impl Read) -> Result<Option<String>, RecordError> {
+    let io_err = |source| RecordError::Io { path: path.to_path_buf(), what: "cannot read", source };
+    let mut raw = Vec::with_capacity(HEADER_LEN);
+    (&mut r).take(HEADER_LEN as u64).read_to_end(&mut raw).map_err(io_err)?;
+    let header =
+        parse_header(&raw).map_err(|why| RecordError::Format { path: path.to_path_buf(), why: why.to_string() })?;
+    let block = read_block(&mut r, &raw, &header).map_err(io_err)?;
     match block.damage {
         Some((why, _)) => Err(RecordError::Format { path: path.to_path_buf(), why: format!("survey block: {why}") }),
         None => Ok(block.survey),

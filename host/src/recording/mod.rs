@@ -81,7 +81,7 @@ pub mod survey_info;
 mod text;
 mod writer;
 
-pub use export::{ExportFormat, check_header, export_to, same_file, survey_of};
+pub use export::{ExportFormat, check_header, export_to, same_file, survey_from, survey_of};
 pub use info::Info;
 pub use reader::{
     FrameCounter, ScanStats, points, scan_file, scan_file_with_progress, scan_reader, um_to_mm, warnings,

@@ -316,7 +316,7 @@ fn a_rerun_replaces_an_output_set_whole() {
     assert!(e.contains("one folder inside the other"), "{e}");
     let file = dir.path().join("one.csv");
     let e = one_line_error(&run(&["analyze", s(&three), "--parquet", s(&file)]));
-    assert!(e.contains("a regular file, not a folder"), "{e}");
+    assert!(e.contains("a regular file, not a directory"), "{e}");
 }
 
 /// `analyze --report` killed (SIGKILL) while it writes a large report over

@@ -380,10 +380,10 @@ fn parquet_exports_read_back_with_an_independent_reader() {
     }
 }
 
-/// A --parquet directory that is a file is bad usage (exit status 2, as
-/// for --report); one that cannot be written (no permission) is an output
-/// error: one line, exit status 1, before or after the work; nothing
-/// half-written is left.
+/// A --parquet directory that is a file, or lies under one, is bad usage
+/// (exit status 2, as for --report), before the work; one that cannot be
+/// written (no permission) is an output error: one line, exit status 1;
+/// nothing half-written is left.
 #[test]
 fn an_unwritable_parquet_dir_is_an_output_error() {
     use crate::common::one_line_failure;
@@ -395,8 +395,8 @@ fn an_unwritable_parquet_dir_is_an_output_error() {
     let r = rec.to_str().unwrap();
     let e = one_line_failure(&run(&["analyze", r, "--parquet", file.to_str().unwrap()]), 2);
     assert!(e.contains("--parquet") && e.contains("not a directory"), "{e}");
-    let e = one_line_failure(&run(&["analyze", r, "--parquet", file.join("sub").to_str().unwrap()]), 1);
-    assert!(e.contains("cannot create"), "{e}");
+    let e = one_line_failure(&run(&["analyze", r, "--parquet", file.join("sub").to_str().unwrap()]), 2);
+    assert!(e.contains("--parquet") && e.contains("file/sub") && e.contains("Not a directory"), "{e}");
     // Read-only (root writes anyway: then the files must be whole).
     use std::os::unix::fs::PermissionsExt as _;
     let ro = dir.path().join("ro");

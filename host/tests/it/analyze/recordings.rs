@@ -105,5 +105,5 @@ fn bad_input_is_one_line_and_exit_2() {
         "--report",
         d("text.cmsrec/sub").to_str().unwrap(),
     ]));
-    assert!(e.contains("report directory"), "{e}");
+    assert!(e.contains("--report") && e.contains("text.cmsrec/sub: Not a directory"), "{e}");
 }
