@@ -8,7 +8,7 @@
 //! * [`model`] — the camera model, the checkerboard and its pose, the
 //!   Levenberg–Marquardt solver.
 //! * [`error`] — the library's error and what kind of failure each is.
-//! * [`output`] — every output file written atomically, and only as a regular file.
+//! * [`output`] — every output file written atomically, and only as a regular file; folders of files (`analyze --report`) as output sets put in place whole.
 //! * [`plot`] — SVG and PNG plots with an embedded font.
 //! * [`progress`] — how far a long job has got (the command line draws it).
 //!

@@ -229,7 +229,6 @@ pub fn write_set(
 mod tests {
     use super::*;
     use std::collections::BTreeMap;
-    use std::io::Write as _;
 
     fn owns(name: &str) -> bool {
         name.starts_with("part") && name.ends_with(".txt")

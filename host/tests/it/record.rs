@@ -308,6 +308,69 @@ fn a_recording_is_committed_within_a_second_of_each_frame_and_at_exit() {
     }
 }
 
+/// docs/link-and-recordings.md: "Zeros a file system may leave after a
+/// power loss are empty frames and are skipped." A recording with a block
+/// of zeros where its tail was lost, then appended to, reads every frame
+/// before and after the zeros, none counted damaged or truncated.
+#[test]
+fn zeros_a_power_loss_leaves_are_skipped_not_damage() {
+    big(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("z.cmsrec");
+        let mut r = Recorder::open(&path).unwrap();
+        for s in 0..3 {
+            r.write_frame(&frame(&profile(s, 8))).unwrap();
+        }
+        r.finish().unwrap();
+        drop(r);
+        let mut f = std::fs::OpenOptions::new().append(true).open(&path).unwrap();
+        f.write_all(&[0u8; 4096]).unwrap();
+        drop(f);
+        let mut r = Recorder::open(&path).unwrap();
+        for s in 3..5 {
+            r.write_frame(&frame(&profile(s, 8))).unwrap();
+        }
+        r.finish().unwrap();
+        let (msgs, s) = scan(&std::fs::read(&path).unwrap());
+        assert_eq!(seqs(&msgs), [0, 1, 2, 3, 4]);
+        assert_eq!((s.damaged, s.truncated_tail), (0, 0), "{s:?}");
+        assert!(recording::warnings(&path, &s).is_empty());
+    })
+}
+
+/// docs/link-and-recordings.md, `export`: "Damaged frames in the file are
+/// skipped and counted on stderr; a truncated last frame is reported once;
+/// everything else is exported and the exit status is 0."
+#[test]
+fn export_skips_and_counts_damaged_frames_and_exits_0() {
+    big(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let msgs: Vec<DeviceMsg> = (0..5).map(|s| profile(s, 3)).collect();
+        let (mut bytes, ranges) = recording(&msgs);
+        // Frames 1 and 3 damaged in their middle, then a cut last frame.
+        for k in [1, 3] {
+            let mid = (ranges[k].start + ranges[k].end) / 2;
+            bytes[mid] ^= 0x5a;
+        }
+        let cut = frame(&profile(5, 3));
+        bytes.extend_from_slice(&cut[..20]);
+        let path = write_file(dir.path(), "d.cmsrec", &bytes);
+        let out = Process::new(env!("CARGO_BIN_EXE_cms-host"))
+            .args(["export", "--format", "csv"])
+            .arg(&path)
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(0), "{out:?}");
+        let stderr = String::from_utf8(out.stderr).unwrap();
+        assert_eq!(stderr.matches("2 damaged frames were skipped").count(), 1, "{stderr}");
+        assert_eq!(stderr.matches("20 bytes of a truncated frame at the end were ignored").count(), 1, "{stderr}");
+        assert_eq!(stderr.lines().count(), 2, "{stderr}");
+        let csv = String::from_utf8(out.stdout).unwrap();
+        let seqs: std::collections::BTreeSet<&str> = csv.lines().skip(1).filter_map(|l| l.split(',').next()).collect();
+        assert_eq!(seqs.into_iter().collect::<Vec<_>>(), ["0", "2", "4"]);
+    })
+}
+
 // ------------------------------------------------------------------ reader
 
 /// Cut at every byte: never a panic; every frame that ends before the cut
