@@ -162,7 +162,19 @@ pub fn scan_records(
 pub fn scan_file_with_progress(
     path: &Path,
     progress: &dyn Progress,
-    on_msg: impl FnMut(&DeviceMsg) -> io::Result<()>,
+    mut on_msg: impl FnMut(&DeviceMsg) -> io::Result<()>,
+) -> Result<ScanStats, RecordError> {
+    scan_file_records_with_progress(path, progress, |item| match item {
+        Item::Device(m) => on_msg(m),
+        Item::Host(_) => Ok(()),
+    })
+}
+
+/// [`scan_file_with_progress`] with the host's records too.
+pub fn scan_file_records_with_progress(
+    path: &Path,
+    progress: &dyn Progress,
+    on_item: impl FnMut(Item<'_>) -> io::Result<()>,
 ) -> Result<ScanStats, RecordError> {
     let f = File::open(path).map_err(|source| RecordError::Io {
         path: path.to_path_buf(),
@@ -172,7 +184,7 @@ pub fn scan_file_with_progress(
     let total = f.metadata().map(|m| m.len()).unwrap_or(0);
     progress.begin(&format!("reading {}", path.display()), total, "B");
     let counted = Counted { inner: f, done: 0, progress };
-    let r = scan_reader(path, BufReader::with_capacity(256 << 10, counted), on_msg);
+    let r = scan_records(path, BufReader::with_capacity(256 << 10, counted), on_item);
     progress.end();
     r
 }

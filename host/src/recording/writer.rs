@@ -119,6 +119,11 @@ impl Recorder {
         self.format >= HOST_RECORDS_FORMAT
     }
 
+    /// The file's format version.
+    pub fn format(&self) -> u16 {
+        self.format
+    }
+
     /// Host records written by this recorder.
     pub fn host_records(&self) -> u64 {
         self.host_records
