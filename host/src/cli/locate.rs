@@ -94,7 +94,8 @@ fn describe(c: &Check, survey: Option<&Survey>) -> String {
         if let Some(h) = p.heading {
             let said_up = matches!(h, recording::survey_info::Heading::Up);
             let verdict = if said_up == (c.scale >= 0.0) { "agrees" } else { "DISAGREES" };
-            let _ = writeln!(s, "  survey: chainage {} — GNSS says {dir}: {verdict}", if said_up { "up" } else { "down" });
+            let _ =
+                writeln!(s, "  survey: chainage {} — GNSS says {dir}: {verdict}", if said_up { "up" } else { "down" });
         }
     }
     s

@@ -215,9 +215,7 @@ fn read_loop(
     while !stop.load(Ordering::Relaxed) {
         match serial.read(&mut buf) {
             Ok(n) if n > 0 => lines.feed(&buf[..n], Instant::now(), &mut send),
-            Err(e) if matches!(e.kind(), io::ErrorKind::TimedOut | io::ErrorKind::Interrupted) => {
-                lines.idle(&mut send)
-            }
+            Err(e) if matches!(e.kind(), io::ErrorKind::TimedOut | io::ErrorKind::Interrupted) => lines.idle(&mut send),
             Err(e) if e.kind() == io::ErrorKind::WouldBlock => lines.idle(&mut send),
             _ => {
                 // End of file or an error: the port is gone. Reopen it.

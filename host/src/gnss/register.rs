@@ -350,9 +350,9 @@ impl Check {
 
     /// The fix with the largest residual against its tolerance.
     pub fn worst(&self) -> Option<&Located> {
-        self.located.iter().max_by(|a, b| {
-            (a.residual_m().abs() / a.tolerance_m).total_cmp(&(b.residual_m().abs() / b.tolerance_m))
-        })
+        self.located
+            .iter()
+            .max_by(|a, b| (a.residual_m().abs() / a.tolerance_m).total_cmp(&(b.residual_m().abs() / b.tolerance_m)))
     }
 
     /// RMS of the residuals, m.
@@ -367,7 +367,9 @@ impl Check {
 #[non_exhaustive]
 pub enum CheckError {
     /// Too few fixes on the track to fit an offset and a scale.
-    #[error("{used} fixes on the track with profiles around them ({unused} not used, {off_track} of them more than {OFF_TRACK_M} m off the centreline); the check needs at least 3")]
+    #[error(
+        "{used} fixes on the track with profiles around them ({unused} not used, {off_track} of them more than {OFF_TRACK_M} m off the centreline); the check needs at least 3"
+    )]
     TooFew {
         /// Fixes usable.
         used: usize,

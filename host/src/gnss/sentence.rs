@@ -190,7 +190,10 @@ mod tests {
         assert_eq!(f.date, Some((2026, 12, 4)));
         assert!((f.lat_deg - (48.0 + 7.038 / 60.0)).abs() < 1e-9, "{}", f.lat_deg);
         assert!((f.lon_deg - (11.0 + 31.0 / 60.0)).abs() < 1e-9);
-        assert_eq!((f.quality, f.satellites, f.hdop.map(|h| (h * 10.0).round())), (Quality::RtkFixed, Some(14), Some(8.0)));
+        assert_eq!(
+            (f.quality, f.satellites, f.hdop.map(|h| (h * 10.0).round())),
+            (Quality::RtkFixed, Some(14), Some(8.0))
+        );
         // 1.944 kn = 1.000 m/s.
         assert!((f.speed_mm_s.unwrap() - 1000.1).abs() < 0.5, "{:?}", f.speed_mm_s);
         assert_eq!(f.course_deg, Some(87.5));

@@ -27,7 +27,8 @@ mod client;
 pub use client::{Client, ClientError, Greeting, Handshake, Outbox, Wait, check_version};
 
 use cms_core::protocol::{
-    Command, DeviceMsg, FrameReader, FromFrame, HostMsg, LinkStats, MAX_COMMAND_FRAME, MAX_READ_FRAME, WireError, encode,
+    Command, DeviceMsg, FrameReader, FromFrame, HostMsg, LinkStats, MAX_COMMAND_FRAME, MAX_READ_FRAME, WireError,
+    encode,
 };
 
 /// How long one [`Link::read`] waits for bytes.

@@ -5,9 +5,7 @@ use std::path::Path;
 use cms_core::pipeline::line::Counts;
 use cms_core::protocol::{DeviceInfo, DeviceMsg, ErrorCode, LASERS};
 
-use super::{
-    FrameCounter, HostRecord, Item, RecordError, ScanStats, points, survey_of, um_to_mm,
-};
+use super::{FrameCounter, HostRecord, Item, RecordError, ScanStats, points, survey_of, um_to_mm};
 use crate::gnss::{Fix, Placed};
 use crate::progress::Progress;
 

@@ -11,8 +11,8 @@ use cms_core::readout::Readout;
 
 use crate::analyze::live::LiveEstimate;
 use crate::gnss::{Placed, Receiver};
-use crate::recording::HostRecord;
 use crate::link::{Client, Greeting, Outbox, check_version};
+use crate::recording::HostRecord;
 use crate::recording::{self, FrameCounter, Recorder};
 
 use super::{
@@ -434,11 +434,9 @@ impl<'a> Session<'a> {
     fn gnss_status(&self, now: Instant) -> String {
         let Some(g) = &self.sum.gnss else { return String::new() };
         match (&g.last, self.last_fix_at) {
-            (Some(f), Some(at)) if now.saturating_duration_since(at) < Duration::from_secs(2) => format!(
-                ", GNSS {} {} sats",
-                f.quality.name(),
-                f.satellites.map_or("?".into(), |n| n.to_string())
-            ),
+            (Some(f), Some(at)) if now.saturating_duration_since(at) < Duration::from_secs(2) => {
+                format!(", GNSS {} {} sats", f.quality.name(), f.satellites.map_or("?".into(), |n| n.to_string()))
+            }
             (_, Some(at)) => format!(", GNSS: no fix for {:.0} s", now.saturating_duration_since(at).as_secs_f64()),
             _ => ", GNSS: no fix yet".to_string(),
         }

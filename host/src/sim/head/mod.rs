@@ -389,10 +389,10 @@ mod scene {
     use super::worker::Threaded;
     use super::{HeadOptions, RowRenderer, SimulateError, sim_config};
     use crate::sim::scene::{Scene, Shot};
-    use std::sync::Arc;
-    use std::sync::atomic::{AtomicI64, Ordering};
     use cms_core::peak::{Config, Select};
     use cms_core::protocol::LASERS;
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicI64, Ordering};
 
     /// The renderer, the detector configuration for its camera, its frame
     /// rate limit and its exposure.
@@ -428,9 +428,8 @@ mod scene {
         } else {
             None
         };
-        let renderer =
-            Threaded::new(SceneCamera::with_tap(scene, args.odometer_tap.clone()))
-                .map_err(|e| SimulateError::Io("starting the render thread", e))?;
+        let renderer = Threaded::new(SceneCamera::with_tap(scene, args.odometer_tap.clone()))
+            .map_err(|e| SimulateError::Io("starting the render thread", e))?;
         Ok(Built { renderer, detector, max_rate_hz: args.rate, exposure_us, factory })
     }
 
