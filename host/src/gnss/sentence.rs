@@ -218,6 +218,34 @@ mod tests {
         assert_eq!((a.flush(), a.no_position), (None, 1));
     }
 
+    proptest::proptest! {
+        /// Whatever a port delivers, the assembler never panics, and one
+        /// changed byte of a sentence never yields another fix: the
+        /// checksum refuses it, or it reads as the same.
+        #[test]
+        fn damaged_lines_never_give_a_wrong_fix(
+            noise in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..300),
+            at in 0usize..80,
+            byte in proptest::prelude::any::<u8>(),
+        ) {
+            let mut a = Assembler::new();
+            let _ = a.line(&String::from_utf8_lossy(&noise));
+            let _ = a.flush();
+            let good = sentence("GNGGA,101530.20,4807.0380000,N,01131.0000000,E,4,14,0.8,101.3,M,47.0,M,1.0,0000");
+            let mut want = Assembler::new();
+            want.line(&good).unwrap();
+            let want = want.flush();
+            let mut bad = good.clone().into_bytes();
+            let i = at % (bad.len() - 2);
+            bad[i] = byte;
+            let mut a = Assembler::new();
+            if a.line(&String::from_utf8_lossy(&bad)).is_ok() {
+                let got = a.flush();
+                proptest::prop_assert!(got.is_none() || got == want, "{:?}", String::from_utf8_lossy(&bad));
+            }
+        }
+    }
+
     #[test]
     fn the_checksum_is_nmea_s() {
         // The example of the NMEA 0183 standard's GGA.
