@@ -12,7 +12,7 @@ import sys
 # Lowest first; a module may use its own layer and those below.
 LAYERS = [
     ["error", "progress", "output", "plot", "model"],
-    ["link", "input", "recording", "calib"],
+    ["link", "gnss", "input", "recording", "calib"],
     ["measure"],
     ["analyze"],
     ["report"],

@@ -14,6 +14,7 @@
 //!
 //! **Data**
 //! * [`link`] — the serial link to a head: the port, frame splitting, the client.
+//! * [`gnss`] — a GNSS receiver's NMEA fixes, and chainage from a track register.
 //! * [`input`] — grayscale images and CSV rows; stripe detection on them.
 //! * [`recording`] — the recording format, its reader, export and `info`; survey metadata.
 //! * [`calib`] — checkerboard corners, camera and laser-plane calibration, the calibration file.
@@ -38,6 +39,7 @@ pub mod bench;
 pub mod calib;
 pub mod device;
 pub mod error;
+pub mod gnss;
 pub mod input;
 pub mod link;
 pub mod measure;

@@ -103,6 +103,15 @@ pub struct ListenArgs {
     /// How long a lost port may stay away before giving up, seconds.
     #[arg(long, value_name = "SECS", default_value = "30", value_parser = parse_secs)]
     pub reconnect_timeout: Duration,
+    /// Read a GNSS receiver's NMEA 0183 (GGA, RMC, VTG) from its own
+    /// serial port GNSS_PORT, and record its fixes among the frames (`sim`
+    /// with PORT `sim`: a simulated RTK receiver riding with the simulated
+    /// head along examples/track-register.csv, from chainage 41+100).
+    #[arg(long, value_name = "GNSS_PORT")]
+    pub gnss: Option<String>,
+    /// Baud rate of the GNSS receiver's port (a USB receiver ignores it).
+    #[arg(long, value_name = "B", default_value_t = 115_200, value_parser = clap::value_parser!(u32).range(1..), requires = "gnss")]
+    pub gnss_baud: u32,
 }
 
 fn parse_secs(s: &str) -> Result<Duration, String> {
@@ -212,6 +221,7 @@ impl ListenArgs {
             }),
             track_px: self.track_px,
             reconnect_timeout: self.reconnect_timeout,
+            gnss: self.gnss.as_ref().map(|path| listen::GnssPort { path: path.clone(), baud: self.gnss_baud }),
         }
     }
 }
@@ -296,6 +306,9 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
         anyhow::bail!(Usage(
             "`listen sim` needs the simulated head, which this build does not have; give a device path".to_string(),
         ));
+    }
+    if args.gnss.as_deref() == Some("sim") {
+        anyhow::bail!(Usage("--gnss sim rides with the simulated head: give PORT `sim`".to_string()));
     }
     let mut opts = args.options();
     if let Some(path) = &args.survey {

@@ -11,6 +11,7 @@ pub mod detect;
 pub mod exit;
 pub mod fit;
 pub mod listen;
+pub mod locate;
 pub mod measure;
 pub mod progress;
 pub mod qemu;
@@ -61,6 +62,9 @@ enum Command {
     /// Corrugation per image or recorded frame: each laser's profile and rotated-sine fit, the joint fit of the
     /// three lines with the surface-normal correction, optional plots.
     Measure(measure::MeasureArgs),
+    /// A recording's GNSS fixes on a track register: chainage from GNSS, checked against the odometer and
+    /// the survey.
+    Locate(locate::LocateArgs),
     /// Camera and laser-plane calibration; upload to a head.
     #[command(subcommand)]
     Calibrate(calibrate::CalibrateCmd),
@@ -83,9 +87,14 @@ fn dispatch(command: Command) -> Result<()> {
             // Ctrl-C from here on stops the listener (and then QEMU) instead of
             // ending this process with QEMU left running in its own process group.
             let stop = listen::interrupt_flag();
+            let mut sim_port = sim.options();
+            if args.gnss.as_deref() == Some("sim") {
+                sim_port.sim_gnss = Some(cms_host::sim::gnss::GnssSimOptions::built_in(sim_port.sim_seed.unwrap_or(1)));
+            }
             Ok(cms_host::device::qemu::with_port(&args.port, &qemu.options(), stop, |port| {
-                cms_host::sim::head::with_port(port, &sim.options(), |port| {
-                    listen::run(&listen::ListenArgs { port: port.to_string(), ..args.clone() })
+                cms_host::sim::head::with_ports(port, &sim_port, |port, gnss| {
+                    let gnss = gnss.map(str::to_string).or(args.gnss.clone());
+                    listen::run(&listen::ListenArgs { port: port.to_string(), gnss, ..args.clone() })
                 })
             })???)
         }
@@ -97,6 +106,7 @@ fn dispatch(command: Command) -> Result<()> {
         Command::Analyze(args) => analyze::run(&args),
         Command::Capture(args) => capture::run(&args),
         Command::Measure(args) => measure::run(&args),
+        Command::Locate(args) => locate::run(&args),
         Command::Calibrate(cmd) => calibrate::run(&cmd),
     }
 }

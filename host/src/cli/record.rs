@@ -18,6 +18,8 @@ pub enum FormatArg {
     Csv,
     /// One JSON object per profile message, as `listen --json`.
     Jsonl,
+    /// The run's GNSS track and fixes as GeoJSON (a recording made with `listen --gnss`).
+    Geojson,
 }
 
 impl From<FormatArg> for ExportFormat {
@@ -25,6 +27,7 @@ impl From<FormatArg> for ExportFormat {
         match f {
             FormatArg::Csv => ExportFormat::Csv,
             FormatArg::Jsonl => ExportFormat::Jsonl,
+            FormatArg::Geojson => ExportFormat::Geojson,
         }
     }
 }

@@ -145,6 +145,7 @@ impl SimulateArgs {
             state: self.state.clone(),
             factory_calibration: !self.uncalibrated,
             light: self.light.clone(),
+            odometer_tap: None,
         }
     }
 }
@@ -207,6 +208,7 @@ impl SimPortArgs {
             sim_roughness_um: self.sim_roughness_um,
             sim_uncalibrated: self.sim_uncalibrated,
             sim_light: self.sim_light.as_deref().cloned(),
+            sim_gnss: None,
         }
     }
 }

@@ -27,7 +27,8 @@ mod client;
 pub use client::{Client, ClientError, Greeting, Handshake, Outbox, Wait, check_version};
 
 use cms_core::protocol::{
-    Command, DeviceMsg, FrameReader, HostMsg, LinkStats, MAX_COMMAND_FRAME, MAX_READ_FRAME, WireError, encode,
+    Command, DeviceMsg, FrameReader, FromFrame, HostMsg, LinkStats, MAX_COMMAND_FRAME, MAX_READ_FRAME, WireError,
+    encode,
 };
 
 /// How long one [`Link::read`] waits for bytes.
@@ -235,7 +236,13 @@ impl Deframer {
     /// Feeds bytes; calls `on_frame` for every complete frame with its result
     /// and its wire bytes (COBS bytes and the 0x00 delimiter; empty for a
     /// frame longer than [`MAX_READ_FRAME`]).
-    pub fn feed(&mut self, data: &[u8], mut on_frame: impl FnMut(Result<DeviceMsg, WireError>, &[u8])) {
+    pub fn feed(&mut self, data: &[u8], on_frame: impl FnMut(Result<DeviceMsg, WireError>, &[u8])) {
+        self.feed_as(data, on_frame)
+    }
+
+    /// [`Deframer::feed`], decoding frames as `T` (a recording's frames
+    /// hold host records too).
+    pub fn feed_as<T: FromFrame>(&mut self, data: &[u8], mut on_frame: impl FnMut(Result<T, WireError>, &[u8])) {
         for seg in data.split_inclusive(|&b| b == 0) {
             self.pending += seg.len() as u64;
             if self.raw.len() + seg.len() <= MAX_READ_FRAME {
@@ -244,7 +251,7 @@ impl Deframer {
                 self.raw.clear();
             }
             let mut got = None;
-            self.reader.feed(seg, |r: Result<DeviceMsg, WireError>| got = Some(r));
+            self.reader.feed(seg, |r: Result<T, WireError>| got = Some(r));
             if seg.last() == Some(&0) {
                 if let Some(r) = got {
                     on_frame(r, &self.raw);

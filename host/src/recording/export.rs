@@ -7,8 +7,8 @@ use std::path::Path;
 use cms_core::protocol::DeviceMsg;
 
 use super::{
-    CSV_HEADER, HEADER_LEN, Header, RecordError, ScanStats, parse_header, read_block, scan_file_with_progress,
-    write_csv, write_json_line,
+    CSV_HEADER, HEADER_LEN, Header, HostRecord, Item, RecordError, ScanStats, parse_header, read_block,
+    scan_file_with_progress, write_csv, write_json_line,
 };
 use crate::progress::Progress;
 
@@ -19,6 +19,10 @@ pub enum ExportFormat {
     Csv,
     /// One JSON object per profile message, as `listen --json`.
     Jsonl,
+    /// The run's GNSS track as GeoJSON (RFC 7946): a `LineString` of the
+    /// fixes from satellites, and a `Point` for every fix with its time,
+    /// odometer and quality.
+    Geojson,
 }
 
 /// Opens a recording and checks its header (before an export creates its
@@ -80,6 +84,9 @@ pub fn export_to(
     out: &mut dyn Write,
     progress: &dyn Progress,
 ) -> Result<ScanStats, RecordError> {
+    if format == ExportFormat::Geojson {
+        return export_geojson(path, out, progress);
+    }
     if format == ExportFormat::Csv {
         writeln!(out, "{CSV_HEADER}").map_err(RecordError::Output)?;
     }
@@ -87,9 +94,64 @@ pub fn export_to(
         DeviceMsg::Profile(p) => match format {
             ExportFormat::Csv => write_csv(out, p),
             ExportFormat::Jsonl => write_json_line(out, p),
+            ExportFormat::Geojson => Ok(()),
         },
         _ => Ok(()),
     })?;
+    out.flush().map_err(RecordError::Output)?;
+    Ok(stats)
+}
+
+/// The run's fixes as one GeoJSON `FeatureCollection` (see [`ExportFormat::Geojson`]).
+fn export_geojson(path: &Path, out: &mut dyn Write, progress: &dyn Progress) -> Result<ScanStats, RecordError> {
+    use serde_json::{Value, json};
+    let mut line: Vec<Value> = Vec::new();
+    let mut points: Vec<Value> = Vec::new();
+    let stats = super::reader::scan_file_records_with_progress(path, progress, |item| {
+        if let Item::Host(HostRecord::Fix(p)) = item {
+            let f = &p.fix;
+            // RFC 7946: longitude, latitude, height; 1e-9 degrees is 0.1 mm.
+            let round = |v: f64| (v * 1e9).round() / 1e9;
+            let mut at = vec![json!(round(f.lon_deg)), json!(round(f.lat_deg))];
+            if let Some(h) = f.altitude_m {
+                at.push(json!((h * 1000.0).round() / 1000.0));
+            }
+            if f.quality.is_measured() {
+                line.push(Value::Array(at.clone()));
+            }
+            points.push(json!({
+                "type": "Feature",
+                "geometry": {"type": "Point", "coordinates": at},
+                "properties": {
+                    "host_us": p.host_us,
+                    "head_us": p.head_us,
+                    "odometer_mm": p.odometer_um.map(|u| u as f64 / 1000.0),
+                    "utc_ms_of_day": f.utc_ms_of_day,
+                    "date": f.date.map(|(y, m, d)| format!("{y:04}-{m:02}-{d:02}")),
+                    "quality": f.quality.name(),
+                    "quality_code": f.quality.digit(),
+                    "satellites": f.satellites,
+                    "hdop": f.hdop,
+                    "speed_mm_s": f.speed_mm_s,
+                    "course_deg": f.course_deg,
+                    "sigma_m": f.sigma_m(),
+                }
+            }));
+        }
+        Ok(())
+    })?;
+    let mut features = Vec::with_capacity(points.len() + 1);
+    if line.len() >= 2 {
+        features.push(json!({
+            "type": "Feature",
+            "geometry": {"type": "LineString", "coordinates": line},
+            "properties": {"what": "the run's track: its fixes from satellites, in time order"}
+        }));
+    }
+    features.extend(points);
+    let doc = json!({"type": "FeatureCollection", "features": features});
+    serde_json::to_writer(&mut *out, &doc).map_err(|e| RecordError::Output(e.into()))?;
+    writeln!(out).map_err(RecordError::Output)?;
     out.flush().map_err(RecordError::Output)?;
     Ok(stats)
 }

@@ -5,7 +5,8 @@ use std::path::Path;
 use cms_core::pipeline::line::Counts;
 use cms_core::protocol::{DeviceInfo, DeviceMsg, ErrorCode, LASERS};
 
-use super::{FrameCounter, RecordError, ScanStats, points, scan_file_with_progress, survey_of, um_to_mm};
+use super::{FrameCounter, HostRecord, Item, RecordError, ScanStats, points, survey_of, um_to_mm};
+use crate::gnss::{Fix, Placed};
 use crate::progress::Progress;
 
 /// What `cms-host info` reports.
@@ -53,6 +54,57 @@ pub struct Info {
     pub line_worst_frame: u32,
     /// The rejections of the frame being read.
     line_frame: u32,
+    /// The GNSS fixes recorded.
+    pub gnss: GnssInfo,
+}
+
+/// What a recording's GNSS fixes say.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GnssInfo {
+    /// Fixes recorded.
+    pub fixes: u64,
+    /// Of those, by the `GGA` quality digit (0 to 8).
+    pub by_quality: [u64; 9],
+    /// Of those, placed among the head's frames (a profile before them).
+    pub placed: u64,
+    /// The first fix.
+    pub first: Option<Fix>,
+    /// The last fix.
+    pub last: Option<Fix>,
+}
+
+impl GnssInfo {
+    /// Accumulates one recorded fix.
+    pub fn add(&mut self, p: &Placed) {
+        self.fixes += 1;
+        self.by_quality[usize::from(p.fix.quality.digit()).min(8)] += 1;
+        self.placed += u64::from(p.head_us.is_some());
+        self.first.get_or_insert_with(|| p.fix.clone());
+        self.last = Some(p.fix.clone());
+    }
+
+    /// The `gnss:` line of `info`.
+    pub fn line(&self) -> String {
+        if self.fixes == 0 {
+            return "gnss: no fixes".to_string();
+        }
+        let kinds: Vec<String> = (0..9u8)
+            .filter(|&d| self.by_quality[usize::from(d)] > 0)
+            .map(|d| {
+                let name = crate::gnss::Quality::from_digit(d).map_or("?", |q| q.name());
+                format!("{} {name}", self.by_quality[usize::from(d)])
+            })
+            .collect();
+        let at = |f: &Option<Fix>| f.as_ref().map_or("-".to_string(), |f| format!("{:.7} {:.7}", f.lat_deg, f.lon_deg));
+        format!(
+            "gnss: {} fixes ({}), {} placed among the frames; first at {}, last at {} (lat lon, degrees)",
+            self.fixes,
+            kinds.join(", "),
+            self.placed,
+            at(&self.first),
+            at(&self.last)
+        )
+    }
 }
 
 impl Info {
@@ -105,8 +157,11 @@ impl Info {
     pub fn of_file(path: &Path, progress: &dyn Progress) -> Result<Info, RecordError> {
         let mut info = Info::default();
         let mut counter = FrameCounter::default();
-        info.scan = scan_file_with_progress(path, progress, |m| {
-            info.add(m, &mut counter);
+        info.scan = super::reader::scan_file_records_with_progress(path, progress, |item| {
+            match item {
+                Item::Device(m) => info.add(m, &mut counter),
+                Item::Host(HostRecord::Fix(p)) => info.gnss.add(p),
+            }
             Ok(())
         })?;
         // A damaged survey block is reported, not a reason to say nothing
@@ -219,6 +274,9 @@ impl Info {
         }
         if self.raw_chunks > 0 {
             let _ = writeln!(s, "raw image chunks: {}", self.raw_chunks);
+        }
+        if self.gnss.fixes > 0 || self.scan.header.is_some_and(|h| h.holds_host_records()) {
+            let _ = writeln!(s, "{}", self.gnss.line());
         }
         let _ = writeln!(s, "damaged frames: {}", self.scan.damaged);
         let _ = writeln!(s, "duplicated profile messages (skipped): {}", self.scan.duplicates);

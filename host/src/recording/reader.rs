@@ -6,7 +6,7 @@ use std::path::Path;
 
 use cms_core::protocol::{DeviceMsg, Profile, WireError};
 
-use super::{HEADER_LEN, Header, RecordError, parse_header, read_block};
+use super::{HEADER_LEN, Header, HostRecord, RecordError, Recorded, parse_header, read_block};
 use crate::link::{Counters, Deframer};
 use crate::progress::Progress;
 
@@ -34,6 +34,17 @@ pub struct ScanStats {
     /// The header's survey block is damaged (cut short, not UTF-8, or its
     /// checksum does not match): its survey is not to be used.
     pub survey_damaged: bool,
+    /// Host records read (GNSS fixes).
+    pub host_records: u64,
+}
+
+/// One frame of a recording as read.
+#[derive(Clone, Copy, Debug)]
+pub enum Item<'a> {
+    /// A message of the head.
+    Device(&'a DeviceMsg),
+    /// A record of the host.
+    Host(&'a HostRecord),
 }
 
 /// Reads a recording from `r` (header first) and calls `on_msg` with every
@@ -48,8 +59,21 @@ pub struct ScanStats {
 /// starts its `seq` again, after a `Hello`, so the set is cleared there.
 pub fn scan_reader(
     path: &Path,
-    mut r: impl Read,
+    r: impl Read,
     mut on_msg: impl FnMut(&DeviceMsg) -> io::Result<()>,
+) -> Result<ScanStats, RecordError> {
+    scan_records(path, r, |item| match item {
+        Item::Device(m) => on_msg(m),
+        Item::Host(_) => Ok(()),
+    })
+}
+
+/// [`scan_reader`] with the host's records too ([`Item::Host`]), in file
+/// order among the head's messages.
+pub fn scan_records(
+    path: &Path,
+    mut r: impl Read,
+    mut on_item: impl FnMut(Item<'_>) -> io::Result<()>,
 ) -> Result<ScanStats, RecordError> {
     let io_err = |source| RecordError::Io { path: path.to_path_buf(), what: "cannot read", source };
     let mut h = Vec::with_capacity(HEADER_LEN);
@@ -92,12 +116,18 @@ pub fn scan_reader(
                 Err(e) => return Err(io_err(e)),
             },
         };
-        d.feed(&buf[..n], |res, raw| {
+        d.feed_as(&buf[..n], |res: Result<Recorded, WireError>, raw| {
             if failed.is_some() {
                 return;
             }
             match res {
-                Ok(msg) => {
+                Ok(Recorded::Host(rec)) => {
+                    stats.host_records += 1;
+                    if let Err(e) = on_item(Item::Host(&rec)) {
+                        failed = Some(e);
+                    }
+                }
+                Ok(Recorded::Device(msg)) => {
                     stats.messages += 1;
                     match &msg {
                         DeviceMsg::Hello(_) => seen.clear(),
@@ -110,7 +140,7 @@ pub fn scan_reader(
                     if matches!(msg, DeviceMsg::Profile(_)) {
                         stats.profile_bytes += raw.len() as u64;
                     }
-                    if let Err(e) = on_msg(&msg) {
+                    if let Err(e) = on_item(Item::Device(&msg)) {
                         failed = Some(e);
                     }
                 }
@@ -132,7 +162,19 @@ pub fn scan_reader(
 pub fn scan_file_with_progress(
     path: &Path,
     progress: &dyn Progress,
-    on_msg: impl FnMut(&DeviceMsg) -> io::Result<()>,
+    mut on_msg: impl FnMut(&DeviceMsg) -> io::Result<()>,
+) -> Result<ScanStats, RecordError> {
+    scan_file_records_with_progress(path, progress, |item| match item {
+        Item::Device(m) => on_msg(m),
+        Item::Host(_) => Ok(()),
+    })
+}
+
+/// [`scan_file_with_progress`] with the host's records too.
+pub fn scan_file_records_with_progress(
+    path: &Path,
+    progress: &dyn Progress,
+    on_item: impl FnMut(Item<'_>) -> io::Result<()>,
 ) -> Result<ScanStats, RecordError> {
     let f = File::open(path).map_err(|source| RecordError::Io {
         path: path.to_path_buf(),
@@ -142,7 +184,7 @@ pub fn scan_file_with_progress(
     let total = f.metadata().map(|m| m.len()).unwrap_or(0);
     progress.begin(&format!("reading {}", path.display()), total, "B");
     let counted = Counted { inner: f, done: 0, progress };
-    let r = scan_reader(path, BufReader::with_capacity(256 << 10, counted), on_msg);
+    let r = scan_records(path, BufReader::with_capacity(256 << 10, counted), on_item);
     progress.end();
     r
 }
@@ -171,6 +213,49 @@ pub fn scan_file(path: &Path, on_msg: impl FnMut(&DeviceMsg) -> io::Result<()>) 
         source,
     })?;
     scan_reader(path, BufReader::with_capacity(256 << 10, f), on_msg)
+}
+
+/// One head session of a recording (from a `Hello` to the next): its
+/// GNSS fixes in file order and its profiles' `(timestamp_us,
+/// odometer_mm)` sorted by time. A head that restarts starts its clock
+/// again, so fixes are only ever placed among their own session's frames.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PositionedSession {
+    /// The fixes.
+    pub fixes: Vec<crate::gnss::Placed>,
+    /// The first part of every profile: its time and odometer.
+    pub profiles: Vec<(u64, f64)>,
+}
+
+/// The GNSS fixes of a recording with its profiles' times and odometers,
+/// per head session (sessions without a fix left out), and what reading
+/// found.
+pub fn fixes_of(path: &Path) -> Result<(Vec<PositionedSession>, ScanStats), RecordError> {
+    let f = File::open(path).map_err(|source| RecordError::Io {
+        path: path.to_path_buf(),
+        what: "cannot open recording",
+        source,
+    })?;
+    let mut sessions = vec![PositionedSession::default()];
+    let stats = scan_records(path, BufReader::with_capacity(256 << 10, f), |item| {
+        let s = sessions.last_mut().expect("one session at least");
+        match item {
+            Item::Host(HostRecord::Fix(p)) => s.fixes.push(p.clone()),
+            Item::Device(DeviceMsg::Hello(_)) if !s.profiles.is_empty() || !s.fixes.is_empty() => {
+                sessions.push(PositionedSession::default());
+            }
+            Item::Device(DeviceMsg::Profile(p)) if p.part == 0 => {
+                s.profiles.push((p.timestamp_us, p.odometer_um as f64 / 1000.0));
+            }
+            Item::Device(_) => {}
+        }
+        Ok(())
+    })?;
+    sessions.retain(|s| !s.fixes.is_empty());
+    for s in &mut sessions {
+        s.profiles.sort_by_key(|p| p.0);
+    }
+    Ok((sessions, stats))
 }
 
 /// Notes on stderr about what reading skipped, one line each.

@@ -5,7 +5,10 @@ use std::io::{self, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use super::{HEADER_LEN, MAX_SURVEY_BYTES, RecordError, SYNC_INTERVAL, header_and_survey, parse_header, read_block};
+use super::{
+    FORMAT_VERSION, HEADER_LEN, HOST_RECORDS_FORMAT, HostRecord, MAX_SURVEY_BYTES, RecordError, SYNC_INTERVAL,
+    header_and_survey, parse_header, read_block,
+};
 
 /// Appends frames to a recording (see the module docs for what reaches the
 /// file when).
@@ -17,6 +20,9 @@ pub struct Recorder {
     /// When the oldest frame not yet committed was written.
     dirty_since: Option<Instant>,
     frames: u64,
+    /// The file's format version (an older file appended to keeps its own).
+    format: u16,
+    host_records: u64,
 }
 
 impl Recorder {
@@ -40,12 +46,14 @@ impl Recorder {
             .open(path)
             .map_err(|e| io_err("cannot open recording", e))?;
         let len = file.metadata().map_err(|e| io_err("cannot read", e))?.len();
+        let mut format_version = FORMAT_VERSION;
         if len == 0 {
             file.write_all(&header_and_survey(survey)).map_err(|e| io_err("cannot write", e))?;
         } else {
             let mut h = Vec::with_capacity(HEADER_LEN);
             (&mut file).take(HEADER_LEN as u64).read_to_end(&mut h).map_err(|e| io_err("cannot read", e))?;
             let header = parse_header(&h).map_err(|why| format(format!("{why}; refusing to append")))?;
+            format_version = header.format;
             let block = read_block(&mut file, &h, &header).map_err(|e| io_err("cannot read", e))?;
             if let Some((why, _)) = block.damage {
                 return Err(format(format!("survey block: {why}; refusing to append")));
@@ -69,7 +77,14 @@ impl Recorder {
                 }
             }
         }
-        Ok(Recorder { out: file, path: path.to_path_buf(), dirty_since: None, frames: 0 })
+        Ok(Recorder {
+            out: file,
+            path: path.to_path_buf(),
+            dirty_since: None,
+            frames: 0,
+            format: format_version,
+            host_records: 0,
+        })
     }
 
     /// The file.
@@ -94,6 +109,40 @@ impl Recorder {
         // whole frames only (a kill inside leaves a fragment readers skip).
         self.out.write_all(wire).map_err(|e| self.err("cannot write", e))?;
         self.frames += 1;
+        self.dirty_since.get_or_insert_with(Instant::now);
+        self.tick()
+    }
+
+    /// Whether the file's format holds host records (a file of format 3
+    /// or older, appended to, does not: its readers would skip them).
+    pub fn holds_host_records(&self) -> bool {
+        self.format >= HOST_RECORDS_FORMAT
+    }
+
+    /// The file's format version.
+    pub fn format(&self) -> u16 {
+        self.format
+    }
+
+    /// Host records written by this recorder.
+    pub fn host_records(&self) -> u64 {
+        self.host_records
+    }
+
+    /// Appends one host record (a GNSS fix), as [`Recorder::write_frame`]
+    /// a frame; refused for a file of a format without host records.
+    pub fn write_host_record(&mut self, r: &HostRecord) -> Result<(), RecordError> {
+        if !self.holds_host_records() {
+            return Err(RecordError::Format {
+                path: self.path.clone(),
+                why: format!(
+                    "recording format {} holds no GNSS fixes (format {HOST_RECORDS_FORMAT} does); record to a new file",
+                    self.format
+                ),
+            });
+        }
+        self.out.write_all(&r.frame()).map_err(|e| self.err("cannot write", e))?;
+        self.host_records += 1;
         self.dirty_since.get_or_insert_with(Instant::now);
         self.tick()
     }

@@ -3,6 +3,8 @@
 //!
 //! * [`scene`] — the scene: rail, lasers, camera and sensor noise, rendered
 //!   row by row with its truth.
+//! * [`gnss`] — a simulated GNSS receiver riding with the simulated head
+//!   along a track register's centreline (`listen sim --gnss sim`).
 //! * [`head`] — the simulated head: `cms_core::pipeline::Head` on a
 //!   pseudo-terminal, fed by [`scene`] (`cms-host simulate`, `listen sim`).
 //! * [`calibration`] — calibration images of the simulated head and its
@@ -20,6 +22,7 @@
 pub mod annex_a;
 pub mod calibration;
 pub mod closed_loop;
+pub mod gnss;
 pub mod head;
 pub mod real_light;
 pub mod scene;

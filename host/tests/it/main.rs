@@ -12,6 +12,7 @@ mod corrugation_sim;
 mod detect;
 mod exit_codes;
 mod fit;
+mod gnss;
 mod hostile;
 mod input_props;
 mod listen;

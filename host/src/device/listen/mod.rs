@@ -110,6 +110,18 @@ pub struct ListenOptions {
     pub track_px: Option<u16>,
     /// How long a lost port may stay away.
     pub reconnect_timeout: Duration,
+    /// A GNSS receiver to read beside the head: its fixes go into the
+    /// recording among the frames ([`crate::gnss`]).
+    pub gnss: Option<GnssPort>,
+}
+
+/// A GNSS receiver's serial port.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct GnssPort {
+    /// Its device path.
+    pub path: String,
+    /// Its baud rate.
+    pub baud: u32,
 }
 
 impl Default for ListenOptions {
@@ -127,6 +139,7 @@ impl Default for ListenOptions {
             readout: None,
             track_px: None,
             reconnect_timeout: Duration::from_secs(30),
+            gnss: None,
         }
     }
 }
@@ -206,6 +219,17 @@ pub enum ListenError {
     /// The recording failed.
     #[error("recording: {0}")]
     Record(#[source] RecordError),
+    /// The GNSS receiver's port could not be read.
+    #[error(transparent)]
+    Gnss(crate::gnss::ReceiverError),
+    /// A recording that cannot hold the GNSS fixes asked for.
+    #[error("--gnss with --record {}: recording format {format} holds no GNSS fixes (format {}); record to a new file", path.display(), crate::recording::HOST_RECORDS_FORMAT)]
+    NoFixesInFormat {
+        /// The recording.
+        path: PathBuf,
+        /// Its format.
+        format: u16,
+    },
     /// Writing the JSON output failed (not a closed pipe, which just stops).
     #[error("writing output: {0}")]
     Output(#[source] io::Error),
@@ -239,7 +263,8 @@ impl crate::error::Classify for ListenError {
         match self {
             ListenError::Output(_) => crate::Class::Output,
             ListenError::Record(r) => crate::error::Classify::class(r),
-            ListenError::Readout { .. } => crate::Class::Input,
+            ListenError::Readout { .. } | ListenError::NoFixesInFormat { .. } => crate::Class::Input,
+            ListenError::Gnss(g) => crate::error::Classify::class(g),
             // What the user asked for (an exposure, a window, a rate) is
             // beyond what the head takes: bad usage, not a broken link.
             ListenError::Refused { code: ErrorCode::OutOfRange | ErrorCode::InvalidConfig, .. } => crate::Class::Input,
@@ -301,6 +326,40 @@ pub struct Summary {
     pub elapsed: Duration,
     /// From the first to the last profile.
     pub streaming: Duration,
+    /// The GNSS receiver's part, when one was read.
+    pub gnss: Option<GnssSummary>,
+}
+
+/// What came from the GNSS receiver.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GnssSummary {
+    /// Its port.
+    pub port: String,
+    /// Fixes written to the recording (or received, without one).
+    pub fixes: u64,
+    /// The reader's counters.
+    pub stats: crate::gnss::ReceiverStats,
+    /// The last fix.
+    pub last: Option<crate::gnss::Fix>,
+}
+
+impl fmt::Display for GnssSummary {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let last = match &self.last {
+            Some(x) => format!(
+                ", last {} with {} satellites, HDOP {}",
+                x.quality.name(),
+                x.satellites.map_or("?".into(), |n| n.to_string()),
+                x.hdop.map_or("?".into(), |h| format!("{h:.1}"))
+            ),
+            None => ", no fix".to_string(),
+        };
+        write!(
+            f,
+            "gnss {}: {} fixes{last}; {} sentences damaged, {} epochs without a position, {} fixes dropped, {} outages",
+            self.port, self.fixes, self.stats.invalid, self.stats.no_position, self.stats.dropped, self.stats.outages
+        )
+    }
 }
 
 impl Summary {
@@ -376,6 +435,9 @@ impl fmt::Display for Summary {
             Some(m) => format!("ON ({m:#05b})"),
             None => "unknown".to_string(),
         };
+        if let Some(g) = &self.gnss {
+            writeln!(f, "{g}")?;
+        }
         write!(f, "lasers: {lasers}{}", if self.stop_acked { " (stop acknowledged)" } else { "" })
     }
 }
@@ -474,11 +536,24 @@ pub fn session(
         },
         None => None,
     };
+    if let (Some(_), Some(rec)) = (&opts.gnss, &recorder)
+        && !rec.holds_host_records()
+    {
+        return Outcome::failed(ListenError::NoFixesInFormat { path: rec.path().to_path_buf(), format: rec.format() });
+    }
+    let gnss = match &opts.gnss {
+        Some(g) => match crate::gnss::Receiver::start(&g.path, g.baud) {
+            Ok(r) => Some(r),
+            Err(e) => return Outcome::failed(ListenError::Gnss(e)),
+        },
+        None => None,
+    };
     let mut client = match Client::open(port, opts.baud) {
         Ok(c) => c.with_heartbeat(HEARTBEAT_INTERVAL),
         Err(e) => return Outcome::failed(ListenError::Open(e)),
     };
     let mut s = Session::new(opts, port, out, observe, recorder, client.outbox(), t0);
+    s.gnss = gnss;
     let mut last_open_try = t0;
     let result = loop {
         let now = Instant::now();

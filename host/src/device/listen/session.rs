@@ -10,7 +10,9 @@ use cms_core::protocol::{DeviceMsg, HeadState, HostMsg, Profile, WireError};
 use cms_core::readout::Readout;
 
 use crate::analyze::live::LiveEstimate;
+use crate::gnss::{Placed, Receiver};
 use crate::link::{Client, Greeting, Outbox, check_version};
+use crate::recording::HostRecord;
 use crate::recording::{self, FrameCounter, Recorder};
 
 use super::{
@@ -72,6 +74,13 @@ pub(super) struct Session<'a> {
     window_rates: WindowRates,
     /// The recent calibrated frames, for the corrugation estimate.
     live: LiveEstimate,
+    /// The GNSS receiver read beside the head.
+    pub(super) gnss: Option<Receiver>,
+    /// The last profile: when it arrived, its time and odometer (µm).
+    last_head: Option<(Instant, u64, i64)>,
+    /// When the last fix arrived.
+    last_fix_at: Option<Instant>,
+    t0: Instant,
 }
 
 impl Session<'_> {
@@ -214,6 +223,7 @@ impl Session<'_> {
         }
         self.first_profile.get_or_insert(now);
         self.last_profile = Some(now);
+        self.last_head = Some((now, p.timestamp_us, p.odometer_um));
         self.sum.profiles += 1;
         self.live.push(p);
         let n = recording::points(p);
@@ -320,7 +330,7 @@ impl Session<'_> {
             _ => String::new(),
         };
         format!(
-            "{state}: {:.1} frames/s, {:.0} points/frame ({:.1} rejected), {} frames, CRC errors {}, resyncs {}, dropped {}, reconnects {}, lasers {lasers}{head}{}{corrugation}",
+            "{state}: {:.1} frames/s, {:.0} points/frame ({:.1} rejected), {} frames, CRC errors {}, resyncs {}, dropped {}, reconnects {}, lasers {lasers}{head}{}{}{corrugation}",
             self.window_rates.frames_per_s,
             self.window_rates.points_per_frame,
             self.window_rates.rejected_per_frame,
@@ -329,6 +339,7 @@ impl Session<'_> {
             self.sum.link.resyncs(),
             self.sum.head_dropped,
             self.sum.reconnects,
+            self.gnss_status(now),
             if corrugation.is_empty() { "" } else { ", " },
         )
     }
@@ -375,6 +386,59 @@ impl<'a> Session<'a> {
             window_rejected: 0,
             window_rates: WindowRates::default(),
             live: LiveEstimate::default(),
+            gnss: None,
+            last_head: None,
+            last_fix_at: None,
+            t0,
+        }
+    }
+
+    /// The receiver's fixes since the last turn: placed on the head's
+    /// clock by the host's (see [`crate::gnss`], "Time alignment") and
+    /// recorded.
+    fn gnss_step(&mut self) {
+        let Some(rx) = &self.gnss else { return };
+        let fixes: Vec<_> = rx.drain().collect();
+        let g = self.sum.gnss.get_or_insert_with(|| crate::device::listen::GnssSummary {
+            port: rx.port().to_string(),
+            ..Default::default()
+        });
+        g.stats = rx.stats();
+        for (at, fix) in fixes {
+            let head_us = self.last_head.map(|(arrived, ts, _)| {
+                if at >= arrived {
+                    ts.saturating_add((at - arrived).as_micros() as u64)
+                } else {
+                    ts.saturating_sub((arrived - at).as_micros() as u64)
+                }
+            });
+            let placed = Placed {
+                host_us: at.saturating_duration_since(self.t0).as_micros() as u64,
+                head_us,
+                odometer_um: self.last_head.map(|h| h.2),
+                fix,
+            };
+            self.last_fix_at = Some(at);
+            if let Some(rec) = &mut self.recorder
+                && let Err(e) = rec.write_host_record(&HostRecord::Fix(placed.clone()))
+            {
+                self.fatal = Some(ListenError::Record(e));
+                return;
+            }
+            g.fixes += 1;
+            g.last = Some(placed.fix);
+        }
+    }
+
+    /// The status line's GNSS part.
+    fn gnss_status(&self, now: Instant) -> String {
+        let Some(g) = &self.sum.gnss else { return String::new() };
+        match (&g.last, self.last_fix_at) {
+            (Some(f), Some(at)) if now.saturating_duration_since(at) < Duration::from_secs(2) => {
+                format!(", GNSS {} {} sats", f.quality.name(), f.satellites.map_or("?".into(), |n| n.to_string()))
+            }
+            (_, Some(at)) => format!(", GNSS: no fix for {:.0} s", now.saturating_duration_since(at).as_secs_f64()),
+            _ => ", GNSS: no fix yet".to_string(),
         }
     }
 
@@ -419,6 +483,7 @@ impl<'a> Session<'a> {
         if let Err(e) = client.transmit(now) {
             self.trouble(now, e.to_string());
         }
+        self.gnss_step();
         if let Some(rec) = &mut self.recorder
             && let Err(e) = rec.tick()
         {
@@ -500,6 +565,13 @@ impl<'a> Session<'a> {
             let _ = client.transmit(Instant::now());
         }
         status.finish();
+        // The fixes that arrived up to the end are kept.
+        self.gnss_step();
+        if let Some(g) = &mut self.sum.gnss
+            && let Some(rx) = &self.gnss
+        {
+            g.stats = rx.stats();
+        }
         let flushed = match &mut self.recorder {
             Some(rec) => rec.finish().map_err(ListenError::Record),
             None => Ok(()),

@@ -19,7 +19,7 @@ pub mod worker;
 use std::io::{self, Write as _};
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
 use std::thread::JoinHandle;
 
 pub use scene::SceneCamera;
@@ -101,6 +101,9 @@ pub struct HeadOptions {
     /// What the rail does to the lasers' light (speckle, finish, glints,
     /// ghosts); `None` keeps the preset's (incoherent light).
     pub light: Option<crate::sim::scene::LightModel>,
+    /// Where each frame's odometer is published (µm) for a simulated GNSS
+    /// receiver riding with the head ([`crate::sim::gnss`]).
+    pub odometer_tap: Option<Arc<AtomicI64>>,
 }
 
 impl Default for HeadOptions {
@@ -121,6 +124,7 @@ impl Default for HeadOptions {
             state: None,
             factory_calibration: true,
             light: None,
+            odometer_tap: None,
         }
     }
 }
@@ -156,9 +160,16 @@ fn calibration_file(args: &HeadOptions) -> Option<PathBuf> {
 pub struct SimHandle {
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<Result<ServeSummary, SimulateError>>>,
+    /// A simulated GNSS receiver riding with the head.
+    gnss: Option<crate::sim::gnss::GnssSim>,
 }
 
 impl SimHandle {
+    /// The port of the simulated GNSS receiver riding with the head, if any.
+    pub fn gnss_path(&self) -> Option<&std::path::Path> {
+        self.gnss.as_ref().map(|g| g.path())
+    }
+
     /// Whether the server is still running.
     pub fn is_running(&self) -> bool {
         self.thread.as_ref().is_some_and(|t| !t.is_finished())
@@ -208,7 +219,7 @@ pub fn spawn_on_pty(args: &HeadOptions) -> Result<(PathBuf, SimHandle), Simulate
         .stack_size(8 << 20)
         .spawn(move || serve(pty, built.renderer, built.detector, &flag, &opts))
         .map_err(|e| SimulateError::Io("starting the simulated head's thread", e))?;
-    Ok((path, SimHandle { stop, thread: Some(thread) }))
+    Ok((path, SimHandle { stop, thread: Some(thread), gnss: None }))
 }
 
 /// The simulated head's options where a command takes a PORT (`listen`,
@@ -231,6 +242,9 @@ pub struct SimPort {
     pub sim_uncalibrated: bool,
     /// With PORT `sim`: the light on the simulated rail (speckle, finish, glints, ghosts).
     pub sim_light: Option<crate::sim::scene::LightModel>,
+    /// With PORT `sim`: a simulated GNSS receiver rides with the head
+    /// ([`crate::sim::gnss`]).
+    pub sim_gnss: Option<crate::sim::gnss::GnssSimOptions>,
 }
 
 impl SimPort {
@@ -244,6 +258,7 @@ impl SimPort {
             || self.sim_roughness_um.is_some()
             || self.sim_uncalibrated
             || self.sim_light.is_some()
+            || self.sim_gnss.is_some()
     }
 }
 
@@ -253,7 +268,7 @@ impl SimPort {
 pub fn resolve_port(port: &str, sim: &SimPort) -> Result<(PathBuf, Option<SimHandle>), SimulateError> {
     if port != "sim" {
         if sim.any() {
-            return Err(SimulateError::Usage("--sim-seed, --sim-preset, --sim-state, --sim-speed-mm-s, --sim-corrugation, --sim-roughness-um, --sim-uncalibrated and --sim-light need PORT `sim`".into()));
+            return Err(SimulateError::Usage("--sim-seed, --sim-preset, --sim-state, --sim-speed-mm-s, --sim-corrugation, --sim-roughness-um, --sim-uncalibrated, --sim-light and --gnss sim need PORT `sim`".into()));
         }
         return Ok((PathBuf::from(port), None));
     }
@@ -268,9 +283,13 @@ pub fn resolve_port(port: &str, sim: &SimPort) -> Result<(PathBuf, Option<SimHan
         roughness_um: sim.sim_roughness_um,
         factory_calibration: !sim.sim_uncalibrated,
         light: sim.sim_light.clone(),
+        odometer_tap: sim.sim_gnss.as_ref().map(|_| Arc::new(AtomicI64::new(crate::sim::gnss::NO_FRAME))),
         ..HeadOptions::default()
     };
-    let (path, handle) = spawn_on_pty(&args)?;
+    let (path, mut handle) = spawn_on_pty(&args)?;
+    if let (Some(g), Some(tap)) = (&sim.sim_gnss, &args.odometer_tap) {
+        handle.gnss = Some(crate::sim::gnss::GnssSim::spawn(g.clone(), tap.clone())?);
+    }
     Ok((path, Some(handle)))
 }
 
@@ -278,11 +297,18 @@ pub fn resolve_port(port: &str, sim: &SimPort) -> Result<(PathBuf, Option<SimHan
 /// a simulated head is stopped afterwards (lasers off) and its summary
 /// printed as one `sim:` line on stderr.
 pub fn with_port<T>(port: &str, sim: &SimPort, f: impl FnOnce(&str) -> T) -> Result<T, SimulateError> {
+    with_ports(port, sim, |head, _| f(head))
+}
+
+/// [`with_port`], giving `f` the simulated GNSS receiver's port too when
+/// one rides with the head ([`SimPort::sim_gnss`]).
+pub fn with_ports<T>(port: &str, sim: &SimPort, f: impl FnOnce(&str, Option<&str>) -> T) -> Result<T, SimulateError> {
     let (path, head) = resolve_port(port, sim)?;
     let Some(path) = path.to_str() else {
         return Err(SimulateError::Usage(format!("port path {path:?} is not UTF-8")));
     };
-    let r = f(path);
+    let gnss = head.as_ref().and_then(|h| h.gnss_path()).and_then(|p| p.to_str());
+    let r = f(path, gnss);
     if let Some(head) = head {
         match head.stop() {
             Ok(s) => {
@@ -365,6 +391,8 @@ mod scene {
     use crate::sim::scene::{Scene, Shot};
     use cms_core::peak::{Config, Select};
     use cms_core::protocol::LASERS;
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicI64, Ordering};
 
     /// The renderer, the detector configuration for its camera, its frame
     /// rate limit and its exposure.
@@ -400,8 +428,8 @@ mod scene {
         } else {
             None
         };
-        let renderer =
-            Threaded::new(SceneCamera::new(scene)).map_err(|e| SimulateError::Io("starting the render thread", e))?;
+        let renderer = Threaded::new(SceneCamera::with_tap(scene, args.odometer_tap.clone()))
+            .map_err(|e| SimulateError::Io("starting the render thread", e))?;
         Ok(Built { renderer, detector, max_rate_hz: args.rate, exposure_us, factory })
     }
 
@@ -412,12 +440,19 @@ mod scene {
     pub struct SceneCamera {
         scene: Scene,
         shot: Shot,
+        tap: Option<Arc<AtomicI64>>,
     }
 
     impl SceneCamera {
         /// Renders `scene`.
         pub fn new(scene: Scene) -> SceneCamera {
-            SceneCamera { shot: scene.shot(0, 0), scene }
+            SceneCamera { shot: scene.shot(0, 0), scene, tap: None }
+        }
+
+        /// [`SceneCamera::new`], publishing each frame's odometer (µm) in
+        /// `tap` as the frame begins (the simulated GNSS receiver follows it).
+        pub fn with_tap(scene: Scene, tap: Option<Arc<AtomicI64>>) -> SceneCamera {
+            SceneCamera { tap, ..SceneCamera::new(scene) }
         }
 
         /// The scene.
@@ -437,6 +472,9 @@ mod scene {
             let at = self.scene.shot_at(frame, t_us as f64, exposure_us as f64, mask);
             let odometer_um = (at.odometer_mm * 1000.0).round() as i64;
             self.shot = Shot { odometer_mm: odometer_um as f64 / 1000.0, ..at };
+            if let Some(t) = &self.tap {
+                t.store(odometer_um, Ordering::Relaxed);
+            }
             odometer_um
         }
         fn row(&mut self, r: u16, out: &mut [u16]) {

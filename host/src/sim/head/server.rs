@@ -78,6 +78,16 @@ impl Pty {
     pub fn path(&self) -> &std::path::Path {
         &self.path
     }
+
+    /// Writes what the pty takes now (its master is non-blocking): a
+    /// line nobody reads fills the buffer, and the rest is lost, as bytes
+    /// a device sends into an unread serial line are.
+    pub fn send(&mut self, bytes: &[u8]) -> io::Result<usize> {
+        match io::Write::write(&mut self.master, bytes) {
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock => Ok(0),
+            r => r,
+        }
+    }
 }
 
 /// Where the simulated camera's pixels come from: the scene model, or a

@@ -426,7 +426,7 @@ fn en15610_levels_agree_with_an_independent_implementation() {
 }
 
 /// `listen --survey FILE.toml` stores the survey in the recording's header
-/// (format 2): `info` shows it, `analyze` names it and places the run by
+/// (format 2 on): `info` shows it, `analyze` names it and places the run by
 /// its start chainage and direction; appending to the recording with
 /// another survey is refused, and a bad survey file is a one-line error.
 #[test]
@@ -445,7 +445,7 @@ fn a_survey_file_travels_with_the_recording() {
     let l = run(&["listen", "sim", "--sim-state", st, "--frames", "20", "--record", r, "--survey", s]);
     assert!(l.status.success(), "{}", String::from_utf8_lossy(&l.stderr));
     let info = String::from_utf8(run(&["info", r]).stdout).unwrap();
-    assert!(info.contains("format: 3 (wire protocol 4)\n") && info.contains("survey: line = \"LN 1234\""), "{info}");
+    assert!(info.contains("format: 4 (wire protocol 4)\n") && info.contains("survey: line = \"LN 1234\""), "{info}");
     let o = run(&["analyze", r, "--json"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();

@@ -1,0 +1,126 @@
+//! Records the host adds to a recording beside the head's frames: GNSS
+//! fixes (`listen --gnss`).
+//!
+//! A host record is framed exactly as a head's frame — COBS(tag ‖
+//! postcard(record) ‖ CRC-32) ‖ 0x00 — with [`HOST_RECORD_TAG`] where a
+//! head's frame has its protocol version. So it is under the same
+//! checksum, found by the same resynchronisation, and a reader that does
+//! not know it (a build before format 4) counts it as a frame of another
+//! version and skips it.
+
+use cms_core::protocol::{DeviceMsg, FromFrame, WireError};
+use serde::{Deserialize, Serialize};
+
+use crate::gnss::Placed;
+
+/// The first byte of a host record's frame, in place of the protocol
+/// version (no protocol version is this high).
+pub const HOST_RECORD_TAG: u8 = 0xC7;
+
+/// A record of the host's.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
+pub enum HostRecord {
+    /// A GNSS fix, placed on the host's clock among the head's frames.
+    Fix(Placed),
+}
+
+impl HostRecord {
+    /// The record's frame: what goes into the file, delimiter included.
+    pub fn frame(&self) -> Vec<u8> {
+        let mut body = vec![HOST_RECORD_TAG];
+        // A record of plain numbers and enums always serialises.
+        body.extend(postcard::to_allocvec(self).expect("a host record serialises"));
+        let crc = cms_core::protocol::CRC.checksum(&body);
+        body.extend_from_slice(&crc.to_le_bytes());
+        let mut frame = cobs::encode_vec(&body);
+        frame.push(0);
+        frame
+    }
+}
+
+/// What a frame of a recording holds: a head's message or a host record.
+#[allow(clippy::large_enum_variant)] // as DeviceMsg: read one at a time
+#[derive(Clone, Debug, PartialEq)]
+pub enum Recorded {
+    /// A message of the head.
+    Device(DeviceMsg),
+    /// A record of the host.
+    Host(HostRecord),
+}
+
+impl FromFrame for Recorded {
+    fn from_payload(version: u8, payload: &[u8]) -> Result<Recorded, WireError> {
+        if version != HOST_RECORD_TAG {
+            return DeviceMsg::from_payload(version, payload).map(Recorded::Device);
+        }
+        match postcard::take_from_bytes::<HostRecord>(payload) {
+            Ok((r, [])) => Ok(Recorded::Host(r)),
+            _ => Err(WireError::Decode),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gnss::{Fix, Quality};
+    use cms_core::protocol::decode_frame;
+
+    pub(crate) fn placed() -> Placed {
+        Placed {
+            host_us: 1_250_000,
+            head_us: Some(1_200_000),
+            odometer_um: Some(600_000),
+            fix: Fix {
+                utc_ms_of_day: Some(36_930_200),
+                date: Some((2026, 12, 4)),
+                lat_deg: 52.0,
+                lon_deg: 5.5,
+                altitude_m: Some(1.5),
+                quality: Quality::RtkFixed,
+                satellites: Some(14),
+                hdop: Some(0.5),
+                speed_mm_s: Some(500.0),
+                course_deg: Some(90.0),
+            },
+        }
+    }
+
+    /// Byte for byte: the frame of a fix, as format 4 writes it.
+    #[test]
+    fn a_fix_frame_is_golden() {
+        let frame = HostRecord::Fix(placed()).frame();
+        let hex: String = frame.iter().map(|b| format!("{b:02x}")).collect();
+        assert_eq!(hex, GOLDEN);
+        let mut body = frame[..frame.len() - 1].to_vec();
+        assert_eq!(decode_frame::<Recorded>(&mut body), Ok(Recorded::Host(HostRecord::Fix(placed()))));
+        // A head's frame reads as the head's.
+        let mut buf = [0u8; 64];
+        let msg = DeviceMsg::Ack(7);
+        let mut f = cms_core::protocol::encode(&msg, &mut buf).unwrap().to_vec();
+        f.pop();
+        assert_eq!(decode_frame::<Recorded>(&mut f), Ok(Recorded::Device(msg)));
+    }
+
+    /// Every flipped bit of a fix's frame is found by its checksum (or its framing).
+    #[test]
+    fn a_damaged_fix_is_never_read() {
+        let frame = HostRecord::Fix(placed()).frame();
+        for i in 0..frame.len() - 1 {
+            for bit in 0..8 {
+                let mut f = frame[..frame.len() - 1].to_vec();
+                f[i] ^= 1 << bit;
+                if f.contains(&0) {
+                    continue; // the reader splits it at the zero: two damaged frames
+                }
+                assert!(decode_frame::<Recorded>(&mut f).is_err(), "byte {i} bit {bit}");
+            }
+        }
+    }
+
+    // COBS of: 0xC7, variant 0 (Fix), host_us 1 250 000 (varint d0 a5 4c), head_us Some(1 200 000),
+    // odometer_um Some(600 000) (zigzag), utc_ms_of_day Some(36 930 200), date Some(2026, 12, 4), the
+    // f64s little-endian, quality 4 (RtkFixed), ..., then the CRC-32.
+    const GOLDEN: &str = "02c716d0a54c01809f4901809f49019885ce1101ea0f0c040101010101034a40010101010104164001010101010107f83f04010e01010101010104e03f010101010105407f40010101010108805640e283525300";
+}

@@ -1,0 +1,185 @@
+//! GNSS positions end to end: `listen sim --gnss sim --record` with the
+//! simulated receiver on its own pty, the fixes in the recording, `info`,
+//! `export --format geojson`, and `locate` checking them against the
+//! odometer and the survey on a track register — agreeing where the run
+//! is what it says, disagreeing (or failing) where it is not.
+
+use std::path::{Path, PathBuf};
+
+use crate::common::{one_line_error, one_line_failure, run};
+
+const REGISTER: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../examples/track-register.csv");
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Records `frames` frames at 1 m/s with the simulated receiver, with a
+/// survey saying where the run starts.
+fn record(dir: &Path, name: &str, frames: &str, start: &str, heading: &str) -> PathBuf {
+    let survey = dir.join(format!("{name}.toml"));
+    std::fs::write(
+        &survey,
+        format!("line = \"A\"\ntrack = \"1\"\nstart_chainage = \"{start}\"\nchainage = \"{heading}\"\n"),
+    )
+    .unwrap();
+    let rec = dir.join(format!("{name}.cmsrec"));
+    let o = run(&[
+        "listen",
+        "sim",
+        "--gnss",
+        "sim",
+        "--frames",
+        frames,
+        "--sim-speed-mm-s",
+        "1000",
+        "--record",
+        s(&rec),
+        "--survey",
+        s(&survey),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("listen: gnss /dev/pts/"), "{err}");
+    rec
+}
+
+fn locate(rec: &Path, register: &Path) -> String {
+    let o = run(&["locate", s(rec), "--register", s(register)]);
+    assert!(o.status.success(), "{o:?}");
+    String::from_utf8(o.stdout).unwrap()
+}
+
+/// The example register with every vertex rewritten by `f(lat, lon, chainage)`.
+fn register_like(dir: &Path, name: &str, f: impl Fn(f64, f64, f64) -> Vec<(f64, f64, f64)>) -> PathBuf {
+    let text = std::fs::read_to_string(REGISTER).unwrap();
+    let mut out = String::from("lat_deg,lon_deg,chainage_m\n");
+    for line in text.lines().filter(|l| !l.starts_with('#') && !l.starts_with("lat_deg")) {
+        let v: Vec<f64> = line.split(',').map(|x| x.parse().unwrap()).collect();
+        for (la, lo, c) in f(v[0], v[1], v[2]) {
+            out += &format!("{la:.9},{lo:.9},{c:.3}\n");
+        }
+    }
+    let p = dir.join(name);
+    std::fs::write(&p, out).unwrap();
+    p
+}
+
+#[test]
+fn a_run_with_gnss_is_placed_on_its_register_and_a_wrong_one_is_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    // About 4 s at 1 m/s: 41+100 to 41+104 on the first straight.
+    let rec = record(dir.path(), "run", "120", "41+100", "up");
+
+    let info = String::from_utf8(run(&["info", s(&rec)]).stdout).unwrap();
+    assert!(info.contains("format: 4"), "{info}");
+    let line = info.lines().find(|l| l.starts_with("gnss: ")).unwrap_or_else(|| panic!("{info}"));
+    let fixes: u64 = line["gnss: ".len()..].split(' ').next().unwrap().parse().unwrap();
+    // 10 Hz for about 4 s.
+    assert!((30..=50).contains(&fixes), "{line}");
+    // Every fix after the first profile is placed among the frames (the
+    // receiver may speak before the head's first frame arrives).
+    let placed: u64 = line.split("), ").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap();
+    assert!(line.contains("RTK fixed") && placed + 2 >= fixes && placed <= fixes, "{line}");
+
+    // The odometer and GNSS agree, and the survey with both.
+    let out = locate(&rec, Path::new(REGISTER));
+    assert!(out.contains("verdict: agrees"), "{out}");
+    assert!(out.contains("survey: start_chainage 41+100.000") && !out.contains("DISAGREES"), "{out}");
+    let zero = out.split("chainage at odometer 0: ").nth(1).unwrap();
+    let at: f64 = zero[3..10].parse().unwrap();
+    assert!((at - 100.0).abs() < 0.05, "{out}");
+
+    // A register with a 1 m chainage jump at 41+102: the fixes past it
+    // disagree with the odometer.
+    let jump = register_like(dir.path(), "jump.csv", |la, lo, c| match c {
+        c if c < 41_100.5 => vec![(la, lo, c)],
+        c if (41_199.5..41_200.5).contains(&c) => {
+            // The segment from 41+100 to 41+200 split at 41+102 with the jump.
+            let text = std::fs::read_to_string(REGISTER).unwrap();
+            let prev: Vec<f64> = text
+                .lines()
+                .find(|l| l.ends_with(",41100.000"))
+                .unwrap()
+                .split(',')
+                .map(|x| x.parse().unwrap())
+                .collect();
+            let at = |t: f64| (prev[0] + (la - prev[0]) * t, prev[1] + (lo - prev[1]) * t);
+            let (a, b) = (at(0.02), at(0.0205));
+            vec![(a.0, a.1, 41_102.0), (b.0, b.1, 41_103.05), (la, lo, c + 1.0)]
+        }
+        c => vec![(la, lo, c + 1.0)],
+    });
+    let out = locate(&rec, &jump);
+    assert!(out.contains("verdict: DISAGREES"), "{out}");
+
+    // Another track, 50 m to the north: no fix is on it.
+    let other = register_like(dir.path(), "other.csv", |la, lo, c| vec![(la + 50.0 / 111_250.0, lo, c)]);
+    let out = locate(&rec, &other);
+    assert!(out.contains("verdict: failed") && out.contains("off the centreline"), "{out}");
+
+    // The run's track as GeoJSON, on the register's line.
+    let o = run(&["export", s(&rec), "--format", "geojson"]);
+    assert!(o.status.success(), "{o:?}");
+    let doc: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let features = doc["features"].as_array().unwrap();
+    assert_eq!(features[0]["geometry"]["type"], "LineString");
+    assert_eq!(features.len() as u64, fixes + 1);
+    let p = &features[1]["geometry"]["coordinates"];
+    let (lon, lat) = (p[0].as_f64().unwrap(), p[1].as_f64().unwrap());
+    // 41+100 is about (52.09115 N, 5.12266 E).
+    assert!((lat - 52.091_15).abs() < 1e-4 && (lon - 5.122_66).abs() < 1e-4, "{p}");
+    assert_eq!(features[1]["properties"]["quality"], "RTK fixed");
+}
+
+#[test]
+fn a_survey_that_gnss_contradicts_is_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    // The user typed 41+000 and down; the run starts at 41+100 going up.
+    let rec = record(dir.path(), "typo", "60", "41+000", "down");
+    let out = locate(&rec, Path::new(REGISTER));
+    assert!(out.contains("verdict: agrees"), "{out}");
+    let off = out
+        .split("survey: start_chainage 41+000.000 — GNSS places odometer 0 ")
+        .nth(1)
+        .unwrap_or_else(|| panic!("{out}"));
+    let d: f64 = off.split(' ').next().unwrap().parse().unwrap();
+    assert!((d - 100.0).abs() < 0.05, "{out}");
+    assert!(off.contains("m from it: DISAGREES (tolerance"), "{out}");
+    assert!(out.contains("survey: chainage down — GNSS says rising: DISAGREES"), "{out}");
+}
+
+#[test]
+fn gnss_misuse_is_refused_in_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    // The simulated receiver rides with the simulated head only.
+    let e = one_line_error(&run(&["listen", "/dev/null", "--gnss", "sim", "--frames", "1"]));
+    assert!(e.contains("PORT `sim`"), "{e}");
+    // A receiver's port that does not exist: the device's failure.
+    let e = one_line_failure(&run(&["listen", "sim", "--gnss", "/nonexistent/gnss", "--frames", "1"]), 3);
+    assert!(e.contains("/nonexistent/gnss"), "{e}");
+    // A recording without fixes, and a register with a bad line.
+    let rec = dir.path().join("plain.cmsrec");
+    assert!(run(&["listen", "sim", "--frames", "2", "--record", s(&rec)]).status.success());
+    let e = one_line_error(&run(&["locate", s(&rec), "--register", REGISTER]));
+    assert!(e.contains("no GNSS fixes"), "{e}");
+    let bad = dir.path().join("bad.csv");
+    std::fs::write(&bad, "lat_deg,lon_deg,chainage_m\n52,5,100\n52.001,x,200\n").unwrap();
+    let e = one_line_error(&run(&["locate", s(&rec), "--register", s(&bad)]));
+    assert!(e.contains("bad.csv:3") && e.contains("lon_deg"), "{e}");
+    // --csv over an input is refused.
+    let e = one_line_error(&run(&["locate", s(&rec), "--register", REGISTER, "--csv", s(&rec)]));
+    assert!(e.contains("is an input"), "{e}");
+
+    // A recording of format 3 (before fixes) is not appended fixes to.
+    let mut bytes = std::fs::read(&rec).unwrap();
+    let survey_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    bytes[8] = 3;
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&bytes[..16 + survey_len]);
+    bytes[16 + survey_len..20 + survey_len].copy_from_slice(&crc.to_le_bytes());
+    let v3 = dir.path().join("v3.cmsrec");
+    std::fs::write(&v3, &bytes).unwrap();
+    let e = one_line_error(&run(&["listen", "sim", "--gnss", "sim", "--frames", "2", "--record", s(&v3)]));
+    assert!(e.contains("format 3 holds no GNSS fixes"), "{e}");
+    assert_eq!(std::fs::read(&v3).unwrap(), bytes, "the old recording is left as it was");
+}
