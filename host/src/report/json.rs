@@ -65,7 +65,8 @@ pub fn to_json(source: &Source, a: &Analysis) -> Value {
                 "registered": j.registered(),
                 "heading": j.heading.name(),
                 "heading_found": j.heading_found,
-                "heading_disputed": j.heading_disputed.map(|c| json!({ "other_heading_correlation": c })),
+                "heading_disputed": j.heading_disputed.map(|(g, o)| json!({ "given_um": g, "other_um": o })),
+                "chainage_disputed": j.elsewhere.map(|(m, c)| json!({ "registration_moved_mm": m, "correlation": c })),
                 "direction": match j.direction {
                     Direction::Reverse => "reverse",
                     _ => "forward",

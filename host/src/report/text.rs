@@ -92,6 +92,7 @@ pub fn describe(source: &Source, a: &Analysis) -> String {
                 || j.heading == survey::Heading::Down
                 || j.direction_disputed.is_some()
                 || j.heading_disputed.is_some()
+                || j.elsewhere.is_some()
         });
     if placed {
         for j in &a.joins {
@@ -149,15 +150,24 @@ pub fn describe_join(j: &survey::RunJoin) -> String {
             let _ = write!(s, " (overlap {:.1} m averaged, its offset removed)", j.overlap_mm / 1000.0);
         }
     }
+    if let Some((moved, c)) = j.elsewhere {
+        let _ = write!(
+            s,
+            "; CHAINAGE DISPUTED: its rail matches the earlier runs {:+.3} m from its given start (correlation {c:.2}), not taken (check its --chainage)",
+            moved / 1000.0
+        );
+    }
     let _ = write!(s, "; section {}", j.section);
     if j.ambiguous() {
         s.push_str("; AMBIGUOUS: another placement matched nearly as well (give its start chainage)");
     }
-    if let (Some(other), Some((c, _))) = (j.heading_disputed, j.correlation) {
+    if let Some((given, other)) = j.heading_disputed {
         let _ = write!(
             s,
-            "; HEADING DISPUTED: chainage {} as given matches with correlation {c:.2}, the other heading with {other:.2} (check its --chainage)",
-            j.heading.name()
+            "; HEADING DISPUTED: chainage {} as given registers with residual {}, the other heading with {} (check its --chainage)",
+            j.heading.name(),
+            opt_um(Some(given)),
+            opt_um(Some(other))
         );
     }
     if let Some((other, used)) = j.direction_disputed {

@@ -13,6 +13,7 @@ mod detect;
 mod exit_codes;
 mod fit;
 mod hostile;
+mod hostile_survey;
 mod input_props;
 mod listen;
 mod measure;

@@ -24,9 +24,14 @@
 //!   registration says by how much), and moved at most
 //!   [`JoinOptions::search_mm`] from it (the stated tolerance: a better
 //!   match farther away is not taken). A run whose given start overlaps
-//!   nothing is placed there as it is. Without a start, a run is
-//!   registered wherever it overlaps, and one that overlaps nothing is
-//!   refused ([`JoinError::NoOverlap`]).
+//!   nothing is placed there as it is; a clear match registration finds
+//!   near it anyway is reported ([`RunJoin::elsewhere`]), not taken.
+//!   Without a start, a run is registered wherever it matches, and one
+//!   that matches nothing is refused ([`JoinError::NoOverlap`]).
+//! * **Registration moves a run only onto a clear match**: a normalised
+//!   correlation of at least 0.9 (rail overlapping by chance stays far
+//!   below, corrugation mirrored onto itself too). A weaker best match
+//!   leaves the run where the user put it.
 //! * **A given heading is kept.** Both headings are tried only when none
 //!   is given; with one given, the other is tried too, only to check it:
 //!   when it matches clearly better the run is still placed as given and
@@ -119,10 +124,16 @@ pub struct RunJoin {
     pub moved_mm: Option<f64>,
     /// Whether the heading was found by registration rather than given.
     pub heading_found: bool,
-    /// With a given heading: the other heading's best correlation, when it
-    /// matched clearly better (the given one under 0.8 of it). The run is
-    /// placed as the user said, and the report says it disagrees.
-    pub heading_disputed: Option<f64>,
+    /// With a given heading: the registration residual of its best
+    /// placement and of the other heading's, µm, when the other's is under
+    /// 0.8 of it. The run keeps the heading the user gave; the report says
+    /// it disagrees.
+    pub heading_disputed: Option<(f64, f64)>,
+    /// Placed as given because its given start overlaps no earlier run:
+    /// where registration would have moved it (mm from the given start)
+    /// and the correlation there, when that is a clear match (at least
+    /// 0.9). Not taken: the report says the chainage may be wrong.
+    pub elsewhere: Option<(f64, f64)>,
     /// How its frames were stitched (never `Auto`), and with a given
     /// direction, whether the other registered clearly better
     /// ([`Stitching::direction_disputed`]).
@@ -167,9 +178,9 @@ pub enum JoinError {
     /// The runs were stitched at different spacings (runs numbered from 1).
     #[error("run {run} is sampled every {dx_mm} mm, run 1 every {first_mm} mm")]
     Spacing { run: usize, dx_mm: f64, first_mm: f64 },
-    /// A run overlaps nothing and has no start chainage (runs numbered from 1).
+    /// A run without a start chainage matches no earlier run (runs numbered from 1).
     #[error(
-        "run {run} overlaps no earlier run by {min_mm:.0} mm or more: give its start chainage (--chainage KM+M[:up|:down])"
+        "run {run} matches no earlier run (no clear registration over {min_mm:.0} mm or more): give its start chainage (--chainage KM+M[:up|:down])"
     )]
     NoOverlap { run: usize, min_mm: f64 },
 }
@@ -215,75 +226,13 @@ pub fn join(
         if let Some(l) = run.lasers.iter().find(|l| (l.dx_mm - dx).abs() > 1e-9 * dx) {
             return Err(JoinError::Spacing { run: r + 1, dx_mm: l.dx_mm, first_mm: dx });
         }
-        let Some(any) = run.lasers.first() else { continue };
-        let place = placements.get(r).copied().unwrap_or_default();
-        let headings: Vec<Heading> = match (place.heading, r) {
-            (Some(h), _) => vec![h],
-            (None, 0) => vec![Heading::Up],
-            (None, _) => vec![Heading::Up, Heading::Down],
-        };
-        // The run's lines lie a fraction `e(h)` of a sample off the grid.
-        let e = |h: Heading| {
-            let q = (oriented(any, h).0 - g0) / dx;
-            q - q.round()
-        };
-        let nominal = |h: Heading| place.start_m.map(|m| m * 1000.0 / dx + e(h));
-        // A nominal start applies to the heading it was given with; searched
-        // headings share it.
-        let n = nominal(headings[0]);
-        // The sections registration may place it on: with a given start,
-        // only those it overlaps where the user put it (the user's chainage
-        // says whether runs overlap; registration only says by how much).
-        let min_overlap = (opts.min_overlap_mm / dx).ceil() as i64;
-        let candidates: Vec<usize> = (0..sections.len())
-            .filter(|&k| {
-                let Some(n) = n else { return r > 0 };
-                let Some((slo, shi)) = sections[k].span() else { return false };
-                headings.iter().any(|&h| {
-                    extent(&run, h, n.round() as i64, (g0, dx))
-                        .is_some_and(|(lo, hi)| hi.min(shi) - lo.max(slo) >= min_overlap)
-                })
-            })
-            .collect();
-        let mut best: Option<(usize, Match)> = None;
-        for &k in &candidates {
-            for m in search(&sections[k].lines, &run, &headings, (g0, dx), n, opts) {
-                if best.is_none_or(|(_, b)| m.correlation > b.correlation) {
-                    best = Some((k, m));
-                }
-            }
+        if run.lasers.is_empty() {
+            continue;
         }
-        let mut heading_disputed = None;
-        let (heading, lo, frac, correlation, on) = match best {
-            Some((k, m)) => {
-                if headings.len() == 1 {
-                    let other = [match m.heading {
-                        Heading::Up => Heading::Down,
-                        Heading::Down => Heading::Up,
-                    }];
-                    let o = search(&sections[k].lines, &run, &other, (g0, dx), n, opts);
-                    heading_disputed = o
-                        .first()
-                        .map(|o| o.correlation)
-                        .filter(|&c| c > 0.0 && m.correlation < HEADING_AGREEMENT * c);
-                }
-                let (lo, frac) = refine(&sections[k], &run, m, (g0, dx));
-                (m.heading, lo, frac, Some((m.correlation, m.second)), Some(k))
-            }
-            None => {
-                if r > 0 && !sections.is_empty() && place.start_m.is_none() {
-                    return Err(JoinError::NoOverlap { run: r + 1, min_mm: opts.min_overlap_mm });
-                }
-                let h = place.heading.unwrap_or(Heading::Up);
-                let s = nominal(h).unwrap_or(e(h));
-                let lo = s.round();
-                // Run 1 is on the grid by construction; a placed run may not be.
-                let frac = if (s - lo).abs() < 1e-6 { 0.0 } else { s - s.floor() };
-                let lo = if frac == 0.0 { lo } else { s.floor() };
-                (h, lo as i64, frac, None, None)
-            }
-        };
-        let start_mm = (lo as f64 + frac - e(heading)) * dx;
+        let place = placements.get(r).copied().unwrap_or_default();
+        let Placed { heading, lo, frac, correlation, on, heading_disputed, elsewhere, e } =
+            place_run(&sections, &run, r, place, (g0, dx), opts)?;
+        let start_mm = (lo as f64 + frac - e) * dx;
         // Every section within a section gap of the run is one with it now.
         let (rlo, rhi) = extent(&run, heading, lo, (g0, dx)).unwrap_or((lo, lo + 1));
         let near = |s: &Section| s.span().is_some_and(|(slo, shi)| slo - rhi <= section_gap && rlo - shi <= section_gap);
@@ -303,6 +252,7 @@ pub fn join(
             moved_mm: place.start_m.map(|m| start_mm - m * 1000.0),
             heading_found: place.heading.is_none() && correlation.is_some(),
             heading_disputed,
+            elsewhere,
             direction: run.direction,
             direction_disputed: run.direction_disputed(),
             overlap_mm: overlap_samples as f64 * dx,
@@ -321,9 +271,133 @@ pub fn join(
     Ok((Stitching { direction, direction_residuals_um, direction_given, lasers }, report))
 }
 
-/// A given heading is disputed when its best correlation is under this
-/// share of the other heading's (as [`Direction::Auto`] judges the frames).
+/// Where and how a run goes on the line ([`place_run`]).
+struct Placed {
+    heading: Heading,
+    /// Whole grid index of its start, and the fraction of a sample beyond.
+    lo: i64,
+    frac: f64,
+    /// With registration: its best and second correlation, and the section.
+    correlation: Option<(f64, f64)>,
+    on: Option<usize>,
+    heading_disputed: Option<(f64, f64)>,
+    elsewhere: Option<(f64, f64)>,
+    /// The run's offset from the grid at that heading, samples.
+    e: f64,
+}
+
+/// Places run `r` (index from 0) on the sections so far: registered where
+/// the user's placement allows it and the match is clear, else as given
+/// (see the module docs).
+fn place_run(
+    sections: &[Section],
+    run: &Stitching,
+    r: usize,
+    place: Placement,
+    (g0, dx): (f64, f64),
+    opts: &JoinOptions,
+) -> Result<Placed, JoinError> {
+    let any = &run.lasers[0];
+    let headings: Vec<Heading> = match (place.heading, r) {
+        (Some(h), _) => vec![h],
+        (None, 0) => vec![Heading::Up],
+        (None, _) => vec![Heading::Up, Heading::Down],
+    };
+    // The run's lines lie a fraction `e(h)` of a sample off the grid.
+    let e = |h: Heading| {
+        let q = (oriented(any, h).0 - g0) / dx;
+        q - q.round()
+    };
+    let nominal = |h: Heading| place.start_m.map(|m| m * 1000.0 / dx + e(h));
+    // A nominal start applies to the heading it was given with; searched
+    // headings share it.
+    let n = nominal(headings[0]);
+    // The headings at which the run where its start puts it comes within
+    // `reach` samples of section `k` (all without a start, none for run 1).
+    let within = |k: usize, reach: i64| -> Vec<Heading> {
+        let Some(n) = n else { return if r > 0 { headings.clone() } else { Vec::new() } };
+        let Some((slo, shi)) = sections[k].span() else { return Vec::new() };
+        let near = |h: &Heading| {
+            extent(run, *h, n.round() as i64, (g0, dx)).is_some_and(|(lo, hi)| slo - hi <= reach && lo - shi <= reach)
+        };
+        headings.iter().copied().filter(near).collect()
+    };
+    // Registration places it only on sections (and at headings) it overlaps
+    // where the user put it (the user's chainage says whether runs overlap;
+    // registration only says by how much).
+    let min_overlap = (opts.min_overlap_mm / dx).ceil() as i64;
+    let mut best: Option<(usize, Match)> = None;
+    for k in 0..sections.len() {
+        for m in search(&sections[k].lines, run, &within(k, -min_overlap), (g0, dx), n, opts) {
+            if best.is_none_or(|(_, b)| m.correlation > b.correlation) {
+                best = Some((k, m));
+            }
+        }
+    }
+    let clear = best.filter(|(_, m)| m.correlation >= CLEAR_MATCH);
+    // A run placed as given is still checked: registration near its given
+    // start (within the tolerance) that finds a clear match is reported,
+    // not taken.
+    let mut elsewhere = None;
+    if let (Some(n), None) = (n, clear) {
+        let window = (opts.search_mm / dx).ceil() as i64;
+        for k in 0..sections.len() {
+            for m in search(&sections[k].lines, run, &within(k, window), (g0, dx), Some(n), opts) {
+                if m.correlation >= CLEAR_MATCH && elsewhere.is_none_or(|(_, c)| m.correlation > c) {
+                    elsewhere = Some(((m.lo as f64 - n) * dx, m.correlation));
+                }
+            }
+        }
+    }
+    // A given heading is checked against the other, by the residual of
+    // each one's best placement (corrugation correlates with itself
+    // mirrored; only the residual tells).
+    let mut heading_disputed = None;
+    if let (Some((k, m)), [given]) = (best, headings.as_slice()) {
+        let other = [match given {
+            Heading::Up => Heading::Down,
+            Heading::Down => Heading::Up,
+        }];
+        let residual_of = |m: Match| refine(&sections[k], run, m, (g0, dx)).2;
+        heading_disputed = search(&sections[k].lines, run, &other, (g0, dx), n, opts)
+            .first()
+            .and_then(|&o| Some((residual_of(m)?, residual_of(o)?)))
+            .filter(|&(given, other)| other < HEADING_AGREEMENT * given);
+    }
+    match clear {
+        // Registration moves a run only onto a clear match.
+        Some((k, m)) => {
+            let (lo, frac, _) = refine(&sections[k], run, m, (g0, dx));
+            let correlation = Some((m.correlation, m.second));
+            Ok(Placed { heading: m.heading, lo, frac, correlation, on: Some(k), heading_disputed, elsewhere, e: e(m.heading) })
+        }
+        _ => {
+            if r > 0 && !sections.is_empty() && place.start_m.is_none() {
+                return Err(JoinError::NoOverlap { run: r + 1, min_mm: opts.min_overlap_mm });
+            }
+            let h = place.heading.unwrap_or(Heading::Up);
+            let s = nominal(h).unwrap_or(e(h));
+            let lo = s.round();
+            // Run 1 is on the grid by construction; a placed run may not be.
+            let frac = if (s - lo).abs() < 1e-6 { 0.0 } else { s - s.floor() };
+            let lo = if frac == 0.0 { lo } else { s.floor() };
+            Ok(Placed { heading: h, lo: lo as i64, frac, correlation: None, on: None, heading_disputed, elsewhere, e: e(h) })
+        }
+    }
+}
+
+/// A given heading is disputed when the other heading's registration
+/// residual is under this share of its own (as [`Direction::Auto`] judges
+/// the frames).
 const HEADING_AGREEMENT: f64 = 0.8;
+
+/// The correlation of a match clear enough to register on (or to report
+/// against a placement as given): normalised, band-passed, over at least
+/// the registration's overlap. Rail overlapping by chance stays far below;
+/// corrugation mirrored onto itself does not (a run over a corrugated
+/// stretch given the wrong heading: 0.73, residual 40 µm, against 0.98 and
+/// 0.6 µm where it belongs, `host/tests/it/hostile_survey.rs`).
+const CLEAR_MATCH: f64 = 0.9;
 
 /// Grid indices `lo..hi` the run covers with its start at index `start`.
 fn extent(run: &Stitching, h: Heading, start: i64, (g0, dx): (f64, f64)) -> Option<(i64, i64)> {
@@ -342,8 +416,9 @@ fn extent(run: &Stitching, h: Heading, start: i64, (g0, dx): (f64, f64)) -> Opti
 
 /// The match's whole start refined to a fraction of a sample: the
 /// parabola through the overlap residuals at the start and its
-/// neighbours. Returns (whole start, fraction in 0..1).
-fn refine(section: &Section, run: &Stitching, m: Match, (g0, dx): (f64, f64)) -> (i64, f64) {
+/// neighbours. Returns (whole start, fraction in 0..1, the residual at
+/// the whole start, µm).
+fn refine(section: &Section, run: &Stitching, m: Match, (g0, dx): (f64, f64)) -> (i64, f64, Option<f64>) {
     let lines = on_grid(run, m.heading, g0, dx);
     let at = |d: i64| {
         let per: Vec<Vec<(f64, f64)>> = lines
@@ -352,7 +427,8 @@ fn refine(section: &Section, run: &Stitching, m: Match, (g0, dx): (f64, f64)) ->
             .collect();
         residual(&per).map(|r| r.0)
     };
-    let frac = match (at(-1), at(0), at(1)) {
+    let here = at(0);
+    let frac = match (at(-1), here, at(1)) {
         (Some(a), Some(b), Some(c)) => {
             let (a, b, c) = (a * a, b * b, c * c);
             let den = a - 2.0 * b + c;
@@ -361,5 +437,5 @@ fn refine(section: &Section, run: &Stitching, m: Match, (g0, dx): (f64, f64)) ->
         _ => 0.0,
     };
     // A negative fraction is the previous sample's positive one.
-    if frac < 0.0 { (m.lo - 1, 1.0 + frac) } else { (m.lo, frac) }
+    if frac < 0.0 { (m.lo - 1, 1.0 + frac, here) } else { (m.lo, frac, here) }
 }
