@@ -156,11 +156,9 @@ impl Recording {
         }
         let instrument = |r: &Recording| r.survey.as_ref().and_then(|s| s.instrument.clone());
         match (instrument(self), instrument(other)) {
-            (Some(x), Some(y)) if x != y => Some(format!(
-                "instrument {} vs {}",
-                crate::output::printable(&y),
-                crate::output::printable(&x)
-            )),
+            (Some(x), Some(y)) if x != y => {
+                Some(format!("instrument {} vs {}", crate::output::printable(&y), crate::output::printable(&x)))
+            }
             _ => None,
         }
     }

@@ -203,7 +203,10 @@ fn parse_text(text: &str, dx_mm: Option<f64>) -> Result<(ProfileFile, Stitching)
         resampled,
         has_x: x_col.is_some(),
     };
-    Ok((info, Stitching { direction: Direction::Forward, direction_residuals_um: None, direction_given: false, lasers }))
+    Ok((
+        info,
+        Stitching { direction: Direction::Forward, direction_residuals_um: None, direction_given: false, lasers },
+    ))
 }
 
 /// Uniform samples put on their grid points (a longer step leaves gaps).

@@ -180,7 +180,8 @@ pub fn judge(lasers: &[LaserAnalysis], opts: &Options) -> ReprofilingVerdict {
             for (row, r) in v.rows.iter_mut().zip(s.rows) {
                 row.measured_mm += r.measured_mm;
                 row.exceeding_mm += r.exceeding_mm;
-                row.not_evaluated = if row.measured_mm > 0.0 { None } else { row.not_evaluated.take().or(r.not_evaluated) };
+                row.not_evaluated =
+                    if row.measured_mm > 0.0 { None } else { row.not_evaluated.take().or(r.not_evaluated) };
             }
         }
         v.zones.extend(s.zones);

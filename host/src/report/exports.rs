@@ -129,7 +129,11 @@ pub fn profile_table(source: &Source, a: &Analysis) -> Table {
             let col: Vec<Option<f64>> = (0..rows)
                 .map(|i| {
                     let l = l?;
-                    usize::try_from(i as i64 - off).ok().and_then(|j| l.stitched.z_um.get(j)).copied().filter(|v| v.is_finite())
+                    usize::try_from(i as i64 - off)
+                        .ok()
+                        .and_then(|j| l.stitched.z_um.get(j))
+                        .copied()
+                        .filter(|v| v.is_finite())
                 })
                 .collect();
             for (c, v) in cov.iter_mut().zip(&col) {

@@ -51,11 +51,9 @@ pub fn describe(source: &Source, a: &Analysis) -> String {
                     opt_um(f),
                     opt_um(r)
                 ),
-                (Some((f, r)), true) => format!(
-                    " (as given; median overlap residual forward {}, reverse {})",
-                    opt_um(f),
-                    opt_um(r)
-                ),
+                (Some((f, r)), true) => {
+                    format!(" (as given; median overlap residual forward {}, reverse {})", opt_um(f), opt_um(r))
+                }
                 (None, _) => String::new(),
             };
             let _ = writeln!(
@@ -123,7 +121,8 @@ pub fn describe_sections(a: &Analysis) -> String {
         if let Some(end) = last {
             let _ = writeln!(s, "  not measured: {} to {} ({:.3} m)", chainage(end), chainage(x0), (x0 - end) / 1000.0);
         }
-        let _ = writeln!(s, "  section {}: {} to {} ({:.3} m)", sec.number, chainage(x0), chainage(x1), (x1 - x0) / 1000.0);
+        let _ =
+            writeln!(s, "  section {}: {} to {} ({:.3} m)", sec.number, chainage(x0), chainage(x1), (x1 - x0) / 1000.0);
         last = Some(x1);
     }
     s

@@ -55,7 +55,10 @@ fn a_chainage_typo_is_a_gap_not_an_allocation() {
         assert_eq!(sections.len(), 2, "{far}: {sections:?}");
         assert!((sections[1]["start_mm"].as_f64().unwrap() - far_mm).abs() < 200.0, "{far}: {sections:?}");
         let j = &v["run_joins"][1];
-        assert_eq!((j["run"].as_u64(), j["section"].as_u64(), j["registered"].as_bool()), (Some(2), Some(2), Some(false)));
+        assert_eq!(
+            (j["run"].as_u64(), j["section"].as_u64(), j["registered"].as_bool()),
+            (Some(2), Some(2), Some(false))
+        );
         assert_eq!(j["moved_mm"], 0.0, "{j}");
         for l in v["lasers"].as_array().unwrap() {
             // Each line of each section is one run's 10 m, never the gap.
@@ -111,7 +114,8 @@ fn end_to_end_runs_are_not_overlapped_by_registration() {
 fn runs_of_different_heads_are_refused_unless_asked() {
     let dir = tempfile::tempdir().unwrap();
     let a = run_over(dir.path(), "a.cmsrec", 600, |_| {});
-    let b = run_over(dir.path(), "b.cmsrec", 600, |o| (o.seed, o.start_mm, o.calibration_id) = (2, 5_000.0, 0x0bad_cafe));
+    let b =
+        run_over(dir.path(), "b.cmsrec", 600, |o| (o.seed, o.start_mm, o.calibration_id) = (2, 5_000.0, 0x0bad_cafe));
     let e = one_line_error(&run(&["analyze", s(&a), s(&b)]));
     assert!(e.contains("run 2 (") && e.contains("run 1 (") && e.contains("another head"), "{e}");
     assert!(e.contains("0x0badcafe") && e.contains("--allow-mixed-heads"), "{e}");
@@ -176,7 +180,8 @@ fn runs_are_numbered_from_one_everywhere() {
     let v = json(&run(&["analyze", s(&a), s(&b), "--chainage", "0+000", "--chainage", "0+050", "--json"]));
     let runs: Vec<u64> = v["run_joins"].as_array().unwrap().iter().map(|j| j["run"].as_u64().unwrap()).collect();
     assert_eq!(runs, [1, 2]);
-    let text = String::from_utf8_lossy(&run(&["analyze", s(&a), s(&b), "--chainage", "0+000", "--chainage", "0+050"]).stdout)
-        .to_string();
+    let text =
+        String::from_utf8_lossy(&run(&["analyze", s(&a), s(&b), "--chainage", "0+000", "--chainage", "0+050"]).stdout)
+            .to_string();
     assert!(text.contains("\nrun 1: ") && text.contains("\nrun 2: ") && !text.contains("run 0"), "{text}");
 }

@@ -235,7 +235,8 @@ pub fn join(
         let start_mm = (lo as f64 + frac - e) * dx;
         // Every section within a section gap of the run is one with it now.
         let (rlo, rhi) = extent(&run, heading, lo, (g0, dx)).unwrap_or((lo, lo + 1));
-        let near = |s: &Section| s.span().is_some_and(|(slo, shi)| slo - rhi <= section_gap && rlo - shi <= section_gap);
+        let near =
+            |s: &Section| s.span().is_some_and(|(slo, shi)| slo - rhi <= section_gap && rlo - shi <= section_gap);
         let mut merged = Section::default();
         let mut kept = Vec::new();
         for (k, s) in sections.into_iter().enumerate() {
@@ -369,7 +370,16 @@ fn place_run(
         Some((k, m)) => {
             let (lo, frac, _) = refine(&sections[k], run, m, (g0, dx));
             let correlation = Some((m.correlation, m.second));
-            Ok(Placed { heading: m.heading, lo, frac, correlation, on: Some(k), heading_disputed, elsewhere, e: e(m.heading) })
+            Ok(Placed {
+                heading: m.heading,
+                lo,
+                frac,
+                correlation,
+                on: Some(k),
+                heading_disputed,
+                elsewhere,
+                e: e(m.heading),
+            })
         }
         _ => {
             if r > 0 && !sections.is_empty() && place.start_m.is_none() {
@@ -381,7 +391,16 @@ fn place_run(
             // Run 1 is on the grid by construction; a placed run may not be.
             let frac = if (s - lo).abs() < 1e-6 { 0.0 } else { s - s.floor() };
             let lo = if frac == 0.0 { lo } else { s.floor() };
-            Ok(Placed { heading: h, lo: lo as i64, frac, correlation: None, on: None, heading_disputed, elsewhere, e: e(h) })
+            Ok(Placed {
+                heading: h,
+                lo: lo as i64,
+                frac,
+                correlation: None,
+                on: None,
+                heading_disputed,
+                elsewhere,
+                e: e(h),
+            })
         }
     }
 }
@@ -421,10 +440,8 @@ fn extent(run: &Stitching, h: Heading, start: i64, (g0, dx): (f64, f64)) -> Opti
 fn refine(section: &Section, run: &Stitching, m: Match, (g0, dx): (f64, f64)) -> (i64, f64, Option<f64>) {
     let lines = on_grid(run, m.heading, g0, dx);
     let at = |d: i64| {
-        let per: Vec<Vec<(f64, f64)>> = lines
-            .iter()
-            .flat_map(|(k, o, v)| differences(&section.lines, &[(*k, v.clone())], m.lo + d + o))
-            .collect();
+        let per: Vec<Vec<(f64, f64)>> =
+            lines.iter().flat_map(|(k, o, v)| differences(&section.lines, &[(*k, v.clone())], m.lo + d + o)).collect();
         residual(&per).map(|r| r.0)
     };
     let here = at(0);

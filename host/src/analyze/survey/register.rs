@@ -163,8 +163,7 @@ pub(super) fn search(
     opts: &JoinOptions,
 ) -> Vec<Match> {
     let (g0, dx) = grid;
-    let (Some(jlo), Some(jhi)) = (joined.iter().map(|l| l.base).min(), joined.iter().map(JoinedLine::end).max())
-    else {
+    let (Some(jlo), Some(jhi)) = (joined.iter().map(|l| l.base).min(), joined.iter().map(JoinedLine::end).max()) else {
         return Vec::new();
     };
     let mut out = Vec::new();

@@ -181,7 +181,9 @@ impl Section {
             let m = self.meta_of(l.laser, dx);
             m.frames += l.frames;
             m.points += l.points;
-            m.fits.extend(l.fits.iter().map(|f| FrameFit { centre_mm: to_chainage(start_mm, heading, f.centre_mm), ..*f }));
+            m.fits.extend(
+                l.fits.iter().map(|f| FrameFit { centre_mm: to_chainage(start_mm, heading, f.centre_mm), ..*f }),
+            );
             m.joins.extend(l.joins.iter().map(|j| Join { at_mm: to_chainage(start_mm, heading, j.at_mm), ..*j }));
         }
         self.runs.push(r);
