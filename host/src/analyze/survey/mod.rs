@@ -328,8 +328,8 @@ fn place_run(
     // registration only says by how much).
     let min_overlap = (opts.min_overlap_mm / dx).ceil() as i64;
     let mut best: Option<(usize, Match)> = None;
-    for k in 0..sections.len() {
-        for m in search(&sections[k].lines, run, &within(k, -min_overlap), (g0, dx), n, opts) {
+    for (k, sec) in sections.iter().enumerate() {
+        for m in search(&sec.lines, run, &within(k, -min_overlap), (g0, dx), n, opts) {
             if best.is_none_or(|(_, b)| m.correlation > b.correlation) {
                 best = Some((k, m));
             }
@@ -342,29 +342,18 @@ fn place_run(
     let mut elsewhere = None;
     if let (Some(n), None) = (n, clear) {
         let window = (opts.search_mm / dx).ceil() as i64;
-        for k in 0..sections.len() {
-            for m in search(&sections[k].lines, run, &within(k, window), (g0, dx), Some(n), opts) {
+        for (k, sec) in sections.iter().enumerate() {
+            for m in search(&sec.lines, run, &within(k, window), (g0, dx), Some(n), opts) {
                 if m.correlation >= CLEAR_MATCH && elsewhere.is_none_or(|(_, c)| m.correlation > c) {
                     elsewhere = Some(((m.lo as f64 - n) * dx, m.correlation));
                 }
             }
         }
     }
-    // A given heading is checked against the other, by the residual of
-    // each one's best placement (corrugation correlates with itself
-    // mirrored; only the residual tells).
-    let mut heading_disputed = None;
-    if let (Some((k, m)), [given]) = (best, headings.as_slice()) {
-        let other = [match given {
-            Heading::Up => Heading::Down,
-            Heading::Down => Heading::Up,
-        }];
-        let residual_of = |m: Match| refine(&sections[k], run, m, (g0, dx)).2;
-        heading_disputed = search(&sections[k].lines, run, &other, (g0, dx), n, opts)
-            .first()
-            .and_then(|&o| Some((residual_of(m)?, residual_of(o)?)))
-            .filter(|&(given, other)| other < HEADING_AGREEMENT * given);
-    }
+    let heading_disputed = match (best, headings.as_slice()) {
+        (Some((k, m)), [given]) => heading_dispute(&sections[k], run, m, *given, n, (g0, dx), opts),
+        _ => None,
+    };
     match clear {
         // Registration moves a run only onto a clear match.
         Some((k, m)) => {
@@ -403,6 +392,28 @@ fn place_run(
             })
         }
     }
+}
+
+/// A given heading checked against the other, by the residual of each
+/// one's best placement on the section of `m` (corrugation correlates with
+/// itself mirrored; only the residual tells): both residuals, µm, when
+/// the other's is clearly smaller.
+fn heading_dispute(
+    section: &Section,
+    run: &Stitching,
+    m: Match,
+    given: Heading,
+    n: Option<f64>,
+    grid: (f64, f64),
+    opts: &JoinOptions,
+) -> Option<(f64, f64)> {
+    let other = match given {
+        Heading::Up => Heading::Down,
+        Heading::Down => Heading::Up,
+    };
+    let o = *search(&section.lines, run, &[other], grid, n, opts).first()?;
+    let (given_um, other_um) = (refine(section, run, m, grid).2?, refine(section, run, o, grid).2?);
+    (other_um < HEADING_AGREEMENT * given_um).then_some((given_um, other_um))
 }
 
 /// A given heading is disputed when the other heading's registration
