@@ -72,10 +72,108 @@ pub struct Recording {
     pub slid_across: Option<(usize, PathBuf)>,
     /// The survey the recording's header names ([`crate::recording::survey_info`]).
     pub survey: Option<crate::recording::survey_info::Survey>,
+    /// A hash of the frames' contents (each frame's `seq`, odometer, point
+    /// counts, first and last points and sum of heights, in order): two
+    /// recordings holding the same frames have the same.
+    pub fingerprint: u64,
+    /// Set by [`check_runs`] when joined as asked: the earlier run (from 1)
+    /// this one repeats, and the earlier run whose head differs (and how).
+    pub repeats: Option<usize>,
+    pub other_head: Option<(usize, String)>,
+}
+
+/// What [`check_runs`] lets through because the user asked for it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct RunsAllowed {
+    /// The same recording given more than once.
+    pub repeats: bool,
+    /// Recordings of different heads.
+    pub mixed_heads: bool,
+}
+
+/// Checks the runs of one survey before they are joined: the same
+/// recording twice (the same file, or a copy: the same frames, points,
+/// odometer and head) or recordings of different heads (calibration,
+/// sensor, or the survey's instrument) are refused, naming both runs
+/// (numbered from 1), unless `allowed`; then each is noted on the later
+/// run for the report.
+pub fn check_runs(runs: &mut [(PathBuf, Recording)], allowed: RunsAllowed) -> Result<(), Error> {
+    for j in 1..runs.len() {
+        for i in 0..j {
+            let ((pi, ri), (pj, rj)) = (&runs[i], &runs[j]);
+            let name = |k: usize, p: &Path| format!("run {} ({})", k + 1, p.display());
+            if same_file(pi, pj) || ri.same_frames(rj) {
+                if !allowed.repeats {
+                    return Err(Error::Input(format!(
+                        "{} is the same recording as {}: give each run once (or --allow-repeated-runs to join it with itself)",
+                        name(j, pj),
+                        name(i, pi)
+                    )));
+                }
+                runs[j].1.repeats.get_or_insert(i + 1);
+            } else if let Some(how) = ri.head_difference(rj) {
+                if !allowed.mixed_heads {
+                    return Err(Error::Input(format!(
+                        "{} was recorded by another head than {} ({how}): join runs of one head (or --allow-mixed-heads)",
+                        name(j, pj),
+                        name(i, pi)
+                    )));
+                }
+                runs[j].1.other_head.get_or_insert((i + 1, how));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Whether two paths name one file (the same device and inode).
+fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt as _;
+    match (std::fs::metadata(a), std::fs::metadata(b)) {
+        (Ok(x), Ok(y)) => x.dev() == y.dev() && x.ino() == y.ino(),
+        _ => false,
+    }
 }
 
 impl Recording {
+    /// Whether `other` holds the same frames (a copy of one recording):
+    /// the same count and [`Recording::fingerprint`].
+    pub fn same_frames(&self, other: &Recording) -> bool {
+        (self.frames, self.fingerprint) == (other.frames, other.fingerprint)
+    }
+
+    /// How the head that made `other` differs from this one's, when both
+    /// say: their calibration ids, sensor sizes or survey instruments.
+    pub fn head_difference(&self, other: &Recording) -> Option<String> {
+        let (a, b) = (&self.heads, &other.heads);
+        let hex = |v: &[u32]| v.iter().map(|id| format!("{id:#010x}")).collect::<Vec<_>>().join(", ");
+        if !a.calibration_ids.is_empty() && !b.calibration_ids.is_empty() && a.calibration_ids != b.calibration_ids {
+            return Some(format!("calibration {} vs {}", hex(&b.calibration_ids), hex(&a.calibration_ids)));
+        }
+        let px = |v: &[(u32, u32)]| v.iter().map(|(w, h)| format!("{w}×{h}")).collect::<Vec<_>>().join(", ");
+        if !a.sensors.is_empty() && !b.sensors.is_empty() && a.sensors != b.sensors {
+            return Some(format!("sensor {} px vs {} px", px(&b.sensors), px(&a.sensors)));
+        }
+        let instrument = |r: &Recording| r.survey.as_ref().and_then(|s| s.instrument.clone());
+        match (instrument(self), instrument(other)) {
+            (Some(x), Some(y)) if x != y => {
+                Some(format!("instrument {} vs {}", crate::output::printable(&y), crate::output::printable(&x)))
+            }
+            _ => None,
+        }
+    }
+
     fn count(&mut self, f: &FramePoints) {
+        use std::hash::{Hash as _, Hasher as _};
+        // Not every point: what tells two runs apart costs nothing next to reading them.
+        let mut h = std::hash::DefaultHasher::new();
+        (self.fingerprint, f.seq, f.odometer_mm.to_bits()).hash(&mut h);
+        for pts in &f.lasers {
+            let ends = [pts.first(), pts.last()].map(|p| p.map(|&(a, z)| (a.to_bits(), z.to_bits())));
+            let sum: f64 = pts.iter().map(|p| p.1).sum();
+            (pts.len(), ends, sum.to_bits()).hash(&mut h);
+        }
+        self.fingerprint = h.finish();
         self.frames += 1;
         let (s, o) = (f.seq, f.odometer_mm);
         self.seq_range = Some(self.seq_range.map_or((s, s), |(lo, hi)| (lo.min(s), hi.max(s))));
@@ -182,9 +280,42 @@ pub struct Analysis {
     pub stitching: Stitching,
     /// How each run was placed on the line (one entry per run).
     pub joins: Vec<survey::RunJoin>,
+    /// Every line of every section, section by section ([`Analysis::sections`]).
     pub lasers: Vec<LaserAnalysis>,
     /// Zones, the reprofiling table and blocks over all the lines.
     pub verdict: reprofiling::ReprofilingVerdict,
+}
+
+/// One section of the survey line: a stretch measured without a gap
+/// longer than a section gap, its lines on one grid.
+#[derive(Debug, Clone, Copy)]
+pub struct Section<'a> {
+    /// From 1, in chainage order.
+    pub number: usize,
+    pub grid: Grid,
+    pub lasers: &'a [LaserAnalysis],
+}
+
+impl Section<'_> {
+    /// Chainage of its first sample and past its last, mm.
+    pub fn span_mm(&self) -> (f64, f64) {
+        (self.grid.origin_mm, self.grid.origin_mm + self.grid.len as f64 * self.grid.dx_mm)
+    }
+}
+
+impl Analysis {
+    /// The sections of the survey line, in chainage order (one for a
+    /// single run or a profile file).
+    pub fn sections(&self) -> Vec<Section<'_>> {
+        self.lasers
+            .chunk_by(|a, b| a.stitched.section == b.stitched.section)
+            .map(|lasers| Section {
+                number: lasers[0].stitched.section,
+                grid: Grid::of(lasers, self.options.stitch.dx_mm),
+                lasers,
+            })
+            .collect()
+    }
 }
 
 /// The lines' profiles on one grid: sample `i` at chainage

@@ -203,7 +203,10 @@ fn parse_text(text: &str, dx_mm: Option<f64>) -> Result<(ProfileFile, Stitching)
         resampled,
         has_x: x_col.is_some(),
     };
-    Ok((info, Stitching { direction: Direction::Forward, auto_residuals_um: None, lasers }))
+    Ok((
+        info,
+        Stitching { direction: Direction::Forward, direction_residuals_um: None, direction_given: false, lasers },
+    ))
 }
 
 /// Uniform samples put on their grid points (a longer step leaves gaps).
@@ -245,6 +248,7 @@ pub fn stitched(line: usize, x0_mm: f64, dx_mm: f64, z_um: Vec<f64>) -> Stitched
     let gaps = super::stitch::gaps(x0_mm, dx_mm, &z_um);
     Stitched {
         laser: line,
+        section: 1,
         x0_mm,
         dx_mm,
         points: z_um.iter().filter(|v| v.is_finite()).count(),

@@ -158,19 +158,43 @@ pub struct ReprofilingVerdict {
     pub blocks: Vec<Block>,
 }
 
-/// Judges the lines' analyses: zones, table, blocks. All lines share one
-/// grid spacing; their positions are chainage mm.
+/// Judges the lines' analyses: zones, table, blocks, section by section
+/// (the lines of one section are consecutive: [`super::Analysis::sections`];
+/// sections lie more than a block and a window apart, so no zone or block
+/// spans two). All lines share one grid spacing; their positions are
+/// chainage mm.
 pub fn judge(lasers: &[LaserAnalysis], opts: &Options) -> ReprofilingVerdict {
-    let Some(dx) = lasers.first().map(|l| l.stitched.dx_mm) else {
-        return ReprofilingVerdict {
-            options: *opts,
-            rows: vec![],
-            zones: vec![],
-            reprofile_mm: 0.0,
-            measured_mm: 0.0,
-            blocks: vec![],
-        };
+    let mut v = ReprofilingVerdict {
+        options: *opts,
+        rows: vec![],
+        zones: vec![],
+        reprofile_mm: 0.0,
+        measured_mm: 0.0,
+        blocks: vec![],
     };
+    for section in lasers.chunk_by(|a, b| a.stitched.section == b.stitched.section) {
+        let s = judge_section(section, opts);
+        if v.rows.is_empty() {
+            v.rows = s.rows;
+        } else {
+            for (row, r) in v.rows.iter_mut().zip(s.rows) {
+                row.measured_mm += r.measured_mm;
+                row.exceeding_mm += r.exceeding_mm;
+                row.not_evaluated =
+                    if row.measured_mm > 0.0 { None } else { row.not_evaluated.take().or(r.not_evaluated) };
+            }
+        }
+        v.zones.extend(s.zones);
+        v.blocks.extend(s.blocks);
+        v.reprofile_mm += s.reprofile_mm;
+        v.measured_mm += s.measured_mm;
+    }
+    v
+}
+
+/// [`judge`] on the lines of one section.
+fn judge_section(lasers: &[LaserAnalysis], opts: &Options) -> ReprofilingVerdict {
+    let dx = lasers[0].stitched.dx_mm;
     let grid = Grid::of(lasers, dx);
     let (origin, len) = (grid.origin_mm, grid.len);
     let mut any_over = vec![false; len];

@@ -23,7 +23,9 @@
 //! coordinate (`host/tests/it/triangulate_sim.rs` checks along = x − odometer
 //! to 0.5 µm). [`Direction::Auto`] picks `s` from the data: the sign whose
 //! overlapping frames agree better (a corrugated rail disagrees with itself
-//! when mirrored; a flat one cannot tell, and forward is kept).
+//! when mirrored; a flat one cannot tell, and forward is kept). A direction
+//! given is used as given and checked the same way: when the other sign
+//! agrees clearly better, [`Stitching::direction_disputed`] says so.
 //!
 //! # Resampling
 //!
@@ -72,7 +74,8 @@
 //!
 //! `O(P log P)` for P points (sorting each frame's points into cells) plus
 //! `O(C)` per frame for C cells it covers; memory 16 bytes per grid cell
-//! and lane (two lanes per laser with [`Direction::Auto`]) and one
+//! and lane (two lanes per laser, one per direction; three or four when the
+//! registration is not offset-only) and one
 //! [`FrameFit`] per frame, not the frames: [`Stitcher`] streams. A grid
 //! longer than [`MAX_CELLS`] is refused.
 
@@ -247,6 +250,10 @@ pub struct Join {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Stitched {
     pub laser: usize,
+    /// The section of the survey line it lies on, from 1 (a stretch
+    /// measured without a gap longer than a section gap:
+    /// [`crate::analyze::survey::JoinOptions::section_gap_mm`]).
+    pub section: usize,
     /// Track position of sample 0, mm.
     pub x0_mm: f64,
     pub dx_mm: f64,
@@ -290,9 +297,32 @@ impl Stitched {
 pub struct Stitching {
     /// The direction used (never `Auto`).
     pub direction: Direction,
-    /// With [`Direction::Auto`]: median registration residual of forward and reverse, µm.
-    pub auto_residuals_um: Option<(Option<f64>, Option<f64>)>,
+    /// Median registration residual (offsets only, busiest laser) of
+    /// forward and reverse, µm: what [`Direction::Auto`] chooses by, and
+    /// what a given direction is checked against (`None`: not stitched
+    /// from frames).
+    pub direction_residuals_um: Option<(Option<f64>, Option<f64>)>,
+    /// Whether the direction was given (not [`Direction::Auto`]).
+    pub direction_given: bool,
     pub lasers: Vec<Stitched>,
+}
+
+/// The direction that registers better wins when its median residual is
+/// under this share of the other's (a flat rail ties: forward is kept).
+const DIRECTION_AGREEMENT: f64 = 0.8;
+
+impl Stitching {
+    /// With a given direction: the other direction's median residual and
+    /// the given one's, µm, when the other registered clearly better (the
+    /// test [`Direction::Auto`] chooses by). The profile is stitched as the
+    /// user said; the report says the frames disagree.
+    pub fn direction_disputed(&self) -> Option<(f64, f64)> {
+        let (Some((Some(fwd), Some(rev))), true) = (self.direction_residuals_um, self.direction_given) else {
+            return None;
+        };
+        let (used, other) = if self.direction == Direction::Reverse { (rev, fwd) } else { (fwd, rev) };
+        (other < DIRECTION_AGREEMENT * used).then_some((other, used))
+    }
 }
 
 /// Median of finite values (`None` if there are none).
@@ -324,11 +354,13 @@ pub fn stitch(frames: &[FramePoints], opts: &Options) -> Result<Stitching, Stitc
 /// 27 MB per lane for 1.7 km at 1 mm) and one fit per frame, not the
 /// frames: a recording of any length streams through it.
 ///
-/// A lane is one laser, one direction and one registration. With
-/// [`Direction::Auto`] every laser is stitched both ways at once, and the
-/// direction is chosen at [`Stitcher::finish`] from offset-only lanes of
-/// the busiest laser (extra lanes when the registration asked for is not
-/// offset-only), exactly as the frames would have been stitched twice.
+/// A lane is one laser, one direction and one registration. Every laser
+/// is stitched both ways at once, and at [`Stitcher::finish`] the
+/// offset-only lanes of the busiest laser (extra lanes when the
+/// registration asked for is not offset-only) choose the direction
+/// ([`Direction::Auto`]) or check the one given
+/// ([`Stitching::direction_disputed`]), exactly as the frames would have
+/// been stitched twice.
 pub struct Stitcher {
     opts: Options,
     lanes: Vec<Lane>,
@@ -358,33 +390,31 @@ impl Stitcher {
         if !(opts.dx_mm.is_finite() && opts.dx_mm > 0.0) {
             return Err(StitchError::BadSpacing(opts.dx_mm));
         }
-        let signs: &[f64] = match opts.direction {
-            Direction::Forward => &[1.0],
-            Direction::Reverse => &[-1.0],
-            Direction::Auto => &[1.0, -1.0],
-        };
-        let mut regs = vec![opts.registration];
-        if opts.direction == Direction::Auto && opts.registration != Registration::Offset {
-            // The direction is judged with offsets only: a wrong sign must
-            // not be rescued by tilts.
-            regs.push(Registration::Offset);
+        // (sign, registration) of the lanes, by sign (a frame's cells are
+        // made once per sign). The direction is judged with offsets only:
+        // a wrong sign must not be rescued by tilts.
+        let mut kinds: Vec<(f64, Registration)> = vec![(1.0, Registration::Offset), (-1.0, Registration::Offset)];
+        match opts.direction {
+            _ if opts.registration == Registration::Offset => {}
+            Direction::Auto => kinds.extend([(1.0, opts.registration), (-1.0, opts.registration)]),
+            Direction::Forward => kinds.push((1.0, opts.registration)),
+            Direction::Reverse => kinds.push((-1.0, opts.registration)),
         }
+        kinds.sort_by(|a, b| b.0.total_cmp(&a.0));
         let mut lanes = Vec::new();
         for laser in 0..LASERS {
-            for &sign in signs {
-                for &registration in &regs {
-                    lanes.push(Lane {
-                        laser,
-                        sign,
-                        registration,
-                        base: 0,
-                        cells: Default::default(),
-                        fits: Vec::new(),
-                        joins: Vec::new(),
-                        frames: 0,
-                        points: 0,
-                    });
-                }
+            for &(sign, registration) in &kinds {
+                lanes.push(Lane {
+                    laser,
+                    sign,
+                    registration,
+                    base: 0,
+                    cells: Default::default(),
+                    fits: Vec::new(),
+                    joins: Vec::new(),
+                    frames: 0,
+                    points: 0,
+                });
             }
         }
         Ok(Stitcher { opts: *opts, lanes, points: [0; LASERS], error: None })
@@ -435,16 +465,11 @@ impl Stitcher {
                 .find(|l| l.laser == busiest && l.sign == sign && l.registration == Registration::Offset)
                 .and_then(|l| median(l.fits.iter().map(|f| f.residual_um).collect()))
         };
-        let (direction, auto_residuals_um) = match self.opts.direction {
-            Direction::Auto => {
-                let (fwd, rev) = (probe(1.0), probe(-1.0));
-                let d = match (fwd, rev) {
-                    (Some(f), Some(r)) if r < 0.8 * f => Direction::Reverse,
-                    _ => Direction::Forward,
-                };
-                (d, Some((fwd, rev)))
-            }
-            d => (d, None),
+        let (fwd, rev) = (probe(1.0), probe(-1.0));
+        let direction = match (self.opts.direction, fwd, rev) {
+            (Direction::Auto, Some(f), Some(r)) if r < DIRECTION_AGREEMENT * f => Direction::Reverse,
+            (Direction::Auto, _, _) => Direction::Forward,
+            (d, _, _) => d,
         };
         let sign = if direction == Direction::Reverse { -1.0 } else { 1.0 };
         let registration = self.opts.registration;
@@ -454,7 +479,8 @@ impl Stitcher {
             .filter(|l| l.sign == sign && l.registration == registration && with_points.contains(&l.laser))
             .map(|l| l.into_stitched(dx))
             .collect();
-        Ok(Stitching { direction, auto_residuals_um, lasers })
+        let direction_given = self.opts.direction != Direction::Auto;
+        Ok(Stitching { direction, direction_residuals_um: Some((fwd, rev)), direction_given, lasers })
     }
 }
 
@@ -557,6 +583,7 @@ impl Lane {
         let gaps = gaps(x0_mm, dx, &z_um);
         Stitched {
             laser: self.laser,
+            section: 1,
             x0_mm,
             dx_mm: dx,
             z_um,
@@ -709,7 +736,7 @@ mod tests {
             })
             .collect();
         let s = stitch(&frames, &Options::default()).unwrap();
-        assert_eq!(s.direction, Direction::Reverse, "{:?}", s.auto_residuals_um);
+        assert_eq!(s.direction, Direction::Reverse, "{:?}", s.direction_residuals_um);
     }
 
     #[test]

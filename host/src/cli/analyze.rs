@@ -60,8 +60,10 @@ pub struct AnalyzeArgs {
     /// Where each run lies, one per recording in order: its start chainage
     /// (the chainage of odometer 0, `KM+M` or metres) and whether chainage
     /// runs up or down with it (`0+000`, `12+345.6:down`, `:down`, `auto`).
-    /// Runs after the first are registered on the ones before within
-    /// --search-m of it; without a start, anywhere they overlap.
+    /// Taken as given: a run after the first is registered only on runs it
+    /// overlaps where its start puts it, and moved at most --search-m; a
+    /// given heading is kept (and flagged when the other matches better).
+    /// Without a start, a run is registered anywhere it overlaps.
     #[arg(long, value_name = "KM+M[:up|:down]", value_parser = placement)]
     pub chainage: Vec<Placement>,
     /// The EN 13231-3 edition whose criterion gives the verdict (zones, reprofiling table).
@@ -70,9 +72,17 @@ pub struct AnalyzeArgs {
     /// Block length for block RMS and the per-block EN 15610 spectrum, m (1 to 1000).
     #[arg(long = "block-m", value_name = "M", default_value_t = 50.0, value_parser = block_m)]
     pub block_m: f64,
-    /// How far from its given start chainage a run's registration looks, m (above 0, at most 1000).
+    /// How far registration may move a run from its given start chainage, m (above 0, at most 1000).
     #[arg(long = "search-m", value_name = "M", default_value_t = 25.0, value_parser = search_m)]
     pub search_m: f64,
+    /// Join the same recording given more than once (refused otherwise: a
+    /// run averaged with itself looks better measured than it is).
+    #[arg(long = "allow-repeated-runs")]
+    pub allow_repeated_runs: bool,
+    /// Join recordings of different heads (calibration, sensor or survey
+    /// instrument; refused otherwise).
+    #[arg(long = "allow-mixed-heads")]
+    pub allow_mixed_heads: bool,
     /// Write a report (report.md, report.html, SVG and PNG plots, CSV and the Parquet exports) into DIR
     /// (created if missing; an existing report is replaced whole, never mixed with the new one).
     #[arg(long, value_name = "DIR")]
@@ -273,6 +283,8 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
             ("--calibration", args.calibration.is_some()),
             ("--direction", args.direction.is_some()),
             ("--register", args.register.is_some()),
+            ("--allow-repeated-runs", args.allow_repeated_runs),
+            ("--allow-mixed-heads", args.allow_mixed_heads),
         ];
         if let Some((flag, _)) = only_recordings.iter().find(|(_, given)| *given) {
             return Err(Error::Input(format!(
@@ -304,6 +316,8 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
             recs.push((path.clone(), rec));
             runs.push(stitching);
         }
+        let allowed = analyze::RunsAllowed { repeats: args.allow_repeated_runs, mixed_heads: args.allow_mixed_heads };
+        analyze::check_runs(&mut recs, allowed)?;
         // A run's --chainage, else its recording's survey.
         for (k, (_, rec)) in recs.iter().enumerate() {
             if k >= placements.len() {
@@ -316,7 +330,11 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
         }
         (Source::Recordings(recs), runs)
     };
-    let join_opts = survey::JoinOptions { search_mm: args.search_m * 1000.0, ..survey::JoinOptions::default() };
+    let join_opts = survey::JoinOptions {
+        search_mm: args.search_m * 1000.0,
+        section_gap_mm: survey::section_gap_mm(&opts.verdict),
+        ..survey::JoinOptions::default()
+    };
     let (stitching, joins) =
         survey::join(runs, &placements, &join_opts).map_err(|e| Error::Input(format!("{}: {e}", source.name())))?;
     let a = analyze::judge(stitching, joins, &opts);

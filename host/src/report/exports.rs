@@ -45,7 +45,7 @@ use parquet::schema::types::Type;
 
 use crate::Error;
 use crate::analyze::standards::en13231;
-use crate::analyze::{Analysis, Grid, Source, chainage};
+use crate::analyze::{Analysis, Source, chainage};
 
 /// Version of the schema below, in each file's key-value metadata as `cms.schema`.
 pub const SCHEMA_VERSION: &str = "cms-host analyze exports 1";
@@ -108,35 +108,50 @@ pub fn band_key(b: &en13231::Band) -> String {
     format!("{}_{}", b.lo_mm, b.hi_mm)
 }
 
-/// The stitched profile on one grid: `source`, `chainage_mm`, `height_um_K`
-/// per line (null in gaps), `coverage` (lines with data at the sample).
+/// The stitched profile on one grid per section, the sections one after
+/// the other (the stretches between them, never measured, have no rows):
+/// `source`, `chainage_mm`, `height_um_K` per line (null in gaps),
+/// `coverage` (lines with data at the sample).
 pub fn profile_table(source: &Source, a: &Analysis) -> Table {
-    let grid = Grid::of(&a.lasers, a.options.stitch.dx_mm);
-    let rows = grid.len;
-    let chainage_mm: Vec<Option<f64>> = (0..rows).map(|i| Some(grid.chainage_mm(i))).collect();
-    let mut coverage = vec![0i32; rows];
-    let mut heights = Vec::new();
-    for l in &a.lasers {
-        let off = grid.offset(&l.stitched) as i64;
-        let h: Vec<Option<f64>> = (0..rows)
-            .map(|i| {
-                usize::try_from(i as i64 - off)
-                    .ok()
-                    .and_then(|j| l.stitched.z_um.get(j))
-                    .copied()
-                    .filter(|v| v.is_finite())
-            })
-            .collect();
-        for (c, v) in coverage.iter_mut().zip(&h) {
-            *c += i32::from(v.is_some());
+    let mut lines: Vec<usize> = a.lasers.iter().map(|l| l.stitched.laser).collect();
+    lines.sort_unstable();
+    lines.dedup();
+    let mut chainage_mm: Vec<Option<f64>> = Vec::new();
+    let mut coverage: Vec<i32> = Vec::new();
+    let mut heights: Vec<Vec<Option<f64>>> = vec![Vec::new(); lines.len()];
+    for sec in a.sections() {
+        let grid = sec.grid;
+        let rows = grid.len;
+        chainage_mm.extend((0..rows).map(|i| Some(grid.chainage_mm(i))));
+        let mut cov = vec![0i32; rows];
+        for (k, h) in lines.iter().zip(heights.iter_mut()) {
+            let l = sec.lasers.iter().find(|l| l.stitched.laser == *k);
+            let off = l.map_or(0, |l| grid.offset(&l.stitched)) as i64;
+            let col: Vec<Option<f64>> = (0..rows)
+                .map(|i| {
+                    let l = l?;
+                    usize::try_from(i as i64 - off)
+                        .ok()
+                        .and_then(|j| l.stitched.z_um.get(j))
+                        .copied()
+                        .filter(|v| v.is_finite())
+                })
+                .collect();
+            for (c, v) in cov.iter_mut().zip(&col) {
+                *c += i32::from(v.is_some());
+            }
+            h.extend(col);
         }
-        heights.push(col(format!("height_um_{}", l.stitched.laser), true, Values::F64(h)));
+        coverage.extend(cov);
     }
+    let rows = chainage_mm.len();
     let mut columns = vec![
         col("source", false, Values::Repeat(source.name(), rows)),
         col("chainage_mm", false, Values::F64(chainage_mm)),
     ];
-    columns.extend(heights);
+    for (k, h) in lines.iter().zip(heights) {
+        columns.push(col(format!("height_um_{k}"), true, Values::F64(h)));
+    }
     columns.push(col("coverage", false, Values::I32(coverage.into_iter().map(Some).collect())));
     Table { columns }
 }

@@ -61,8 +61,17 @@ pub fn to_json(source: &Source, a: &Analysis) -> Value {
             .iter()
             .map(|j| json!({
                 "run": j.run,
+                "section": j.section,
+                "registered": j.registered(),
                 "heading": j.heading.name(),
                 "heading_found": j.heading_found,
+                "heading_disputed": j.heading_disputed.map(|(g, o)| json!({ "given_um": g, "other_um": o })),
+                "chainage_disputed": j.elsewhere.map(|(m, c)| json!({ "registration_moved_mm": m, "correlation": c })),
+                "direction": match j.direction {
+                    Direction::Reverse => "reverse",
+                    _ => "forward",
+                },
+                "direction_disputed": j.direction_disputed.map(|(o, u)| json!({ "other_um": o, "given_um": u })),
                 "start_m": j.start_m,
                 "start_chainage": survey::Chainage(j.start_m).to_string(),
                 "moved_mm": j.moved_mm,
@@ -74,6 +83,22 @@ pub fn to_json(source: &Source, a: &Analysis) -> Value {
             .collect::<Vec<_>>()
     );
     o["lasers"] = json!(lasers);
+    o["sections"] = json!(
+        a.sections()
+            .iter()
+            .map(|sec| {
+                let (x0, x1) = sec.span_mm();
+                json!({
+                    "section": sec.number,
+                    "start_mm": x0,
+                    "end_mm": x1,
+                    "start_chainage": chainage(x0),
+                    "end_chainage": chainage(x1),
+                    "lasers": sec.lasers.iter().map(|l| l.stitched.laser).collect::<Vec<_>>(),
+                })
+            })
+            .collect::<Vec<_>>()
+    );
     o["verdict"] = verdict_json(&a.verdict);
     o
 }
@@ -83,6 +108,7 @@ fn laser_json(l: &LaserAnalysis) -> Value {
     let s = &l.stitched;
     json!({
         "laser": s.laser,
+        "section": s.section,
         "x0_mm": s.x0_mm,
         "dx_mm": s.dx_mm,
         "samples": s.z_um.len(),
@@ -177,8 +203,9 @@ fn source_json(source: &Source, a: &Analysis) -> Value {
                 Direction::Reverse => "reverse",
                 _ => "forward",
             });
-            o["auto_residuals_um"] =
-                json!(a.stitching.auto_residuals_um.map(|(f, r)| json!({ "forward": f, "reverse": r })));
+            o["direction_given"] = json!(a.stitching.direction_given);
+            o["direction_residuals_um"] =
+                json!(a.stitching.direction_residuals_um.map(|(f, r)| json!({ "forward": f, "reverse": r })));
             o["registration"] = json!(match a.options.stitch.registration {
                 Registration::OffsetTilt => "offset-tilt",
                 Registration::Offset => "offset",
@@ -210,5 +237,7 @@ fn recording_json(path: &Path, rec: &Recording) -> Value {
         "damaged_frames": rec.stats.damaged,
         "duplicate_profiles": rec.stats.duplicates,
         "survey": rec.survey,
+        "repeats_run": rec.repeats,
+        "other_head_than_run": rec.other_head.as_ref().map(|(k, how)| json!({ "run": k, "difference": how })),
     })
 }

@@ -391,7 +391,7 @@ fn survey_html(source: &Source, a: &Analysis) -> String {
                 .enumerate()
                 .map(|(i, (p, r))| {
                     let (olo, ohi) = r.odometer_range_mm.unwrap_or((0.0, 0.0));
-                    let placed = a.joins.iter().find(|j| j.run == i).map_or("-".into(), text::describe_join);
+                    let placed = a.joins.iter().find(|j| j.run == i + 1).map_or("-".into(), text::describe_join);
                     vec![
                         format!("{}", i + 1),
                         p.display().to_string(),
@@ -425,9 +425,12 @@ fn survey_html(source: &Source, a: &Analysis) -> String {
             html_escape(&crate::analyze::chainage(x0)),
             html_escape(&crate::analyze::chainage(x1)),
             (x1 - x0) / 1000.0,
-            a.lasers.len(),
+            a.lasers.iter().map(|l| l.stitched.laser).collect::<std::collections::BTreeSet<_>>().len(),
             crate::analyze::fmt_len(a.options.stitch.dx_mm)
         );
+    }
+    for line in text::describe_sections(a).lines() {
+        let _ = writeln!(s, "<p class=\"span\">{}</p>", html_escape(line.trim()));
     }
     s.push_str("</section>\n");
     s
@@ -567,26 +570,36 @@ fn median_of(z: &[f64]) -> f64 {
     crate::analyze::stitch::median(z.to_vec()).unwrap_or(0.0)
 }
 
-/// The stitched profiles on one grid: `x_mm,laser_K_um…`.
+/// The stitched profiles on one grid per section: `x_mm,laser_K_um…`,
+/// the sections one after the other (the stretches between them, never
+/// measured, have no rows).
 fn profile_csv(a: &Analysis) -> String {
     let mut s = String::from("x_mm");
-    for l in &a.lasers {
-        let _ = write!(s, ",laser_{}_um", l.stitched.laser);
+    let mut lines: Vec<usize> = a.lasers.iter().map(|l| l.stitched.laser).collect();
+    lines.sort_unstable();
+    lines.dedup();
+    for k in &lines {
+        let _ = write!(s, ",laser_{k}_um");
     }
     s.push('\n');
-    let grid = crate::analyze::Grid::of(&a.lasers, a.options.stitch.dx_mm);
-    for i in 0..grid.len as i64 {
-        let _ = write!(s, "{}", grid.chainage_mm(i as usize));
-        for l in &a.lasers {
-            let j = i - grid.offset(&l.stitched) as i64;
-            match usize::try_from(j).ok().and_then(|j| l.stitched.z_um.get(j)).filter(|v| v.is_finite()) {
-                Some(v) => {
-                    let _ = write!(s, ",{v:.4}");
+    for sec in a.sections() {
+        let grid = sec.grid;
+        for i in 0..grid.len as i64 {
+            let _ = write!(s, "{}", grid.chainage_mm(i as usize));
+            for k in &lines {
+                let v = sec.lasers.iter().find(|l| l.stitched.laser == *k).and_then(|l| {
+                    let j = i - grid.offset(&l.stitched) as i64;
+                    usize::try_from(j).ok().and_then(|j| l.stitched.z_um.get(j)).filter(|v| v.is_finite())
+                });
+                match v {
+                    Some(v) => {
+                        let _ = write!(s, ",{v:.4}");
+                    }
+                    None => s.push(','),
                 }
-                None => s.push(','),
             }
+            s.push('\n');
         }
-        s.push('\n');
     }
     s
 }
@@ -613,6 +626,16 @@ fn gaps_csv(a: &Analysis) -> String {
         }
     }
     s
+}
+
+/// A line's file-name part and title: `laser1` and "Laser 1", with its
+/// section when the survey line has several (`laser1_section2`).
+fn line_names(l: &crate::analyze::stitch::Stitched, several: bool) -> (String, String) {
+    if several {
+        (format!("laser{}_section{}", l.laser, l.section), format!("Laser {}, section {}", l.laser, l.section))
+    } else {
+        (format!("laser{}", l.laser), format!("Laser {}", l.laser))
+    }
 }
 
 fn html_escape(s: &str) -> String {
@@ -684,18 +707,20 @@ fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Resu
     let svg = plot::svg_and_png(&dir.join("profile"), (1400, 600), &ProfileFig { lines })
         .map_err(|e| out_err("profile plot", e))?;
     figures.push(("Stitched profiles".into(), "profile".into(), svg));
+    let several = a.sections().len() > 1;
     for l in &a.lasers {
         let k = l.stitched.laser;
+        let (name, title) = line_names(&l.stitched, several);
         if let Ok(b) = &l.bands {
-            put(&format!("bands_laser{k}.csv"), &en13231::bands_csv_from(b, l.stitched.x0_mm))?;
-            let stem = format!("bands_laser{k}");
+            put(&format!("bands_{name}.csv"), &en13231::bands_csv_from(b, l.stitched.x0_mm))?;
+            let stem = format!("bands_{name}");
             let svg =
                 plot::svg_and_png(&dir.join(&stem), (1400, 1000), &BandsFig { laser: k, x0: l.stitched.x0_mm, a: b })
                     .map_err(|e| out_err("band plot", e))?;
-            figures.push((format!("Laser {k}: EN 13231-3 bands"), stem, svg));
+            figures.push((format!("{title}: EN 13231-3 bands"), stem, svg));
         }
         if let Ok(r) = &l.roughness {
-            put(&format!("spectrum_laser{k}.csv"), &en15610::spectrum_csv(&r.spectrum))?;
+            put(&format!("spectrum_{name}.csv"), &en15610::spectrum_csv(&r.spectrum))?;
         }
     }
     let spectra: Vec<(usize, &en15610::Spectrum)> =
@@ -731,15 +756,15 @@ fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Resu
     );
     html.push_str(&verdict_html(a, &zone_svg));
     for l in &a.lasers {
-        let k = l.stitched.laser;
+        let (_, k) = line_names(&l.stitched, several);
         let text = format!(
             "{}\n{}\n{}",
             text::describe_stitched(&l.stitched),
             text::describe_bands(&l.bands),
             text::describe_roughness(&l.roughness)
         );
-        let _ = write!(md, "\n## Laser {k}\n\n```text\n{text}```\n");
-        let _ = write!(html, "<h2>Laser {k}</h2>\n<pre>{}</pre>\n", html_escape(&text));
+        let _ = write!(md, "\n## {k}\n\n```text\n{text}```\n");
+        let _ = write!(html, "<h2>{k}</h2>\n<pre>{}</pre>\n", html_escape(&text));
     }
     md.push_str("\n## Plots\n");
     html.push_str("<h2>Plots</h2>\n");
@@ -748,7 +773,8 @@ fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Resu
         let _ = write!(html, "<h3>{}</h3>\n<figure class=\"plot\">{svg}</figure>\n", html_escape(t));
     }
     let files = "profile.csv (x_mm, one height column per laser, µm), bands_laserK.csv (band signals, mm), \
-                 spectrum_laserK.csv (one-third octaves), registration.csv (per frame), gaps.csv, summary.txt; \
+                 spectrum_laserK.csv (one-third octaves; bands_laserK_sectionN.csv and \
+                 spectrum_laserK_sectionN.csv when the line is in several sections), registration.csv (per frame), gaps.csv, summary.txt; \
                  profile.parquet, blocks.parquet, zones.parquet (docs/exports.md)";
     let _ = write!(md, "\n## Data\n\n{files}\n");
     let _ = write!(html, "<h2>Data</h2>\n<p>{}</p>\n</body></html>\n", html_escape(files));

@@ -45,17 +45,20 @@ pub fn describe(source: &Source, a: &Analysis) -> String {
                 describe_recording(&mut s, path, rec);
             }
             let st = &a.stitching;
-            let auto = match st.auto_residuals_um {
-                Some((f, r)) => format!(
+            let check = match (st.direction_residuals_um, st.direction_given) {
+                (Some((f, r)), false) => format!(
                     " (chosen from the data: median overlap residual forward {}, reverse {})",
                     opt_um(f),
                     opt_um(r)
                 ),
-                None => String::new(),
+                (Some((f, r)), true) => {
+                    format!(" (as given; median overlap residual forward {}, reverse {})", opt_um(f), opt_um(r))
+                }
+                (None, _) => String::new(),
             };
             let _ = writeln!(
                 s,
-                "stitching: {}{auto}; registration: {}; samples every {} mm",
+                "stitching: {}{check}; registration: {}; samples every {} mm",
                 direction_name(st.direction),
                 registration_name(a.options.stitch.registration),
                 fmt_len(a.options.stitch.dx_mm)
@@ -79,38 +82,104 @@ pub fn describe(source: &Source, a: &Analysis) -> String {
             );
         }
     }
-    // One run where the user put it by default needs no placement line.
-    let placed = a.joins.len() > 1 || a.joins.iter().any(|j| j.start_m != 0.0 || j.heading == survey::Heading::Down);
+    // One run where the user put it by default needs no placement line
+    // (unless something about it is disputed).
+    let placed = a.joins.len() > 1
+        || a.joins.iter().any(|j| {
+            j.start_m != 0.0
+                || j.heading == survey::Heading::Down
+                || j.direction_disputed.is_some()
+                || j.heading_disputed.is_some()
+                || j.elsewhere.is_some()
+        });
     if placed {
         for j in &a.joins {
             let _ = writeln!(s, "{}", describe_join(j));
         }
     }
+    s.push_str(&describe_sections(a));
     s
 }
 
-/// One run's placement on the line, in a line.
+/// The survey line's sections and the gaps between them (nothing for one
+/// section).
+pub fn describe_sections(a: &Analysis) -> String {
+    let sections = a.sections();
+    let mut s = String::new();
+    if sections.len() < 2 {
+        return s;
+    }
+    let _ = writeln!(
+        s,
+        "survey line in {} sections (a stretch without data longer than {} m separates two):",
+        sections.len(),
+        fmt_len(survey::section_gap_mm(&a.options.verdict) / 1000.0)
+    );
+    let mut last: Option<f64> = None;
+    for sec in &sections {
+        let (x0, x1) = sec.span_mm();
+        if let Some(end) = last {
+            let _ = writeln!(s, "  not measured: {} to {} ({:.3} m)", chainage(end), chainage(x0), (x0 - end) / 1000.0);
+        }
+        let _ =
+            writeln!(s, "  section {}: {} to {} ({:.3} m)", sec.number, chainage(x0), chainage(x1), (x1 - x0) / 1000.0);
+        last = Some(x1);
+    }
+    s
+}
+
+/// One run's placement on the line, in a line (runs numbered from 1).
 pub fn describe_join(j: &survey::RunJoin) -> String {
     let mut s = format!(
         "run {}: position 0 at chainage {} ({:.3} m), chainage {} with track position{}",
-        j.run + 1,
+        j.run,
         survey::Chainage(j.start_m),
         j.start_m,
         j.heading.name(),
         if j.heading_found { " (found by registration)" } else { "" }
     );
-    if let Some(m) = j.moved_mm
-        && j.overlap_mm > 0.0
-    {
-        let _ = write!(s, "; registered {:+.1} mm from its given start", m);
-    }
-    if j.overlap_mm > 0.0 {
+    if j.registered() {
+        if let Some(m) = j.moved_mm {
+            let _ = write!(s, "; registered {:+.1} mm from its given start", m);
+        }
         let _ = write!(s, "; overlap {:.1} m, residual {}", j.overlap_mm / 1000.0, opt_um(j.residual_um));
-    } else if j.run > 0 {
-        s.push_str("; overlaps no earlier run: placed as given");
+    } else if j.run > 1 {
+        s.push_str("; placed as given: where its chainage puts it, it overlaps no earlier run enough to register");
+        if j.overlap_mm > 0.0 {
+            let _ = write!(s, " (overlap {:.1} m averaged, its offset removed)", j.overlap_mm / 1000.0);
+        }
     }
+    if let Some((moved, c)) = j.elsewhere {
+        let _ = write!(
+            s,
+            "; CHAINAGE DISPUTED: its rail matches the earlier runs {:+.3} m from its given start (correlation {c:.2}), not taken (check its --chainage)",
+            moved / 1000.0
+        );
+    }
+    let _ = write!(s, "; section {}", j.section);
     if j.ambiguous() {
         s.push_str("; AMBIGUOUS: another placement matched nearly as well (give its start chainage)");
+    }
+    if let Some((given, other)) = j.heading_disputed {
+        let _ = write!(
+            s,
+            "; HEADING DISPUTED: chainage {} as given registers with residual {}, the other heading with {} (check its --chainage)",
+            j.heading.name(),
+            opt_um(Some(given)),
+            opt_um(Some(other))
+        );
+    }
+    if let Some((other, used)) = j.direction_disputed {
+        let _ = write!(
+            s,
+            "; DIRECTION DISPUTED: its frames stitched {} as given register with median residual {}, the other way with {} (check --direction)",
+            match j.direction {
+                Direction::Reverse => "reverse",
+                _ => "forward",
+            },
+            opt_um(Some(used)),
+            opt_um(Some(other))
+        );
     }
     s
 }
@@ -131,6 +200,12 @@ fn describe_recording(s: &mut String, path: &Path, rec: &Recording) {
     );
     if let Some(sv) = &rec.survey {
         let _ = writeln!(s, "  survey: {}", sv.describe());
+    }
+    if let Some(k) = rec.repeats {
+        let _ = writeln!(s, "  the same recording as run {k}, joined as asked (--allow-repeated-runs)");
+    }
+    if let Some((k, how)) = &rec.other_head {
+        let _ = writeln!(s, "  recorded by another head than run {k} ({how}), joined as asked (--allow-mixed-heads)");
     }
     if rec.uncalibrated_points > 0 {
         let _ = writeln!(s, "  {} points without a calibrated position were left out", rec.uncalibrated_points);
@@ -246,12 +321,19 @@ pub fn describe_bands(b: &Result<en13231::BandAnalysis, StandardsError>) -> Stri
 /// The printed summary.
 pub fn summary(source: &Source, a: &Analysis) -> String {
     let mut s = describe(source, a);
-    for l in &a.lasers {
-        s.push('\n');
-        s.push_str(&describe_stitched(&l.stitched));
-        for part in [describe_bands(&l.bands), describe_roughness(&l.roughness)] {
-            for line in part.lines() {
-                let _ = writeln!(s, "  {line}");
+    let sections = a.sections();
+    for sec in &sections {
+        if sections.len() > 1 {
+            let (x0, x1) = sec.span_mm();
+            let _ = writeln!(s, "\nsection {}: {} to {}", sec.number, chainage(x0), chainage(x1));
+        }
+        for l in sec.lasers {
+            s.push('\n');
+            s.push_str(&describe_stitched(&l.stitched));
+            for part in [describe_bands(&l.bands), describe_roughness(&l.roughness)] {
+                for line in part.lines() {
+                    let _ = writeln!(s, "  {line}");
+                }
             }
         }
     }

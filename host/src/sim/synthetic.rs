@@ -12,7 +12,8 @@
 //! head's field of view), bounced by up to ±20 µm, with Gaussian noise per
 //! point. Points carry their metric (along, height) as a calibrated head
 //! sends them, plus a plausible pixel position. The recording starts with
-//! a `Hello` naming [`CALIBRATION_ID`] and a 752 × 480 sensor.
+//! a `Hello` naming [`CALIBRATION_ID`] (or [`Options::calibration_id`])
+//! and a 752 × 480 sensor.
 //!
 //! Cost: about a microsecond per point; memory one frame. Deterministic:
 //! the same options give the same bytes.
@@ -56,6 +57,8 @@ pub struct Options {
     /// Driven the other way: track position = start − (odometer + along)
     /// (the head turned round with the trolley).
     pub reverse: bool,
+    /// The calibration id its `Hello` names (another id: another head).
+    pub calibration_id: u32,
 }
 
 impl Default for Options {
@@ -69,6 +72,7 @@ impl Default for Options {
             rail: Rail::Corrugated,
             start_mm: 0.0,
             reverse: false,
+            calibration_id: CALIBRATION_ID,
         }
     }
 }
@@ -152,7 +156,7 @@ pub fn write_to(w: &mut dyn Write, opts: &Options, progress: &dyn Progress) -> i
         sensor_height: 480,
         bits: 10,
         detector: default_detector(),
-        calibration_id: CALIBRATION_ID,
+        calibration_id: opts.calibration_id,
         store: StoreHealth::Volatile,
     };
     put(&mut w, &DeviceMsg::Hello(hello))?;

@@ -14,6 +14,7 @@ mod exit_codes;
 mod fit;
 mod gnss;
 mod hostile;
+mod hostile_survey;
 mod input_props;
 mod listen;
 mod measure;
