@@ -167,7 +167,8 @@ pub fn quick_sine(x: &[f64], z_um: &[f64]) -> Result<Sine, SineError> {
 pub fn judge_sine(s: &Sine, samples: &[(f64, f64)], span_mm: f64, dx_mm: f64) -> Verdict {
     let n = s.samples.max(1) as f64;
     let (sigma, amp) = (s.rms_um * 1e-3, s.amplitude_um * 1e-3);
-    let sigma_omega = if amp > 0.0 && span_mm > 0.0 { sigma / amp * (24.0 / (n * span_mm * span_mm)).sqrt() } else { f64::NAN };
+    let sigma_omega =
+        if amp > 0.0 && span_mm > 0.0 { sigma / amp * (24.0 / (n * span_mm * span_mm)).sqrt() } else { f64::NAN };
     let sigma_lambda = s.wavelength_mm * s.wavelength_mm / std::f64::consts::TAU * sigma_omega;
     verdict::judge(&Evidence {
         rms_residual_mm: sigma,

@@ -44,11 +44,7 @@ pub(super) struct Context {
 
 /// Serves on `listener` until `shutdown`; the runtime (and with it every
 /// page's task) is dropped then.
-pub(super) fn serve(
-    listener: std::net::TcpListener,
-    ctx: Context,
-    shutdown: tokio::sync::oneshot::Receiver<()>,
-) {
+pub(super) fn serve(listener: std::net::TcpListener, ctx: Context, shutdown: tokio::sync::oneshot::Receiver<()>) {
     let rt = match tokio::runtime::Builder::new_current_thread().enable_io().enable_time().build() {
         Ok(rt) => rt,
         Err(_) => return,

@@ -172,12 +172,7 @@ struct Hub<'a> {
 }
 
 /// Runs the hub until the view stops or the listener's feed goes away.
-pub(super) fn run(
-    rx: Receiver<Input>,
-    out: tokio::sync::watch::Sender<Update>,
-    shared: &Shared,
-    opts: &ServeOptions,
-) {
+pub(super) fn run(rx: Receiver<Input>, out: tokio::sync::watch::Sender<Update>, shared: &Shared, opts: &ServeOptions) {
     let mut hub = Hub {
         opts,
         device: None,
@@ -381,7 +376,12 @@ impl Hub<'_> {
         };
         let mm_s = (b.odometer_mm - a.odometer_mm) / dt;
         let Some(f) = self.newest.as_ref().filter(|f| f.units == "metric") else {
-            return Speed { mm_s: Some(mm_s), limit_mm_s: None, over: false, note: Some("no limit without a calibration") };
+            return Speed {
+                mm_s: Some(mm_s),
+                limit_mm_s: None,
+                over: false,
+                note: Some("no limit without a calibration"),
+            };
         };
         let n = self.ticks.len() as f64;
         // Per laser: its stretch and the frames a second it is lit in.
@@ -396,7 +396,9 @@ impl Hub<'_> {
             .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.min(v))));
         match limit {
             Some(l) => Speed { mm_s: Some(mm_s), limit_mm_s: Some(l), over: mm_s.abs() > l, note: None },
-            None => Speed { mm_s: Some(mm_s), limit_mm_s: None, over: false, note: Some("no laser's stretch to judge by") },
+            None => {
+                Speed { mm_s: Some(mm_s), limit_mm_s: None, over: false, note: Some("no laser's stretch to judge by") }
+            }
         }
     }
 

@@ -43,6 +43,12 @@
 //! 'none'`, scripts, styles and connections to the server itself only).
 //!
 //! It binds to loopback ([`DEFAULT_ADDR`]) unless an address is given.
+//!
+//! # Priority
+//!
+//! The hub's and the server's threads run at nice [`VIEW_NICE`] (Linux
+//! sets it per thread): on a loaded machine the listener's loop, which
+//! reads the port and records, is scheduled before the view's work.
 
 mod http;
 mod hub;
@@ -73,6 +79,17 @@ pub const MAX_PAGES: usize = 16;
 /// How long a page may take to accept one update before it is dropped
 /// (its page reconnects when it thaws).
 pub const SEND_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// The nice value of the view's threads (the listener's stays where it
+/// was started, 0 by default).
+pub const VIEW_NICE: i32 = 10;
+
+/// Lowers the calling thread's priority to [`VIEW_NICE`]; where it cannot
+/// (another system, a limit), the view runs at the listener's.
+fn lower_priority() {
+    let tid = rustix::thread::gettid();
+    let _ = rustix::process::setpriority_process(Some(tid), VIEW_NICE);
+}
 
 /// What to serve.
 #[derive(Clone, Debug)]
@@ -232,7 +249,10 @@ impl LiveView {
             let (shared, opts) = (shared.clone(), opts.clone());
             std::thread::Builder::new()
                 .name("cms-view-hub".into())
-                .spawn(move || hub::run(rx, updates_tx, &shared, &opts))
+                .spawn(move || {
+                    lower_priority();
+                    hub::run(rx, updates_tx, &shared, &opts)
+                })
                 .map_err(ServeError::Start)?
         };
         let (shutdown, shutdown_rx) = tokio::sync::oneshot::channel();
@@ -240,7 +260,10 @@ impl LiveView {
             let ctx = http::Context { shared: shared.clone(), updates: updates_rx, local: addr };
             std::thread::Builder::new()
                 .name("cms-view-http".into())
-                .spawn(move || http::serve(listener, ctx, shutdown_rx))
+                .spawn(move || {
+                    lower_priority();
+                    http::serve(listener, ctx, shutdown_rx)
+                })
                 .map_err(ServeError::Start)?
         };
         Ok(LiveView {

@@ -36,10 +36,7 @@ const FLAGS: &[&str] = &[
 /// `name` on the PATH (or one of `also`).
 fn tool(name: &str, also: &[&str]) -> Option<PathBuf> {
     let path = std::env::var_os("PATH").unwrap_or_default();
-    std::env::split_paths(&path)
-        .map(|d| d.join(name))
-        .chain(also.iter().map(PathBuf::from))
-        .find(|p| p.is_file())
+    std::env::split_paths(&path).map(|d| d.join(name)).chain(also.iter().map(PathBuf::from)).find(|p| p.is_file())
 }
 
 /// Chromium's legacy log of the session (`goog:loggingPrefs`), which
@@ -95,7 +92,11 @@ impl Browser {
         let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
         let connector = hyper_util::client::legacy::connect::HttpConnector::new();
         let client = rt
-            .block_on(fantoccini::ClientBuilder::new(connector).capabilities(caps).connect(&format!("http://127.0.0.1:{port}")))
+            .block_on(
+                fantoccini::ClientBuilder::new(connector)
+                    .capabilities(caps)
+                    .connect(&format!("http://127.0.0.1:{port}")),
+            )
             .unwrap_or_else(|e| panic!("Chromium does not start under chromedriver: {e} ({INSTALL})"));
         Browser { rt, client: Some(client), driver, _profile: profile }
     }
@@ -135,7 +136,9 @@ impl Browser {
             let Ok(m) = serde_json::from_str::<Value>(text) else { continue };
             let m = &m["message"];
             match m["method"].as_str() {
-                Some("Network.requestWillBeSent") => urls.extend(m["params"]["request"]["url"].as_str().map(String::from)),
+                Some("Network.requestWillBeSent") => {
+                    urls.extend(m["params"]["request"]["url"].as_str().map(String::from))
+                }
                 Some("Network.webSocketCreated") => urls.extend(m["params"]["url"].as_str().map(String::from)),
                 _ => {}
             }
@@ -156,6 +159,41 @@ impl Browser {
     fn switch(&self, w: &fantoccini::wd::WindowHandle) {
         self.rt.block_on(self.client().switch_to_window(w.clone())).unwrap();
     }
+
+    /// Stops (`SIGSTOP`) or resumes (`SIGCONT`) every Chromium process of
+    /// this browser: a browser frozen whole, its sockets open and unread.
+    fn signal_all(&self, signal: nix::sys::signal::Signal) {
+        for pid in descendants(self.driver.id() as i32) {
+            let _ = nix::sys::signal::kill(nix::unistd::Pid::from_raw(pid), signal);
+        }
+    }
+}
+
+/// Every process below `root` (from /proc/PID/stat's parent field).
+fn descendants(root: i32) -> Vec<i32> {
+    let parents: Vec<(i32, i32)> = std::fs::read_dir("/proc")
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| {
+            let pid: i32 = e.file_name().to_str()?.parse().ok()?;
+            let stat = std::fs::read_to_string(e.path().join("stat")).ok()?;
+            // `pid (comm) state ppid …`; comm may hold spaces and parentheses.
+            let ppid = stat.rsplit_once(')')?.1.split_whitespace().nth(1)?.parse().ok()?;
+            Some((pid, ppid))
+        })
+        .collect();
+    let mut out = vec![];
+    let mut todo = vec![root];
+    while let Some(p) = todo.pop() {
+        for &(c, pp) in &parents {
+            if pp == p {
+                out.push(c);
+                todo.push(c);
+            }
+        }
+    }
+    out
 }
 
 impl Drop for Browser {
@@ -181,6 +219,16 @@ return { seq: t('seq'), frames: t('frames'), fps: t('fps'), odometer: t('odomete
          damaged: t('damaged'), speed: t('speed'), speedlimit: t('speedlimit'), speedwarn: t('speedwarn'),
          phase: t('phase'), lasers: t('lasers'), updates: t('updates'), lines };
 "#;
+
+/// CPU time of process `pid` (every thread: the listener, the simulated
+/// head, the view), s.
+fn cpu_s(pid: u32) -> f64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    let f: Vec<&str> = stat.rsplit_once(')').map_or("", |r| r.1).split_whitespace().collect();
+    // utime and stime, fields 14 and 15 (11 and 12 after the state), in ticks.
+    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(f64::NAN);
+    (ticks(11) + ticks(12)) / 100.0
+}
 
 /// The number at the start of a shown figure ("50.0 mm" → 50).
 fn number(v: &Value) -> f64 {
@@ -275,8 +323,9 @@ fn a_real_browser_shows_the_recorded_frames_live() {
 
 /// Updates a second of every page but the frozen one, and the run's
 /// recording, over `CMS_BENCH_SECS` (60) seconds of `listen sim --serve
-/// --record` with four live pages in one Chromium and a fifth frozen in
-/// another (its script spinning forever). A benchmark, run by hand:
+/// --record` with four live pages in one Chromium and a fifth in another
+/// Chromium frozen whole (every process stopped: its socket open, never
+/// read, as a tablet that hangs or sleeps). A benchmark, run by hand:
 /// `cargo test --release -p cms-host --test it serve::browser::bench -- --ignored --nocapture`.
 #[test]
 #[ignore = "a benchmark: run by hand (docs/live-view.md)"]
@@ -287,7 +336,7 @@ fn bench_five_pages_one_frozen() {
     let frozen = Browser::start();
     frozen.goto(&listen.url);
     frozen.wait_for("return window.cmsView().updates >= 5", Duration::from_secs(60), "updates");
-    frozen.eval("setTimeout(() => { for (;;) {} }, 50); return true;");
+    frozen.signal_all(nix::sys::signal::Signal::SIGSTOP);
     let live = Browser::start();
     let mut loads = Vec::new();
     for i in 0..4 {
@@ -295,7 +344,9 @@ fn bench_five_pages_one_frozen() {
             live.new_window();
         }
         live.goto(&listen.url);
-        loads.push(live.eval("const n = performance.getEntriesByType('navigation')[0]; return n.loadEventEnd - n.startTime;"));
+        loads.push(
+            live.eval("const n = performance.getEntriesByType('navigation')[0]; return n.loadEventEnd - n.startTime;"),
+        );
     }
     let windows = live.windows();
     let count = |b: &Browser| -> Vec<(f64, Instant)> {
@@ -308,7 +359,9 @@ fn bench_five_pages_one_frozen() {
             .collect()
     };
     let start = count(&live);
+    let cpu0 = cpu_s(listen.child.id());
     thread::sleep(Duration::from_secs(secs));
+    let cpu = format!("{:.1} % of a core", 100.0 * (cpu_s(listen.child.id()) - cpu0) / secs as f64);
     let end = count(&live);
     let rates: Vec<String> = start
         .iter()
@@ -316,12 +369,13 @@ fn bench_five_pages_one_frozen() {
         .map(|(a, b)| format!("{:.1}", (b.0 - a.0) / b.1.duration_since(a.1).as_secs_f64()))
         .collect();
     drop(live);
+    frozen.signal_all(nix::sys::signal::Signal::SIGCONT);
     drop(frozen);
     let rec_path = listen.rec.clone();
     let (status, stderr) = listen.interrupt();
     let (frames, order) = recorded(&rec_path);
     eprintln!(
-        "{secs} s, 4 live pages + 1 frozen: page loads {loads:?} ms; updates/s per live page {rates:?}; recording: {} frames, in sequence: {}, first {:?} last {:?}\n{stderr}",
+        "{secs} s, 4 live pages + 1 frozen: page loads {loads:?} ms; updates/s per live page {rates:?}; recording: {} frames, in sequence: {}, first {:?} last {:?}; listener CPU {cpu}\n{stderr}",
         frames.len(),
         contiguous(&order),
         order.first(),
