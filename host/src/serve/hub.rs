@@ -166,8 +166,6 @@ struct Hub<'a> {
     estimate: Vec<Corrugation>,
     estimated_at: Option<Instant>,
     ticks: VecDeque<Tick>,
-    last_seq: Option<u32>,
-    lost: u64,
     frames_seen: u64,
 }
 
@@ -185,8 +183,6 @@ pub(super) fn run(rx: Receiver<Input>, out: tokio::sync::watch::Sender<Update>, 
         estimate: Vec::new(),
         estimated_at: None,
         ticks: VecDeque::new(),
-        last_seq: None,
-        lost: 0,
         frames_seen: 0,
     };
     let interval = Duration::from_secs_f64(1.0 / DISPLAY_HZ);
@@ -337,12 +333,6 @@ impl Hub<'_> {
                 l.span_mm = Some((hi - lo) / 1000.0);
             }
         }
-        if let Some(last) = self.last_seq
-            && p.seq > last
-        {
-            self.lost += u64::from(p.seq - last - 1);
-        }
-        self.last_seq = Some(p.seq);
         self.frames_seen += 1;
         let now = Instant::now();
         self.ticks.push_back(Tick {
@@ -441,7 +431,7 @@ impl Hub<'_> {
             }),
             frames: self.link.frames.max(self.frames_seen),
             recorded: self.link.recorded,
-            lost_frames: self.lost,
+            lost_frames: shared.lost_frames.load(Ordering::Relaxed),
             head_dropped_frames: self.head.map_or(0, |h| h.dropped_frames),
             damaged_frames: self.link.link.damaged(),
             crc_errors: self.link.link.crc_errors,

@@ -157,6 +157,11 @@ struct Shared {
     pages_served: AtomicU64,
     /// Requests refused with a 4xx.
     refused: AtomicU64,
+    /// Frames missing from the sequence numbers the listener kept (counted
+    /// before the queue, so the view's own drops are not among them).
+    lost_frames: AtomicU64,
+    /// The last frame's sequence number the listener kept, plus one (0: none yet).
+    next_seq: AtomicU64,
     /// The view is stopping.
     stop: AtomicBool,
 }
@@ -181,6 +186,16 @@ impl Feed {
 
     /// A message the listener kept (and recorded).
     pub fn message(&self, m: &DeviceMsg) {
+        if let DeviceMsg::Profile(p) = m
+            && p.part == 0
+        {
+            let seq = u64::from(p.seq);
+            let next = self.shared.next_seq.swap(seq + 1, Ordering::Relaxed);
+            // A head that restarts counts from 0 again: no gap there.
+            if next > 0 && seq > next {
+                self.shared.lost_frames.fetch_add(seq - next, Ordering::Relaxed);
+            }
+        }
         // Raw image rows are `capture`'s; the view has no use for them.
         if !matches!(m, DeviceMsg::RawRows(_) | DeviceMsg::Ack(_)) {
             self.offer(Input::Message(Box::new(m.clone())));

@@ -48,17 +48,20 @@ fn a_frozen_page_costs_the_recording_no_frame() {
     let (updates, last) = reading.join().unwrap();
     drop(frozen);
     assert!(stderr.contains("listen: frames: 150 "), "{stderr}");
+    // Every frame the head got onto the link is recorded: the only gaps
+    // are frames it dropped itself when the pty was full (a loaded machine
+    // that did not run the listener in time; none on an idle one).
     let (frames, order) = recorded(&dir.path().join("live.cmsrec"));
     assert_eq!(frames.len(), 150, "{stderr}");
-    assert!(contiguous(&order), "{order:?}");
+    assert_eq!(gaps(&order), sim_link_drops(&stderr), "{order:?}");
     assert_eq!(view_figure(&stderr, "messages not shown"), 0, "{stderr}");
     assert!(stderr.contains(" to 2 pages;"), "{stderr}");
-    eprintln!("reading page: {updates} updates over 150 frames; {stderr}");
+    eprintln!("reading page: {updates} updates over 150 frames, {} frames the head dropped; {stderr}", gaps(&order));
     assert!(updates >= 50, "{updates} updates for 150 frames");
     // The last update it got is of a recorded frame, with every figure.
     let seq = last["frame"]["seq"].as_u64().unwrap() as u32;
     assert!(frames.contains_key(&seq), "{last}");
-    assert_eq!(last["lost_frames"], 0);
+    assert!(last["lost_frames"].as_u64().unwrap() <= gaps(&order), "{last}");
     assert_eq!(last["damaged_frames"], 0);
     assert_eq!(last["device"]["calibrated"], true);
     assert_eq!(last["recording"], true);
@@ -119,7 +122,7 @@ fn hostile_requests_get_4xx_and_the_recording_goes_on() {
     assert!(stderr.contains("listen: frames: 120 "), "{stderr}");
     let (frames, order) = recorded(&dir.path().join("live.cmsrec"));
     assert_eq!(frames.len(), 120);
-    assert!(contiguous(&order), "{order:?}");
+    assert_eq!(gaps(&order), sim_link_drops(&stderr), "{order:?}");
     // Those the router and the guard refused (hyper answers the malformed
     // and oversized ones before them).
     assert!(view_figure(&stderr, "requests refused") >= 7, "{stderr}");

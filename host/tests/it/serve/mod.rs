@@ -133,7 +133,15 @@ fn view_figure(stderr: &str, label: &str) -> u64 {
     line[..at].split_whitespace().last().and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("{label}: {line}"))
 }
 
-/// Sequence numbers that follow each other without a gap.
-fn contiguous(seqs: &[u32]) -> bool {
-    seqs.windows(2).all(|w| w[1] == w[0] + 1)
+/// Frames missing between sequence numbers in order.
+fn gaps(seqs: &[u32]) -> u64 {
+    seqs.windows(2).map(|w| u64::from(w[1].saturating_sub(w[0] + 1))).sum()
+}
+
+/// The simulated head's `sim: … N profiles dropped on the link` (its pty
+/// full: the listener did not read in time).
+fn sim_link_drops(stderr: &str) -> u64 {
+    let line = stderr.lines().find(|l| l.starts_with("sim: served ")).unwrap_or_else(|| panic!("{stderr}"));
+    let at = line.find(" profiles dropped on the link").unwrap_or_else(|| panic!("{line}"));
+    line[..at].split_whitespace().last().and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("{line}"))
 }
