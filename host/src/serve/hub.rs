@@ -34,7 +34,7 @@ const IDLE_EVERY: Duration = Duration::from_millis(250);
 /// [`MIN_OVERLAP_MM`], lit `lit_per_s` frames a second: `(span −
 /// overlap) × rate`. `None` for a span no longer than the overlap.
 pub fn speed_limit_mm_s(span_mm: f64, lit_per_s: f64) -> Option<f64> {
-    (span_mm > MIN_OVERLAP_MM && lit_per_s > 0.0).then(|| (span_mm - MIN_OVERLAP_MM) * lit_per_s)
+    (span_mm > MIN_OVERLAP_MM && lit_per_s > 0.0).then_some((span_mm - MIN_OVERLAP_MM) * lit_per_s)
 }
 
 /// One laser's points of the newest frame as the page draws them:

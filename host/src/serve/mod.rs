@@ -214,20 +214,13 @@ pub struct ViewSummary {
     /// Updates published to the pages.
     pub updates: u64,
     /// Pages that connected.
-    pages: u64,
+    pub pages: u64,
     /// Messages the view did not get (its queue full); never recorded ones.
     pub view_dropped: u64,
     /// Updates pages skipped (slow or frozen pages).
     pub page_skipped: u64,
     /// Requests refused with a 4xx.
     pub refused: u64,
-}
-
-impl ViewSummary {
-    /// Pages that connected.
-    pub fn pages(&self) -> u64 {
-        self.pages
-    }
 }
 
 impl std::fmt::Display for ViewSummary {
