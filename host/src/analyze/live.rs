@@ -152,14 +152,38 @@ pub fn quick_sine(x: &[f64], z_um: &[f64]) -> Result<Sine, SineError> {
         Some(f) if (f.omega / w0 - 1.0).abs() < 0.2 => (f.omega, f.linear, f.converged),
         _ => (w0, fit::three_param(&xc, &zd, w0).ok_or(SineError::Singular)?, false),
     };
+    // The detrend took the sine's own slope over the window (up to 6A/(ωL)
+    // at the ends): at the found ω, the sine and the line are fitted
+    // together on the centred profile, so that the residual is the
+    // profile's, not the detrend's.
+    let (amplitude_um, rss) = sine_and_line(&xc, z_um, zm, w).unwrap_or((lin.sin.hypot(lin.cos), lin.rss));
     let s = Sine {
         wavelength_mm: std::f64::consts::TAU / w,
-        amplitude_um: lin.sin.hypot(lin.cos),
-        rms_um: (lin.rss / n).sqrt(),
+        amplitude_um,
+        rms_um: (rss / n).sqrt(),
         samples: x.len(),
         converged,
     };
     if s.wavelength_mm.is_finite() && s.amplitude_um.is_finite() { Ok(s) } else { Err(SineError::NotFinite) }
+}
+
+/// Least squares of `z − zm ≈ a sin ωx + b cos ωx + c + d x`: the
+/// amplitude `√(a² + b²)` and the residual sum of squares.
+fn sine_and_line(x: &[f64], z: &[f64], zm: f64, omega: f64) -> Option<(f64, f64)> {
+    use nalgebra::{Matrix4, Vector4};
+    let row = |x: f64| {
+        let (s, c) = (omega * x).sin_cos();
+        Vector4::new(s, c, 1.0, x)
+    };
+    let (mut ata, mut atb) = (Matrix4::zeros(), Vector4::zeros());
+    for (&x, &z) in x.iter().zip(z) {
+        let r = row(x);
+        ata += r * r.transpose();
+        atb += r * (z - zm);
+    }
+    let p = ata.cholesky()?.solve(&atb);
+    let rss = x.iter().zip(z).map(|(&x, &z)| (z - zm - row(x).dot(&p)).powi(2)).sum();
+    Some((p[0].hypot(p[1]), rss))
 }
 
 /// The verdict on a quick sine of the samples `(x mm, z µm)` spanning
