@@ -27,7 +27,8 @@
 //! `corrugation` benchmark (`cargo bench -p cms-host --bench corrugation`).
 //!
 //! **Its verdict** is [`verdict::judge`]'s on what the quick fit knows: the
-//! residual against the stitched samples' own noise
+//! residual (of the sine and a line fitted together at the ω found, which
+//! also gives the amplitude) against the stitched samples' own noise
 //! ([`verdict::point_noise`], model-free), the periods in the window, the
 //! 1 mm sampling, and one-σ uncertainties from the residual — the
 //! amplitude's `σ √(2/N)` and the wavelength's Cramér–Rao bound for N
