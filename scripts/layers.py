@@ -18,6 +18,7 @@ LAYERS = [
     ["report"],
     ["sim"],
     ["device"],
+    ["serve"],
     ["bench"],
 ]
 LEVEL = {m: i for i, layer in enumerate(LAYERS) for m in layer}

@@ -29,6 +29,7 @@
 //! * [`sim`] — everything simulated: the scene, the simulated head, closed
 //!   loops against the truth, calibration images, synthetic recordings.
 //! * [`device`] — sessions with a head: listen, capture, upload, the emulated head.
+//! * [`serve`] — `listen --serve`: the live view in a browser, served beside the recording.
 //!
 //! **Benchmarks**
 //! * [`bench`](mod@bench) — `cms-host bench`: detection accuracy against the Cramér–Rao
@@ -49,6 +50,7 @@ pub mod plot;
 pub mod progress;
 pub mod recording;
 pub mod report;
+pub mod serve;
 pub mod sim;
 
 pub use error::{Class, Error};

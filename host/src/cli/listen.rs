@@ -2,6 +2,7 @@
 //! summary on stderr.
 
 use std::io::{self, IsTerminal as _, Write as _};
+use std::net::{IpAddr, SocketAddr};
 use std::path::PathBuf;
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -13,8 +14,10 @@ use cms_core::peak::window::MIN_WINDOW_PX;
 use cms_core::protocol::{LASERS, LaserPattern, Start};
 use cms_core::readout::RowSkip;
 use cms_host::calib::file::CalibrationFile;
+use cms_host::device::listen::LinkState;
 use cms_host::device::listen::{self, ListenOptions, RowsRequest, StatusLine, Summary};
 use cms_host::recording::survey_info::MAX_BYTES as MAX_SURVEY_BYTES;
+use cms_host::serve::{DEFAULT_ADDR, DISPLAY_HZ, Feed, LiveView, ServeOptions};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::exit::Usage;
@@ -112,6 +115,24 @@ pub struct ListenArgs {
     /// Baud rate of the GNSS receiver's port (a USB receiver ignores it).
     #[arg(long, value_name = "B", default_value_t = 115_200, value_parser = clap::value_parser!(u32).range(1..), requires = "gnss")]
     pub gnss_baud: u32,
+    /// Serve the live view, a read-only page for a browser, on ADDR
+    /// (IP:PORT, or IP for port 8130; without ADDR 127.0.0.1:8130, this
+    /// machine only; give an address to reach it from another). The
+    /// recording goes on at full rate whatever the browser does.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8130", value_parser = parse_serve_addr)]
+    pub serve: Option<SocketAddr>,
+}
+
+/// `--serve ADDR`: `IP:PORT` or `IP` (port 8130).
+fn parse_serve_addr(s: &str) -> Result<SocketAddr, String> {
+    let t = s.trim();
+    if let Ok(a) = t.parse::<SocketAddr>() {
+        return Ok(a);
+    }
+    match t.trim_start_matches('[').trim_end_matches(']').parse::<IpAddr>() {
+        Ok(ip) => Ok(SocketAddr::new(ip, DEFAULT_ADDR.port())),
+        Err(_) => Err(format!("`{s}` is not an address to serve on (IP:PORT or IP, e.g. 127.0.0.1:8130 or 0.0.0.0)")),
+    }
 }
 
 fn parse_secs(s: &str) -> Result<Duration, String> {
@@ -232,10 +253,12 @@ impl ListenArgs {
 struct Display {
     bar: Option<ProgressBar>,
     last: Instant,
+    /// The live view's feed, and when it last had the link's state.
+    view: Option<(Feed, Instant)>,
 }
 
 impl Display {
-    fn new(json: bool) -> Display {
+    fn new(json: bool, view: Option<Feed>) -> Display {
         let fancy = io::stderr().is_terminal() && !(json && io::stdout().is_terminal());
         let bar = fancy.then(|| {
             let b = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr_with_hz(4));
@@ -244,7 +267,7 @@ impl Display {
             }
             b
         });
-        Display { bar, last: Instant::now() }
+        Display { bar, last: Instant::now(), view: view.map(|f| (f, Instant::now())) }
     }
 }
 
@@ -264,6 +287,17 @@ impl StatusLine for Display {
             None => {
                 let _ = writeln!(io::stderr(), "{line}");
             }
+        }
+    }
+
+    fn state_due(&self, now: Instant) -> bool {
+        self.view.as_ref().is_some_and(|(_, last)| now.duration_since(*last).as_secs_f64() >= 1.0 / DISPLAY_HZ)
+    }
+
+    fn state(&mut self, now: Instant, state: &LinkState) {
+        if let Some((feed, last)) = &mut self.view {
+            feed.link(state);
+            *last = now;
         }
     }
 
@@ -311,6 +345,7 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
         anyhow::bail!(Usage("--gnss sim rides with the simulated head: give PORT `sim`".to_string()));
     }
     let mut opts = args.options();
+    let mut placement = None;
     if let Some(path) = &args.survey {
         let name = path.display();
         // Read at most one byte past the limit: a device (`/dev/zero`) or a
@@ -322,6 +357,7 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
         let text = String::from_utf8(bytes).map_err(|_| Usage(format!("{name}: not UTF-8 text")))?;
         let survey =
             cms_host::recording::survey_info::Survey::parse(&text).map_err(|e| Usage(format!("{name}: {e}")))?;
+        placement = survey.placement().ok();
         opts.survey = Some(survey.to_text());
     }
     if let Some(path) = &args.windows_from {
@@ -353,13 +389,32 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
             .into());
         }
     }
-    let mut display = Display::new(opts.json);
+    let view = match args.serve {
+        Some(addr) => {
+            let opts = ServeOptions { addr, port: args.port.clone(), placement, recording: opts.record.is_some() };
+            let v = LiveView::start(&opts).map_err(cms_host::Error::from)?;
+            let _ = writeln!(io::stderr(), "listen: live view on {} (read-only)", v.url());
+            Some(v)
+        }
+        None => None,
+    };
+    let feed = view.as_ref().map(LiveView::feed);
+    let mut display = Display::new(opts.json, feed.clone());
     let stdout = io::stdout();
-    let outcome = listen::session(&args.port, &opts, interrupt_flag(), &mut stdout.lock(), &mut |_| {}, &mut display);
+    let mut observe = |m: &cms_core::protocol::DeviceMsg| {
+        if let Some(f) = &feed {
+            f.message(m);
+        }
+    };
+    let outcome = listen::session(&args.port, &opts, interrupt_flag(), &mut stdout.lock(), &mut observe, &mut display);
+    let viewed = view.map(LiveView::stop);
     // A session that ends in a failure after greeting the head (the port
     // lost for good) still says what it got, before the error line.
     if outcome.result.is_ok() || outcome.greeted() {
         print_summary(&outcome.summary);
+        if let Some(v) = viewed {
+            let _ = writeln!(io::stderr(), "listen: live view: {v}");
+        }
     }
     Ok(outcome.result?)
 }

@@ -22,6 +22,7 @@ mod real_light;
 mod record;
 mod render;
 mod robust;
+mod serve;
 mod simulate;
 mod standards;
 mod triangulate_sim;

@@ -459,13 +459,74 @@ pub fn telemetry(s: &Status) -> String {
     )
 }
 
+/// Where a session stands with its head.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub enum LinkPhase {
+    /// `GetInfo` sent, waiting for `Hello`.
+    #[default]
+    Handshake,
+    /// `Start` sent, waiting for its `Ack` or the first profile.
+    Starting,
+    /// Profiles flowing.
+    Streaming,
+    /// The port is lost; trying to open it again.
+    Reconnecting,
+    /// The session is ending (`Stop` sent or about to be).
+    Stopping,
+}
+
+impl LinkPhase {
+    /// "handshake", "starting", "streaming", "reconnecting", "stopping".
+    pub fn name(self) -> &'static str {
+        match self {
+            LinkPhase::Handshake => "handshake",
+            LinkPhase::Starting => "starting",
+            LinkPhase::Streaming => "streaming",
+            LinkPhase::Reconnecting => "reconnecting",
+            LinkPhase::Stopping => "stopping",
+        }
+    }
+}
+
+/// The session's state that its messages do not carry: the link's phase
+/// and counters, what was recorded (a live view shows it beside the
+/// frames).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LinkState {
+    /// Where the session stands.
+    pub phase: LinkPhase,
+    /// Link counters over all connections.
+    pub link: Counters,
+    /// Ports reopened after a failure.
+    pub reconnects: u32,
+    /// Handshakes repeated because the head went silent.
+    pub stalls: u32,
+    /// Restarts after the head stopped by itself.
+    pub head_restarts: u32,
+    /// Complete frames received.
+    pub frames: u64,
+    /// Messages written to the recording (profiles and the head's
+    /// others); `None`: not recording.
+    pub recorded: Option<u64>,
+}
+
 /// Where the session's live status line goes (the command line draws it;
-/// the session only says when one is due and what it reads).
+/// the session only says when one is due and what it reads), and its
+/// [`LinkState`] for a live view.
 pub trait StatusLine {
     /// Whether a new line is due at `now`.
     fn due(&self, now: Instant) -> bool;
     /// Shows `line` (the status at `now`).
     fn show(&mut self, now: Instant, line: String);
+    /// Whether the session's [`LinkState`] is wanted at `now` (never,
+    /// unless a live view asks for it at its display rate).
+    fn state_due(&self, _now: Instant) -> bool {
+        false
+    }
+    /// The session's state at `now`; must not block (it is called from the
+    /// loop that reads the port).
+    fn state(&mut self, _now: Instant, _state: &LinkState) {}
     /// The session has ended.
     fn finish(&mut self) {}
 }
@@ -563,6 +624,9 @@ pub fn session(
         if status.due(now) {
             let line = s.status_line(now, client.is_open());
             status.show(now, line);
+        }
+        if status.state_due(now) {
+            status.state(now, &s.link_state(client.is_open()));
         }
     };
     s.finish(&mut client, result, status, t0)

@@ -16,8 +16,8 @@ use crate::recording::HostRecord;
 use crate::recording::{self, FrameCounter, Recorder};
 
 use super::{
-    HANDSHAKE, ListenError, ListenOptions, Outcome, REOPEN_INTERVAL, STALL_TIMEOUT, START_TIMEOUT, STOP_ACK_TIMEOUT,
-    StatusLine, Summary, telemetry,
+    HANDSHAKE, LinkPhase, LinkState, ListenError, ListenOptions, Outcome, REOPEN_INTERVAL, STALL_TIMEOUT,
+    START_TIMEOUT, STOP_ACK_TIMEOUT, StatusLine, Summary, telemetry,
 };
 
 #[derive(Clone, Copy, Debug, Default)]
@@ -291,6 +291,29 @@ impl Session<'_> {
             _ => {}
         }
         false
+    }
+
+    pub(super) fn link_state(&self, connected: bool) -> LinkState {
+        let phase = if self.stopping.is_some() {
+            LinkPhase::Stopping
+        } else if !connected {
+            LinkPhase::Reconnecting
+        } else {
+            match self.phase {
+                Phase::Hello(_) => LinkPhase::Handshake,
+                Phase::Starting { .. } => LinkPhase::Starting,
+                Phase::Streaming => LinkPhase::Streaming,
+            }
+        };
+        LinkState {
+            phase,
+            link: self.sum.link,
+            reconnects: self.sum.reconnects,
+            stalls: self.sum.stalls,
+            head_restarts: self.sum.head_restarts,
+            frames: self.sum.frames,
+            recorded: self.recorder.as_ref().map(|_| self.sum.recorded),
+        }
     }
 
     pub(super) fn status_line(&mut self, now: Instant, connected: bool) -> String {
