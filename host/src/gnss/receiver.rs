@@ -90,13 +90,7 @@ impl std::fmt::Debug for Receiver {
 }
 
 fn open(path: &str, baud: u32) -> Result<Box<dyn serialport::SerialPort>, serialport::Error> {
-    serialport::new(path, baud)
-        .timeout(READ_TIMEOUT)
-        .data_bits(serialport::DataBits::Eight)
-        .parity(serialport::Parity::None)
-        .stop_bits(serialport::StopBits::One)
-        .flow_control(serialport::FlowControl::None)
-        .open()
+    crate::link::open_serial(path, baud, READ_TIMEOUT)
 }
 
 impl Receiver {

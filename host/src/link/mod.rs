@@ -73,6 +73,23 @@ impl crate::error::Classify for LinkError {
     }
 }
 
+/// Opens a serial port (or pty) at `baud` in raw mode, 8N1, no flow
+/// control, its reads waiting at most `timeout`: the head's link and a
+/// GNSS receiver's port alike.
+pub fn open_serial(
+    path: &str,
+    baud: u32,
+    timeout: Duration,
+) -> Result<Box<dyn serialport::SerialPort>, serialport::Error> {
+    serialport::new(path, baud)
+        .timeout(timeout)
+        .data_bits(serialport::DataBits::Eight)
+        .parity(serialport::Parity::None)
+        .stop_bits(serialport::StopBits::One)
+        .flow_control(serialport::FlowControl::None)
+        .open()
+}
+
 /// An open serial port to the head.
 pub struct Link {
     port: Box<dyn serialport::SerialPort>,
@@ -90,13 +107,7 @@ impl Link {
     /// Opens `path` at `baud` (raw mode, 8N1, no flow control). A USB CDC
     /// device ignores the baud rate; a real UART needs the head's.
     pub fn open(path: &str, baud: u32) -> Result<Link, LinkError> {
-        let port = serialport::new(path, baud)
-            .timeout(READ_TIMEOUT)
-            .data_bits(serialport::DataBits::Eight)
-            .parity(serialport::Parity::None)
-            .stop_bits(serialport::StopBits::One)
-            .flow_control(serialport::FlowControl::None)
-            .open()
+        let port = open_serial(path, baud, READ_TIMEOUT)
             .map_err(|source| LinkError::Open { port: path.to_string(), source })?;
         Ok(Link { port, path: path.to_string(), frame: vec![0; MAX_COMMAND_FRAME] })
     }
