@@ -24,6 +24,7 @@
 pub mod live;
 pub mod profile;
 pub mod reprofiling;
+pub mod runs;
 pub mod standards;
 pub mod stitch;
 pub mod survey;

@@ -7,12 +7,9 @@ use clap::{Args, ValueEnum};
 use cms_host::Error;
 use cms_host::analyze::reprofiling::{self, Edition};
 use cms_host::analyze::standards::en15610;
-use cms_host::analyze::stitch::{self, Direction, Registration, Stitcher};
-use cms_host::analyze::survey::{self, Placement};
-use cms_host::analyze::{self, Options, Source, profile};
-use cms_host::calib::file::CalibrationFile;
-use cms_host::measure::Measurer;
-use cms_host::recording::survey_info::Survey;
+use cms_host::analyze::stitch::{self, Direction, Registration};
+use cms_host::analyze::survey::Placement;
+use cms_host::analyze::{self, Options, runs};
 
 use super::progress::Bar;
 
@@ -194,28 +191,10 @@ impl AnalyzeArgs {
     }
 }
 
-/// Whether a file is a recording (by its magic) rather than a profile.
-fn is_recording(path: &std::path::Path) -> Result<bool, Error> {
-    use std::io::Read as _;
-    let mut f = std::fs::File::open(path).map_err(|e| Error::Input(format!("cannot read {}: {e}", path.display())))?;
-    let mut magic = [0u8; 8];
-    // Shorter than a recording's magic: not a recording.
-    Ok(f.read_exact(&mut magic).is_ok() && magic == cms_host::recording::MAGIC)
-}
-
-/// Runs `cms-host analyze`: one pass over each recording, each frame slid
-/// across (with `--calibration`) and stitched as it is read, the runs
-/// joined on chainage; or one profile file.
+/// Runs `cms-host analyze`: its outputs checked before the work, the
+/// analysis ([`runs::run`]), then the summary and the files.
 pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
-    let mut opts = args.options();
-    if args.chainage.len() > args.inputs.len() {
-        return Err(Error::Input(format!(
-            "{} --chainage for {} input(s): give at most one per recording, in order",
-            args.chainage.len(),
-            args.inputs.len()
-        ))
-        .into());
-    }
+    let opts = args.options();
     // An output set never goes where it could replace an input.
     let outputs = [("--report", &args.report), ("--parquet", &args.parquet)];
     for (flag, dir) in outputs.iter().filter_map(|(f, d)| d.as_ref().map(|d| (f, d))) {
@@ -255,89 +234,23 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
         cms_host::output::set::check_set(dir, cms_host::report::exports::owns)
             .map_err(|e| anyhow::Error::from(Error::from(e)).context("--parquet"))?;
     }
-    // The calibration is checked before any input is read.
-    let calibration = match &args.calibration {
-        Some(path) => {
-            let name = path.display().to_string();
-            // The file's own errors name it.
-            let file = CalibrationFile::load(path).map_err(Error::from)?;
-            let m = Measurer::new(&file).map_err(|e| Error::Input(format!("{name}: {e}")))?;
-            Some((file, m, name))
-        }
-        None => None,
-    };
-    let kinds = args.inputs.iter().map(|p| is_recording(p)).collect::<Result<Vec<bool>, Error>>()?;
-    let recordings = kinds.iter().filter(|&&r| r).count();
-    let mut placements = args.chainage.clone();
-    let (source, runs) = if recordings == 0 {
-        let [path] = args.inputs.as_slice() else {
-            return Err(Error::Input(format!(
-                "{} profile files: analyze one at a time (recordings of one survey can be joined)",
-                args.inputs.len()
-            ))
-            .into());
-        };
-        // Options that only recordings have are refused, not ignored: the
-        // user asked for something this input cannot give.
-        let only_recordings = [
-            ("--calibration", args.calibration.is_some()),
-            ("--direction", args.direction.is_some()),
-            ("--register", args.register.is_some()),
-            ("--allow-repeated-runs", args.allow_repeated_runs),
-            ("--allow-mixed-heads", args.allow_mixed_heads),
-        ];
-        if let Some((flag, _)) = only_recordings.iter().find(|(_, given)| *given) {
-            return Err(Error::Input(format!(
-                "{}: {flag} applies to recordings, not to a profile file",
-                path.display()
-            ))
-            .into());
-        }
-        let (file, stitching) = profile::read(path, args.dx_mm)?;
-        opts.stitch.dx_mm = stitching.lasers.first().map_or(opts.stitch.dx_mm, |l| l.dx_mm);
-        (Source::Profile(path.clone(), file), vec![stitching])
-    } else if recordings < args.inputs.len() {
-        let odd = args.inputs.iter().zip(&kinds).find(|(_, r)| !**r).map(|(p, _)| p.display().to_string());
-        let odd = odd.unwrap_or_default();
-        return Err(Error::Input(format!(
-            "{odd} is not a recording: give either recordings of one survey or one profile file"
-        ))
-        .into());
-    } else {
-        let mut runs = Vec::new();
-        let mut recs = Vec::new();
-        for path in &args.inputs {
-            let (mut rec, stitching) = read_run(path, &opts, calibration.as_ref())?;
-            let name = path.display();
-            if let Some(text) = cms_host::recording::survey_of(path).map_err(Error::from)? {
-                let survey = Survey::parse(&text).map_err(|e| Error::Input(format!("{name}: survey block: {e}")))?;
-                rec.survey = Some(survey);
-            }
-            recs.push((path.clone(), rec));
-            runs.push(stitching);
-        }
-        let allowed = analyze::RunsAllowed { repeats: args.allow_repeated_runs, mixed_heads: args.allow_mixed_heads };
-        analyze::check_runs(&mut recs, allowed)?;
-        // A run's --chainage, else its recording's survey.
-        for (k, (_, rec)) in recs.iter().enumerate() {
-            if k >= placements.len() {
-                let p = match &rec.survey {
-                    Some(sv) => sv.placement().map_err(|e| Error::Input(e.to_string()))?,
-                    None => Placement::default(),
-                };
-                placements.push(p);
-            }
-        }
-        (Source::Recordings(recs), runs)
-    };
-    let join_opts = survey::JoinOptions {
+    let only_recordings = [
+        ("--calibration", args.calibration.is_some()),
+        ("--direction", args.direction.is_some()),
+        ("--register", args.register.is_some()),
+        ("--allow-repeated-runs", args.allow_repeated_runs),
+        ("--allow-mixed-heads", args.allow_mixed_heads),
+    ];
+    let req = runs::Request {
+        inputs: args.inputs.clone(),
+        placements: args.chainage.clone(),
+        calibration: args.calibration.clone(),
+        allowed: analyze::RunsAllowed { repeats: args.allow_repeated_runs, mixed_heads: args.allow_mixed_heads },
         search_mm: args.search_m * 1000.0,
-        section_gap_mm: survey::section_gap_mm(&opts.verdict),
-        ..survey::JoinOptions::default()
+        dx_mm: args.dx_mm,
+        recording_only: only_recordings.iter().filter(|(_, given)| *given).map(|(f, _)| f.to_string()).collect(),
     };
-    let (stitching, joins) =
-        survey::join(runs, &placements, &join_opts).map_err(|e| Error::Input(format!("{}: {e}", source.name())))?;
-    let a = analyze::judge(stitching, joins, &opts);
+    let (source, a) = runs::run(&req, &opts, &Bar::stderr())?;
     let text = cms_host::report::text::summary(&source, &a);
     if let Some(dir) = &args.report {
         cms_host::report::write(dir, &source, &a, &text)?;
@@ -376,34 +289,4 @@ fn resolved(p: &std::path::Path) -> PathBuf {
             _ => return abs,
         }
     }
-}
-
-/// One recording read and stitched (slid across with a calibration).
-fn read_run(
-    path: &std::path::Path,
-    opts: &Options,
-    calibration: Option<&(CalibrationFile, Measurer, String)>,
-) -> anyhow::Result<(analyze::Recording, stitch::Stitching)> {
-    let rec_name = path.display().to_string();
-    let mut stitcher = Stitcher::new(&opts.stitch).map_err(|e| Error::Input(format!("{rec_name}: {e}")))?;
-    let mut slid = 0usize;
-    let mut rec = analyze::read_recording(path, &Bar::stderr(), |so_far, mut f| {
-        if let Some((file, m, name)) = calibration {
-            // The heads seen so far (a `Hello` precedes its profiles): a
-            // calibration of another head is refused before the work.
-            if so_far.frames == 1 {
-                file.check_recording(name, &rec_name, &so_far.heads)?;
-            }
-            slid += usize::from(analyze::slide_frame(&mut f, m));
-        }
-        stitcher.push(&f);
-        Ok(())
-    })?;
-    if let Some((file, _, name)) = calibration {
-        // Every head of the recording, the later ones included.
-        file.check_recording(name, &rec_name, &rec.heads)?;
-        rec.slid_across = Some((slid, PathBuf::from(name)));
-    }
-    let stitching = stitcher.finish().map_err(|e| Error::Input(format!("{rec_name}: {e}")))?;
-    Ok((rec, stitching))
 }
