@@ -45,10 +45,10 @@ use parquet::schema::types::Type;
 
 use crate::Error;
 use crate::analyze::standards::en13231;
-use crate::analyze::{Analysis, Source, chainage};
+use crate::analyze::{Analysis, Source};
 
 /// Version of the schema below, in each file's key-value metadata as `cms.schema`.
-pub const SCHEMA_VERSION: &str = "cms-host analyze exports 1";
+pub const SCHEMA_VERSION: &str = "cms-host analyze exports 2";
 
 /// One column's values.
 #[derive(Debug, Clone, PartialEq)]
@@ -64,6 +64,9 @@ pub enum Values {
     /// A `STRING` column of one value on every one of so many rows (the
     /// profile's `source`: one copy in memory, not one per sample).
     Repeat(String, usize),
+    /// `LIST` of `DOUBLE` (the elements never null), `None` a null list
+    /// (not the empty one).
+    ListF64(Vec<Option<Vec<f64>>>),
 }
 
 impl Values {
@@ -74,6 +77,7 @@ impl Values {
             Values::Bool(v) => v.len(),
             Values::Str(v) => v.len(),
             Values::Repeat(_, n) => *n,
+            Values::ListF64(v) => v.len(),
         }
     }
 }
@@ -156,11 +160,11 @@ pub fn profile_table(source: &Source, a: &Analysis) -> Table {
     Table { columns }
 }
 
-/// The blocks: `source`, `start_mm`, `end_mm`, `start_chainage`,
-/// `end_chainage`, `rms_um_LO_HI` per band (largest line; null where not
-/// evaluated), `iso3095_pass` (null: no spectrum), `iso3095_exceeded_mm`
-/// (the one-third-octave wavelengths over the limit, `50,40`; empty on a
-/// pass, null without a spectrum).
+/// The blocks: `source`, `start_chainage_mm`, `end_chainage_mm`,
+/// `rms_um_LO_HI` per band (largest line; null where not evaluated),
+/// `iso3095_pass` (null: no spectrum), `iso3095_exceeded_mm` (a list of
+/// the one-third-octave wavelengths over the limit; empty on a pass, null
+/// without a spectrum).
 pub fn blocks_table(source: &Source, a: &Analysis) -> Table {
     let b = &a.verdict.blocks;
     let n = b.len();
@@ -168,10 +172,8 @@ pub fn blocks_table(source: &Source, a: &Analysis) -> Table {
     let s = |v: Vec<String>| Values::Str(v.into_iter().map(Some).collect());
     let mut columns = vec![
         col("source", false, s(vec![source.name(); n])),
-        col("start_mm", false, f(b.iter().map(|b| b.start_mm).collect())),
-        col("end_mm", false, f(b.iter().map(|b| b.end_mm).collect())),
-        col("start_chainage", false, s(b.iter().map(|b| chainage(b.start_mm)).collect())),
-        col("end_chainage", false, s(b.iter().map(|b| chainage(b.end_mm)).collect())),
+        col("start_chainage_mm", false, f(b.iter().map(|b| b.start_mm).collect())),
+        col("end_chainage_mm", false, f(b.iter().map(|b| b.end_mm).collect())),
     ];
     for (k, band) in en13231::BANDS.iter().enumerate() {
         let v = b.iter().map(|b| b.rms_mm.get(k).copied().flatten().map(|v| v * 1000.0)).collect();
@@ -185,19 +187,13 @@ pub fn blocks_table(source: &Source, a: &Analysis) -> Table {
     columns.push(col(
         "iso3095_exceeded_mm",
         true,
-        Values::Str(
-            b.iter()
-                .map(|b| {
-                    b.iso3095_exceeded.as_ref().map(|e| e.iter().map(|w| w.to_string()).collect::<Vec<_>>().join(","))
-                })
-                .collect(),
-        ),
+        Values::ListF64(b.iter().map(|b| b.iso3095_exceeded.clone()).collect()),
     ));
     Table { columns }
 }
 
-/// The zones: `source`, `edition`, `band_lo_mm`, `band_hi_mm`, `start_mm`,
-/// `end_mm`, `start_chainage`, `end_chainage`, `exceeding_mm`, `worst_pp_mm`.
+/// The zones: `source`, `edition`, `band_lo_mm`, `band_hi_mm`,
+/// `start_chainage_mm`, `end_chainage_mm`, `exceeding_mm`, `worst_pp_mm`.
 pub fn zones_table(source: &Source, a: &Analysis) -> Table {
     let z = &a.verdict.zones;
     let n = z.len();
@@ -209,10 +205,8 @@ pub fn zones_table(source: &Source, a: &Analysis) -> Table {
             col("edition", false, s(vec![a.verdict.options.edition.name().to_string(); n])),
             col("band_lo_mm", false, f(z.iter().map(|z| z.band.lo_mm).collect())),
             col("band_hi_mm", false, f(z.iter().map(|z| z.band.hi_mm).collect())),
-            col("start_mm", false, f(z.iter().map(|z| z.start_mm).collect())),
-            col("end_mm", false, f(z.iter().map(|z| z.end_mm).collect())),
-            col("start_chainage", false, s(z.iter().map(|z| chainage(z.start_mm)).collect())),
-            col("end_chainage", false, s(z.iter().map(|z| chainage(z.end_mm)).collect())),
+            col("start_chainage_mm", false, f(z.iter().map(|z| z.start_mm).collect())),
+            col("end_chainage_mm", false, f(z.iter().map(|z| z.end_mm).collect())),
             col("exceeding_mm", false, f(z.iter().map(|z| z.exceeding_mm).collect())),
             col("worst_pp_mm", false, f(z.iter().map(|z| z.worst_pp_mm).collect())),
         ],
@@ -228,13 +222,31 @@ fn schema(name: &str, t: &Table) -> Result<Type, std::io::Error> {
     use parquet::basic::{LogicalType, Repetition, Type as Physical};
     let mut fields = Vec::new();
     for c in &t.columns {
+        let rep = if c.nullable { Repetition::OPTIONAL } else { Repetition::REQUIRED };
+        if let Values::ListF64(_) = c.values {
+            // The three-level LIST of the format's spec, elements required.
+            let element =
+                Type::primitive_type_builder("element", Physical::DOUBLE).with_repetition(Repetition::REQUIRED).build();
+            let list = Type::group_type_builder("list")
+                .with_repetition(Repetition::REPEATED)
+                .with_fields(vec![Arc::new(element.map_err(perr)?)])
+                .build()
+                .map_err(perr)?;
+            let f = Type::group_type_builder(&c.name)
+                .with_repetition(rep)
+                .with_logical_type(Some(LogicalType::List))
+                .with_fields(vec![Arc::new(list)])
+                .build()
+                .map_err(perr)?;
+            fields.push(Arc::new(f));
+            continue;
+        }
         let (physical, logical) = match c.values {
-            Values::F64(_) => (Physical::DOUBLE, None),
+            Values::F64(_) | Values::ListF64(_) => (Physical::DOUBLE, None),
             Values::I32(_) => (Physical::INT32, None),
             Values::Bool(_) => (Physical::BOOLEAN, None),
             Values::Str(_) | Values::Repeat(..) => (Physical::BYTE_ARRAY, Some(LogicalType::String)),
         };
-        let rep = if c.nullable { Repetition::OPTIONAL } else { Repetition::REQUIRED };
         let f = Type::primitive_type_builder(&c.name, physical)
             .with_repetition(rep)
             .with_logical_type(logical)
@@ -255,6 +267,39 @@ fn levels<T: Clone>(v: &[Option<T>], nullable: bool) -> Result<(Vec<T>, Option<V
     } else {
         Err(std::io::Error::other("a null in a required column"))
     }
+}
+
+/// A list column's elements, definition levels and repetition levels.
+type ListLevels = (Vec<f64>, Vec<i16>, Vec<i16>);
+
+/// A list column's elements with their definition and repetition levels:
+/// per row, a null list is (0, 0), an empty one (1, 0) in a nullable
+/// column; each element is one level above, its first repetition 0 and
+/// the others 1.
+fn list_levels(v: &[Option<Vec<f64>>], nullable: bool) -> Result<ListLevels, std::io::Error> {
+    let base = i16::from(nullable);
+    let (mut p, mut d, mut r) = (Vec::new(), Vec::new(), Vec::new());
+    for row in v {
+        match row {
+            None if !nullable => return Err(std::io::Error::other("a null in a required column")),
+            None => {
+                d.push(0);
+                r.push(0);
+            }
+            Some(e) if e.is_empty() => {
+                d.push(base);
+                r.push(0);
+            }
+            Some(e) => {
+                for (i, x) in e.iter().enumerate() {
+                    p.push(*x);
+                    d.push(base + 1);
+                    r.push(i16::from(i > 0));
+                }
+            }
+        }
+    }
+    Ok((p, d, r))
 }
 
 /// A table as the bytes of a Parquet file (one row group), with `meta` as
@@ -287,6 +332,10 @@ pub fn to_parquet(name: &str, t: &Table, meta: &[(&str, String)]) -> Result<Vec<
             (ColumnWriter::Int32ColumnWriter(w), Values::I32(v)) => {
                 let (p, d) = levels(v, c.nullable)?;
                 w.write_batch(&p, d.as_deref(), None)
+            }
+            (ColumnWriter::DoubleColumnWriter(w), Values::ListF64(v)) => {
+                let (p, d, r) = list_levels(v, c.nullable)?;
+                w.write_batch(&p, Some(&d), Some(&r))
             }
             (ColumnWriter::BoolColumnWriter(w), Values::Bool(v)) => {
                 let (p, d) = levels(v, c.nullable)?;
