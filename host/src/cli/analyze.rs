@@ -46,9 +46,10 @@ pub enum RegisterArg {
     None,
 }
 
-/// Arguments of `cms-host analyze`.
+/// What to analyse and how: the arguments `cms-host analyze` and
+/// `cms-host view` share.
 #[derive(Args, Debug, Clone)]
-pub struct AnalyzeArgs {
+pub struct AnalysisArgs {
     /// Recordings (`cms-host listen --record`) of a calibrated head — the
     /// runs of one survey, joined on chainage — or one profile file from
     /// any instrument (`x_mm,height_um`, or `x_mm,height_um_0,height_um_1,…`).
@@ -80,19 +81,6 @@ pub struct AnalyzeArgs {
     /// instrument; refused otherwise).
     #[arg(long = "allow-mixed-heads")]
     pub allow_mixed_heads: bool,
-    /// Write a report (report.md, report.html, SVG and PNG plots, CSV and the Parquet exports) into DIR
-    /// (created if missing; an existing report is replaced whole, never mixed with the new one).
-    #[arg(long, value_name = "DIR")]
-    pub report: Option<PathBuf>,
-    /// Write the stitched profile, the blocks and the zones as Parquet
-    /// (profile.parquet, blocks.parquet, zones.parquet; docs/exports.md)
-    /// into DIR (created if missing; an existing DIR is replaced whole).
-    /// The report writes them too: the same DIR as --report writes the report once.
-    #[arg(long, value_name = "DIR")]
-    pub parquet: Option<PathBuf>,
-    /// Print one JSON object instead of the text summary.
-    #[arg(long)]
-    pub json: bool,
     /// Sample spacing of the stitched profile, mm (EN 15610 needs ≤ 1);
     /// default 1 for recordings and the data's own spacing for a profile
     /// (0.05 to 10).
@@ -119,6 +107,26 @@ pub struct AnalyzeArgs {
     /// takes out the ±2–5 % height scale of the outer lines on a crowned rail.
     #[arg(long, value_name = "CAL.toml")]
     pub calibration: Option<PathBuf>,
+}
+
+/// Arguments of `cms-host analyze`.
+#[derive(Args, Debug, Clone)]
+pub struct AnalyzeArgs {
+    #[command(flatten)]
+    pub analysis: AnalysisArgs,
+    /// Write a report (report.md, report.html, SVG and PNG plots, CSV and the Parquet exports) into DIR
+    /// (created if missing; an existing report is replaced whole, never mixed with the new one).
+    #[arg(long, value_name = "DIR")]
+    pub report: Option<PathBuf>,
+    /// Write the stitched profile, the blocks and the zones as Parquet
+    /// (profile.parquet, blocks.parquet, zones.parquet; docs/exports.md)
+    /// into DIR (created if missing; an existing DIR is replaced whole).
+    /// The report writes them too: the same DIR as --report writes the report once.
+    #[arg(long, value_name = "DIR")]
+    pub parquet: Option<PathBuf>,
+    /// Print one JSON object instead of the text summary.
+    #[arg(long)]
+    pub json: bool,
 }
 
 fn placement(s: &str) -> Result<Placement, String> {
@@ -156,7 +164,7 @@ fn segment_mm(s: &str) -> Result<f64, String> {
     in_range(s, (en15610::MIN_SEGMENT_MM, 1e6), false, "an EN 15610 segment length in mm")
 }
 
-impl AnalyzeArgs {
+impl AnalysisArgs {
     /// The analysis options these arguments ask for.
     pub fn options(&self) -> Options {
         Options {
@@ -189,16 +197,37 @@ impl AnalyzeArgs {
             },
         }
     }
+
+    /// What to analyse, for [`runs::run`].
+    pub fn request(&self) -> runs::Request {
+        let args = self;
+        let only_recordings = [
+            ("--calibration", args.calibration.is_some()),
+            ("--direction", args.direction.is_some()),
+            ("--register", args.register.is_some()),
+            ("--allow-repeated-runs", args.allow_repeated_runs),
+            ("--allow-mixed-heads", args.allow_mixed_heads),
+        ];
+        runs::Request {
+            inputs: args.inputs.clone(),
+            placements: args.chainage.clone(),
+            calibration: args.calibration.clone(),
+            allowed: analyze::RunsAllowed { repeats: args.allow_repeated_runs, mixed_heads: args.allow_mixed_heads },
+            search_mm: args.search_m * 1000.0,
+            dx_mm: args.dx_mm,
+            recording_only: only_recordings.iter().filter(|(_, given)| *given).map(|(f, _)| f.to_string()).collect(),
+        }
+    }
 }
 
 /// Runs `cms-host analyze`: its outputs checked before the work, the
 /// analysis ([`runs::run`]), then the summary and the files.
 pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
-    let opts = args.options();
+    let opts = args.analysis.options();
     // An output set never goes where it could replace an input.
     let outputs = [("--report", &args.report), ("--parquet", &args.parquet)];
     for (flag, dir) in outputs.iter().filter_map(|(f, d)| d.as_ref().map(|d| (f, d))) {
-        let inputs = args.inputs.iter().chain(&args.calibration);
+        let inputs = args.analysis.inputs.iter().chain(&args.analysis.calibration);
         if let Some(input) = inputs.into_iter().find(|i| cms_host::output::folder_holds(dir, i)) {
             return Err(Error::Input(format!(
                 "{flag} {}: the folder holds the input {}; write the output set into another folder",
@@ -234,23 +263,7 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<()> {
         cms_host::output::set::check_set(dir, cms_host::report::exports::owns)
             .map_err(|e| anyhow::Error::from(Error::from(e)).context("--parquet"))?;
     }
-    let only_recordings = [
-        ("--calibration", args.calibration.is_some()),
-        ("--direction", args.direction.is_some()),
-        ("--register", args.register.is_some()),
-        ("--allow-repeated-runs", args.allow_repeated_runs),
-        ("--allow-mixed-heads", args.allow_mixed_heads),
-    ];
-    let req = runs::Request {
-        inputs: args.inputs.clone(),
-        placements: args.chainage.clone(),
-        calibration: args.calibration.clone(),
-        allowed: analyze::RunsAllowed { repeats: args.allow_repeated_runs, mixed_heads: args.allow_mixed_heads },
-        search_mm: args.search_m * 1000.0,
-        dx_mm: args.dx_mm,
-        recording_only: only_recordings.iter().filter(|(_, given)| *given).map(|(f, _)| f.to_string()).collect(),
-    };
-    let (source, a) = runs::run(&req, &opts, &Bar::stderr())?;
+    let (source, a) = runs::run(&args.analysis.request(), &opts, &Bar::stderr())?;
     let text = cms_host::report::text::summary(&source, &a);
     if let Some(dir) = &args.report {
         cms_host::report::write(dir, &source, &a, &text)?;

@@ -17,6 +17,7 @@ pub mod progress;
 pub mod qemu;
 pub mod record;
 pub mod simulate;
+pub mod view;
 
 use std::process::ExitCode;
 
@@ -57,6 +58,9 @@ enum Command {
     Fit(fit::FitArgs),
     /// Stitch a recording along the track; EN 13231-3 bands, EN 15610 roughness; --report DIR.
     Analyze(analyze::AnalyzeArgs),
+    /// A recording in the browser: the stitched profile along the track with zoom, zones, blocks, marks,
+    /// the frames to scrub through; the figures of `analyze`.
+    View(view::ViewArgs),
     /// One full frame from a sensor head (or `sim`) as a PNG: what the sensor sees.
     Capture(capture::CaptureArgs),
     /// Corrugation per image or recorded frame: each laser's profile and rotated-sine fit, the joint fit of the
@@ -104,6 +108,7 @@ fn dispatch(command: Command) -> Result<()> {
         Command::Simulate(args) => simulate::run(&args),
         Command::Fit(args) => fit::run(&args),
         Command::Analyze(args) => analyze::run(&args),
+        Command::View(args) => view::run(&args),
         Command::Capture(args) => capture::run(&args),
         Command::Measure(args) => measure::run(&args),
         Command::Locate(args) => locate::run(&args),

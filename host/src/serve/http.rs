@@ -77,7 +77,7 @@ fn asset(body: &'static str, mime: &'static str) -> Response {
 }
 
 /// Whether `host` (a `Host` header) names the loopback server on `port`.
-fn loopback_host(host: &str, port: u16) -> bool {
+pub(super) fn loopback_host(host: &str, port: u16) -> bool {
     let name = match host.rsplit_once(':') {
         Some((name, p)) if p == port.to_string() => name,
         _ => return false,
@@ -105,13 +105,17 @@ async fn guard(State(ctx): State<Context>, req: Request, next: Next) -> Response
         }
         r
     };
-    let h = resp.headers_mut();
+    harden(resp.headers_mut());
+    resp
+}
+
+/// The headers every response of the live view and the viewer gets.
+pub(super) fn harden(h: &mut HeaderMap) {
     h.insert(header::CONTENT_SECURITY_POLICY, HeaderValue::from_static(CSP));
     h.insert(header::X_CONTENT_TYPE_OPTIONS, HeaderValue::from_static("nosniff"));
     h.insert(header::REFERRER_POLICY, HeaderValue::from_static("no-referrer"));
     h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
     h.insert(header::X_FRAME_OPTIONS, HeaderValue::from_static("DENY"));
-    resp
 }
 
 /// `GET /ws`: the page's updates, from another origin refused.

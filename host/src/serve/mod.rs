@@ -52,6 +52,7 @@
 
 mod http;
 mod hub;
+pub mod viewer;
 
 use std::net::{IpAddr, Ipv4Addr, SocketAddr, TcpListener};
 use std::sync::Arc;
