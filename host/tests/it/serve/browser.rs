@@ -55,7 +55,7 @@ impl WebDriverCompatibleCommand for PerformanceLog {
 }
 
 /// A chromedriver with one Chromium session.
-struct Browser {
+pub(super) struct Browser {
     rt: tokio::runtime::Runtime,
     client: Option<fantoccini::Client>,
     driver: Child,
@@ -63,7 +63,7 @@ struct Browser {
 }
 
 impl Browser {
-    fn start() -> Browser {
+    pub(super) fn start() -> Browser {
         let chromium = tool("chromium", &["/usr/bin/chromium", "/usr/bin/chromium-browser"])
             .unwrap_or_else(|| panic!("no chromium: the live view's test needs a real browser ({INSTALL})"));
         let chromedriver = tool("chromedriver", &["/usr/bin/chromedriver", "/usr/lib/chromium/chromedriver"])
@@ -105,17 +105,17 @@ impl Browser {
         self.client.as_ref().unwrap()
     }
 
-    fn goto(&self, url: &str) {
+    pub(super) fn goto(&self, url: &str) {
         self.rt.block_on(self.client().goto(url)).unwrap();
     }
 
     /// Runs `script` (a function body) in the page.
-    fn eval(&self, script: &str) -> Value {
+    pub(super) fn eval(&self, script: &str) -> Value {
         self.rt.block_on(self.client().execute(script, vec![])).unwrap_or_else(|e| panic!("{script}: {e}"))
     }
 
     /// Waits until `script` returns true in the page.
-    fn wait_for(&self, script: &str, within: Duration, what: &str) {
+    pub(super) fn wait_for(&self, script: &str, within: Duration, what: &str) {
         let deadline = Instant::now() + within;
         while self.eval(script) != Value::Bool(true) {
             assert!(Instant::now() < deadline, "the page shows no {what} within {} s", within.as_secs());
@@ -123,12 +123,12 @@ impl Browser {
         }
     }
 
-    fn screenshot(&self) -> Vec<u8> {
+    pub(super) fn screenshot(&self) -> Vec<u8> {
         self.rt.block_on(self.client().screenshot()).unwrap()
     }
 
     /// Every URL the browser requested or opened a socket to since the last call.
-    fn requested(&self) -> Vec<String> {
+    pub(super) fn requested(&self) -> Vec<String> {
         let log = self.rt.block_on(self.client().issue_cmd(PerformanceLog)).expect("chromedriver gives its log");
         let mut urls = Vec::new();
         for entry in log.as_array().into_iter().flatten() {

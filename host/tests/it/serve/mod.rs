@@ -9,6 +9,7 @@
 
 mod browser;
 mod feed;
+mod viewer;
 
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader};

@@ -1,0 +1,183 @@
+//! `cms-host view`: a recording in a real headless Chromium (the live
+//! view's [`Browser`]): the page shows `analyze --json`'s figures of the
+//! same recording and options, zooms and scrubs, asks nothing of any other
+//! server, and its screenshot is kept (`$CARGO_TARGET_TMPDIR/viewer.png`;
+//! with `CMS_DOCS_FIGURES=1` also `docs/figures/viewer.png`). Hostile
+//! requests get a 4xx and the viewer goes on.
+
+use std::io::{Read as _, Write as _};
+use std::time::Instant;
+
+use serde_json::Value;
+
+use super::browser::Browser;
+use super::*;
+use crate::common::run;
+
+/// A `cms-host view … --serve 127.0.0.1:0` process and its address.
+struct View {
+    child: Child,
+    host: String,
+}
+
+impl View {
+    fn start(args: &[&str]) -> View {
+        let mut child = Command::new(bin())
+            .arg("view")
+            .args(args)
+            .args(["--serve", "127.0.0.1:0"])
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let err = child.stderr.take().unwrap();
+        let (tx, rx) = mpsc::channel();
+        thread::spawn(move || {
+            for line in BufReader::new(err).lines().map_while(Result::ok) {
+                let _ = tx.send(line);
+            }
+        });
+        let host = loop {
+            let line = rx.recv_timeout(Duration::from_secs(120)).expect("view names its address");
+            if let Some(rest) = line.strip_prefix("view: on http://") {
+                break rest.split('/').next().unwrap().to_string();
+            }
+        };
+        View { child, host }
+    }
+
+    /// One raw HTTP/1.1 exchange: the status code.
+    fn status(&self, request: &str) -> u16 {
+        let mut s = std::net::TcpStream::connect(&self.host).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+        s.write_all(request.replace("HOST", &self.host).as_bytes()).unwrap();
+        let mut out = String::new();
+        let _ = s.read_to_string(&mut out);
+        out.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or_else(|| panic!("no status: {out:?}"))
+    }
+}
+
+impl Drop for View {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// What the page shows, read from its elements.
+const SHOWN: &str = r#"
+const t = (id) => document.getElementById(id).textContent;
+const rows = (id) => [...document.querySelectorAll('#' + id + ' tbody tr')].map((r) => [...r.cells].map((c) => c.textContent));
+return { reprofile: t('reprofile'), measured: t('measured'), frames: t('frames'), kept: t('kept'),
+         zones: rows('zones'), blocks: rows('blocks'), bands: rows('bands'), edition: t('edition'),
+         range: t('range'), frame: t('frameno'), odometer: t('frameodo') };
+"#;
+
+/// The viewer of a synthetic 20 m run (30 µm at 50 mm: zones over the
+/// 30–100 mm limit) shows `analyze --json`'s verdict, zones, blocks and
+/// frame count; zooming asks the server again and narrows the range shown;
+/// the slider shows another frame, the recording's; nothing is requested
+/// but from the viewer.
+#[test]
+fn the_viewer_shows_what_analyze_finds() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("run.cmsrec");
+    let r = rec.to_str().unwrap();
+    let o = run(&["bench", "recording", "--frames", "1200", "--out", r]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = run(&["analyze", r, "--block-m", "5", "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let a: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let v = &a["verdict"];
+
+    let view = View::start(&[r, "--block-m", "5"]);
+    let url = format!("http://{}/", view.host);
+    let b = Browser::start();
+    let started = Instant::now();
+    b.goto(&url);
+    b.wait_for(
+        "return document.body.dataset.loaded === '1' && document.body.dataset.profiles === '1' && document.body.dataset.frame === '0'",
+        Duration::from_secs(30),
+        "analysis, profile and first frame",
+    );
+    let load_s = started.elapsed().as_secs_f64();
+    let shown = b.eval(SHOWN);
+    eprintln!("viewer loaded in {load_s:.2} s; shown: {shown}");
+
+    // analyze's figures.
+    assert_eq!(shown["reprofile"], format!("{:.1} m", v["reprofile_mm"].as_f64().unwrap() / 1000.0));
+    assert_eq!(shown["measured"], format!("{:.1} m", v["measured_mm"].as_f64().unwrap() / 1000.0));
+    assert_eq!(shown["edition"], v["edition"]);
+    assert_eq!(shown["frames"], a["frames"].to_string());
+    let zones = v["zones"].as_array().unwrap();
+    assert!(!zones.is_empty());
+    let shown_zones = shown["zones"].as_array().unwrap();
+    assert_eq!(shown_zones.len(), zones.len());
+    for (s, z) in shown_zones.iter().zip(zones) {
+        assert_eq!(s[1], z["start_chainage"], "{s} {z}");
+        assert_eq!(s[2], z["end_chainage"], "{s} {z}");
+        assert_eq!(s[4], format!("{:.1} µm", z["worst_pp_mm"].as_f64().unwrap() * 1000.0));
+    }
+    let blocks = v["blocks"].as_array().unwrap();
+    let shown_blocks = shown["blocks"].as_array().unwrap();
+    assert_eq!(shown_blocks.len(), blocks.len());
+    for (s, j) in shown_blocks.iter().zip(blocks) {
+        let rms = j["rms_mm"][1].as_f64().map_or("–".to_string(), |mm| format!("{:.1}", mm * 1000.0));
+        assert_eq!(s[3], rms, "{s} {j}");
+    }
+    assert_eq!(shown["bands"].as_array().unwrap().len(), v["bands"].as_array().unwrap().len());
+
+    // Zoom: the server is asked again, the range narrows.
+    b.eval("document.getElementById('zoomin').click(); return true;");
+    b.wait_for("return document.body.dataset.profiles === '2'", Duration::from_secs(10), "zoomed profile");
+    let zoomed = b.eval(SHOWN);
+    assert_ne!(zoomed["range"], shown["range"]);
+    // Scrub to the last kept frame: the recording's 1200th.
+    b.eval("const s = document.getElementById('scrub'); s.value = s.max; s.dispatchEvent(new Event('input')); return true;");
+    b.wait_for("return document.body.dataset.frame === '1199'", Duration::from_secs(10), "the scrubbed frame");
+    let last = b.eval(SHOWN);
+    assert_eq!(last["frame"], "1199 of 1200");
+    let png = b.screenshot();
+    let urls = b.requested();
+    drop(b);
+
+    let own = format!("http://{}/", view.host);
+    assert!(urls.iter().any(|u| u.starts_with(&format!("{own}api/profile"))), "{urls:?}");
+    for u in &urls {
+        let internal = ["chrome:", "chrome-untrusted:", "about:", "data:", "blob:"].iter().any(|s| u.starts_with(s));
+        assert!(internal || u.starts_with(&own), "the browser asked {u} (of {urls:?})");
+    }
+    std::fs::write(PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("viewer.png"), &png).unwrap();
+    assert!(png.starts_with(b"\x89PNG") && png.len() > 20_000, "screenshot of {} bytes", png.len());
+    if std::env::var_os("CMS_DOCS_FIGURES").is_some() {
+        std::fs::write(Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/figures/viewer.png"), &png).unwrap();
+    }
+
+    // Hostile requests: refused, and the viewer still answers.
+    let get = |path: &str| format!("GET {path} HTTP/1.1\r\nHost: HOST\r\nConnection: close\r\n\r\n");
+    assert_eq!(view.status(&get("/api/profile?from_mm=5&to_mm=1&bins=10")), 400);
+    assert_eq!(view.status(&get("/api/profile?from_mm=0&to_mm=1e3&bins=999999")), 400);
+    assert_eq!(view.status(&get("/api/frame?i=nope")), 400);
+    assert_eq!(view.status(&get("/api/frame?i=99999")), 404);
+    assert_eq!(view.status(&get("/etc/passwd")), 404);
+    assert_eq!(
+        view.status("POST /api/analysis HTTP/1.1\r\nHost: HOST\r\nContent-Length: 0\r\nConnection: close\r\n\r\n"),
+        405
+    );
+    assert_eq!(view.status("GET / HTTP/1.1\r\nHost: evil.example\r\nConnection: close\r\n\r\n"), 421);
+    assert_eq!(view.status("garbage\r\n\r\n"), 400);
+    assert_eq!(view.status(&get("/api/frame?i=0")), 200);
+}
+
+/// A file that is not a recording: one line, exit status 2, no server.
+#[test]
+fn the_viewer_refuses_what_is_not_a_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("x.cmsrec");
+    std::fs::write(&bad, b"not a recording at all").unwrap();
+    let o = run(&["view", bad.to_str().unwrap(), "--serve", "127.0.0.1:0"]);
+    assert_eq!(o.status.code(), Some(2), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.lines().count(), 1, "{err}");
+}
