@@ -17,7 +17,7 @@
 //! [`MAX_FRAME_POINTS`] (`GET /api/frame?i=…`); memory is set by those
 //! limits and by the analysis, not by the number of frames.
 //!
-//! The server is the live view's ([`super::http`]'s refusals and headers):
+//! The server is the live view's (the refusals and headers of `serve`'s HTTP side):
 //! loopback unless an address is given, read-only (GET and HEAD), every
 //! asset embedded, every malformed query a 400 naming the parameter.
 
