@@ -198,6 +198,34 @@ impl AnalysisArgs {
         }
     }
 
+    /// The options given that differ from their defaults, by flag.
+    pub fn given(&self) -> Vec<&'static str> {
+        #[derive(clap::Parser)]
+        struct Defaults {
+            #[command(flatten)]
+            analysis: AnalysisArgs,
+        }
+        let defaults = <Defaults as clap::Parser>::parse_from(["cms-host", "input"]).analysis;
+        [
+            ("--chainage", !self.chainage.is_empty()),
+            ("--edition", self.edition != defaults.edition),
+            ("--block-m", self.block_m != defaults.block_m),
+            ("--search-m", self.search_m != defaults.search_m),
+            ("--allow-repeated-runs", self.allow_repeated_runs),
+            ("--allow-mixed-heads", self.allow_mixed_heads),
+            ("--dx-mm", self.dx_mm.is_some()),
+            ("--direction", self.direction.is_some()),
+            ("--register", self.register.is_some()),
+            ("--segment-mm", self.segment_mm != defaults.segment_mm),
+            ("--no-spike-removal", self.no_spike_removal),
+            ("--no-curvature", self.no_curvature),
+            ("--calibration", self.calibration.is_some()),
+        ]
+        .into_iter()
+        .filter_map(|(flag, given)| given.then_some(flag))
+        .collect()
+    }
+
     /// What to analyse, for [`runs::run`].
     pub fn request(&self) -> runs::Request {
         let args = self;

@@ -22,10 +22,24 @@ pub struct ViewArgs {
     pub serve: SocketAddr,
 }
 
-/// Analyses the inputs as `cms-host analyze` does, then serves the viewer
-/// until interrupted.
+/// Analyses the inputs as `cms-host analyze` does (or reads a report
+/// folder `analyze --report` wrote), then serves the viewer until interrupted.
 pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
-    let view = View::open(&args.analysis.request(), &args.analysis.options(), &Bar::stderr())?;
+    let view = match args.analysis.inputs.as_slice() {
+        [dir] if dir.is_dir() => {
+            // A report is shown as it was analysed: another option would
+            // be silently ignored, so it is refused.
+            if let Some(flag) = args.analysis.given().first() {
+                return Err(Error::Input(format!(
+                    "{}: a report folder is shown as analysed; {flag} applies to recordings (view the recordings instead)",
+                    dir.display()
+                ))
+                .into());
+            }
+            View::open_report(dir, &Bar::stderr())?
+        }
+        _ => View::open(&args.analysis.request(), &args.analysis.options(), &Bar::stderr())?,
+    };
     let viewer = Viewer::start(view, args.serve).map_err(Error::from)?;
     let mut err = std::io::stderr().lock();
     writeln!(err, "view: on http://{}/ (Ctrl-C to stop)", viewer.addr()).map_err(Error::Output)?;

@@ -646,8 +646,9 @@ fn html_escape(s: &str) -> String {
 /// table above): a folder holding only such files can be replaced by a
 /// new report ([`crate::output::set`]).
 pub fn owns(name: &str) -> bool {
-    const FIXED: [&str; 12] = [
+    const FIXED: [&str; 13] = [
         "report.html",
+        "analysis.json",
         "report.md",
         "summary.txt",
         "profile.svg",
@@ -687,6 +688,8 @@ fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Resu
         Ok(crate::output::write_atomically(&dir.join(name), |w| w.write_all(text.as_bytes()))?)
     };
     put("summary.txt", summary)?;
+    // `analyze --json`'s object: what `cms-host view DIR` shows.
+    put("analysis.json", &format!("{:#}\n", json::to_json(source, a)))?;
     put("profile.csv", &profile_csv(a))?;
     put("registration.csv", &registration_csv(a))?;
     put("gaps.csv", &gaps_csv(a))?;

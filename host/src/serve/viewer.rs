@@ -23,6 +23,7 @@
 
 use std::fmt::Write as _;
 use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use axum::Router;
@@ -81,6 +82,8 @@ pub struct View {
     frames_total: usize,
     /// Kept: every this many.
     frame_every: usize,
+    /// Why there are no frames to scrub, where there should be.
+    frames_note: Option<String>,
 }
 
 impl View {
@@ -93,23 +96,53 @@ impl View {
         let (frames, frames_total, frame_every) = match &source {
             Source::Recordings(recs) => {
                 let total: usize = recs.iter().map(|(_, r)| r.frames).sum();
-                let every = total.div_ceil(MAX_FRAMES_KEPT).max(1);
-                let mut kept = Vec::new();
-                let mut n = 0usize;
-                for (path, _) in recs {
-                    analyze::read_recording(path, progress, |_, f| {
-                        if n.is_multiple_of(every) {
-                            kept.push(thin(&f));
-                        }
-                        n += 1;
-                        Ok(())
-                    })?;
-                }
-                (kept, total, every)
+                let paths: Vec<&Path> = recs.iter().map(|(p, _)| p.as_path()).collect();
+                keep_frames(&paths, total, progress)?
             }
             Source::Profile(..) => (Vec::new(), 0, 1),
         };
-        Ok(View { analysis_json, lines, frames, frames_total, frame_every })
+        let frames_note = None;
+        Ok(View { analysis_json, lines, frames, frames_total, frame_every, frames_note })
+    }
+
+    /// A report folder (`analyze --report DIR`) as the viewer shows it: its
+    /// `analysis.json` (the analysis, as `analyze --json` printed it), its
+    /// `profile.parquet` (the stitched lines), and the frames of its
+    /// recordings where they still are at the paths it names.
+    pub fn open_report(dir: &Path, progress: &dyn Progress) -> Result<View, Error> {
+        let name = dir.display();
+        let json_path = dir.join("analysis.json");
+        let text = std::fs::read_to_string(&json_path).map_err(|e| {
+            Error::Input(format!(
+                "{name}: no analysis.json ({e}): not a report folder of this cms-host (analyze --report)"
+            ))
+        })?;
+        let analysis_json: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| Error::Input(format!("{}: not the analysis of a report: {e}", json_path.display())))?;
+        let dx_mm = analysis_json["dx_mm"]
+            .as_f64()
+            .filter(|d| *d > 0.0 && d.is_finite())
+            .ok_or_else(|| Error::Input(format!("{}: no sample spacing (dx_mm)", json_path.display())))?;
+        let lines = report_lines(&dir.join("profile.parquet"), dx_mm)?;
+        let runs = analysis_json["runs"].as_array().cloned().unwrap_or_default();
+        let total = runs.iter().filter_map(|r| r["frames"].as_u64()).sum::<u64>() as usize;
+        let paths: Vec<PathBuf> = runs.iter().filter_map(|r| r["recording"].as_str().map(PathBuf::from)).collect();
+        let missing: Vec<String> = paths
+            .iter()
+            .filter(|p| !runs::is_recording(p).unwrap_or(false))
+            .map(|p| crate::output::printable(&p.display().to_string()).into_owned())
+            .collect();
+        let (frames, frames_total, frame_every, frames_note) = if paths.is_empty() {
+            (Vec::new(), 0, 1, None)
+        } else if missing.is_empty() {
+            let refs: Vec<&Path> = paths.iter().map(PathBuf::as_path).collect();
+            let (f, t, e) = keep_frames(&refs, total, progress)?;
+            (f, t, e, None)
+        } else {
+            let note = format!("no frames: the recording {} is not at the path the report names", missing.join(", "));
+            (Vec::new(), total, 1, Some(note))
+        };
+        Ok(View { analysis_json, lines, frames, frames_total, frame_every, frames_note })
     }
 
     /// The chainage span of the stitched lines, mm.
@@ -128,6 +161,7 @@ impl View {
             "frames_total": self.frames_total,
             "frames_kept": self.frames.len(),
             "frame_every": self.frame_every,
+            "frames_note": self.frames_note,
         })
     }
 
@@ -181,28 +215,109 @@ impl View {
     }
 }
 
+/// The median of the finite values (0 without any).
+fn median(z: &[f64]) -> f64 {
+    let mut finite: Vec<f64> = z.iter().copied().filter(|v| v.is_finite()).collect();
+    if finite.is_empty() {
+        return 0.0;
+    }
+    let mid = finite.len() / 2;
+    *finite.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
 /// The stitched lines, each less its median (as the report plots them).
 fn plot_lines(a: &Analysis) -> Vec<PlotLine> {
     a.lasers
         .iter()
         .map(|l| {
             let s = &l.stitched;
-            let mut finite: Vec<f64> = s.z_um.iter().copied().filter(|v| v.is_finite()).collect();
-            let median = if finite.is_empty() {
-                0.0
-            } else {
-                let mid = finite.len() / 2;
-                *finite.select_nth_unstable_by(mid, f64::total_cmp).1
-            };
+            let m = median(&s.z_um);
             PlotLine {
                 laser: s.laser,
                 section: s.section,
                 x0_mm: s.x0_mm,
                 dx_mm: s.dx_mm,
-                z_um: s.z_um.iter().map(|z| z - median).collect(),
+                z_um: s.z_um.iter().map(|z| z - m).collect(),
             }
         })
         .collect()
+}
+
+/// The lines of a report's `profile.parquet` (`chainage_mm`,
+/// `height_um_K`): a section ends where the chainage jumps by more than
+/// one and a half spacings (the file has no rows between sections); each
+/// line of each section less its median.
+fn report_lines(path: &Path, dx_mm: f64) -> Result<Vec<PlotLine>, Error> {
+    use parquet::file::reader::{FileReader, SerializedFileReader};
+    use parquet::record::Field;
+    let name = path.display();
+    let bad = |e: &dyn std::fmt::Display| Error::Input(format!("{name}: {e}"));
+    let file = std::fs::File::open(path).map_err(|e| bad(&e))?;
+    let reader = SerializedFileReader::new(file).map_err(|e| bad(&e))?;
+    let schema = reader.metadata().file_metadata().schema_descr_ptr();
+    let columns: Vec<String> = schema.columns().iter().map(|c| c.name().to_string()).collect();
+    let chainage = columns.iter().position(|c| c == "chainage_mm").ok_or_else(|| bad(&"no chainage_mm column"))?;
+    let lasers: Vec<(usize, usize)> = columns
+        .iter()
+        .enumerate()
+        .filter_map(|(i, c)| c.strip_prefix("height_um_").and_then(|k| k.parse().ok()).map(|k| (i, k)))
+        .collect();
+    let mut lines: Vec<PlotLine> = Vec::new();
+    let (mut section, mut last) = (0usize, f64::NEG_INFINITY);
+    for row in reader.get_row_iter(None).map_err(|e| bad(&e))? {
+        let row = row.map_err(|e| bad(&e))?;
+        let fields: Vec<&Field> = row.get_column_iter().map(|(_, f)| f).collect();
+        let Some(Field::Double(x)) = fields.get(chainage).copied() else {
+            return Err(bad(&"a chainage_mm not a number"));
+        };
+        if !(x - last <= 1.5 * dx_mm) {
+            section += 1;
+            lines.extend(lasers.iter().map(|&(_, k)| PlotLine {
+                laser: k,
+                section,
+                x0_mm: *x,
+                dx_mm,
+                z_um: Vec::new(),
+            }));
+        }
+        last = *x;
+        let at = lines.len() - lasers.len();
+        for (l, &(i, _)) in lines[at..].iter_mut().zip(&lasers) {
+            l.z_um.push(match fields.get(i) {
+                Some(Field::Double(z)) => *z,
+                _ => f64::NAN,
+            });
+        }
+    }
+    // A line absent from a section is not a line of it.
+    lines.retain(|l| l.z_um.iter().any(|z| z.is_finite()));
+    for l in &mut lines {
+        let m = median(&l.z_um);
+        l.z_um.iter_mut().for_each(|z| *z -= m);
+    }
+    Ok(lines)
+}
+
+/// Up to [`MAX_FRAMES_KEPT`] of the `total` frames of the recordings at
+/// `paths`, evenly spaced: the frames, the total, the spacing.
+fn keep_frames(
+    paths: &[&Path],
+    total: usize,
+    progress: &dyn Progress,
+) -> Result<(Vec<KeptFrame>, usize, usize), Error> {
+    let every = total.div_ceil(MAX_FRAMES_KEPT).max(1);
+    let mut kept = Vec::new();
+    let mut n = 0usize;
+    for path in paths {
+        analyze::read_recording(path, progress, |_, f| {
+            if n.is_multiple_of(every) {
+                kept.push(thin(&f));
+            }
+            n += 1;
+            Ok(())
+        })?;
+    }
+    Ok((kept, total, every))
 }
 
 /// A frame's lines thinned to [`MAX_FRAME_POINTS`] each (every k-th point).
@@ -357,6 +472,7 @@ mod tests {
             frames: Vec::new(),
             frames_total: 0,
             frame_every: 1,
+            frames_note: None,
         }
     }
 

@@ -106,6 +106,7 @@ async function load() {
   const scrub = $("scrub");
   scrub.max = String(Math.max(0, meta.frames_kept - 1));
   if (meta.frames_kept === 0) $("framebox").hidden = true;
+  if (meta.frames_note) $("kept").textContent = meta.frames_note;
   $("conn").textContent = "loaded";
   $("conn").className = "ok";
   document.body.dataset.loaded = "1";

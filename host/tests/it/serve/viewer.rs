@@ -47,6 +47,18 @@ impl View {
         View { child, host }
     }
 
+    /// `GET path`'s JSON body.
+    fn json(&self, path: &str) -> Value {
+        let mut s = std::net::TcpStream::connect(&self.host).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+        write!(s, "GET {path} HTTP/1.1\r\nHost: {}\r\nConnection: close\r\n\r\n", self.host).unwrap();
+        let mut out = String::new();
+        s.read_to_string(&mut out).unwrap();
+        let (head, body) = out.split_once("\r\n\r\n").unwrap();
+        assert!(head.starts_with("HTTP/1.1 200"), "{path}: {head}");
+        serde_json::from_str(body).unwrap_or_else(|e| panic!("{path}: {e}: {body}"))
+    }
+
     /// One raw HTTP/1.1 exchange: the status code.
     fn status(&self, request: &str) -> u16 {
         let mut s = std::net::TcpStream::connect(&self.host).unwrap();
@@ -180,4 +192,49 @@ fn the_viewer_refuses_what_is_not_a_recording() {
     assert_eq!(o.status.code(), Some(2), "{}", String::from_utf8_lossy(&o.stderr));
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(err.lines().count(), 1, "{err}");
+}
+
+/// `view DIR` of `analyze --report DIR` shows the analysis the report
+/// holds — `analyze --json`'s object — and the same profile as `view` of
+/// the recording (every bin's lowest and highest height of every line);
+/// its frames while the recording is where the report says, and says why
+/// there are none once it has moved; an analysis option with a report
+/// folder is refused, not ignored.
+#[test]
+fn the_viewer_of_a_report_folder_shows_the_same() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("run.cmsrec");
+    let report = dir.path().join("report");
+    let (r, d) = (rec.to_str().unwrap(), report.to_str().unwrap());
+    let o = run(&["bench", "recording", "--frames", "600", "--out", r]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = run(&["analyze", r, "--block-m", "2", "--json", "--report", d]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let a: Value = serde_json::from_slice(&o.stdout).unwrap();
+
+    let q = "/api/profile?from_mm=100.25&to_mm=9000.75&bins=777";
+    let (of_rec, of_report) = (View::start(&[r, "--block-m", "2"]), View::start(&[d]));
+    let (m1, m2) = (of_rec.json("/api/analysis"), of_report.json("/api/analysis"));
+    assert_eq!(m2["analysis"], a);
+    assert_eq!(m1["analysis"], a);
+    assert_eq!(m2["frames_kept"], m1["frames_kept"]);
+    assert_eq!(m2["frames_total"], 600);
+    let (p1, p2) = (of_rec.json(q), of_report.json(q));
+    assert_eq!(p1["lines"].as_array().unwrap().len(), 3);
+    assert_eq!(p1, p2);
+    assert_eq!(of_rec.json("/api/frame?i=599"), of_report.json("/api/frame?i=599"));
+    drop((of_rec, of_report));
+
+    std::fs::rename(&rec, dir.path().join("moved.cmsrec")).unwrap();
+    let moved = View::start(&[d]);
+    let m = moved.json("/api/analysis");
+    assert_eq!(m["frames_kept"], 0);
+    assert!(m["frames_note"].as_str().unwrap().contains("is not at the path the report names"), "{m}");
+    assert_eq!(moved.json(q), p1);
+    drop(moved);
+
+    let o = run(&["view", d, "--block-m", "7", "--serve", "127.0.0.1:0"]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--block-m") && err.lines().count() == 1, "{err}");
 }
