@@ -270,7 +270,8 @@ fn report_lines(path: &Path, dx_mm: f64) -> Result<Vec<PlotLine>, Error> {
         let Some(Field::Double(x)) = fields.get(chainage).copied() else {
             return Err(bad(&"a chainage_mm not a number"));
         };
-        if !(x - last <= 1.5 * dx_mm) {
+        // The first row (after -inf), or a jump: a new section.
+        if x - last > 1.5 * dx_mm {
             section += 1;
             lines.extend(lasers.iter().map(|&(_, k)| PlotLine {
                 laser: k,
