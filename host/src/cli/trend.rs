@@ -98,13 +98,15 @@ pub fn run(args: &TrendArgs) -> anyhow::Result<()> {
         cms_host::output::set::check_set(dir, cms_host::report::trend::owns)
             .map_err(|e| anyhow::Error::from(Error::from(e)).context("--report"))?;
     }
-    let mut opts = Options::default();
-    opts.verdict = reprofiling::Options {
-        edition: match args.edition {
-            EditionArg::En2006 => Edition::En2006,
-            EditionArg::En2012 => Edition::En2012,
+    let opts = Options {
+        verdict: reprofiling::Options {
+            edition: match args.edition {
+                EditionArg::En2006 => Edition::En2006,
+                EditionArg::En2012 => Edition::En2012,
+            },
+            block_mm: args.block_m * 1000.0,
         },
-        block_mm: args.block_m * 1000.0,
+        ..Options::default()
     };
     let mut surveys = Vec::new();
     for (i, path) in args.inputs.iter().enumerate() {
