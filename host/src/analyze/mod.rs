@@ -28,6 +28,7 @@ pub mod runs;
 pub mod standards;
 pub mod stitch;
 pub mod survey;
+pub mod trend;
 
 use std::path::{Path, PathBuf};
 

@@ -93,6 +93,44 @@ pub struct RecordingArgs {
     /// The recording to write.
     #[arg(long, value_name = "FILE.cmsrec")]
     pub out: PathBuf,
+    /// A survey's rail instead of the default's corrugation everywhere:
+    /// broadband roughness, and corrugation of this amplitude (µm, 0 to
+    /// 1000) at --wavelength-mm over --zone-m.
+    #[arg(long = "corrugation-um", value_parser = corrugation_um)]
+    pub corrugation_um: Option<f64>,
+    /// The corrugated zone, track positions FROM:TO in m (with --corrugation-um).
+    #[arg(long = "zone-m", value_name = "FROM:TO", value_parser = zone_m, requires = "corrugation_um")]
+    pub zone_m: Option<(f64, f64)>,
+    /// The corrugation's wavelength, mm (with --corrugation-um).
+    #[arg(long = "wavelength-mm", default_value_t = 50.0, value_parser = wavelength_mm)]
+    pub wavelength_mm: f64,
+    /// The run's start: the chainage of the odometer's zero (km+m or m), in its survey block.
+    #[arg(long = "start-chainage", value_name = "KM+M")]
+    pub start_chainage: Option<String>,
+    /// The survey's date, YYYY-MM-DD, in its survey block.
+    #[arg(long, value_name = "YYYY-MM-DD")]
+    pub date: Option<String>,
+}
+
+fn corrugation_um(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if (0.0..=1000.0).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}` is not a corrugation amplitude in µm (0 to 1000)")),
+    }
+}
+
+fn wavelength_mm(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if (2.0..=5000.0).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}` is not a wavelength in mm (2 to 5000)")),
+    }
+}
+
+fn zone_m(s: &str) -> Result<(f64, f64), String> {
+    let bad = || format!("`{s}` is not a zone FROM:TO in m (FROM below TO)");
+    let (a, b) = s.split_once(':').ok_or_else(bad)?;
+    let (a, b): (f64, f64) = (a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?);
+    if a.is_finite() && b.is_finite() && a < b && a.abs() <= 1e8 && b.abs() <= 1e8 { Ok((a, b)) } else { Err(bad()) }
 }
 
 /// A beam shorter than 2.4 m leaves the 100–300 mm band no settled
@@ -274,10 +312,29 @@ fn annex_a(a: &AnnexAArgs) -> Result<String> {
 }
 
 fn recording(a: &RecordingArgs) -> Result<String> {
+    use cms_host::recording::survey_info::Survey;
+    use cms_host::sim::synthetic::Rail;
+    let rail = match a.corrugation_um {
+        Some(amplitude_um) => {
+            let zone_m = a.zone_m.unwrap_or((f64::NEG_INFINITY, f64::INFINITY));
+            Rail::Survey { zone_mm: (zone_m.0 * 1e3, zone_m.1 * 1e3), wavelength_mm: a.wavelength_mm, amplitude_um }
+        }
+        None => Rail::Corrugated,
+    };
+    let survey = if a.start_chainage.is_some() || a.date.is_some() {
+        let s = Survey { start_chainage: a.start_chainage.clone(), date: a.date.clone(), ..Survey::default() };
+        // The block is checked as `listen --survey` checks a survey file.
+        let s = Survey::parse(&s.to_text()).map_err(|e| cms_host::Error::Input(format!("survey block: {e}")))?;
+        Some(s.to_text())
+    } else {
+        None
+    };
     let opts = cms_host::sim::synthetic::Options {
         frames: a.frames,
         step_mm: a.step_mm,
         seed: a.seed,
+        rail,
+        survey,
         ..cms_host::sim::synthetic::Options::default()
     };
     let t = Instant::now();

@@ -17,6 +17,7 @@ pub mod progress;
 pub mod qemu;
 pub mod record;
 pub mod simulate;
+pub mod trend;
 pub mod view;
 
 use std::process::ExitCode;
@@ -69,6 +70,9 @@ enum Command {
     /// A recording's GNSS fixes on a track register: chainage from GNSS, checked against the odometer and
     /// the survey.
     Locate(locate::LocateArgs),
+    /// Surveys of one site at different dates: each block's growth per year per EN 13231-3 band, and when
+    /// it will cross the limit.
+    Trend(trend::TrendArgs),
     /// Camera and laser-plane calibration; upload to a head.
     #[command(subcommand)]
     Calibrate(calibrate::CalibrateCmd),
@@ -112,6 +116,7 @@ fn dispatch(command: Command) -> Result<()> {
         Command::Capture(args) => capture::run(&args),
         Command::Measure(args) => measure::run(&args),
         Command::Locate(args) => locate::run(&args),
+        Command::Trend(args) => trend::run(&args),
         Command::Calibrate(cmd) => calibrate::run(&cmd),
     }
 }

@@ -10,13 +10,15 @@
 //! rail = "left"                 # left | right, facing the direction chainage runs
 //! start_chainage = "12+345.600" # of the odometer's zero (km+m, or metres)
 //! chainage = "up"               # up | down: chainage with the odometer
+//! date = "2026-05-14"           # of the survey, ISO 8601 (YYYY-MM-DD)
 //! operator = "A. Engineer"
 //! instrument = "CMS head 0042"
 //! notes = "after grinding, pass 2"
 //! ```
 //!
-//! Every key is optional; unknown keys are refused (a typo must not pass
-//! silently). The text is stored as given (at most [`MAX_BYTES`]), so a
+//! Every key is optional (a block written before `date` existed reads as
+//! it did, without a date); unknown keys are refused (a typo must not pass
+//! silently). The date is a quoted string, checked to be a real day. The text is stored as given (at most [`MAX_BYTES`]), so a
 //! later build reads keys this one does not know.
 
 use std::fmt;
@@ -46,6 +48,8 @@ pub struct Survey {
     pub start_chainage: Option<String>,
     /// `up` or `down`: chainage with the odometer.
     pub chainage: Option<String>,
+    /// The day of the survey, `YYYY-MM-DD` ([`SurveyDate`]).
+    pub date: Option<String>,
     pub operator: Option<String>,
     pub instrument: Option<String>,
     pub notes: Option<String>,
@@ -77,6 +81,65 @@ pub enum SurveyError {
     /// A placement's heading, neither up nor down.
     #[error("`{0}`: heading `{1}` is neither up nor down")]
     PlacementHeading(String, String),
+    /// Not a day written `YYYY-MM-DD`.
+    #[error("`{0}` is not a date (YYYY-MM-DD, a real day)")]
+    NotADate(String),
+    /// The survey's `date`.
+    #[error("date: {0}")]
+    Date(Box<SurveyError>),
+}
+
+/// A survey's day (ISO 8601 calendar date), ordered; days between two by
+/// subtraction.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct SurveyDate(chrono::NaiveDate);
+
+impl SurveyDate {
+    /// Days since 0001-01-01 (proleptic Gregorian).
+    pub fn day_number(self) -> i64 {
+        use chrono::Datelike as _;
+        i64::from(self.0.num_days_from_ce())
+    }
+
+    /// The date `days` after this one (`None` past year 262 143).
+    pub fn plus_days(self, days: i64) -> Option<SurveyDate> {
+        self.0.checked_add_signed(chrono::TimeDelta::try_days(days)?).map(SurveyDate)
+    }
+
+    /// Years (of 365.2425 days) from `earlier` to this date.
+    pub fn years_since(self, earlier: SurveyDate) -> f64 {
+        (self.day_number() - earlier.day_number()) as f64 / DAYS_PER_YEAR
+    }
+}
+
+/// The mean Gregorian year, days.
+pub const DAYS_PER_YEAR: f64 = 365.2425;
+
+impl fmt::Display for SurveyDate {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        use chrono::Datelike as _;
+        write!(f, "{:04}-{:02}-{:02}", self.0.year(), self.0.month(), self.0.day())
+    }
+}
+
+impl FromStr for SurveyDate {
+    type Err = SurveyError;
+
+    /// Exactly `YYYY-MM-DD`, a day that exists (no times, no week dates).
+    fn from_str(s: &str) -> Result<Self, SurveyError> {
+        let bad = || SurveyError::NotADate(s.to_string());
+        let b = s.as_bytes();
+        let shape = b.len() == 10
+            && b[4] == b'-'
+            && b[7] == b'-'
+            && b.iter().enumerate().all(|(i, c)| i == 4 || i == 7 || c.is_ascii_digit());
+        if !shape {
+            return Err(bad());
+        }
+        let num = |r: std::ops::Range<usize>| s[r].parse::<u32>().map_err(|_| bad());
+        let year = i32::try_from(num(0..4)?).map_err(|_| bad())?;
+        chrono::NaiveDate::from_ymd_opt(year, num(5..7)?, num(8..10)?).map(SurveyDate).ok_or_else(bad)
+    }
 }
 
 impl Survey {
@@ -87,7 +150,13 @@ impl Survey {
         }
         let s: Survey = toml::from_str(text).map_err(|e| SurveyError::Toml(e.message().to_string()))?;
         s.placement()?;
+        s.date()?;
         Ok(s)
+    }
+
+    /// The survey's day, if it has one.
+    pub fn date(&self) -> Result<Option<SurveyDate>, SurveyError> {
+        self.date.as_deref().map(|d| d.parse().map_err(|e| SurveyError::Date(Box::new(e)))).transpose()
     }
 
     /// The placement of the run it describes.
@@ -135,6 +204,11 @@ impl Survey {
                 (None, Some(h)) => parts.push(format!("chainage {}", h.name())),
                 (None, None) => {}
             }
+        }
+        match self.date() {
+            Ok(Some(d)) => parts.push(format!("surveyed {d}")),
+            Ok(None) => {}
+            Err(_) => parts.push(format!("date {}", printable(self.date.as_deref().unwrap_or_default()))),
         }
         if let Some(o) = &self.operator {
             parts.push(format!("operator {}", printable(o)));
@@ -287,6 +361,24 @@ notes = "pass 2\u001b]0;owned\u0007\nsecond line"
     }
 
     #[test]
+    fn a_survey_has_a_date_or_none() {
+        let s = Survey::parse("line = \"LN 1\"\ndate = \"2026-05-14\"\n").unwrap();
+        let d = s.date().unwrap().unwrap();
+        assert_eq!(d.to_string(), "2026-05-14");
+        assert_eq!(Survey::parse(&s.to_text()).unwrap(), s);
+        assert!(s.describe().contains("surveyed 2026-05-14"), "{}", s.describe());
+        // A block written before the key existed.
+        assert_eq!(Survey::parse("line = \"LN 1\"\n").unwrap().date().unwrap(), None);
+        let e: SurveyDate = "2027-05-14".parse().unwrap();
+        assert!((e.years_since(d) - 365.0 / DAYS_PER_YEAR).abs() < 1e-12);
+        assert_eq!(d.plus_days(365), Some(e));
+        assert_eq!("2024-02-29".parse::<SurveyDate>().unwrap().to_string(), "2024-02-29");
+        for bad in ["2023-02-29", "2026-13-01", "2026-5-14", "2026-05-14T00:00", "+2026-05-14", "2026-05-1x", ""] {
+            assert!(bad.parse::<SurveyDate>().is_err(), "{bad} was taken");
+        }
+    }
+
+    #[test]
     fn chainages_are_plain_decimals() {
         for (text, m) in
             [("12+345.678", 12_345.678), ("0+000", 0.0), ("12345.5", 12_345.5), ("-0+250", -250.0), ("7", 7.0)]
@@ -308,6 +400,9 @@ notes = "pass 2\u001b]0;owned\u0007\nsecond line"
             ("rail = \"middle\"\n", "middle"),
             ("start_chainage = \"12+3456\"\n", "start_chainage"),
             ("chainage = \"sideways\"\n", "sideways"),
+            ("date = \"2026-02-30\"\n", "date: `2026-02-30`"),
+            ("date = \"14/05/2026\"\n", "date"),
+            ("date = 2026-05-14\n", "string"),
             ("line = 3\n", "string"),
         ] {
             let e = Survey::parse(text).unwrap_err();

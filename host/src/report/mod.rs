@@ -28,6 +28,7 @@
 pub mod exports;
 pub mod json;
 pub mod text;
+pub mod trend;
 
 use std::fmt::Write as _;
 use std::path::Path;

@@ -25,5 +25,6 @@ mod robust;
 mod serve;
 mod simulate;
 mod standards;
+mod trend;
 mod triangulate_sim;
 mod v3_recording;

@@ -10,14 +10,6 @@ use super::{Heading, JoinOptions, oriented};
 use crate::analyze::standards::en13231;
 use crate::analyze::stitch::Stitching;
 
-/// `v` sampled at `i + frac` (0 ≤ frac < 1), linearly; NaN where a neighbour is missing.
-pub(super) fn shifted(v: &[f64], frac: f64) -> Vec<f64> {
-    if frac.abs() < 1e-9 {
-        return v.to_vec();
-    }
-    (0..v.len()).map(|i| if i + 1 < v.len() { v[i] + frac * (v[i + 1] - v[i]) } else { f64::NAN }).collect()
-}
-
 /// Offset and tilt of `d(x)` by least squares: `(xm, a, b)` for `a + b (x − xm)`.
 pub(super) fn line_fit(pts: &[(f64, f64)]) -> (f64, f64, f64) {
     let n = pts.len() as f64;
@@ -70,7 +62,7 @@ pub(super) fn residual(diffs: &[Vec<(f64, f64)>]) -> Option<(f64, usize)> {
 /// joined), summed over line pairs: for every shift `d` (run sample `j` at
 /// joined sample `j + d`), `(ncc, overlap samples)`, `d` from
 /// `−(len a − 1)` to `len b − 1`.
-fn correlate(pairs: &[(Vec<f64>, Vec<f64>)]) -> Vec<(f64, f64)> {
+pub(super) fn correlate(pairs: &[(Vec<f64>, Vec<f64>)]) -> Vec<(f64, f64)> {
     let (la, lb) = (pairs[0].0.len(), pairs[0].1.len());
     let n = (la + lb).next_power_of_two();
     let mut planner = FftPlanner::<f64>::new();

@@ -3,7 +3,8 @@
 //! [`super::JoinOptions::section_gap_mm`] is never held in memory: it lies
 //! between two sections.
 
-use super::register::{differences, line_fit, shifted};
+use super::register::{differences, line_fit};
+use super::resample::shifted;
 use super::{Heading, oriented, to_chainage};
 use crate::analyze::profile;
 use crate::analyze::stitch::{FrameFit, Join, Stitched, Stitching};
@@ -131,7 +132,7 @@ impl Section {
 
     /// Merges run `r`'s lines into the section at grid index `lo` + `frac`
     /// (`start_mm` its chainage, `heading` its direction): each line
-    /// interpolated at the fraction, offset and tilt removed over the
+    /// resampled at the fraction by the windowed sinc ([`shifted`]), offset and tilt removed over the
     /// overlap; its frames, fits and joins kept on chainage. Returns the
     /// sum and count of the overlaps' residuals, and the longest overlap,
     /// samples.

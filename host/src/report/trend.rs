@@ -1,0 +1,254 @@
+//! The trend's report ([`crate::analyze::trend`]): `trend.html` (the
+//! surveys, the registrations, the blocks nearest to exceeding and the
+//! whole table), `trend.svg` / `trend.png` (the growth per year of every
+//! block, per band, with ±2 u error bars, against chainage), `trend.csv`
+//! (one row per block and band) and `summary.txt` — written as one output
+//! set ([`crate::output::set`]), each file atomically.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use crate::Error;
+use crate::analyze::chainage;
+use crate::analyze::trend::{BlockTrend, Crossing, Trend};
+use crate::plot::{self, Figure, err};
+
+/// Whether a file of this name is one the trend report writes.
+pub fn owns(name: &str) -> bool {
+    ["trend.html", "trend.svg", "trend.png", "trend.csv", "summary.txt"].contains(&name)
+}
+
+/// The text table: surveys, registrations, the blocks nearest to exceeding.
+pub fn summary(t: &Trend) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "trend over {} surveys, {} limits, blocks of {:.0} m",
+        t.surveys.len(),
+        t.edition.name(),
+        t.block_mm / 1e3
+    );
+    for (i, (name, date)) in t.surveys.iter().enumerate() {
+        let reg = t.registrations.iter().find(|r| r.survey == i);
+        let check = match reg {
+            None => "the reference".to_string(),
+            Some(r) => match r.shift_mm {
+                None => "not registered (no overlap of 2 m)".into(),
+                Some(d) => format!(
+                    "registered {:+.1} mm from its chainage (correlation {:.3}){}",
+                    d,
+                    r.correlation,
+                    if r.disputed { ": CHAINAGE DISPUTED" } else { "" }
+                ),
+            },
+        };
+        let _ = writeln!(s, "  {} {}  {}", date, crate::output::printable(name), check);
+    }
+    let near = t.nearest();
+    if near.is_empty() {
+        let _ = writeln!(s, "no block crosses a limit within the horizon");
+        return s;
+    }
+    let _ = writeln!(s, "\nblocks nearest to exceeding:");
+    let _ = writeln!(
+        s,
+        "  {:<24} {:<11} {:>9} {:>9} {:>18} crossing (±2u)",
+        "block", "band", "limit µm", "last µm", "growth µm/yr ± u"
+    );
+    for b in near {
+        let _ = writeln!(s, "  {}", row(b));
+    }
+    s
+}
+
+/// "30–100 mm".
+fn label(band: &crate::analyze::standards::en13231::Band) -> String {
+    format!("{}–{} mm", band.lo_mm, band.hi_mm)
+}
+
+fn row(b: &BlockTrend) -> String {
+    let last = b.figures.iter().rev().flatten().next().map_or("-".into(), |f| format!("{:.1}", f.1 * 1e3));
+    let growth = b.growth.map_or("-".into(), |(g, u)| format!("{:+.2} ± {:.2}", g * 1e3, u * 1e3));
+    format!(
+        "{:<24} {:<11} {:>9} {:>9} {:>18} {}",
+        format!("{} – {}", chainage(b.start_mm), chainage(b.end_mm)),
+        label(&b.band),
+        b.limit_mm.map_or("-".into(), |l| format!("{:.0}", l * 1e3)),
+        last,
+        growth,
+        b.crossing
+    )
+}
+
+/// The CSV table: one row per block and band.
+pub fn csv(t: &Trend) -> String {
+    let mut s = String::from("start_mm,end_mm,band,limit_mm");
+    for (name, date) in &t.surveys {
+        let _ = write!(s, ",figure_mm_{date},u_mm_{date}");
+        let _ = name;
+    }
+    s.push_str(",growth_mm_per_year,u_growth_mm_per_year,chi2_reduced,crossing,crossing_earliest,crossing_latest\n");
+    let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.6}"));
+    for b in &t.blocks {
+        let _ = write!(s, "{:.3},{:.3},{},{}", b.start_mm, b.end_mm, label(&b.band), opt(b.limit_mm));
+        for f in &b.figures {
+            let _ = write!(s, ",{},{}", opt(f.map(|f| f.1)), opt(f.map(|f| f.2)));
+        }
+        let (cross, lo, hi) = match &b.crossing {
+            Crossing::AlreadyOver => ("already over".to_string(), String::new(), String::new()),
+            Crossing::On { date, earliest, latest } => (
+                date.to_string(),
+                earliest.map_or(String::new(), |d| d.to_string()),
+                latest.map_or(String::new(), |d| d.to_string()),
+            ),
+            c => (c.to_string(), String::new(), String::new()),
+        };
+        let _ = writeln!(
+            s,
+            ",{},{},{},{cross},{lo},{hi}",
+            opt(b.growth.map(|g| g.0)),
+            opt(b.growth.map(|g| g.1)),
+            opt(b.chi2_reduced)
+        );
+    }
+    s
+}
+
+/// Growth per block against chainage, one panel per band.
+struct GrowthFig<'a>(&'a Trend);
+
+impl Figure for GrowthFig<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+        root.fill(&WHITE).map_err(err)?;
+        let root = root
+            .titled("Growth of each block's figure per year (µm/year, ±2u), per EN 13231-3 band", ("sans-serif", 18))
+            .map_err(err)?;
+        let bands = crate::analyze::standards::en13231::BANDS;
+        for (panel, band) in root.split_evenly((bands.len(), 1)).iter().zip(bands.iter()) {
+            let pts: Vec<(f64, f64, f64)> = self
+                .0
+                .blocks
+                .iter()
+                .filter(|b| b.band == *band)
+                .filter_map(|b| b.growth.map(|(g, u)| (0.5 * (b.start_mm + b.end_mm) / 1e3, g * 1e3, u * 1e3)))
+                .collect();
+            if pts.is_empty() {
+                continue;
+            }
+            let x0 = self.0.blocks.iter().map(|b| b.start_mm / 1e3).fold(f64::INFINITY, f64::min);
+            let x1 = self.0.blocks.iter().map(|b| b.end_mm / 1e3).fold(f64::NEG_INFINITY, f64::max);
+            let y0 = pts.iter().map(|p| p.1 - 2.0 * p.2).fold(0.0, f64::min);
+            let y1 = pts.iter().map(|p| p.1 + 2.0 * p.2).fold(0.0, f64::max);
+            let pad = 0.1 * (y1 - y0).max(0.1);
+            let mut chart = ChartBuilder::on(panel)
+                .caption(label(band), ("sans-serif", 14))
+                .margin(8)
+                .x_label_area_size(30)
+                .y_label_area_size(60)
+                .build_cartesian_2d(x0..x1.max(x0 + 1.0), (y0 - pad)..(y1 + pad))
+                .map_err(err)?;
+            chart.configure_mesh().x_desc("chainage, m").y_desc("µm/year").draw().map_err(err)?;
+            chart
+                .draw_series(
+                    pts.iter().map(|&(x, g, u)| {
+                        PathElement::new(vec![(x, g - 2.0 * u), (x, g + 2.0 * u)], BLUE.stroke_width(2))
+                    }),
+                )
+                .map_err(err)?;
+            chart.draw_series(pts.iter().map(|&(x, g, _)| Circle::new((x, g), 4, BLUE.filled()))).map_err(err)?;
+            chart.draw_series(LineSeries::new([(x0, 0.0), (x1, 0.0)], BLACK.stroke_width(1))).map_err(err)?;
+        }
+        Ok(())
+    }
+}
+
+fn escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+}
+
+/// The HTML page (the plot's SVG embedded).
+pub fn html(t: &Trend, svg: &str) -> String {
+    let mut h = String::from(
+        "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>Corrugation trend</title>\
+         <style>body{font-family:sans-serif}td,th{padding:2px 8px;text-align:right}</style></head><body>\n\
+         <h1>Corrugation trend</h1>\n",
+    );
+    let _ = writeln!(h, "<pre>{}</pre>", escape(&summary(t)));
+    let _ = writeln!(h, "<h2>Growth per block</h2>\n{svg}");
+    let _ = writeln!(
+        h,
+        "<h2>All blocks</h2>\n<table><tr><th>block</th><th>band</th><th>limit µm</th><th>growth µm/yr</th><th>u µm/yr</th><th>crossing</th></tr>"
+    );
+    for b in &t.blocks {
+        let (g, u) =
+            b.growth.map_or(("-".into(), "-".into()), |(g, u)| (format!("{:+.2}", g * 1e3), format!("{:.2}", u * 1e3)));
+        let _ = writeln!(
+            h,
+            "<tr><td>{} – {}</td><td>{}</td><td>{}</td><td>{g}</td><td>{u}</td><td>{}</td></tr>",
+            chainage(b.start_mm),
+            chainage(b.end_mm),
+            escape(&label(&b.band)),
+            b.limit_mm.map_or("-".into(), |l| format!("{:.0}", l * 1e3)),
+            escape(&b.crossing.to_string())
+        );
+    }
+    h.push_str("</table>\n<p>Model, uncertainty and crossing: docs/trend.md.</p>\n</body></html>\n");
+    h
+}
+
+/// The trend as one JSON object (mm, mm/year, dates as `YYYY-MM-DD`).
+pub fn json(t: &Trend) -> String {
+    use serde_json::json;
+    let crossing = |c: &Crossing| match c {
+        Crossing::AlreadyOver => json!({"kind": "already_over"}),
+        Crossing::On { date, earliest, latest } => json!({
+            "kind": "on",
+            "date": date.to_string(),
+            "earliest": earliest.map(|d| d.to_string()),
+            "latest": latest.map(|d| d.to_string()),
+        }),
+        Crossing::NotWithin(y) => json!({"kind": "not_within", "years": y}),
+        Crossing::NotJudged => json!({"kind": "not_judged"}),
+    };
+    let v = json!({
+        "edition": t.edition.name(),
+        "block_mm": t.block_mm,
+        "surveys": t.surveys.iter().map(|(n, d)| json!({"name": n, "date": d.to_string()})).collect::<Vec<_>>(),
+        "registrations": t.registrations.iter().map(|r| json!({
+            "survey": r.survey + 1,
+            "shift_mm": r.shift_mm,
+            "correlation": r.correlation,
+            "disputed": r.disputed,
+        })).collect::<Vec<_>>(),
+        "blocks": t.blocks.iter().map(|b| json!({
+            "start_mm": b.start_mm,
+            "end_mm": b.end_mm,
+            "band": label(&b.band),
+            "lo_mm": b.band.lo_mm,
+            "hi_mm": b.band.hi_mm,
+            "limit_mm": b.limit_mm,
+            "figures": b.figures.iter().map(|f| f.map(|(t, y, u)| json!({"years": t, "figure_mm": y, "u_mm": u}))).collect::<Vec<_>>(),
+            "growth_mm_per_year": b.growth.map(|g| g.0),
+            "u_growth_mm_per_year": b.growth.map(|g| g.1),
+            "chi2_reduced": b.chi2_reduced,
+            "crossing": crossing(&b.crossing),
+        })).collect::<Vec<_>>(),
+    });
+    v.to_string()
+}
+
+/// Writes the trend report into `dir` as one output set.
+pub fn write(dir: &Path, t: &Trend) -> Result<(), Error> {
+    crate::output::set::write_set(dir, owns, |d| {
+        let put = |name: &str, text: &str| -> Result<(), Error> {
+            Ok(crate::output::write_atomically(&d.join(name), |w| w.write_all(text.as_bytes()))?)
+        };
+        put("summary.txt", &summary(t))?;
+        put("trend.csv", &csv(t))?;
+        let svg = plot::svg_and_png(&d.join("trend"), (1400, 1000), &GrowthFig(t)).map_err(Error::from)?;
+        put("trend.html", &html(t, &svg))
+    })
+}
