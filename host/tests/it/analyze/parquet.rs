@@ -471,7 +471,7 @@ fn the_report_has_the_survey_and_the_verdict_and_prints_cleanly() {
     for rule in [
         "h2{break-before:page",
         "svg,figure,img{max-width:100%",
-        "pre{white-space:pre-wrap",
+        "print-color-adjust:exact",
         "thead{display:table-header-group}",
     ] {
         assert!(print.contains(rule), "{rule}: {print}");
