@@ -36,11 +36,13 @@ body{max-width:none;margin:0;padding:0;font-size:9pt}\
 h2{break-before:page;page-break-before:always}\
 section#survey h2{break-before:auto;page-break-before:auto}\
 h2,h3{break-after:avoid;page-break-after:avoid}\
-svg,figure,img{max-width:100%!important;height:auto!important;break-inside:avoid;page-break-inside:avoid}\
-table{width:100%;table-layout:auto;break-inside:auto}\
+figure,img{max-width:100%!important;break-inside:avoid;page-break-inside:avoid}\
+svg{max-width:100%!important;max-height:165mm!important;width:auto!important;height:auto!important;margin:auto}\
+table{width:auto;max-width:100%;break-inside:auto}\
 thead{display:table-header-group}\
 tr{break-inside:avoid;page-break-inside:avoid}\
-td,th{word-break:break-word}\
+td{overflow-wrap:break-word}\
+td.num{white-space:nowrap}\
 }";
 
 /// Text made safe for HTML content and attribute values.

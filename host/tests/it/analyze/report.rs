@@ -144,7 +144,8 @@ fn assert_real_report(html: &str) -> Vec<(String, Vec<Vec<String>>)> {
         "h2{break-before:page",
         "tr{break-inside:avoid",
         "thead{display:table-header-group}",
-        "svg,figure,img{max-width:100%",
+        "figure,img{max-width:100%!important;break-inside:avoid",
+        "svg{max-width:100%!important;max-height:165mm",
         "print-color-adjust:exact",
     ] {
         assert!(print.contains(rule), "{rule}: {print}");
