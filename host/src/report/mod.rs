@@ -634,3 +634,35 @@ fn markdown(
     let _ = write!(md, "\n## Data\n\n{FILES}\n");
     md
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A report's folder holds only what a report writes, the per-section
+    /// files of a line in several sections and the track included.
+    #[test]
+    fn a_report_owns_its_files_and_nothing_else() {
+        for name in [
+            "report.html",
+            "track.svg",
+            "track.png",
+            "bands_laser1.csv",
+            "bands_laser1_section2.png",
+            "spectrum_laser0_section12.csv",
+            "profile.parquet",
+        ] {
+            assert!(owns(name), "{name}");
+        }
+        for name in [
+            "notes.txt",
+            "bands_laser.csv",
+            "bands_laser1_section.csv",
+            "bands_laserx.csv",
+            "spectrum_laser1.svg",
+            "bands_laser1_section2_x.csv",
+        ] {
+            assert!(!owns(name), "{name}");
+        }
+    }
+}
