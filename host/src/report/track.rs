@@ -257,7 +257,7 @@ pub fn chainage_ticks(points: &[Point], max: usize) -> Vec<(f64, f64, f64)> {
     let with: Vec<(f64, f64, f64)> =
         points.iter().filter_map(|p| p.chainage_mm.map(|c| (p.east_m, p.north_m, c))).collect();
     let (lo, hi) = with.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.2), b.max(p.2)));
-    if !(hi > lo) {
+    if with.is_empty() || hi <= lo {
         return Vec::new();
     }
     let step = tick_step_mm(hi - lo, max);
