@@ -189,7 +189,7 @@ impl Track {
             "first fix, UTC",
             "last fix, UTC",
             "duration, s",
-            "path, m",
+            "path through the fixes, m",
             "extent east × north, m",
             "chainage (odometer)",
             "median σ, m",
