@@ -82,6 +82,9 @@ pub struct Recording {
     /// this one repeats, and the earlier run whose head differs (and how).
     pub repeats: Option<usize>,
     pub other_head: Option<(usize, String)>,
+    /// The GNSS fixes the recording holds (`listen --gnss`), in file order:
+    /// what the report plots the run's track from.
+    pub fixes: Vec<crate::gnss::Placed>,
 }
 
 /// What [`check_runs`] lets through because the user asked for it.
@@ -206,7 +209,14 @@ pub fn read_recording(
             std::io::Error::other("stopped")
         })
     };
-    let scanned = recording::scan_file_with_progress(path, progress, |msg| {
+    let scanned = recording::scan_file_records_with_progress(path, progress, |item| {
+        let msg = match item {
+            recording::Item::Device(msg) => msg,
+            recording::Item::Host(recording::HostRecord::Fix(p)) => {
+                rec.fixes.push(p.clone());
+                return Ok(());
+            }
+        };
         match msg {
             DeviceMsg::Profile(p) => {
                 rec.profiles += 1;

@@ -151,6 +151,12 @@ pub fn offset(origin: Geodetic, east_m: f64, north_m: f64) -> Geodetic {
     Plane::at(origin).geodetic(origin, east_m, north_m)
 }
 
+/// East and north of `p` in the local plane at `origin`, m (the inverse
+/// of [`offset`]).
+pub fn east_north(origin: Geodetic, p: Geodetic) -> (f64, f64) {
+    Plane::at(origin).en(p)
+}
+
 /// One segment of the centreline.
 #[derive(Clone, Copy, Debug)]
 struct Segment {
@@ -463,7 +469,7 @@ mod tests {
         let o = Geodetic { lat_deg: 52.0, lon_deg: 5.0 };
         for (e, n) in [(1000.0, 0.0), (0.0, 2000.0), (-1500.0, 700.0)] {
             let p = offset(o, e, n);
-            let (e2, n2) = Plane::at(o).en(p);
+            let (e2, n2) = east_north(o, p);
             assert!((e2 - e).abs() < 1e-3 && (n2 - n).abs() < 1e-3, "{e},{n} -> {e2},{n2}");
         }
         // One arc-minute of latitude is about 1 855 m at 52° N (WGS 84's meridian radius).

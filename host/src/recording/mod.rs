@@ -91,8 +91,8 @@ pub use export::{ExportFormat, check_header, export_to, same_file, survey_from, 
 pub use host_record::{HOST_RECORD_TAG, HostRecord, Recorded};
 pub use info::{GnssInfo, Info};
 pub use reader::{
-    FrameCounter, Item, PositionedSession, ScanStats, fixes_of, points, scan_file, scan_file_with_progress,
-    scan_reader, scan_records, um_to_mm, warnings,
+    FrameCounter, Item, PositionedSession, ScanStats, fixes_of, points, scan_file, scan_file_records_with_progress,
+    scan_file_with_progress, scan_reader, scan_records, um_to_mm, warnings,
 };
 pub use text::{CSV_HEADER, JsonProfile, write_csv, write_json_line};
 pub use writer::Recorder;

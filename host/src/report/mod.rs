@@ -8,13 +8,14 @@
 //!
 //! | file | what |
 //! |---|---|
-//! | `report.html` | self-contained (SVG inline): the survey header (inputs, how each run was placed, the chainage span), the verdict (edition and its limits' source, reprofiling table, zones, zone plot, blocks) as tables, then per line and the plots; prints cleanly (`@media print`: A4 landscape, each section on a new page, plots scaled to the page and kept whole, tables wrap with repeated headers) |
+//! | `report.html` | self-contained and offline (style and SVG inline, nothing fetched), every section as tables and figures ([`html`]): the survey header (inputs, how each run was placed, the chainage span), the verdict (edition and its limits' source, reprofiling table, zones, zone plot, blocks), the inputs and stitching in detail, the GNSS track ([`track`]), per line its stitching, EN 13231-3 bands and EN 15610 spectrum, then the plots; prints cleanly (`@media print`: A4 landscape with margins, each section on a new page, plots scaled to the page and kept whole, table rows never split and headers repeated, colours printed) |
 //! | `report.md` | the same in Markdown, plots linked as `*.svg` |
 //! | `summary.txt` | the printed summary |
 //! | `profile.svg/.png` | stitched profile of each laser (median removed), gaps blank |
 //! | `bands_laserK.svg/.png` | per laser: the four EN 13231-3 band signals, the moving-window mean peak-to-peak and its limit |
 //! | `spectrum.svg/.png` | EN 15610 one-third-octave levels per laser against the ISO 3095 limit |
 //! | `zones.svg/.png` | per band, each line's criterion along chainage against the edition's limit, the exceedance zones shaded |
+//! | `track.svg/.png` | when the recordings hold GNSS fixes: the runs' track east and north of the first fix, m, equal scales, by fix quality, start and end marked, chainage ticks ([`track`]) |
 //! | `profile.csv` | `x_mm` and one height column per laser (µm), empty in gaps |
 //! | `bands_laserK.csv` | `x_mm` and the four band signals (mm) |
 //! | `spectrum_laserK.csv` | the spectrum (`en15610::spectrum_csv`) |
@@ -26,8 +27,10 @@
 //! [`MAX_PLOT_POINTS`] points per line (the CSVs keep every sample).
 
 pub mod exports;
+pub mod html;
 pub mod json;
 pub mod text;
+pub mod track;
 pub mod trend;
 
 use std::fmt::Write as _;
@@ -363,210 +366,6 @@ impl Figure for ZoneFig<'_> {
     }
 }
 
-/// A table: header cells and rows of cells (already escaped where needed).
-fn html_table(class: &str, head: &[&str], rows: &[Vec<String>]) -> String {
-    let mut s = format!("<table class=\"{class}\"><thead><tr>");
-    for h in head {
-        let _ = write!(s, "<th>{}</th>", html_escape(h));
-    }
-    s.push_str("</tr></thead><tbody>\n");
-    for r in rows {
-        s.push_str("<tr>");
-        for c in r {
-            let _ = write!(s, "<td>{}</td>", html_escape(c));
-        }
-        s.push_str("</tr>\n");
-    }
-    s.push_str("</tbody></table>\n");
-    s
-}
-
-/// The survey header: the inputs, the runs and how each was placed, the
-/// chainage span.
-fn survey_html(source: &Source, a: &Analysis) -> String {
-    let mut s = String::from("<section id=\"survey\"><h2>Survey</h2>\n");
-    match source {
-        Source::Recordings(runs) => {
-            let rows: Vec<Vec<String>> = runs
-                .iter()
-                .enumerate()
-                .map(|(i, (p, r))| {
-                    let (olo, ohi) = r.odometer_range_mm.unwrap_or((0.0, 0.0));
-                    let placed = a.joins.iter().find(|j| j.run == i + 1).map_or("-".into(), text::describe_join);
-                    vec![
-                        format!("{}", i + 1),
-                        p.display().to_string(),
-                        r.frames.to_string(),
-                        format!("{olo:.0}–{ohi:.0} mm"),
-                        r.calibration_id.map_or("-".into(), |id| format!("{id:#010x}")),
-                        placed,
-                    ]
-                })
-                .collect();
-            s.push_str(&html_table(
-                "inputs",
-                &["run", "recording", "frames", "odometer", "calibration", "placed"],
-                &rows,
-            ));
-        }
-        Source::Profile(p, f) => {
-            let rows = vec![vec![p.display().to_string(), f.rows.to_string(), f.columns.join(", ")]];
-            s.push_str(&html_table("inputs", &["profile", "rows", "lines"], &rows));
-            for j in &a.joins {
-                let _ = writeln!(s, "<p>{}</p>", html_escape(&text::describe_join(j)));
-            }
-        }
-    }
-    let x0 = a.lasers.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
-    let x1 = a.lasers.iter().map(|l| l.stitched.x_mm(l.stitched.z_um.len())).fold(f64::NEG_INFINITY, f64::max);
-    if x0.is_finite() && x1 >= x0 {
-        let _ = writeln!(
-            s,
-            "<p class=\"span\">Chainage {} to {} ({:.3} m); {} line(s), samples every {} mm.</p>",
-            html_escape(&crate::analyze::chainage(x0)),
-            html_escape(&crate::analyze::chainage(x1)),
-            (x1 - x0) / 1000.0,
-            a.lasers.iter().map(|l| l.stitched.laser).collect::<std::collections::BTreeSet<_>>().len(),
-            crate::analyze::fmt_len(a.options.stitch.dx_mm)
-        );
-    }
-    for line in text::describe_sections(a).lines() {
-        let _ = writeln!(s, "<p class=\"span\">{}</p>", html_escape(line.trim()));
-    }
-    s.push_str("</section>\n");
-    s
-}
-
-/// The verdict: the edition and its limits' source, the reprofiling table,
-/// the zones and the blocks.
-fn verdict_html(a: &Analysis, zone_svg: &str) -> String {
-    let v = &a.verdict;
-    let e = v.options.edition;
-    let mut s = String::from("<section id=\"verdict\"><h2>Verdict</h2>\n");
-    let _ = writeln!(s, "<p><strong>{}</strong> — limits: {}</p>", html_escape(e.name()), html_escape(e.source()));
-    let pct = if v.measured_mm > 0.0 { 100.0 * v.reprofile_mm / v.measured_mm } else { 0.0 };
-    let _ = writeln!(
-        s,
-        "<p class=\"reprofile\">{:.3} km of {:.3} km should be reprofiled ({pct:.1} %).</p>",
-        v.reprofile_mm / 1e6,
-        v.measured_mm / 1e6
-    );
-    s.push_str("<h3>Reprofiling table</h3>\n");
-    let rows: Vec<Vec<String>> = v
-        .rows
-        .iter()
-        .map(|r| {
-            let band = format!("{}–{} mm", r.band.lo_mm, r.band.hi_mm);
-            match (&r.not_evaluated, r.limit_mm) {
-                (Some(why), _) => {
-                    vec![band, "-".into(), "-".into(), "-".into(), "-".into(), format!("not evaluated: {why}")]
-                }
-                (None, None) => vec![
-                    band,
-                    "-".into(),
-                    format!("{:.1}", r.measured_mm / 1000.0),
-                    "-".into(),
-                    "-".into(),
-                    "not judged (no limit)".into(),
-                ],
-                (None, Some(lim)) => vec![
-                    band,
-                    format!("{lim:.3}"),
-                    format!("{:.1}", r.measured_mm / 1000.0),
-                    format!("{:.1}", r.exceeding_mm / 1000.0),
-                    format!("{:.1}", r.exceeding_percent()),
-                    match r.passes(e) {
-                        Some(true) => "pass".into(),
-                        Some(false) => "FAIL".into(),
-                        None => "-".into(),
-                    },
-                ],
-            }
-        })
-        .collect();
-    s.push_str(&html_table(
-        "reprofiling",
-        &["band", "limit, mm", "measured, m", "exceeding, m", "exceeding, %", "verdict"],
-        &rows,
-    ));
-    let _ = writeln!(s, "<h3>Exceedance zones ({})</h3>", v.zones.len());
-    if v.zones.is_empty() {
-        s.push_str("<p>None.</p>\n");
-    } else {
-        let rows: Vec<Vec<String>> = v
-            .zones
-            .iter()
-            .map(|z| {
-                vec![
-                    format!("{}–{} mm", z.band.lo_mm, z.band.hi_mm),
-                    crate::analyze::chainage(z.start_mm),
-                    crate::analyze::chainage(z.end_mm),
-                    format!("{:.1}", (z.end_mm - z.start_mm) / 1000.0),
-                    format!("{:.1}", z.exceeding_mm / 1000.0),
-                    format!("{:.3}", z.worst_pp_mm),
-                ]
-            })
-            .collect();
-        s.push_str(&html_table(
-            "zones",
-            &["band", "start", "end", "length, m", "exceeding, m", "largest peak-to-peak, mm"],
-            &rows,
-        ));
-    }
-    if !zone_svg.is_empty() {
-        let _ = writeln!(s, "<figure class=\"plot\">{zone_svg}</figure>");
-    }
-    let _ = writeln!(
-        s,
-        "<h3>Blocks of {} m</h3>\n<p>RMS of each band's displacement (largest line, µm) and the EN 15610 spectrum against ISO 3095.</p>",
-        crate::analyze::fmt_len(v.options.block_mm / 1000.0)
-    );
-    let mut head = vec!["start".to_string(), "end".to_string()];
-    head.extend(en13231::BANDS.iter().map(|b| format!("{}–{} mm", b.lo_mm, b.hi_mm)));
-    head.push("ISO 3095".into());
-    let head: Vec<&str> = head.iter().map(String::as_str).collect();
-    let rows: Vec<Vec<String>> = v
-        .blocks
-        .iter()
-        .map(|b| {
-            let mut r = vec![crate::analyze::chainage(b.start_mm), crate::analyze::chainage(b.end_mm)];
-            r.extend(b.rms_mm.iter().map(|v| v.map_or("-".into(), |v| format!("{:.1}", v * 1000.0))));
-            r.push(match &b.iso3095_exceeded {
-                None => "no spectrum".into(),
-                Some(e) if e.is_empty() => "pass".into(),
-                Some(e) => format!("FAIL at {} mm", e.iter().map(|w| w.to_string()).collect::<Vec<_>>().join(", ")),
-            });
-            r
-        })
-        .collect();
-    s.push_str(&html_table("blocks", &head, &rows));
-    s.push_str("</section>\n");
-    s
-}
-
-/// Screen and print styles: on paper every section starts a page, plots
-/// are scaled to the page width and kept whole, tables and text wrap.
-const STYLE: &str = "body{font-family:sans-serif;max-width:1450px;margin:auto;padding:0 8px}\
-pre{background:#f6f6f6;padding:8px;overflow-x:auto}\
-svg{max-width:100%;height:auto;display:block}\
-figure{margin:8px 0}\
-table{border-collapse:collapse;margin:8px 0;font-size:0.9em}\
-th,td{border:1px solid #bbb;padding:2px 6px;text-align:left;vertical-align:top}\
-th{background:#eee}\
-@media print{\
-@page{size:A4 landscape;margin:12mm}\
-body{max-width:none;margin:0;padding:0;font-size:9pt}\
-h2{break-before:page;page-break-before:always}\
-section#survey h2{break-before:auto;page-break-before:auto}\
-h2,h3{break-after:avoid;page-break-after:avoid}\
-pre{white-space:pre-wrap;word-break:break-word;overflow:visible;background:none;border:1px solid #ccc}\
-svg,figure,img{max-width:100%!important;height:auto!important;break-inside:avoid;page-break-inside:avoid}\
-table{width:100%;table-layout:auto;break-inside:auto}\
-thead{display:table-header-group}\
-tr{break-inside:avoid;page-break-inside:avoid}\
-td,th{word-break:break-word}\
-}";
-
 fn median_of(z: &[f64]) -> f64 {
     crate::analyze::stitch::median(z.to_vec()).unwrap_or(0.0)
 }
@@ -639,15 +438,11 @@ fn line_names(l: &crate::analyze::stitch::Stitched, several: bool) -> (String, S
     }
 }
 
-fn html_escape(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
-}
-
 /// Whether a file of this name is one a report writes (the files of the
 /// table above): a folder holding only such files can be replaced by a
 /// new report ([`crate::output::set`]).
 pub fn owns(name: &str) -> bool {
-    const FIXED: [&str; 13] = [
+    const FIXED: [&str; 15] = [
         "report.html",
         "analysis.json",
         "report.md",
@@ -661,12 +456,19 @@ pub fn owns(name: &str) -> bool {
         "zones.png",
         "registration.csv",
         "gaps.csv",
+        "track.svg",
+        "track.png",
     ];
-    // `PREFIXK.EXT` with K a line's number.
+    // `PREFIXK.EXT` or `PREFIXK_sectionN.EXT` with K a line's number, N a section's.
+    let number = |k: &str| !k.is_empty() && k.bytes().all(|b| b.is_ascii_digit());
     let per_line = |prefix: &str, exts: &[&str]| {
-        name.strip_prefix(prefix)
-            .and_then(|rest| rest.split_once('.'))
-            .is_some_and(|(k, ext)| !k.is_empty() && k.bytes().all(|b| b.is_ascii_digit()) && exts.contains(&ext))
+        name.strip_prefix(prefix).and_then(|rest| rest.split_once('.')).is_some_and(|(k, ext)| {
+            let line = match k.split_once("_section") {
+                Some((k, n)) => number(k) && number(n),
+                None => number(k),
+            };
+            line && exts.contains(&ext)
+        })
     };
     FIXED.contains(&name)
         || exports::owns(name)
@@ -681,9 +483,19 @@ pub fn write(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result
     crate::output::set::write_set(dir, owns, |d| write_files(d, source, a, summary))
 }
 
+/// The data files the report's last section lists.
+const FILES: &str = "profile.csv (x_mm, one height column per laser, µm), bands_laserK.csv (band signals, mm), \
+    spectrum_laserK.csv (one-third octaves; bands_laserK_sectionN.csv and \
+    spectrum_laserK_sectionN.csv when the line is in several sections), registration.csv (per frame), gaps.csv, summary.txt; \
+    profile.parquet, blocks.parquet, zones.parquet (docs/exports.md); track.svg/.png when the recordings hold GNSS fixes";
+
+/// A plot's error as the report's output error.
+fn out_err(what: &str, e: crate::plot::PlotError) -> Error {
+    Error::Output(std::io::Error::other(format!("{what}: {e}")))
+}
+
 /// Writes the report's files into the (new, empty) folder `dir`.
 fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result<(), Error> {
-    let out_err = |what: &str, e: crate::plot::PlotError| Error::Output(std::io::Error::other(format!("{what}: {e}")));
     // Each file whole or not at all, and never over a device or FIFO of that name.
     let put = |name: &str, text: &str| -> Result<(), Error> {
         Ok(crate::output::write_atomically(&dir.join(name), |w| w.write_all(text.as_bytes()))?)
@@ -695,9 +507,41 @@ fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Resu
     put("registration.csv", &registration_csv(a))?;
     put("gaps.csv", &gaps_csv(a))?;
     exports::write_files(dir, source, a)?;
+    let several = a.sections().len() > 1;
+    for l in &a.lasers {
+        let (name, _) = line_names(&l.stitched, several);
+        if let Ok(b) = &l.bands {
+            put(&format!("bands_{name}.csv"), &en13231::bands_csv_from(b, l.stitched.x0_mm))?;
+        }
+        if let Ok(r) = &l.roughness {
+            put(&format!("spectrum_{name}.csv"), &en15610::spectrum_csv(&r.spectrum))?;
+        }
+    }
+    let plots = plots(dir, a)?;
+    let zone_svg = if a.lasers.is_empty() {
+        String::new()
+    } else {
+        plot::svg_and_png(&dir.join("zones"), (1400, 900), &ZoneFig { a }).map_err(|e| out_err("zone plot", e))?
+    };
+    let track = track::Track::of(source, a);
+    let track_svg = match track.as_ref().filter(|t| t.plottable()) {
+        Some(t) => Some(
+            plot::svg_and_png(&dir.join("track"), (1000, 800), &track::TrackFig { track: t })
+                .map_err(|e| out_err("track plot", e))?,
+        ),
+        None => None,
+    };
+    let title = format!("Rail corrugation analysis: {}", source.name());
+    put("report.md", &markdown(&title, source, a, track.as_ref(), &plots, !zone_svg.is_empty()))?;
+    let figs = html::Figures { zones: &zone_svg, plots: &plots, track: track_svg.as_deref() };
+    put("report.html", &html::page(&title, source, a, track.as_ref(), &figs))?;
+    Ok(())
+}
 
-    // (title, svg file stem, svg text)
-    let mut figures: Vec<(String, String, String)> = Vec::new();
+/// The plots of the plots section, written as SVG and PNG: (title, file
+/// stem, SVG text).
+fn plots(dir: &Path, a: &Analysis) -> Result<Vec<(String, String, String)>, Error> {
+    let mut figures = Vec::new();
     let lines = a
         .lasers
         .iter()
@@ -713,18 +557,12 @@ fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Resu
     figures.push(("Stitched profiles".into(), "profile".into(), svg));
     let several = a.sections().len() > 1;
     for l in &a.lasers {
-        let k = l.stitched.laser;
         let (name, title) = line_names(&l.stitched, several);
         if let Ok(b) = &l.bands {
-            put(&format!("bands_{name}.csv"), &en13231::bands_csv_from(b, l.stitched.x0_mm))?;
             let stem = format!("bands_{name}");
-            let svg =
-                plot::svg_and_png(&dir.join(&stem), (1400, 1000), &BandsFig { laser: k, x0: l.stitched.x0_mm, a: b })
-                    .map_err(|e| out_err("band plot", e))?;
+            let fig = BandsFig { laser: l.stitched.laser, x0: l.stitched.x0_mm, a: b };
+            let svg = plot::svg_and_png(&dir.join(&stem), (1400, 1000), &fig).map_err(|e| out_err("band plot", e))?;
             figures.push((format!("{title}: EN 13231-3 bands"), stem, svg));
-        }
-        if let Ok(r) = &l.roughness {
-            put(&format!("spectrum_{name}.csv"), &en15610::spectrum_csv(&r.spectrum))?;
         }
     }
     let spectra: Vec<(usize, &en15610::Spectrum)> =
@@ -734,31 +572,55 @@ fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Resu
             .map_err(|e| out_err("spectrum plot", e))?;
         figures.push(("EN 15610 roughness spectrum".into(), "spectrum".into(), svg));
     }
+    Ok(figures)
+}
 
-    let zone_svg = if a.lasers.is_empty() {
-        String::new()
-    } else {
-        plot::svg_and_png(&dir.join("zones"), (1400, 900), &ZoneFig { a }).map_err(|e| out_err("zone plot", e))?
-    };
+/// A Markdown table of plain-text cells.
+fn md_table(head: &[String], rows: &[Vec<String>]) -> String {
+    let cell = |c: &str| c.replace('|', "\\|");
+    let mut s = format!(
+        "| {} |\n|{}\n",
+        head.iter().map(|h| cell(h)).collect::<Vec<_>>().join(" | "),
+        "---|".repeat(head.len())
+    );
+    for r in rows {
+        let _ = writeln!(s, "| {} |", r.iter().map(|c| cell(c)).collect::<Vec<_>>().join(" | "));
+    }
+    s
+}
 
-    let title = format!("Rail corrugation analysis: {}", source.name());
+/// `report.md`: the summary's text per section, the track's table, the
+/// plots linked.
+fn markdown(
+    title: &str,
+    source: &Source,
+    a: &Analysis,
+    track: Option<&track::Track>,
+    plots: &[(String, String, String)],
+    zones: bool,
+) -> String {
     let head = text::describe(source, a);
     let verdict_text = reprofiling::describe(&a.verdict);
     let mut md = format!("# {title}\n\n## Survey\n\n```text\n{head}```\n\n## Verdict\n\n```text\n{verdict_text}```\n");
-    if !zone_svg.is_empty() {
+    if zones {
         md.push_str("\n![Exceedance along chainage](zones.svg) ([PNG](zones.png))\n");
     }
-    let mut html = format!(
-        "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{t}</title>\n<style>{STYLE}</style></head><body>\n<h1>{t}</h1>\n",
-        t = html_escape(&title),
-    );
-    html.push_str(&survey_html(source, a));
-    let _ = writeln!(
-        html,
-        "<details open><summary>Inputs and stitching in detail</summary><pre>{}</pre></details>",
-        html_escape(&head)
-    );
-    html.push_str(&verdict_html(a, &zone_svg));
+    md.push_str("\n## GNSS track\n\n");
+    match track {
+        Some(t) => {
+            let (head, rows) = t.table();
+            let _ = writeln!(md, "{}\n\n{}", t.describe_origin(), md_table(&head, &rows));
+            if t.plottable() {
+                md.push_str("![GNSS track](track.svg) ([PNG](track.png))\n\n");
+            }
+            let _ = writeln!(md, "{}", track::HOW);
+        }
+        None if matches!(source, Source::Profile(..)) => {
+            md.push_str("No GNSS fixes: the input is a profile file, not a recording.\n");
+        }
+        None => md.push_str("No GNSS fixes in the recording.\n"),
+    }
+    let several = a.sections().len() > 1;
     for l in &a.lasers {
         let (_, k) = line_names(&l.stitched, several);
         let text = format!(
@@ -768,21 +630,43 @@ fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Resu
             text::describe_roughness(&l.roughness)
         );
         let _ = write!(md, "\n## {k}\n\n```text\n{text}```\n");
-        let _ = write!(html, "<h2>{k}</h2>\n<pre>{}</pre>\n", html_escape(&text));
     }
     md.push_str("\n## Plots\n");
-    html.push_str("<h2>Plots</h2>\n");
-    for (t, stem, svg) in &figures {
+    for (t, stem, _) in plots {
         let _ = write!(md, "\n### {t}\n\n![{t}]({stem}.svg) ([PNG]({stem}.png))\n");
-        let _ = write!(html, "<h3>{}</h3>\n<figure class=\"plot\">{svg}</figure>\n", html_escape(t));
     }
-    let files = "profile.csv (x_mm, one height column per laser, µm), bands_laserK.csv (band signals, mm), \
-                 spectrum_laserK.csv (one-third octaves; bands_laserK_sectionN.csv and \
-                 spectrum_laserK_sectionN.csv when the line is in several sections), registration.csv (per frame), gaps.csv, summary.txt; \
-                 profile.parquet, blocks.parquet, zones.parquet (docs/exports.md)";
-    let _ = write!(md, "\n## Data\n\n{files}\n");
-    let _ = write!(html, "<h2>Data</h2>\n<p>{}</p>\n</body></html>\n", html_escape(files));
-    put("report.md", &md)?;
-    put("report.html", &html)?;
-    Ok(())
+    let _ = write!(md, "\n## Data\n\n{FILES}\n");
+    md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A report's folder holds only what a report writes, the per-section
+    /// files of a line in several sections and the track included.
+    #[test]
+    fn a_report_owns_its_files_and_nothing_else() {
+        for name in [
+            "report.html",
+            "track.svg",
+            "track.png",
+            "bands_laser1.csv",
+            "bands_laser1_section2.png",
+            "spectrum_laser0_section12.csv",
+            "profile.parquet",
+        ] {
+            assert!(owns(name), "{name}");
+        }
+        for name in [
+            "notes.txt",
+            "bands_laser.csv",
+            "bands_laser1_section.csv",
+            "bands_laserx.csv",
+            "spectrum_laser1.svg",
+            "bands_laser1_section2_x.csv",
+        ] {
+            assert!(!owns(name), "{name}");
+        }
+    }
 }

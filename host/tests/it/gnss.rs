@@ -130,6 +130,17 @@ fn a_run_with_gnss_is_placed_on_its_register_and_a_wrong_one_is_reported() {
     // 41+100 is about (52.09115 N, 5.12266 E).
     assert!((lat - 52.091_15).abs() < 1e-4 && (lon - 5.122_66).abs() < 1e-4, "{p}");
     assert_eq!(features[1]["properties"]["quality"], "RTK fixed");
+
+    // The analysis's report plots the track and counts its fixes.
+    let report = dir.path().join("report");
+    let o = run(&["analyze", s(&rec), "--report", s(&report)]);
+    assert!(o.status.success(), "{o:?}");
+    let html = std::fs::read_to_string(report.join("report.html")).unwrap();
+    let at = html.find("<section id=\"track\">").unwrap();
+    let track = &html[at..at + html[at..].find("</section>").unwrap()];
+    assert!(track.contains("<figure class=\"plot\"><svg"), "{track}");
+    assert!(track.contains(&format!("<td class=\"num\">{fixes}</td><td>{fixes} RTK fixed</td>")), "{track}");
+    assert!(report.join("track.png").exists());
 }
 
 #[test]

@@ -57,7 +57,7 @@ pub enum StandardsError {
 }
 
 /// A length in mm without a useless fraction ("450", "1000", "12.5").
-fn fmt_mm(v: f64) -> String {
+pub fn fmt_mm(v: f64) -> String {
     if (v - v.round()).abs() < 1e-6 * v.abs().max(1.0) { format!("{}", v.round()) } else { format!("{v:.1}") }
 }
 

@@ -170,6 +170,12 @@ impl RunJoin {
         self.correlation.is_some()
     }
 
+    /// The chainage of the run's track position `x_mm` (its odometer for
+    /// a frame's centre), mm.
+    pub fn chainage_mm(&self, x_mm: f64) -> f64 {
+        to_chainage(self.start_m * 1000.0, self.heading, x_mm)
+    }
+
     /// Whether another placement matched nearly as well.
     pub fn ambiguous(&self) -> bool {
         self.correlation.is_some_and(|(best, second)| second > 0.99 * best)

@@ -5,6 +5,7 @@
 
 mod parquet;
 mod recordings;
+mod report;
 mod sim;
 
 use cms_host::analyze::stitch::{self, Direction, FramePoints, Options, Registration};

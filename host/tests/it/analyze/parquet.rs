@@ -544,8 +544,9 @@ fn the_report_has_the_survey_and_the_verdict_and_prints_cleanly() {
     let print = &style[style.find("@media print").expect("a print stylesheet")..];
     for rule in [
         "h2{break-before:page",
-        "svg,figure,img{max-width:100%",
-        "pre{white-space:pre-wrap",
+        "figure,img{max-width:100%",
+        "svg{max-width:100%!important;max-height:165mm",
+        "print-color-adjust:exact",
         "thead{display:table-header-group}",
     ] {
         assert!(print.contains(rule), "{rule}: {print}");

@@ -18,6 +18,17 @@ pub(super) fn wire<T: serde::Serialize>(msg: &T) -> Vec<u8> {
 
 /// A recording of `frames` as the head would send them (calibrated points).
 pub(super) fn write_recording(path: &Path, frames: &[FramePoints], calibrated: bool) {
+    write_recording_with(path, frames, calibrated, |_| Vec::new());
+}
+
+/// [`write_recording`] with `after(frame)`'s bytes (host records) written
+/// after each frame.
+pub(super) fn write_recording_with(
+    path: &Path,
+    frames: &[FramePoints],
+    calibrated: bool,
+    mut after: impl FnMut(&FramePoints) -> Vec<u8>,
+) {
     let mut bytes = recording::header().to_vec();
     for f in frames {
         let mut p = Profile { seq: f.seq, odometer_um: (f.odometer_mm * 1000.0).round() as i64, ..Profile::EMPTY };
@@ -39,6 +50,7 @@ pub(super) fn write_recording(path: &Path, frames: &[FramePoints], calibrated: b
             p.lasers.push(lp).unwrap();
         }
         bytes.extend(wire(&DeviceMsg::Profile(p)));
+        bytes.extend(after(f));
     }
     std::fs::write(path, bytes).unwrap();
 }
