@@ -22,6 +22,7 @@
 //! about 5 s and 180 MB (docs/benchmarks.md).
 
 pub mod live;
+pub mod marks;
 pub mod profile;
 pub mod reprofiling;
 pub mod standards;
@@ -80,6 +81,8 @@ pub struct Recording {
     /// this one repeats, and the earlier run whose head differs (and how).
     pub repeats: Option<usize>,
     pub other_head: Option<(usize, String)>,
+    /// The event marks recorded, in file order ([`marks`] places them).
+    pub marks: Vec<crate::recording::mark::Mark>,
 }
 
 /// What [`check_runs`] lets through because the user asked for it.
@@ -204,7 +207,15 @@ pub fn read_recording(
             std::io::Error::other("stopped")
         })
     };
-    let scanned = recording::scan_file_with_progress(path, progress, |msg| {
+    let scanned = recording::scan_file_records_with_progress(path, progress, |item| {
+        let msg = match item {
+            recording::Item::Device(m) => m,
+            recording::Item::Host(recording::HostRecord::Mark(m)) => {
+                rec.marks.push(m.clone());
+                return Ok(());
+            }
+            recording::Item::Host(_) => return Ok(()),
+        };
         match msg {
             DeviceMsg::Profile(p) => {
                 rec.profiles += 1;

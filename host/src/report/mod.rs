@@ -20,6 +20,7 @@
 //! | `spectrum_laserK.csv` | the spectrum (`en15610::spectrum_csv`) |
 //! | `registration.csv` | per laser and frame: overlap, offset, tilt, residual |
 //! | `gaps.csv` | per laser: start and length of every gap |
+//! | `marks.csv` | the event marks at their chainage ([`marks`]) |
 //! | `profile.parquet`, `blocks.parquet`, `zones.parquet` | the stitched profile, blocks and zones ([`exports`], docs/exports.md) |
 //!
 //! Long profiles are plotted through a min/max envelope of at most
@@ -27,6 +28,7 @@
 
 pub mod exports;
 pub mod json;
+pub mod marks;
 pub mod text;
 
 use std::fmt::Write as _;
@@ -667,6 +669,7 @@ pub fn owns(name: &str) -> bool {
             .is_some_and(|(k, ext)| !k.is_empty() && k.bytes().all(|b| b.is_ascii_digit()) && exts.contains(&ext))
     };
     FIXED.contains(&name)
+        || name == marks::CSV_FILE
         || exports::owns(name)
         || per_line("bands_laser", &["csv", "svg", "png"])
         || per_line("spectrum_laser", &["csv"])
@@ -755,6 +758,7 @@ fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Resu
         html_escape(&head)
     );
     html.push_str(&verdict_html(a, &zone_svg));
+    marks::add(dir, source, a, &mut md, &mut html)?;
     for l in &a.lasers {
         let (_, k) = line_names(&l.stitched, several);
         let text = format!(
