@@ -469,18 +469,24 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
             .into());
         }
     }
+    let (marks, inbox) = listen::mark_channel();
     let view = match args.serve {
         Some(addr) => {
-            let opts = ServeOptions { addr, port: args.port.clone(), placement, recording: opts.record.is_some() };
+            let opts = ServeOptions {
+                addr,
+                port: args.port.clone(),
+                placement,
+                recording: opts.record.is_some(),
+                marks: Some(marks.clone()),
+            };
             let v = LiveView::start(&opts).map_err(cms_host::Error::from)?;
-            let _ = writeln!(io::stderr(), "listen: live view on {} (read-only)", v.url());
+            let _ = writeln!(io::stderr(), "listen: live view on {} (read-only but for event marks)", v.url());
             Some(v)
         }
         None => None,
     };
     let feed = view.as_ref().map(LiveView::feed);
     let mut display = Display::new(opts.json, feed.clone());
-    let (marks, inbox) = listen::mark_channel();
     if opts.record.is_some() && stdin_gives_lines() {
         terminal_marks(marks.clone(), display.bar.clone());
     }

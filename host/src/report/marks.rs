@@ -36,13 +36,13 @@ pub fn describe(m: &PlacedMark) -> String {
     )
 }
 
-/// The summary's lines: `marks: N` and one line a mark (nothing for a
-/// profile file, which has none).
+/// The summary's lines: `marks: N` and one line a mark (nothing without
+/// marks: a recording from before them reads as it did).
 pub fn summary(source: &Source, a: &Analysis) -> String {
-    if !matches!(source, Source::Recordings(_)) {
+    let marks = of(source, a);
+    if marks.is_empty() {
         return String::new();
     }
-    let marks = of(source, a);
     let mut s = format!("marks: {}\n", marks.len());
     for m in &marks {
         let _ = writeln!(s, "  {}", describe(m));
