@@ -329,7 +329,7 @@ mod tests {
             let mut v = h;
             v[8] = old;
             assert_eq!(parse_header(&v).unwrap().format, u16::from(old));
-            assert_eq!(parse_header(&v).unwrap().holds_marks(), false);
+            assert!(!parse_header(&v).unwrap().holds_marks());
         }
         // Version 1: the same header, its reserved bytes never a survey length.
         let mut v1 = h;

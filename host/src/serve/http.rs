@@ -165,22 +165,25 @@ fn mark_refusal(code: StatusCode, why: impl std::fmt::Display) -> Response {
     (code, format!("{why}\n")).into_response()
 }
 
+/// A refusal before the mark is sent on: its status and why.
+type Refusal = (StatusCode, String);
+
 /// What a request asks to mark, or why it is refused.
-fn mark_entry(headers: &HeaderMap, body: &[u8]) -> Result<MarkEntry, Response> {
+fn mark_entry(headers: &HeaderMap, body: &[u8]) -> Result<MarkEntry, Refusal> {
     let json = headers
         .get(header::CONTENT_TYPE)
         .and_then(|c| c.to_str().ok())
         .is_some_and(|c| c.split(';').next().is_some_and(|t| t.trim().eq_ignore_ascii_case("application/json")));
     if !json {
-        return Err(mark_refusal(StatusCode::UNSUPPORTED_MEDIA_TYPE, "a mark is sent as application/json"));
+        return Err((StatusCode::UNSUPPORTED_MEDIA_TYPE, "a mark is sent as application/json".to_string()));
     }
     let b: MarkBody = serde_json::from_slice(body).map_err(|e| {
         let why: String = e.to_string().chars().take(160).collect();
-        mark_refusal(StatusCode::BAD_REQUEST, format!("not a mark ({{\"kind\": \"weld\", \"text\": \"…\"}}): {why}"))
+        (StatusCode::BAD_REQUEST, format!("not a mark ({{\"kind\": \"weld\", \"text\": \"…\"}}): {why}"))
     })?;
     let kind = MarkKind::ALL.into_iter().find(|k| k.name() == b.kind).ok_or_else(|| {
         let names: Vec<&str> = MarkKind::ALL.iter().map(|k| k.name()).collect();
-        mark_refusal(
+        (
             StatusCode::UNPROCESSABLE_ENTITY,
             format!(
                 "no mark kind `{}`: one of {}",
@@ -189,7 +192,7 @@ fn mark_entry(headers: &HeaderMap, body: &[u8]) -> Result<MarkEntry, Response> {
             ),
         )
     })?;
-    MarkEntry::new(kind, &b.text).map_err(|e| mark_refusal(StatusCode::UNPROCESSABLE_ENTITY, e))
+    MarkEntry::new(kind, &b.text).map_err(|e| (StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))
 }
 
 /// `POST /marks`: an event mark at the head's position, recorded; answered
@@ -203,7 +206,7 @@ async fn mark(State(ctx): State<Context>, headers: HeaderMap, body: axum::body::
     };
     let entry = match mark_entry(&headers, &bytes) {
         Ok(e) => e,
-        Err(r) => return r,
+        Err((code, why)) => return mark_refusal(code, why),
     };
     let Some(marks) = &ctx.marks else {
         return mark_refusal(StatusCode::CONFLICT, MarkRefused::NotRecording);
@@ -287,8 +290,8 @@ mod tests {
         h
     }
 
-    fn status(r: Result<MarkEntry, Response>) -> Result<MarkEntry, u16> {
-        r.map_err(|r| r.status().as_u16())
+    fn status(r: Result<MarkEntry, Refusal>) -> Result<MarkEntry, u16> {
+        r.map_err(|r| r.0.as_u16())
     }
 
     #[test]
