@@ -45,6 +45,9 @@ pub struct ListenArgs {
     #[arg(long, value_name = "SECS", value_parser = parse_secs)]
     pub duration: Option<Duration>,
     /// Record every frame into FILE (appends to an existing recording).
+    /// Event marks typed on stdin, a terminal or a pipe, go into it, one a
+    /// line: w (weld), j (joint), k LABEL (kilometre post), d (defect), n
+    /// TEXT (note), each with optional text after it.
     #[arg(long, value_name = "FILE")]
     pub record: Option<PathBuf>,
     /// Print one JSON object per received profile on stdout.

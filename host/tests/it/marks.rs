@@ -118,16 +118,16 @@ fn read(path: &Path) -> (Vec<Mark>, Vec<(u32, u64, i64)>) {
     (marks, frames)
 }
 
-/// Where the head was when the mark was made (its time on the head's
-/// clock: the frame before it and the host time since), interpolated
-/// between the recorded frames around that time, and the travel of one
-/// frame there (µm).
+/// The odometer of the frame the head had last taken when the mark was
+/// made (by the mark's time on the head's clock: the frame before it and
+/// the host time since), and the travel of one frame there (µm). The mark
+/// is at that frame, or at the one before when that frame was still on
+/// its way over the link.
 fn odometer_at(m: &Mark, frames: &[(u32, u64, i64)]) -> (i64, i64) {
     let t = m.head_us + m.after_us;
-    let i = frames.iter().rposition(|f| f.1 <= t).unwrap().min(frames.len() - 2);
-    let (a, b) = (frames[i], frames[i + 1]);
-    let w = (t as f64 - a.1 as f64) / (b.1 - a.1) as f64;
-    ((a.2 as f64 + w * (b.2 - a.2) as f64).round() as i64, (b.2 - a.2).abs())
+    let i = frames.iter().rposition(|f| f.1 <= t).unwrap().clamp(1, frames.len() - 2);
+    let step = |a: usize, b: usize| (frames[b].2 - frames[a].2).abs();
+    (frames[i].2, step(i - 1, i).max(step(i, i + 1)))
 }
 
 fn survey(dir: &Path) -> PathBuf {

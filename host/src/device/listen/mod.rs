@@ -26,6 +26,10 @@
 //! it, one write per frame ([`Recorder`]): a killed listener's file holds
 //! every frame it printed.
 //!
+//! Event marks (the terminal's, the live page's) reach the session through
+//! a bounded queue it empties each turn without waiting, and are recorded
+//! at the odometer of the latest profile ([`marks`]).
+//!
 //! # When the link misbehaves
 //! * The head goes silent for 2 s while streaming: handshake again
 //!   (`GetInfo` … `Start`), counted as a *stall*.
@@ -41,7 +45,7 @@
 //! frame is bounds-checked by the framing and decoded by postcard into
 //! fixed-capacity types.
 
-mod marks;
+pub mod marks;
 mod session;
 
 use std::fmt;

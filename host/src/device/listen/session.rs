@@ -466,8 +466,11 @@ impl<'a> Session<'a> {
     /// answered. Never waits.
     fn marks_step(&mut self) {
         let Some(inbox) = self.marks else { return };
-        self.sum.marks.get_or_insert((0, 0));
+        if self.recorder.is_some() {
+            self.sum.marks.get_or_insert((0, 0));
+        }
         for req in inbox.0.try_iter() {
+            self.sum.marks.get_or_insert((0, 0));
             let placed = match (&mut self.recorder, self.last_head) {
                 _ if self.fatal.is_some() => Err(MarkRefused::Busy),
                 (None, _) => Err(MarkRefused::NotRecording),
