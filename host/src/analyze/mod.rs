@@ -22,6 +22,7 @@
 //! about 5 s and 180 MB (docs/benchmarks.md).
 
 pub mod live;
+pub mod marks;
 pub mod profile;
 pub mod reprofiling;
 pub mod runs;
@@ -85,6 +86,8 @@ pub struct Recording {
     /// The GNSS fixes the recording holds (`listen --gnss`), in file order:
     /// what the report plots the run's track from.
     pub fixes: Vec<crate::gnss::Placed>,
+    /// The event marks recorded, in file order ([`marks`] places them).
+    pub marks: Vec<crate::recording::mark::Mark>,
 }
 
 /// What [`check_runs`] lets through because the user asked for it.
@@ -214,6 +217,10 @@ pub fn read_recording(
             recording::Item::Device(msg) => msg,
             recording::Item::Host(recording::HostRecord::Fix(p)) => {
                 rec.fixes.push(p.clone());
+                return Ok(());
+            }
+            recording::Item::Host(recording::HostRecord::Mark(m)) => {
+                rec.marks.push(m.clone());
                 return Ok(());
             }
         };

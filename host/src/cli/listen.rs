@@ -45,6 +45,9 @@ pub struct ListenArgs {
     #[arg(long, value_name = "SECS", value_parser = parse_secs)]
     pub duration: Option<Duration>,
     /// Record every frame into FILE (appends to an existing recording).
+    /// Event marks typed on stdin, a terminal or a pipe, go into it, one a
+    /// line: w (weld), j (joint), k LABEL (kilometre post), d (defect), n
+    /// TEXT (note), each with optional text after it.
     #[arg(long, value_name = "FILE")]
     pub record: Option<PathBuf>,
     /// Print one JSON object per received profile on stdout.
@@ -326,6 +329,86 @@ pub fn interrupt_flag() -> &'static AtomicBool {
     &FLAG
 }
 
+/// Longest line of marks read from stdin, bytes.
+const MAX_MARK_LINE: u64 = 4096;
+/// How long the terminal waits for the session to answer a mark.
+const MARK_ANSWER: Duration = Duration::from_secs(5);
+
+/// Whether stdin is a terminal or a pipe (or socket): where an operator
+/// or a program types marks. A file or /dev/null is not read.
+fn stdin_gives_lines() -> bool {
+    use nix::sys::stat::{SFlag, fstat};
+    if io::stdin().is_terminal() {
+        return true;
+    }
+    fstat(io::stdin()).is_ok_and(|st| {
+        let kind = SFlag::from_bits_truncate(st.st_mode) & SFlag::S_IFMT;
+        kind == SFlag::S_IFIFO || kind == SFlag::S_IFSOCK
+    })
+}
+
+/// Reads event marks from stdin, one a line ([`cms_host::recording::mark`]
+/// has the syntax), on a thread of its own: the session only ever takes
+/// what is queued, so a silent or closed stdin holds nothing. Each line is
+/// answered on stderr, one line: the mark as recorded, or why not.
+fn terminal_marks(marks: listen::MarkSender, bar: Option<ProgressBar>) {
+    use cms_host::recording::mark::{MarkEntry, describe};
+    use io::BufRead as _;
+    let say = move |line: String| match &bar {
+        Some(b) => b.println(line),
+        None => {
+            let _ = writeln!(io::stderr(), "{line}");
+        }
+    };
+    let read = move || {
+        let mut stdin = io::stdin().lock();
+        let mut line = Vec::new();
+        loop {
+            line.clear();
+            match io::Read::take(&mut stdin, MAX_MARK_LINE).read_until(b'\n', &mut line) {
+                Ok(0) | Err(_) => return,
+                Ok(_) => {}
+            }
+            if line.last() != Some(&b'\n') && line.len() as u64 >= MAX_MARK_LINE {
+                // The rest of the line is dropped with it.
+                let mut rest = Vec::new();
+                let _ = stdin.read_until(b'\n', &mut rest);
+                say(format!("listen: mark not recorded: a line of more than {MAX_MARK_LINE} bytes"));
+                continue;
+            }
+            let entry = match std::str::from_utf8(&line).map(MarkEntry::parse_line) {
+                Ok(Ok(Some(e))) => e,
+                Ok(Ok(None)) => continue,
+                Ok(Err(e)) => {
+                    say(format!("listen: mark not recorded: {e}"));
+                    continue;
+                }
+                Err(_) => {
+                    say("listen: mark not recorded: the line is not UTF-8 text".to_string());
+                    continue;
+                }
+            };
+            let (tx, rx) = std::sync::mpsc::sync_channel(1);
+            marks.send(
+                entry,
+                Box::new(move |r| {
+                    let _ = tx.try_send(r);
+                }),
+            );
+            match rx.recv_timeout(MARK_ANSWER) {
+                Ok(Ok(m)) => say(format!("listen: mark: {}", describe(&m))),
+                Ok(Err(e)) => say(format!("listen: mark not recorded: {e}")),
+                Err(_) => say(format!(
+                    "listen: mark not confirmed: the listener did not answer within {} s",
+                    MARK_ANSWER.as_secs()
+                )),
+            }
+        }
+    };
+    // Without the thread there are no terminal marks; the listening goes on.
+    let _ = std::thread::Builder::new().name("cms-marks-stdin".into()).spawn(read);
+}
+
 /// Prints the summary on stderr, one `listen:` block.
 pub fn print_summary(sum: &Summary) {
     let mut err = io::stderr().lock();
@@ -389,24 +472,44 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
             .into());
         }
     }
+    let (marks, inbox) = listen::mark_channel();
     let view = match args.serve {
         Some(addr) => {
-            let opts = ServeOptions { addr, port: args.port.clone(), placement, recording: opts.record.is_some() };
+            let opts = ServeOptions {
+                addr,
+                port: args.port.clone(),
+                placement,
+                recording: opts.record.is_some(),
+                marks: Some(marks.clone()),
+            };
             let v = LiveView::start(&opts).map_err(cms_host::Error::from)?;
-            let _ = writeln!(io::stderr(), "listen: live view on {} (read-only)", v.url());
+            let _ = writeln!(io::stderr(), "listen: live view on {} (read-only but for event marks)", v.url());
             Some(v)
         }
         None => None,
     };
     let feed = view.as_ref().map(LiveView::feed);
     let mut display = Display::new(opts.json, feed.clone());
+    if opts.record.is_some() && stdin_gives_lines() {
+        terminal_marks(marks.clone(), display.bar.clone());
+    }
     let stdout = io::stdout();
     let mut observe = |m: &cms_core::protocol::DeviceMsg| {
         if let Some(f) = &feed {
             f.message(m);
         }
     };
-    let outcome = listen::session(&args.port, &opts, interrupt_flag(), &mut stdout.lock(), &mut observe, &mut display);
+    let outcome = listen::session_with_marks(
+        &args.port,
+        &opts,
+        interrupt_flag(),
+        &mut stdout.lock(),
+        &mut observe,
+        &mut display,
+        Some(&inbox),
+    );
+    // Marks asked for from here on are refused at once (the session is over).
+    drop(inbox);
     let viewed = view.map(LiveView::stop);
     // A session that ends in a failure after greeting the head (the port
     // lost for good) still says what it got, before the error line.

@@ -20,6 +20,8 @@ pub enum FormatArg {
     Jsonl,
     /// The run's GNSS track and fixes as GeoJSON (a recording made with `listen --gnss`).
     Geojson,
+    /// The event marks, CSV: `kind,text,odometer_mm,seq,head_us,host_us,after_us`.
+    Marks,
 }
 
 impl From<FormatArg> for ExportFormat {
@@ -28,6 +30,7 @@ impl From<FormatArg> for ExportFormat {
             FormatArg::Csv => ExportFormat::Csv,
             FormatArg::Jsonl => ExportFormat::Jsonl,
             FormatArg::Geojson => ExportFormat::Geojson,
+            FormatArg::Marks => ExportFormat::Marks,
         }
     }
 }

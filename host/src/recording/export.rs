@@ -23,6 +23,8 @@ pub enum ExportFormat {
     /// fixes from satellites, and a `Point` for every fix with its time,
     /// odometer and quality.
     Geojson,
+    /// The event marks as CSV: [`crate::recording::mark::CSV_HEADER`].
+    Marks,
 }
 
 /// Opens a recording and checks its header (before an export creates its
@@ -87,6 +89,15 @@ pub fn export_to(
     if format == ExportFormat::Geojson {
         return export_geojson(path, out, progress);
     }
+    if format == ExportFormat::Marks {
+        writeln!(out, "{}", super::mark::CSV_HEADER).map_err(RecordError::Output)?;
+        let stats = super::reader::scan_file_records_with_progress(path, progress, |item| match item {
+            Item::Host(HostRecord::Mark(m)) => writeln!(out, "{}", super::mark::csv_row(m)),
+            _ => Ok(()),
+        })?;
+        out.flush().map_err(RecordError::Output)?;
+        return Ok(stats);
+    }
     if format == ExportFormat::Csv {
         writeln!(out, "{CSV_HEADER}").map_err(RecordError::Output)?;
     }
@@ -94,7 +105,7 @@ pub fn export_to(
         DeviceMsg::Profile(p) => match format {
             ExportFormat::Csv => write_csv(out, p),
             ExportFormat::Jsonl => write_json_line(out, p),
-            ExportFormat::Geojson => Ok(()),
+            ExportFormat::Geojson | ExportFormat::Marks => Ok(()),
         },
         _ => Ok(()),
     })?;

@@ -1,17 +1,22 @@
 //! Records the host adds to a recording beside the head's frames: GNSS
-//! fixes (`listen --gnss`).
+//! fixes (`listen --gnss`, format 4 on) and event marks (format 5 on,
+//! [`crate::recording::mark`]).
 //!
 //! A host record is framed exactly as a head's frame — COBS(tag ‖
 //! postcard(record) ‖ CRC-32) ‖ 0x00 — with [`HOST_RECORD_TAG`] where a
 //! head's frame has its protocol version. So it is under the same
 //! checksum, found by the same resynchronisation, and a reader that does
 //! not know it (a build before format 4) counts it as a frame of another
-//! version and skips it.
+//! version and skips it. A build of format 4 would take a mark for a
+//! damaged record, which is why marks come with format 5, which such a
+//! build refuses to read at all (it names the version), and are never
+//! appended to a file of format 4 or older.
 
 use cms_core::protocol::{DeviceMsg, FromFrame, WireError};
 use serde::{Deserialize, Serialize};
 
 use crate::gnss::Placed;
+use crate::recording::mark::Mark;
 
 /// The first byte of a host record's frame, in place of the protocol
 /// version (no protocol version is this high).
@@ -23,6 +28,8 @@ pub const HOST_RECORD_TAG: u8 = 0xC7;
 pub enum HostRecord {
     /// A GNSS fix, placed on the host's clock among the head's frames.
     Fix(Placed),
+    /// An event mark (format 5 on).
+    Mark(Mark),
 }
 
 impl HostRecord {
@@ -55,6 +62,9 @@ impl FromFrame for Recorded {
             return DeviceMsg::from_payload(version, payload).map(Recorded::Device);
         }
         match postcard::take_from_bytes::<HostRecord>(payload) {
+            // A mark's text is checked as when it was made: the checksum
+            // vouches for the bytes, not for what a writer put in them.
+            Ok((HostRecord::Mark(m), [])) if !m.is_valid() => Err(WireError::Decode),
             Ok((r, [])) => Ok(Recorded::Host(r)),
             _ => Err(WireError::Decode),
         }
@@ -118,6 +128,51 @@ mod tests {
             }
         }
     }
+
+    pub(crate) fn mark() -> Mark {
+        Mark {
+            kind: crate::recording::mark::MarkKind::KilometrePost,
+            text: "12.300".into(),
+            host_us: 2_000_000,
+            seq: 60,
+            head_us: 1_980_000,
+            odometer_um: -1_234_567,
+            after_us: 12_000,
+        }
+    }
+
+    /// Byte for byte: the frame of a mark, as format 5 writes it.
+    #[test]
+    fn a_mark_frame_is_golden() {
+        let frame = HostRecord::Mark(mark()).frame();
+        let hex: String = frame.iter().map(|b| format!("{b:02x}")).collect();
+        assert_eq!(hex, MARK_GOLDEN);
+        let mut body = frame[..frame.len() - 1].to_vec();
+        assert_eq!(decode_frame::<Recorded>(&mut body), Ok(Recorded::Host(HostRecord::Mark(mark()))));
+        for i in 0..frame.len() - 1 {
+            for bit in 0..8 {
+                let mut f = frame[..frame.len() - 1].to_vec();
+                f[i] ^= 1 << bit;
+                if !f.contains(&0) {
+                    assert!(decode_frame::<Recorded>(&mut f).is_err(), "byte {i} bit {bit}");
+                }
+            }
+        }
+    }
+
+    /// A mark whose text breaks the rules is not read, whatever its checksum.
+    #[test]
+    fn a_mark_with_bad_text_is_damaged() {
+        for text in ["a\u{1b}[2J".to_string(), "x".repeat(crate::recording::mark::MAX_TEXT_CHARS + 1), " pad".into()] {
+            let frame = HostRecord::Mark(Mark { text, ..mark() }).frame();
+            let mut body = frame[..frame.len() - 1].to_vec();
+            assert_eq!(decode_frame::<Recorded>(&mut body), Err(WireError::Decode));
+        }
+    }
+
+    // COBS of: 0xC7, variant 1 (Mark), kind 2 (KilometrePost), text length 6 and "12.300", host_us
+    // 2 000 000, seq 60, head_us 1 980 000, odometer_um -1 234 567 (zigzag), after_us 12 000, then the CRC-32.
+    const MARK_GOLDEN: &str = "1cc701020631322e33303080897a3ce0ec788dda9601e05d1dae158800";
 
     // COBS of: 0xC7, variant 0 (Fix), host_us 1 250 000 (varint d0 a5 4c), head_us Some(1 200 000),
     // odometer_um Some(600 000) (zigzag), utc_ms_of_day Some(36 930 200), date Some(2026, 12, 4), the

@@ -5,6 +5,7 @@ use std::path::Path;
 use cms_core::pipeline::line::Counts;
 use cms_core::protocol::{DeviceInfo, DeviceMsg, ErrorCode, LASERS};
 
+use super::mark::Mark;
 use super::{FrameCounter, HostRecord, Item, RecordError, ScanStats, points, survey_of, um_to_mm};
 use crate::gnss::{Fix, Placed};
 use crate::progress::Progress;
@@ -56,6 +57,8 @@ pub struct Info {
     line_frame: u32,
     /// The GNSS fixes recorded.
     pub gnss: GnssInfo,
+    /// The event marks recorded, in file order.
+    pub marks: Vec<Mark>,
 }
 
 /// What a recording's GNSS fixes say.
@@ -161,6 +164,7 @@ impl Info {
             match item {
                 Item::Device(m) => info.add(m, &mut counter),
                 Item::Host(HostRecord::Fix(p)) => info.gnss.add(p),
+                Item::Host(HostRecord::Mark(m)) => info.marks.push(m.clone()),
             }
             Ok(())
         })?;
@@ -277,6 +281,12 @@ impl Info {
         }
         if self.gnss.fixes > 0 || self.scan.header.is_some_and(|h| h.holds_host_records()) {
             let _ = writeln!(s, "{}", self.gnss.line());
+        }
+        if !self.marks.is_empty() || self.scan.header.is_some_and(|h| h.holds_marks()) {
+            let _ = writeln!(s, "marks: {}", self.marks.len());
+            for m in &self.marks {
+                let _ = writeln!(s, "mark: {}", super::mark::describe(m));
+            }
         }
         let _ = writeln!(s, "damaged frames: {}", self.scan.damaged);
         let _ = writeln!(s, "duplicated profile messages (skipped): {}", self.scan.duplicates);

@@ -1,25 +1,33 @@
 //! Recordings of the sensor link: the file format, its writer, its reader,
 //! and `cms-host export` / `cms-host info`.
 //!
-//! # File format (`.cmsrec`, format version 4; versions 1 to 3 are read too)
+//! # File format (`.cmsrec`, format version 5; versions 1 to 4 are read too)
 //!
 //! ```text
 //! offset 0   8 bytes  magic  "CMSREC" 0x00 0x01
-//! offset 8   2 bytes  format version, u16 little-endian (4; 3 without host records; 2 without the
-//!                     checksum; 1 before survey blocks)
+//! offset 8   2 bytes  format version, u16 little-endian (5; 4 without event marks; 3 without host
+//!                     records; 2 without the checksum; 1 before survey blocks)
 //! offset 10  1 byte   wire protocol version of the writer (cms_core::protocol::PROTOCOL_VERSION)
 //! offset 11  1 byte   reserved, written as 0, ignored by readers
-//! offset 12  4 bytes  versions 2 to 4: length L of the survey block, u32 little-endian (0: none);
+//! offset 12  4 bytes  versions 2 to 5: length L of the survey block, u32 little-endian (0: none);
 //!                     version 1: reserved (0)
-//! offset 16  L bytes  versions 2 to 4: the survey (crate::recording::survey_info), UTF-8 TOML, at most 16 KiB
-//! 16 + L     4 bytes  versions 3, 4: CRC-32 (ISO-HDLC, as the wire's) of bytes 0 to 16 + L, little-endian
+//! offset 16  L bytes  versions 2 to 5: the survey (crate::recording::survey_info), UTF-8 TOML, at most 16 KiB
+//! 16 + L     4 bytes  versions 3 to 5: CRC-32 (ISO-HDLC, as the wire's) of bytes 0 to 16 + L, little-endian
 //! then       frames   every intact device → host frame, exactly its wire bytes:
 //!                     COBS(version ‖ postcard(DeviceMsg) ‖ CRC-32) ‖ 0x00
-//!                     and, from version 4, the host's records among them (GNSS fixes):
+//!                     and, from version 4, the host's records among them (GNSS fixes; from
+//!                     version 5 event marks too, crate::recording::mark):
 //!                     COBS(0xC7 ‖ postcard(HostRecord) ‖ CRC-32) ‖ 0x00 (host_record)
 //! ```
 //!
-//! **Damage.** Every byte of a version-3 or 4 file is under a checksum: the
+//! **Versions.** A reader refuses a format newer than its own, naming it
+//! (a build of format 4 says "recording format version 5; this cms-host
+//! reads versions 1 to 4"), rather than misread what it does not know: a
+//! format-4 reader would count a mark as a damaged frame. Appending to an
+//! older file keeps its format, and what that format cannot hold (fixes
+//! before 4, marks before 5) is refused, not written.
+//!
+//! **Damage.** Every byte of a file of version 3 or later is under a checksum: the
 //! header and survey block under theirs, each frame under its own. A
 //! damaged frame is skipped and counted; a damaged header or survey block
 //! (a flipped digit of the start chainage would move the run) is reported
@@ -82,6 +90,7 @@
 mod export;
 pub mod host_record;
 mod info;
+pub mod mark;
 mod reader;
 pub mod survey_info;
 mod text;
@@ -109,10 +118,12 @@ pub const EXTENSION: &str = "cmsrec";
 pub const MAGIC: [u8; 8] = *b"CMSREC\0\x01";
 /// Length of the header.
 pub const HEADER_LEN: usize = 16;
-/// The format version this build writes (it reads 1 to 3 as well).
-pub const FORMAT_VERSION: u16 = 4;
+/// The format version this build writes (it reads 1 to 4 as well).
+pub const FORMAT_VERSION: u16 = 5;
 /// The first format that may hold host records ([`HostRecord`]).
 pub const HOST_RECORDS_FORMAT: u16 = 4;
+/// The first format that may hold event marks ([`HostRecord::Mark`]).
+pub const MARKS_FORMAT: u16 = 5;
 /// The first format whose header and survey block carry a checksum.
 pub const CHECKSUMMED_FORMAT: u16 = 3;
 /// Bytes of the header and survey block's checksum.
@@ -174,6 +185,11 @@ impl Header {
     /// Whether host records may follow (format 4 on).
     pub fn holds_host_records(&self) -> bool {
         self.format >= HOST_RECORDS_FORMAT
+    }
+
+    /// Whether event marks may follow (format 5 on).
+    pub fn holds_marks(&self) -> bool {
+        self.format >= MARKS_FORMAT
     }
 }
 
@@ -300,14 +316,21 @@ mod tests {
     fn header_round_trip_and_refusals() {
         let h: [u8; HEADER_LEN] = header()[..HEADER_LEN].try_into().unwrap();
         assert_eq!(&h[..8], b"CMSREC\0\x01");
-        assert_eq!(parse_header(&h).unwrap(), Header { format: 4, protocol: PROTOCOL_VERSION, survey_len: 0 });
+        assert_eq!(parse_header(&h).unwrap(), Header { format: 5, protocol: PROTOCOL_VERSION, survey_len: 0 });
         assert!(parse_header(&h[..10]).unwrap_err().to_string().contains("shorter"));
         let mut bad = h;
         bad[0] = b'X';
         assert!(parse_header(&bad).unwrap_err().to_string().contains("CMSREC"));
-        let mut v5 = h;
-        v5[8] = 5;
-        assert!(parse_header(&v5).unwrap_err().to_string().contains("version 5"));
+        let mut v6 = h;
+        v6[8] = 6;
+        assert!(parse_header(&v6).unwrap_err().to_string().contains("version 6; this cms-host reads versions 1 to 5"));
+        // Every older format is still read.
+        for old in 1..=4u8 {
+            let mut v = h;
+            v[8] = old;
+            assert_eq!(parse_header(&v).unwrap().format, u16::from(old));
+            assert!(!parse_header(&v).unwrap().holds_marks());
+        }
         // Version 1: the same header, its reserved bytes never a survey length.
         let mut v1 = h;
         v1[8] = 1;

@@ -241,6 +241,7 @@ pub fn fixes_of(path: &Path) -> Result<(Vec<PositionedSession>, ScanStats), Reco
         let s = sessions.last_mut().expect("one session at least");
         match item {
             Item::Host(HostRecord::Fix(p)) => s.fixes.push(p.clone()),
+            Item::Host(_) => {}
             Item::Device(DeviceMsg::Hello(_)) if !s.profiles.is_empty() || !s.fixes.is_empty() => {
                 sessions.push(PositionedSession::default());
             }

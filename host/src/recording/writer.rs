@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use super::{
-    FORMAT_VERSION, HEADER_LEN, HOST_RECORDS_FORMAT, HostRecord, MAX_SURVEY_BYTES, RecordError, SYNC_INTERVAL,
-    header_and_survey, parse_header, read_block,
+    FORMAT_VERSION, HEADER_LEN, HOST_RECORDS_FORMAT, HostRecord, MARKS_FORMAT, MAX_SURVEY_BYTES, RecordError,
+    SYNC_INTERVAL, header_and_survey, parse_header, read_block,
 };
 
 /// Appends frames to a recording (see the module docs for what reaches the
@@ -119,6 +119,11 @@ impl Recorder {
         self.format >= HOST_RECORDS_FORMAT
     }
 
+    /// Whether the file's format holds event marks (format 5 on).
+    pub fn holds_marks(&self) -> bool {
+        self.format >= MARKS_FORMAT
+    }
+
     /// The file's format version.
     pub fn format(&self) -> u16 {
         self.format
@@ -129,14 +134,18 @@ impl Recorder {
         self.host_records
     }
 
-    /// Appends one host record (a GNSS fix), as [`Recorder::write_frame`]
+    /// Appends one host record (a GNSS fix, a mark), as [`Recorder::write_frame`]
     /// a frame; refused for a file of a format without host records.
     pub fn write_host_record(&mut self, r: &HostRecord) -> Result<(), RecordError> {
-        if !self.holds_host_records() {
+        let (holds, what, from) = match r {
+            HostRecord::Mark(_) => (self.holds_marks(), "event marks", MARKS_FORMAT),
+            _ => (self.holds_host_records(), "GNSS fixes", HOST_RECORDS_FORMAT),
+        };
+        if !holds {
             return Err(RecordError::Format {
                 path: self.path.clone(),
                 why: format!(
-                    "recording format {} holds no GNSS fixes (format {HOST_RECORDS_FORMAT} does); record to a new file",
+                    "recording format {} holds no {what} (format {from} does); record to a new file",
                     self.format
                 ),
             });

@@ -124,6 +124,7 @@ pub fn page(title: &str, source: &Source, a: &Analysis, track: Option<&Track>, f
     );
     html.push_str(&survey(source, a));
     html.push_str(&verdict(a, figs.zones));
+    html.push_str(&super::marks::html(&super::marks::of(source, a)));
     html.push_str(&inputs(source, a));
     html.push_str(&gnss_track(source, track, figs.track));
     let several = a.sections().len() > 1;

@@ -100,6 +100,9 @@ pub fn to_json(source: &Source, a: &Analysis) -> Value {
             .collect::<Vec<_>>()
     );
     o["verdict"] = verdict_json(&a.verdict);
+    if matches!(source, Source::Recordings(_)) {
+        o["marks"] = super::marks::to_json(&super::marks::of(source, a));
+    }
     o
 }
 

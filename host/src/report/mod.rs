@@ -21,6 +21,7 @@
 //! | `spectrum_laserK.csv` | the spectrum (`en15610::spectrum_csv`) |
 //! | `registration.csv` | per laser and frame: overlap, offset, tilt, residual |
 //! | `gaps.csv` | per laser: start and length of every gap |
+//! | `marks.csv` | the event marks at their chainage ([`marks`]) |
 //! | `profile.parquet`, `blocks.parquet`, `zones.parquet` | the stitched profile, blocks and zones ([`exports`], docs/exports.md) |
 //!
 //! Long profiles are plotted through a min/max envelope of at most
@@ -29,6 +30,7 @@
 pub mod exports;
 pub mod html;
 pub mod json;
+pub mod marks;
 pub mod text;
 pub mod track;
 pub mod trend;
@@ -471,6 +473,7 @@ pub fn owns(name: &str) -> bool {
         })
     };
     FIXED.contains(&name)
+        || name == marks::CSV_FILE
         || exports::owns(name)
         || per_line("bands_laser", &["csv", "svg", "png"])
         || per_line("spectrum_laser", &["csv"])
@@ -532,6 +535,7 @@ fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Resu
         None => None,
     };
     let title = format!("Rail corrugation analysis: {}", source.name());
+    put(marks::CSV_FILE, &marks::csv(&marks::of(source, a)))?;
     put("report.md", &markdown(&title, source, a, track.as_ref(), &plots, !zone_svg.is_empty()))?;
     let figs = html::Figures { zones: &zone_svg, plots: &plots, track: track_svg.as_deref() };
     put("report.html", &html::page(&title, source, a, track.as_ref(), &figs))?;
@@ -620,6 +624,7 @@ fn markdown(
         }
         None => md.push_str("No GNSS fixes in the recording.\n"),
     }
+    md.push_str(&marks::markdown(&marks::of(source, a)));
     let several = a.sections().len() > 1;
     for l in &a.lasers {
         let (_, k) = line_names(&l.stitched, several);

@@ -339,5 +339,10 @@ pub fn summary(source: &Source, a: &Analysis) -> String {
     }
     s.push('\n');
     s.push_str(&reprofiling::describe(&a.verdict));
+    let marks = super::marks::summary(source, a);
+    if !marks.is_empty() {
+        s.push('\n');
+        s.push_str(&marks);
+    }
     s
 }

@@ -12,9 +12,18 @@ use axum::extract::{Request, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
-use axum::routing::get;
+use axum::routing::{get, post};
 
 use super::{MAX_PAGES, SEND_TIMEOUT, Shared};
+use crate::device::listen::{MarkRefused, MarkSender};
+use crate::recording::mark::{MarkEntry, MarkKind};
+use crate::recording::survey_info::{Chainage, Heading, Placement};
+
+/// Largest body of `POST /marks`, bytes (a kind and 200 characters of
+/// text, escaped, fit).
+pub(super) const MAX_MARK_BODY: usize = 2048;
+/// How long `POST /marks` waits for the listener to record the mark.
+const MARK_ANSWER: Duration = Duration::from_secs(3);
 
 /// The page and its assets, embedded (served offline, nothing fetched
 /// from elsewhere).
@@ -40,6 +49,10 @@ pub(super) struct Context {
     pub updates: tokio::sync::watch::Receiver<Update>,
     /// The address bound.
     pub local: SocketAddr,
+    /// Where marks go (`None`: the listener takes none).
+    pub marks: Option<MarkSender>,
+    /// Where the run lies, to give a mark's chainage.
+    pub placement: Option<Placement>,
 }
 
 /// Serves on `listener` until `shutdown`; the runtime (and with it every
@@ -67,6 +80,7 @@ fn router(ctx: Context) -> Router {
         .route("/app.js", get(|| async { asset(APP_JS, "text/javascript; charset=utf-8") }))
         .route("/app.css", get(|| async { asset(APP_CSS, "text/css; charset=utf-8") }))
         .route("/ws", get(socket))
+        .route("/marks", post(mark))
         .fallback(|| async { (StatusCode::NOT_FOUND, "not found\n") })
         .layer(middleware::from_fn_with_state(ctx.clone(), guard))
         .with_state(ctx)
@@ -96,8 +110,11 @@ async fn guard(State(ctx): State<Context>, req: Request, next: Next) -> Response
         // A page of another site whose name was made to resolve here
         // (DNS rebinding) sends its own name.
         refuse(StatusCode::MISDIRECTED_REQUEST, "this server answers to its loopback address only\n")
-    } else if req.method() != axum::http::Method::GET && req.method() != axum::http::Method::HEAD {
-        refuse(StatusCode::METHOD_NOT_ALLOWED, "the live view is read-only\n")
+    } else if req.method() != axum::http::Method::GET
+        && req.method() != axum::http::Method::HEAD
+        && !(req.method() == axum::http::Method::POST && req.uri().path() == "/marks")
+    {
+        refuse(StatusCode::METHOD_NOT_ALLOWED, "the live view is read-only but for POST /marks\n")
     } else {
         let r = next.run(req).await;
         if r.status().is_client_error() {
@@ -120,17 +137,117 @@ pub(super) fn harden(h: &mut HeaderMap) {
 
 /// `GET /ws`: the page's updates, from another origin refused.
 async fn socket(State(ctx): State<Context>, headers: HeaderMap, ws: WebSocketUpgrade) -> Response {
-    let host = headers.get(header::HOST).and_then(|h| h.to_str().ok()).unwrap_or("");
-    if let Some(origin) = headers.get(header::ORIGIN) {
-        let same = origin.to_str().ok().and_then(|o| o.strip_prefix("http://")).is_some_and(|o| o == host);
-        if !same {
-            return (StatusCode::FORBIDDEN, "updates go to this server's own page only\n").into_response();
-        }
+    if !same_origin(&headers) {
+        return (StatusCode::FORBIDDEN, "updates go to this server's own page only\n").into_response();
     }
     if ctx.shared.pages_open.load(Ordering::SeqCst) >= MAX_PAGES as u64 {
         return (StatusCode::TOO_MANY_REQUESTS, "too many pages open\n").into_response();
     }
     ws.on_upgrade(move |s| page(s, ctx))
+}
+
+/// Whether a request's `Origin`, if it has one, is this server's own page.
+fn same_origin(headers: &HeaderMap) -> bool {
+    let host = headers.get(header::HOST).and_then(|h| h.to_str().ok()).unwrap_or("");
+    match headers.get(header::ORIGIN) {
+        Some(origin) => origin.to_str().ok().and_then(|o| o.strip_prefix("http://")).is_some_and(|o| o == host),
+        None => true,
+    }
+}
+
+/// The body of `POST /marks`: `{"kind": "weld", "text": "…"}`, nothing else.
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MarkBody {
+    kind: String,
+    #[serde(default)]
+    text: String,
+}
+
+/// A refusal of `POST /marks`: its status and one line of why.
+fn mark_refusal(code: StatusCode, why: impl std::fmt::Display) -> Response {
+    (code, format!("{why}\n")).into_response()
+}
+
+/// A refusal before the mark is sent on: its status and why.
+type Refusal = (StatusCode, String);
+
+/// What a request asks to mark, or why it is refused.
+fn mark_entry(headers: &HeaderMap, body: &[u8]) -> Result<MarkEntry, Refusal> {
+    let json = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|c| c.to_str().ok())
+        .is_some_and(|c| c.split(';').next().is_some_and(|t| t.trim().eq_ignore_ascii_case("application/json")));
+    if !json {
+        return Err((StatusCode::UNSUPPORTED_MEDIA_TYPE, "a mark is sent as application/json".to_string()));
+    }
+    let b: MarkBody = serde_json::from_slice(body).map_err(|e| {
+        let why: String = e.to_string().chars().take(160).collect();
+        (StatusCode::BAD_REQUEST, format!("not a mark ({{\"kind\": \"weld\", \"text\": \"…\"}}): {why}"))
+    })?;
+    let kind = MarkKind::ALL.into_iter().find(|k| k.name() == b.kind).ok_or_else(|| {
+        let names: Vec<&str> = MarkKind::ALL.iter().map(|k| k.name()).collect();
+        (
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!(
+                "no mark kind `{}`: one of {}",
+                crate::output::printable(&b.kind.chars().take(24).collect::<String>()),
+                names.join(", ")
+            ),
+        )
+    })?;
+    MarkEntry::new(kind, &b.text).map_err(|e| (StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))
+}
+
+/// `POST /marks`: an event mark at the head's position, recorded; answered
+/// with the mark as recorded (201) or why not (4xx, 503).
+async fn mark(State(ctx): State<Context>, headers: HeaderMap, body: axum::body::Body) -> Response {
+    if !same_origin(&headers) {
+        return mark_refusal(StatusCode::FORBIDDEN, "marks come from this server's own page only");
+    }
+    let Ok(bytes) = axum::body::to_bytes(body, MAX_MARK_BODY).await else {
+        return mark_refusal(StatusCode::PAYLOAD_TOO_LARGE, format!("a mark's body is at most {MAX_MARK_BODY} bytes"));
+    };
+    let entry = match mark_entry(&headers, &bytes) {
+        Ok(e) => e,
+        Err((code, why)) => return mark_refusal(code, why),
+    };
+    let Some(marks) = &ctx.marks else {
+        return mark_refusal(StatusCode::CONFLICT, MarkRefused::NotRecording);
+    };
+    let (tx, rx) = tokio::sync::oneshot::channel();
+    marks.send(
+        entry,
+        Box::new(move |r| {
+            let _ = tx.send(r);
+        }),
+    );
+    match tokio::time::timeout(MARK_ANSWER, rx).await {
+        Ok(Ok(Ok(m))) => {
+            let chainage = ctx.placement.and_then(|p| {
+                let o = m.odometer_mm() / 1000.0;
+                p.start_m.map(|s| Chainage(if p.heading == Some(Heading::Down) { s - o } else { s + o }).to_string())
+            });
+            let body = serde_json::json!({
+                "kind": m.kind.name(),
+                "text": m.text,
+                "odometer_mm": m.odometer_mm(),
+                "seq": m.seq,
+                "host_us": m.host_us,
+                "chainage": chainage,
+            });
+            (StatusCode::CREATED, [(header::CONTENT_TYPE, "application/json")], body.to_string()).into_response()
+        }
+        Ok(Ok(Err(why))) => {
+            let code = match why {
+                MarkRefused::Busy => StatusCode::SERVICE_UNAVAILABLE,
+                MarkRefused::Write(_) => StatusCode::INTERNAL_SERVER_ERROR,
+                _ => StatusCode::CONFLICT,
+            };
+            mark_refusal(code, why)
+        }
+        _ => mark_refusal(StatusCode::SERVICE_UNAVAILABLE, "the listener did not take the mark in time"),
+    }
 }
 
 /// One page: the newest update whenever there is a new one, never a queue.
@@ -168,6 +285,53 @@ async fn page(mut ws: WebSocket, mut ctx: Context) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn headers(pairs: &[(&'static str, &str)]) -> HeaderMap {
+        let mut h = HeaderMap::new();
+        for (k, v) in pairs {
+            h.insert(*k, HeaderValue::from_str(v).unwrap());
+        }
+        h
+    }
+
+    fn status(r: Result<MarkEntry, Refusal>) -> Result<MarkEntry, u16> {
+        r.map_err(|r| r.0.as_u16())
+    }
+
+    #[test]
+    fn mark_bodies_are_checked_strictly() {
+        let json = headers(&[("content-type", "application/json; charset=utf-8")]);
+        let ok = status(mark_entry(&json, br#"{"kind":"kilometre_post","text":" 12.300 "}"#)).unwrap();
+        assert_eq!((ok.kind, ok.text.as_str()), (MarkKind::KilometrePost, "12.300"));
+        assert_eq!(status(mark_entry(&json, br#"{"kind":"weld"}"#)).unwrap().kind, MarkKind::Weld);
+        let cases: [(&[u8], u16); 9] = [
+            (br#"{"kind":"weld","text":"x","extra":1}"#, 400),
+            (br#"{"text":"x"}"#, 400),
+            (br#"{"kind":7}"#, 400),
+            (b"weld", 400),
+            (br#"{"kind":"w"}"#, 422),
+            (br#"{"kind":"Weld"}"#, 422),
+            (br#"{"kind":"note"}"#, 422),
+            (br#"{"kind":"defect","text":"a\u001bb"}"#, 422),
+            (br#"{"kind":"note","text":"\u202eevil"}"#, 422),
+        ];
+        for (body, code) in cases {
+            assert_eq!(status(mark_entry(&json, body)).map(|_| ()), Err(code), "{}", String::from_utf8_lossy(body));
+        }
+        let long = format!(r#"{{"kind":"note","text":"{}"}}"#, "x".repeat(crate::recording::mark::MAX_TEXT_CHARS + 1));
+        assert_eq!(status(mark_entry(&json, long.as_bytes())).map(|_| ()), Err(422));
+        for ct in [&[][..], &[("content-type", "text/plain")][..], &[("content-type", "application/jsonx")][..]] {
+            assert_eq!(status(mark_entry(&headers(ct), br#"{"kind":"weld"}"#)).map(|_| ()), Err(415));
+        }
+    }
+
+    #[test]
+    fn marks_come_from_the_page_of_this_server() {
+        assert!(same_origin(&headers(&[("host", "127.0.0.1:8130")])));
+        assert!(same_origin(&headers(&[("host", "127.0.0.1:8130"), ("origin", "http://127.0.0.1:8130")])));
+        assert!(!same_origin(&headers(&[("host", "127.0.0.1:8130"), ("origin", "http://evil.example")])));
+        assert!(!same_origin(&headers(&[("host", "127.0.0.1:8130"), ("origin", "null")])));
+    }
 
     #[test]
     fn only_loopback_names_with_the_port_are_this_server() {

@@ -1,5 +1,7 @@
-//! `cms-host listen PORT --serve [ADDR]`: the live view, one read-only page
-//! in a browser that shows what the head sends while it is recorded.
+//! `cms-host listen PORT --serve [ADDR]`: the live view, one page in a
+//! browser that shows what the head sends while it is recorded, and marks
+//! events (a weld, a joint, a kilometre post, a defect, a note) into the
+//! recording at the head's position.
 //!
 //! # The path of a frame
 //!
@@ -33,16 +35,36 @@
 //! axum on a tokio runtime of one thread (its own, beside the listener's
 //! loop). It serves `GET /` (the page), `/app.js`, `/app.css` (embedded in
 //! the binary: no CDN, no font, nothing fetched from elsewhere; plots on
-//! plain canvas) and `GET /ws` (the updates). Everything else is a 4xx:
+//! plain canvas), `GET /ws` (the updates) and `POST /marks` (an event
+//! mark, below). Everything else is a 4xx:
 //! another path 404, another method 405, a malformed request 400 (hyper),
 //! a `Host` that is not the loopback address when bound to loopback 421 (a
 //! DNS-rebinding page elsewhere cannot read the view), a WebSocket from
-//! another `Origin` 403, more than [`MAX_PAGES`] pages 429. The page is
-//! read-only: the socket's incoming messages are read and ignored. Every
+//! another `Origin` 403, more than [`MAX_PAGES`] pages 429. The socket's
+//! incoming messages are read and ignored. Every
 //! response forbids other origins (`Content-Security-Policy: default-src
 //! 'none'`, scripts, styles and connections to the server itself only).
 //!
 //! It binds to loopback ([`DEFAULT_ADDR`]) unless an address is given.
+//!
+//! # Marks
+//!
+//! `POST /marks` with `Content-Type: application/json` and a body of at
+//! most 2048 bytes, `{"kind": "weld", "text": "…"}` — kind one of `weld`,
+//! `joint`, `kilometre_post`, `defect`, `note`; text optional (a post's
+//! label and a note's words required), checked as the terminal's
+//! ([`crate::recording::mark`]); no other field. The `Host` check above
+//! applies, and an `Origin` other than this server's is refused (403), as
+//! for the socket; a cross-site form cannot send JSON without a preflight
+//! this server never answers. The mark goes through the listener's bounded
+//! queue ([`crate::device::listen::mark_channel`]) and is answered once
+//! recorded: 201 with the mark as recorded (`kind`, `text`,
+//! `odometer_mm`, `seq`, `host_us`, `chainage` from `--survey`), or one
+//! line of why not: 400 (not JSON of that shape), 413 (too long), 415 (not
+//! JSON), 422 (a kind or text refused), 409 (not recording, a recording of
+//! a format without marks, no frame yet), 503 (the listener's queue full
+//! or no answer within 3 s). The page's buttons and keys (W, J, K, D, N)
+//! send it.
 //!
 //! # Priority
 //!
@@ -104,6 +126,8 @@ pub struct ServeOptions {
     pub placement: Option<Placement>,
     /// Whether the session records (the page says so).
     pub recording: bool,
+    /// Where `POST /marks` sends event marks (`None`: refused).
+    pub marks: Option<crate::device::listen::MarkSender>,
 }
 
 /// Why the live view could not start.
@@ -266,7 +290,13 @@ impl LiveView {
         };
         let (shutdown, shutdown_rx) = tokio::sync::oneshot::channel();
         let server = {
-            let ctx = http::Context { shared: shared.clone(), updates: updates_rx, local: addr };
+            let ctx = http::Context {
+                shared: shared.clone(),
+                updates: updates_rx,
+                local: addr,
+                marks: opts.marks.clone(),
+                placement: opts.placement,
+            };
             std::thread::Builder::new()
                 .name("cms-view-http".into())
                 .spawn(move || {

@@ -17,6 +17,7 @@ mod hostile;
 mod hostile_survey;
 mod input_props;
 mod listen;
+mod marks;
 mod measure;
 mod real_light;
 mod record;

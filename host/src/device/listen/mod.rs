@@ -26,6 +26,10 @@
 //! it, one write per frame ([`Recorder`]): a killed listener's file holds
 //! every frame it printed.
 //!
+//! Event marks (the terminal's, the live page's) reach the session through
+//! a bounded queue it empties each turn without waiting, and are recorded
+//! at the odometer of the latest profile ([`marks`]).
+//!
 //! # When the link misbehaves
 //! * The head goes silent for 2 s while streaming: handshake again
 //!   (`GetInfo` … `Start`), counted as a *stall*.
@@ -41,6 +45,7 @@
 //! frame is bounds-checked by the framing and decoded by postcard into
 //! fixed-capacity types.
 
+pub mod marks;
 mod session;
 
 use std::fmt;
@@ -57,6 +62,8 @@ use cms_core::readout::{Readout, ReadoutError};
 use crate::link::{Client, ClientError, Counters, Handshake, LinkError, Wait};
 use crate::recording::{RecordError, Recorder};
 use session::Session;
+
+pub use marks::{MARK_QUEUE, MarkInbox, MarkRefused, MarkReply, MarkRequest, MarkSender, mark_channel};
 
 /// How long to wait for `Hello` after each `GetInfo`.
 pub const HELLO_TIMEOUT: Duration = Duration::from_secs(2);
@@ -328,6 +335,8 @@ pub struct Summary {
     pub streaming: Duration,
     /// The GNSS receiver's part, when one was read.
     pub gnss: Option<GnssSummary>,
+    /// Event marks recorded and refused, when marks were taken.
+    pub marks: Option<(u64, u64)>,
 }
 
 /// What came from the GNSS receiver.
@@ -437,6 +446,9 @@ impl fmt::Display for Summary {
         };
         if let Some(g) = &self.gnss {
             writeln!(f, "{g}")?;
+        }
+        if let Some((kept, refused)) = self.marks {
+            writeln!(f, "marks: {kept} recorded, {refused} refused")?;
         }
         write!(f, "lasers: {lasers}{}", if self.stop_acked { " (stop acknowledged)" } else { "" })
     }
@@ -589,6 +601,21 @@ pub fn session(
     observe: &mut dyn FnMut(&DeviceMsg),
     status: &mut dyn StatusLine,
 ) -> Outcome {
+    session_with_marks(port, opts, stop, out, observe, status, None)
+}
+
+/// [`session`], taking the event marks that arrive in `marks` (see
+/// [`mark_channel`]) into the recording; the marks still waiting when it
+/// ends are taken before the recording is committed.
+pub fn session_with_marks(
+    port: &str,
+    opts: &ListenOptions,
+    stop: &AtomicBool,
+    out: &mut dyn Write,
+    observe: &mut dyn FnMut(&DeviceMsg),
+    status: &mut dyn StatusLine,
+    marks: Option<&MarkInbox>,
+) -> Outcome {
     let t0 = Instant::now();
     let recorder = match &opts.record {
         Some(path) => match Recorder::open_with_survey(path, opts.survey.as_deref()) {
@@ -615,6 +642,7 @@ pub fn session(
     };
     let mut s = Session::new(opts, port, out, observe, recorder, client.outbox(), t0);
     s.gnss = gnss;
+    s.marks = marks;
     let mut last_open_try = t0;
     let result = loop {
         let now = Instant::now();

@@ -13,8 +13,10 @@ use crate::analyze::live::LiveEstimate;
 use crate::gnss::{Placed, Receiver};
 use crate::link::{Client, Greeting, Outbox, check_version};
 use crate::recording::HostRecord;
+use crate::recording::mark::Mark;
 use crate::recording::{self, FrameCounter, Recorder};
 
+use super::marks::{MarkInbox, MarkRefused};
 use super::{
     HANDSHAKE, LinkPhase, LinkState, ListenError, ListenOptions, Outcome, REOPEN_INTERVAL, STALL_TIMEOUT,
     START_TIMEOUT, STOP_ACK_TIMEOUT, StatusLine, Summary, telemetry,
@@ -78,6 +80,10 @@ pub(super) struct Session<'a> {
     pub(super) gnss: Option<Receiver>,
     /// The last profile: when it arrived, its time and odometer (µm).
     last_head: Option<(Instant, u64, i64)>,
+    /// The last profile's `seq`.
+    last_seq: u32,
+    /// Where event marks arrive.
+    pub(super) marks: Option<&'a MarkInbox>,
     /// When the last fix arrived.
     last_fix_at: Option<Instant>,
     t0: Instant,
@@ -224,6 +230,7 @@ impl Session<'_> {
         self.first_profile.get_or_insert(now);
         self.last_profile = Some(now);
         self.last_head = Some((now, p.timestamp_us, p.odometer_um));
+        self.last_seq = p.seq;
         self.sum.profiles += 1;
         self.live.push(p);
         let n = recording::points(p);
@@ -411,6 +418,8 @@ impl<'a> Session<'a> {
             live: LiveEstimate::default(),
             gnss: None,
             last_head: None,
+            last_seq: 0,
+            marks: None,
             last_fix_at: None,
             t0,
         }
@@ -450,6 +459,48 @@ impl<'a> Session<'a> {
             }
             g.fixes += 1;
             g.last = Some(placed.fix);
+        }
+    }
+
+    /// The marks waiting: each placed at the latest profile, recorded and
+    /// answered. Never waits.
+    fn marks_step(&mut self) {
+        let Some(inbox) = self.marks else { return };
+        if self.recorder.is_some() {
+            self.sum.marks.get_or_insert((0, 0));
+        }
+        for req in inbox.0.try_iter() {
+            self.sum.marks.get_or_insert((0, 0));
+            let placed = match (&mut self.recorder, self.last_head) {
+                _ if self.fatal.is_some() => Err(MarkRefused::Busy),
+                (None, _) => Err(MarkRefused::NotRecording),
+                (Some(rec), _) if !rec.holds_marks() => Err(MarkRefused::Format(rec.format())),
+                (_, None) => Err(MarkRefused::NoFrame),
+                (Some(rec), Some((arrived, head_us, odometer_um))) => {
+                    let at = Instant::now();
+                    let mark = Mark {
+                        kind: req.entry.kind,
+                        text: req.entry.text,
+                        host_us: at.saturating_duration_since(self.t0).as_micros() as u64,
+                        seq: self.last_seq,
+                        head_us,
+                        odometer_um,
+                        after_us: at.saturating_duration_since(arrived).as_micros() as u64,
+                    };
+                    match rec.write_host_record(&HostRecord::Mark(mark.clone())) {
+                        Ok(()) => Ok(mark),
+                        Err(e) => {
+                            let why = e.to_string();
+                            self.fatal = Some(ListenError::Record(e));
+                            Err(MarkRefused::Write(why))
+                        }
+                    }
+                }
+            };
+            if let Some((kept, refused)) = &mut self.sum.marks {
+                if placed.is_ok() { *kept += 1 } else { *refused += 1 }
+            }
+            (req.reply)(placed);
         }
     }
 
@@ -507,6 +558,7 @@ impl<'a> Session<'a> {
             self.trouble(now, e.to_string());
         }
         self.gnss_step();
+        self.marks_step();
         if let Some(rec) = &mut self.recorder
             && let Err(e) = rec.tick()
         {
@@ -588,8 +640,9 @@ impl<'a> Session<'a> {
             let _ = client.transmit(Instant::now());
         }
         status.finish();
-        // The fixes that arrived up to the end are kept.
+        // The fixes and marks that arrived up to the end are kept.
         self.gnss_step();
+        self.marks_step();
         if let Some(g) = &mut self.sum.gnss
             && let Some(rx) = &self.gnss
         {

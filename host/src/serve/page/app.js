@@ -1,6 +1,7 @@
 // The live view: one WebSocket of updates from cms-host (the newest frame
 // and every figure, as JSON), figures written on arrival, plots drawn on
-// the next animation frame. Read-only: nothing is ever sent.
+// the next animation frame. The one thing it sends: an event mark
+// (POST /marks), from a button or its key.
 "use strict";
 
 const $ = (id) => document.getElementById(id);
@@ -173,6 +174,50 @@ function connect() {
   };
 }
 
+// Event marks: a button, or its key while the text box is not being typed
+// in; the answer (the mark as recorded, or why not) shown beside them.
+const markKeys = { w: "weld", j: "joint", k: "kilometre_post", d: "defect", n: "note" };
+let marksMade = 0;
+
+async function mark(kind) {
+  const box = $("marktext");
+  const result = $("markresult");
+  result.className = "";
+  result.textContent = "marking…";
+  try {
+    const r = await fetch("/marks", {
+      method: "POST",
+      headers: { "Content-Type": "application/json" },
+      body: JSON.stringify({ kind, text: box.value }),
+    });
+    const body = await r.text();
+    if (r.status === 201) {
+      const m = JSON.parse(body);
+      marksMade += 1;
+      const at = m.chainage ? `chainage ${m.chainage}` : `odometer ${fmt(m.odometer_mm, 1, "mm")}`;
+      result.textContent = `${m.kind.replace("_", " ")}${m.text ? " “" + m.text + "”" : ""} marked at ${at}`;
+      result.className = "ok";
+      box.value = "";
+    } else {
+      result.textContent = `not marked: ${body.trim()}`;
+      result.className = "bad";
+    }
+  } catch (e) {
+    result.textContent = `not marked: ${e}`;
+    result.className = "bad";
+  }
+}
+
+for (const b of document.querySelectorAll("#marks button")) b.addEventListener("click", () => mark(b.dataset.kind));
+document.addEventListener("keydown", (ev) => {
+  if (ev.target === $("marktext")) {
+    if (ev.key === "Escape") ev.target.blur();
+    return;
+  }
+  const kind = markKeys[ev.key.toLowerCase()];
+  if (kind && !ev.ctrlKey && !ev.metaKey && !ev.altKey) { ev.preventDefault(); mark(kind); }
+});
+
 // For a test or a person with the console: updates received, and since when.
-window.cmsView = () => ({ updates, since_ms: firstUpdate === null ? null : performance.now() - firstUpdate });
+window.cmsView = () => ({ updates, marks: marksMade, since_ms: firstUpdate === null ? null : performance.now() - firstUpdate });
 connect();

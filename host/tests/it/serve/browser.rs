@@ -262,6 +262,12 @@ fn a_real_browser_shows_the_recorded_frames_live() {
         "live frames and corrugation estimates",
     );
     let shown = b.eval(SHOWN);
+    // Two event marks: the Weld button clicked, then D typed with the text box filled.
+    b.eval("document.querySelector('#marks button[data-kind=weld]').click(); return null;");
+    b.wait_for("return window.cmsView().marks === 1", Duration::from_secs(30), "a weld marked");
+    b.eval("document.getElementById('marktext').value = 'squat'; document.dispatchEvent(new KeyboardEvent('keydown', { key: 'd' })); return null;");
+    b.wait_for("return window.cmsView().marks === 2", Duration::from_secs(30), "a defect marked");
+    let marked = b.eval("return document.getElementById('markresult').textContent;");
     let png = b.screenshot();
     let urls = b.requested();
     drop(b);
@@ -320,6 +326,18 @@ fn a_real_browser_shows_the_recorded_frames_live() {
     assert!(number(&shown["speedlimit"]) > 1.0, "{shown}");
     assert_eq!(shown["speedwarn"], "");
     assert!(view_figure(&stderr, "updates to 1 pages") >= 30, "{stderr}");
+    // The marks the page made are the recording's.
+    assert!(marked.as_str().unwrap().starts_with("defect “squat” marked at odometer "), "{marked}");
+    let mut marks = Vec::new();
+    cms_host::recording::scan_records(&rec_path, std::fs::File::open(&rec_path).unwrap(), |item| {
+        if let cms_host::recording::Item::Host(cms_host::recording::HostRecord::Mark(m)) = item {
+            marks.push((m.kind.name(), m.text.clone()));
+        }
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(marks, [("weld", String::new()), ("defect", "squat".to_string())]);
+    assert!(stderr.contains("listen: marks: 2 recorded, 0 refused"), "{stderr}");
 }
 
 /// Updates a second of every page but the frozen one, and the run's
