@@ -90,6 +90,21 @@ pub struct RecordingArgs {
     /// Seed of the noise and the head's bounce.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// The survey the recording says it is of (line, track, date, start
+    /// chainage…: `listen --survey`'s TOML), in its header.
+    #[arg(long, value_name = "FILE.toml")]
+    pub survey: Option<PathBuf>,
+    /// A survey's rail instead of corrugation everywhere: broadband
+    /// roughness under every limit and a corrugated zone `FROM:TO` m of
+    /// track position (`--wavelength-mm`, `--amplitude-um`).
+    #[arg(long = "zone-m", value_name = "FROM:TO", value_parser = zone_m)]
+    pub zone_m: Option<(f64, f64)>,
+    /// The zone's corrugation wavelength, mm (10 to 1000).
+    #[arg(long = "wavelength-mm", default_value_t = 50.0, value_parser = wavelength_mm, requires = "zone_m")]
+    pub wavelength_mm: f64,
+    /// The zone's corrugation amplitude, µm (0 to 1000).
+    #[arg(long = "amplitude-um", default_value_t = 20.0, value_parser = amplitude_um, requires = "zone_m")]
+    pub amplitude_um: f64,
     /// The recording to write.
     #[arg(long, value_name = "FILE.cmsrec")]
     pub out: PathBuf,
@@ -104,6 +119,27 @@ fn beam_length_m(s: &str) -> Result<f64, String> {
             Ok(v)
         }
         _ => Err(format!("`{s}` is not a beam length in m (2.4 to 100)")),
+    }
+}
+
+fn zone_m(s: &str) -> Result<(f64, f64), String> {
+    let bad = || format!("`{s}` is not a zone FROM:TO in m (FROM below TO, within ±1e6)");
+    let (a, b) = s.split_once(':').ok_or_else(bad)?;
+    let (a, b) = (a.trim().parse::<f64>().map_err(|_| bad())?, b.trim().parse::<f64>().map_err(|_| bad())?);
+    if a.is_finite() && b.is_finite() && a < b && a.abs() <= 1e6 && b.abs() <= 1e6 { Ok((a, b)) } else { Err(bad()) }
+}
+
+fn wavelength_mm(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if (10.0..=1000.0).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}` is not a wavelength in mm (10 to 1000)")),
+    }
+}
+
+fn amplitude_um(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if (0.0..=1000.0).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}` is not an amplitude in µm (0 to 1000)")),
     }
 }
 
@@ -274,10 +310,24 @@ fn annex_a(a: &AnnexAArgs) -> Result<String> {
 }
 
 fn recording(a: &RecordingArgs) -> Result<String> {
+    let survey = match &a.survey {
+        Some(path) => Some(cms_host::recording::survey_info::Survey::load(path)?.to_text()),
+        None => None,
+    };
+    let rail = match a.zone_m {
+        Some((from, to)) => cms_host::sim::synthetic::Rail::Survey {
+            zone_mm: (from * 1000.0, to * 1000.0),
+            wavelength_mm: a.wavelength_mm,
+            amplitude_um: a.amplitude_um,
+        },
+        None => cms_host::sim::synthetic::Rail::Corrugated,
+    };
     let opts = cms_host::sim::synthetic::Options {
         frames: a.frames,
         step_mm: a.step_mm,
         seed: a.seed,
+        rail,
+        survey,
         ..cms_host::sim::synthetic::Options::default()
     };
     let t = Instant::now();

@@ -10,6 +10,7 @@
 //! rail = "left"                 # left | right, facing the direction chainage runs
 //! start_chainage = "12+345.600" # of the odometer's zero (km+m, or metres)
 //! chainage = "up"               # up | down: chainage with the odometer
+//! date = "2026-12-04"         # the day of the run, YYYY-MM-DD
 //! operator = "A. Engineer"
 //! instrument = "CMS head 0042"
 //! notes = "after grinding, pass 2"
@@ -46,6 +47,8 @@ pub struct Survey {
     pub start_chainage: Option<String>,
     /// `up` or `down`: chainage with the odometer.
     pub chainage: Option<String>,
+    /// The day of the run, `YYYY-MM-DD` (a fleet's surveys partitioned by year).
+    pub date: Option<String>,
     pub operator: Option<String>,
     pub instrument: Option<String>,
     pub notes: Option<String>,
@@ -74,6 +77,9 @@ pub enum SurveyError {
     /// The survey's `chainage`, neither up nor down.
     #[error("chainage: `{0}` is neither up nor down")]
     Heading(String),
+    /// The survey's `date`, not a `YYYY-MM-DD` day.
+    #[error("date: `{0}` is not a day (YYYY-MM-DD)")]
+    Date(String),
     /// A placement's heading, neither up nor down.
     #[error("`{0}`: heading `{1}` is neither up nor down")]
     PlacementHeading(String, String),
@@ -87,7 +93,35 @@ impl Survey {
         }
         let s: Survey = toml::from_str(text).map_err(|e| SurveyError::Toml(e.message().to_string()))?;
         s.placement()?;
+        s.day()?;
         Ok(s)
+    }
+
+    /// The `date` as (year, month, day), checked (the Gregorian calendar's
+    /// month lengths, years 1000 to 9999).
+    pub fn day(&self) -> Result<Option<(u16, u8, u8)>, SurveyError> {
+        let Some(text) = &self.date else { return Ok(None) };
+        let bad = || SurveyError::Date(text.clone());
+        let parts: Vec<&str> = text.trim().split('-').collect();
+        let [y, m, d] = parts.as_slice() else { return Err(bad()) };
+        let digits = |t: &str, n: usize| t.len() == n && t.bytes().all(|b| b.is_ascii_digit());
+        if !(digits(y, 4) && digits(m, 2) && digits(d, 2)) {
+            return Err(bad());
+        }
+        let (y, m, d): (u16, u8, u8) =
+            (y.parse().map_err(|_| bad())?, m.parse().map_err(|_| bad())?, d.parse().map_err(|_| bad())?);
+        let leap = (y % 4 == 0 && y % 100 != 0) || y % 400 == 0;
+        let days = match m {
+            1 | 3 | 5 | 7 | 8 | 10 | 12 => 31,
+            4 | 6 | 9 | 11 => 30,
+            2 if leap => 29,
+            2 => 28,
+            _ => return Err(bad()),
+        };
+        if y < 1000 || d == 0 || d > days {
+            return Err(bad());
+        }
+        Ok(Some((y, m, d)))
     }
 
     /// The placement of the run it describes.
@@ -103,6 +137,20 @@ impl Survey {
             Some(o) => return Err(SurveyError::Heading(o.to_string())),
         };
         Ok(Placement { start_m, heading })
+    }
+
+    /// Reads and checks a survey file (at most one byte past
+    /// [`MAX_BYTES`] is read: a device or a huge file is refused by its
+    /// size, not read without end); the error names the file.
+    pub fn load(path: &std::path::Path) -> Result<Survey, crate::Error> {
+        use std::io::Read as _;
+        let name = path.display();
+        let mut bytes = Vec::new();
+        std::fs::File::open(path)
+            .and_then(|f| f.take(MAX_BYTES as u64 + 1).read_to_end(&mut bytes))
+            .map_err(|e| crate::Error::Input(format!("cannot read {name}: {e}")))?;
+        let text = String::from_utf8(bytes).map_err(|_| crate::Error::Input(format!("{name}: not UTF-8 text")))?;
+        Survey::parse(&text).map_err(|e| crate::Error::Input(format!("{name}: {e}")))
     }
 
     /// The text stored in a recording.
@@ -135,6 +183,9 @@ impl Survey {
                 (None, Some(h)) => parts.push(format!("chainage {}", h.name())),
                 (None, None) => {}
             }
+        }
+        if let Ok(Some((y, m, d))) = self.day() {
+            parts.push(format!("on {y:04}-{m:02}-{d:02}"));
         }
         if let Some(o) = &self.operator {
             parts.push(format!("operator {}", printable(o)));
@@ -287,6 +338,15 @@ notes = "pass 2\u001b]0;owned\u0007\nsecond line"
     }
 
     #[test]
+    fn a_date_is_a_day() {
+        let s = Survey::parse("date = \"2024-02-29\"\n").unwrap();
+        assert_eq!(s.day().unwrap(), Some((2024, 2, 29)));
+        assert!(s.describe().contains("on 2024-02-29"), "{}", s.describe());
+        assert!(Survey::parse("date = \"2023-02-29\"\n").is_err());
+        assert_eq!(Survey::default().day().unwrap(), None);
+    }
+
+    #[test]
     fn chainages_are_plain_decimals() {
         for (text, m) in
             [("12+345.678", 12_345.678), ("0+000", 0.0), ("12345.5", 12_345.5), ("-0+250", -250.0), ("7", 7.0)]
@@ -309,6 +369,9 @@ notes = "pass 2\u001b]0;owned\u0007\nsecond line"
             ("start_chainage = \"12+3456\"\n", "start_chainage"),
             ("chainage = \"sideways\"\n", "sideways"),
             ("line = 3\n", "string"),
+            ("date = \"2026-02-30\"\n", "date"),
+            ("date = \"26-12-04\"\n", "date"),
+            ("date = \"2026-13-01\"\n", "date"),
         ] {
             let e = Survey::parse(text).unwrap_err();
             assert!(e.to_string().contains(want), "{text}: {e}");

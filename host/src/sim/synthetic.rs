@@ -59,6 +59,8 @@ pub struct Options {
     pub reverse: bool,
     /// The calibration id its `Hello` names (another id: another head).
     pub calibration_id: u32,
+    /// The survey block's text (`listen --survey`'s TOML, checked by the caller).
+    pub survey: Option<String>,
 }
 
 impl Default for Options {
@@ -73,6 +75,7 @@ impl Default for Options {
             start_mm: 0.0,
             reverse: false,
             calibration_id: CALIBRATION_ID,
+            survey: None,
         }
     }
 }
@@ -145,7 +148,7 @@ pub fn write_to(w: &mut dyn Write, opts: &Options, progress: &dyn Progress) -> i
         let bytes = protocol::encode(msg, &mut out).map_err(|e| io::Error::other(format!("{e:?}")))?;
         w.write_all(bytes)
     };
-    w.write_all(&recording::header())?;
+    w.write_all(&recording::header_and_survey(opts.survey.as_deref()))?;
     let mut board = heapless::String::new();
     let _ = board.push_str("synthetic");
     let hello = DeviceInfo {
