@@ -90,6 +90,9 @@ pub struct RecordingArgs {
     /// Seed of the noise and the head's bounce.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Points per laser line and frame (2 to the protocol's rows per profile; fewer: a smaller, faster file).
+    #[arg(long, default_value_t = 480, value_parser = clap::value_parser!(u16).range(2..=cms_core::protocol::MAX_ROWS_PER_PROFILE as i64))]
+    pub points: u16,
     /// The survey the recording says it is of (line, track, date, start
     /// chainage…: `listen --survey`'s TOML), in its header.
     #[arg(long, value_name = "FILE.toml")]
@@ -326,6 +329,7 @@ fn recording(a: &RecordingArgs) -> Result<String> {
         frames: a.frames,
         step_mm: a.step_mm,
         seed: a.seed,
+        points_per_line: a.points,
         rail,
         survey,
         ..cms_host::sim::synthetic::Options::default()
