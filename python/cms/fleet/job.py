@@ -229,7 +229,7 @@ def client_for(workers: Optional[int], scheduler: Optional[str]):
 
     if scheduler:
         return Client(scheduler)
-    cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True, dashboard_address=None)
+    cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True, dashboard_address=":0")
     return Client(cluster)
 
 
