@@ -18,6 +18,7 @@ mod hostile_survey;
 mod input_props;
 mod listen;
 mod measure;
+mod python;
 mod real_light;
 mod record;
 mod render;

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import shutil
 import sys
@@ -227,9 +228,17 @@ def client_for(workers: Optional[int], scheduler: Optional[str]):
     LocalCluster of ``workers`` single-threaded processes."""
     from dask.distributed import Client, LocalCluster
 
+    # The cluster's own lines (workers starting, closing) are not the job's output.
+    logging.getLogger("distributed").setLevel(logging.WARNING)
     if scheduler:
         return Client(scheduler)
-    cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True, dashboard_address=":0")
+    cluster = LocalCluster(
+        n_workers=workers or os.cpu_count() or 1,
+        threads_per_worker=1,
+        processes=True,
+        dashboard_address=":0",
+        silence_logs=logging.WARNING,
+    )
     return Client(cluster)
 
 
