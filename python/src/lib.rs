@@ -208,6 +208,9 @@ fn registration(s: Option<&str>) -> PyResult<Registration> {
     }
 }
 
+/// The three tables (profile, blocks, zones) as lists of columns, and the report's JSON text.
+type Analysed<'py> = (Bound<'py, PyList>, Bound<'py, PyList>, Bound<'py, PyList>, String);
+
 /// `cms-host analyze PATHS… --json --parquet`: the tables (profile,
 /// blocks, zones) as lists of columns and the report's JSON text.
 #[pyfunction]
@@ -233,7 +236,7 @@ fn analyze<'py>(
     calibration: Option<PathBuf>,
     allow_repeated_runs: bool,
     allow_mixed_heads: bool,
-) -> PyResult<(Bound<'py, PyList>, Bound<'py, PyList>, Bound<'py, PyList>, String)> {
+) -> PyResult<Analysed<'py>> {
     if paths.is_empty() {
         return Err(Error::new_err("the following required arguments were not provided: <RECORDING|PROFILE.csv>..."));
     }
