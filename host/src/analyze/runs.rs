@@ -8,7 +8,9 @@
 use std::path::{Path, PathBuf};
 
 use crate::Error;
-use crate::analyze::stitch::{self, Stitcher};
+use crate::analyze::reprofiling::{self, Edition};
+use crate::analyze::standards::en15610;
+use crate::analyze::stitch::{self, Direction, Registration, Stitcher};
 use crate::analyze::survey::{self, Placement};
 use crate::analyze::{self, Analysis, Options, Recording, RunsAllowed, Source, profile};
 use crate::calib::file::CalibrationFile;
@@ -36,6 +38,104 @@ pub struct Request {
     /// Options given that apply only to recordings (their flags, to name
     /// them when the input is a profile: refused, never ignored).
     pub recording_only: Vec<String>,
+}
+
+/// The settings a user gives `analyze` (the command line's flags, the
+/// Python package's arguments), with the command line's defaults.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Settings {
+    pub edition: Edition,
+    /// Block length for block RMS and the per-block spectrum, m.
+    pub block_m: f64,
+    /// The stitched profile's sample spacing, mm (`None`: 1 mm).
+    pub dx_mm: Option<f64>,
+    pub direction: Direction,
+    pub registration: Registration,
+    /// EN 15610 Welch segment length, mm.
+    pub segment_mm: f64,
+    pub remove_spikes: bool,
+    pub curvature: bool,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            edition: Edition::En2006,
+            block_m: 50.0,
+            dx_mm: None,
+            direction: Direction::Auto,
+            registration: Registration::Offset,
+            segment_mm: en15610::MIN_SEGMENT_MM,
+            remove_spikes: true,
+            curvature: true,
+        }
+    }
+}
+
+impl Settings {
+    /// The analysis options these settings ask for.
+    pub fn options(&self) -> Options {
+        Options {
+            stitch: stitch::Options {
+                dx_mm: self.dx_mm.unwrap_or(1.0),
+                direction: self.direction,
+                registration: self.registration,
+                ..stitch::Options::default()
+            },
+            roughness: en15610::Options {
+                segment_mm: self.segment_mm,
+                remove_spikes: self.remove_spikes,
+                curvature: self.curvature,
+                ..en15610::Options::default()
+            },
+            verdict: reprofiling::Options { edition: self.edition, block_mm: self.block_m * 1000.0 },
+        }
+    }
+}
+
+/// A numeric setting of `analyze`, and the values it takes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Range {
+    /// Block length, m: shorter than a metre holds under one period of the
+    /// longest band's wavelengths (300–1000 mm); longer than a kilometre is
+    /// no longer a place on the track a verdict can point at.
+    BlockM,
+    /// How far registration may move a run, m.
+    SearchM,
+    /// Sample spacing, mm: finer than 0.05 mm is below every head's
+    /// sampling along the rail (the reference head's rows are 0.144 mm
+    /// apart) and only multiplies the work; coarser than 10 mm cannot show
+    /// the shortest wavelength judged (10 mm).
+    DxMm,
+    /// EN 15610 Welch segment length, mm.
+    SegmentMm,
+}
+
+impl Range {
+    /// (lowest, highest), whether the lowest is excluded, what the value is.
+    fn bounds(self) -> ((f64, f64), bool, &'static str) {
+        match self {
+            Range::BlockM => ((1.0, 1000.0), false, "a block length in m"),
+            Range::SearchM => ((0.0, 1000.0), true, "a search distance in m"),
+            Range::DxMm => ((0.05, 10.0), false, "a sample spacing in mm"),
+            Range::SegmentMm => ((en15610::MIN_SEGMENT_MM, 1e6), false, "an EN 15610 segment length in mm"),
+        }
+    }
+
+    /// The value `s` names, in range; else an error naming the value and the range.
+    pub fn parse(self, s: &str) -> Result<f64, Error> {
+        let ((lo, hi), open, what) = self.bounds();
+        match s.trim().parse::<f64>() {
+            Ok(v) if v.is_finite() && (v > lo || (!open && v == lo)) && v <= hi => Ok(v),
+            _ => Err(Error::Input(format!("`{s}` is not {what} ({}{lo} to {hi})", if open { "above " } else { "" }))),
+        }
+    }
+
+    /// `v`, in range; else the error of [`Range::parse`].
+    pub fn check(self, v: f64) -> Result<f64, Error> {
+        self.parse(&v.to_string())
+    }
 }
 
 /// Analyses what `req` names: the inputs read, joined and judged.
@@ -92,10 +192,8 @@ pub fn run(req: &Request, opts: &Options, progress: &dyn Progress) -> Result<(So
         let mut recs = Vec::new();
         for path in &req.inputs {
             let (mut rec, stitching) = read_run(path, &opts, calibration.as_ref(), progress)?;
-            let name = path.display();
-            if let Some(text) = crate::recording::survey_of(path).map_err(Error::from)? {
-                let survey = Survey::parse(&text).map_err(|e| Error::Input(format!("{name}: survey block: {e}")))?;
-                rec.survey = Some(survey);
+            if let Some(sv) = self::survey(path)? {
+                rec.survey = Some(sv);
             }
             recs.push((path.clone(), rec));
             runs.push(stitching);
@@ -120,6 +218,13 @@ pub fn run(req: &Request, opts: &Options, progress: &dyn Progress) -> Result<(So
         survey::join(runs, &placements, &join_opts).map_err(|e| Error::Input(format!("{}: {e}", source.name())))?;
     let a = analyze::judge(stitching, joins, &opts);
     Ok((source, a))
+}
+
+/// The survey block of a recording, checked (`None`: none given).
+pub fn survey(path: &Path) -> Result<Option<Survey>, Error> {
+    let Some(text) = crate::recording::survey_of(path).map_err(Error::from)? else { return Ok(None) };
+    let survey = Survey::parse(&text).map_err(|e| Error::Input(format!("{}: survey block: {e}", path.display())))?;
+    Ok(Some(survey))
 }
 
 /// Whether a file is a recording (by its magic) rather than a profile.

@@ -5,9 +5,9 @@ use std::path::PathBuf;
 
 use clap::{Args, ValueEnum};
 use cms_host::Error;
-use cms_host::analyze::reprofiling::{self, Edition};
+use cms_host::analyze::reprofiling::Edition;
 use cms_host::analyze::standards::en15610;
-use cms_host::analyze::stitch::{self, Direction, Registration};
+use cms_host::analyze::stitch::{Direction, Registration};
 use cms_host::analyze::survey::Placement;
 use cms_host::analyze::{self, Options, runs};
 
@@ -133,69 +133,50 @@ fn placement(s: &str) -> Result<Placement, String> {
     s.parse().map_err(|e: cms_host::recording::survey_info::SurveyError| e.to_string())
 }
 
-/// A number in `lo..=hi` (`lo` itself excluded when `open`), else an
-/// error naming the value and the range.
-fn in_range(s: &str, (lo, hi): (f64, f64), open: bool, what: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(v) if v.is_finite() && (v > lo || (!open && v == lo)) && v <= hi => Ok(v),
-        _ => Err(format!("`{s}` is not {what} ({}{lo} to {hi})", if open { "above " } else { "" })),
-    }
+fn block_m(s: &str) -> Result<f64, cms_host::Error> {
+    runs::Range::BlockM.parse(s)
 }
 
-/// A block shorter than a metre holds under one period of the longest
-/// band's wavelengths (300–1000 mm); one longer than a kilometre is no
-/// longer a place on the track a verdict can point at.
-fn block_m(s: &str) -> Result<f64, String> {
-    in_range(s, (1.0, 1000.0), false, "a block length in m")
+fn search_m(s: &str) -> Result<f64, cms_host::Error> {
+    runs::Range::SearchM.parse(s)
 }
 
-fn search_m(s: &str) -> Result<f64, String> {
-    in_range(s, (0.0, 1000.0), true, "a search distance in m")
+fn dx_mm(s: &str) -> Result<f64, cms_host::Error> {
+    runs::Range::DxMm.parse(s)
 }
 
-/// Finer than 0.05 mm is below every head's sampling along the rail (the
-/// reference head's rows are 0.144 mm apart) and only multiplies the work;
-/// coarser than 10 mm cannot show the shortest wavelength judged (10 mm).
-fn dx_mm(s: &str) -> Result<f64, String> {
-    in_range(s, (0.05, 10.0), false, "a sample spacing in mm")
-}
-
-fn segment_mm(s: &str) -> Result<f64, String> {
-    in_range(s, (en15610::MIN_SEGMENT_MM, 1e6), false, "an EN 15610 segment length in mm")
+fn segment_mm(s: &str) -> Result<f64, cms_host::Error> {
+    runs::Range::SegmentMm.parse(s)
 }
 
 impl AnalysisArgs {
     /// The analysis options these arguments ask for.
     pub fn options(&self) -> Options {
-        Options {
-            stitch: stitch::Options {
-                dx_mm: self.dx_mm.unwrap_or(1.0),
-                direction: match self.direction.unwrap_or(DirectionArg::Auto) {
-                    DirectionArg::Auto => Direction::Auto,
-                    DirectionArg::Forward => Direction::Forward,
-                    DirectionArg::Reverse => Direction::Reverse,
-                },
-                registration: match self.register.unwrap_or(RegisterArg::Offset) {
-                    RegisterArg::OffsetTilt => Registration::OffsetTilt,
-                    RegisterArg::Offset => Registration::Offset,
-                    RegisterArg::None => Registration::None,
-                },
-                ..stitch::Options::default()
+        let defaults = runs::Settings::default();
+        runs::Settings {
+            edition: match self.edition {
+                EditionArg::En2006 => Edition::En2006,
+                EditionArg::En2012 => Edition::En2012,
             },
-            roughness: en15610::Options {
-                segment_mm: self.segment_mm,
-                remove_spikes: !self.no_spike_removal,
-                curvature: !self.no_curvature,
-                ..en15610::Options::default()
+            block_m: self.block_m,
+            dx_mm: self.dx_mm,
+            direction: match self.direction {
+                None => defaults.direction,
+                Some(DirectionArg::Auto) => Direction::Auto,
+                Some(DirectionArg::Forward) => Direction::Forward,
+                Some(DirectionArg::Reverse) => Direction::Reverse,
             },
-            verdict: reprofiling::Options {
-                edition: match self.edition {
-                    EditionArg::En2006 => Edition::En2006,
-                    EditionArg::En2012 => Edition::En2012,
-                },
-                block_mm: self.block_m * 1000.0,
+            registration: match self.register {
+                None => defaults.registration,
+                Some(RegisterArg::OffsetTilt) => Registration::OffsetTilt,
+                Some(RegisterArg::Offset) => Registration::Offset,
+                Some(RegisterArg::None) => Registration::None,
             },
+            segment_mm: self.segment_mm,
+            remove_spikes: !self.no_spike_removal,
+            curvature: !self.no_curvature,
         }
+        .options()
     }
 
     /// The options given that differ from their defaults, by flag.

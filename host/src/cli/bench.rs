@@ -90,47 +90,34 @@ pub struct RecordingArgs {
     /// Seed of the noise and the head's bounce.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Points per laser line and frame (2 to the protocol's rows per profile; fewer: a smaller, faster file).
+    #[arg(long, default_value_t = 480, value_parser = clap::value_parser!(u16).range(2..=cms_core::protocol::MAX_ROWS_PER_PROFILE as i64))]
+    pub points: u16,
+    /// The survey the recording says it is of (line, track, date, start
+    /// chainage…: `listen --survey`'s TOML), in its header.
+    #[arg(long, value_name = "FILE.toml")]
+    pub survey: Option<PathBuf>,
+    /// A survey's rail instead of corrugation everywhere: broadband
+    /// roughness under every limit and a corrugated zone `FROM:TO` m of
+    /// track position (`--wavelength-mm`, `--amplitude-um`).
+    #[arg(long = "zone-m", value_name = "FROM:TO", value_parser = zone_m)]
+    pub zone_m: Option<(f64, f64)>,
+    /// The zone's corrugation wavelength, mm (10 to 1000).
+    #[arg(long = "wavelength-mm", default_value_t = 50.0, value_parser = wavelength_mm, requires = "zone_m")]
+    pub wavelength_mm: f64,
+    /// The zone's corrugation amplitude, µm (0 to 1000).
+    #[arg(long = "amplitude-um", default_value_t = 20.0, value_parser = amplitude_um, requires = "zone_m")]
+    pub amplitude_um: f64,
     /// The recording to write.
     #[arg(long, value_name = "FILE.cmsrec")]
     pub out: PathBuf,
-    /// A survey's rail instead of the default's corrugation everywhere:
-    /// broadband roughness, and corrugation of this amplitude (µm, 0 to
-    /// 1000) at --wavelength-mm over --zone-m.
-    #[arg(long = "corrugation-um", value_parser = corrugation_um)]
-    pub corrugation_um: Option<f64>,
-    /// The corrugated zone, track positions FROM:TO in m (with --corrugation-um).
-    #[arg(long = "zone-m", value_name = "FROM:TO", value_parser = zone_m, requires = "corrugation_um")]
-    pub zone_m: Option<(f64, f64)>,
-    /// The corrugation's wavelength, mm (with --corrugation-um).
-    #[arg(long = "wavelength-mm", default_value_t = 50.0, value_parser = wavelength_mm)]
-    pub wavelength_mm: f64,
-    /// The run's start: the chainage of the odometer's zero (km+m or m), in its survey block.
-    #[arg(long = "start-chainage", value_name = "KM+M")]
+    /// The run's start in its survey block: the chainage of the
+    /// odometer's zero (km+m or m; not with --survey).
+    #[arg(long = "start-chainage", value_name = "KM+M", conflicts_with = "survey")]
     pub start_chainage: Option<String>,
-    /// The survey's date, YYYY-MM-DD, in its survey block.
-    #[arg(long, value_name = "YYYY-MM-DD")]
+    /// The survey's date in its survey block, YYYY-MM-DD (not with --survey).
+    #[arg(long, value_name = "YYYY-MM-DD", conflicts_with = "survey")]
     pub date: Option<String>,
-}
-
-fn corrugation_um(s: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(v) if (0.0..=1000.0).contains(&v) => Ok(v),
-        _ => Err(format!("`{s}` is not a corrugation amplitude in µm (0 to 1000)")),
-    }
-}
-
-fn wavelength_mm(s: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(v) if (2.0..=5000.0).contains(&v) => Ok(v),
-        _ => Err(format!("`{s}` is not a wavelength in mm (2 to 5000)")),
-    }
-}
-
-fn zone_m(s: &str) -> Result<(f64, f64), String> {
-    let bad = || format!("`{s}` is not a zone FROM:TO in m (FROM below TO)");
-    let (a, b) = s.split_once(':').ok_or_else(bad)?;
-    let (a, b): (f64, f64) = (a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?);
-    if a.is_finite() && b.is_finite() && a < b && a.abs() <= 1e8 && b.abs() <= 1e8 { Ok((a, b)) } else { Err(bad()) }
 }
 
 /// A beam shorter than 2.4 m leaves the 100–300 mm band no settled
@@ -142,6 +129,27 @@ fn beam_length_m(s: &str) -> Result<f64, String> {
             Ok(v)
         }
         _ => Err(format!("`{s}` is not a beam length in m (2.4 to 100)")),
+    }
+}
+
+fn zone_m(s: &str) -> Result<(f64, f64), String> {
+    let bad = || format!("`{s}` is not a zone FROM:TO in m (FROM below TO, within ±1e6)");
+    let (a, b) = s.split_once(':').ok_or_else(bad)?;
+    let (a, b) = (a.trim().parse::<f64>().map_err(|_| bad())?, b.trim().parse::<f64>().map_err(|_| bad())?);
+    if a.is_finite() && b.is_finite() && a < b && a.abs() <= 1e6 && b.abs() <= 1e6 { Ok((a, b)) } else { Err(bad()) }
+}
+
+fn wavelength_mm(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if (10.0..=1000.0).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}` is not a wavelength in mm (10 to 1000)")),
+    }
+}
+
+fn amplitude_um(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if (0.0..=1000.0).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}` is not an amplitude in µm (0 to 1000)")),
     }
 }
 
@@ -314,14 +322,17 @@ fn annex_a(a: &AnnexAArgs) -> Result<String> {
 fn recording(a: &RecordingArgs) -> Result<String> {
     use cms_host::recording::survey_info::Survey;
     use cms_host::sim::synthetic::Rail;
-    let rail = match a.corrugation_um {
-        Some(amplitude_um) => {
-            let zone_m = a.zone_m.unwrap_or((f64::NEG_INFINITY, f64::INFINITY));
-            Rail::Survey { zone_mm: (zone_m.0 * 1e3, zone_m.1 * 1e3), wavelength_mm: a.wavelength_mm, amplitude_um }
-        }
+    let rail = match a.zone_m {
+        Some((from, to)) => Rail::Survey {
+            zone_mm: (from * 1000.0, to * 1000.0),
+            wavelength_mm: a.wavelength_mm,
+            amplitude_um: a.amplitude_um,
+        },
         None => Rail::Corrugated,
     };
-    let survey = if a.start_chainage.is_some() || a.date.is_some() {
+    let survey = if let Some(path) = &a.survey {
+        Some(Survey::load(path)?.to_text())
+    } else if a.start_chainage.is_some() || a.date.is_some() {
         let s = Survey { start_chainage: a.start_chainage.clone(), date: a.date.clone(), ..Survey::default() };
         // The block is checked as `listen --survey` checks a survey file.
         let s = Survey::parse(&s.to_text()).map_err(|e| cms_host::Error::Input(format!("survey block: {e}")))?;
@@ -333,6 +344,7 @@ fn recording(a: &RecordingArgs) -> Result<String> {
         frames: a.frames,
         step_mm: a.step_mm,
         seed: a.seed,
+        points_per_line: a.points,
         rail,
         survey,
         ..cms_host::sim::synthetic::Options::default()

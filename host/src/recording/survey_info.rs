@@ -95,6 +95,12 @@ pub enum SurveyError {
 pub struct SurveyDate(chrono::NaiveDate);
 
 impl SurveyDate {
+    /// The year (a fleet's surveys partitioned by it).
+    pub fn year(self) -> i32 {
+        use chrono::Datelike as _;
+        self.0.year()
+    }
+
     /// Days since 0001-01-01 (proleptic Gregorian).
     pub fn day_number(self) -> i64 {
         use chrono::Datelike as _;
@@ -172,6 +178,20 @@ impl Survey {
             Some(o) => return Err(SurveyError::Heading(o.to_string())),
         };
         Ok(Placement { start_m, heading })
+    }
+
+    /// Reads and checks a survey file (at most one byte past
+    /// [`MAX_BYTES`] is read: a device or a huge file is refused by its
+    /// size, not read without end); the error names the file.
+    pub fn load(path: &std::path::Path) -> Result<Survey, crate::Error> {
+        use std::io::Read as _;
+        let name = path.display();
+        let mut bytes = Vec::new();
+        std::fs::File::open(path)
+            .and_then(|f| f.take(MAX_BYTES as u64 + 1).read_to_end(&mut bytes))
+            .map_err(|e| crate::Error::Input(format!("cannot read {name}: {e}")))?;
+        let text = String::from_utf8(bytes).map_err(|_| crate::Error::Input(format!("{name}: not UTF-8 text")))?;
+        Survey::parse(&text).map_err(|e| crate::Error::Input(format!("{name}: {e}")))
     }
 
     /// The text stored in a recording.
@@ -404,6 +424,9 @@ notes = "pass 2\u001b]0;owned\u0007\nsecond line"
             ("date = \"14/05/2026\"\n", "date"),
             ("date = 2026-05-14\n", "string"),
             ("line = 3\n", "string"),
+            ("date = \"2026-02-30\"\n", "date"),
+            ("date = \"26-12-04\"\n", "date"),
+            ("date = \"2026-13-01\"\n", "date"),
         ] {
             let e = Survey::parse(text).unwrap_err();
             assert!(e.to_string().contains(want), "{text}: {e}");

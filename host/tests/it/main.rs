@@ -19,6 +19,7 @@ mod input_props;
 mod listen;
 mod marks;
 mod measure;
+mod python;
 mod real_light;
 mod record;
 mod render;

@@ -1,0 +1,133 @@
+"""The rail corrugation host library's analysis, for Python.
+
+``cms.analyze`` reads recordings (or one profile file) and analyses them
+exactly as ``cms-host analyze`` does — the same library code — returning
+the tables of ``cms-host analyze --parquet`` as ``pyarrow.Table`` objects
+and the object of ``cms-host analyze --json`` as a dict. ``cms.read_survey``
+gives a recording's survey block (line, track, date, chainage…).
+
+Zero-copy: the Rust side writes every Arrow buffer (values, validity
+bitmaps, string offsets and bytes) once, straight into Python ``bytes``
+objects; here they are wrapped as Arrow buffers (``pa.py_buffer``) without
+a copy. The ``source`` column of the profile (one string on every sample)
+is a dictionary of one value.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Optional, Sequence, Union
+
+import pyarrow as pa
+
+from . import _cms
+from ._cms import SCHEMA_VERSION, Error
+
+__all__ = ["Analysis", "Error", "SCHEMA_VERSION", "analyze", "read_survey"]
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+class Analysis:
+    """One ``analyze`` call's result.
+
+    ``profile``, ``blocks``, ``zones``: the ``pyarrow.Table`` of each export
+    (docs/exports.md, the schema ``SCHEMA_VERSION``); ``summary``: the
+    ``--json`` object. ``tables`` holds the three by name.
+    """
+
+    __slots__ = ("profile", "blocks", "zones", "summary")
+
+    def __init__(self, profile: pa.Table, blocks: pa.Table, zones: pa.Table, summary: dict):
+        self.profile = profile
+        self.blocks = blocks
+        self.zones = zones
+        self.summary = summary
+
+    @property
+    def tables(self) -> dict:
+        return {"profile": self.profile, "blocks": self.blocks, "zones": self.zones}
+
+    def __repr__(self) -> str:
+        rows = ", ".join(f"{k} {t.num_rows} rows" for k, t in self.tables.items())
+        return f"<cms.Analysis {rows}>"
+
+
+_TYPES = {"f64": pa.float64(), "i32": pa.int32(), "bool": pa.bool_(), "str": pa.string()}
+
+
+def _array(kind: str, rows: int, nulls: int, buffers: list) -> pa.Array:
+    if kind == "repeat":
+        # A dictionary of the one value; its int32 indices all zero.
+        indices = pa.Array.from_buffers(pa.int32(), rows, [None, pa.py_buffer(bytes(4 * rows))])
+        return pa.DictionaryArray.from_arrays(indices, pa.array([bytes(buffers[0]).decode()], pa.string()))
+    wrapped = [None if b is None else pa.py_buffer(b) for b in buffers]
+    return pa.Array.from_buffers(_TYPES[kind], rows, wrapped, null_count=nulls)
+
+
+def _table(columns: list) -> pa.Table:
+    arrays, fields = [], []
+    for name, kind, nullable, rows, nulls, buffers in columns:
+        a = _array(kind, rows, nulls, buffers)
+        arrays.append(a)
+        fields.append(pa.field(name, a.type, nullable=nullable))
+    meta = {b"cms.schema": SCHEMA_VERSION.encode()}
+    return pa.Table.from_arrays(arrays, schema=pa.schema(fields, metadata=meta))
+
+
+def analyze(
+    paths: Union[PathLike, Sequence[PathLike]],
+    chainage: Optional[Sequence[str]] = None,
+    edition: str = "2006",
+    block_m: float = 50.0,
+    search_m: float = 25.0,
+    dx_mm: Optional[float] = None,
+    direction: Optional[str] = None,
+    register: Optional[str] = None,
+    segment_mm: float = 1000.0,
+    spike_removal: bool = True,
+    curvature: bool = True,
+    calibration: Optional[PathLike] = None,
+    allow_repeated_runs: bool = False,
+    allow_mixed_heads: bool = False,
+) -> Analysis:
+    """``cms-host analyze PATHS…`` with the same options (``--chainage``,
+    ``--edition 2006|2012``, ``--block-m``, ``--search-m``, ``--dx-mm``,
+    ``--direction auto|forward|reverse``, ``--register offset-tilt|offset|none``,
+    ``--segment-mm``, ``--no-spike-removal``, ``--no-curvature``,
+    ``--calibration``, ``--allow-repeated-runs``, ``--allow-mixed-heads``).
+
+    Raises ``cms.Error`` with the message ``cms-host analyze`` prints after
+    ``error:``. The GIL is released while the recordings are analysed.
+    """
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    if isinstance(chainage, str):
+        chainage = [chainage]
+    profile, blocks, zones, summary = _cms.analyze(
+        [os.fspath(p) for p in paths],
+        chainage=None if chainage is None else list(chainage),
+        edition=str(edition),
+        block_m=float(block_m),
+        search_m=float(search_m),
+        dx_mm=None if dx_mm is None else float(dx_mm),
+        direction=direction,
+        register=register,
+        segment_mm=float(segment_mm),
+        spike_removal=bool(spike_removal),
+        curvature=bool(curvature),
+        calibration=None if calibration is None else os.fspath(calibration),
+        allow_repeated_runs=bool(allow_repeated_runs),
+        allow_mixed_heads=bool(allow_mixed_heads),
+    )
+    return Analysis(_table(profile), _table(blocks), _table(zones), json.loads(summary))
+
+
+def read_survey(path: PathLike) -> Optional[dict]:
+    """A recording's survey block as a dict (``line``, ``track``, ``rail``,
+    ``start_chainage``, ``chainage``, ``date``, ``operator``,
+    ``instrument``, ``notes``, and ``year`` from ``date``; a key not given
+    is None), or None when the recording has none. Raises ``cms.Error``
+    (a damaged block, a survey ``analyze`` would refuse)."""
+    return json.loads(_cms.read_survey(os.fspath(path)))

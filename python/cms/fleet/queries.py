@@ -1,0 +1,78 @@
+"""``python -m cms.fleet.queries DATASET``: example DuckDB queries over a
+dataset of ``cms.fleet.job`` — the blocks over the limit across the
+network, the worst sites, and the reprofiling length per line. Each is a
+plain SQL text (``QUERIES``) over ``read_parquet(…, hive_partitioning = true)``:
+copy it into any DuckDB."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import duckdb
+
+import cms
+
+QUERIES = {
+    "blocks over the ISO 3095 limit, per line and track": """
+        SELECT line, track, year,
+               count(*) FILTER (WHERE NOT iso3095_pass) AS blocks_over,
+               count(iso3095_pass) AS blocks_judged,
+               round(sum(end_mm - start_mm) FILTER (WHERE NOT iso3095_pass) / 1000, 1) AS over_m,
+               round(100.0 * count(*) FILTER (WHERE NOT iso3095_pass) / nullif(count(iso3095_pass), 0), 1) AS over_percent
+        FROM read_parquet('{d}/blocks/**/*.parquet', hive_partitioning = true)
+        GROUP BY ALL ORDER BY blocks_over DESC, line, track, year""",
+    "the worst sites (EN 13231-3 zones, by worst peak-to-peak over the band's limit)": """
+        SELECT line, track, year, start_chainage, end_chainage,
+               band_lo_mm || '-' || band_hi_mm AS band_mm,
+               round(exceeding_mm / 1000, 2) AS exceeding_m,
+               round(1000 * worst_pp_mm, 1) AS worst_pp_um,
+               round(worst_pp_mm / limit_mm, 2) AS times_limit, source
+        FROM read_parquet('{d}/zones/**/*.parquet', hive_partitioning = true)
+        ORDER BY times_limit DESC, source LIMIT 10""",
+    "reprofiling length per line (EN 13231-3 verdict of each run, summed)": """
+        SELECT line, track,
+               count(*) AS runs,
+               round(sum(measured_mm) / 1000, 1) AS measured_m,
+               round(sum(reprofile_mm) / 1000, 1) AS reprofile_m,
+               round(100 * sum(reprofile_mm) / nullif(sum(measured_mm), 0), 1) AS reprofile_percent
+        FROM read_parquet('{d}/runs/**/*.parquet', hive_partitioning = true)
+        WHERE error IS NULL
+        GROUP BY ALL ORDER BY reprofile_m DESC, line, track""",
+}
+
+
+def run(dataset: str) -> dict:
+    """Each query's result as (column names, rows)."""
+    if not os.path.isfile(os.path.join(dataset, "_cms_fleet.json")):
+        raise cms.Error(f"{dataset}: not a dataset of cms.fleet.job (no _cms_fleet.json)")
+    con = duckdb.connect()
+    out = {}
+    for title, sql in QUERIES.items():
+        cur = con.execute(sql.format(d=dataset.replace("'", "''")))
+        out[title] = ([c[0] for c in cur.description], cur.fetchall())
+    return out
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if len(argv) != 1:
+        print("usage: python -m cms.fleet.queries DATASET", file=sys.stderr)
+        return 2
+    try:
+        results = run(argv[0])
+    except (cms.Error, duckdb.Error) as e:
+        print(f"error: {e}".replace("\n", " "), file=sys.stderr)
+        return 2
+    for title, (cols, rows) in results.items():
+        print(f"## {title}\n")
+        print("| " + " | ".join(cols) + " |")
+        print("|" + "---|" * len(cols))
+        for r in rows:
+            print("| " + " | ".join("" if v is None else str(v) for v in r) + " |")
+        print()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
