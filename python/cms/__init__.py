@@ -63,6 +63,9 @@ def _array(kind: str, rows: int, nulls: int, buffers: list) -> pa.Array:
         indices = pa.Array.from_buffers(pa.int32(), rows, [None, pa.py_buffer(bytes(4 * rows))])
         return pa.DictionaryArray.from_arrays(indices, pa.array([bytes(buffers[0]).decode()], pa.string()))
     wrapped = [None if b is None else pa.py_buffer(b) for b in buffers]
+    if kind == "list_f64":
+        values = pa.Array.from_buffers(pa.float64(), len(buffers[2]) // 8, [None, wrapped[2]])
+        return pa.Array.from_buffers(pa.list_(pa.float64()), rows, wrapped[:2], null_count=nulls, children=[values])
     return pa.Array.from_buffers(_TYPES[kind], rows, wrapped, null_count=nulls)
 
 

@@ -72,7 +72,8 @@ fn checked(range: Range, flag: &str, v: f64) -> PyResult<f64> {
 /// One column for Python: (name, kind, nullable, rows, null count,
 /// buffers). `kind` and the buffers: `f64`/`i32`/`bool` — [validity or
 /// None, values]; `str` — [validity or None, int32 offsets, UTF-8 bytes];
-/// `repeat` — [the one string's bytes] (a dictionary of one value).
+/// `repeat` — [the one string's bytes] (a dictionary of one value);
+/// `list_f64` — [validity or None, int32 offsets, the elements' f64s].
 type PyColumn<'py> = (String, &'static str, bool, usize, usize, Vec<Option<Bound<'py, PyBytes>>>);
 
 /// A Python bytes object of `len` bytes, filled by `fill` (zeroed first).
@@ -159,6 +160,28 @@ fn column<'py>(py: Python<'py>, c: &exports::Column) -> PyResult<PyColumn<'py>> 
                 }
             })?;
             (name, "str", c.nullable, v.len(), nulls, vec![valid, Some(offsets), Some(data)])
+        }
+        Values::ListF64(v) => {
+            let (valid, nulls) = validity(py, v)?;
+            let total: usize = v.iter().flatten().map(Vec::len).sum();
+            if i32::try_from(total).is_err() {
+                return Err(Error::new_err(format!("column {name}: over 2³¹ list elements (Arrow's 32-bit offsets)")));
+            }
+            let offsets = buffer(py, (v.len() + 1) * 4, |b| {
+                let mut at = 0i32;
+                b[..4].copy_from_slice(&at.to_le_bytes());
+                for (chunk, x) in b[4..].chunks_exact_mut(4).zip(v) {
+                    // In range: the total was checked above.
+                    at += x.as_ref().map_or(0, |e| e.len() as i32);
+                    chunk.copy_from_slice(&at.to_le_bytes());
+                }
+            })?;
+            let data = buffer(py, total * 8, |b| {
+                for (chunk, x) in b.chunks_exact_mut(8).zip(v.iter().flatten().flatten()) {
+                    chunk.copy_from_slice(&x.to_le_bytes());
+                }
+            })?;
+            (name, "list_f64", c.nullable, v.len(), nulls, vec![valid, Some(offsets), Some(data)])
         }
         Values::Repeat(text, n) => (
             name,

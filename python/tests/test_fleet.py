@@ -54,26 +54,28 @@ def blocks_of(v):
     rows = []
     for b in v["verdict"]["blocks"]:
         e = b["iso3095_exceeded_mm"]
-        row = {"start_mm": b["start_mm"], "end_mm": b["end_mm"]}
+        row = {"start_chainage_mm": b["start_mm"], "end_chainage_mm": b["end_mm"]}
         for k, r in zip(BANDS, b["rms_mm"]):
             row[f"rms_um_{k}"] = None if r is None else r * 1000.0
         row["iso3095_pass"] = None if e is None else not e
-        row["iso3095_exceeded_mm"] = None if e is None else ",".join(rust_f64(w) for w in e)
+        row["iso3095_exceeded_mm"] = None if e is None else [float(w) for w in e]
         rows.append(row)
     return rows
 
 
-def rust_f64(w):
-    """A number as Rust's `to_string` writes it (`250`, `12.5`)."""
-    return str(int(w)) if float(w).is_integer() else repr(float(w))
-
-
-ZONE_KEYS = ("band_lo_mm", "band_hi_mm", "start_mm", "end_mm", "start_chainage", "end_chainage", "exceeding_mm", "worst_pp_mm")
+ZONE_KEYS = ("band_lo_mm", "band_hi_mm", "start_chainage_mm", "end_chainage_mm", "exceeding_mm", "worst_pp_mm")
 
 
 def zones_of(v):
     return [
-        {k: z[k] for k in ZONE_KEYS[2:]} | {"band_lo_mm": z["lo_mm"], "band_hi_mm": z["hi_mm"]}
+        {
+            "band_lo_mm": z["lo_mm"],
+            "band_hi_mm": z["hi_mm"],
+            "start_chainage_mm": z["start_mm"],
+            "end_chainage_mm": z["end_mm"],
+            "exceeding_mm": z["exceeding_mm"],
+            "worst_pp_mm": z["worst_pp_mm"],
+        }
         for z in v["verdict"]["zones"]
     ]
 
@@ -128,11 +130,11 @@ def test_the_dataset_holds_every_recording_with_the_cli_figures(fleet, dataset):
         v = cli_json(p)
         sv = v["survey"]
         want = blocks_of(v)
-        got = sorted(b_by[p], key=lambda r: r["start_mm"])
+        got = sorted(b_by[p], key=lambda r: r["start_chainage_mm"])
         assert pick(got, want[0].keys()) == want, p
         wz = zones_of(v)
-        gz = sorted(z_by[p], key=lambda r: (r["band_lo_mm"], r["start_mm"]))
-        assert pick(gz, ZONE_KEYS) == sorted(wz, key=lambda r: (r["band_lo_mm"], r["start_mm"])), p
+        gz = sorted(z_by[p], key=lambda r: (r["band_lo_mm"], r["start_chainage_mm"]))
+        assert pick(gz, ZONE_KEYS) == sorted(wz, key=lambda r: (r["band_lo_mm"], r["start_chainage_mm"])), p
         zones_seen += len(wz)
         [run] = r_by[p]
         assert run["reprofile_mm"] == v["verdict"]["reprofile_mm"] and run["measured_mm"] == v["verdict"]["measured_mm"]

@@ -18,12 +18,12 @@ QUERIES = {
         SELECT line, track, year,
                count(*) FILTER (WHERE NOT iso3095_pass) AS blocks_over,
                count(iso3095_pass) AS blocks_judged,
-               round(sum(end_mm - start_mm) FILTER (WHERE NOT iso3095_pass) / 1000, 1) AS over_m,
+               round(sum(end_chainage_mm - start_chainage_mm) FILTER (WHERE NOT iso3095_pass) / 1000, 1) AS over_m,
                round(100.0 * count(*) FILTER (WHERE NOT iso3095_pass) / nullif(count(iso3095_pass), 0), 1) AS over_percent
         FROM read_parquet('{d}/blocks/**/*.parquet', hive_partitioning = true)
         GROUP BY ALL ORDER BY blocks_over DESC, line, track, year""",
     "the worst sites (EN 13231-3 zones, by worst peak-to-peak over the band's limit)": """
-        SELECT line, track, year, start_chainage, end_chainage,
+        SELECT line, track, year, round(start_chainage_mm / 1000, 1) AS from_m, round(end_chainage_mm / 1000, 1) AS to_m,
                band_lo_mm || '-' || band_hi_mm AS band_mm,
                round(exceeding_mm / 1000, 2) AS exceeding_m,
                round(1000 * worst_pp_mm, 1) AS worst_pp_um,
