@@ -12,7 +12,7 @@
 use std::fmt::Write as _;
 
 use crate::analyze::standards::{StandardsError, en13231, en15610, fmt_mm};
-use crate::analyze::stitch::{Direction, Registration, Stitched};
+use crate::analyze::stitch::Stitched;
 use crate::analyze::{Analysis, LaserAnalysis, Recording, Source, chainage, fmt_len, reprofiling};
 
 use super::text;
@@ -338,22 +338,6 @@ fn verdict(a: &Analysis, zone_svg: &str) -> String {
     s
 }
 
-fn direction_name(d: Direction) -> &'static str {
-    match d {
-        Direction::Forward => "x = odometer + along",
-        Direction::Reverse => "x = odometer − along",
-        Direction::Auto => "auto",
-    }
-}
-
-fn registration_name(r: Registration) -> &'static str {
-    match r {
-        Registration::OffsetTilt => "offset and tilt",
-        Registration::Offset => "offset",
-        Registration::None => "none",
-    }
-}
-
 /// The inputs and the stitching in detail: per run what the recording held
 /// and what reading it found, how the frames were stitched.
 fn inputs(source: &Source, a: &Analysis) -> String {
@@ -376,12 +360,12 @@ fn inputs(source: &Source, a: &Analysis) -> String {
                 (Some(_), true) => " (as given)",
                 (None, _) => "",
             };
-            let mut rows = vec![("direction", format!("{}{how}", direction_name(st.direction)))];
+            let mut rows = vec![("direction", format!("{}{how}", text::direction_name(st.direction)))];
             if let Some((f, r)) = st.direction_residuals_um {
                 rows.push(("median overlap residual, forward", opt_um(f)));
                 rows.push(("median overlap residual, reverse", opt_um(r)));
             }
-            rows.push(("registration", registration_name(a.options.stitch.registration).into()));
+            rows.push(("registration", text::registration_name(a.options.stitch.registration).into()));
             rows.push(("samples every", format!("{} mm", fmt_len(a.options.stitch.dx_mm))));
             s.push_str("<h3>Stitching</h3>\n");
             s.push_str(&facts("stitching", &rows));

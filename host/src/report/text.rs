@@ -16,7 +16,7 @@ pub(crate) fn rms(v: impl Iterator<Item = f64>) -> f64 {
     if n == 0 { 0.0 } else { (s / n as f64).sqrt() }
 }
 
-fn direction_name(d: Direction) -> &'static str {
+pub(super) fn direction_name(d: Direction) -> &'static str {
     match d {
         Direction::Forward => "x = odometer + along",
         Direction::Reverse => "x = odometer − along",
@@ -24,7 +24,7 @@ fn direction_name(d: Direction) -> &'static str {
     }
 }
 
-fn registration_name(r: Registration) -> &'static str {
+pub(super) fn registration_name(r: Registration) -> &'static str {
     match r {
         Registration::OffsetTilt => "offset and tilt",
         Registration::Offset => "offset",
