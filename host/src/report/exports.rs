@@ -2,7 +2,8 @@
 //! files that DuckDB, Polars or Spark read without our code —
 //! `profile.parquet` (the stitched profile, one row per sample),
 //! `blocks.parquet` (block RMS and ISO 3095 per block) and
-//! `zones.parquet` (the exceedance zones). The schema is documented in
+//! `zones.parquet` (the exceedance zones), `fixes.parquet` (the runs'
+//! GNSS fixes, placed on the chainage). The schema is documented in
 //! docs/exports.md; every file of every survey has the same columns for
 //! the same lines, and a `source` column naming the inputs, so a fleet's
 //! files concatenate (`read_parquet('*/profile.parquet', union_by_name = true)`).
@@ -213,6 +214,54 @@ pub fn zones_table(source: &Source, a: &Analysis) -> Table {
     }
 }
 
+/// The runs' GNSS fixes (`listen --gnss`), run by run in file order, one
+/// row each: `source`, `run` (from 1), `host_time_s` (host arrival since
+/// the listener started), `head_time_s`, `odometer_mm` (of the frame before
+/// the fix; null before any), `chainage_mm` (that odometer placed as the
+/// run was joined), `utc_date` (`YYYY-MM-DD`), `utc_time_of_day_s`,
+/// `lat_deg`, `lon_deg` (WGS 84), `altitude_m`, `quality`, `satellites`,
+/// `hdop`, `sigma_m` (the horizontal uncertainty assumed), `speed_mm_s`,
+/// `course_deg`. No rows without fixes (or for a profile file).
+pub fn fixes_table(source: &Source, a: &Analysis) -> Table {
+    let fixes: Vec<(usize, &crate::gnss::Placed)> = match source {
+        Source::Recordings(recs) => {
+            recs.iter().enumerate().flat_map(|(k, (_, r))| r.fixes.iter().map(move |p| (k + 1, p))).collect()
+        }
+        Source::Profile(..) => Vec::new(),
+    };
+    let n = fixes.len();
+    let f = |g: &dyn Fn(&(usize, &crate::gnss::Placed)) -> Option<f64>| Values::F64(fixes.iter().map(g).collect());
+    let odometer_mm = |p: &crate::gnss::Placed| p.odometer_um.map(|o| o as f64 / 1000.0);
+    let join = |run: usize| a.joins.iter().find(|j| j.run == run);
+    Table {
+        columns: vec![
+            col("source", false, Values::Str(vec![Some(source.name()); n])),
+            col("run", false, Values::I32(fixes.iter().map(|(k, _)| i32::try_from(*k).ok()).collect())),
+            col("host_time_s", false, f(&|(_, p)| Some(p.host_us as f64 / 1e6))),
+            col("head_time_s", true, f(&|(_, p)| p.head_us.map(|t| t as f64 / 1e6))),
+            col("odometer_mm", true, f(&|(_, p)| odometer_mm(p))),
+            col("chainage_mm", true, f(&|(k, p)| Some(join(*k)?.chainage_mm(odometer_mm(p)?)))),
+            col(
+                "utc_date",
+                true,
+                Values::Str(
+                    fixes.iter().map(|(_, p)| p.fix.date.map(|(y, m, d)| format!("{y:04}-{m:02}-{d:02}"))).collect(),
+                ),
+            ),
+            col("utc_time_of_day_s", true, f(&|(_, p)| p.fix.utc_ms_of_day.map(|t| f64::from(t) / 1e3))),
+            col("lat_deg", false, f(&|(_, p)| Some(p.fix.lat_deg))),
+            col("lon_deg", false, f(&|(_, p)| Some(p.fix.lon_deg))),
+            col("altitude_m", true, f(&|(_, p)| p.fix.altitude_m)),
+            col("quality", false, Values::Str(fixes.iter().map(|(_, p)| Some(p.fix.quality.name().into())).collect())),
+            col("satellites", true, Values::I32(fixes.iter().map(|(_, p)| p.fix.satellites.map(i32::from)).collect())),
+            col("hdop", true, f(&|(_, p)| p.fix.hdop)),
+            col("sigma_m", false, f(&|(_, p)| Some(p.fix.sigma_m()))),
+            col("speed_mm_s", true, f(&|(_, p)| p.fix.speed_mm_s)),
+            col("course_deg", true, f(&|(_, p)| p.fix.course_deg)),
+        ],
+    }
+}
+
 fn perr(e: parquet::errors::ParquetError) -> std::io::Error {
     std::io::Error::other(format!("parquet: {e}"))
 }
@@ -369,16 +418,16 @@ pub fn to_parquet(name: &str, t: &Table, meta: &[(&str, String)]) -> Result<Vec<
 }
 
 /// The file names written by [`write()`].
-pub const FILES: [&str; 3] = ["profile.parquet", "blocks.parquet", "zones.parquet"];
+pub const FILES: [&str; 4] = ["profile.parquet", "blocks.parquet", "zones.parquet", "fixes.parquet"];
 
 /// Whether a file of this name is one of [`FILES`].
 pub fn owns(name: &str) -> bool {
     FILES.contains(&name)
 }
 
-/// Writes `profile.parquet`, `blocks.parquet` and `zones.parquet` into
+/// Writes `profile.parquet`, `blocks.parquet`, `zones.parquet` and `fixes.parquet` into
 /// `dir` (created if missing) as one output set ([`crate::output::set`]):
-/// the folder then holds these three files and nothing else, or — on any
+/// the folder then holds these files and nothing else, or — on any
 /// failure, or a crash — what it held before. Any failure is an error
 /// naming the file.
 pub fn write(dir: &Path, source: &Source, a: &Analysis) -> Result<(), Error> {
@@ -393,8 +442,12 @@ pub(crate) fn write_files(dir: &Path, source: &Source, a: &Analysis) -> Result<(
         ("cms.edition", a.verdict.options.edition.name().to_string()),
         ("cms.block_mm", a.verdict.options.block_mm.to_string()),
     ];
-    let tables =
-        [("profile", profile_table(source, a)), ("blocks", blocks_table(source, a)), ("zones", zones_table(source, a))];
+    let tables = [
+        ("profile", profile_table(source, a)),
+        ("blocks", blocks_table(source, a)),
+        ("zones", zones_table(source, a)),
+        ("fixes", fixes_table(source, a)),
+    ];
     for ((name, t), file) in tables.iter().zip(FILES) {
         let path = dir.join(file);
         let bytes = to_parquet(name, t, &meta)

@@ -141,6 +141,25 @@ fn a_run_with_gnss_is_placed_on_its_register_and_a_wrong_one_is_reported() {
     assert!(track.contains("<figure class=\"plot\"><svg"), "{track}");
     assert!(track.contains(&format!("<td class=\"num\">{fixes}</td><td>{fixes} RTK fixed</td>")), "{track}");
     assert!(report.join("track.png").exists());
+
+    // fixes.parquet (another reader than the writer): every fix, placed on
+    // the chainage the run was given (41+100, up) from its odometer.
+    use crate::analyze::parquet::{fixes_schema, pq};
+    let fx = pq::read(&report.join("fixes.parquet"));
+    assert_eq!(fx.schema(), fixes_schema());
+    assert_eq!(fx.rows as u64, fixes);
+    let (odo, ch, lat) = (fx.f64("odometer_mm"), fx.f64("chainage_mm"), fx.f64("lat_deg"));
+    let mut placed_rows = 0;
+    for i in 0..fx.rows {
+        assert!((lat[i].unwrap() - 52.091).abs() < 0.01, "row {i}");
+        assert_eq!(odo[i].is_some(), ch[i].is_some(), "row {i}");
+        if let (Some(o), Some(c)) = (odo[i], ch[i]) {
+            assert!((c - (41_100_000.0 + o)).abs() < 1e-6, "row {i}: {c} at odometer {o}");
+            placed_rows += 1;
+        }
+    }
+    assert_eq!(placed_rows as u64, placed);
+    assert!(fx.str("quality").iter().all(|q| q.as_deref() == Some("RTK fixed")));
 }
 
 #[test]

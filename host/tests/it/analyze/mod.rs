@@ -3,7 +3,7 @@
 //! simulated head against its true rail; records too short for the
 //! standards; bad input.
 
-mod parquet;
+pub(crate) mod parquet;
 mod recordings;
 mod report;
 mod sim;

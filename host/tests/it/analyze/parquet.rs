@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 /// (`parquet2`'s page reader; the values decoded here from the page
 /// buffers): a bug in our writer path shows as a mismatch, not as the
 /// same bug read back.
-pub(super) mod pq {
+pub(crate) mod pq {
     use parquet2::encoding::Encoding;
     use parquet2::encoding::hybrid_rle::HybridRleDecoder;
     use parquet2::page::{Page, split_buffer};
@@ -448,10 +448,40 @@ fn parquet_exports_read_back_with_an_independent_reader() {
             assert_eq!(z.f64(col)[i], j[key].as_f64(), "zone {i} {col}");
         }
     }
+    // fixes.parquet: the columns, and no row for a recording without fixes.
+    let fx = pq::read(&pqdir.join("fixes.parquet"));
+    assert_eq!(fx.rows, 0);
+    assert_eq!(fx.schema(), fixes_schema());
     // The report writes the same files.
-    for f in ["profile.parquet", "blocks.parquet", "zones.parquet"] {
+    for f in ["profile.parquet", "blocks.parquet", "zones.parquet", "fixes.parquet"] {
         assert_eq!(std::fs::read(pqdir.join(f)).unwrap(), std::fs::read(report.join(f)).unwrap(), "{f}");
     }
+}
+
+/// `fixes.parquet`'s columns (docs/exports.md): name, type, nullable.
+pub(crate) fn fixes_schema() -> Vec<(String, &'static str, bool)> {
+    [
+        ("source", "STRING", false),
+        ("run", "INT32", false),
+        ("host_time_s", "DOUBLE", false),
+        ("head_time_s", "DOUBLE", true),
+        ("odometer_mm", "DOUBLE", true),
+        ("chainage_mm", "DOUBLE", true),
+        ("utc_date", "STRING", true),
+        ("utc_time_of_day_s", "DOUBLE", true),
+        ("lat_deg", "DOUBLE", false),
+        ("lon_deg", "DOUBLE", false),
+        ("altitude_m", "DOUBLE", true),
+        ("quality", "STRING", false),
+        ("satellites", "INT32", true),
+        ("hdop", "DOUBLE", true),
+        ("sigma_m", "DOUBLE", false),
+        ("speed_mm_s", "DOUBLE", true),
+        ("course_deg", "DOUBLE", true),
+    ]
+    .into_iter()
+    .map(|(n, t, o)| (n.to_string(), t, o))
+    .collect()
 }
 
 /// A --parquet directory that is a file, or lies under one, is bad usage
