@@ -201,7 +201,9 @@ fn marks_typed_on_the_terminal_appear_in_the_report_at_their_chainage() {
     let html = std::fs::read_to_string(report.join("report.html")).unwrap();
     let section = html.split("<section id=\"marks\">").nth(1).unwrap().split("</section>").next().unwrap();
     assert!(section.contains("<table class=\"marks\">"), "{section}");
-    assert!(section.contains(&format!("<td>{}</td><td>kilometre post</td><td>12.300</td>", rows[1][1])), "{section}");
+    // The label's cell is a number's (right-aligned) in the report's tables.
+    let km = format!("<td>{}</td><td>kilometre post</td><td class=\"num\">12.300</td>", rows[1][1]);
+    assert!(section.contains(&km), "{section}");
     let md = std::fs::read_to_string(report.join("report.md")).unwrap();
     assert!(md.contains("## Marks") && md.contains("| defect | squat, gauge corner |"), "{md}");
 }
