@@ -114,6 +114,20 @@ fn fixed<'py, T: Copy + Default, const N: usize>(
     })
 }
 
+/// Arrow's int32 offsets of variable-length values (strings, lists): a
+/// null's length zero. The caller has checked that the lengths sum within
+/// `i32`.
+fn offsets<'py, T>(py: Python<'py>, v: &[Option<T>], len: fn(&T) -> usize) -> PyResult<Bound<'py, PyBytes>> {
+    buffer(py, (v.len() + 1) * 4, |b| {
+        let mut at = 0i32;
+        b[..4].copy_from_slice(&at.to_le_bytes());
+        for (chunk, x) in b[4..].chunks_exact_mut(4).zip(v) {
+            at += x.as_ref().map_or(0, |x| len(x) as i32);
+            chunk.copy_from_slice(&at.to_le_bytes());
+        }
+    })
+}
+
 fn column<'py>(py: Python<'py>, c: &exports::Column) -> PyResult<PyColumn<'py>> {
     let name = c.name.clone();
     let too_long = || Error::new_err(format!("column {name}: over 2 GiB of text (Arrow's 32-bit offsets)"));
@@ -143,15 +157,7 @@ fn column<'py>(py: Python<'py>, c: &exports::Column) -> PyResult<PyColumn<'py>> 
             if i32::try_from(total).is_err() {
                 return Err(too_long());
             }
-            let offsets = buffer(py, (v.len() + 1) * 4, |b| {
-                let mut at = 0i32;
-                b[..4].copy_from_slice(&at.to_le_bytes());
-                for (chunk, x) in b[4..].chunks_exact_mut(4).zip(v) {
-                    // In range: the total was checked above.
-                    at += x.as_ref().map_or(0, |s| s.len() as i32);
-                    chunk.copy_from_slice(&at.to_le_bytes());
-                }
-            })?;
+            let offsets = offsets(py, v, String::len)?;
             let data = buffer(py, total, |b| {
                 let mut at = 0;
                 for s in v.iter().flatten() {
@@ -167,15 +173,7 @@ fn column<'py>(py: Python<'py>, c: &exports::Column) -> PyResult<PyColumn<'py>> 
             if i32::try_from(total).is_err() {
                 return Err(Error::new_err(format!("column {name}: over 2³¹ list elements (Arrow's 32-bit offsets)")));
             }
-            let offsets = buffer(py, (v.len() + 1) * 4, |b| {
-                let mut at = 0i32;
-                b[..4].copy_from_slice(&at.to_le_bytes());
-                for (chunk, x) in b[4..].chunks_exact_mut(4).zip(v) {
-                    // In range: the total was checked above.
-                    at += x.as_ref().map_or(0, |e| e.len() as i32);
-                    chunk.copy_from_slice(&at.to_le_bytes());
-                }
-            })?;
+            let offsets = offsets(py, v, Vec::len)?;
             let data = buffer(py, total * 8, |b| {
                 for (chunk, x) in b.chunks_exact_mut(8).zip(v.iter().flatten().flatten()) {
                     chunk.copy_from_slice(&x.to_le_bytes());
