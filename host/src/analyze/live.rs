@@ -249,8 +249,10 @@ impl LiveEstimate {
         s.lasers
             .iter()
             .map(|l| {
-                let xz: Vec<(f64, f64)> =
-                    (0..l.z_um.len()).filter(|&i| l.z_um[i].is_finite()).map(|i| (l.x_mm(i), l.z_um[i])).collect();
+                let xz: Vec<(f64, f64)> = {
+                    let z = l.z.to_vec().unwrap_or_default();
+                    (0..z.len()).filter(|&i| z[i].is_finite()).map(|i| (l.x_mm(i), z[i])).collect()
+                };
                 let (x, z): (Vec<f64>, Vec<f64>) = xz.iter().copied().unzip();
                 let fit = quick_sine(&x, &z);
                 let span_mm = match (x.first(), x.last()) {

@@ -28,6 +28,7 @@ pub mod reprofiling;
 pub mod runs;
 pub mod standards;
 pub mod stitch;
+pub mod store;
 pub mod survey;
 pub mod trend;
 
@@ -353,7 +354,7 @@ impl Grid {
     pub fn of(lines: &[LaserAnalysis], dx_mm: f64) -> Grid {
         let origin_mm = lines.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
         let mut g = Grid { origin_mm: if origin_mm.is_finite() { origin_mm } else { 0.0 }, dx_mm, len: 0 };
-        g.len = lines.iter().map(|l| g.offset(&l.stitched) + l.stitched.z_um.len()).max().unwrap_or(0);
+        g.len = lines.iter().map(|l| g.offset(&l.stitched) + l.stitched.z.len()).max().unwrap_or(0);
         g
     }
 
@@ -397,8 +398,9 @@ pub fn judge(mut stitching: Stitching, joins: Vec<survey::RunJoin>, opts: &Optio
     let lasers: Vec<LaserAnalysis> = std::mem::take(&mut stitching.lasers)
         .into_iter()
         .map(|s| {
-            let bands = en13231::analyze(&s.z_um, s.dx_mm);
-            let roughness = en15610::analyze(&s.z_um, s.dx_mm, &opts.roughness);
+            let z = s.z.to_vec().unwrap_or_default();
+            let bands = en13231::analyze(&z, s.dx_mm);
+            let roughness = en15610::analyze(&z, s.dx_mm, &opts.roughness);
             LaserAnalysis { stitched: s, bands, roughness }
         })
         .collect();

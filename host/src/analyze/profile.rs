@@ -36,6 +36,7 @@ use std::path::Path;
 
 use super::stitch::{Direction, MAX_CELLS};
 use super::stitch::{Stitched, Stitching};
+use super::store::{FitLog, Samples};
 use crate::Error;
 
 /// What the file held and how it was gridded.
@@ -252,9 +253,9 @@ pub fn stitched(line: usize, x0_mm: f64, dx_mm: f64, z_um: Vec<f64>) -> Stitched
         x0_mm,
         dx_mm,
         points: z_um.iter().filter(|v| v.is_finite()).count(),
-        z_um,
+        z: Samples::from_vec(z_um),
         frames: 0,
-        fits: Vec::new(),
+        fits: FitLog::default(),
         joins: Vec::new(),
         gaps,
     }
@@ -270,7 +271,7 @@ mod tests {
         let (info, s) = parse("# a comment\nx_mm,height_um\n0,1.5\n1,2\n2,\n3,4\n5,6\n", None).unwrap();
         assert!(!info.resampled);
         assert_eq!(info.data_dx_mm, 1.0);
-        let z = &s.lasers[0].z_um;
+        let z = &s.lasers[0].z.to_vec().unwrap();
         assert_eq!(z.len(), 6);
         assert_eq!((z[0], z[1], z[3], z[5]), (1.5, 2.0, 4.0, 6.0));
         assert!(z[2].is_nan() && z[4].is_nan());
@@ -286,9 +287,9 @@ mod tests {
         assert_eq!(info.columns, vec!["height_um_0", "height_um_1"]);
         assert_eq!(s.lasers.len(), 2);
         assert!((s.lasers[1].x0_mm - 10_000.0).abs() < 1e-9 && (s.lasers[1].dx_mm - 2.0).abs() < 1e-9);
-        assert_eq!(s.lasers[1].z_um, vec![2.0, 4.0, 6.0]);
+        assert_eq!(s.lasers[1].z.to_vec().unwrap(), vec![2.0, 4.0, 6.0]);
         let (_, s) = parse("height_um height_mm\n1 0.001\n2 0.002\n", Some(0.5)).unwrap();
-        assert_eq!(s.lasers[1].z_um, vec![1.0, 2.0]);
+        assert_eq!(s.lasers[1].z.to_vec().unwrap(), vec![1.0, 2.0]);
         assert_eq!(s.lasers[0].dx_mm, 0.5);
     }
 
@@ -296,7 +297,7 @@ mod tests {
     fn other_spacings_are_interpolated_never_across_a_gap() {
         let (info, s) = parse("x_mm,height_um\n0,0\n2,2\n4,4\n10,10\n12,12\n", Some(1.0)).unwrap();
         assert!(info.resampled);
-        let z = &s.lasers[0].z_um;
+        let z = &s.lasers[0].z.to_vec().unwrap();
         assert_eq!(z.len(), 13);
         for (i, v) in [(0, 0.0), (1, 1.0), (3, 3.0), (4, 4.0), (10, 10.0), (11, 11.0), (12, 12.0)] {
             assert!((z[i] - v).abs() < 1e-12, "{i}: {}", z[i]);
@@ -308,7 +309,7 @@ mod tests {
     fn a_byte_order_mark_is_not_part_of_the_header() {
         let (info, s) = parse("\u{feff}x_mm,height_um\n0,1\n1,2\n", None).unwrap();
         assert!(info.has_x);
-        assert_eq!((info.rows, s.lasers[0].z_um.clone()), (2, vec![1.0, 2.0]));
+        assert_eq!((info.rows, s.lasers[0].z.to_vec().unwrap()), (2, vec![1.0, 2.0]));
     }
 
     #[test]

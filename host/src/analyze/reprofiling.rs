@@ -343,7 +343,7 @@ fn blocks(lasers: &[LaserAnalysis], opts: &Options, origin: f64, len: usize, dx:
         for l in lasers {
             let s = &l.stitched;
             let lo = (((start - s.x0_mm) / dx).ceil().max(0.0)) as usize;
-            let hi = ((((end - s.x0_mm) / dx).ceil()).max(0.0) as usize).min(s.z_um.len());
+            let hi = ((((end - s.x0_mm) / dx).ceil()).max(0.0) as usize).min(s.z.len());
             if lo >= hi {
                 continue;
             }
@@ -361,7 +361,7 @@ fn blocks(lasers: &[LaserAnalysis], opts: &Options, origin: f64, len: usize, dx:
                     }
                 }
             }
-            if let Ok(r) = en15610::analyze(&s.z_um[lo..hi], dx, &en15610::Options::default()) {
+            if let Ok(r) = en15610::analyze(&s.z.read(lo..hi).unwrap_or_default(), dx, &en15610::Options::default()) {
                 let over: Vec<f64> = r
                     .spectrum
                     .bands

@@ -81,6 +81,8 @@
 
 use cms_core::protocol::{LASERS, Profile};
 
+use super::store::{FitLog, Samples};
+
 /// Most cells of a stitched profile (20 km at 1 mm).
 pub const MAX_CELLS: usize = 20_000_000;
 
@@ -247,7 +249,7 @@ pub struct Join {
 }
 
 /// One laser's stitched profile.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct Stitched {
     pub laser: usize,
     /// The section of the survey line it lies on, from 1 (a stretch
@@ -258,13 +260,13 @@ pub struct Stitched {
     pub x0_mm: f64,
     pub dx_mm: f64,
     /// Heights, µm; NaN where no frame covered the track.
-    pub z_um: Vec<f64>,
+    pub z: Samples,
     /// Frames that contributed.
     pub frames: usize,
     /// Points that contributed.
     pub points: usize,
     /// Registered frames.
-    pub fits: Vec<FrameFit>,
+    pub fits: FitLog,
     /// Frames joined without registration (the first frame is not one).
     pub joins: Vec<Join>,
     pub gaps: Vec<Gap>,
@@ -278,22 +280,22 @@ impl Stitched {
 
     /// Length from the first to past the last sample, mm.
     pub fn length_mm(&self) -> f64 {
-        self.z_um.len() as f64 * self.dx_mm
+        self.z.len() as f64 * self.dx_mm
     }
 
     /// Length of the samples with data, mm.
     pub fn covered_mm(&self) -> f64 {
-        self.z_um.iter().filter(|v| v.is_finite()).count() as f64 * self.dx_mm
+        self.z.finite() as f64 * self.dx_mm
     }
 
     /// Median registration residual, µm (`None` without registrations).
     pub fn median_residual_um(&self) -> Option<f64> {
-        median(self.fits.iter().map(|f| f.residual_um).collect())
+        self.fits.median_residual_um()
     }
 }
 
 /// The outcome of [`stitch`]: one profile per laser that has points.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct Stitching {
     /// The direction used (never `Auto`).
     pub direction: Direction,
@@ -378,7 +380,7 @@ struct Lane {
     base: i64,
     /// Per cell: sum of weighted values, µm, and the weight (points).
     cells: std::collections::VecDeque<(f64, u32)>,
-    fits: Vec<FrameFit>,
+    fits: FitLog,
     joins: Vec<Join>,
     frames: usize,
     points: usize,
@@ -410,7 +412,7 @@ impl Stitcher {
                     registration,
                     base: 0,
                     cells: Default::default(),
-                    fits: Vec::new(),
+                    fits: FitLog::default(),
                     joins: Vec::new(),
                     frames: 0,
                     points: 0,
@@ -463,7 +465,7 @@ impl Stitcher {
             self.lanes
                 .iter()
                 .find(|l| l.laser == busiest && l.sign == sign && l.registration == Registration::Offset)
-                .and_then(|l| median(l.fits.iter().map(|f| f.residual_um).collect()))
+                .and_then(|l| l.fits.median_residual_um())
         };
         let (fwd, rev) = (probe(1.0), probe(-1.0));
         let direction = match (self.opts.direction, fwd, rev) {
@@ -586,7 +588,7 @@ impl Lane {
             section: 1,
             x0_mm,
             dx_mm: dx,
-            z_um,
+            z: Samples::from_vec(z_um),
             frames: self.frames,
             points: self.points,
             fits: self.fits,
@@ -687,7 +689,7 @@ mod tests {
         assert_eq!(s.direction, Direction::Forward);
         let l = &s.lasers[0];
         assert!(l.gaps.is_empty() && l.joins.is_empty() && l.fits.len() == 19, "{l:?}");
-        let worst = (0..l.z_um.len()).map(|i| (l.z_um[i] - z(l.x_mm(i))).abs()).fold(0.0, f64::max);
+        let worst = (0..l.z.len()).map(|i| (l.z.to_vec().unwrap()[i] - z(l.x_mm(i))).abs()).fold(0.0, f64::max);
         // The cell intercept is exact on a line; the sine's curvature over ±0.5 mm leaves < 0.1 µm.
         assert!(worst < 0.1, "{worst}");
     }
@@ -703,11 +705,12 @@ mod tests {
         frames.iter().rev().for_each(|f| back.push(f));
         let (a, b) = (ahead.finish().unwrap(), back.finish().unwrap());
         let (a, b) = (&a.lasers[0], &b.lasers[0]);
-        assert_eq!((a.x0_mm, a.z_um.len(), a.fits.len()), (b.x0_mm, b.z_um.len(), b.fits.len()));
-        let worst = a.z_um.iter().zip(&b.z_um).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max);
+        assert_eq!((a.x0_mm, a.z.len(), a.fits.len()), (b.x0_mm, b.z.len(), b.fits.len()));
+        let worst =
+            a.z.to_vec().unwrap().iter().zip(&b.z.to_vec().unwrap()).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max);
         // Registration order differs; the cells' curvature error (< 0.1 µm) then does too.
         assert!(worst < 0.01, "{worst}");
-        let truth = (0..b.z_um.len()).map(|i| (b.z_um[i] - z(b.x_mm(i))).abs()).fold(0.0, f64::max);
+        let truth = (0..b.z.len()).map(|i| (b.z.to_vec().unwrap()[i] - z(b.x_mm(i))).abs()).fold(0.0, f64::max);
         assert!(truth < 0.1, "{truth}");
     }
 

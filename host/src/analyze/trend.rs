@@ -243,7 +243,7 @@ pub fn trend(surveys: &[SurveyRun], opts: &Options) -> Result<Trend, TrendError>
     }
     let span = |a: &Analysis| {
         let lo = a.lasers.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
-        let hi = a.lasers.iter().map(|l| l.stitched.x_mm(l.stitched.z_um.len())).fold(f64::NEG_INFINITY, f64::max);
+        let hi = a.lasers.iter().map(|l| l.stitched.x_mm(l.stitched.z.len())).fold(f64::NEG_INFINITY, f64::max);
         format!("{} to {}", crate::analyze::chainage(lo), crate::analyze::chainage(hi))
     };
     if let Some(i) = covered.iter().position(|c| !c) {
@@ -395,7 +395,7 @@ fn longest(a: &Analysis) -> Vec<&LaserAnalysis> {
     let mut out: Vec<&LaserAnalysis> = Vec::new();
     for l in &a.lasers {
         match out.iter_mut().find(|o| o.stitched.laser == l.stitched.laser) {
-            Some(o) if o.stitched.z_um.len() < l.stitched.z_um.len() => *o = l,
+            Some(o) if o.stitched.z.len() < l.stitched.z.len() => *o = l,
             Some(_) => {}
             None => out.push(l),
         }
@@ -411,9 +411,9 @@ fn register(index: usize, first: &Analysis, later: &Analysis, opts: &Options) ->
     let hp = |z: &[f64]| en13231::band_pass(z, dx, 2.5 * dx, 500.0).unwrap_or_else(|_| z.to_vec());
     // Every pair on one grid: the first's lines from `lo`, the later's from `llo`.
     let lo = fa.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
-    let hi = fa.iter().map(|l| l.stitched.x_mm(l.stitched.z_um.len())).fold(f64::NEG_INFINITY, f64::max);
+    let hi = fa.iter().map(|l| l.stitched.x_mm(l.stitched.z.len())).fold(f64::NEG_INFINITY, f64::max);
     let llo = la.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
-    let lhi = la.iter().map(|l| l.stitched.x_mm(l.stitched.z_um.len())).fold(f64::NEG_INFINITY, f64::max);
+    let lhi = la.iter().map(|l| l.stitched.x_mm(l.stitched.z.len())).fold(f64::NEG_INFINITY, f64::max);
     let (nb, na) = (((hi - lo) / dx).round() as usize, ((lhi - llo) / dx).round() as usize);
     let mut pairs = Vec::new();
     for l in &la {
@@ -421,7 +421,7 @@ fn register(index: usize, first: &Analysis, later: &Analysis, opts: &Options) ->
         let place = |s: &crate::analyze::stitch::Stitched, origin: f64, n: usize| {
             let mut v = vec![f64::NAN; n];
             let o = ((s.x0_mm - origin) / dx).round() as usize;
-            for (j, z) in hp(&s.z_um).into_iter().enumerate() {
+            for (j, z) in hp(&s.z.to_vec().unwrap_or_default()).into_iter().enumerate() {
                 if let Some(slot) = v.get_mut(o + j) {
                     *slot = z;
                 }

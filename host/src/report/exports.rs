@@ -132,15 +132,9 @@ pub fn profile_table(source: &Source, a: &Analysis) -> Table {
         for (k, h) in lines.iter().zip(heights.iter_mut()) {
             let l = sec.lasers.iter().find(|l| l.stitched.laser == *k);
             let off = l.map_or(0, |l| grid.offset(&l.stitched)) as i64;
+            let z = l.map(|l| l.stitched.z.to_vec().unwrap_or_default()).unwrap_or_default();
             let col: Vec<Option<f64>> = (0..rows)
-                .map(|i| {
-                    let l = l?;
-                    usize::try_from(i as i64 - off)
-                        .ok()
-                        .and_then(|j| l.stitched.z_um.get(j))
-                        .copied()
-                        .filter(|v| v.is_finite())
-                })
+                .map(|i| usize::try_from(i as i64 - off).ok().and_then(|j| z.get(j)).copied().filter(|v| v.is_finite()))
                 .collect();
             for (c, v) in cov.iter_mut().zip(&col) {
                 *c += i32::from(v.is_some());

@@ -175,7 +175,7 @@ fn survey(source: &Source, a: &Analysis) -> String {
         }
     }
     let x0 = a.lasers.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
-    let x1 = a.lasers.iter().map(|l| l.stitched.x_mm(l.stitched.z_um.len())).fold(f64::NEG_INFINITY, f64::max);
+    let x1 = a.lasers.iter().map(|l| l.stitched.x_mm(l.stitched.z.len())).fold(f64::NEG_INFINITY, f64::max);
     if x0.is_finite() && x1 >= x0 {
         let _ = writeln!(
             s,
@@ -511,7 +511,7 @@ const MAX_ROWS: usize = 20;
 
 /// A line's stitching: its facts, gaps and unregistered joins.
 fn stitched(l: &Stitched) -> String {
-    let overlap = crate::analyze::stitch::median(l.fits.iter().map(|f| f.overlap_mm).collect());
+    let overlap = l.fits.median_overlap_mm();
     let rows = vec![
         ("laser", l.laser.to_string()),
         ("section", l.section.to_string()),
@@ -522,8 +522,8 @@ fn stitched(l: &Stitched) -> String {
         ("registered frames", l.fits.len().to_string()),
         ("median overlap", overlap.map_or("-".into(), |v| format!("{v:.0} mm"))),
         ("registration residual, median", opt_um(l.median_residual_um())),
-        ("offsets, RMS", format!("{:.2} µm", text::rms(l.fits.iter().map(|f| f.offset_um)))),
-        ("tilts, RMS", format!("{:.4} µm/mm", text::rms(l.fits.iter().map(|f| f.tilt_um_per_mm)))),
+        ("offsets, RMS", format!("{:.2} µm", l.fits.offset_rms_um())),
+        ("tilts, RMS", format!("{:.4} µm/mm", l.fits.tilt_rms_um_per_mm())),
         ("unregistered joins", l.joins.len().to_string()),
         ("gaps", l.gaps.len().to_string()),
     ];

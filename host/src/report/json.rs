@@ -4,7 +4,6 @@ use std::path::Path;
 
 use serde_json::{Value, json};
 
-use super::text::rms;
 use crate::analyze::stitch::{Direction, Registration};
 use crate::analyze::{
     Analysis, LaserAnalysis, Recording, Source, chainage, iso3095_not_evaluated, reprofiling, spectrum_peak, survey,
@@ -114,15 +113,15 @@ fn laser_json(l: &LaserAnalysis) -> Value {
         "section": s.section,
         "x0_mm": s.x0_mm,
         "dx_mm": s.dx_mm,
-        "samples": s.z_um.len(),
+        "samples": s.z.len(),
         "length_mm": s.length_mm(),
         "covered_mm": s.covered_mm(),
         "frames": s.frames,
         "points": s.points,
         "registered": s.fits.len(),
         "registration_residual_median_um": s.median_residual_um(),
-        "offset_rms_um": rms(s.fits.iter().map(|f| f.offset_um)),
-        "tilt_rms_um_per_mm": rms(s.fits.iter().map(|f| f.tilt_um_per_mm)),
+        "offset_rms_um": s.fits.offset_rms_um(),
+        "tilt_rms_um_per_mm": s.fits.tilt_rms_um_per_mm(),
         "unregistered_joins": s.joins.iter().map(|j| json!({
             "seq": j.seq, "at_mm": j.at_mm, "overlap_mm": j.overlap_mm,
         })).collect::<Vec<_>>(),

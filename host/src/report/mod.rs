@@ -297,7 +297,7 @@ impl Figure for ZoneFig<'_> {
             )
             .map_err(err)?;
         let x0 = self.a.lasers.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
-        let x1 = self.a.lasers.iter().map(|l| l.stitched.x_mm(l.stitched.z_um.len())).fold(f64::NEG_INFINITY, f64::max);
+        let x1 = self.a.lasers.iter().map(|l| l.stitched.x_mm(l.stitched.z.len())).fold(f64::NEG_INFINITY, f64::max);
         if !(x0.is_finite() && x1 > x0) {
             return Ok(());
         }
@@ -386,12 +386,13 @@ fn profile_csv(a: &Analysis) -> String {
     s.push('\n');
     for sec in a.sections() {
         let grid = sec.grid;
+        let zs: Vec<Vec<f64>> = sec.lasers.iter().map(|l| l.stitched.z.to_vec().unwrap_or_default()).collect();
         for i in 0..grid.len as i64 {
             let _ = write!(s, "{}", grid.chainage_mm(i as usize));
             for k in &lines {
-                let v = sec.lasers.iter().find(|l| l.stitched.laser == *k).and_then(|l| {
+                let v = sec.lasers.iter().zip(&zs).find(|(l, _)| l.stitched.laser == *k).and_then(|(l, z)| {
                     let j = i - grid.offset(&l.stitched) as i64;
-                    usize::try_from(j).ok().and_then(|j| l.stitched.z_um.get(j)).filter(|v| v.is_finite())
+                    usize::try_from(j).ok().and_then(|j| z.get(j)).filter(|v| v.is_finite())
                 });
                 match v {
                     Some(v) => {
@@ -409,13 +410,13 @@ fn profile_csv(a: &Analysis) -> String {
 fn registration_csv(a: &Analysis) -> String {
     let mut s = String::from("laser,seq,centre_mm,overlap_mm,offset_um,tilt_um_per_mm,residual_um\n");
     for l in &a.lasers {
-        for f in &l.stitched.fits {
+        let _ = l.stitched.fits.for_each(|f| {
             let _ = writeln!(
                 s,
                 "{},{},{:.3},{:.3},{:.4},{:.6},{:.4}",
                 l.stitched.laser, f.seq, f.centre_mm, f.overlap_mm, f.offset_um, f.tilt_um_per_mm, f.residual_um
             );
-        }
+        });
     }
     s
 }
@@ -551,8 +552,9 @@ fn plots(dir: &Path, a: &Analysis) -> Result<Vec<(String, String, String)>, Erro
         .iter()
         .map(|l| {
             let s = &l.stitched;
-            let m = median_of(&s.z_um);
-            let z: Vec<f64> = s.z_um.iter().map(|v| v - m).collect();
+            let z = s.z.to_vec().unwrap_or_default();
+            let m = median_of(&z);
+            let z: Vec<f64> = z.iter().map(|v| v - m).collect();
             (s.laser, plot_pieces(s.x0_mm, s.dx_mm, &z, MAX_PLOT_POINTS))
         })
         .collect();

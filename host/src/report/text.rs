@@ -7,14 +7,9 @@ use std::path::Path;
 use crate::analyze::standards::{StandardsError, en13231, en15610};
 use crate::analyze::stitch::{Direction, Registration, Stitched};
 use crate::analyze::{
-    Analysis, Recording, Source, chainage, fmt_len, iso3095_not_evaluated, reprofiling, spectrum_peak, stitch, survey,
+    Analysis, Recording, Source, chainage, fmt_len, iso3095_not_evaluated, reprofiling, spectrum_peak, survey,
 };
 use crate::recording;
-
-pub(crate) fn rms(v: impl Iterator<Item = f64>) -> f64 {
-    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
-    if n == 0 { 0.0 } else { (s / n as f64).sqrt() }
-}
 
 pub(super) fn direction_name(d: Direction) -> &'static str {
     match d {
@@ -234,7 +229,7 @@ fn describe_recording(s: &mut String, path: &Path, rec: &Recording) {
 /// One laser's stitching in a few lines.
 pub fn describe_stitched(l: &Stitched) -> String {
     let mut s = String::new();
-    let overlap = stitch::median(l.fits.iter().map(|f| f.overlap_mm).collect());
+    let overlap = l.fits.median_overlap_mm();
     let _ = writeln!(
         s,
         "laser {}: {:.0} mm of track from chainage {} ({:.0} mm covered), {} frames, {} points; {} registered \
@@ -248,8 +243,8 @@ pub fn describe_stitched(l: &Stitched) -> String {
         l.fits.len(),
         overlap.map_or("-".into(), |v| format!("{v:.0} mm")),
         opt_um(l.median_residual_um()),
-        rms(l.fits.iter().map(|f| f.offset_um)),
-        rms(l.fits.iter().map(|f| f.tilt_um_per_mm)),
+        l.fits.offset_rms_um(),
+        l.fits.tilt_rms_um_per_mm(),
         l.joins.len(),
         l.gaps.len()
     );

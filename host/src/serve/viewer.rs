@@ -231,13 +231,14 @@ fn plot_lines(a: &Analysis) -> Vec<PlotLine> {
         .iter()
         .map(|l| {
             let s = &l.stitched;
-            let m = median(&s.z_um);
+            let z = s.z.to_vec().unwrap_or_default();
+            let m = median(&z);
             PlotLine {
                 laser: s.laser,
                 section: s.section,
                 x0_mm: s.x0_mm,
                 dx_mm: s.dx_mm,
-                z_um: s.z_um.iter().map(|z| z - m).collect(),
+                z_um: z.iter().map(|z| z - m).collect(),
             }
         })
         .collect()

@@ -164,7 +164,7 @@ pub fn measure(beam: &Beam) -> Result<AnnexAOutcome, ClosedLoopError> {
     let mut lines = Vec::new();
     for s in &stitching.lasers {
         let dx = s.dx_mm;
-        let measured = &s.z_um;
+        let measured = &s.z.to_vec().unwrap_or_default();
         let truth_at =
             |shift: f64| -> Vec<f64> { (0..measured.len()).map(|i| scene.profile_um(s.x_mm(i) + shift)).collect() };
         let diff_rms = |band: (f64, f64), shift: f64| -> Result<(f64, f64, usize), ClosedLoopError> {

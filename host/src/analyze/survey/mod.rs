@@ -186,10 +186,10 @@ impl RunJoin {
 /// when its start is 0, values).
 pub(super) fn oriented(s: &Stitched, heading: Heading) -> (f64, Vec<f64>) {
     match heading {
-        Heading::Up => (s.x0_mm, s.z_um.clone()),
+        Heading::Up => (s.x0_mm, s.z.to_vec().unwrap_or_default()),
         Heading::Down => {
-            let last = s.x0_mm + (s.z_um.len() as f64 - 1.0) * s.dx_mm;
-            (-last, s.z_um.iter().rev().copied().collect())
+            let last = s.x0_mm + (s.z.len() as f64 - 1.0) * s.dx_mm;
+            (-last, s.z.to_vec().unwrap_or_default().into_iter().rev().collect())
         }
     }
 }
@@ -456,10 +456,10 @@ fn extent(run: &Stitching, h: Heading, start: i64, (g0, dx): (f64, f64)) -> Opti
     let at = |s: &Stitched| {
         let x0 = match h {
             Heading::Up => s.x0_mm,
-            Heading::Down => -(s.x0_mm + (s.z_um.len() as f64 - 1.0) * s.dx_mm),
+            Heading::Down => -(s.x0_mm + (s.z.len() as f64 - 1.0) * s.dx_mm),
         };
         let o = ((x0 - g0) / dx).round() as i64;
-        (o, o + s.z_um.len() as i64)
+        (o, o + s.z.len() as i64)
     };
     let lo = run.lasers.iter().map(|s| at(s).0).min()?;
     let hi = run.lasers.iter().map(|s| at(s).1).max()?;

@@ -113,7 +113,7 @@ impl Section {
             let mine = self.meta_of(k, m.dx_mm);
             mine.frames += m.frames;
             mine.points += m.points;
-            mine.fits.extend(m.fits);
+            let _ = mine.fits.append(&m.fits, |f| f);
             mine.joins.extend(m.joins);
         }
         self.runs.extend(other.runs);
@@ -182,9 +182,8 @@ impl Section {
             let m = self.meta_of(l.laser, dx);
             m.frames += l.frames;
             m.points += l.points;
-            m.fits.extend(
-                l.fits.iter().map(|f| FrameFit { centre_mm: to_chainage(start_mm, heading, f.centre_mm), ..*f }),
-            );
+            let _ =
+                m.fits.append(&l.fits, |f| FrameFit { centre_mm: to_chainage(start_mm, heading, f.centre_mm), ..f });
             m.joins.extend(l.joins.iter().map(|j| Join { at_mm: to_chainage(start_mm, heading, j.at_mm), ..*j }));
         }
         self.runs.push(r);

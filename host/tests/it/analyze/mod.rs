@@ -63,8 +63,9 @@ fn frames(step_mm: f64, count: u32, skip: &[u32], noise_um: f64, seed: u64) -> V
 /// (what no registration can know: the absolute level and slope), µm.
 fn error_rms(s: &stitch::Stitched, truth: impl Fn(f64) -> f64) -> f64 {
     let (mut ss, mut n) = (0.0, 0usize);
-    for run in cms_host::analyze::standards::segments(&s.z_um) {
-        let d: Vec<(f64, f64)> = run.map(|i| (s.x_mm(i), s.z_um[i] - truth(s.x_mm(i)))).collect();
+    let z = s.z.to_vec().unwrap();
+    for run in cms_host::analyze::standards::segments(&z) {
+        let d: Vec<(f64, f64)> = run.map(|i| (s.x_mm(i), z[i] - truth(s.x_mm(i)))).collect();
         let m = d.len() as f64;
         let (xm, ym) = (d.iter().map(|p| p.0).sum::<f64>() / m, d.iter().map(|p| p.1).sum::<f64>() / m);
         let sxx: f64 = d.iter().map(|p| (p.0 - xm).powi(2)).sum();
