@@ -23,6 +23,7 @@
 
 pub mod live;
 pub mod marks;
+pub mod pieces;
 pub mod profile;
 pub mod reprofiling;
 pub mod runs;
@@ -352,9 +353,14 @@ pub struct Grid {
 impl Grid {
     /// The grid of `lines` at spacing `dx_mm` (empty without lines).
     pub fn of(lines: &[LaserAnalysis], dx_mm: f64) -> Grid {
-        let origin_mm = lines.iter().map(|l| l.stitched.x0_mm).fold(f64::INFINITY, f64::min);
+        Grid::of_lines(&lines.iter().map(|l| &l.stitched).collect::<Vec<_>>(), dx_mm)
+    }
+
+    /// [`Grid::of`] stitched lines.
+    pub fn of_lines(lines: &[&Stitched], dx_mm: f64) -> Grid {
+        let origin_mm = lines.iter().map(|l| l.x0_mm).fold(f64::INFINITY, f64::min);
         let mut g = Grid { origin_mm: if origin_mm.is_finite() { origin_mm } else { 0.0 }, dx_mm, len: 0 };
-        g.len = lines.iter().map(|l| g.offset(&l.stitched) + l.stitched.z.len()).max().unwrap_or(0);
+        g.len = lines.iter().map(|l| g.offset(l) + l.z.len()).max().unwrap_or(0);
         g
     }
 
@@ -389,23 +395,97 @@ impl Source {
 }
 
 /// Stitches the frames and runs both standards on every laser's profile.
-pub fn analyze(frames: &[FramePoints], opts: &Options) -> Result<Analysis, stitch::StitchError> {
-    Ok(judge(stitch::stitch(frames, &opts.stitch)?, Vec::new(), opts))
+pub fn analyze(frames: &[FramePoints], opts: &Options) -> Result<Analysis, Error> {
+    let stitching = stitch::stitch(frames, &opts.stitch).map_err(|e| Error::Input(e.to_string()))?;
+    judge(stitching, Vec::new(), opts)
 }
 
-/// Runs both standards on every laser's stitched profile.
-pub fn judge(mut stitching: Stitching, joins: Vec<survey::RunJoin>, opts: &Options) -> Analysis {
-    let lasers: Vec<LaserAnalysis> = std::mem::take(&mut stitching.lasers)
-        .into_iter()
-        .map(|s| {
-            let z = s.z.to_vec().unwrap_or_default();
-            let bands = en13231::analyze(&z, s.dx_mm);
-            let roughness = en15610::analyze(&z, s.dx_mm, &opts.roughness);
-            LaserAnalysis { stitched: s, bands, roughness }
-        })
-        .collect();
-    let verdict = reprofiling::judge(&lasers, &opts.verdict);
-    Analysis { options: opts.clone(), stitching, joins, lasers, verdict }
+/// Runs both standards on every laser's stitched profile and judges the
+/// survey line, walking it piece by piece ([`pieces`]).
+pub fn judge(mut stitching: Stitching, joins: Vec<survey::RunJoin>, opts: &Options) -> Result<Analysis, Error> {
+    let stitched = std::mem::take(&mut stitching.lasers);
+    let dx = stitched.first().map_or(opts.stitch.dx_mm, |s| s.dx_mm);
+    let mut verdict = reprofiling::Builder::new(&opts.verdict, dx);
+    let mut lasers = Vec::new();
+    for section in stitched.chunk_by(|a, b| a.section == b.section) {
+        let mut bands = Vec::new();
+        let mut welch = Vec::new();
+        for s in section {
+            let runs = pieces::runs(s);
+            bands.push(en13231::plan(&runs, s.z.len(), s.dx_mm));
+            welch.push(en15610::Welch::new(&runs, s.dx_mm, &opts.roughness));
+        }
+        for a in &bands {
+            match a {
+                Ok(a) => {
+                    for (b, r) in a.bands.iter().enumerate() {
+                        if let Err(e) = &r.outcome {
+                            verdict.not_evaluated(b, e.to_string());
+                        }
+                    }
+                }
+                Err(e) => (0..en13231::BANDS.len()).for_each(|b| verdict.not_evaluated(b, e.to_string())),
+            }
+        }
+        let lines: Vec<(&Stitched, [bool; 4])> = section.iter().zip(&bands).map(|(s, a)| (s, evaluated(a))).collect();
+        let mut sums = vec![[en13231::BandSums::default(); 4]; section.len()];
+        let mut spikes = vec![0usize; section.len()];
+        pieces::walk_section(section[0].section, &lines, opts, &mut |p| {
+            for (k, l) in p.lines.iter().enumerate() {
+                for ((sum, t), band) in sums[k].iter_mut().zip(&l.bands).zip(&en13231::BANDS) {
+                    if let Some(t) = t {
+                        sum.add(band, t);
+                    }
+                }
+                if let Ok(w) = &mut welch[k] {
+                    spikes[k] += w.add(&l.stretch(p.core.clone()), &opts.roughness);
+                }
+            }
+            verdict.piece(p);
+            Ok(())
+        })?;
+        for (k, s) in section.iter().enumerate() {
+            let mut bands = bands[k].clone();
+            if let Ok(a) = &mut bands {
+                for (r, sum) in a.bands.iter_mut().zip(&sums[k]) {
+                    if let Ok(st) = &mut r.outcome {
+                        *st = sum.stats(&r.band, a.dx_mm);
+                    }
+                }
+            }
+            let roughness = match &welch[k] {
+                Ok(w) => Ok(en15610::Roughness { spectrum: w.spectrum(), spikes_removed: spikes[k] }),
+                Err(e) => Err(e.clone()),
+            };
+            lasers.push(LaserAnalysis { stitched: s.clone(), bands, roughness });
+        }
+    }
+    Ok(Analysis { options: opts.clone(), stitching, joins, lasers, verdict: verdict.finish() })
+}
+
+/// Which EN 13231-3 bands a line's plan evaluates.
+fn evaluated(a: &Result<en13231::BandAnalysis, StandardsError>) -> [bool; 4] {
+    let mut out = [false; 4];
+    if let Ok(a) = a {
+        for (o, r) in out.iter_mut().zip(&a.bands) {
+            *o = r.outcome.is_ok();
+        }
+    }
+    out
+}
+
+impl Analysis {
+    /// Walks the survey line piece by piece, every section in chainage
+    /// order, with the lines' samples and band traces (what plots and
+    /// exports are written from; recomputed, never held whole).
+    pub fn for_each_piece(&self, mut f: impl FnMut(&pieces::Piece) -> Result<(), Error>) -> Result<(), Error> {
+        for section in self.sections() {
+            let lines: Vec<(&Stitched, [bool; 4])> =
+                section.lasers.iter().map(|l| (&l.stitched, evaluated(&l.bands))).collect();
+            pieces::walk_section(section.number, &lines, &self.options, &mut f)?;
+        }
+        Ok(())
+    }
 }
 
 /// ISO 3095 wavelengths the spectrum does not reach, with why.

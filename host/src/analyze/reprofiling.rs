@@ -30,7 +30,8 @@
 
 use std::fmt::Write as _;
 
-use super::{Grid, LaserAnalysis, chainage};
+use super::chainage;
+use super::pieces::Piece;
 use crate::analyze::standards::{en13231, en15610};
 
 /// Which edition's criterion judges a position.
@@ -158,234 +159,202 @@ pub struct ReprofilingVerdict {
     pub blocks: Vec<Block>,
 }
 
-/// Judges the lines' analyses: zones, table, blocks, section by section
-/// (the lines of one section are consecutive: [`super::Analysis::sections`];
-/// sections lie more than a block and a window apart, so no zone or block
-/// spans two). All lines share one grid spacing; their positions are
-/// chainage mm.
-pub fn judge(lasers: &[LaserAnalysis], opts: &Options) -> ReprofilingVerdict {
-    let mut v = ReprofilingVerdict {
-        options: *opts,
-        rows: vec![],
-        zones: vec![],
-        reprofile_mm: 0.0,
-        measured_mm: 0.0,
-        blocks: vec![],
-    };
-    for section in lasers.chunk_by(|a, b| a.stitched.section == b.stitched.section) {
-        let s = judge_section(section, opts);
-        if v.rows.is_empty() {
-            v.rows = s.rows;
-        } else {
-            for (row, r) in v.rows.iter_mut().zip(s.rows) {
-                row.measured_mm += r.measured_mm;
-                row.exceeding_mm += r.exceeding_mm;
-                row.not_evaluated =
-                    if row.measured_mm > 0.0 { None } else { row.not_evaluated.take().or(r.not_evaluated) };
-            }
+/// The verdict built piece by piece along the survey line
+/// ([`crate::analyze::pieces`]): sections one after the other, each
+/// section's pieces in chainage order. Sections lie more than a block and
+/// a window apart ([`crate::analyze::survey::section_gap_mm`]), so no
+/// zone or block spans two; pieces are whole blocks, and a zone that
+/// runs on from one piece into the next is carried over.
+pub struct Builder {
+    v: ReprofilingVerdict,
+    dx_mm: f64,
+    /// Per band: why no line evaluated it (the last reason seen).
+    why: Vec<Option<String>>,
+    /// Per band: the zone still open (first and last exceeding grid
+    /// index, exceeding positions, worst peak-to-peak) and the section grid's origin.
+    open: Vec<Option<(usize, usize, usize, f64)>>,
+    origin_mm: f64,
+}
+
+impl Builder {
+    pub fn new(opts: &Options, dx_mm: f64) -> Builder {
+        let rows = en13231::BANDS
+            .iter()
+            .map(|band| BandRow {
+                band: *band,
+                limit_mm: opts.edition.limit_mm(band),
+                measured_mm: 0.0,
+                exceeding_mm: 0.0,
+                not_evaluated: None,
+            })
+            .collect();
+        Builder {
+            v: ReprofilingVerdict {
+                options: *opts,
+                rows,
+                zones: vec![],
+                reprofile_mm: 0.0,
+                measured_mm: 0.0,
+                blocks: vec![],
+            },
+            dx_mm,
+            why: vec![None; en13231::BANDS.len()],
+            open: vec![None; en13231::BANDS.len()],
+            origin_mm: 0.0,
         }
-        v.zones.extend(s.zones);
-        v.blocks.extend(s.blocks);
-        v.reprofile_mm += s.reprofile_mm;
-        v.measured_mm += s.measured_mm;
     }
-    v
-}
 
-/// [`judge`] on the lines of one section.
-fn judge_section(lasers: &[LaserAnalysis], opts: &Options) -> ReprofilingVerdict {
-    let dx = lasers[0].stitched.dx_mm;
-    let grid = Grid::of(lasers, dx);
-    let (origin, len) = (grid.origin_mm, grid.len);
-    let mut any_over = vec![false; len];
-    let mut any_measured = vec![false; len];
-    let mut rows = Vec::new();
-    let mut zones = Vec::new();
-    for (b, band) in en13231::BANDS.iter().enumerate() {
-        let limit = opts.edition.limit_mm(band);
-        // Per position: measured on some line; over on some line; worst window p-p.
-        let BandMarks { measured, over, worst, why } = mark_band(lasers, &grid, b, opts.edition, limit);
-        let measured_n = measured.iter().filter(|&&m| m).count();
-        let over_n = over.iter().filter(|&&o| o).count();
-        rows.push(BandRow {
-            band: *band,
-            limit_mm: limit,
-            measured_mm: measured_n as f64 * dx,
-            exceeding_mm: over_n as f64 * dx,
-            not_evaluated: if measured_n == 0 { why.or_else(|| Some("no line evaluated it".into())) } else { None },
-        });
-        if limit.is_some() {
-            for (a, &o) in any_over.iter_mut().zip(&over) {
-                *a |= o;
-            }
-            for (a, &m) in any_measured.iter_mut().zip(&measured) {
-                *a |= m;
-            }
+    /// Why band `b` could not be evaluated on a line (shown when no line did).
+    pub fn not_evaluated(&mut self, b: usize, why: String) {
+        if let Some(w) = self.why.get_mut(b) {
+            *w = Some(why);
         }
-        zones.extend(band_zones(band, &over, &worst, origin, dx));
     }
-    zones.sort_by(|a, b| a.start_mm.total_cmp(&b.start_mm));
-    let blocks = blocks(lasers, opts, origin, len, dx);
-    ReprofilingVerdict {
-        options: *opts,
-        rows,
-        zones,
-        reprofile_mm: any_over.iter().filter(|&&o| o).count() as f64 * dx,
-        measured_mm: any_measured.iter().filter(|&&m| m).count() as f64 * dx,
-        blocks,
-    }
-}
 
-/// One band's marks along the grid: where some line measured it, where
-/// some line exceeds its limit, the worst window peak-to-peak, and why no
-/// line evaluated it (if none did).
-struct BandMarks {
-    measured: Vec<bool>,
-    over: Vec<bool>,
-    worst: Vec<f64>,
-    why: Option<String>,
-}
-
-/// Marks band `b` of every line on `grid` by `edition`'s criterion against `limit`.
-fn mark_band(lasers: &[LaserAnalysis], grid: &Grid, b: usize, edition: Edition, limit: Option<f64>) -> BandMarks {
-    let len = grid.len;
-    let mut measured = vec![false; len];
-    let mut over = vec![false; len];
-    let mut worst = vec![0.0f64; len];
-    let mut why = None;
-    for l in lasers {
-        let off = grid.offset(&l.stitched);
-        let stats = match &l.bands {
-            Ok(a) => a.bands.get(b).map(|r| r.outcome.as_ref()),
-            Err(e) => {
-                why = Some(e.to_string());
-                None
-            }
-        };
-        let st = match stats {
-            Some(Ok(st)) => st,
-            Some(Err(e)) => {
-                why = Some(e.to_string());
-                continue;
-            }
-            None => continue,
-        };
-        for (i, (&mean, &maxpp)) in st.mean_pp_mm.iter().zip(&st.max_pp_mm).enumerate() {
-            let value = match edition {
-                Edition::En2006 => mean,
-                // Isolated points are judged where the window statistics are
-                // (inside the settled part), on the displacement itself.
-                Edition::En2012 => {
-                    if mean.is_finite() {
-                        st.band_mm[i].abs()
-                    } else {
-                        f64::NAN
+    /// Adds a piece of a section (the pieces of a section in order).
+    pub fn piece(&mut self, p: &Piece) {
+        if p.core.start == 0 {
+            self.close_zones();
+            self.origin_mm = p.grid.origin_mm;
+        }
+        let n = p.core.len();
+        let edition = self.v.options.edition;
+        let mut any_over = vec![false; n];
+        let mut any_measured = vec![false; n];
+        for (b, band) in en13231::BANDS.iter().enumerate() {
+            let limit = edition.limit_mm(band);
+            let (mut measured_n, mut over_n) = (0usize, 0usize);
+            for i in 0..n {
+                // Measured on some line; over on some line; worst window p-p.
+                let (mut measured, mut over, mut worst) = (false, false, 0.0f64);
+                for t in p.lines.iter().filter_map(|l| l.bands.get(b).and_then(Option::as_ref)) {
+                    let mean = t.mean_pp_mm[i];
+                    let value = match edition {
+                        Edition::En2006 => mean,
+                        // Isolated points are judged where the window statistics are
+                        // (inside the settled part), on the displacement itself.
+                        Edition::En2012 if mean.is_finite() => t.band_mm[i].abs(),
+                        Edition::En2012 => f64::NAN,
+                    };
+                    if !value.is_finite() {
+                        continue;
                     }
+                    measured = true;
+                    worst = worst.max(t.max_pp_mm[i]);
+                    over |= limit.is_some_and(|lim| value > lim);
                 }
-            };
-            if !value.is_finite() {
-                continue;
-            }
-            let k = off + i;
-            measured[k] = true;
-            worst[k] = worst[k].max(maxpp);
-            if limit.is_some_and(|lim| value > lim) {
-                over[k] = true;
-            }
-        }
-    }
-    BandMarks { measured, over, worst, why }
-}
-
-/// A band's zones: exceeding positions closer than one window merged.
-fn band_zones(band: &en13231::Band, over: &[bool], worst: &[f64], origin: f64, dx: f64) -> Vec<Zone> {
-    let len = over.len();
-    let mut zones = Vec::new();
-    let merge = (band.window_mm / dx).round() as usize;
-    let mut i = 0;
-    while i < len {
-        if !over[i] {
-            i += 1;
-            continue;
-        }
-        let (start, mut end, mut count, mut pp) = (i, i, 0usize, 0.0f64);
-        let mut j = i;
-        while j < len && j <= end + merge {
-            if over[j] {
-                end = j;
-                count += 1;
-                pp = pp.max(worst[j]);
-            }
-            j += 1;
-        }
-        zones.push(Zone {
-            band: *band,
-            start_mm: origin + start as f64 * dx,
-            end_mm: origin + end as f64 * dx,
-            exceeding_mm: count as f64 * dx,
-            worst_pp_mm: pp,
-        });
-        i = end + 1;
-    }
-    zones
-}
-
-fn blocks(lasers: &[LaserAnalysis], opts: &Options, origin: f64, len: usize, dx: f64) -> Vec<Block> {
-    // Blocks start on whole multiples of the block length in chainage.
-    let first = (origin / opts.block_mm).floor() * opts.block_mm;
-    let mut out = Vec::new();
-    let mut start = first;
-    let end_all = origin + len as f64 * dx;
-    while start < end_all {
-        let end = start + opts.block_mm;
-        let mut rms = vec![None; en13231::BANDS.len()];
-        let mut exceeded: Option<Vec<f64>> = None;
-        for l in lasers {
-            let s = &l.stitched;
-            let lo = (((start - s.x0_mm) / dx).ceil().max(0.0)) as usize;
-            let hi = ((((end - s.x0_mm) / dx).ceil()).max(0.0) as usize).min(s.z.len());
-            if lo >= hi {
-                continue;
-            }
-            if let Ok(a) = &l.bands {
-                for (b, r) in a.bands.iter().enumerate() {
-                    if let Ok(st) = &r.outcome {
-                        let (sq, n) = st.band_mm[lo..hi]
-                            .iter()
-                            .filter(|v| v.is_finite())
-                            .fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
-                        if n > 0 {
-                            let v = (sq / n as f64).sqrt();
-                            rms[b] = Some(rms[b].map_or(v, |w: f64| w.max(v)));
-                        }
-                    }
+                measured_n += usize::from(measured);
+                over_n += usize::from(over);
+                if limit.is_some() {
+                    any_over[i] |= over;
+                    any_measured[i] |= measured;
+                }
+                if over {
+                    self.zone_position(b, p.core.start + i, worst);
                 }
             }
-            if let Ok(r) = en15610::analyze(&s.z.read(lo..hi).unwrap_or_default(), dx, &en15610::Options::default()) {
-                let over: Vec<f64> = r
-                    .spectrum
-                    .bands
-                    .iter()
-                    .filter(|b| b.exceeds() == Some(true))
-                    .map(|b| b.nominal_wavelength_mm)
-                    .collect();
-                let e = exceeded.get_or_insert_with(Vec::new);
-                for w in over {
-                    if !e.contains(&w) {
-                        e.push(w);
-                    }
+            let row = &mut self.v.rows[b];
+            row.measured_mm += measured_n as f64 * self.dx_mm;
+            row.exceeding_mm += over_n as f64 * self.dx_mm;
+        }
+        self.v.reprofile_mm += any_over.iter().filter(|&&o| o).count() as f64 * self.dx_mm;
+        self.v.measured_mm += any_measured.iter().filter(|&&m| m).count() as f64 * self.dx_mm;
+        self.blocks(p);
+    }
+
+    /// An exceeding position of band `b`: joins the open zone when within a
+    /// window of its last position, else closes it and opens another.
+    fn zone_position(&mut self, b: usize, i: usize, worst: f64) {
+        let merge = (en13231::BANDS[b].window_mm / self.dx_mm).round() as usize;
+        match &mut self.open[b] {
+            Some((_, end, count, pp)) if i <= *end + merge => {
+                *end = i;
+                *count += 1;
+                *pp = pp.max(worst);
+            }
+            _ => {
+                self.close_zone(b);
+                self.open[b] = Some((i, i, 1, worst));
+            }
+        }
+    }
+
+    fn close_zone(&mut self, b: usize) {
+        if let Some((start, end, count, pp)) = self.open[b].take() {
+            let dx = self.dx_mm;
+            self.v.zones.push(Zone {
+                band: en13231::BANDS[b],
+                start_mm: self.origin_mm + start as f64 * dx,
+                end_mm: self.origin_mm + end as f64 * dx,
+                exceeding_mm: count as f64 * dx,
+                worst_pp_mm: pp,
+            });
+        }
+    }
+
+    fn close_zones(&mut self) {
+        for b in 0..self.open.len() {
+            self.close_zone(b);
+        }
+    }
+
+    /// The blocks of a piece.
+    fn blocks(&mut self, p: &Piece) {
+        for (range, span) in crate::analyze::pieces::blocks(p, self.v.options.block_mm) {
+            if let Some(b) = block_of(p, range, span, self.dx_mm) {
+                self.v.blocks.push(b);
+            }
+        }
+    }
+
+    /// The verdict, every zone closed.
+    pub fn finish(mut self) -> ReprofilingVerdict {
+        self.close_zones();
+        self.v.zones.sort_by(|a, b| a.start_mm.total_cmp(&b.start_mm));
+        for (row, why) in self.v.rows.iter_mut().zip(self.why) {
+            if row.measured_mm == 0.0 {
+                row.not_evaluated = why.or_else(|| Some("no line evaluated it".into()));
+            }
+        }
+        self.v
+    }
+}
+
+/// One block's figures from the piece's samples `range` (indices in its core).
+fn block_of(p: &Piece, range: std::ops::Range<usize>, (start_mm, end_mm): (f64, f64), dx: f64) -> Option<Block> {
+    if range.is_empty() {
+        return None;
+    }
+    let mut rms = vec![None; en13231::BANDS.len()];
+    let mut exceeded: Option<Vec<f64>> = None;
+    for l in &p.lines {
+        for (b, t) in l.bands.iter().enumerate() {
+            let Some(t) = t else { continue };
+            let (sq, n) = t.band_mm[range.clone()]
+                .iter()
+                .filter(|v| v.is_finite())
+                .fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
+            if n > 0 {
+                let v = (sq / n as f64).sqrt();
+                rms[b] = Some(rms[b].map_or(v, |w: f64| w.max(v)));
+            }
+        }
+        if let Ok(r) = en15610::analyze(&l.z_um[range.clone()], dx, &en15610::Options::default()) {
+            let e = exceeded.get_or_insert_with(Vec::new);
+            for w in r.spectrum.bands.iter().filter(|b| b.exceeds() == Some(true)).map(|b| b.nominal_wavelength_mm) {
+                if !e.contains(&w) {
+                    e.push(w);
                 }
             }
         }
-        if rms.iter().any(Option::is_some) || exceeded.is_some() {
-            if let Some(e) = &mut exceeded {
-                e.sort_by(|a, b| b.total_cmp(a));
-            }
-            out.push(Block { start_mm: start, end_mm: end, rms_mm: rms, iso3095_exceeded: exceeded });
-        }
-        start = end;
     }
-    out
+    if rms.iter().all(Option::is_none) && exceeded.is_none() {
+        return None;
+    }
+    if let Some(e) = &mut exceeded {
+        e.sort_by(|a, b| b.total_cmp(a));
+    }
+    Some(Block { start_mm, end_mm, rms_mm: rms, iso3095_exceeded: exceeded })
 }
 
 fn band_name(b: &en13231::Band) -> String {

@@ -107,3 +107,15 @@ fn rms(v: impl Iterator<Item = f64>) -> f64 {
     let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
     if n == 0 { 0.0 } else { (s / n as f64).sqrt() }
 }
+
+/// The temporary storage behind a line failed (a full or failing disk
+/// under the temporary directory).
+#[derive(Debug, thiserror::Error)]
+#[error("temporary storage of a stitched line: {0}")]
+pub struct ScratchError(#[source] pub std::io::Error);
+
+impl crate::error::Classify for ScratchError {
+    fn class(&self) -> crate::error::Class {
+        crate::error::Class::Other
+    }
+}

@@ -97,11 +97,17 @@ pub enum TrendError {
     /// The first survey has no blocks (nothing measured).
     #[error("{0} has no blocks: nothing measured to follow")]
     NoBlocks(String),
+    /// A survey's lines could not be read back (their temporary storage).
+    #[error("{0}: {1}")]
+    Scratch(String, String),
 }
 
 impl crate::error::Classify for TrendError {
     fn class(&self) -> crate::error::Class {
-        crate::error::Class::Input
+        match self {
+            TrendError::Scratch(..) => crate::error::Class::Other,
+            _ => crate::error::Class::Input,
+        }
     }
 }
 
@@ -216,15 +222,17 @@ pub fn trend(surveys: &[SurveyRun], opts: &Options) -> Result<Trend, TrendError>
     let years: Vec<f64> = order.iter().map(|s| s.date.years_since(t0)).collect();
     let mut blocks = Vec::new();
     let mut covered = vec![false; order.len()];
+    let per_survey = order
+        .iter()
+        .map(|s| block_figures(&s.analysis, edition).map_err(|e| TrendError::Scratch(s.name.clone(), e.to_string())))
+        .collect::<Result<Vec<_>, TrendError>>()?;
     for blk in &verdict.blocks {
         for (b, band) in en13231::BANDS.iter().enumerate() {
             let limit_mm = edition.limit_mm(band);
-            let figures: Vec<Option<(f64, f64, f64)>> = order
+            let figures: Vec<Option<(f64, f64, f64)>> = per_survey
                 .iter()
                 .zip(&years)
-                .map(|(s, &t)| {
-                    block_figure(&s.analysis.lasers, b, edition, (blk.start_mm, blk.end_mm)).map(|(y, u)| (t, y, u))
-                })
+                .map(|(f, &t)| f.get(&(block_key(blk.start_mm), b)).map(|&(y, u)| (t, y, u)))
                 .collect();
             for (c, f) in covered.iter_mut().zip(&figures) {
                 *c |= f.is_some();
@@ -264,32 +272,60 @@ pub fn trend(surveys: &[SurveyRun], opts: &Options) -> Result<Trend, TrendError>
     })
 }
 
-/// A block's figure in band `b` over `[lo, hi)` chainage mm, and its
-/// standard uncertainty (the quarters' standard error), mm.
-pub fn block_figure(lasers: &[LaserAnalysis], b: usize, edition: Edition, (lo, hi): (f64, f64)) -> Option<(f64, f64)> {
-    let dx = lasers.first()?.stitched.dx_mm;
-    let n = ((hi - lo) / dx).round().max(1.0) as usize;
-    // Per position of the block: the largest line's criterion.
-    let mut value = vec![f64::NAN; n];
-    for l in lasers {
-        let Ok(a) = &l.bands else { continue };
-        let Some(Ok(st)) = a.bands.get(b).map(|r| r.outcome.as_ref()) else { continue };
-        for (i, &mean) in st.mean_pp_mm.iter().enumerate() {
-            let v = match edition {
-                Edition::En2006 => mean,
-                Edition::En2012 if mean.is_finite() => st.band_mm[i].abs(),
-                Edition::En2012 => f64::NAN,
-            };
-            let k = ((l.stitched.x_mm(i) - lo) / dx).round();
-            if !v.is_finite() || k < 0.0 || k >= n as f64 {
-                continue;
+/// A block's key: its start chainage to the micrometre.
+fn block_key(start_mm: f64) -> i64 {
+    (start_mm * 1000.0).round() as i64
+}
+
+/// Figures and uncertainties by ([`block_key`], band), mm.
+pub type BlockFigures = std::collections::HashMap<(i64, usize), (f64, f64)>;
+
+/// Every block's figure in every band of an analysis, with its standard
+/// uncertainty (see [`block_figure`]), by ([`block_key`], band), in one
+/// walk along the line.
+pub fn block_figures(a: &Analysis, edition: Edition) -> Result<BlockFigures, crate::Error> {
+    let mut out = std::collections::HashMap::new();
+    let block_mm = a.verdict.options.block_mm;
+    a.for_each_piece(|p| {
+        for (range, (lo, hi)) in crate::analyze::pieces::blocks(p, block_mm) {
+            let dx = p.grid.dx_mm;
+            let n = ((hi - lo) / dx).round().max(1.0) as usize;
+            for b in 0..en13231::BANDS.len() {
+                // Per position of the block: the largest line's criterion.
+                let mut value = vec![f64::NAN; n];
+                for t in p.lines.iter().filter_map(|l| l.bands.get(b).and_then(Option::as_ref)) {
+                    for i in range.clone() {
+                        let mean = t.mean_pp_mm[i];
+                        let v = match edition {
+                            Edition::En2006 => mean,
+                            Edition::En2012 if mean.is_finite() => t.band_mm[i].abs(),
+                            Edition::En2012 => f64::NAN,
+                        };
+                        let k = ((p.grid.origin_mm + (p.core.start + i) as f64 * dx - lo) / dx).round();
+                        if !v.is_finite() || k < 0.0 || k >= n as f64 {
+                            continue;
+                        }
+                        let slot = &mut value[k as usize];
+                        *slot = if slot.is_nan() { v } else { slot.max(v) };
+                    }
+                }
+                if let Some(f) = block_figure(&value, edition) {
+                    out.insert((block_key(lo), b), f);
+                }
             }
-            let slot = &mut value[k as usize];
-            *slot = if slot.is_nan() { v } else { slot.max(v) };
         }
-    }
+        Ok(())
+    })?;
+    Ok(out)
+}
+
+/// A block's figure from its per-position criterion values (NaN: not
+/// measured there), and its standard uncertainty (the quarters' standard
+/// error), mm.
+pub fn block_figure(value: &[f64], edition: Edition) -> Option<(f64, f64)> {
+    let n = value.len();
     let figure = |v: &[f64]| figure_of(v, edition);
-    let y = figure(&value)?;
+    let y = figure(value)?;
     let quarters: Vec<f64> = value.chunks(n.div_ceil(4).max(1)).filter_map(figure).collect();
     let u = if quarters.len() >= 2 {
         let m = quarters.iter().sum::<f64>() / quarters.len() as f64;

@@ -32,6 +32,7 @@ pub mod html;
 pub mod json;
 pub mod marks;
 pub mod text;
+pub mod traces;
 pub mod track;
 pub mod trend;
 
@@ -109,7 +110,7 @@ fn padded(lo: f64, hi: f64) -> (f64, f64) {
 }
 
 /// Continuous pieces of a plotted line.
-type Pieces = Vec<Vec<(f64, f64)>>;
+use traces::Pieces;
 
 /// The stitched profiles.
 struct ProfileFig {
@@ -152,6 +153,7 @@ struct BandsFig<'a> {
     laser: usize,
     x0: f64,
     a: &'a en13231::BandAnalysis,
+    traces: &'a traces::LineTraces,
 }
 
 impl Figure for BandsFig<'_> {
@@ -183,12 +185,13 @@ impl Figure for BandsFig<'_> {
                     continue;
                 }
             };
-            let to_um = |v: &[f64]| v.iter().map(|v| v * 1000.0).collect::<Vec<f64>>();
-            let band = plot_pieces(self.x0, dx, &to_um(&st.band_mm), MAX_PLOT_POINTS);
-            let pp = plot_pieces(self.x0, dx, &to_um(&st.mean_pp_mm), MAX_PLOT_POINTS);
+            let k = en13231::BANDS.iter().position(|x| *x == b.band).unwrap_or(0);
+            let empty = Pieces::new();
+            let band = self.traces.band.get(k).unwrap_or(&empty);
+            let pp = self.traces.mean_pp.get(k).unwrap_or(&empty);
             let limit_um = b.band.mean_pp_limit_mm * 1000.0;
-            let ((_, _), (lo, hi)) = range(&band).unwrap_or(((0.0, 1.0), (-1.0, 1.0)));
-            let top = hi.max(limit_um).max(range(&pp).map_or(0.0, |r| r.1.1));
+            let ((_, _), (lo, hi)) = range(band).unwrap_or(((0.0, 1.0), (-1.0, 1.0)));
+            let top = hi.max(limit_um).max(range(pp).map_or(0.0, |r| r.1.1));
             let (lo, top) = padded(lo.min(-limit_um * 0.1), top);
             let mut chart = ChartBuilder::on(panel)
                 .caption(
@@ -205,10 +208,10 @@ impl Figure for BandsFig<'_> {
                 .map_err(err)?;
             chart.configure_mesh().y_desc("µm").max_light_lines(2).draw().map_err(err)?;
             let c = colour(self.laser);
-            for p in &band {
+            for p in band {
                 chart.draw_series(LineSeries::new(p.iter().copied(), c.stroke_width(1))).map_err(err)?;
             }
-            for p in &pp {
+            for p in pp {
                 chart.draw_series(LineSeries::new(p.iter().copied(), BLACK.stroke_width(2))).map_err(err)?;
             }
             chart
@@ -279,6 +282,7 @@ impl Figure for SpectrumFig<'_> {
 /// the limit (dashed) and the exceedance zones (shaded).
 struct ZoneFig<'a> {
     a: &'a Analysis,
+    traces: &'a [traces::LineTraces],
 }
 
 impl Figure for ZoneFig<'_> {
@@ -304,22 +308,11 @@ impl Figure for ZoneFig<'_> {
         let (m0, m1) = (x0 / 1000.0, x1 / 1000.0);
         for (b, (panel, band)) in root.split_evenly((en13231::BANDS.len(), 1)).iter().zip(&en13231::BANDS).enumerate() {
             let mut lines: Vec<(usize, Pieces)> = Vec::new();
-            for l in &self.a.lasers {
-                let Some(Ok(st)) = l.bands.as_ref().ok().and_then(|a| a.bands.get(b)).map(|r| r.outcome.as_ref())
-                else {
+            for (l, t) in self.a.lasers.iter().zip(self.traces) {
+                let Some(Ok(_)) = l.bands.as_ref().ok().and_then(|a| a.bands.get(b)).map(|r| r.outcome.as_ref()) else {
                     continue;
                 };
-                let y: Vec<f64> = match e {
-                    reprofiling::Edition::En2006 => st.mean_pp_mm.iter().map(|v| v * 1000.0).collect(),
-                    reprofiling::Edition::En2012 => st
-                        .mean_pp_mm
-                        .iter()
-                        .zip(&st.band_mm)
-                        .map(|(m, v)| if m.is_finite() { v.abs() * 1000.0 } else { f64::NAN })
-                        .collect(),
-                };
-                let x0m = l.stitched.x0_mm / 1000.0;
-                lines.push((l.stitched.laser, plot_pieces(x0m, l.stitched.dx_mm / 1000.0, &y, MAX_PLOT_POINTS / 2)));
+                lines.push((l.stitched.laser, t.criterion.get(b).cloned().unwrap_or_default()));
             }
             let limit_um = e.limit_mm(band).map(|v| v * 1000.0);
             let all: Pieces = lines.iter().flat_map(|(_, p)| p.clone()).collect();
@@ -368,33 +361,23 @@ impl Figure for ZoneFig<'_> {
     }
 }
 
-fn median_of(z: &[f64]) -> f64 {
-    crate::analyze::stitch::median(z.to_vec()).unwrap_or(0.0)
-}
-
 /// The stitched profiles on one grid per section: `x_mm,laser_K_um…`,
 /// the sections one after the other (the stretches between them, never
-/// measured, have no rows).
-fn profile_csv(a: &Analysis) -> String {
-    let mut s = String::from("x_mm");
+/// measured, have no rows), written piece by piece.
+fn profile_csv(a: &Analysis, w: &mut dyn std::io::Write) -> Result<(), Error> {
     let mut lines: Vec<usize> = a.lasers.iter().map(|l| l.stitched.laser).collect();
     lines.sort_unstable();
     lines.dedup();
+    let mut s = String::from("x_mm");
     for k in &lines {
         let _ = write!(s, ",laser_{k}_um");
     }
     s.push('\n');
-    for sec in a.sections() {
-        let grid = sec.grid;
-        let zs: Vec<Vec<f64>> = sec.lasers.iter().map(|l| l.stitched.z.to_vec().unwrap_or_default()).collect();
-        for i in 0..grid.len as i64 {
-            let _ = write!(s, "{}", grid.chainage_mm(i as usize));
+    a.for_each_piece(|p| {
+        for i in 0..p.core.len() {
+            let _ = write!(s, "{}", p.grid.chainage_mm(p.core.start + i));
             for k in &lines {
-                let v = sec.lasers.iter().zip(&zs).find(|(l, _)| l.stitched.laser == *k).and_then(|(l, z)| {
-                    let j = i - grid.offset(&l.stitched) as i64;
-                    usize::try_from(j).ok().and_then(|j| z.get(j)).filter(|v| v.is_finite())
-                });
-                match v {
+                match p.lines.iter().find(|l| l.laser == *k).map(|l| l.z_um[i]).filter(|v| v.is_finite()) {
                     Some(v) => {
                         let _ = write!(s, ",{v:.4}");
                     }
@@ -403,8 +386,55 @@ fn profile_csv(a: &Analysis) -> String {
             }
             s.push('\n');
         }
-    }
-    s
+        w.write_all(s.as_bytes()).map_err(Error::Output)?;
+        s.clear();
+        Ok(())
+    })?;
+    w.write_all(s.as_bytes()).map_err(Error::Output)
+}
+
+/// A line's band signals (`bands_laserK.csv`), written piece by piece.
+fn bands_csv(a: &Analysis, index: usize, w: &mut dyn std::io::Write) -> Result<(), Error> {
+    let Some(l) = a.lasers.get(index) else { return Ok(()) };
+    let Ok(b) = &l.bands else { return Ok(()) };
+    let mut s = en13231::bands_csv_header(b);
+    a.for_each_piece(|p| {
+        if p.section != l.stitched.section {
+            return Ok(());
+        }
+        if let Some(pl) = p.lines.iter().find(|pl| pl.laser == l.stitched.laser) {
+            let x0 = p.grid.chainage_mm(p.core.start);
+            // The line's own extent only, as its samples run.
+            let (lo, hi) = (l.stitched.x0_mm, l.stitched.x_mm(l.stitched.z.len()));
+            let keep: Vec<usize> = (0..p.core.len())
+                .filter(|&i| (lo - 1e-6..hi - 1e-6).contains(&p.grid.chainage_mm(p.core.start + i)))
+                .collect();
+            if let (Some(&f), Some(&e)) = (keep.first(), keep.last()) {
+                let cut: Vec<Option<en13231::BandTrace>> = pl
+                    .bands
+                    .iter()
+                    .map(|t| {
+                        t.as_ref().map(|t| en13231::BandTrace {
+                            band_mm: t.band_mm[f..=e].to_vec(),
+                            mean_pp_mm: Vec::new(),
+                            max_pp_mm: Vec::new(),
+                        })
+                    })
+                    .collect();
+                let n = e + 1 - f;
+                let mut all = cut;
+                // A band not evaluated still has its (empty) column.
+                for t in all.iter_mut().filter(|t| t.is_none()) {
+                    *t = Some(en13231::BandTrace { band_mm: vec![f64::NAN; n], ..Default::default() });
+                }
+                en13231::bands_csv_rows(&mut s, x0 + f as f64 * p.grid.dx_mm, p.grid.dx_mm, &all);
+            }
+        }
+        w.write_all(s.as_bytes()).map_err(Error::Output)?;
+        s.clear();
+        Ok(())
+    })?;
+    w.write_all(s.as_bytes()).map_err(Error::Output)
 }
 
 fn registration_csv(a: &Analysis) -> String {
@@ -507,25 +537,27 @@ fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Resu
     put("summary.txt", summary)?;
     // `analyze --json`'s object: what `cms-host view DIR` shows.
     put("analysis.json", &format!("{:#}\n", json::to_json(source, a)))?;
-    put("profile.csv", &profile_csv(a))?;
+    streamed(&dir.join("profile.csv"), &mut |w| profile_csv(a, w))?;
     put("registration.csv", &registration_csv(a))?;
     put("gaps.csv", &gaps_csv(a))?;
     exports::write_files(dir, source, a)?;
     let several = a.sections().len() > 1;
-    for l in &a.lasers {
+    for (k, l) in a.lasers.iter().enumerate() {
         let (name, _) = line_names(&l.stitched, several);
-        if let Ok(b) = &l.bands {
-            put(&format!("bands_{name}.csv"), &en13231::bands_csv_from(b, l.stitched.x0_mm))?;
+        if l.bands.is_ok() {
+            streamed(&dir.join(format!("bands_{name}.csv")), &mut |w| bands_csv(a, k, w))?;
         }
         if let Ok(r) = &l.roughness {
             put(&format!("spectrum_{name}.csv"), &en15610::spectrum_csv(&r.spectrum))?;
         }
     }
-    let plots = plots(dir, a)?;
+    let traces = traces::of(a, MAX_PLOT_POINTS)?;
+    let plots = plots(dir, a, &traces)?;
     let zone_svg = if a.lasers.is_empty() {
         String::new()
     } else {
-        plot::svg_and_png(&dir.join("zones"), (1400, 900), &ZoneFig { a }).map_err(|e| out_err("zone plot", e))?
+        plot::svg_and_png(&dir.join("zones"), (1400, 900), &ZoneFig { a, traces: &traces })
+            .map_err(|e| out_err("zone plot", e))?
     };
     let track = track::Track::of(source, a);
     let track_svg = match track.as_ref().filter(|t| t.plottable()) {
@@ -543,30 +575,36 @@ fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Resu
     Ok(())
 }
 
+/// A file written atomically by `write`, piece by piece.
+fn streamed(path: &Path, write: &mut dyn FnMut(&mut dyn std::io::Write) -> Result<(), Error>) -> Result<(), Error> {
+    let mut failed = None;
+    let r = crate::output::write_atomically(path, |w| {
+        write(w).map_err(|e| {
+            let m = e.to_string();
+            failed = Some(e);
+            std::io::Error::other(m)
+        })
+    });
+    match (r, failed) {
+        (Err(_), Some(e)) => Err(e),
+        (r, _) => Ok(r?),
+    }
+}
+
 /// The plots of the plots section, written as SVG and PNG: (title, file
 /// stem, SVG text).
-fn plots(dir: &Path, a: &Analysis) -> Result<Vec<(String, String, String)>, Error> {
+fn plots(dir: &Path, a: &Analysis, traces: &[traces::LineTraces]) -> Result<Vec<(String, String, String)>, Error> {
     let mut figures = Vec::new();
-    let lines = a
-        .lasers
-        .iter()
-        .map(|l| {
-            let s = &l.stitched;
-            let z = s.z.to_vec().unwrap_or_default();
-            let m = median_of(&z);
-            let z: Vec<f64> = z.iter().map(|v| v - m).collect();
-            (s.laser, plot_pieces(s.x0_mm, s.dx_mm, &z, MAX_PLOT_POINTS))
-        })
-        .collect();
+    let lines = a.lasers.iter().zip(traces).map(|(l, t)| (l.stitched.laser, t.profile.clone())).collect();
     let svg = plot::svg_and_png(&dir.join("profile"), (1400, 600), &ProfileFig { lines })
         .map_err(|e| out_err("profile plot", e))?;
     figures.push(("Stitched profiles".into(), "profile".into(), svg));
     let several = a.sections().len() > 1;
-    for l in &a.lasers {
+    for (l, t) in a.lasers.iter().zip(traces) {
         let (name, title) = line_names(&l.stitched, several);
         if let Ok(b) = &l.bands {
             let stem = format!("bands_{name}");
-            let fig = BandsFig { laser: l.stitched.laser, x0: l.stitched.x0_mm, a: b };
+            let fig = BandsFig { laser: l.stitched.laser, x0: l.stitched.x0_mm, a: b, traces: t };
             let svg = plot::svg_and_png(&dir.join(&stem), (1400, 1000), &fig).map_err(|e| out_err("band plot", e))?;
             figures.push((format!("{title}: EN 13231-3 bands"), stem, svg));
         }

@@ -167,7 +167,8 @@ fn band_filter_puts_a_50_mm_sine_in_30_100_mm() {
     assert!(b100 < 0.01, "{b100}");
     assert!(b300 < 0.01, "{b300}");
     // Without the edge zones the ends would count: the filter cannot know how the rail goes on.
-    let y = &band(&a, 100.0).band_mm;
+    let (_, traces) = en13231::analyze_traced(&z, dx_mm).unwrap();
+    let y = &traces[2].as_ref().unwrap().band_mm;
     let near_end = y[..300].iter().fold(0.0f64, |m, v| m.max(v.abs())) * 1000.0 / amp_um;
     println!("50 mm sine in 100–300 mm within 300 mm of the start: {near_end:.3} of its amplitude");
 }
@@ -188,7 +189,7 @@ fn band_edges_are_minus_3_db_and_a_sine_in_the_middle_passes() {
 #[test]
 fn peak_to_peak_of_a_0_015_mm_50_mm_sine_is_0_030_mm_and_exceeds_everywhere() {
     let z = sine(3000.0, 0.5, 50.0, 15.0, 0.0);
-    let a = en13231::analyze(&z, 0.5).unwrap();
+    let (a, traces) = en13231::analyze_traced(&z, 0.5).unwrap();
     let b = band(&a, 30.0);
     println!(
         "0.015 mm, 50 mm sine: mean p-p {:.5} mm (worst {:.5}), {} windows, {:.1} % exceeding",
@@ -203,7 +204,7 @@ fn peak_to_peak_of_a_0_015_mm_50_mm_sine_is_0_030_mm_and_exceeds_everywhere() {
     assert!((got - expected).abs() < 2.0, "{got} vs {expected}");
     // The windows: one per sample where a whole 600 mm window fits between the edge zones.
     assert_eq!(b.windows, 6000 - 2 * 400 - 1200 + 1, "600 mm windows between 200 mm edge zones");
-    assert_eq!(b.mean_pp_mm.iter().filter(|v| v.is_finite()).count(), b.windows);
+    assert_eq!(traces[1].as_ref().unwrap().mean_pp_mm.iter().filter(|v| v.is_finite()).count(), b.windows);
     // Other bands quiet and passing.
     assert!(band(&a, 10.0).passes && band(&a, 100.0).passes);
     let table = en13231::band_table(&a);
@@ -211,7 +212,7 @@ fn peak_to_peak_of_a_0_015_mm_50_mm_sine_is_0_030_mm_and_exceeds_everywhere() {
     assert!(table.contains("30-100"), "{table}");
     assert!(table.contains("NO"), "{table}");
     assert!(table.contains("record 3000 mm is too short for the 5000 mm window of the 300–1000 mm band (plus 2000 mm of filter settling at each end)"), "{table}");
-    let csv = en13231::bands_csv(&a);
+    let csv = en13231::bands_csv(&a, &traces);
     assert_eq!(csv.lines().count(), 6001);
     assert!(csv.starts_with("x_mm,band_10_30_mm,band_30_100_mm,band_100_300_mm,band_300_1000_mm\n"));
 }
@@ -239,9 +240,9 @@ fn short_records_are_clear_errors() {
     z[800] = f64::NAN;
     assert_eq!(segments(&z).len(), 2);
     assert!(matches!(en15610::analyze(&z, 1.0, &Default::default()), Err(StandardsError::TooShort { .. })));
-    let a = en13231::analyze(&z, 1.0).unwrap();
+    let (a, traces) = en13231::analyze_traced(&z, 1.0).unwrap();
     assert_eq!(a.runs, 2);
-    assert!(band(&a, 10.0).band_mm[800].is_nan());
+    assert!(traces[0].as_ref().unwrap().band_mm[800].is_nan());
     assert!(matches!(a.bands[1].outcome, Err(StandardsError::TooShort { .. })), "30–100 needs 1000 mm");
     assert!(band(&a, 10.0).windows > 0);
     // Sampling.
@@ -265,7 +266,7 @@ proptest! {
         ], 0..1500),
         dx_mm in prop_oneof![0.05f64..3.0, prop::num::f64::ANY.prop_filter("finite", |v| v.is_finite())],
     ) {
-        let _ = en13231::analyze(&z, dx_mm).map(|a| (en13231::band_table(&a), en13231::bands_csv(&a)));
+        let _ = en13231::analyze_traced(&z, dx_mm).map(|(a, t)| (en13231::band_table(&a), en13231::bands_csv(&a, &t)));
         let opt = en15610::Options { segment_mm: 1000.0, ..Default::default() };
         if let Ok(r) = en15610::analyze(&z, dx_mm, &opt) {
             let _ = en15610::spectrum_csv(&r.spectrum);

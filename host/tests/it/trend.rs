@@ -51,8 +51,8 @@ fn true_figures(lo_mm: f64, hi_mm: f64) -> Vec<f64> {
         .iter()
         .map(|&a| {
             let z: Vec<f64> = (0..SITE_MM as usize).map(|x| survey_rail_um(x as f64, ZONE_MM, 50.0, a)).collect();
-            let bands = en13231::analyze(&z, 1.0).unwrap();
-            let st = bands.bands[1].outcome.as_ref().unwrap();
+            let (_, traces) = en13231::analyze_traced(&z, 1.0).unwrap();
+            let st = traces[1].as_ref().unwrap();
             let v: Vec<f64> =
                 (lo_mm.round() as usize..(hi_mm.round() as usize).min(z.len())).map(|i| st.mean_pp_mm[i]).collect();
             figure_of(&v, Edition::En2006).unwrap()

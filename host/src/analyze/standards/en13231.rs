@@ -65,7 +65,7 @@
 use std::collections::VecDeque;
 use std::fmt::Write as _;
 
-use super::{StandardsError, check_dx, fmt_mm, run_mm, samples_for, segments};
+use super::{StandardsError, Stretch, check_dx, fmt_mm, run_mm, samples_for, segments};
 
 /// One EN 13231-3 wavelength band and its criteria.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -141,19 +141,13 @@ pub struct BandResult {
 /// One band's figures.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BandStats {
-    /// The band-filtered profile, mm, aligned with the input (NaN in gaps).
-    pub band_mm: Vec<f64>,
-    /// Mean peak-to-peak of the window centred on each sample, mm (NaN where no whole window fits).
-    pub mean_pp_mm: Vec<f64>,
-    /// Max − min of the window centred on each sample, mm (NaN where no whole window fits).
-    pub max_pp_mm: Vec<f64>,
     /// Number of window positions evaluated.
     pub windows: usize,
-    /// Mean over the window positions of `mean_pp_mm`.
+    /// Mean over the window positions of the mean peak-to-peak, mm.
     pub average_mean_pp_mm: f64,
-    /// Largest `mean_pp_mm`.
+    /// Largest mean peak-to-peak of a window, mm.
     pub worst_mean_pp_mm: f64,
-    /// Largest `max_pp_mm`.
+    /// Largest max − min of a window, mm.
     pub worst_max_pp_mm: f64,
     /// RMS of the band-filtered profile, mm.
     pub rms_mm: f64,
@@ -167,37 +161,107 @@ pub struct BandStats {
     pub abs_exceeding_percent: Option<f64>,
 }
 
-/// Analyses a profile (heights µm, spacing mm, NaN for gaps) in all four
-/// bands. Fails only when the spacing is not usable or nothing is finite;
-/// a band that cannot be evaluated carries its own error.
-pub fn analyze(z_um: &[f64], dx_mm: f64) -> Result<BandAnalysis, StandardsError> {
+/// One band along a stretch's core, aligned with it: what the figures
+/// are made of, and what plots and exports show.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct BandTrace {
+    /// The band-filtered profile, mm (NaN in gaps).
+    pub band_mm: Vec<f64>,
+    /// Mean peak-to-peak of the window centred on each sample, mm (NaN where no whole window fits).
+    pub mean_pp_mm: Vec<f64>,
+    /// Max − min of the window centred on each sample, mm (NaN where no whole window fits).
+    pub max_pp_mm: Vec<f64>,
+}
+
+/// A band's figures summed over the pieces of a profile, in any order.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct BandSums {
+    windows: usize,
+    exceeding: usize,
+    sum_mean_mm: f64,
+    worst_mean_mm: f64,
+    worst_max_mm: f64,
+    sq_mm2: f64,
+    count: usize,
+    abs_over: usize,
+}
+
+impl BandSums {
+    /// Adds a piece's trace of `band`.
+    pub fn add(&mut self, band: &Band, t: &BandTrace) {
+        for v in t.band_mm.iter().filter(|v| v.is_finite()) {
+            self.sq_mm2 += v * v;
+            self.count += 1;
+            if band.abs_limit_mm.is_some_and(|lim| v.abs() > lim) {
+                self.abs_over += 1;
+            }
+        }
+        for (&mn, &mx) in t.mean_pp_mm.iter().zip(&t.max_pp_mm) {
+            if !mn.is_finite() {
+                continue;
+            }
+            self.windows += 1;
+            self.sum_mean_mm += mn;
+            self.worst_mean_mm = self.worst_mean_mm.max(mn);
+            self.worst_max_mm = self.worst_max_mm.max(mx);
+            if mn > band.mean_pp_limit_mm {
+                self.exceeding += 1;
+            }
+        }
+    }
+
+    /// The band's figures.
+    pub fn stats(&self, band: &Band, dx_mm: f64) -> BandStats {
+        // A band is evaluated only where its window fits: at least one window.
+        let windows_f = self.windows.max(1) as f64;
+        let exceeding_percent = 100.0 * self.exceeding as f64 / windows_f;
+        BandStats {
+            windows: self.windows,
+            average_mean_pp_mm: self.sum_mean_mm / windows_f,
+            worst_mean_pp_mm: self.worst_mean_mm,
+            worst_max_pp_mm: self.worst_max_mm,
+            rms_mm: (self.sq_mm2 / self.count.max(1) as f64).sqrt(),
+            exceeding_percent,
+            exceeding_mm: self.exceeding as f64 * dx_mm,
+            passes: exceeding_percent <= MAX_EXCEEDING_PERCENT,
+            abs_exceeding_percent: band.abs_limit_mm.map(|_| 100.0 * self.abs_over as f64 / self.count.max(1) as f64),
+        }
+    }
+}
+
+/// What a profile's runs say about it before any filtering: the figures
+/// of [`BandAnalysis`] that are not sums, and whether each band can be
+/// evaluated (its window and edge zones fit the longest run, its sampling).
+pub fn plan(runs: &[std::ops::Range<usize>], samples: usize, dx_mm: f64) -> Result<BandAnalysis, StandardsError> {
     check_dx(dx_mm)?;
-    let runs = segments(z_um);
     if runs.is_empty() {
         return Err(StandardsError::NoData);
     }
     let longest = runs.iter().map(|r| r.len()).max().unwrap_or(0);
     let finite: usize = runs.iter().map(|r| r.len()).sum();
-    let record_mm = run_mm(longest, dx_mm);
     let bands = BANDS
         .iter()
-        .map(|band| BandResult {
-            band: *band,
-            edge_mm: EDGE_WAVELENGTHS * band.hi_mm,
-            outcome: band_stats(z_um, dx_mm, band, longest),
+        .map(|band| {
+            let edge_mm = EDGE_WAVELENGTHS * band.hi_mm;
+            BandResult {
+                band: *band,
+                edge_mm,
+                outcome: fits(band, dx_mm, longest).map(|()| BandSums::default().stats(band, dx_mm)),
+            }
         })
         .collect();
     Ok(BandAnalysis {
         dx_mm,
-        record_mm,
+        record_mm: run_mm(longest, dx_mm),
         finite_mm: run_mm(finite, dx_mm),
         runs: runs.len(),
-        samples: z_um.len(),
+        samples,
         bands,
     })
 }
 
-fn band_stats(z_um: &[f64], dx_mm: f64, band: &Band, longest: usize) -> Result<BandStats, StandardsError> {
+/// Whether `band` can be evaluated at `dx_mm` on a longest run of `longest` samples.
+fn fits(band: &Band, dx_mm: f64, longest: usize) -> Result<(), StandardsError> {
     let w = samples_for(band.window_mm, dx_mm);
     let edge_mm = EDGE_WAVELENGTHS * band.hi_mm;
     let e = samples_for(edge_mm, dx_mm);
@@ -208,60 +272,106 @@ fn band_stats(z_um: &[f64], dx_mm: f64, band: &Band, longest: usize) -> Result<B
             what: format!("the {} (plus {} mm of filter settling at each end)", band.name(), fmt_mm(edge_mm)),
         });
     }
-    let band_um = band_pass(z_um, dx_mm, band.lo_mm, band.hi_mm)?;
+    if dx_mm > band.lo_mm / 2.0 {
+        return Err(StandardsError::SamplingTooCoarse {
+            dx_mm,
+            max_dx_mm: band.lo_mm / 2.0,
+            what: format!("the {}–{} mm band", fmt_mm(band.lo_mm), fmt_mm(band.hi_mm)),
+        });
+    }
+    Ok(())
+}
+
+/// How far beyond a piece's core a stretch must reach for its band values
+/// and windows there to be those of the whole profile, mm: half the
+/// longest window, and [`SETTLE_WAVELENGTHS`] of the band's longest
+/// wavelength for the filters to forget where the stretch was cut.
+pub fn margin_mm() -> f64 {
+    BANDS.iter().map(|b| b.window_mm / 2.0 + SETTLE_WAVELENGTHS * b.hi_mm).fold(0.0, f64::max)
+}
+
+/// Filter settling beyond a cut, in the band's longest wavelengths. The
+/// slowest pole of the 6th-order high-pass (Q = 1.93) decays by e every
+/// 0.61 of its cut-off wavelength: after 20 wavelengths a transient is
+/// down by e^-32; the figures of a line judged in pieces equal those of
+/// the whole line to 1e-7 of their value (`pieces_equal_the_whole_line`
+/// in `analyze::pieces`).
+pub const SETTLE_WAVELENGTHS: f64 = 20.0;
+
+/// Analyses a profile (heights µm, spacing mm, NaN for gaps) in all four
+/// bands. Fails only when the spacing is not usable or nothing is finite;
+/// a band that cannot be evaluated carries its own error.
+pub fn analyze(z_um: &[f64], dx_mm: f64) -> Result<BandAnalysis, StandardsError> {
+    analyze_traced(z_um, dx_mm).map(|(a, _)| a)
+}
+
+/// [`analyze`], with each band's trace along the whole profile (`None`
+/// where the band is not evaluated).
+pub fn analyze_traced(z_um: &[f64], dx_mm: f64) -> Result<(BandAnalysis, Vec<Option<BandTrace>>), StandardsError> {
+    let runs = segments(z_um);
+    let mut a = plan(&runs, z_um.len(), dx_mm)?;
+    let whole = Stretch { z_um, start: 0, core: 0..z_um.len(), runs: &runs, dx_mm };
+    let mut traces = Vec::new();
+    for r in &mut a.bands {
+        let t = match r.outcome {
+            Ok(_) => Some(trace(&whole, &r.band)?),
+            Err(_) => None,
+        };
+        if let (Some(t), Ok(st)) = (&t, &mut r.outcome) {
+            let mut sums = BandSums::default();
+            sums.add(&r.band, t);
+            *st = sums.stats(&r.band, dx_mm);
+        }
+        traces.push(t);
+    }
+    Ok((a, traces))
+}
+
+/// One band along a stretch's core: the band-filtered values, and the
+/// window statistics of the windows centred there that fit whole inside
+/// the settled part of their run (the edge zones of the run's own ends
+/// left out, not the stretch's). The stretch must reach [`margin_mm`]
+/// beyond the core where the profile goes on; windows it cannot hold are
+/// left NaN.
+pub fn trace(s: &Stretch, band: &Band) -> Result<BandTrace, StandardsError> {
+    let dx_mm = s.dx_mm;
+    let w = samples_for(band.window_mm, dx_mm);
+    let e = samples_for(EDGE_WAVELENGTHS * band.hi_mm, dx_mm);
+    let band_um = band_pass(s.z_um, dx_mm, band.lo_mm, band.hi_mm)?;
     let band_mm: Vec<f64> = band_um.iter().map(|v| v / 1000.0).collect();
-    let n = band_mm.len();
+    let (c0, c1) = (s.core.start, s.core.end);
+    let n = c1 - c0;
     let mut mean_pp_mm = vec![f64::NAN; n];
     let mut max_pp_mm = vec![f64::NAN; n];
-    let (mut windows, mut exceeding, mut sum_mean) = (0usize, 0usize, 0.0);
-    let (mut worst_mean, mut worst_max) = (0.0f64, 0.0f64);
-    let (mut sq, mut count, mut abs_over) = (0.0, 0usize, 0usize);
-    for run in segments(&band_mm) {
-        let y = &band_mm[run.clone()];
-        for v in y {
-            sq += v * v;
-            count += 1;
-            if band.abs_limit_mm.is_some_and(|lim| v.abs() > lim) {
-                abs_over += 1;
-            }
-        }
-        if y.len() < w + 2 * e {
+    for run in s.runs {
+        if run.len() < w + 2 * e {
             continue;
         }
-        // Only the settled part: the edge zones are left out.
-        let settled = &y[e..y.len() - e];
-        let maxpp = moving_max_minus_min(settled, w);
-        let meanpp = moving_mean_pp(settled, w, &maxpp);
-        for (a, (&mx, &mn)) in maxpp.iter().zip(&meanpp).enumerate() {
-            let centre = run.start + e + a + w / 2;
-            max_pp_mm[centre] = mx;
-            mean_pp_mm[centre] = mn;
-            windows += 1;
-            sum_mean += mn;
-            worst_mean = worst_mean.max(mn);
-            worst_max = worst_max.max(mx);
-            if mn > band.mean_pp_limit_mm {
-                exceeding += 1;
+        // Window `a` of the run covers its samples start+e+a .. +w and is
+        // centred on start+e+a+w/2; those centred in the core, and held by the stretch.
+        let first = run.start + e;
+        let last_a = run.len() - 2 * e - w;
+        let a_lo = c0.saturating_sub(w / 2).max(first).max(s.start) - first;
+        let a_hi = (c1.saturating_sub(1 + w / 2)).min(s.end().saturating_sub(w)).saturating_sub(first).min(last_a);
+        if c1 < 1 + w / 2 + first || a_lo > a_hi || s.end() < first + a_hi + w {
+            continue;
+        }
+        // Two samples of the run before the first window, so that an
+        // extremum on its first sample is seen as the whole run sees it.
+        let lead = a_lo.min(2).min(first + a_lo - s.start.max(first));
+        let from = first + a_lo - lead - s.start;
+        let y = &band_mm[from..first + a_hi + w - s.start];
+        let maxpp = moving_max_minus_min(y, w);
+        let meanpp = moving_mean_pp(y, w, &maxpp);
+        for (k, (&mx, &mn)) in maxpp.iter().zip(&meanpp).enumerate().skip(lead) {
+            let centre = first + a_lo + (k - lead) + w / 2;
+            if (c0..c1).contains(&centre) {
+                max_pp_mm[centre - c0] = mx;
+                mean_pp_mm[centre - c0] = mn;
             }
         }
     }
-    // `longest >= w` guarantees at least one window.
-    let windows_f = windows.max(1) as f64;
-    let exceeding_percent = 100.0 * exceeding as f64 / windows_f;
-    Ok(BandStats {
-        band_mm,
-        mean_pp_mm,
-        max_pp_mm,
-        windows,
-        average_mean_pp_mm: sum_mean / windows_f,
-        worst_mean_pp_mm: worst_mean,
-        worst_max_pp_mm: worst_max,
-        rms_mm: (sq / count.max(1) as f64).sqrt(),
-        exceeding_percent,
-        exceeding_mm: exceeding as f64 * dx_mm,
-        passes: exceeding_percent <= MAX_EXCEEDING_PERCENT,
-        abs_exceeding_percent: band.abs_limit_mm.map(|_| 100.0 * abs_over as f64 / count.max(1) as f64),
-    })
+    Ok(BandTrace { band_mm: band_mm[c0 - s.start..c1 - s.start].to_vec(), mean_pp_mm, max_pp_mm })
 }
 
 /// Zero-phase band-pass of a profile between wavelengths `lo_mm` and `hi_mm`
@@ -496,22 +606,31 @@ pub fn band_table(a: &BandAnalysis) -> String {
 
 /// The band-filtered profiles as CSV: `x_mm` and one column per band (mm),
 /// empty where a sample is a gap or a band was not evaluated.
-pub fn bands_csv(a: &BandAnalysis) -> String {
-    bands_csv_from(a, 0.0)
+pub fn bands_csv(a: &BandAnalysis, traces: &[Option<BandTrace>]) -> String {
+    let mut s = bands_csv_header(a);
+    bands_csv_rows(&mut s, 0.0, a.dx_mm, traces);
+    s
 }
 
-/// [`bands_csv`] with sample 0 at track position `x0_mm`.
-pub fn bands_csv_from(a: &BandAnalysis, x0_mm: f64) -> String {
+/// The header of [`bands_csv`].
+pub fn bands_csv_header(a: &BandAnalysis) -> String {
     let mut s = String::from("x_mm");
     for b in &a.bands {
         let _ = write!(s, ",band_{}_{}_mm", fmt_mm(b.band.lo_mm), fmt_mm(b.band.hi_mm));
     }
     s.push('\n');
-    for i in 0..a.samples {
+    s
+}
+
+/// Rows of [`bands_csv`] for a stretch of traces (one per band, `None`
+/// where not evaluated) whose first sample is at track position `x0_mm`.
+pub fn bands_csv_rows(s: &mut String, x0_mm: f64, dx_mm: f64, traces: &[Option<BandTrace>]) {
+    let n = traces.iter().flatten().map(|t| t.band_mm.len()).max().unwrap_or(0);
+    for i in 0..n {
         // Rounded to the nanometre: no 0.30000000000000004.
-        let _ = write!(s, "{}", ((x0_mm + i as f64 * a.dx_mm) * 1e6).round() / 1e6);
-        for b in &a.bands {
-            match b.outcome.as_ref().ok().and_then(|st| st.band_mm.get(i)).filter(|v| v.is_finite()) {
+        let _ = write!(s, "{}", ((x0_mm + i as f64 * dx_mm) * 1e6).round() / 1e6);
+        for t in traces {
+            match t.as_ref().and_then(|t| t.band_mm.get(i)).filter(|v| v.is_finite()) {
                 Some(v) => {
                     let _ = write!(s, ",{v:.6}");
                 }
@@ -520,5 +639,4 @@ pub fn bands_csv_from(a: &BandAnalysis, x0_mm: f64) -> String {
         }
         s.push('\n');
     }
-    s
 }

@@ -50,7 +50,7 @@ use std::fmt::Write as _;
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
 
-use super::{StandardsError, check_dx, fmt_mm, remove_mean_and_trend, run_mm, samples_for, segments};
+use super::{StandardsError, Stretch, check_dx, fmt_mm, remove_mean_and_trend, run_mm, samples_for, segments};
 
 /// Spike criterion: second derivative below this, µm/m².
 pub const SPIKE_CURVATURE_UM_PER_M2: f64 = -1e7;
@@ -116,8 +116,6 @@ pub struct Roughness {
     pub spectrum: Spectrum,
     /// Number of spikes removed.
     pub spikes_removed: usize,
-    /// The processed profile (spikes removed, curvature processed), µm, aligned with the input.
-    pub processed_um: Vec<f64>,
 }
 
 /// A one-third-octave roughness spectrum.
@@ -174,24 +172,109 @@ pub fn iso3095_limit_db(nominal_wavelength_mm: f64) -> Option<f64> {
 /// Full EN 15610 processing of a profile (heights µm, spacing mm, NaN for
 /// gaps): spikes, curvature, spectrum, comparison.
 pub fn analyze(z_um: &[f64], dx_mm: f64, opt: &Options) -> Result<Roughness, StandardsError> {
-    check_dx(dx_mm)?;
-    if !(opt.wheel_radius_mm.is_finite() && opt.wheel_radius_mm > 0.0) {
-        return Err(StandardsError::BadOption(format!(
-            "wheel radius {} mm is not a positive finite number",
-            opt.wheel_radius_mm
-        )));
-    }
-    check_spectrum_args(z_um, dx_mm, opt.segment_mm)?;
-    let mut processed = z_um.to_vec();
-    let spikes_removed = if opt.remove_spikes { remove_spikes(&mut processed, dx_mm) } else { 0 };
-    if opt.curvature {
-        processed = curvature_process(&processed, dx_mm, opt.wheel_radius_mm);
-    }
-    let spectrum = third_octave_spectrum(&processed, dx_mm, opt.segment_mm)?;
-    Ok(Roughness { spectrum, spikes_removed, processed_um: processed })
+    let runs = segments(z_um);
+    let mut welch = Welch::new(&runs, dx_mm, opt)?;
+    let whole = Stretch { z_um, start: 0, core: 0..z_um.len(), runs: &runs, dx_mm };
+    let spikes_removed = welch.add(&whole, opt);
+    Ok(Roughness { spectrum: welch.spectrum(), spikes_removed })
 }
 
-fn check_spectrum_args(z_um: &[f64], dx_mm: f64, segment_mm: f64) -> Result<usize, StandardsError> {
+/// The EN 15610 spectrum of a profile summed piece by piece ([`Stretch`]):
+/// each piece processed (spikes, curvature) with its margin, and the
+/// Welch segments that start in its core added in. Segments are placed
+/// along each run from its start, as on the whole profile.
+pub struct Welch {
+    m: usize,
+    dx_mm: f64,
+    fft: std::sync::Arc<dyn rustfft::Fft<f64>>,
+    window: Vec<f64>,
+    window_power: f64,
+    power: Vec<f64>,
+    count: usize,
+}
+
+impl Welch {
+    /// Checks the options against the profile's runs (the longest must
+    /// hold a segment).
+    pub fn new(runs: &[std::ops::Range<usize>], dx_mm: f64, opt: &Options) -> Result<Welch, StandardsError> {
+        check_dx(dx_mm)?;
+        if !(opt.wheel_radius_mm.is_finite() && opt.wheel_radius_mm > 0.0) {
+            return Err(StandardsError::BadOption(format!(
+                "wheel radius {} mm is not a positive finite number",
+                opt.wheel_radius_mm
+            )));
+        }
+        let longest = runs.iter().map(|r| r.len()).max().unwrap_or(0);
+        let m = check_spectrum_args(longest, dx_mm, opt.segment_mm)?;
+        let fft = FftPlanner::<f64>::new().plan_fft_forward(m);
+        // Periodic Hann window.
+        let window: Vec<f64> =
+            (0..m).map(|i| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / m as f64).cos()).collect();
+        let window_power: f64 = window.iter().map(|w| w * w).sum();
+        Ok(Welch { m, dx_mm, fft, window, window_power, power: vec![0.0; m / 2 + 1], count: 0 })
+    }
+
+    /// How far beyond a core a stretch must reach, mm: a segment, and the
+    /// wheel's reach and a spike's span on either side of it.
+    pub fn margin_mm(opt: &Options) -> f64 {
+        opt.segment_mm + 2.0 * opt.wheel_radius_mm + 100.0
+    }
+
+    /// Processes a stretch as `opt` says and adds the segments that start
+    /// in its core; returns the spikes removed in the core.
+    pub fn add(&mut self, s: &Stretch, opt: &Options) -> usize {
+        let mut processed = s.z_um.to_vec();
+        let spikes = if opt.remove_spikes {
+            let mut at = Vec::new();
+            remove_spikes_at(&mut processed, self.dx_mm, &mut at);
+            at.iter().filter(|&&i| s.core.contains(&(s.start + i))).count()
+        } else {
+            0
+        };
+        if opt.curvature {
+            processed = curvature_process(&processed, self.dx_mm, opt.wheel_radius_mm);
+        }
+        let (m, hop) = (self.m, (self.m / 2).max(1));
+        for run in s.runs {
+            // Segments at run.start + k·hop, in the core, whole in the run and the stretch.
+            let mut k = s.core.start.saturating_sub(run.start).div_ceil(hop);
+            loop {
+                let at = run.start + k * hop;
+                if at >= s.core.end || at + m > run.end {
+                    break;
+                }
+                if at >= s.start && at + m <= s.end() {
+                    self.segment(&processed[at - s.start..at - s.start + m]);
+                }
+                k += 1;
+            }
+        }
+        spikes
+    }
+
+    fn segment(&mut self, y: &[f64]) {
+        let m = self.m;
+        let mut seg = y.to_vec();
+        remove_mean_and_trend(&mut seg);
+        let mut buf: Vec<Complex<f64>> = seg.iter().zip(&self.window).map(|(v, w)| Complex::new(v * w, 0.0)).collect();
+        self.fft.process(&mut buf);
+        for (k, p) in self.power.iter_mut().enumerate() {
+            // One-sided: every bin but DC and Nyquist stands for two.
+            let two_sided = if k == 0 || 2 * k == m { 1.0 } else { 2.0 };
+            *p += two_sided * buf[k].norm_sqr() / (m as f64 * self.window_power);
+        }
+        self.count += 1;
+    }
+
+    /// The one-third-octave spectrum of the segments added.
+    pub fn spectrum(&self) -> Spectrum {
+        let count_f = self.count.max(1) as f64;
+        let power: Vec<f64> = self.power.iter().map(|p| p / count_f).collect();
+        bands_of(&power, self.m, self.dx_mm, self.count)
+    }
+}
+
+fn check_spectrum_args(longest: usize, dx_mm: f64, segment_mm: f64) -> Result<usize, StandardsError> {
     check_dx(dx_mm)?;
     if dx_mm > MAX_DX_MM {
         return Err(StandardsError::SamplingTooCoarse {
@@ -205,8 +288,9 @@ fn check_spectrum_args(z_um: &[f64], dx_mm: f64, segment_mm: f64) -> Result<usiz
             "EN 15610 segment length {segment_mm} mm: it must be at least {MIN_SEGMENT_MM} mm"
         )));
     }
-    let runs = segments(z_um);
-    let longest = runs.iter().map(|r| r.len()).max().ok_or(StandardsError::NoData)?;
+    if longest == 0 {
+        return Err(StandardsError::NoData);
+    }
     let m = samples_for(segment_mm, dx_mm);
     if longest < m {
         return Err(StandardsError::TooShort {
@@ -221,29 +305,35 @@ fn check_spectrum_args(z_um: &[f64], dx_mm: f64, segment_mm: f64) -> Result<usiz
 /// Removes spikes in place (each continuous run on its own) and returns how
 /// many were removed. See the module documentation for the criteria.
 pub fn remove_spikes(z_um: &mut [f64], dx_mm: f64) -> usize {
+    let mut at = Vec::new();
+    remove_spikes_at(z_um, dx_mm, &mut at);
+    at.len()
+}
+
+/// [`remove_spikes`], each spike's peak index pushed to `at`.
+fn remove_spikes_at(z_um: &mut [f64], dx_mm: f64, at: &mut Vec<usize>) {
     if check_dx(dx_mm).is_err() {
-        return 0;
+        return;
     }
     let dx_m = dx_mm / 1000.0;
-    let mut removed = 0;
     for run in segments(z_um) {
+        let start = run.start;
         let y = &mut z_um[run];
         // Every removal flattens at least one sample that was a strict local
         // maximum onto a line, so passes are bounded by the samples; the cap
         // only guards against floating-point surprises.
         for _ in 0..y.len() {
-            let n = spike_pass(y, dx_m);
-            removed += n;
-            if n == 0 {
+            let before = at.len();
+            spike_pass(y, dx_m, &mut |i| at.push(start + i));
+            if at.len() == before {
                 break;
             }
         }
     }
-    removed
 }
 
 /// One scan over a run; returns the number of spikes removed.
-fn spike_pass(y: &mut [f64], dx_m: f64) -> usize {
+fn spike_pass(y: &mut [f64], dx_m: f64, removed_at: &mut dyn FnMut(usize)) -> usize {
     let n = y.len();
     let slope = |y: &[f64], j: usize| (y[j + 1] - y[j]) / dx_m;
     let mut removed = 0;
@@ -274,6 +364,7 @@ fn spike_pass(y: &mut [f64], dx_m: f64) -> usize {
                 *v = yl + (yr - yl) * (t + 1) as f64 / span;
             }
             removed += 1;
+            removed_at(i);
             i = r;
         } else {
             i += 1;
@@ -328,41 +419,16 @@ pub fn curvature_process(z_um: &[f64], dx_mm: f64, radius_mm: f64) -> Vec<f64> {
 /// The one-third-octave spectrum of a profile as it is (no spike removal
 /// or curvature processing): heights µm, spacing mm, NaN for gaps.
 pub fn third_octave_spectrum(z_um: &[f64], dx_mm: f64, segment_mm: f64) -> Result<Spectrum, StandardsError> {
-    let m = check_spectrum_args(z_um, dx_mm, segment_mm)?;
-    let hop = (m / 2).max(1);
-    let fft = FftPlanner::<f64>::new().plan_fft_forward(m);
-    // Periodic Hann window.
-    let window: Vec<f64> =
-        (0..m).map(|i| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / m as f64).cos()).collect();
-    let window_power: f64 = window.iter().map(|w| w * w).sum();
-    let half = m / 2;
-    let mut power = vec![0.0; half + 1];
-    let mut count = 0usize;
-    let mut seg = vec![0.0; m];
-    let mut buf = vec![Complex::new(0.0, 0.0); m];
-    for run in segments(z_um) {
-        let y = &z_um[run];
-        let mut start = 0;
-        while start + m <= y.len() {
-            seg.copy_from_slice(&y[start..start + m]);
-            remove_mean_and_trend(&mut seg);
-            for ((b, v), w) in buf.iter_mut().zip(&seg).zip(&window) {
-                *b = Complex::new(v * w, 0.0);
-            }
-            fft.process(&mut buf);
-            for (k, p) in power.iter_mut().enumerate() {
-                // One-sided: every bin but DC and Nyquist stands for two.
-                let two_sided = if k == 0 || 2 * k == m { 1.0 } else { 2.0 };
-                *p += two_sided * buf[k].norm_sqr() / (m as f64 * window_power);
-            }
-            count += 1;
-            start += hop;
-        }
-    }
-    let count_f = count.max(1) as f64;
-    for p in &mut power {
-        *p /= count_f;
-    }
+    let runs = segments(z_um);
+    let opt = Options { segment_mm, remove_spikes: false, curvature: false, ..Options::default() };
+    let mut welch = Welch::new(&runs, dx_mm, &opt)?;
+    welch.add(&Stretch { z_um, start: 0, core: 0..z_um.len(), runs: &runs, dx_mm }, &opt);
+    Ok(welch.spectrum())
+}
+
+/// The one-third-octave bands of a mean one-sided power spectrum of
+/// segments of `m` samples.
+fn bands_of(power: &[f64], m: usize, dx_mm: f64, count: usize) -> Spectrum {
     let df = 1000.0 / (m as f64 * dx_mm); // cycles/m
     let nyquist = 500.0 / dx_mm;
     let seg_len_mm = m as f64 * dx_mm;
@@ -376,7 +442,7 @@ pub fn third_octave_spectrum(z_um: &[f64], dx_mm: f64, segment_mm: f64) -> Resul
         if nominal > seg_len_mm / 4.0 * (1.0 + 1e-9) || f_hi > nyquist * (1.0 + 1e-9) {
             continue;
         }
-        let ms_um2 = band_power(&power, df, f_lo, f_hi);
+        let ms_um2 = band_power(power, df, f_lo, f_hi);
         bands.push(ThirdOctave {
             k,
             centre_per_m: centre,
@@ -386,7 +452,7 @@ pub fn third_octave_spectrum(z_um: &[f64], dx_mm: f64, segment_mm: f64) -> Resul
             iso3095_limit_db: iso3095_limit_db(nominal),
         });
     }
-    Ok(Spectrum { dx_mm, segment_mm: seg_len_mm, segments: count, bands })
+    Spectrum { dx_mm, segment_mm: seg_len_mm, segments: count, bands }
 }
 
 /// Sum of the bins' power between `f_lo` and `f_hi`, a bin (width `df`,

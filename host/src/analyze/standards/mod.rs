@@ -66,6 +66,29 @@ fn check_dx(dx_mm: f64) -> Result<(), StandardsError> {
     if dx_mm.is_finite() && dx_mm > 0.0 { Ok(()) } else { Err(StandardsError::BadSampling { dx_mm }) }
 }
 
+/// A stretch of a longer profile, analysed as a piece of it: the samples
+/// `z_um` are the profile's from index `start`, and `core` (profile
+/// indices, inside the stretch) the positions the piece answers for; the
+/// rest is margin, there so that filters and windows near the core see
+/// the rail as it goes on. `runs` are the profile's continuous runs that
+/// meet the stretch, whole (profile indices): a window or a spectrum
+/// segment is placed by its run, not by where the stretch happens to cut.
+#[derive(Debug, Clone)]
+pub struct Stretch<'a> {
+    pub z_um: &'a [f64],
+    pub start: usize,
+    pub core: Range<usize>,
+    pub runs: &'a [Range<usize>],
+    pub dx_mm: f64,
+}
+
+impl Stretch<'_> {
+    /// Profile index past the stretch's last sample.
+    pub fn end(&self) -> usize {
+        self.start + self.z_um.len()
+    }
+}
+
 /// The continuous runs of finite samples of `z`, in order, as index ranges.
 pub fn segments(z: &[f64]) -> Vec<Range<usize>> {
     let mut out = Vec::new();

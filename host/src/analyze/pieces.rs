@@ -1,0 +1,253 @@
+//! A survey line walked along the track in pieces, so that its analysis
+//! and everything written from it run in memory set by the standards'
+//! windows and the verdict's blocks, never by the length of track.
+//!
+//! Each section ([`super::Section`]) is cut into *pieces*: whole blocks
+//! of the verdict (at least [`CORE_MM`] of track), so that no block
+//! spans two. A piece's lines are read with a margin on either side
+//! ([`margin_mm`]: half the longest EN 13231-3 window and 20 of the
+//! band's longest wavelengths for its filters to settle, or an EN 15610
+//! segment and the wheel's reach) and each band is filtered over the
+//! whole stretch; only the core's values are kept. The figures summed
+//! over the pieces are those of the whole line (the band filters' cut
+//! transients are down by e⁻³² at the core, `pieces_equal_the_whole_line`
+//! below); windows and spectrum segments are placed by the line's own
+//! runs, not by where a piece is cut.
+//!
+//! Cost: each sample is filtered `(core + 2·margin) / core` times (1.45
+//! for the default 50 m blocks: two blocks a piece); memory is one piece's
+//! stretch per line and its traces.
+
+use std::ops::Range;
+
+use super::stitch::Stitched;
+use super::store::ScratchError;
+use super::{Grid, Options};
+use crate::Error;
+use crate::analyze::standards::en13231::{self, BandTrace};
+use crate::analyze::standards::{Stretch, en15610};
+
+/// Shortest core of a piece, mm (whole blocks are added until it is reached).
+pub const CORE_MM: f64 = 100_000.0;
+
+/// How far beyond its core a piece is read, mm.
+pub fn margin_mm(opts: &Options) -> f64 {
+    en13231::margin_mm().max(en15610::Welch::margin_mm(&opts.roughness))
+}
+
+/// One piece of a section: its lines over the core, on the section's grid.
+#[derive(Debug)]
+pub struct Piece {
+    /// The section's number, from 1.
+    pub section: usize,
+    pub grid: Grid,
+    /// Grid indices of the piece's own samples.
+    pub core: Range<usize>,
+    /// The section's lines, in its order.
+    pub lines: Vec<PieceLine>,
+}
+
+/// One line of a piece.
+#[derive(Debug)]
+pub struct PieceLine {
+    pub laser: usize,
+    /// Heights over the core, µm (NaN where the line has none).
+    pub z_um: Vec<f64>,
+    /// Per EN 13231-3 band, its trace over the core (`None`: not evaluated).
+    pub bands: Vec<Option<BandTrace>>,
+    ext_z_um: Vec<f64>,
+    ext_start: usize,
+    runs: Vec<Range<usize>>,
+    dx_mm: f64,
+}
+
+impl PieceLine {
+    /// The stretch read for the piece: its core and margins.
+    pub fn stretch(&self, core: Range<usize>) -> Stretch<'_> {
+        Stretch { z_um: &self.ext_z_um, start: self.ext_start, core, runs: &self.runs, dx_mm: self.dx_mm }
+    }
+}
+
+/// A line's continuous runs, indices of its own samples (from its gaps).
+pub fn runs(s: &Stitched) -> Vec<Range<usize>> {
+    let mut out = Vec::new();
+    let mut at = 0usize;
+    for g in &s.gaps {
+        let lo = ((g.start_mm - s.x0_mm) / s.dx_mm).round().max(0.0) as usize;
+        let n = (g.length_mm / s.dx_mm).round() as usize;
+        if lo > at {
+            out.push(at..lo.min(s.z.len()));
+        }
+        at = (lo + n).min(s.z.len());
+    }
+    if at < s.z.len() {
+        out.push(at..s.z.len());
+    }
+    out
+}
+
+/// The pieces' cores of a section on `grid`: whole blocks of
+/// `opts.verdict.block_mm` from chainage multiples of it, at least
+/// [`CORE_MM`] each.
+pub fn cores(grid: &Grid, opts: &Options) -> Vec<Range<usize>> {
+    let block = opts.verdict.block_mm;
+    let first = (grid.origin_mm / block).floor() * block;
+    let per = (CORE_MM / block).ceil().max(1.0);
+    let at =
+        |k: f64| (((first + k * per * block - grid.origin_mm) / grid.dx_mm).ceil().max(0.0) as usize).min(grid.len);
+    let mut out = Vec::new();
+    let mut k = 0.0;
+    let mut lo = 0;
+    while lo < grid.len {
+        k += 1.0;
+        let hi = at(k);
+        if hi > lo {
+            out.push(lo..hi);
+            lo = hi;
+        }
+    }
+    out
+}
+
+/// Walks the lines of one section (`lines`, each with which bands to
+/// trace) piece by piece, handing each piece to `f`.
+pub fn walk_section(
+    section: usize,
+    lines: &[(&Stitched, [bool; 4])],
+    opts: &Options,
+    f: &mut dyn FnMut(&Piece) -> Result<(), Error>,
+) -> Result<(), Error> {
+    let Some((first, _)) = lines.first() else { return Ok(()) };
+    let dx = first.dx_mm;
+    let stitched: Vec<&Stitched> = lines.iter().map(|l| l.0).collect();
+    let grid = Grid::of_lines(&stitched, dx);
+    let margin = (margin_mm(opts) / dx).ceil() as usize;
+    let line_runs: Vec<Vec<Range<usize>>> = stitched
+        .iter()
+        .map(|s| {
+            let off = grid.offset(s);
+            runs(s).into_iter().map(|r| r.start + off..r.end + off).collect()
+        })
+        .collect();
+    for core in cores(&grid, opts) {
+        let ext = core.start.saturating_sub(margin)..(core.end + margin).min(grid.len);
+        let mut piece = Piece { section, grid, core: core.clone(), lines: Vec::new() };
+        for ((s, evaluate), runs) in lines.iter().zip(&line_runs) {
+            let off = grid.offset(s);
+            let mut z = vec![f64::NAN; ext.len()];
+            // The line's own samples within the stretch.
+            let (lo, hi) = (ext.start.max(off), ext.end.min(off + s.z.len()));
+            if lo < hi {
+                let v = s.z.read(lo - off..hi - off).map_err(ScratchError)?;
+                z[lo - ext.start..lo - ext.start + v.len()].copy_from_slice(&v);
+            }
+            let runs: Vec<Range<usize>> =
+                runs.iter().filter(|r| r.start < ext.end && r.end > ext.start).cloned().collect();
+            let mut line = PieceLine {
+                laser: s.laser,
+                z_um: z[core.start - ext.start..core.end - ext.start].to_vec(),
+                bands: Vec::new(),
+                ext_z_um: z,
+                ext_start: ext.start,
+                runs,
+                dx_mm: dx,
+            };
+            let stretch = line.stretch(core.clone());
+            line.bands = en13231::BANDS
+                .iter()
+                .zip(evaluate)
+                .map(|(band, &yes)| if yes { en13231::trace(&stretch, band).ok() } else { None })
+                .collect();
+            piece.lines.push(line);
+        }
+        f(&piece)?;
+    }
+    Ok(())
+}
+
+/// The blocks of a piece (a piece is whole blocks of `block_mm` from
+/// chainage multiples of it): each block's samples (indices in the core)
+/// and its chainage from and to, mm.
+pub fn blocks(p: &Piece, block_mm: f64) -> Vec<(Range<usize>, (f64, f64))> {
+    let (dx, origin) = (p.grid.dx_mm, p.grid.origin_mm);
+    let index = |x: f64| (((x - origin) / dx).ceil().max(0.0) as usize).min(p.grid.len);
+    let piece_start = origin + p.core.start as f64 * dx;
+    let mut start = (piece_start / block_mm).floor() * block_mm;
+    // The first block of a later piece starts where the piece does.
+    if p.core.start > 0 && index(start) < p.core.start {
+        start += block_mm;
+    }
+    let mut out = Vec::new();
+    while index(start) < p.core.end {
+        let end = start + block_mm;
+        let (lo, hi) = (index(start).max(p.core.start), index(end).min(p.core.end));
+        if hi > lo {
+            out.push((lo - p.core.start..hi - p.core.start, (start, end)));
+        }
+        start = end;
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::analyze::stitch::{Direction, Stitching};
+    use crate::analyze::{judge, profile};
+
+    /// A line judged in pieces has the figures of the whole line judged at
+    /// once: the band filters' cut transients are gone at the core, and
+    /// windows and spectrum segments are placed by the line's runs.
+    #[test]
+    fn pieces_equal_the_whole_line() {
+        // 260 m (four pieces: 41–100, –200, –300, –301 m) of corrugation over broadband roughness, with a gap.
+        let n = 260_000;
+        let mut seed = 7u64;
+        let mut noise = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut z: Vec<f64> = (0..n)
+            .map(|i| {
+                let x = i as f64;
+                12.0 * (x * std::f64::consts::TAU / 47.0).sin() + 30.0 * (x / 900.0).sin() + 3.0 * noise()
+            })
+            .collect();
+        z[150_000..150_700].iter_mut().for_each(|v| *v = f64::NAN);
+        let line = profile::stitched(1, 41_000.0, 1.0, z.clone());
+        let stitching = Stitching {
+            direction: Direction::Forward,
+            direction_residuals_um: None,
+            direction_given: true,
+            lasers: vec![line],
+        };
+        let opts = Options::default();
+        let a = judge(stitching, Vec::new(), &opts).unwrap();
+        assert_eq!(cores(&Grid::of(&a.lasers, 1.0), &opts).len(), 4);
+        let whole = en13231::analyze(&z, 1.0).unwrap();
+        let got = a.lasers[0].bands.as_ref().unwrap();
+        for (w, g) in whole.bands.iter().zip(&got.bands) {
+            let (w, g) = (w.outcome.as_ref().unwrap(), g.outcome.as_ref().unwrap());
+            assert_eq!((w.windows, w.exceeding_mm), (g.windows, g.exceeding_mm), "{w:?} {g:?}");
+            for (p, q) in [
+                (w.average_mean_pp_mm, g.average_mean_pp_mm),
+                (w.worst_mean_pp_mm, g.worst_mean_pp_mm),
+                (w.worst_max_pp_mm, g.worst_max_pp_mm),
+                (w.rms_mm, g.rms_mm),
+            ] {
+                assert!((p - q).abs() <= 1e-7 * p.abs() + 1e-12, "{p} vs {q}");
+            }
+        }
+        let wr = en15610::analyze(&z, 1.0, &opts.roughness).unwrap();
+        let gr = a.lasers[0].roughness.as_ref().unwrap();
+        assert_eq!((wr.spikes_removed, wr.spectrum.segments), (gr.spikes_removed, gr.spectrum.segments));
+        for (p, q) in wr.spectrum.bands.iter().zip(&gr.spectrum.bands) {
+            assert!((p.level_db - q.level_db).abs() < 1e-9, "{p:?} vs {q:?}");
+        }
+        // Blocks of 50 m from chainage multiples: 41 m to 50 m, then every 50 m.
+        let b = &a.verdict.blocks;
+        assert_eq!((b[0].start_mm, b[1].start_mm, b.len()), (0.0, 50_000.0, 7));
+    }
+}
