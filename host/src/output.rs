@@ -176,10 +176,11 @@ pub fn check_target(path: &Path) -> Result<PathBuf, OutputError> {
 }
 
 /// Writes `path` atomically (see the module docs): `write` produces the
-/// content into a buffered writer; on any error the target is untouched.
+/// content into a buffered writer (`Send`, as the Parquet writer needs);
+/// on any error the target is untouched.
 pub fn write_atomically<F>(path: &Path, write: F) -> Result<(), OutputError>
 where
-    F: FnOnce(&mut dyn Write) -> io::Result<()>,
+    F: FnOnce(&mut (dyn Write + Send)) -> io::Result<()>,
 {
     static COUNTER: AtomicU64 = AtomicU64::new(0);
     let target = check_target(path)?;

@@ -299,8 +299,9 @@ fn analyze<'py>(
     let opts = settings.options();
     let (source, a) = py.detach(|| runs::run(&req, &opts, &cms_host::progress::Silent)).map_err(py_err)?;
     let summary = cms_host::report::json::to_json(&source, &a).to_string();
+    let profile = py.detach(|| exports::profile_table(&source, &a)).map_err(py_err)?;
     Ok((
-        table(py, &exports::profile_table(&source, &a))?,
+        table(py, &profile)?,
         table(py, &exports::blocks_table(&source, &a))?,
         table(py, &exports::zones_table(&source, &a))?,
         summary,

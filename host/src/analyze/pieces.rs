@@ -47,6 +47,13 @@ pub struct Piece {
     pub lines: Vec<PieceLine>,
 }
 
+impl Piece {
+    /// A piece of nothing (a table's columns without rows).
+    pub fn empty() -> Piece {
+        Piece { section: 0, grid: Grid { origin_mm: 0.0, dx_mm: 1.0, len: 0 }, core: 0..0, lines: Vec::new() }
+    }
+}
+
 /// One line of a piece.
 #[derive(Debug)]
 pub struct PieceLine {

@@ -45,6 +45,7 @@ use parquet::file::writer::SerializedFileWriter;
 use parquet::schema::types::Type;
 
 use crate::Error;
+use crate::analyze::pieces::Piece;
 use crate::analyze::standards::en13231;
 use crate::analyze::{Analysis, Source};
 
@@ -71,6 +72,20 @@ pub enum Values {
 }
 
 impl Values {
+    /// Appends another column's values of the same type (a mismatch is
+    /// left out: the tables built here never mix them).
+    fn append(&mut self, other: Values) {
+        match (self, other) {
+            (Values::F64(a), Values::F64(b)) => a.extend(b),
+            (Values::I32(a), Values::I32(b)) => a.extend(b),
+            (Values::Bool(a), Values::Bool(b)) => a.extend(b),
+            (Values::Str(a), Values::Str(b)) => a.extend(b),
+            (Values::Repeat(_, n), Values::Repeat(_, m)) => *n += m,
+            (Values::ListF64(a), Values::ListF64(b)) => a.extend(b),
+            _ => {}
+        }
+    }
+
     fn len(&self) -> usize {
         match self {
             Values::F64(v) => v.len(),
@@ -113,46 +128,56 @@ pub fn band_key(b: &en13231::Band) -> String {
     format!("{}_{}", b.lo_mm, b.hi_mm)
 }
 
-/// The stitched profile on one grid per section, the sections one after
-/// the other (the stretches between them, never measured, have no rows):
-/// `source`, `chainage_mm`, `height_um_K` per line (null in gaps),
-/// `coverage` (lines with data at the sample).
-pub fn profile_table(source: &Source, a: &Analysis) -> Table {
+/// The lines of a survey line's sections, in number order.
+fn line_numbers(a: &Analysis) -> Vec<usize> {
     let mut lines: Vec<usize> = a.lasers.iter().map(|l| l.stitched.laser).collect();
     lines.sort_unstable();
     lines.dedup();
-    let mut chainage_mm: Vec<Option<f64>> = Vec::new();
-    let mut coverage: Vec<i32> = Vec::new();
-    let mut heights: Vec<Vec<Option<f64>>> = vec![Vec::new(); lines.len()];
-    for sec in a.sections() {
-        let grid = sec.grid;
-        let rows = grid.len;
-        chainage_mm.extend((0..rows).map(|i| Some(grid.chainage_mm(i))));
-        let mut cov = vec![0i32; rows];
-        for (k, h) in lines.iter().zip(heights.iter_mut()) {
-            let l = sec.lasers.iter().find(|l| l.stitched.laser == *k);
-            let off = l.map_or(0, |l| grid.offset(&l.stitched)) as i64;
-            let z = l.map(|l| l.stitched.z.to_vec().unwrap_or_default()).unwrap_or_default();
-            let col: Vec<Option<f64>> = (0..rows)
-                .map(|i| usize::try_from(i as i64 - off).ok().and_then(|j| z.get(j)).copied().filter(|v| v.is_finite()))
-                .collect();
-            for (c, v) in cov.iter_mut().zip(&col) {
-                *c += i32::from(v.is_some());
-            }
-            h.extend(col);
-        }
-        coverage.extend(cov);
-    }
-    let rows = chainage_mm.len();
+    lines
+}
+
+/// The rows of [`profile_table`] of one piece of the line.
+fn profile_rows(source: &str, lines: &[usize], p: &Piece) -> Table {
+    let rows = p.core.len();
+    let chainage_mm: Vec<Option<f64>> = p.core.clone().map(|i| Some(p.grid.chainage_mm(i))).collect();
+    let mut coverage = vec![0i32; rows];
     let mut columns = vec![
-        col("source", false, Values::Repeat(source.name(), rows)),
+        col("source", false, Values::Repeat(source.to_string(), rows)),
         col("chainage_mm", false, Values::F64(chainage_mm)),
     ];
-    for (k, h) in lines.iter().zip(heights) {
+    for k in lines {
+        let l = p.lines.iter().find(|l| l.laser == *k);
+        let h: Vec<Option<f64>> = (0..rows).map(|i| l.map(|l| l.z_um[i]).filter(|v| v.is_finite())).collect();
+        for (c, v) in coverage.iter_mut().zip(&h) {
+            *c += i32::from(v.is_some());
+        }
         columns.push(col(format!("height_um_{k}"), true, Values::F64(h)));
     }
     columns.push(col("coverage", false, Values::I32(coverage.into_iter().map(Some).collect())));
     Table { columns }
+}
+
+/// The stitched profile on one grid per section, the sections one after
+/// the other (the stretches between them, never measured, have no rows):
+/// `source`, `chainage_mm`, `height_um_K` per line (null in gaps),
+/// `coverage` (lines with data at the sample). Whole in memory: files
+/// are written piece by piece ([`write`]).
+pub fn profile_table(source: &Source, a: &Analysis) -> Result<Table, Error> {
+    let (name, lines) = (source.name(), line_numbers(a));
+    let mut t: Option<Table> = None;
+    a.for_each_piece(|p| {
+        let rows = profile_rows(&name, &lines, p);
+        match &mut t {
+            None => t = Some(rows),
+            Some(t) => {
+                for (c, r) in t.columns.iter_mut().zip(rows.columns) {
+                    c.values.append(r.values);
+                }
+            }
+        }
+        Ok(())
+    })?;
+    Ok(t.unwrap_or_else(|| profile_rows(&name, &lines, &Piece::empty())))
 }
 
 /// The blocks: `source`, `start_chainage_mm`, `end_chainage_mm`,
@@ -345,23 +370,35 @@ fn list_levels(v: &[Option<Vec<f64>>], nullable: bool) -> Result<ListLevels, std
     Ok((p, d, r))
 }
 
-/// A table as the bytes of a Parquet file (one row group), with `meta` as
-/// key-value metadata besides `cms.schema`.
-pub fn to_parquet(name: &str, t: &Table, meta: &[(&str, String)]) -> Result<Vec<u8>, std::io::Error> {
-    let rows = t.rows();
-    if let Some(c) = t.columns.iter().find(|c| c.values.len() != rows) {
-        return Err(std::io::Error::other(format!("column {} has {} rows of {rows}", c.name, c.values.len())));
-    }
+/// The writer properties of every file: `cms.schema` and `meta` as key-value metadata.
+fn properties(meta: &[(&str, String)]) -> WriterProperties {
     let mut kv = vec![KeyValue::new("cms.schema".into(), SCHEMA_VERSION.to_string())];
     kv.extend(meta.iter().map(|(k, v)| KeyValue::new((*k).into(), v.clone())));
-    let props = WriterProperties::builder()
+    WriterProperties::builder()
         .set_writer_version(WriterVersion::PARQUET_1_0)
         .set_compression(Compression::UNCOMPRESSED)
         .set_created_by(format!("cms-host {}", env!("CARGO_PKG_VERSION")))
         .set_key_value_metadata(Some(kv))
-        .build();
+        .build()
+}
+
+/// A table as the bytes of a Parquet file (one row group), with `meta` as
+/// key-value metadata besides `cms.schema`.
+pub fn to_parquet(name: &str, t: &Table, meta: &[(&str, String)]) -> Result<Vec<u8>, std::io::Error> {
     let mut buf = Vec::new();
-    let mut w = SerializedFileWriter::new(&mut buf, Arc::new(schema(name, t)?), Arc::new(props)).map_err(perr)?;
+    let mut w =
+        SerializedFileWriter::new(&mut buf, Arc::new(schema(name, t)?), Arc::new(properties(meta))).map_err(perr)?;
+    row_group(&mut w, t)?;
+    w.close().map_err(perr)?;
+    Ok(buf)
+}
+
+/// Writes a table as one row group of `w` (the schema's columns in order).
+fn row_group<W: std::io::Write + Send>(w: &mut SerializedFileWriter<W>, t: &Table) -> Result<(), std::io::Error> {
+    let rows = t.rows();
+    if let Some(c) = t.columns.iter().find(|c| c.values.len() != rows) {
+        return Err(std::io::Error::other(format!("column {} has {} rows of {rows}", c.name, c.values.len())));
+    }
     let mut rg = w.next_row_group().map_err(perr)?;
     for c in &t.columns {
         let Some(mut cw) = rg.next_column().map_err(perr)? else {
@@ -407,8 +444,26 @@ pub fn to_parquet(name: &str, t: &Table, meta: &[(&str, String)]) -> Result<Vec<
         cw.close().map_err(perr)?;
     }
     rg.close().map_err(perr)?;
-    w.close().map_err(perr)?;
-    Ok(buf)
+    Ok(())
+}
+
+/// The profile as a Parquet file written into `out` a row group per
+/// piece of the line (never whole in memory).
+fn write_profile(
+    out: &mut (dyn std::io::Write + Send),
+    source: &Source,
+    a: &Analysis,
+    meta: &[(&str, String)],
+) -> Result<(), Error> {
+    let (name, lines) = (source.name(), line_numbers(a));
+    let empty = profile_rows(&name, &lines, &Piece::empty());
+    let io = |e: std::io::Error| Error::Output(e);
+    let mut w =
+        SerializedFileWriter::new(out, Arc::new(schema("profile", &empty).map_err(io)?), Arc::new(properties(meta)))
+            .map_err(|e| io(perr(e)))?;
+    a.for_each_piece(|p| row_group(&mut w, &profile_rows(&name, &lines, p)).map_err(io))?;
+    w.close().map_err(|e| io(perr(e)))?;
+    Ok(())
 }
 
 /// The file names written by [`write()`].
@@ -436,13 +491,23 @@ pub(crate) fn write_files(dir: &Path, source: &Source, a: &Analysis) -> Result<(
         ("cms.edition", a.verdict.options.edition.name().to_string()),
         ("cms.block_mm", a.verdict.options.block_mm.to_string()),
     ];
-    let tables = [
-        ("profile", profile_table(source, a)),
-        ("blocks", blocks_table(source, a)),
-        ("zones", zones_table(source, a)),
-        ("fixes", fixes_table(source, a)),
-    ];
-    for ((name, t), file) in tables.iter().zip(FILES) {
+    let profile = dir.join(FILES[0]);
+    let mut failed = None;
+    crate::output::write_atomically(&profile, |w| {
+        write_profile(w, source, a, &meta).map_err(|e| {
+            let m = format!("{}: {e}", profile.display());
+            failed = Some(e);
+            std::io::Error::other(m)
+        })
+    })
+    .map_err(|e| match (failed.take(), e) {
+        (Some(Error::Module(m)), _) => Error::Module(m),
+        (_, e @ crate::output::OutputError::NotRegular { .. }) => Error::from(e),
+        (_, e) => Error::Output(std::io::Error::other(e.to_string())),
+    })?;
+    let tables =
+        [("blocks", blocks_table(source, a)), ("zones", zones_table(source, a)), ("fixes", fixes_table(source, a))];
+    for ((name, t), file) in tables.iter().zip(&FILES[1..]) {
         let path = dir.join(file);
         let bytes = to_parquet(name, t, &meta)
             .map_err(|e| Error::Output(std::io::Error::other(format!("{}: {e}", path.display()))))?;

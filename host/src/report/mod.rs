@@ -25,7 +25,10 @@
 //! | `profile.parquet`, `blocks.parquet`, `zones.parquet`, `fixes.parquet` | the stitched profile, blocks, zones and GNSS fixes ([`exports`], docs/exports.md) |
 //!
 //! Long profiles are plotted through a min/max envelope of at most
-//! [`MAX_PLOT_POINTS`] points per line (the CSVs keep every sample).
+//! [`MAX_PLOT_POINTS`] points per line (the CSVs keep every sample),
+//! gathered as the line is walked piece by piece ([`traces`]); the
+//! per-sample files are written the same way, so a report of any length
+//! of track is written in the memory of one piece.
 
 pub mod exports;
 pub mod html;
@@ -54,41 +57,6 @@ const COLOURS: [RGBColor; 3] = [RGBColor(214, 39, 40), RGBColor(44, 160, 44), RG
 
 fn colour(laser: usize) -> RGBColor {
     COLOURS[laser % COLOURS.len()]
-}
-
-/// Splits `(x, y)` at non-finite `y` into continuous pieces and thins each to
-/// a min/max envelope so that all of them hold about `max` points.
-pub fn plot_pieces(x0: f64, dx: f64, y: &[f64], max: usize) -> Vec<Vec<(f64, f64)>> {
-    let finite = y.iter().filter(|v| v.is_finite()).count().max(1);
-    // Samples per bucket (each bucket gives its min and max).
-    let per = (2 * finite).div_ceil(max.max(2)).max(1);
-    let mut out = Vec::new();
-    for run in crate::analyze::standards::segments(y) {
-        let mut piece = Vec::new();
-        if per == 1 {
-            piece.extend(run.map(|i| (x0 + i as f64 * dx, y[i])));
-        } else {
-            let idx: Vec<usize> = run.collect();
-            for chunk in idx.chunks(per) {
-                let (mut lo, mut hi) = (chunk[0], chunk[0]);
-                for &i in chunk {
-                    if y[i] < y[lo] {
-                        lo = i;
-                    }
-                    if y[i] > y[hi] {
-                        hi = i;
-                    }
-                }
-                let (a, b) = if lo <= hi { (lo, hi) } else { (hi, lo) };
-                piece.push((x0 + a as f64 * dx, y[a]));
-                if b != a {
-                    piece.push((x0 + b as f64 * dx, y[b]));
-                }
-            }
-        }
-        out.push(piece);
-    }
-    out
 }
 
 fn range(pieces: &[Vec<(f64, f64)>]) -> Option<((f64, f64), (f64, f64))> {

@@ -37,6 +37,7 @@ use serde_json::json;
 use super::ServeError;
 use crate::Error;
 use crate::analyze::runs::{self, Request as AnalysisRequest};
+use crate::analyze::store::{Samples, ScratchError};
 use crate::analyze::{self, Analysis, Options, Source};
 use crate::progress::Progress;
 
@@ -67,9 +68,14 @@ struct PlotLine {
     section: usize,
     x0_mm: f64,
     dx_mm: f64,
-    /// Heights less the line's median, µm (NaN in gaps).
-    z_um: Vec<f64>,
+    /// Heights, µm (NaN in gaps), read a stretch at a time.
+    z: Samples,
+    /// The line's median height (of at most 10⁵ samples spread along it), µm: taken off.
+    median_um: f64,
 }
+
+/// Samples read at a time when a request spans a long line.
+const READ_SAMPLES: usize = 1 << 20;
 
 /// What the viewer serves: the analysis and the kept frames.
 #[derive(Debug)]
@@ -92,7 +98,7 @@ impl View {
     pub fn open(req: &AnalysisRequest, opts: &Options, progress: &dyn Progress) -> Result<View, Error> {
         let (source, a) = runs::run(req, opts, progress)?;
         let analysis_json = crate::report::json::to_json(&source, &a);
-        let lines = plot_lines(&a);
+        let lines = plot_lines(&a)?;
         let (frames, frames_total, frame_every) = match &source {
             Source::Recordings(recs) => {
                 let total: usize = recs.iter().map(|(_, r)| r.frames).sum();
@@ -148,7 +154,7 @@ impl View {
     /// The chainage span of the stitched lines, mm.
     fn span_mm(&self) -> Option<(f64, f64)> {
         let lo = self.lines.iter().map(|l| l.x0_mm).fold(f64::INFINITY, f64::min);
-        let hi = self.lines.iter().map(|l| l.x0_mm + l.z_um.len() as f64 * l.dx_mm).fold(f64::NEG_INFINITY, f64::max);
+        let hi = self.lines.iter().map(|l| l.x0_mm + l.z.len() as f64 * l.dx_mm).fold(f64::NEG_INFINITY, f64::max);
         (lo.is_finite() && hi > lo).then_some((lo, hi))
     }
 
@@ -167,7 +173,7 @@ impl View {
 
     /// Each line's lowest and highest height in `bins` equal bins over
     /// `[from_mm, to_mm)` (null where a bin holds no sample of it).
-    fn profile(&self, from_mm: f64, to_mm: f64, bins: usize) -> serde_json::Value {
+    fn profile(&self, from_mm: f64, to_mm: f64, bins: usize) -> Result<serde_json::Value, Error> {
         let width = (to_mm - from_mm) / bins as f64;
         let lines: Vec<_> = self
             .lines
@@ -175,27 +181,33 @@ impl View {
             .map(|l| {
                 let mut lo = vec![f64::INFINITY; bins];
                 let mut hi = vec![f64::NEG_INFINITY; bins];
-                // Only the samples inside the stretch are visited.
+                // Only the samples inside the stretch are read.
                 let first = ((from_mm - l.x0_mm) / l.dx_mm).floor().max(0.0) as usize;
-                let last = (((to_mm - l.x0_mm) / l.dx_mm).ceil().max(0.0) as usize).min(l.z_um.len());
-                for (j, &z) in l.z_um.iter().enumerate().take(last).skip(first) {
-                    let x = l.x0_mm + j as f64 * l.dx_mm;
-                    let b = ((x - from_mm) / width).floor();
-                    if z.is_finite() && b >= 0.0 && (b as usize) < bins {
-                        lo[b as usize] = lo[b as usize].min(z);
-                        hi[b as usize] = hi[b as usize].max(z);
+                let last = (((to_mm - l.x0_mm) / l.dx_mm).ceil().max(0.0) as usize).min(l.z.len());
+                let mut at = first;
+                while at < last {
+                    let end = (at + READ_SAMPLES).min(last);
+                    let z = l.z.read(at..end).map_err(ScratchError)?;
+                    for (j, z) in z.iter().map(|z| z - l.median_um).enumerate() {
+                        let x = l.x0_mm + (at + j) as f64 * l.dx_mm;
+                        let b = ((x - from_mm) / width).floor();
+                        if z.is_finite() && b >= 0.0 && (b as usize) < bins {
+                            lo[b as usize] = lo[b as usize].min(z);
+                            hi[b as usize] = hi[b as usize].max(z);
+                        }
                     }
+                    at = end;
                 }
                 let num = |v: f64| if v.is_finite() { json!((v * 1e3).round() / 1e3) } else { serde_json::Value::Null };
-                json!({
+                Ok(json!({
                     "laser": l.laser,
                     "section": l.section,
                     "min_um": lo.into_iter().map(num).collect::<Vec<_>>(),
                     "max_um": hi.into_iter().map(num).collect::<Vec<_>>(),
-                })
+                }))
             })
-            .collect();
-        json!({ "from_mm": from_mm, "to_mm": to_mm, "bins": bins, "lines": lines })
+            .collect::<Result<_, Error>>()?;
+        Ok(json!({ "from_mm": from_mm, "to_mm": to_mm, "bins": bins, "lines": lines }))
     }
 
     /// `GET /api/frame?i=…`: kept frame `i`.
@@ -225,21 +237,36 @@ fn median(z: &[f64]) -> f64 {
     *finite.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
+/// The median of at most 10⁵ samples spread evenly along a line (read a
+/// stretch at a time), µm.
+fn spread_median(z: &Samples) -> Result<f64, Error> {
+    let stride = z.len() / 100_000 + 1;
+    let mut picked = Vec::new();
+    let mut at = 0;
+    while at < z.len() {
+        let end = (at + READ_SAMPLES).min(z.len());
+        let v = z.read(at..end).map_err(ScratchError)?;
+        // `READ_SAMPLES` is a multiple of any stride up to 2²⁰: the picks stay evenly spaced.
+        picked.extend(v.iter().step_by(stride));
+        at = end;
+    }
+    Ok(median(&picked))
+}
+
 /// The stitched lines, each less its median (as the report plots them).
-fn plot_lines(a: &Analysis) -> Vec<PlotLine> {
+fn plot_lines(a: &Analysis) -> Result<Vec<PlotLine>, Error> {
     a.lasers
         .iter()
         .map(|l| {
             let s = &l.stitched;
-            let z = s.z.to_vec().unwrap_or_default();
-            let m = median(&z);
-            PlotLine {
+            Ok(PlotLine {
                 laser: s.laser,
                 section: s.section,
                 x0_mm: s.x0_mm,
                 dx_mm: s.dx_mm,
-                z_um: z.iter().map(|z| z - m).collect(),
-            }
+                median_um: spread_median(&s.z)?,
+                z: s.z.clone(),
+            })
         })
         .collect()
 }
@@ -263,7 +290,8 @@ fn report_lines(path: &Path, dx_mm: f64) -> Result<Vec<PlotLine>, Error> {
         .enumerate()
         .filter_map(|(i, c)| c.strip_prefix("height_um_").and_then(|k| k.parse().ok()).map(|k| (i, k)))
         .collect();
-    let mut lines: Vec<PlotLine> = Vec::new();
+    // (laser, section, x0, heights) while the file is read.
+    let mut lines: Vec<(usize, usize, f64, Vec<f64>)> = Vec::new();
     let (mut section, mut last) = (0usize, f64::NEG_INFINITY);
     for row in reader.get_row_iter(None).map_err(|e| bad(&e))? {
         let row = row.map_err(|e| bad(&e))?;
@@ -274,30 +302,30 @@ fn report_lines(path: &Path, dx_mm: f64) -> Result<Vec<PlotLine>, Error> {
         // The first row (after -inf), or a jump: a new section.
         if x - last > 1.5 * dx_mm {
             section += 1;
-            lines.extend(lasers.iter().map(|&(_, k)| PlotLine {
-                laser: k,
-                section,
-                x0_mm: *x,
-                dx_mm,
-                z_um: Vec::new(),
-            }));
+            lines.extend(lasers.iter().map(|&(_, k)| (k, section, *x, Vec::new())));
         }
         last = *x;
         let at = lines.len() - lasers.len();
         for (l, &(i, _)) in lines[at..].iter_mut().zip(&lasers) {
-            l.z_um.push(match fields.get(i) {
+            l.3.push(match fields.get(i) {
                 Some(Field::Double(z)) => *z,
                 _ => f64::NAN,
             });
         }
     }
     // A line absent from a section is not a line of it.
-    lines.retain(|l| l.z_um.iter().any(|z| z.is_finite()));
-    for l in &mut lines {
-        let m = median(&l.z_um);
-        l.z_um.iter_mut().for_each(|z| *z -= m);
-    }
-    Ok(lines)
+    lines.retain(|l| l.3.iter().any(|z| z.is_finite()));
+    Ok(lines
+        .into_iter()
+        .map(|(laser, section, x0_mm, z)| PlotLine {
+            laser,
+            section,
+            x0_mm,
+            dx_mm,
+            median_um: median(&z),
+            z: Samples::from_vec(z),
+        })
+        .collect())
 }
 
 /// Up to [`MAX_FRAMES_KEPT`] of the `total` frames of the recordings at
@@ -427,7 +455,10 @@ async fn profile(State(ctx): State<Ctx>, req: Request) -> Response {
         Ok((from, to, bins))
     })();
     match parsed {
-        Ok((from, to, bins)) => json_response(&ctx.view.profile(from, to, bins)),
+        Ok((from, to, bins)) => match ctx.view.profile(from, to, bins) {
+            Ok(v) => json_response(&v),
+            Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, format!("{e}\n")).into_response(),
+        },
         Err(why) => (StatusCode::BAD_REQUEST, why).into_response(),
     }
 }
@@ -467,7 +498,14 @@ mod tests {
     use super::*;
 
     fn view() -> View {
-        let line = |laser, x0_mm: f64, z: Vec<f64>| PlotLine { laser, section: 1, x0_mm, dx_mm: 1.0, z_um: z };
+        let line = |laser, x0_mm: f64, z: Vec<f64>| PlotLine {
+            laser,
+            section: 1,
+            x0_mm,
+            dx_mm: 1.0,
+            z: Samples::from_vec(z),
+            median_um: 0.0,
+        };
         View {
             analysis_json: json!({}),
             lines: vec![line(0, 0.0, (0..100).map(f64::from).collect()), line(1, 50.0, vec![f64::NAN, 5.0, -5.0])],
@@ -480,7 +518,7 @@ mod tests {
 
     #[test]
     fn profile_bins_hold_each_lines_lowest_and_highest_sample() {
-        let p = view().profile(0.0, 100.0, 10);
+        let p = view().profile(0.0, 100.0, 10).unwrap();
         let l0 = &p["lines"][0];
         assert_eq!(l0["min_um"][0], 0.0);
         assert_eq!(l0["max_um"][0], 9.0);
@@ -494,7 +532,7 @@ mod tests {
 
     #[test]
     fn a_zoom_past_the_data_is_empty_bins() {
-        let p = view().profile(1000.0, 2000.0, 4);
+        let p = view().profile(1000.0, 2000.0, 4).unwrap();
         assert!(p["lines"][0]["min_um"].as_array().unwrap().iter().all(|v| v.is_null()));
     }
 
