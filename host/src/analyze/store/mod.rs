@@ -20,6 +20,9 @@ use std::sync::{Arc, Mutex, MutexGuard};
 pub use cells::Cells;
 pub use fits::{FIT_BUFFER, FitLog};
 
+/// Samples a reader of a whole line takes at a time (512 KB of `f64`).
+pub const STRETCH: usize = 1 << 16;
+
 /// A line's samples along the track (µm; NaN where nothing was measured),
 /// read in stretches: a view of `len` cells from lattice index `base` of a
 /// cell store (value = sum / weight), shared by its clones.
@@ -67,6 +70,13 @@ impl Samples {
     /// them with a weight.
     pub fn from_cells(cells: Cells, base: i64, len: usize, finite: usize) -> Samples {
         Samples { cells: Arc::new(Mutex::new(cells)), base, len, finite, error: None }
+    }
+
+    /// The same samples, `finite` of them with a value (counted by the
+    /// maker while it read them anyway).
+    pub fn counted(mut self, finite: usize) -> Samples {
+        self.finite = finite;
+        self
     }
 
     pub fn len(&self) -> usize {
