@@ -73,6 +73,24 @@
 //! sections are numbered from 1, runs in the order given, sections in
 //! chainage order.
 //!
+//! # Memory
+//!
+//! The joined lines are cell stores ([`crate::analyze::store`]): a few
+//! tiles in memory, the rest in a temporary file. A run is merged, checked
+//! and trimmed by reading stretches of it (with the resampling kernel's
+//! margin), so placing run 1, which is never registered, holds one stretch
+//! at a time. Registration correlates vectors: of the run, at most
+//! 100 m (at 1 mm: 10⁵ samples) — of what the shifts allowed can lay on the
+//! section, the part nearest the run's start (where a stopped and restarted
+//! run, or one driven back over the last metres, overlaps the one before);
+//! of the section, what those shifts reach (the run's part plus
+//! [`JoinOptions::search_mm`] each side with a given start). One shift
+//! places the whole run, and 100 m of broadband roughness decides it as
+//! surely as more does (the overlap asked for is 2 m); the shifts searched
+//! are the same, so `search_mm` means what it did. Without a start the
+//! whole section is correlated, so that registration's memory follows the
+//! section (≈ 100 bytes a sample while it runs).
+//!
 //! Cost: per run four FFT correlations per line and heading of the length
 //! of each section it may overlap (`O(N log N)`), then `O(overlap)` per
 //! refinement step.
