@@ -370,7 +370,13 @@ mod tests {
             for i in 0..n {
                 // Spread over decades, with zeros and negatives among them.
                 let r = scale * ((i * 7919 % 1000) as f64 / 100.0).exp() / 1000.0;
-                let r = if i % 11 == 0 { 0.0 } else if i % 13 == 0 { -r } else { r };
+                let r = if i % 11 == 0 {
+                    0.0
+                } else if i % 13 == 0 {
+                    -r
+                } else {
+                    r
+                };
                 let o = 2.0 + (i * 104_729 % 997) as f64;
                 log.push(fit(i, o, r));
                 exact.0.push(o);
