@@ -83,7 +83,8 @@
 
 use cms_core::protocol::{LASERS, Profile};
 
-use super::store::{Cells, FitLog, STRETCH, Samples};
+pub use super::store::gaps_in;
+use super::store::{Cells, FitLog, Samples};
 
 /// Most cells of a stitched profile (20 km at 1 mm).
 pub const MAX_CELLS: usize = 20_000_000;
@@ -599,36 +600,6 @@ impl Lane {
 
 fn spill(e: std::io::Error) -> StitchError {
     StitchError::Spill(e.to_string())
-}
-
-/// The runs of missing samples of a profile read in stretches, and the
-/// samples with a value.
-pub fn gaps_in(x0_mm: f64, dx_mm: f64, z: &Samples) -> std::io::Result<(Vec<Gap>, usize)> {
-    let mut out = Vec::new();
-    let mut finite = 0;
-    // The first missing sample of the run being read.
-    let mut open: Option<usize> = None;
-    let mut at = 0;
-    while at < z.len() {
-        let part = z.read(at..at + STRETCH)?;
-        for (k, v) in part.iter().enumerate() {
-            match (v.is_finite(), open) {
-                (true, Some(s)) => {
-                    out.push(Gap { start_mm: x0_mm + s as f64 * dx_mm, length_mm: (at + k - s) as f64 * dx_mm });
-                    open = None;
-                    finite += 1;
-                }
-                (true, None) => finite += 1,
-                (false, None) => open = Some(at + k),
-                (false, Some(_)) => {}
-            }
-        }
-        at += part.len().max(1);
-    }
-    if let Some(s) = open {
-        out.push(Gap { start_mm: x0_mm + s as f64 * dx_mm, length_mm: (z.len() - s) as f64 * dx_mm });
-    }
-    Ok((out, finite))
 }
 
 /// The runs of missing samples of a profile.

@@ -20,6 +20,8 @@ use std::sync::{Arc, Mutex, MutexGuard};
 pub use cells::Cells;
 pub use fits::{FIT_BUFFER, FitLog};
 
+use super::stitch::Gap;
+
 /// Samples a reader of a whole line takes at a time (512 KB of `f64`).
 pub const STRETCH: usize = 1 << 16;
 
@@ -107,6 +109,36 @@ impl Samples {
     pub fn finite(&self) -> usize {
         self.finite
     }
+}
+
+/// The runs of missing samples of a profile read in stretches, and the
+/// samples with a value.
+pub fn gaps_in(x0_mm: f64, dx_mm: f64, z: &Samples) -> io::Result<(Vec<Gap>, usize)> {
+    let mut out = Vec::new();
+    let mut finite = 0;
+    // The first missing sample of the run being read.
+    let mut open: Option<usize> = None;
+    let mut at = 0;
+    while at < z.len() {
+        let part = z.read(at..at + STRETCH)?;
+        for (k, v) in part.iter().enumerate() {
+            match (v.is_finite(), open) {
+                (true, Some(s)) => {
+                    out.push(Gap { start_mm: x0_mm + s as f64 * dx_mm, length_mm: (at + k - s) as f64 * dx_mm });
+                    open = None;
+                    finite += 1;
+                }
+                (true, None) => finite += 1,
+                (false, None) => open = Some(at + k),
+                (false, Some(_)) => {}
+            }
+        }
+        at += part.len().max(1);
+    }
+    if let Some(s) = open {
+        out.push(Gap { start_mm: x0_mm + s as f64 * dx_mm, length_mm: (z.len() - s) as f64 * dx_mm });
+    }
+    Ok((out, finite))
 }
 
 #[cfg(test)]
