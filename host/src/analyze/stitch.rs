@@ -73,15 +73,18 @@
 //! # Cost
 //!
 //! `O(P log P)` for P points (sorting each frame's points into cells) plus
-//! `O(C)` per frame for C cells it covers; memory 16 bytes per grid cell
-//! and lane (two lanes per laser, one per direction; three or four when the
-//! registration is not offset-only) and one
-//! [`FrameFit`] per frame, not the frames: [`Stitcher`] streams. A grid
-//! longer than [`MAX_CELLS`] is refused.
+//! `O(C)` per frame for C cells it covers. Memory does not grow with the
+//! track: each lane (two per laser, one per direction; three or four when
+//! the registration is not offset-only) keeps its cells in a
+//! [`Cells`] store (≈ 1 MB in memory, the rest in a temporary file) and
+//! its [`FrameFit`]s in a [`FitLog`], not the frames: [`Stitcher`]
+//! streams. A grid longer than [`MAX_CELLS`] is refused; a temporary
+//! file that fails is [`StitchError::Spill`].
 
 use cms_core::protocol::{LASERS, Profile};
 
-use super::store::{FitLog, Samples};
+pub use super::store::gaps_in;
+use super::store::{Cells, FitLog, Samples};
 
 /// Most cells of a stitched profile (20 km at 1 mm).
 pub const MAX_CELLS: usize = 20_000_000;
@@ -211,6 +214,10 @@ pub enum StitchError {
     /// The frames span more than [`MAX_CELLS`] cells.
     #[error("the frames span {span_mm:.0} mm of track: more than {MAX_CELLS} samples at {dx_mm} mm (odometer jumps?)")]
     TooLong { span_mm: f64, dx_mm: f64 },
+    /// The temporary file holding a long profile failed (the error's text:
+    /// an I/O error is not `Clone`).
+    #[error("cannot keep the stitched profile in a temporary file: {0}")]
+    Spill(String),
 }
 
 /// A stretch of track no frame covered.
@@ -376,10 +383,11 @@ struct Lane {
     laser: usize,
     sign: f64,
     registration: Registration,
-    /// Lattice index (cell centre at `index · dx`) of `cells[0]`.
-    base: i64,
+    /// Lattice indices (cell centre at `index · dx`) `lo..=hi` the frames
+    /// covered (`None` before the first).
+    span: Option<(i64, i64)>,
     /// Per cell: sum of weighted values, µm, and the weight (points).
-    cells: std::collections::VecDeque<(f64, u32)>,
+    cells: Cells,
     fits: FitLog,
     joins: Vec<Join>,
     frames: usize,
@@ -410,8 +418,8 @@ impl Stitcher {
                     laser,
                     sign,
                     registration,
-                    base: 0,
-                    cells: Default::default(),
+                    span: None,
+                    cells: Cells::default(),
                     fits: FitLog::default(),
                     joins: Vec::new(),
                     frames: 0,
@@ -480,7 +488,7 @@ impl Stitcher {
             .into_iter()
             .filter(|l| l.sign == sign && l.registration == registration && with_points.contains(&l.laser))
             .map(|l| l.into_stitched(dx))
-            .collect();
+            .collect::<Result<Vec<Stitched>, StitchError>>()?;
         let direction_given = self.opts.direction != Direction::Auto;
         Ok(Stitching { direction, direction_residuals_um: Some((fwd, rev)), direction_given, lasers })
     }
@@ -515,30 +523,19 @@ impl Lane {
     fn add(&mut self, seq: u32, cells: &[(i64, f64, usize)], opts: &Options) -> Result<(), StitchError> {
         let dx = opts.dx_mm;
         let (lo, hi) = (cells[0].0, cells[cells.len() - 1].0);
-        if self.cells.is_empty() {
-            self.base = lo;
-        }
-        let new_lo = self.base.min(lo);
-        let new_hi = (self.base + self.cells.len() as i64 - 1).max(hi);
+        let (new_lo, new_hi) = self.span.map_or((lo, hi), |(a, b)| (a.min(lo), b.max(hi)));
         let span = new_hi.saturating_sub(new_lo);
         if span >= MAX_CELLS as i64 - 1 {
             return Err(StitchError::TooLong { span_mm: span as f64 * dx, dx_mm: dx });
         }
-        while self.base > lo {
-            self.cells.push_front((0.0, 0));
-            self.base -= 1;
+        self.span = Some((new_lo, new_hi));
+        let mut overlap: Vec<(f64, f64)> = Vec::with_capacity(cells.len());
+        for &(c, v, _) in cells {
+            let (sum, w) = self.cells.get(c).map_err(spill)?;
+            if w > 0 {
+                overlap.push((c as f64 * dx, v - sum / w as f64));
+            }
         }
-        while self.base + (self.cells.len() as i64) <= hi {
-            self.cells.push_back((0.0, 0));
-        }
-        let at = |c: i64| (c - self.base) as usize;
-        let overlap: Vec<(f64, f64)> = cells
-            .iter()
-            .filter_map(|&(c, v, _)| {
-                let (sum, w) = self.cells[at(c)];
-                (w > 0).then(|| (c as f64 * dx, v - sum / w as f64))
-            })
-            .collect();
         let overlap_mm = match (overlap.first(), overlap.last()) {
             (Some(a), Some(b)) => b.0 - a.0 + dx,
             _ => 0.0,
@@ -561,6 +558,9 @@ impl Lane {
                     tilt_um_per_mm: b,
                     residual_um: (rss / overlap.len() as f64).sqrt(),
                 });
+                if let Some(e) = self.fits.error() {
+                    return Err(StitchError::Spill(e.to_string()));
+                }
             } else {
                 self.joins.push(Join { seq, at_mm: lo as f64 * dx, overlap_mm });
             }
@@ -568,34 +568,38 @@ impl Lane {
         let (xm, a, b) = correction;
         for &(c, v, w) in cells {
             let v = v - (a + b * (c as f64 * dx - xm));
-            let cell = &mut self.cells[at(c)];
-            cell.0 += v * w as f64;
-            cell.1 += w as u32;
+            // A cell holds one frame's points: far below u32::MAX.
+            self.cells.add(c, v * w as f64, w as u32).map_err(spill)?;
             self.points += w;
         }
         self.frames += 1;
         Ok(())
     }
 
-    /// The lane's profile: empty ends trimmed, gaps listed.
-    fn into_stitched(self, dx: f64) -> Stitched {
-        let z_um: Vec<f64> = self.cells.iter().map(|&(s, w)| if w > 0 { s / w as f64 } else { f64::NAN }).collect();
+    /// The lane's profile (its cells handed over, not copied), gaps listed.
+    fn into_stitched(self, dx: f64) -> Result<Stitched, StitchError> {
         // The grid only ever grows to a frame's cells, so its ends have data.
-        let x0_mm = self.base as f64 * dx;
-        let gaps = gaps(x0_mm, dx, &z_um);
-        Stitched {
+        let (lo, hi) = self.span.unwrap_or((0, -1));
+        let x0_mm = lo as f64 * dx;
+        let z = Samples::from_cells(self.cells, lo, (hi - lo + 1) as usize, 0);
+        let (gaps, finite) = gaps_in(x0_mm, dx, &z).map_err(spill)?;
+        Ok(Stitched {
             laser: self.laser,
             section: 1,
             x0_mm,
             dx_mm: dx,
-            z: Samples::from_vec(z_um),
+            z: z.counted(finite),
             frames: self.frames,
             points: self.points,
             fits: self.fits,
             joins: self.joins,
             gaps,
-        }
+        })
     }
+}
+
+fn spill(e: std::io::Error) -> StitchError {
+    StitchError::Spill(e.to_string())
 }
 
 /// The runs of missing samples of a profile.

@@ -73,6 +73,24 @@
 //! sections are numbered from 1, runs in the order given, sections in
 //! chainage order.
 //!
+//! # Memory
+//!
+//! The joined lines are cell stores ([`crate::analyze::store`]): a few
+//! tiles in memory, the rest in a temporary file. A run is merged, checked
+//! and trimmed by reading stretches of it (with the resampling kernel's
+//! margin), so placing run 1, which is never registered, holds one stretch
+//! at a time. Registration correlates vectors: of the run, at most
+//! 100 m (at 1 mm: 10⁵ samples) — of what the shifts allowed can lay on the
+//! section, the part nearest the run's start (where a stopped and restarted
+//! run, or one driven back over the last metres, overlaps the one before);
+//! of the section, what those shifts reach (the run's part plus
+//! [`JoinOptions::search_mm`] each side with a given start). One shift
+//! places the whole run, and 100 m of broadband roughness decides it as
+//! surely as more does (the overlap asked for is 2 m); the shifts searched
+//! are the same, so `search_mm` means what it did. Without a start the
+//! whole section is correlated, so that registration's memory follows the
+//! section (≈ 100 bytes a sample while it runs).
+//!
 //! Cost: per run four FFT correlations per line and heading of the length
 //! of each section it may overlap (`O(N log N)`), then `O(overlap)` per
 //! refinement step.
@@ -81,8 +99,11 @@ mod register;
 mod resample;
 mod section;
 
+use std::io;
+use std::ops::Range;
+
 use super::stitch::{Direction, Stitched, Stitching};
-use register::{Match, differences, on_grid, residual, search};
+use register::{Match, residual, search};
 use section::Section;
 
 pub use crate::recording::survey_info::{Chainage, Heading, Placement};
@@ -182,14 +203,26 @@ impl RunJoin {
     }
 }
 
-/// A run's lines, turned into chainage orientation: (line, x0 chainage mm
-/// when its start is 0, values).
-pub(super) fn oriented(s: &Stitched, heading: Heading) -> (f64, Vec<f64>) {
+/// A run's line turned into chainage orientation: the chainage, mm, of
+/// its first sample when the run's start is 0.
+pub(super) fn origin(s: &Stitched, heading: Heading) -> f64 {
     match heading {
-        Heading::Up => (s.x0_mm, s.z.to_vec().unwrap_or_default()),
+        Heading::Up => s.x0_mm,
+        Heading::Down => -(s.x0_mm + (s.z.len() as f64 - 1.0) * s.dx_mm),
+    }
+}
+
+/// Samples `range` of a run's line turned into chainage orientation
+/// (reversed for a down run), clipped to the line.
+pub(super) fn read_oriented(s: &Stitched, heading: Heading, range: Range<usize>) -> io::Result<Vec<f64>> {
+    let n = s.z.len();
+    let (a, b) = (range.start.min(n), range.end.min(n));
+    match heading {
+        Heading::Up => s.z.read(a..b),
         Heading::Down => {
-            let last = s.x0_mm + (s.z.len() as f64 - 1.0) * s.dx_mm;
-            (-last, s.z.to_vec().unwrap_or_default().into_iter().rev().collect())
+            let mut v = s.z.read(n - b.max(a)..n - a)?;
+            v.reverse();
+            Ok(v)
         }
     }
 }
@@ -205,6 +238,16 @@ pub enum JoinError {
         "run {run} matches no earlier run (no clear registration over {min_mm:.0} mm or more): give its start chainage (--chainage KM+M[:up|:down])"
     )]
     NoOverlap { run: usize, min_mm: f64 },
+    /// The temporary file holding the joined line failed (the error's
+    /// text: an I/O error is not `Clone`).
+    #[error("cannot keep the joined survey line in a temporary file: {0}")]
+    Spill(String),
+}
+
+impl From<io::Error> for JoinError {
+    fn from(e: io::Error) -> JoinError {
+        JoinError::Spill(e.to_string())
+    }
 }
 
 /// A run's position `x` (mm) on the line: chainage mm.
@@ -238,7 +281,7 @@ pub fn join(
     let p0 = placements.first().copied().unwrap_or_default();
     let (start0_mm, heading0) = (p0.start_m.unwrap_or(0.0) * 1000.0, p0.heading.unwrap_or(Heading::Up));
     // The grid: run 1's samples exactly on it.
-    let g0 = (start0_mm + oriented(first, heading0).0).rem_euclid(dx);
+    let g0 = (start0_mm + origin(first, heading0)).rem_euclid(dx);
     let mut sections: Vec<Section> = Vec::new();
     let mut report: Vec<RunJoin> = Vec::new();
     let (direction, direction_residuals_um, direction_given) =
@@ -262,10 +305,10 @@ pub fn join(
         let mut merged = Section::default();
         let mut kept = Vec::new();
         for (k, s) in sections.into_iter().enumerate() {
-            if near(&s) || on == Some(k) { merged.absorb(s) } else { kept.push(s) }
+            if near(&s) || on == Some(k) { merged.absorb(s)? } else { kept.push(s) }
         }
         sections = kept;
-        let (residual_sum, overlap_samples) = merged.merge_run(r, &run, (heading, lo, frac, start_mm), (g0, dx));
+        let (residual_sum, overlap_samples) = merged.merge_run(r, &run, (heading, lo, frac, start_mm), (g0, dx))?;
         sections.push(merged);
         report.push(RunJoin {
             run: r + 1,
@@ -289,7 +332,7 @@ pub fn join(
         for j in report.iter_mut().filter(|j| s.runs.contains(&(j.run - 1))) {
             j.section = k + 1;
         }
-        lasers.extend(s.into_stitched(k + 1, g0, dx));
+        lasers.extend(s.into_stitched(k + 1, g0, dx)?);
     }
     Ok((Stitching { direction, direction_residuals_um, direction_given, lasers }, report))
 }
@@ -328,7 +371,7 @@ fn place_run(
     };
     // The run's lines lie a fraction `e(h)` of a sample off the grid.
     let e = |h: Heading| {
-        let q = (oriented(any, h).0 - g0) / dx;
+        let q = (origin(any, h) - g0) / dx;
         q - q.round()
     };
     let nominal = |h: Heading| place.start_m.map(|m| m * 1000.0 / dx + e(h));
@@ -351,7 +394,7 @@ fn place_run(
     let min_overlap = (opts.min_overlap_mm / dx).ceil() as i64;
     let mut best: Option<(usize, Match)> = None;
     for (k, sec) in sections.iter().enumerate() {
-        for m in search(&sec.lines, run, &within(k, -min_overlap), (g0, dx), n, opts) {
+        for m in search(&sec.lines, run, &within(k, -min_overlap), (g0, dx), n, opts)? {
             if best.is_none_or(|(_, b)| m.correlation > b.correlation) {
                 best = Some((k, m));
             }
@@ -365,7 +408,7 @@ fn place_run(
     if let (Some(n), None) = (n, clear) {
         let window = (opts.search_mm / dx).ceil() as i64;
         for (k, sec) in sections.iter().enumerate() {
-            for m in search(&sec.lines, run, &within(k, window), (g0, dx), Some(n), opts) {
+            for m in search(&sec.lines, run, &within(k, window), (g0, dx), Some(n), opts)? {
                 if m.correlation >= CLEAR_MATCH && elsewhere.is_none_or(|(_, c)| m.correlation > c) {
                     elsewhere = Some(((m.lo as f64 - n) * dx, m.correlation));
                 }
@@ -373,13 +416,13 @@ fn place_run(
         }
     }
     let heading_disputed = match (best, headings.as_slice()) {
-        (Some((k, m)), [given]) => heading_dispute(&sections[k], run, m, *given, n, (g0, dx), opts),
+        (Some((k, m)), [given]) => heading_dispute(&sections[k], run, m, *given, n, (g0, dx), opts)?,
         _ => None,
     };
     match clear {
         // Registration moves a run only onto a clear match.
         Some((k, m)) => {
-            let (lo, frac, _) = refine(&sections[k], run, m, (g0, dx));
+            let (lo, frac, _) = refine(&sections[k], run, m, (g0, dx))?;
             let correlation = Some((m.correlation, m.second));
             Ok(Placed {
                 heading: m.heading,
@@ -428,14 +471,16 @@ fn heading_dispute(
     n: Option<f64>,
     grid: (f64, f64),
     opts: &JoinOptions,
-) -> Option<(f64, f64)> {
+) -> io::Result<Option<(f64, f64)>> {
     let other = match given {
         Heading::Up => Heading::Down,
         Heading::Down => Heading::Up,
     };
-    let o = *search(&section.lines, run, &[other], grid, n, opts).first()?;
-    let (given_um, other_um) = (refine(section, run, m, grid).2?, refine(section, run, o, grid).2?);
-    (other_um < HEADING_AGREEMENT * given_um).then_some((given_um, other_um))
+    let Some(&o) = search(&section.lines, run, &[other], grid, n, opts)?.first() else { return Ok(None) };
+    let (Some(given_um), Some(other_um)) = (refine(section, run, m, grid)?.2, refine(section, run, o, grid)?.2) else {
+        return Ok(None);
+    };
+    Ok((other_um < HEADING_AGREEMENT * given_um).then_some((given_um, other_um)))
 }
 
 /// A given heading is disputed when the other heading's registration
@@ -470,15 +515,10 @@ fn extent(run: &Stitching, h: Heading, start: i64, (g0, dx): (f64, f64)) -> Opti
 /// parabola through the overlap residuals at the start and its
 /// neighbours. Returns (whole start, fraction in 0..1, the residual at
 /// the whole start, µm).
-fn refine(section: &Section, run: &Stitching, m: Match, (g0, dx): (f64, f64)) -> (i64, f64, Option<f64>) {
-    let lines = on_grid(run, m.heading, g0, dx);
-    let at = |d: i64| {
-        let per: Vec<Vec<(f64, f64)>> =
-            lines.iter().flat_map(|(k, o, v)| differences(&section.lines, &[(*k, v.clone())], m.lo + d + o)).collect();
-        residual(&per).map(|r| r.0)
-    };
-    let here = at(0);
-    let frac = match (at(-1), here, at(1)) {
+fn refine(section: &Section, run: &Stitching, m: Match, grid: (f64, f64)) -> io::Result<(i64, f64, Option<f64>)> {
+    let at = |d: i64| residual(&section.lines, run, m.heading, m.lo + d, grid).map(|r| r.map(|r| r.0));
+    let here = at(0)?;
+    let frac = match (at(-1)?, here, at(1)?) {
         (Some(a), Some(b), Some(c)) => {
             let (a, b, c) = (a * a, b * b, c * c);
             let den = a - 2.0 * b + c;
@@ -487,5 +527,5 @@ fn refine(section: &Section, run: &Stitching, m: Match, (g0, dx): (f64, f64)) ->
         _ => 0.0,
     };
     // A negative fraction is the previous sample's positive one.
-    if frac < 0.0 { (m.lo - 1, 1.0 + frac, here) } else { (m.lo, frac, here) }
+    Ok(if frac < 0.0 { (m.lo - 1, 1.0 + frac, here) } else { (m.lo, frac, here) })
 }

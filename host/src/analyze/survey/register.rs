@@ -2,60 +2,123 @@
 //! cross-correlation that finds its shift and heading, and the residual
 //! that refines the shift and judges the overlap.
 
+use std::io;
+use std::ops::Range;
+
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
 
 use super::section::JoinedLine;
-use super::{Heading, JoinOptions, oriented};
+use super::{Heading, JoinOptions, origin, read_oriented};
 use crate::analyze::standards::en13231;
-use crate::analyze::stitch::Stitching;
+use crate::analyze::stitch::{Stitched, Stitching};
+use crate::analyze::store::STRETCH;
 
-/// Offset and tilt of `d(x)` by least squares: `(xm, a, b)` for `a + b (x − xm)`.
-pub(super) fn line_fit(pts: &[(f64, f64)]) -> (f64, f64, f64) {
-    let n = pts.len() as f64;
-    let xm = pts.iter().map(|p| p.0).sum::<f64>() / n;
-    let dm = pts.iter().map(|p| p.1).sum::<f64>() / n;
-    let (mut sxx, mut sxd) = (0.0, 0.0);
-    for &(x, d) in pts {
-        sxx += (x - xm) * (x - xm);
-        sxd += (x - xm) * (d - dm);
-    }
-    (xm, dm, if sxx > 0.0 { sxd / sxx } else { 0.0 })
+/// Most of a run a registration correlates, mm: the stretch of the run
+/// nearest its start that the shifts searched can lay on the section (see
+/// the module docs of [`super`]).
+pub(super) const MAX_CORRELATED_MM: f64 = 100_000.0;
+
+/// A least-squares line `d ≈ a + b (x − xm)` fitted as points come
+/// (sums about the first point, so that grid indices of millions keep
+/// their precision).
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct LineAcc {
+    n: usize,
+    origin: (f64, f64),
+    sx: f64,
+    sd: f64,
+    sxx: f64,
+    sxd: f64,
+    sdd: f64,
 }
 
-/// The run's differences from the joined lines over the overlap when its
-/// sample 0 sits at chainage index `lo`: per line, the points (index, run −
-/// joined), empty when the line does not overlap.
-pub(super) fn differences(lines: &[JoinedLine], run: &[(usize, Vec<f64>)], lo: i64) -> Vec<Vec<(f64, f64)>> {
-    run.iter()
-        .map(|(k, v)| {
-            let Some(l) = lines.iter().find(|l| l.line == *k) else { return Vec::new() };
-            v.iter()
-                .enumerate()
-                .filter_map(|(j, x)| {
-                    let i = lo + j as i64;
-                    let y = l.at(i)?;
-                    x.is_finite().then(|| (i as f64, x - y))
-                })
-                .collect()
-        })
-        .collect()
+impl LineAcc {
+    pub fn push(&mut self, x: f64, d: f64) {
+        if self.n == 0 {
+            self.origin = (x, d);
+        }
+        let (x, d) = (x - self.origin.0, d - self.origin.1);
+        self.n += 1;
+        self.sx += x;
+        self.sd += d;
+        self.sxx += x * x;
+        self.sxd += x * d;
+        self.sdd += d * d;
+    }
+
+    /// Points taken.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    /// `(xm, a, b, rms)`: the line (tilt 0 when the points do not spread)
+    /// and the RMS of the points about it.
+    pub fn fit(&self) -> Option<(f64, f64, f64, f64)> {
+        if self.n == 0 {
+            return None;
+        }
+        let n = self.n as f64;
+        let (mx, md) = (self.sx / n, self.sd / n);
+        let sxx = self.sxx - self.sx * mx;
+        let sxd = self.sxd - self.sx * md;
+        let sdd = self.sdd - self.sd * md;
+        let b = if sxx > 0.0 { sxd / sxx } else { 0.0 };
+        let rss = (sdd - b * sxd).max(0.0);
+        Some((self.origin.0 + mx, self.origin.1 + md, b, (rss / n).sqrt()))
+    }
+}
+
+/// The line fit of a run's line minus the joined line `j` over their
+/// overlap, the run's `n` samples (read by `read`, in stretches) from grid
+/// index `at`: points (grid index, run − joined).
+pub(super) fn overlap_fit(
+    j: &JoinedLine,
+    n: usize,
+    at: i64,
+    read: impl Fn(Range<usize>) -> io::Result<Vec<f64>>,
+) -> io::Result<LineAcc> {
+    let mut acc = LineAcc::default();
+    let lo = usize::try_from(j.base - at).unwrap_or(0).min(n);
+    let hi = usize::try_from(j.end() - at).unwrap_or(0).min(n);
+    let mut from = lo;
+    while from < hi {
+        let to = (from + STRETCH).min(hi);
+        let v = read(from..to)?;
+        let y = j.values(at + from as i64..at + to as i64)?;
+        for (k, (x, y)) in v.iter().zip(&y).enumerate() {
+            if x.is_finite() && y.is_finite() {
+                acc.push((at + (from + k) as i64) as f64, x - y);
+            }
+        }
+        from = to;
+    }
+    Ok(acc)
 }
 
 /// Mean over the overlapping lines of the RMS after offset and tilt, and
-/// the overlap's length in samples (of the longest line's).
-pub(super) fn residual(diffs: &[Vec<(f64, f64)>]) -> Option<(f64, usize)> {
+/// the overlap's length in samples (of the longest line's), with the run
+/// turned to `h` and its start at grid index `start`.
+pub(super) fn residual(
+    joined: &[JoinedLine],
+    run: &Stitching,
+    h: Heading,
+    start: i64,
+    (g0, dx): (f64, f64),
+) -> io::Result<Option<(f64, usize)>> {
     let mut sum = 0.0;
     let mut lines = 0;
     let mut overlap = 0;
-    for d in diffs.iter().filter(|d| d.len() >= 3) {
-        let (xm, a, b) = line_fit(d);
-        let rss: f64 = d.iter().map(|&(x, v)| (v - a - b * (x - xm)).powi(2)).sum();
-        sum += (rss / d.len() as f64).sqrt();
-        lines += 1;
-        overlap = overlap.max(d.len());
+    for (l, o) in on_grid(run, h, g0, dx) {
+        let Some(j) = joined.iter().find(|j| j.line == l.laser) else { continue };
+        let acc = overlap_fit(j, l.z.len(), start + o, |r| read_oriented(l, h, r))?;
+        if let Some((_, _, _, rms)) = acc.fit().filter(|_| acc.len() >= 3) {
+            sum += rms;
+            lines += 1;
+            overlap = overlap.max(acc.len());
+        }
     }
-    (lines > 0).then(|| (sum / lines as f64, overlap))
+    Ok((lines > 0).then(|| (sum / lines as f64, overlap)))
 }
 
 /// Masked normalised cross-correlation of `a` (the run) against `b` (the
@@ -120,16 +183,42 @@ fn detrended(z: &[f64], dx_mm: f64) -> Vec<f64> {
     en13231::band_pass(z, dx_mm, 2.5 * dx_mm, 500.0).unwrap_or_else(|_| z.to_vec())
 }
 
-/// A run's lines turned to `h`: (line, grid index of sample 0 when the
-/// run's start is 0, values).
-pub(super) fn on_grid(run: &Stitching, h: Heading, g0: f64, dx: f64) -> Vec<(usize, i64, Vec<f64>)> {
-    run.lasers
-        .iter()
-        .map(|l| {
-            let (x0, v) = oriented(l, h);
-            (l.laser, ((x0 - g0) / dx).round() as i64, v)
-        })
-        .collect()
+/// Samples either side of a stretch the band-pass reads as well, so that
+/// the stretch is filtered as it is in the whole line (four of the longest
+/// wavelength passed).
+fn filter_margin(dx_mm: f64) -> i64 {
+    (2000.0 / dx_mm).ceil() as i64
+}
+
+/// `len` values of grid indices `from..` high-passed, NaN where `read`
+/// (values of grid indices `lo..hi` of a line covering `line`) has none.
+fn filtered(
+    read: impl Fn(Range<i64>) -> io::Result<Vec<f64>>,
+    line: Range<i64>,
+    from: i64,
+    len: usize,
+    dx: f64,
+) -> io::Result<Vec<f64>> {
+    let mut out = vec![f64::NAN; len];
+    let m = filter_margin(dx);
+    let (lo, hi) = ((from - m).max(line.start), (from + len as i64 + m).min(line.end));
+    if hi <= lo {
+        return Ok(out);
+    }
+    let v = detrended(&read(lo..hi)?, dx);
+    for (i, x) in v.iter().enumerate() {
+        let at = lo + i as i64 - from;
+        if (0..len as i64).contains(&at) {
+            out[at as usize] = *x;
+        }
+    }
+    Ok(out)
+}
+
+/// A run's lines turned to `h`, with the grid index of each one's sample 0
+/// when the run's start is 0.
+pub(super) fn on_grid(run: &Stitching, h: Heading, g0: f64, dx: f64) -> Vec<(&Stitched, i64)> {
+    run.lasers.iter().map(|l| (l, ((origin(l, h) - g0) / dx).round() as i64)).collect()
 }
 
 /// One heading's best placement of a run against a section.
@@ -153,41 +242,62 @@ pub(super) fn search(
     grid: (f64, f64),
     nominal: Option<f64>,
     opts: &JoinOptions,
-) -> Vec<Match> {
+) -> io::Result<Vec<Match>> {
     let (g0, dx) = grid;
     let (Some(jlo), Some(jhi)) = (joined.iter().map(|l| l.base).min(), joined.iter().map(JoinedLine::end).max()) else {
-        return Vec::new();
+        return Ok(Vec::new());
     };
+    let min_overlap = opts.min_overlap_mm / dx;
+    let window = opts.search_mm / dx;
+    let cap = (MAX_CORRELATED_MM / dx).ceil().max(1.0) as i64;
     let mut out = Vec::new();
     for &h in headings {
         let lines = on_grid(run, h, g0, dx);
         let (Some(rx0), Some(rend)) =
-            (lines.iter().map(|l| l.1).min(), lines.iter().map(|l| l.1 + l.2.len() as i64).max())
+            (lines.iter().map(|l| l.1).min(), lines.iter().map(|l| l.1 + l.0.z.len() as i64).max())
         else {
             continue;
         };
-        let rlen = (rend - rx0) as usize;
+        // The run's grid indices `p..q` (start 0) correlated, on the
+        // section's `bl..bh`: with a nominal start, what the shifts allowed
+        // can lay on the section; then at most `cap` of it, nearest the start.
+        let (mut p, mut q, mut bl, mut bh) = (rx0, rend, jlo, jhi);
+        if let Some(n) = nominal {
+            let (lo_s, hi_s) = ((n - window).floor() as i64, (n + window).ceil() as i64);
+            (p, q) = (p.max(jlo - hi_s), q.min(jhi - lo_s));
+        }
+        if q - p > cap {
+            p = (-cap / 2).clamp(p, q - cap);
+            q = p + cap;
+        }
+        if let Some(n) = nominal {
+            let (lo_s, hi_s) = ((n - window).floor() as i64, (n + window).ceil() as i64);
+            (bl, bh) = (bl.max(lo_s + p), bh.min(hi_s + q));
+        }
+        if q <= p || bh <= bl {
+            continue;
+        }
+        let rlen = (q - p) as usize;
         let mut pairs = Vec::new();
-        for (k, o, v) in &lines {
-            let Some(j) = joined.iter().find(|j| j.line == *k) else { continue };
-            let mut a = vec![f64::NAN; rlen];
-            let off = (o - rx0) as usize;
-            a[off..off + v.len()].copy_from_slice(&detrended(v, dx));
-            let mut b = vec![f64::NAN; (jhi - jlo) as usize];
-            let jo = (j.base - jlo) as usize;
-            let jv = j.values();
-            b[jo..jo + jv.len()].copy_from_slice(&detrended(&jv, dx));
+        for (l, o) in &lines {
+            let Some(j) = joined.iter().find(|j| j.line == l.laser) else { continue };
+            let a = filtered(
+                |r| read_oriented(l, h, (r.start - o) as usize..(r.end - o) as usize),
+                *o..o + l.z.len() as i64,
+                p,
+                rlen,
+                dx,
+            )?;
+            let b = filtered(|r| j.values(r), j.base..j.end(), bl, (bh - bl) as usize, dx)?;
             pairs.push((a, b));
         }
         if pairs.is_empty() {
             continue;
         }
         let ncc = correlate(&pairs);
-        let min_overlap = opts.min_overlap_mm / dx;
-        let window = opts.search_mm / dx;
-        // Shift d puts the run's first sample (grid index rx0 when its
-        // start is 0) at joined index jlo + d: its start at jlo + d − rx0.
-        let start = |t: usize| jlo + (t as i64 - (rlen as i64 - 1)) - rx0;
+        // Shift d puts the window's first sample (grid index p when the
+        // run's start is 0) at joined index bl + d: its start at bl + d − p.
+        let start = |t: usize| bl + (t as i64 - (rlen as i64 - 1)) - p;
         let allowed =
             |t: usize| ncc[t].1 >= min_overlap && nominal.is_none_or(|n| (start(t) as f64 - n).abs() <= window);
         let Some(t0) = (0..ncc.len()).filter(|&t| allowed(t)).max_by(|&a, &b| ncc[a].0.total_cmp(&ncc[b].0)) else {
@@ -206,5 +316,5 @@ pub(super) fn search(
             (0..ncc.len()).filter(|&t| (t < l || t > u) && allowed(t)).map(|t| ncc[t].0).fold(0.0f64, f64::max);
         out.push(Match { correlation: ncc[t0].0, heading: h, lo: start(t0), second });
     }
-    out
+    Ok(out)
 }

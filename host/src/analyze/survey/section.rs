@@ -3,84 +3,127 @@
 //! [`super::JoinOptions::section_gap_mm`] is never held in memory: it lies
 //! between two sections.
 
-use super::register::{differences, line_fit};
-use super::resample::shifted;
-use super::{Heading, oriented, to_chainage};
-use crate::analyze::profile;
-use crate::analyze::stitch::{FrameFit, Join, Stitched, Stitching};
+use std::io;
+use std::ops::Range;
+use std::sync::Mutex;
 
-/// One line of a section: sample `i` at chainage `g0 + (base + i)·dx` mm
-/// (sums and counts, so that runs average where they overlap).
-#[derive(Debug, Clone)]
+use super::register::overlap_fit;
+use super::resample::{LOBES, shifted};
+use super::{Heading, read_oriented, to_chainage};
+use crate::analyze::stitch::{FrameFit, Join, Stitched, Stitching, gaps_in};
+use crate::analyze::store::{Cells, STRETCH, Samples};
+
+/// One line of a section: sample `i` at chainage `g0 + i·dx` mm for `i`
+/// in `base..end` (sums and counts in a cell store, so that runs average
+/// where they overlap).
+#[derive(Debug)]
 pub(super) struct JoinedLine {
     pub line: usize,
     pub base: i64,
-    z: Vec<f64>,
-    n: Vec<u32>,
+    end: i64,
+    /// Behind a lock so that registration reads it through `&self`.
+    cells: Mutex<Cells>,
 }
 
 impl JoinedLine {
     fn new(line: usize) -> JoinedLine {
-        JoinedLine { line, base: 0, z: Vec::new(), n: Vec::new() }
+        JoinedLine { line, base: 0, end: 0, cells: Mutex::new(Cells::default()) }
+    }
+
+    fn cells(&self) -> std::sync::MutexGuard<'_, Cells> {
+        self.cells.lock().unwrap_or_else(|e| e.into_inner())
     }
 
     /// Grid index past the last sample.
     pub fn end(&self) -> i64 {
-        self.base + self.z.len() as i64
+        self.end
     }
 
-    pub fn at(&self, i: i64) -> Option<f64> {
-        let j = usize::try_from(i - self.base).ok()?;
-        let (&s, &n) = (self.z.get(j)?, self.n.get(j)?);
-        (n > 0).then(|| s / f64::from(n))
+    /// The values of grid indices `range` (NaN where nothing was measured,
+    /// and outside the line).
+    pub fn values(&self, range: Range<i64>) -> io::Result<Vec<f64>> {
+        self.cells().values(range)
     }
 
     /// Grows the line to cover grid indices `lo..hi`.
     fn cover(&mut self, lo: i64, hi: i64) {
-        if self.z.is_empty() {
-            self.base = lo;
+        if self.base == self.end {
+            (self.base, self.end) = (lo, lo);
         }
-        let new_base = self.base.min(lo);
-        let new_end = self.end().max(hi);
-        if new_base < self.base {
-            let pad = (self.base - new_base) as usize;
-            self.z.splice(0..0, std::iter::repeat_n(0.0, pad));
-            self.n.splice(0..0, std::iter::repeat_n(0, pad));
-            self.base = new_base;
-        }
-        let len = (new_end - self.base) as usize;
-        self.z.resize(len, 0.0);
-        self.n.resize(len, 0);
+        self.base = self.base.min(lo);
+        self.end = self.end.max(hi);
     }
 
     /// Adds `v` (grid index `lo + j`); NaN adds nothing.
-    fn add(&mut self, lo: i64, v: &[f64]) {
+    fn add(&mut self, lo: i64, v: &[f64]) -> io::Result<()> {
         self.cover(lo, lo + v.len() as i64);
+        let cells = self.cells.get_mut().unwrap_or_else(|e| e.into_inner());
         for (j, x) in v.iter().enumerate() {
             if x.is_finite() {
-                let k = (lo + j as i64 - self.base) as usize;
-                self.z[k] += x;
-                self.n[k] += 1;
+                cells.add(lo + j as i64, *x, 1)?;
             }
         }
+        Ok(())
     }
 
-    /// Adds another section's line (its sums and counts).
-    fn absorb(&mut self, other: JoinedLine) {
-        if other.z.is_empty() {
-            return;
+    /// Adds another section's line (its sums and counts), a tile at a time.
+    fn absorb(&mut self, other: JoinedLine) -> io::Result<()> {
+        if other.base == other.end {
+            return Ok(());
         }
-        self.cover(other.base, other.end());
-        let off = (other.base - self.base) as usize;
-        for (j, (s, n)) in other.z.into_iter().zip(other.n).enumerate() {
-            self.z[off + j] += s;
-            self.n[off + j] += n;
-        }
+        self.cover(other.base, other.end);
+        let mine = self.cells.get_mut().unwrap_or_else(|e| e.into_inner());
+        let mut theirs = other.cells.into_inner().unwrap_or_else(|e| e.into_inner());
+        let mut failed = Ok(());
+        theirs.for_stretch(other.base..other.end, |c0, s, w| {
+            for (k, (&s, &w)) in s.iter().zip(w).enumerate() {
+                if failed.is_ok() {
+                    failed = mine.add(c0 + k as i64, s, w);
+                }
+            }
+        })?;
+        failed
     }
 
-    pub fn values(&self) -> Vec<f64> {
-        self.z.iter().zip(&self.n).map(|(&s, &n)| if n > 0 { s / f64::from(n) } else { f64::NAN }).collect()
+    /// The first and past the last grid index with a value (`None`: none).
+    fn measured(&self) -> io::Result<Option<(i64, i64)>> {
+        let mut first = None;
+        let mut at = self.base;
+        while at < self.end && first.is_none() {
+            let hi = (at + STRETCH as i64).min(self.end);
+            first = self.values(at..hi)?.iter().position(|v| v.is_finite()).map(|k| at + k as i64);
+            at = hi;
+        }
+        let Some(first) = first else { return Ok(None) };
+        let mut at = self.end;
+        while at > first {
+            let lo = (at - STRETCH as i64).max(first);
+            if let Some(k) = self.values(lo..at)?.iter().rposition(|v| v.is_finite()) {
+                return Ok(Some((first, lo + k as i64 + 1)));
+            }
+            at = lo;
+        }
+        Ok(Some((first, first + 1)))
     }
+}
+
+/// Samples `range` of a run's line as merged at a fraction `frac` of a
+/// sample (see [`Section::merge_run`]): turned to `heading`, then, with a
+/// fraction, sample `j` is the line resampled at `j − frac` by the
+/// windowed sinc (the first is NaN). Reads the range and the kernel's
+/// margin only.
+pub(super) fn placed(l: &Stitched, heading: Heading, frac: f64, range: Range<usize>) -> io::Result<Vec<f64>> {
+    let n = l.z.len();
+    let (a, b) = (range.start.min(n), range.end.min(n));
+    if frac <= 0.0 {
+        return read_oriented(l, heading, a..b);
+    }
+    // Output j is the shifted sample j − 1, whose kernel reads samples
+    // j − LOBES ..= j + LOBES − 1: within a − LOBES .. b + LOBES.
+    let c0 = a.saturating_sub(LOBES);
+    let c1 = (b + LOBES).min(n);
+    let sh = shifted(&read_oriented(l, heading, c0..c1)?, 1.0 - frac);
+    Ok((a..b).map(|j| if j == 0 { f64::NAN } else { sh[j - 1 - c0] }).collect())
 }
 
 /// A contiguous stretch of the survey line: its lines, the frames, points,
@@ -102,10 +145,10 @@ impl Section {
     }
 
     /// Takes in another section (the run just placed bridges them).
-    pub fn absorb(&mut self, other: Section) {
+    pub fn absorb(&mut self, other: Section) -> io::Result<()> {
         for l in other.lines {
             match self.lines.iter_mut().find(|j| j.line == l.line) {
-                Some(j) => j.absorb(l),
+                Some(j) => j.absorb(l)?,
                 None => self.lines.push(l),
             }
         }
@@ -113,17 +156,18 @@ impl Section {
             let mine = self.meta_of(k, m.dx_mm);
             mine.frames += m.frames;
             mine.points += m.points;
-            let _ = mine.fits.append(&m.fits, |f| f);
+            mine.fits.append(&m.fits, |f| f)?;
             mine.joins.extend(m.joins);
         }
         self.runs.extend(other.runs);
+        Ok(())
     }
 
     fn meta_of(&mut self, line: usize, dx: f64) -> &mut Stitched {
         let at = match self.meta.iter().position(|m| m.0 == line) {
             Some(i) => i,
             None => {
-                self.meta.push((line, profile::stitched(line, 0.0, dx, Vec::new())));
+                self.meta.push((line, crate::analyze::profile::stitched(line, 0.0, dx, Vec::new())));
                 self.meta.len() - 1
             }
         };
@@ -132,87 +176,99 @@ impl Section {
 
     /// Merges run `r`'s lines into the section at grid index `lo` + `frac`
     /// (`start_mm` its chainage, `heading` its direction): each line
-    /// resampled at the fraction by the windowed sinc ([`shifted`]), offset and tilt removed over the
-    /// overlap; its frames, fits and joins kept on chainage. Returns the
-    /// sum and count of the overlaps' residuals, and the longest overlap,
-    /// samples.
+    /// resampled at the fraction by the windowed sinc ([`placed`]), offset
+    /// and tilt removed over the overlap; its frames, fits and joins kept
+    /// on chainage. Each line is read twice in stretches (the overlap's
+    /// fit, then the merge). Returns the sum and count of the overlaps'
+    /// residuals, and the longest overlap, samples.
     pub fn merge_run(
         &mut self,
         r: usize,
         run: &Stitching,
         (heading, lo, frac, start_mm): (Heading, i64, f64, f64),
         (g0, dx): (f64, f64),
-    ) -> ((f64, usize), usize) {
+    ) -> io::Result<((f64, usize), usize)> {
         let mut residual_sum = (0.0, 0usize);
         let mut overlap_samples = 0usize;
         for l in &run.lasers {
-            let (x0, v) = oriented(l, heading);
-            let o = ((x0 - g0) / dx).round() as i64;
+            let o = ((super::origin(l, heading) - g0) / dx).round() as i64;
             // The run's sample j sits at grid index lo + frac + o + j: the grid
             // point lo + o + j takes the run `frac` of a sample earlier.
-            let mut v = if frac > 0.0 {
-                let mut w = vec![f64::NAN];
-                w.extend(shifted(&v, 1.0 - frac).iter().take(v.len() - 1).copied());
-                w
-            } else {
-                v
-            };
             let at = lo + o;
+            let mut correction = (0.0, 0.0, 0.0);
             if let Some(j) = self.lines.iter().find(|j| j.line == l.laser) {
-                let d = differences(std::slice::from_ref(j), &[(l.laser, v.clone())], at).remove(0);
-                if d.len() >= 3 {
-                    let (xm, a, b) = line_fit(&d);
-                    let rss: f64 = d.iter().map(|&(x, y)| (y - a - b * (x - xm)).powi(2)).sum();
-                    residual_sum.0 += (rss / d.len() as f64).sqrt();
+                let acc = overlap_fit(j, l.z.len(), at, |range| placed(l, heading, frac, range))?;
+                if let Some((xm, a, b, rms)) = acc.fit().filter(|_| acc.len() >= 3) {
+                    residual_sum.0 += rms;
                     residual_sum.1 += 1;
-                    overlap_samples = overlap_samples.max(d.len());
-                    for (jj, x) in v.iter_mut().enumerate() {
-                        *x -= a + b * ((at + jj as i64) as f64 - xm);
-                    }
+                    overlap_samples = overlap_samples.max(acc.len());
+                    correction = (xm, a, b);
                 }
             }
-            match self.lines.iter_mut().find(|j| j.line == l.laser) {
-                Some(j) => j.add(at, &v),
+            let k = match self.lines.iter().position(|j| j.line == l.laser) {
+                Some(k) => k,
                 None => {
-                    let mut j = JoinedLine::new(l.laser);
-                    j.add(at, &v);
-                    self.lines.push(j);
+                    self.lines.push(JoinedLine::new(l.laser));
+                    self.lines.len() - 1
                 }
+            };
+            let (xm, a, b) = correction;
+            let mut from = 0;
+            while from < l.z.len() {
+                let mut v = placed(l, heading, frac, from..from + STRETCH)?;
+                for (jj, x) in v.iter_mut().enumerate() {
+                    *x -= a + b * ((at + (from + jj) as i64) as f64 - xm);
+                }
+                self.lines[k].add(at + from as i64, &v)?;
+                from += v.len().max(1);
+            }
+            if l.z.is_empty() {
+                self.lines[k].cover(at, at);
             }
             let m = self.meta_of(l.laser, dx);
             m.frames += l.frames;
             m.points += l.points;
-            let _ =
-                m.fits.append(&l.fits, |f| FrameFit { centre_mm: to_chainage(start_mm, heading, f.centre_mm), ..f });
+            m.fits.append(&l.fits, |f| FrameFit { centre_mm: to_chainage(start_mm, heading, f.centre_mm), ..f })?;
             m.joins.extend(l.joins.iter().map(|j| Join { at_mm: to_chainage(start_mm, heading, j.at_mm), ..*j }));
         }
         self.runs.push(r);
-        (residual_sum, overlap_samples)
+        Ok((residual_sum, overlap_samples))
     }
 
     /// The section's lines as stitched profiles on chainage (section
-    /// `number`), their ends without data trimmed, with their runs'
+    /// `number`), their ends without data trimmed (found by reading
+    /// stretches; the cells are handed over, not copied), with their runs'
     /// frames, fits and joins.
-    pub fn into_stitched(mut self, number: usize, g0: f64, dx: f64) -> Vec<Stitched> {
+    pub fn into_stitched(mut self, number: usize, g0: f64, dx: f64) -> io::Result<Vec<Stitched>> {
         self.lines.sort_by_key(|l| l.line);
         let mut meta = std::mem::take(&mut self.meta);
-        self.lines
-            .into_iter()
-            .map(|l| {
-                let z = l.values();
-                let first = z.iter().position(|v| v.is_finite()).unwrap_or(0);
-                let last = z.iter().rposition(|v| v.is_finite()).map_or(0, |i| i + 1);
-                let z = z[first..last.max(first)].to_vec();
-                let mut s = profile::stitched(l.line, g0 + (l.base + first as i64) as f64 * dx, dx, z);
-                s.section = number;
-                if let Some((_, m)) = meta.iter_mut().find(|m| m.0 == l.line) {
-                    s.frames = m.frames;
-                    s.points = m.points;
-                    s.fits = std::mem::take(&mut m.fits);
-                    s.joins = std::mem::take(&mut m.joins);
-                }
-                s
-            })
-            .collect()
+        let mut out = Vec::with_capacity(self.lines.len());
+        for l in self.lines {
+            let (first, last) = l.measured()?.unwrap_or((l.base, l.base));
+            let x0_mm = g0 + first as f64 * dx;
+            let cells = l.cells.into_inner().unwrap_or_else(|e| e.into_inner());
+            let z = Samples::from_cells(cells, first, (last - first) as usize, 0);
+            let (gaps, finite) = gaps_in(x0_mm, dx, &z)?;
+            let mut s = Stitched {
+                laser: l.line,
+                section: number,
+                x0_mm,
+                dx_mm: dx,
+                z: z.counted(finite),
+                frames: 0,
+                points: finite,
+                fits: Default::default(),
+                joins: Vec::new(),
+                gaps,
+            };
+            if let Some((_, m)) = meta.iter_mut().find(|m| m.0 == l.line) {
+                s.frames = m.frames;
+                s.points = m.points;
+                s.fits = std::mem::take(&mut m.fits);
+                s.joins = std::mem::take(&mut m.joins);
+            }
+            out.push(s);
+        }
+        Ok(out)
     }
 }
