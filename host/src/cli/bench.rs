@@ -436,11 +436,7 @@ fn synthetic_gnss(
         sigma_m: 0.01,
         seed,
     };
-    Ok(cms_host::sim::synthetic::Gnss {
-        receiver,
-        date,
-        utc_ms_of_day: 8 * 3_600_000,
-    })
+    Ok(cms_host::sim::synthetic::Gnss { receiver, date, utc_ms_of_day: 8 * 3_600_000 })
 }
 
 impl AccuracyArgs {

@@ -237,3 +237,115 @@ fn gnss_misuse_is_refused_in_one_line() {
     assert!(e.contains("format 3 holds no GNSS fixes"), "{e}");
     assert_eq!(std::fs::read(&v3).unwrap(), bytes, "the old recording is left as it was");
 }
+
+const REGISTER_40KM: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../examples/track-register-40km.csv");
+
+/// `bench recording --gnss` at the scale of a survey: 5 km of frames 0.3 m
+/// apart (9 m/s at 30 Hz) with the simulated receiver's 5 556 fixes on
+/// the 40 km register, placed by `locate` where the survey says, and
+/// plotted by the report; 3 km the other way from a survey saying `down`.
+#[test]
+fn a_synthetic_survey_of_kilometres_with_gnss_is_placed_on_its_register() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("up.cmsrec");
+    let o = run(&[
+        "bench",
+        "recording",
+        "--frames",
+        "16667",
+        "--step-mm",
+        "300",
+        "--points",
+        "16",
+        "--seed",
+        "3",
+        "--start-chainage",
+        "12+000",
+        "--date",
+        "2026-06-01",
+        "--gnss",
+        REGISTER_40KM,
+        "--out",
+        s(&rec),
+    ]);
+    assert!(o.status.success(), "{o:?}");
+    // 555.5 s of the head's clock from the first frame to the last, 10 Hz.
+    assert!(String::from_utf8_lossy(&o.stdout).contains(", 5556 GNSS fixes, 5000.1 m of rail"), "{o:?}");
+    let info = String::from_utf8(run(&["info", s(&rec)]).stdout).unwrap();
+    assert!(info.contains("gnss: 5556 fixes (5556 RTK fixed), 5556 placed among the frames"), "{info}");
+
+    let out = locate(&rec, Path::new(REGISTER_40KM));
+    assert!(out.contains("5556 fixes on the track, 0 not used"), "{out}");
+    assert!(out.contains("verdict: agrees") && !out.contains("DISAGREES"), "{out}");
+    assert!(out.contains("survey: start_chainage 12+000.000 — GNSS places odometer 0 "), "{out}");
+    let zero = out.split("chainage at odometer 0: 12+").nth(1).unwrap_or_else(|| panic!("{out}"));
+    let at: f64 = zero[..7].parse().unwrap();
+    // 5 556 fixes of 10 mm each way: the offset to a fraction of a millimetre.
+    assert!(at.abs() < 0.005, "{out}");
+    assert!(zero.contains("(rising with the odometer"), "{out}");
+
+    // The report plots the track and its table has the run: every fix
+    // placed, the run's 555.5 s and its chainage from its odometer.
+    let report = dir.path().join("report");
+    let o = run(&["analyze", s(&rec), "--report", s(&report)]);
+    assert!(o.status.success(), "{o:?}");
+    let svg = std::fs::read_to_string(report.join("track.svg")).unwrap();
+    assert!(svg.contains("GNSS track"), "{svg}");
+    let html = std::fs::read_to_string(report.join("report.html")).unwrap();
+    let at = html.find("<section id=\"track\">").unwrap();
+    let track = &html[at..at + html[at..].find("</section>").unwrap()];
+    let row = "<td class=\"num\">1</td><td class=\"num\">5556</td><td>5556 RTK fixed</td><td class=\"num\">5556</td>\
+               <td>2026-06-01 08:00:00.0</td><td>2026-06-01 08:09:15.5</td><td class=\"num\">555.5</td>";
+    assert!(track.contains(row), "{track}");
+    assert!(track.contains("<td>12+000.100 to 16+999.600</td>"), "{track}");
+
+    // Down from 30+000: chainage falls with the odometer.
+    let survey = dir.path().join("down.toml");
+    std::fs::write(&survey, "start_chainage = \"30+000\"\nchainage = \"down\"\n").unwrap();
+    let down = dir.path().join("down.cmsrec");
+    let o = run(&[
+        "bench",
+        "recording",
+        "--frames",
+        "10000",
+        "--step-mm",
+        "300",
+        "--points",
+        "16",
+        "--survey",
+        s(&survey),
+        "--gnss",
+        REGISTER_40KM,
+        "--out",
+        s(&down),
+    ]);
+    assert!(o.status.success(), "{o:?}");
+    let out = locate(&down, Path::new(REGISTER_40KM));
+    assert!(out.contains("verdict: agrees") && !out.contains("DISAGREES"), "{out}");
+    assert!(out.contains("chainage at odometer 0: 30+000.00") && out.contains("(falling with the odometer"), "{out}");
+}
+
+#[test]
+fn bench_recording_gnss_misuse_is_refused_in_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.cmsrec");
+    let bench = |extra: &[&str]| {
+        let mut args = vec!["bench", "recording", "--frames", "100", "--points", "4", "--out", s(&out)];
+        args.extend_from_slice(extra);
+        one_line_error(&run(&args))
+    };
+    // No start chainage: nowhere on the register to start.
+    let e = bench(&["--gnss", REGISTER_40KM]);
+    assert!(e.contains("--gnss needs the run's start chainage"), "{e}");
+    // A run that leaves the register: 100 frames of 1 m from 49+950.
+    let e = bench(&["--gnss", REGISTER_40KM, "--start-chainage", "49+950", "--step-mm", "1000"]);
+    assert!(e.contains("the run covers 49+950.100 to 50+049.100") && e.contains("10+000.000 to 50+000.000"), "{e}");
+    // A register that is not one, and one that does not exist.
+    let bad = dir.path().join("bad.csv");
+    std::fs::write(&bad, "lat_deg,lon_deg,chainage_m\n52,5,100\n52.001,5,90\n").unwrap();
+    let e = bench(&["--gnss", s(&bad), "--start-chainage", "0+095"]);
+    assert!(e.contains("bad.csv") && e.contains("must increase"), "{e}");
+    let e = bench(&["--gnss", "/nonexistent/reg.csv", "--start-chainage", "0+095"]);
+    assert!(e.contains("/nonexistent/reg.csv"), "{e}");
+    assert!(!out.exists(), "nothing written");
+}
