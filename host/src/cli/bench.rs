@@ -20,7 +20,8 @@
 //!   (`cms_host::sim::real_light`): `speckle.md`, `speckle.csv`.
 //! * `bench recording` — writes a synthetic calibrated recording of any
 //!   length (`cms_host::sim::synthetic`), the input of the scale benchmarks of
-//!   `analyze` and `export` (docs/benchmarks.md).
+//!   `analyze` and `export` (docs/benchmarks.md); with `--gnss REGISTER.csv`
+//!   the simulated GNSS receiver's fixes among its frames (docs/gnss.md).
 
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
@@ -53,7 +54,8 @@ pub enum BenchCmd {
     /// Real light on the reference head: the speckle budget (bound per point against aperture, speed, exposure and
     /// triangulation angle, beside the detector) and the real-light sweep; writes speckle.md and speckle.csv.
     Speckle(SpeckleArgs),
-    /// Writes a synthetic calibrated recording (a known rail, no rendering) to time analyze and export at scale.
+    /// Writes a synthetic calibrated recording (a known rail, no rendering) to time analyze and export at scale;
+    /// with --gnss, the simulated GNSS receiver's fixes on a track register among its frames.
     Recording(RecordingArgs),
     /// EN 13231-3 Annex A: the simulated head over a reference beam; the band RMS differences against the
     /// limits (1 / 1 / 2 µm) and a commercial trolley's own figures.
