@@ -20,7 +20,8 @@
 //!   (`cms_host::sim::real_light`): `speckle.md`, `speckle.csv`.
 //! * `bench recording` — writes a synthetic calibrated recording of any
 //!   length (`cms_host::sim::synthetic`), the input of the scale benchmarks of
-//!   `analyze` and `export` (docs/benchmarks.md).
+//!   `analyze` and `export` (docs/benchmarks.md); with `--gnss REGISTER.csv`
+//!   the simulated GNSS receiver's fixes among its frames (docs/gnss.md).
 
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
@@ -53,7 +54,8 @@ pub enum BenchCmd {
     /// Real light on the reference head: the speckle budget (bound per point against aperture, speed, exposure and
     /// triangulation angle, beside the detector) and the real-light sweep; writes speckle.md and speckle.csv.
     Speckle(SpeckleArgs),
-    /// Writes a synthetic calibrated recording (a known rail, no rendering) to time analyze and export at scale.
+    /// Writes a synthetic calibrated recording (a known rail, no rendering) to time analyze and export at scale;
+    /// with --gnss, the simulated GNSS receiver's fixes on a track register among its frames.
     Recording(RecordingArgs),
     /// EN 13231-3 Annex A: the simulated head over a reference beam; the band RMS differences against the
     /// limits (1 / 1 / 2 µm) and a commercial trolley's own figures.
@@ -118,6 +120,14 @@ pub struct RecordingArgs {
     /// The survey's date in its survey block, YYYY-MM-DD (not with --survey).
     #[arg(long, value_name = "YYYY-MM-DD", conflicts_with = "survey")]
     pub date: Option<String>,
+    /// A simulated GNSS receiver rides along on this track register's
+    /// centreline (`listen --gnss sim`'s: RTK fixed, 10 mm a side, 10 Hz
+    /// of the head's clock, seeded by --seed), at the chainage of each
+    /// frame's odometer from the survey's start chainage (--start-chainage
+    /// or --survey's; its `chainage = "down"` drives it the other way).
+    /// The whole run must lie on the register (docs/gnss.md).
+    #[arg(long, value_name = "REGISTER.csv")]
+    pub gnss: Option<PathBuf>,
 }
 
 /// A beam shorter than 2.4 m leaves the 100–300 mm band no settled
@@ -331,12 +341,11 @@ fn recording(a: &RecordingArgs) -> Result<String> {
         None => Rail::Corrugated,
     };
     let survey = if let Some(path) = &a.survey {
-        Some(Survey::load(path)?.to_text())
+        Some(Survey::load(path)?)
     } else if a.start_chainage.is_some() || a.date.is_some() {
         let s = Survey { start_chainage: a.start_chainage.clone(), date: a.date.clone(), ..Survey::default() };
         // The block is checked as `listen --survey` checks a survey file.
-        let s = Survey::parse(&s.to_text()).map_err(|e| cms_host::Error::Input(format!("survey block: {e}")))?;
-        Some(s.to_text())
+        Some(Survey::parse(&s.to_text()).map_err(|e| cms_host::Error::Input(format!("survey block: {e}")))?)
     } else {
         None
     };
@@ -346,14 +355,25 @@ fn recording(a: &RecordingArgs) -> Result<String> {
         seed: a.seed,
         points_per_line: a.points,
         rail,
-        survey,
+        survey: survey.as_ref().map(Survey::to_text),
         ..cms_host::sim::synthetic::Options::default()
+    };
+    let opts = match &a.gnss {
+        Some(register) => {
+            let gnss = synthetic_gnss(register, survey.as_ref(), &opts, a.seed)?;
+            cms_host::sim::synthetic::Options { gnss: Some(gnss), ..opts }
+        }
+        None => opts,
     };
     let t = Instant::now();
     cms_host::sim::synthetic::write(&a.out, &opts, &super::progress::Bar::stderr())?;
     let bytes = std::fs::metadata(&a.out).map(|m| m.len()).unwrap_or(0);
+    let fixes = match &opts.gnss {
+        Some(g) => format!(", {} GNSS fixes", fixes_written(opts.frames, g.receiver.rate_hz)),
+        None => String::new(),
+    };
     Ok(format!(
-        "{}: {} synthetic calibrated frames, {} points each, {:.1} m of rail, {:.1} MB, written in {:.1} s\n",
+        "{}: {} synthetic calibrated frames, {} points each{fixes}, {:.1} m of rail, {:.1} MB, written in {:.1} s\n",
         a.out.display(),
         opts.frames,
         3 * opts.points_per_line as u32,
@@ -361,6 +381,64 @@ fn recording(a: &RecordingArgs) -> Result<String> {
         bytes as f64 / 1e6,
         t.elapsed().as_secs_f64()
     ))
+}
+
+/// The fixes a synthetic run of `frames` writes at `rate_hz`: one per
+/// epoch from the first frame's time to the last's.
+fn fixes_written(frames: u32, rate_hz: u32) -> u64 {
+    let last_us = u64::from(frames.saturating_sub(1)) * cms_host::sim::synthetic::FRAME_US;
+    last_us / (1_000_000 / u64::from(rate_hz.max(1))) + 1
+}
+
+/// `bench recording --gnss`: the receiver on `register` from the survey's
+/// start chainage, the whole run on the register; UTC from 08:00 of the
+/// survey's date (2026-01-01 without one).
+fn synthetic_gnss(
+    register: &std::path::Path,
+    survey: Option<&cms_host::recording::survey_info::Survey>,
+    opts: &cms_host::sim::synthetic::Options,
+    seed: u64,
+) -> Result<cms_host::sim::synthetic::Gnss> {
+    use cms_host::recording::survey_info::{Chainage, Heading};
+    let input = |m: String| anyhow::Error::from(cms_host::Error::Input(m));
+    let placement = survey.map(|s| s.placement()).transpose().map_err(|e| input(format!("survey: {e}")))?;
+    let start_m = placement.and_then(|p| p.start_m).ok_or_else(|| {
+        input("--gnss needs the run's start chainage (--start-chainage, or start_chainage in --survey)".into())
+    })?;
+    let direction = if placement.and_then(|p| p.heading) == Some(Heading::Down) { -1.0 } else { 1.0 };
+    let reg = cms_host::gnss::register::Register::load(register).map_err(|e| input(e.to_string()))?;
+    let (lo, hi) = opts.odometer_span_mm();
+    let (a, b) = (start_m + direction * lo / 1000.0, start_m + direction * hi / 1000.0);
+    let (from, to) = (a.min(b), a.max(b));
+    let (r0, r1) = reg.span_m();
+    if from < r0 || to > r1 {
+        return Err(input(format!(
+            "--gnss: the run covers {} to {} but {} spans {} to {}",
+            Chainage(from),
+            Chainage(to),
+            register.display(),
+            Chainage(r0),
+            Chainage(r1)
+        )));
+    }
+    let date = survey
+        .map(|s| s.date())
+        .transpose()
+        .map_err(|e| input(format!("survey: {e}")))?
+        .flatten()
+        .and_then(|d| chrono::NaiveDate::from_num_days_from_ce_opt(i32::try_from(d.day_number()).ok()?))
+        .unwrap_or_else(|| chrono::NaiveDate::from_ymd_opt(2026, 1, 1).unwrap_or_default());
+    // `listen --gnss sim`'s receiver (GnssSimOptions::built_in) on this register.
+    let receiver = cms_host::sim::gnss::GnssSimOptions {
+        register: reg,
+        start_chainage_m: start_m,
+        direction,
+        rate_hz: 10,
+        quality: cms_host::gnss::Quality::RtkFixed,
+        sigma_m: 0.01,
+        seed,
+    };
+    Ok(cms_host::sim::synthetic::Gnss { receiver, date, utc_ms_of_day: 8 * 3_600_000 })
 }
 
 impl AccuracyArgs {

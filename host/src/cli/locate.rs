@@ -38,6 +38,8 @@ fn parse_sigma(s: &str) -> Result<f64, String> {
 }
 
 fn chainage(m: f64) -> String {
+    // Rounded to the millimetre first: 11 999.9999 m is 12+000.000, not 11+1000.000.
+    let m = (m * 1000.0).round() / 1000.0;
     let km = (m / 1000.0).floor();
     format!("{km:.0}+{:07.3}", m - km * 1000.0)
 }
@@ -177,5 +179,6 @@ mod tests {
         assert_eq!(chainage(41_100.012_6), "41+100.013");
         assert_eq!(chainage(999.5), "0+999.500");
         assert_eq!(chainage(12_000.0), "12+000.000");
+        assert_eq!(chainage(11_999.999_9), "12+000.000");
     }
 }

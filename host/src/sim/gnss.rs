@@ -67,25 +67,33 @@ impl GnssSimOptions {
     }
 }
 
-/// The receiver's state from one epoch to the next.
-struct Antenna {
+/// The receiver's state from one epoch to the next: its antenna on the
+/// centreline, its noise, its Doppler speed. Shared by the receiver on a
+/// pty and the synthetic recordings ([`crate::sim::synthetic`]).
+#[derive(Debug)]
+pub struct Antenna {
     opts: GnssSimOptions,
     rng: Rng,
-    last: Option<(Instant, f64)>,
+    last: Option<(u64, f64)>,
 }
 
 impl Antenna {
-    /// The fix at `now` with the odometer at `odometer_m`.
-    fn fix(&mut self, now: Instant, odometer_m: f64, utc_ms_of_day: u32, date: (u16, u8, u8)) -> Fix {
+    /// The antenna of a receiver with `opts`, its noise seeded by `opts.seed`.
+    pub fn new(opts: GnssSimOptions) -> Antenna {
+        Antenna { rng: Rng::for_stream(opts.seed, 0x6e55, 0, 0), opts, last: None }
+    }
+
+    /// The fix at `t_us` (the receiver's clock, µs) with the odometer at `odometer_m`.
+    pub fn fix(&mut self, t_us: u64, odometer_m: f64, utc_ms_of_day: u32, date: (u16, u8, u8)) -> Fix {
         let o = &self.opts;
         let (p, heading) = o.register.at(o.start_chainage_m + o.direction * odometer_m);
         let (e, n) = (self.rng.normal() * o.sigma_m, self.rng.normal() * o.sigma_m);
         let q = offset(p, e, n);
         let speed_mm_s = match self.last {
-            Some((t, odo)) if now > t => (odometer_m - odo).abs() * 1000.0 / (now - t).as_secs_f64(),
+            Some((t, odo)) if t_us > t => (odometer_m - odo).abs() * 1e9 / (t_us - t) as f64,
             _ => 0.0,
         };
-        self.last = Some((now, odometer_m));
+        self.last = Some((t_us, odometer_m));
         Fix {
             utc_ms_of_day: Some(utc_ms_of_day),
             date: Some(date),
@@ -173,7 +181,7 @@ impl GnssSim {
         let stop = Arc::new(AtomicBool::new(false));
         let flag = stop.clone();
         let period = Duration::from_secs_f64(1.0 / f64::from(opts.rate_hz.max(1)));
-        let mut antenna = Antenna { rng: Rng::for_stream(opts.seed, 0x6e55, 0, 0), opts, last: None };
+        let mut antenna = Antenna::new(opts);
         let thread = std::thread::Builder::new()
             .name("cms-sim-gnss".into())
             .spawn(move || {
@@ -191,7 +199,7 @@ impl GnssSim {
                     let odo_um = tap.load(Ordering::Relaxed);
                     let odometer_m = if odo_um == NO_FRAME { 0.0 } else { odo_um as f64 * 1e-6 };
                     let (ms, date) = utc_now();
-                    let fix = antenna.fix(now, odometer_m, ms, date);
+                    let fix = antenna.fix((now - t0).as_micros() as u64, odometer_m, ms, date);
                     // A receiver sends whether anyone listens: what the
                     // pty cannot take is lost.
                     let _ = pty.send(sentences(&fix).as_bytes());
@@ -226,9 +234,8 @@ mod tests {
     #[test]
     fn its_sentences_read_back_as_its_fixes() {
         let mut a = Antenna { opts: GnssSimOptions::built_in(3), rng: Rng::for_stream(3, 0, 0, 0), last: None };
-        let t0 = Instant::now();
-        let f0 = a.fix(t0, 0.0, 36_930_200, (2026, 12, 4));
-        let f1 = a.fix(t0 + Duration::from_millis(100), 0.05, 36_930_300, (2026, 12, 4));
+        let f0 = a.fix(7_000, 0.0, 36_930_200, (2026, 12, 4));
+        let f1 = a.fix(107_000, 0.05, 36_930_300, (2026, 12, 4));
         assert!((f1.speed_mm_s.unwrap() - 500.0).abs() < 1e-6);
         let mut asm = Assembler::new();
         let mut got = Vec::new();
@@ -257,7 +264,7 @@ mod tests {
         let n = 4000;
         let (mut s_along, mut s_cross) = (0.0, 0.0);
         for _ in 0..n {
-            let f = a.fix(Instant::now(), 0.0, 0, (2026, 1, 1));
+            let f = a.fix(0, 0.0, 0, (2026, 1, 1));
             let on = reg.project(crate::gnss::register::Geodetic { lat_deg: f.lat_deg, lon_deg: f.lon_deg });
             s_along += (on.chainage_m - 42_300.0).powi(2);
             s_cross += on.offset_m.powi(2);

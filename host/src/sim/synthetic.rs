@@ -15,6 +15,11 @@
 //! a `Hello` naming [`CALIBRATION_ID`] (or [`Options::calibration_id`])
 //! and a 752 × 480 sensor.
 //!
+//! With [`Options::gnss`], a simulated GNSS receiver rides along
+//! ([`crate::sim::gnss`]'s model and noise, seeded): its fixes are written
+//! among the frames as host records, as `listen --gnss sim` records them
+//! (see [`Gnss`] for the clocks).
+//!
 //! Cost: about a microsecond per point; memory one frame. Deterministic:
 //! the same options give the same bytes.
 
@@ -30,15 +35,41 @@ use cms_core::protocol::{
 use rand_xoshiro::Xoshiro256PlusPlus;
 use rand_xoshiro::rand_core::{Rng as _, SeedableRng};
 
+use crate::gnss::Placed;
 use crate::output::{self, OutputError};
 use crate::progress::Progress;
-use crate::recording;
+use crate::recording::{self, HostRecord};
+use crate::sim::gnss::{Antenna, GnssSimOptions};
 
 /// The calibration id the synthetic head reports.
 pub const CALIBRATION_ID: u32 = 0x5157_4e54;
 
+/// The head's time between frames, µs (30 Hz).
+pub const FRAME_US: u64 = 33_333;
+
+/// A simulated GNSS receiver riding with the synthetic head.
+///
+/// Its epochs are `1 / rate_hz` apart on the head's clock from the first
+/// frame's time (0). The host's clock is the head's (each frame arrives as
+/// it is taken), so a fix is recorded after the last frame taken at or
+/// before its epoch, with that frame's time plus the time since
+/// (`head_us`, equal to `host_us`) and its odometer, as the listener
+/// places a fix ([`crate::gnss`], "Time alignment"). Its antenna is at
+/// the chainage of that frame's odometer, `start + direction × odometer`,
+/// as the simulated receiver reads the odometer of the frame being taken:
+/// behind the head by up to one frame's travel. No output latency.
+#[derive(Debug, Clone)]
+pub struct Gnss {
+    /// The receiver: its register, start chainage, direction, rate, quality, noise and seed.
+    pub receiver: GnssSimOptions,
+    /// UTC date of the first frame.
+    pub date: chrono::NaiveDate,
+    /// UTC of the first frame, milliseconds of its day.
+    pub utc_ms_of_day: u32,
+}
+
 /// What to synthesise.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct Options {
     /// Frames to write.
     pub frames: u32,
@@ -61,6 +92,20 @@ pub struct Options {
     pub calibration_id: u32,
     /// The survey block's text (`listen --survey`'s, [`crate::recording::survey_info`]).
     pub survey: Option<String>,
+    /// A GNSS receiver riding along: its fixes among the frames.
+    pub gnss: Option<Gnss>,
+}
+
+impl Options {
+    /// The odometer of the first and the last frame, mm.
+    pub fn odometer_span_mm(&self) -> (f64, f64) {
+        (odometer_mm(0, self.step_mm), odometer_mm(self.frames.saturating_sub(1), self.step_mm))
+    }
+}
+
+/// The odometer of frame `seq`, mm.
+fn odometer_mm(seq: u32, step_mm: f64) -> f64 {
+    100.0 + step_mm * f64::from(seq)
 }
 
 impl Default for Options {
@@ -76,6 +121,7 @@ impl Default for Options {
             reverse: false,
             calibration_id: CALIBRATION_ID,
             survey: None,
+            gnss: None,
         }
     }
 }
@@ -167,13 +213,14 @@ pub fn write_to(w: &mut dyn Write, opts: &Options, progress: &dyn Progress) -> i
     let mut uniform = move || -> f64 { (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64 };
     let n = opts.points_per_line.clamp(2, protocol::MAX_ROWS_PER_PROFILE as u16) as usize;
     let pitch_mm = FRAME_MM / (n - 1) as f64;
+    let mut receiver = opts.gnss.as_ref().map(Receiver::new);
     for seq in 0..opts.frames {
-        let odometer_mm = 100.0 + opts.step_mm * seq as f64;
+        let odometer_mm = odometer_mm(seq, opts.step_mm);
         let bounce_um = 40.0 * (uniform() - 0.5);
         let mut p = Profile {
             seq,
             parts: 1,
-            timestamp_us: seq as u64 * 33_333,
+            timestamp_us: u64::from(seq) * FRAME_US,
             odometer_um: (odometer_mm * 1000.0).round() as i64,
             exposure_us: 500,
             laser_mask: (1 << LASERS) - 1,
@@ -208,10 +255,54 @@ pub fn write_to(w: &mut dyn Write, opts: &Options, progress: &dyn Progress) -> i
             }
             let _ = p.lasers.push(lp);
         }
+        let (timestamp_us, odometer_um) = (p.timestamp_us, p.odometer_um);
         put(&mut w, &DeviceMsg::Profile(p))?;
+        if let Some(r) = &mut receiver {
+            // The epochs until the next frame is taken (the last frame's own only).
+            let next_us = if seq + 1 < opts.frames { timestamp_us + FRAME_US } else { timestamp_us + 1 };
+            r.epochs(&mut w, next_us, odometer_um)?;
+        }
         if seq % 256 == 255 {
             progress.set(u64::from(seq) + 1);
         }
     }
     w.flush()
+}
+
+/// The riding receiver's state: its antenna and its next epoch.
+struct Receiver<'a> {
+    gnss: &'a Gnss,
+    antenna: Antenna,
+    period_us: u64,
+    next_us: u64,
+}
+
+impl<'a> Receiver<'a> {
+    fn new(gnss: &'a Gnss) -> Receiver<'a> {
+        Receiver {
+            gnss,
+            antenna: Antenna::new(gnss.receiver.clone()),
+            period_us: 1_000_000 / u64::from(gnss.receiver.rate_hz.max(1)),
+            next_us: 0,
+        }
+    }
+
+    /// Writes the fixes of the epochs before `until_us`, after the frame of
+    /// odometer `odometer_um` (taken at or before every one of them).
+    fn epochs(&mut self, w: &mut dyn Write, until_us: u64, odometer_um: i64) -> io::Result<()> {
+        while self.next_us < until_us {
+            let t_us = self.next_us;
+            self.next_us += self.period_us;
+            let ms = u64::from(self.gnss.utc_ms_of_day) + t_us / 1000;
+            let day = self.gnss.date.checked_add_days(chrono::Days::new(ms / 86_400_000)).unwrap_or(self.gnss.date);
+            let date = {
+                use chrono::Datelike as _;
+                (day.year().clamp(0, 9999) as u16, day.month() as u8, day.day() as u8)
+            };
+            let fix = self.antenna.fix(t_us, odometer_um as f64 * 1e-6, (ms % 86_400_000) as u32, date);
+            let placed = Placed { host_us: t_us, head_us: Some(t_us), odometer_um: Some(odometer_um), fix };
+            w.write_all(&HostRecord::Fix(placed).frame())?;
+        }
+        Ok(())
+    }
 }
