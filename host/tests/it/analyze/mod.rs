@@ -6,6 +6,7 @@
 pub(crate) mod parquet;
 mod recordings;
 mod report;
+mod scale;
 mod sim;
 
 use cms_host::analyze::stitch::{self, Direction, FramePoints, Options, Registration};
