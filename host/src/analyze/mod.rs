@@ -16,10 +16,14 @@
 //! not be evaluated and why, and gives the rest.
 //!
 //! Cost: one pass over the file, frames streamed through
-//! [`stitch::Stitcher`] as they are read (never all in memory); the
-//! standards `O(N log N)` in the samples. A synthetic 20 000-frame
-//! recording (`cms-host bench recording`, 340 m of rail, 531 MB) takes
-//! about 5 s and 180 MB (docs/benchmarks.md).
+//! [`stitch::Stitcher`] as they are read (never all in memory), the lines
+//! held in cell stores that spill to a temporary file ([`store`]); then
+//! one walk along each section piece by piece ([`pieces`]) for the
+//! standards and the verdict, `O(N)` in the samples (the spectrum's
+//! segments `O(N log M)`). Memory is set by a piece (whole blocks, the
+//! standards' margins), not by the length of track: a synthetic
+//! 100 000-frame recording (`cms-host bench recording`, 1.7 km of rail,
+//! 778 MB) takes about 14 s and 52 MB (docs/benchmarks.md).
 
 pub mod live;
 pub mod marks;
