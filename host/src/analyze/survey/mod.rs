@@ -88,8 +88,14 @@
 //! places the whole run, and 100 m of broadband roughness decides it as
 //! surely as more does (the overlap asked for is 2 m); the shifts searched
 //! are the same, so `search_mm` means what it did. Without a start the
-//! whole section is correlated, so that registration's memory follows the
-//! section (≈ 100 bytes a sample while it runs).
+//! whole section is searched, in chunks of two run windows (at least
+//! 100 m) overlapping by one window: every shift that lays the window
+//! whole on the section lies whole in one chunk, and a chunk leaves the
+//! shifts that hang over its inner edges to its neighbour; the best of the
+//! chunks' peaks is the section's (`a_run_without_a_start_is_found_along_a_long_section`:
+//! a 60 m run found 520 m along a 700 m section). So registration holds
+//! one chunk's correlation (≈ 100 bytes a sample of it), whatever the
+//! section's length.
 //!
 //! Cost: per run four FFT correlations per line and heading of the length
 //! of each section it may overlap (`O(N log N)`), then `O(overlap)` per

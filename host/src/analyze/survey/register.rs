@@ -247,7 +247,6 @@ pub(super) fn search(
     let (Some(jlo), Some(jhi)) = (joined.iter().map(|l| l.base).min(), joined.iter().map(JoinedLine::end).max()) else {
         return Ok(Vec::new());
     };
-    let min_overlap = opts.min_overlap_mm / dx;
     let window = opts.search_mm / dx;
     let cap = (MAX_CORRELATED_MM / dx).ceil().max(1.0) as i64;
     let mut out = Vec::new();
@@ -278,43 +277,144 @@ pub(super) fn search(
             continue;
         }
         let rlen = (q - p) as usize;
-        let mut pairs = Vec::new();
-        for (l, o) in &lines {
-            let Some(j) = joined.iter().find(|j| j.line == l.laser) else { continue };
-            let a = filtered(
-                |r| read_oriented(l, h, (r.start - o) as usize..(r.end - o) as usize),
-                *o..o + l.z.len() as i64,
-                p,
-                rlen,
-                dx,
-            )?;
-            let b = filtered(|r| j.values(r), j.base..j.end(), bl, (bh - bl) as usize, dx)?;
-            pairs.push((a, b));
+        // The section side in chunks (without a start it is the whole
+        // section): each chunk overlaps the next by the run's window, so
+        // every shift that lays the window whole on the section lies whole
+        // in some chunk; a shift hanging over a chunk's inner edge is left
+        // to the chunk that holds it (or to none, when it hangs over the
+        // section's own end: then the chunk edge is the section's).
+        let chunk = (CHUNK_WINDOWS * rlen as i64).max(cap);
+        let mut best: Option<(f64, i64, f64)> = None;
+        let mut peaks: Vec<(f64, i64, f64)> = Vec::new();
+        let mut cl = bl;
+        loop {
+            let ch = (cl + chunk).min(bh);
+            let inner = (cl > bl, ch < bh);
+            if let Some(m) = chunk_peak(&lines, joined, h, (p, rlen), (cl, ch), inner, nominal, opts, dx)? {
+                if best.is_none_or(|b| m.0 > b.0) {
+                    best = Some(m);
+                }
+                peaks.push(m);
+            }
+            if ch >= bh {
+                break;
+            }
+            cl = ch - rlen as i64;
         }
-        if pairs.is_empty() {
-            continue;
-        }
-        let ncc = correlate(&pairs);
-        // Shift d puts the window's first sample (grid index p when the
-        // run's start is 0) at joined index bl + d: its start at bl + d − p.
-        let start = |t: usize| bl + (t as i64 - (rlen as i64 - 1)) - p;
-        let allowed =
-            |t: usize| ncc[t].1 >= min_overlap && nominal.is_none_or(|n| (start(t) as f64 - n).abs() <= window);
-        let Some(t0) = (0..ncc.len()).filter(|&t| allowed(t)).max_by(|&a, &b| ncc[a].0.total_cmp(&ncc[b].0)) else {
-            continue;
-        };
-        // The best other peak: beyond the main lobe (where the correlation
-        // stops falling away from the best).
-        let (mut l, mut u) = (t0, t0);
-        while l > 0 && ncc[l - 1].0 < ncc[l].0 {
-            l -= 1;
-        }
-        while u + 1 < ncc.len() && ncc[u + 1].0 < ncc[u].0 {
-            u += 1;
-        }
-        let second =
-            (0..ncc.len()).filter(|&t| (t < l || t > u) && allowed(t)).map(|t| ncc[t].0).fold(0.0f64, f64::max);
-        out.push(Match { correlation: ncc[t0].0, heading: h, lo: start(t0), second });
+        let Some((correlation, lo, _)) = best else { continue };
+        // Another chunk's best is another peak, unless it found this one.
+        let second = peaks.iter().map(|&(c, l, s)| if l == lo { s } else { c }).fold(0.0f64, f64::max);
+        out.push(Match { correlation, heading: h, lo, second });
     }
     Ok(out)
+}
+
+/// Section samples correlated at once, in run windows: without a start,
+/// a long section is searched in chunks of this many windows (at least
+/// [`MAX_CORRELATED_MM`]), so that the correlation's memory is bounded
+/// however long the section.
+const CHUNK_WINDOWS: i64 = 2;
+
+/// The best placement of the run's window (grid indices `p..p + rlen`
+/// with its start at 0) on the section's chunk `cl..ch`: (correlation,
+/// start, best other peak), shifts the search allows only. `inner` says
+/// which chunk edges are not the section's: a window hanging over one is
+/// left to the neighbouring chunk.
+#[allow(clippy::too_many_arguments)]
+fn chunk_peak(
+    lines: &[(&Stitched, i64)],
+    joined: &[JoinedLine],
+    h: Heading,
+    (p, rlen): (i64, usize),
+    (cl, ch): (i64, i64),
+    inner: (bool, bool),
+    nominal: Option<f64>,
+    opts: &JoinOptions,
+    dx: f64,
+) -> io::Result<Option<(f64, i64, f64)>> {
+    let min_overlap = opts.min_overlap_mm / dx;
+    let window = opts.search_mm / dx;
+    let mut pairs = Vec::new();
+    for (l, o) in lines {
+        let Some(j) = joined.iter().find(|j| j.line == l.laser) else { continue };
+        let a = filtered(
+            |r| read_oriented(l, h, (r.start - o) as usize..(r.end - o) as usize),
+            *o..o + l.z.len() as i64,
+            p,
+            rlen,
+            dx,
+        )?;
+        let b = filtered(|r| j.values(r), j.base..j.end(), cl, (ch - cl) as usize, dx)?;
+        pairs.push((a, b));
+    }
+    if pairs.is_empty() {
+        return Ok(None);
+    }
+    let ncc = correlate(&pairs);
+    // Shift t puts the window's first sample (grid index p when the
+    // run's start is 0) at joined index cl + t − (rlen − 1): its start there minus p.
+    let at = |t: usize| cl + (t as i64 - (rlen as i64 - 1));
+    let start = |t: usize| at(t) - p;
+    let whole = |t: usize| (!inner.0 || at(t) >= cl) && (!inner.1 || at(t) + rlen as i64 <= ch);
+    let allowed =
+        |t: usize| ncc[t].1 >= min_overlap && whole(t) && nominal.is_none_or(|n| (start(t) as f64 - n).abs() <= window);
+    let Some(t0) = (0..ncc.len()).filter(|&t| allowed(t)).max_by(|&a, &b| ncc[a].0.total_cmp(&ncc[b].0)) else {
+        return Ok(None);
+    };
+    // The best other peak: beyond the main lobe (where the correlation
+    // stops falling away from the best).
+    let (mut l, mut u) = (t0, t0);
+    while l > 0 && ncc[l - 1].0 < ncc[l].0 {
+        l -= 1;
+    }
+    while u + 1 < ncc.len() && ncc[u + 1].0 < ncc[u].0 {
+        u += 1;
+    }
+    let second = (0..ncc.len()).filter(|&t| (t < l || t > u) && allowed(t)).map(|t| ncc[t].0).fold(0.0f64, f64::max);
+    Ok(Some((ncc[t0].0, start(t0), second)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{JoinOptions, Placement, join};
+    use crate::analyze::profile;
+    use crate::analyze::stitch::{Direction, Stitching};
+
+    /// Broadband roughness (a smoothed random walk's steps), µm per mm.
+    fn rail(n: usize, seed: u64) -> Vec<f64> {
+        let mut s = seed;
+        let mut white = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let w: Vec<f64> = (0..n + 8).map(|_| white()).collect();
+        (0..n).map(|i| 10.0 * w[i..i + 8].iter().sum::<f64>() / 8.0).collect()
+    }
+
+    fn run(z: Vec<f64>) -> Stitching {
+        let line = profile::stitched(1, 0.0, 1.0, z);
+        Stitching {
+            direction: Direction::Forward,
+            direction_residuals_um: None,
+            direction_given: true,
+            lasers: vec![line],
+        }
+    }
+
+    /// A run without a start is found far along a section many times
+    /// longer than the chunks the section is correlated in.
+    #[test]
+    fn a_run_without_a_start_is_found_along_a_long_section() {
+        let rail = rail(700_000, 3);
+        let second = rail[520_000..580_000].to_vec();
+        let runs = vec![run(rail), run(second)];
+        let placements = [Placement { start_m: Some(0.0), heading: None }, Placement::default()];
+        let (_, joins) = join(runs, &placements, &JoinOptions::default()).unwrap();
+        let j = &joins[1];
+        let (best, other) = j.correlation.unwrap();
+        assert!((j.start_m - 520.0).abs() < 1e-3, "{j:?}");
+        assert!(best > 0.99 && other < 0.5, "{j:?}");
+    }
 }
