@@ -78,7 +78,7 @@ impl Edition {
     }
 }
 
-/// Options of [`judge`].
+/// Options of the verdict ([`Builder`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Options {
     pub edition: Edition,

@@ -273,7 +273,7 @@ pub fn trend(surveys: &[SurveyRun], opts: &Options) -> Result<Trend, TrendError>
 }
 
 /// A block's key: its start chainage to the micrometre.
-fn block_key(start_mm: f64) -> i64 {
+pub fn block_key(start_mm: f64) -> i64 {
     (start_mm * 1000.0).round() as i64
 }
 

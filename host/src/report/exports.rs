@@ -161,7 +161,7 @@ fn profile_rows(source: &str, lines: &[usize], p: &Piece) -> Table {
 /// the other (the stretches between them, never measured, have no rows):
 /// `source`, `chainage_mm`, `height_um_K` per line (null in gaps),
 /// `coverage` (lines with data at the sample). Whole in memory: files
-/// are written piece by piece ([`write`]).
+/// are written piece by piece ([`write()`]).
 pub fn profile_table(source: &Source, a: &Analysis) -> Result<Table, Error> {
     let (name, lines) = (source.name(), line_numbers(a));
     let mut t: Option<Table> = None;
