@@ -401,13 +401,25 @@ impl Source {
 /// Stitches the frames and runs both standards on every laser's profile.
 pub fn analyze(frames: &[FramePoints], opts: &Options) -> Result<Analysis, Error> {
     let stitching = stitch::stitch(frames, &opts.stitch).map_err(|e| Error::Input(e.to_string()))?;
-    judge(stitching, Vec::new(), opts)
+    judge(stitching, Vec::new(), opts, &crate::progress::Silent)
 }
 
 /// Runs both standards on every laser's stitched profile and judges the
-/// survey line, walking it piece by piece ([`pieces`]).
-pub fn judge(mut stitching: Stitching, joins: Vec<survey::RunJoin>, opts: &Options) -> Result<Analysis, Error> {
+/// survey line, walking it piece by piece ([`pieces`]); `progress` is
+/// told the metres of line judged.
+pub fn judge(
+    mut stitching: Stitching,
+    joins: Vec<survey::RunJoin>,
+    opts: &Options,
+    progress: &dyn Progress,
+) -> Result<Analysis, Error> {
     let stitched = std::mem::take(&mut stitching.lasers);
+    let total_m: u64 = stitched
+        .chunk_by(|a, b| a.section == b.section)
+        .map(|s| (Grid::of_lines(&s.iter().collect::<Vec<_>>(), s[0].dx_mm).len as f64 * s[0].dx_mm / 1000.0) as u64)
+        .sum();
+    progress.begin("judging", total_m, "m");
+    let mut done_m = 0.0;
     let dx = stitched.first().map_or(opts.stitch.dx_mm, |s| s.dx_mm);
     let mut verdict = reprofiling::Builder::new(&opts.verdict, dx);
     let mut lasers = Vec::new();
@@ -446,6 +458,8 @@ pub fn judge(mut stitching: Stitching, joins: Vec<survey::RunJoin>, opts: &Optio
                 }
             }
             verdict.piece(p);
+            done_m += p.core.len() as f64 * p.grid.dx_mm / 1000.0;
+            progress.set(done_m as u64);
             Ok(())
         })?;
         for (k, s) in section.iter().enumerate() {
@@ -464,6 +478,7 @@ pub fn judge(mut stitching: Stitching, joins: Vec<survey::RunJoin>, opts: &Optio
             lasers.push(LaserAnalysis { stitched: s.clone(), bands, roughness });
         }
     }
+    progress.end();
     Ok(Analysis { options: opts.clone(), stitching, joins, lasers, verdict: verdict.finish() })
 }
 

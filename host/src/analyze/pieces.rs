@@ -231,7 +231,7 @@ mod tests {
             lasers: vec![line],
         };
         let opts = Options::default();
-        let a = judge(stitching, Vec::new(), &opts).unwrap();
+        let a = judge(stitching, Vec::new(), &opts, &crate::progress::Silent).unwrap();
         assert_eq!(cores(&Grid::of(&a.lasers, 1.0), &opts).len(), 4);
         let whole = en13231::analyze(&z, 1.0).unwrap();
         let got = a.lasers[0].bands.as_ref().unwrap();

@@ -216,7 +216,7 @@ pub fn run(req: &Request, opts: &Options, progress: &dyn Progress) -> Result<(So
     };
     let (stitching, joins) =
         survey::join(runs, &placements, &join_opts).map_err(|e| Error::Input(format!("{}: {e}", source.name())))?;
-    let a = analyze::judge(stitching, joins, &opts)?;
+    let a = analyze::judge(stitching, joins, &opts, progress)?;
     Ok((source, a))
 }
 
