@@ -230,13 +230,14 @@ def trend_one(line: str, track: str, urls: list[str], dates: list[str], options:
         "blocks": None,
     }
     out = {}
+    copies = {}
     try:
         if len(set(dates)) < 2:
             raise cms.Error(f"{len(urls)} survey(s) all of {dates[0]}: a trend needs surveys of at least two dates")
         with tempfile.TemporaryDirectory(prefix="cms-fleet-") as tmp:
             paths = [u if "://" not in u else _local_copy_as(u, tmp, i) for i, u in enumerate(urls)]
-            # The dates as the analysis saw them (the survey blocks'), given so that a
-            # copy's name does not matter; the surveys named by their URLs below.
+            copies = {p: u for p, u in zip(paths, urls) if p != u}
+            # The survey blocks' dates, as grouped here: the trend follows the same surveys.
             tr = cms.trend(paths, dates=dates, **options)
         t = tr.table
         n = t.num_rows
@@ -245,7 +246,11 @@ def trend_one(line: str, track: str, urls: list[str], dates: list[str], options:
         out["trend"] = t
         row["blocks"] = len({(s, e) for s, e in zip(t["start_chainage_mm"].to_pylist(), t["end_chainage_mm"].to_pylist())})
     except cms.Error as e:
-        row["error"] = str(e)
+        # A copy's path in the message named as the job names the recording: its URL.
+        msg = str(e)
+        for p, u in copies.items():
+            msg = msg.replace(p, u)
+        row["error"] = msg
     row["seconds"] = time.perf_counter() - t0
     out["trends"] = pa.Table.from_pylist([row], schema=TRENDS_SCHEMA)
     return {k: _ipc(t) for k, t in out.items()}
