@@ -5,6 +5,10 @@ exactly as ``cms-host analyze`` does — the same library code — returning
 the tables of ``cms-host analyze --parquet`` as ``pyarrow.Table`` objects
 and the object of ``cms-host analyze --json`` as a dict. ``cms.read_survey``
 gives a recording's survey block (line, track, date, chainage…).
+``cms.trend`` follows surveys of one site at different dates as
+``cms-host trend`` does: per block and band the growth per year and the
+projected date the limit is crossed, as a ``pyarrow.Table`` and the
+``cms-host trend --json`` object.
 
 Zero-copy: the Rust side writes every Arrow buffer (values, validity
 bitmaps, string offsets and bytes) once, straight into Python ``bytes``
@@ -24,7 +28,7 @@ import pyarrow as pa
 from . import _cms
 from ._cms import SCHEMA_VERSION, Error
 
-__all__ = ["Analysis", "Error", "SCHEMA_VERSION", "analyze", "read_survey"]
+__all__ = ["Analysis", "Error", "SCHEMA_VERSION", "Trend", "analyze", "read_survey", "trend"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -54,7 +58,7 @@ class Analysis:
         return f"<cms.Analysis {rows}>"
 
 
-_TYPES = {"f64": pa.float64(), "i32": pa.int32(), "bool": pa.bool_(), "str": pa.string()}
+_TYPES = {"f64": pa.float64(), "i32": pa.int32(), "bool": pa.bool_(), "str": pa.string(), "date32": pa.date32()}
 
 
 def _array(kind: str, rows: int, nulls: int, buffers: list) -> pa.Array:
@@ -125,6 +129,56 @@ def analyze(
         allow_mixed_heads=bool(allow_mixed_heads),
     )
     return Analysis(_table(profile), _table(blocks), _table(zones), json.loads(summary))
+
+
+class Trend:
+    """One ``trend`` call's result: ``table``, a ``pyarrow.Table`` of one
+    row per block and band (docs/trend.md, "In Python"), and ``summary``,
+    the ``cms-host trend --json`` object."""
+
+    __slots__ = ("table", "summary")
+
+    def __init__(self, table: pa.Table, summary: dict):
+        self.table = table
+        self.summary = summary
+
+    def __repr__(self) -> str:
+        return f"<cms.Trend {len(self.summary['surveys'])} surveys, {self.table.num_rows} rows>"
+
+
+def trend(
+    paths: Sequence[PathLike],
+    dates: Optional[Sequence[str]] = None,
+    chainage: Optional[Sequence[str]] = None,
+    edition: str = "2006",
+    block_m: float = 50.0,
+    search_m: float = 2.0,
+    horizon_years: float = 10.0,
+) -> Trend:
+    """``cms-host trend PATHS…`` with the same options (``--date
+    YYYY-MM-DD`` and ``--chainage KM+M[:up|:down]``, one per recording in
+    order; ``--edition 2006|2012``, ``--block-m``, ``--search-m``,
+    ``--horizon-years``): each recording one survey of the site.
+
+    Raises ``cms.Error`` with the message ``cms-host trend`` prints after
+    ``error:``. The GIL is released while the surveys are analysed.
+    """
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    if isinstance(dates, str):
+        dates = [dates]
+    if isinstance(chainage, str):
+        chainage = [chainage]
+    columns, summary = _cms.trend(
+        [os.fspath(p) for p in paths],
+        dates=None if dates is None else [str(d) for d in dates],
+        chainage=None if chainage is None else list(chainage),
+        edition=str(edition),
+        block_m=float(block_m),
+        search_m=float(search_m),
+        horizon_years=float(horizon_years),
+    )
+    return Trend(_table(columns), json.loads(summary))
 
 
 def read_survey(path: PathLike) -> Optional[dict]:

@@ -261,14 +261,7 @@ fn analyze<'py>(
     if paths.is_empty() {
         return Err(Error::new_err("the following required arguments were not provided: <RECORDING|PROFILE.csv>..."));
     }
-    let placements = chainage
-        .unwrap_or_default()
-        .iter()
-        .map(|c| {
-            c.parse::<Placement>()
-                .map_err(|e| Error::new_err(format!("invalid value '{c}' for '--chainage <KM+M[:up|:down]>': {e}")))
-        })
-        .collect::<PyResult<Vec<_>>>()?;
+    let placements = placements(chainage)?;
     let settings = Settings {
         edition: self::edition(edition)?,
         block_m: checked(Range::BlockM, "--block-m <M>", block_m)?,
@@ -308,6 +301,88 @@ fn analyze<'py>(
     ))
 }
 
+/// The trend's table (as lists of columns, its `*_date` columns as Arrow
+/// `date32`) and the JSON text of `cms-host trend --json`.
+type Trended<'py> = (Bound<'py, PyList>, String);
+
+/// `cms-host trend PATHS… --json`: the surveys read and analysed by the
+/// command's own code ([`cms_host::report::trend::survey_runs`]), the
+/// trend of [`cms_host::analyze::trend::trend`].
+#[pyfunction]
+#[pyo3(signature = (paths, dates=None, chainage=None, edition="2006", block_m=50.0, search_m=2.0, horizon_years=10.0))]
+#[allow(clippy::too_many_arguments)]
+fn trend<'py>(
+    py: Python<'py>,
+    paths: Vec<PathBuf>,
+    dates: Option<Vec<String>>,
+    chainage: Option<Vec<String>>,
+    edition: &str,
+    block_m: f64,
+    search_m: f64,
+    horizon_years: f64,
+) -> PyResult<Trended<'py>> {
+    use cms_host::analyze::trend as tr;
+    use cms_host::recording::survey_info::SurveyDate;
+    if paths.is_empty() {
+        return Err(Error::new_err("the following required arguments were not provided: <RECORDING>..."));
+    }
+    let placements = placements(chainage)?;
+    let dates = dates
+        .unwrap_or_default()
+        .iter()
+        .map(|d| {
+            d.parse::<SurveyDate>()
+                .map_err(|e| Error::new_err(format!("invalid value '{d}' for '--date <YYYY-MM-DD>': {e}")))
+        })
+        .collect::<PyResult<Vec<_>>>()?;
+    let in_range = |flag: &str, v: f64, lo: f64, hi: f64, open: bool, what: &str| {
+        if v.is_finite() && (v > lo || (!open && v == lo)) && v <= hi {
+            Ok(v)
+        } else {
+            let above = if open { "above " } else { "" };
+            Err(Error::new_err(format!("invalid value '{v}' for '{flag}': `{v}` is not {what} ({above}{lo} to {hi})")))
+        }
+    };
+    let block_m = in_range("--block-m <M>", block_m, 1.0, 1000.0, false, "a block length in m")?;
+    let search_m = in_range("--search-m <M>", search_m, 0.0, 100.0, true, "a search distance in m")?;
+    let horizon_years = in_range("--horizon-years <Y>", horizon_years, 1.0, 100.0, false, "a horizon in years")?;
+    let opts = cms_host::analyze::Options {
+        verdict: cms_host::analyze::reprofiling::Options {
+            edition: self::edition(edition)?,
+            block_mm: block_m * 1000.0,
+        },
+        ..cms_host::analyze::Options::default()
+    };
+    let topts = tr::Options { search_mm: search_m * 1000.0, horizon_years, ..tr::Options::default() };
+    let t = py
+        .detach(|| -> Result<tr::Trend, cms_host::Error> {
+            let surveys =
+                cms_host::report::trend::survey_runs(&paths, &placements, &dates, &opts, &cms_host::progress::Silent)?;
+            Ok(tr::trend(&surveys, &topts)?)
+        })
+        .map_err(py_err)?;
+    let mut cols = Vec::new();
+    for c in &cms_host::report::trend::trend_table(&t).columns {
+        let mut c = column(py, c)?;
+        if c.0.ends_with("_date") {
+            c.1 = "date32";
+        }
+        cols.push(c);
+    }
+    Ok((PyList::new(py, cols)?, cms_host::report::trend::json(&t)))
+}
+
+fn placements(chainage: Option<Vec<String>>) -> PyResult<Vec<Placement>> {
+    chainage
+        .unwrap_or_default()
+        .iter()
+        .map(|c| {
+            c.parse::<Placement>()
+                .map_err(|e| Error::new_err(format!("invalid value '{c}' for '--chainage <KM+M[:up|:down]>': {e}")))
+        })
+        .collect()
+}
+
 /// The survey block of a recording as JSON text (`null`: none), checked
 /// as `analyze` checks it; with its `date` as `year` besides.
 #[pyfunction]
@@ -328,6 +403,7 @@ fn read_survey(py: Python<'_>, path: PathBuf) -> PyResult<String> {
 fn _cms(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(analyze, m)?)?;
     m.add_function(wrap_pyfunction!(read_survey, m)?)?;
+    m.add_function(wrap_pyfunction!(trend, m)?)?;
     m.add("Error", m.py().get_type::<Error>())?;
     m.add("SCHEMA_VERSION", exports::SCHEMA_VERSION)?;
     Ok(())

@@ -20,6 +20,7 @@ CMS_HOST = os.environ["CMS_HOST"]
 COUNT = int(os.environ.get("CMS_FLEET_COUNT", "100"))
 BLOCK_M = 1.0
 BANDS = ("10_30", "30_100", "100_300", "300_1000")
+TREND_QUERY = "the blocks that will cross their EN 13231-3 limit soonest (trend of each site)"
 
 
 def cli(*args):
@@ -152,9 +153,16 @@ def _group(t):
 
 def test_the_queries_run_and_agree_with_the_dataset(dataset):
     res = queries.run(dataset)
-    assert len(res) == 3
+    assert len(res) == 4
+    # The fleet's sites are surveyed at other chainages each time: no trend (test_the_trend_… has one).
+    assert res.pop(TREND_QUERY) == ([], [])
     for title, (cols, rows) in res.items():
         assert rows, title
+    trends = ds.dataset(os.path.join(dataset, "trends"), format="parquet", partitioning="hive").to_table().to_pylist()
+    runs = ds.dataset(os.path.join(dataset, "runs"), format="parquet", partitioning="hive").to_table().to_pylist()
+    assert sorted((r["line"], r["track"]) for r in trends) == sorted({(r["line"], r["track"]) for r in runs})
+    assert sum(r["surveys"] for r in trends) == COUNT
+    assert all(r["error"] for r in trends), [r for r in trends if not r["error"]]
     (cols, rows) = res["reprofiling length per line (EN 13231-3 verdict of each run, summed)"]
     assert sum(r[cols.index("runs")] for r in rows) == COUNT
     con = duckdb.connect()
@@ -201,3 +209,129 @@ def test_read_survey(fleet):
     s = cms.read_survey(paths[0])
     want = synth.spec(0, 150)
     assert (s["line"], s["track"], s["date"], s["year"]) == (want["line"], want["track"], want["date"], int(want["date"][:4]))
+
+
+# One site surveyed three times a year apart, its 10–20 m corrugated at
+# 4 → 6 → 8 µm (peak to peak 8 → 12 → 16 µm, the 30–100 mm band's limit
+# 20 µm): 30 m of rail in blocks of 10 m, so the grown block is 10–20 m.
+SITE = {"line": "LN 9 Test", "track": "up main", "start_chainage": "0+000", "chainage": "up"}
+SITE_DATES = ["2024-05-02", "2025-05-02", "2026-05-02"]
+SITE_FRAMES = 1765
+SITE_BLOCK_M = 10.0
+
+
+@pytest.fixture(scope="session")
+def site(tmp_path_factory):
+    """The site's three surveys, and a second site (the other track)
+    surveyed twice at chainages 5 km apart: a trend that cannot be."""
+    d = tmp_path_factory.mktemp("site")
+    up = synth.write_site(str(d / "in" / "up"), CMS_HOST, SITE, SITE_DATES, [4.0, 6.0, 8.0], SITE_FRAMES, 120, (10.0, 20.0))
+    down = {**SITE, "track": "down main"}
+    # 400 frames, 6.8 m: over half a block, so the first survey has a figure of its block.
+    apart = synth.write_site(str(d / "in" / "down-a"), CMS_HOST, down, SITE_DATES[:1], [0.0], 400, 120, (1.0, 2.0))
+    apart += synth.write_site(
+        str(d / "in" / "down-b"), CMS_HOST, {**down, "start_chainage": "5+000"}, SITE_DATES[1:2], [0.0], 400, 120, (1.0, 2.0)
+    )
+    return d, up, apart
+
+
+def cli_trend(paths):
+    r = cli("trend", *paths, "--block-m", str(SITE_BLOCK_M), "--json")
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout)
+
+
+def trend_rows_of(v):
+    """The CLI's trend as the table's rows."""
+    rows = []
+    for b in v["blocks"]:
+        figures = [f for f in b["figures"] if f is not None]
+        c = b["crossing"]
+        rows.append(
+            {
+                "start_chainage_mm": b["start_mm"],
+                "end_chainage_mm": b["end_mm"],
+                "band_lo_mm": b["lo_mm"],
+                "band_hi_mm": b["hi_mm"],
+                "limit_mm": b["limit_mm"],
+                "surveys": len(figures),
+                "last_figure_mm": figures[-1]["figure_mm"] if figures else None,
+                "last_u_mm": figures[-1]["u_mm"] if figures else None,
+                "growth_mm_per_year": b["growth_mm_per_year"],
+                "u_growth_mm_per_year": b["u_growth_mm_per_year"],
+                "chi2_reduced": b["chi2_reduced"],
+                "crossing": c["kind"],
+                "crossing_date": c.get("date"),
+                "crossing_earliest_date": c.get("earliest"),
+                "crossing_latest_date": c.get("latest"),
+                "not_within_years": c.get("years"),
+            }
+        )
+    return rows
+
+
+def iso(rows):
+    """The rows with their dates as ISO text (the JSON's)."""
+    return [{k: v.isoformat() if hasattr(v, "isoformat") else v for k, v in r.items()} for r in rows]
+
+
+def test_cms_trend_is_the_cli_trend(site):
+    _, up, _ = site
+    v = cli_trend(up)
+    t = cms.trend(up, block_m=SITE_BLOCK_M)
+    assert t.summary == v
+    want = trend_rows_of(v)
+    assert len(want) == t.table.num_rows > 0
+    assert iso(pick(t.table.to_pylist(), want[0].keys())) == want
+    assert t.table.schema.field("crossing_date").type == pa.date32()
+    assert t.table["last_date"].to_pylist()[0].isoformat() == SITE_DATES[-1]
+    # The grown block crosses 30–100 mm's limit; its growth that of 4 µm a year of amplitude (8 µm/yr peak to peak is the ceiling).
+    [grown] = [r for r in t.table.to_pylist() if r["start_chainage_mm"] == 10_000.0 and r["band_lo_mm"] == 30.0]
+    assert grown["crossing"] == "on" and 0.002 < grown["growth_mm_per_year"] < 0.006, grown
+
+
+def test_trend_errors_are_the_cli_lines(site):
+    _, up, apart = site
+    for paths, kwargs, args in [
+        (up[:1], {}, []),
+        (apart, {}, []),
+        (up, {"dates": ["2024-13-01"]}, ["--date", "2024-13-01"]),
+        (up, {"block_m": 0.5}, ["--block-m", "0.5"]),
+    ]:
+        with pytest.raises(cms.Error) as e:
+            cms.trend(paths, **kwargs)
+        r = cli("trend", *paths, *args)
+        assert r.returncode == 2
+        assert f"error: {e.value}" == r.stderr.splitlines()[0], (kwargs, r.stderr)
+
+
+def test_the_dataset_holds_each_sites_trend(site):
+    d, up, apart = site
+    out = str(d / "dataset")
+    assert job.main([str(d / "in"), out, "--workers", "2", "--block-m", str(SITE_BLOCK_M)]) == 0
+    assert sorted(os.listdir(os.path.join(out, "trend"))) == ["line=LN%209%20Test"]
+    assert os.listdir(os.path.join(out, "trend", "line=LN%209%20Test")) == ["track=up%20main"]
+    t = ds.dataset(os.path.join(out, "trend"), format="parquet", partitioning="hive").to_table()
+    rows = sorted(t.to_pylist(), key=lambda r: (r["start_chainage_mm"], r["band_lo_mm"]))
+    v = cli_trend(up)
+    want = sorted(trend_rows_of(v), key=lambda r: (r["start_chainage_mm"], r["band_lo_mm"]))
+    assert iso(pick(rows, want[0].keys())) == want
+    assert {(r["line"], r["track"]) for r in rows} == {("LN 9 Test", "up main")}
+    trends = ds.dataset(os.path.join(out, "trends"), format="parquet", partitioning="hive").to_table().to_pylist()
+    by = {r["track"]: r for r in trends}
+    assert sorted(by) == ["down main", "up main"]
+    assert by["up main"]["error"] is None and by["up main"]["sources"] == up
+    assert by["up main"]["blocks"] == len({b["start_mm"] for b in v["blocks"]}) > 1
+    assert [x.isoformat() for x in by["up main"]["dates"]] == SITE_DATES
+    # The site that cannot be followed: its error is the command line's.
+    r = cli("trend", *apart, "--block-m", str(SITE_BLOCK_M))
+    assert r.returncode == 2 and r.stderr.strip() == f"error: {by['down main']['error']}"
+    assert by["down main"]["error"].startswith(f"{apart[1]} does not overlap {apart[0]}"), by["down main"]
+    cols, got = queries.run(out)[TREND_QUERY]
+    assert got, "no block crossing"
+    first = dict(zip(cols, got[0]))
+    nearest = [b for b in v["blocks"] if b["crossing"]["kind"] in ("on", "already_over")]
+    assert (first["line"], first["track"], first["from_m"], first["band_mm"]) == ("LN 9 Test", "up main", 10.0, "30.0-100.0")
+    assert first["crossing_date"].isoformat() == min(
+        (b for b in nearest if b["crossing"]["kind"] == "on"), key=lambda b: b["crossing"]["date"]
+    )["crossing"]["date"]

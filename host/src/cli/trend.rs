@@ -5,11 +5,11 @@ use std::path::PathBuf;
 
 use clap::Args;
 use cms_host::Error;
+use cms_host::analyze::Options;
 use cms_host::analyze::reprofiling::{self, Edition};
 use cms_host::analyze::survey::Placement;
-use cms_host::analyze::trend::{self, SurveyRun};
-use cms_host::analyze::{Options, runs};
-use cms_host::recording::survey_info::{Survey, SurveyDate};
+use cms_host::analyze::trend;
+use cms_host::recording::survey_info::SurveyDate;
 
 use super::analyze::EditionArg;
 use super::progress::Bar;
@@ -77,15 +77,6 @@ fn horizon(s: &str) -> Result<f64, String> {
 
 /// Runs `cms-host trend`.
 pub fn run(args: &TrendArgs) -> anyhow::Result<()> {
-    let n = args.inputs.len();
-    for (flag, given) in [("--chainage", args.chainage.len()), ("--date", args.date.len())] {
-        if given > n {
-            return Err(Error::Input(format!(
-                "{given} {flag} for {n} recording(s): give at most one per recording, in order"
-            ))
-            .into());
-        }
-    }
     if let Some(dir) = &args.report {
         if let Some(input) = args.inputs.iter().find(|i| cms_host::output::folder_holds(dir, i)) {
             return Err(Error::Input(format!(
@@ -108,23 +99,8 @@ pub fn run(args: &TrendArgs) -> anyhow::Result<()> {
         },
         ..Options::default()
     };
-    let mut surveys = Vec::new();
-    for (i, path) in args.inputs.iter().enumerate() {
-        let name = path.display().to_string();
-        // The date first: a survey without one is refused before its work.
-        let date = match args.date.get(i) {
-            Some(d) => *d,
-            None => survey_date(path)?,
-        };
-        let req = runs::Request {
-            inputs: vec![path.clone()],
-            placements: args.chainage.get(i).copied().into_iter().collect(),
-            search_mm: 25_000.0,
-            ..runs::Request::default()
-        };
-        let (_, analysis) = runs::run(&req, &opts, &Bar::stderr())?;
-        surveys.push(SurveyRun { name, date, analysis });
-    }
+    let surveys =
+        cms_host::report::trend::survey_runs(&args.inputs, &args.chainage, &args.date, &opts, &Bar::stderr())?;
     let topts = trend::Options {
         search_mm: args.search_m * 1000.0,
         horizon_years: args.horizon_years,
@@ -145,17 +121,4 @@ pub fn run(args: &TrendArgs) -> anyhow::Result<()> {
     }
     out.flush().map_err(Error::Output)?;
     Ok(())
-}
-
-/// A recording's survey date, from its survey block.
-fn survey_date(path: &std::path::Path) -> Result<SurveyDate, Error> {
-    let name = path.display();
-    let text = cms_host::recording::survey_of(path).map_err(Error::from)?;
-    let survey = match text {
-        Some(t) => Survey::parse(&t).map_err(|e| Error::Input(format!("{name}: survey block: {e}")))?,
-        None => Survey::default(),
-    };
-    survey.date().map_err(|e| Error::Input(format!("{name}: survey block: {e}")))?.ok_or_else(|| {
-        Error::Input(format!("{name}: the survey has no date: give --date YYYY-MM-DD for it (in order)"))
-    })
 }

@@ -13,8 +13,10 @@ use plotters::prelude::*;
 
 use crate::Error;
 use crate::analyze::chainage;
-use crate::analyze::trend::{BlockTrend, Crossing, Trend};
+use crate::analyze::trend::{BlockTrend, Crossing, SurveyRun, Trend};
 use crate::plot::{self, Figure, err};
+use crate::recording::survey_info::SurveyDate;
+use crate::report::exports::{Column, Table, Values};
 
 /// Whether a file of this name is one the trend report writes.
 pub fn owns(name: &str) -> bool {
@@ -251,4 +253,146 @@ pub fn write(dir: &Path, t: &Trend) -> Result<(), Error> {
         let svg = plot::svg_and_png(&d.join("trend"), (1400, 1000), &GrowthFig(t)).map_err(Error::from)?;
         put("trend.html", &html(t, &svg))
     })
+}
+
+/// The surveys of `cms-host trend INPUTS…`: each recording analysed as
+/// `cms-host analyze` analyses one (placed by `chainage[i]` or its survey
+/// block), dated by `dates[i]` or its survey block's `date`. Shared by the
+/// command and the Python package, so both follow the same surveys.
+pub fn survey_runs(
+    inputs: &[std::path::PathBuf],
+    chainage: &[crate::analyze::survey::Placement],
+    dates: &[SurveyDate],
+    opts: &crate::analyze::Options,
+    progress: &dyn crate::progress::Progress,
+) -> Result<Vec<SurveyRun>, Error> {
+    let n = inputs.len();
+    for (flag, given) in [("--chainage", chainage.len()), ("--date", dates.len())] {
+        if given > n {
+            return Err(Error::Input(format!(
+                "{given} {flag} for {n} recording(s): give at most one per recording, in order"
+            )));
+        }
+    }
+    let mut surveys = Vec::new();
+    for (i, path) in inputs.iter().enumerate() {
+        let name = path.display().to_string();
+        // The date first: a survey without one is refused before its work.
+        let date = match dates.get(i) {
+            Some(d) => *d,
+            None => survey_date(path)?,
+        };
+        let req = crate::analyze::runs::Request {
+            inputs: vec![path.clone()],
+            placements: chainage.get(i).copied().into_iter().collect(),
+            search_mm: 25_000.0,
+            ..crate::analyze::runs::Request::default()
+        };
+        let (_, analysis) = crate::analyze::runs::run(&req, opts, progress)?;
+        surveys.push(SurveyRun { name, date, analysis });
+    }
+    Ok(surveys)
+}
+
+/// A recording's survey date, from its survey block.
+fn survey_date(path: &Path) -> Result<SurveyDate, Error> {
+    use crate::recording::survey_info::Survey;
+    let name = path.display();
+    let text = crate::recording::survey_of(path)?;
+    let survey = match text {
+        Some(t) => Survey::parse(&t).map_err(|e| Error::Input(format!("{name}: survey block: {e}")))?,
+        None => Survey::default(),
+    };
+    survey.date().map_err(|e| Error::Input(format!("{name}: survey block: {e}")))?.ok_or_else(|| {
+        Error::Input(format!("{name}: the survey has no date: give --date YYYY-MM-DD for it (in order)"))
+    })
+}
+
+/// 1970-01-01 as [`SurveyDate::day_number`] counts (days since 0001-01-01):
+/// Arrow's and Parquet's dates count days from the Unix epoch.
+const UNIX_EPOCH_DAY: i64 = 719_163;
+
+/// A date as days since 1970-01-01 (`None` past `i32`, years beyond 5 million).
+fn epoch_days(d: SurveyDate) -> Option<i32> {
+    i32::try_from(d.day_number() - UNIX_EPOCH_DAY).ok()
+}
+
+/// The trend as a table, one row per block and band (the rows of
+/// `trend.csv`, typed): `start_chainage_mm`, `end_chainage_mm`,
+/// `band_lo_mm`, `band_hi_mm`, `limit_mm` (null: the band is not judged),
+/// `surveys` (those with a figure of the block), `first_date`,
+/// `last_date` (the first and last of those), `last_figure_mm`,
+/// `last_u_mm`, `growth_mm_per_year`, `u_growth_mm_per_year`,
+/// `chi2_reduced`, `crossing` (`already_over`, `on`, `not_within`,
+/// `not_judged`: the JSON's `kind`), `crossing_date`,
+/// `crossing_earliest_date`, `crossing_latest_date` (null: open or not
+/// `on`), `not_within_years`. The `*_date` columns are INT32 days since
+/// 1970-01-01 (Arrow's `date32`).
+pub fn trend_table(t: &Trend) -> Table {
+    let b = &t.blocks;
+    let f = |v: Vec<Option<f64>>| Values::F64(v);
+    let d = |v: Vec<Option<SurveyDate>>| Values::I32(v.into_iter().map(|d| d.and_then(epoch_days)).collect());
+    let col = |name: &str, nullable: bool, values: Values| Column { name: name.into(), nullable, values };
+    let dated = |b: &BlockTrend| -> Vec<SurveyDate> {
+        b.figures.iter().zip(&t.surveys).filter(|(f, _)| f.is_some()).map(|(_, s)| s.1).collect()
+    };
+    let last = |b: &BlockTrend| b.figures.iter().rev().flatten().next().copied();
+    let on = |b: &BlockTrend, k: usize| match &b.crossing {
+        Crossing::On { date, earliest, latest } => [Some(*date), *earliest, *latest][k],
+        _ => None,
+    };
+    let kind = |c: &Crossing| match c {
+        Crossing::AlreadyOver => "already_over",
+        Crossing::On { .. } => "on",
+        Crossing::NotWithin(_) => "not_within",
+        Crossing::NotJudged => "not_judged",
+    };
+    Table {
+        columns: vec![
+            col("start_chainage_mm", false, f(b.iter().map(|b| Some(b.start_mm)).collect())),
+            col("end_chainage_mm", false, f(b.iter().map(|b| Some(b.end_mm)).collect())),
+            col("band_lo_mm", false, f(b.iter().map(|b| Some(b.band.lo_mm)).collect())),
+            col("band_hi_mm", false, f(b.iter().map(|b| Some(b.band.hi_mm)).collect())),
+            col("limit_mm", true, f(b.iter().map(|b| b.limit_mm).collect())),
+            col(
+                "surveys",
+                false,
+                Values::I32(b.iter().map(|b| Some(i32::try_from(dated(b).len()).unwrap_or(i32::MAX))).collect()),
+            ),
+            col("first_date", true, d(b.iter().map(|b| dated(b).first().copied()).collect())),
+            col("last_date", true, d(b.iter().map(|b| dated(b).last().copied()).collect())),
+            col("last_figure_mm", true, f(b.iter().map(|b| last(b).map(|x| x.1)).collect())),
+            col("last_u_mm", true, f(b.iter().map(|b| last(b).map(|x| x.2)).collect())),
+            col("growth_mm_per_year", true, f(b.iter().map(|b| b.growth.map(|g| g.0)).collect())),
+            col("u_growth_mm_per_year", true, f(b.iter().map(|b| b.growth.map(|g| g.1)).collect())),
+            col("chi2_reduced", true, f(b.iter().map(|b| b.chi2_reduced).collect())),
+            col("crossing", false, Values::Str(b.iter().map(|b| Some(kind(&b.crossing).to_string())).collect())),
+            col("crossing_date", true, d(b.iter().map(|b| on(b, 0)).collect())),
+            col("crossing_earliest_date", true, d(b.iter().map(|b| on(b, 1)).collect())),
+            col("crossing_latest_date", true, d(b.iter().map(|b| on(b, 2)).collect())),
+            col(
+                "not_within_years",
+                true,
+                f(b.iter()
+                    .map(|b| match b.crossing {
+                        Crossing::NotWithin(y) => Some(y),
+                        _ => None,
+                    })
+                    .collect()),
+            ),
+        ],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dates_count_days_from_the_unix_epoch() {
+        let day = |s: &str| epoch_days(s.parse().expect("a date"));
+        assert_eq!(day("1970-01-01"), Some(0));
+        assert_eq!(day("2026-05-02"), Some(20_575));
+        assert_eq!(day("1969-12-31"), Some(-1));
+    }
 }

@@ -9,6 +9,13 @@ workers need the ``cms`` package and must reach INPUT). The blocks, the
 zones and one row per recording (``runs``) go into OUTPUT as a
 hive-partitioned Parquet dataset ``TABLE/line=…/track=…/year=…/``.
 
+Then the trend of every site: the analysed recordings grouped by the
+``line`` and ``track`` of their survey blocks, and each group holding
+surveys of at least two dates followed as ``cms-host trend`` follows them
+(``cms.trend``, on a worker): one row per block and band in
+``trend/line=…/track=…/``, and one row per group in ``trends`` (its
+surveys, or why it has no trend).
+
 OUTPUT is a local folder (on a cluster: one the client writes). It is
 written whole into a sibling temporary folder and then renamed into
 place: OUTPUT holds the old dataset or the new one, never a mix. An
@@ -39,9 +46,13 @@ import cms
 #: The file that marks OUTPUT as this job's dataset (and says how it was made).
 MARKER = "_cms_fleet.json"
 #: The tables of the dataset, each a folder of OUTPUT.
-TABLES = ("blocks", "zones", "runs")
+TABLES = ("blocks", "zones", "runs", "trend", "trends")
 #: The partition keys, in order.
 PARTITIONS = ("line", "track", "year")
+#: The partition keys of the trend's tables: a site's surveys span years.
+SITE_KEYS = ("line", "track")
+#: The options of ``cms.trend`` the job passes on (the others are ``cms.trend``'s defaults).
+TREND_OPTIONS = ("edition", "block_m")
 #: The analysis options the job passes on (the keywords of ``cms.analyze``).
 OPTIONS = ("edition", "block_m", "dx_mm", "segment_mm")
 
@@ -172,6 +183,100 @@ def run(urls: list[str], client, options: dict) -> dict:
     return tables
 
 
+TRENDS_SCHEMA = pa.schema(
+    [
+        pa.field("line", pa.string(), False),
+        pa.field("track", pa.string(), False),
+        pa.field("surveys", pa.int32(), False),
+        pa.field("sources", pa.list_(pa.string()), False),
+        pa.field("dates", pa.list_(pa.date32()), False),
+        pa.field("error", pa.string()),
+        pa.field("blocks", pa.int64()),
+        pa.field("seconds", pa.float64()),
+    ]
+)
+
+
+def sites(runs: pa.Table) -> list[tuple[str, str, list[str], list[str]]]:
+    """The analysed recordings grouped by the ``line`` and ``track`` of
+    their survey blocks: (line, track, sources, dates), the sources in
+    date order (then by name). A recording without a line, track or date
+    belongs to no site."""
+    groups: dict = {}
+    for r in runs.to_pylist():
+        if r["error"] is None and r["line"] is not None and r["track"] is not None and r["date"] is not None:
+            groups.setdefault((r["line"], r["track"]), []).append((r["date"], r["source"]))
+    out = []
+    for (line, track), surveys in sorted(groups.items()):
+        surveys.sort()
+        out.append((line, track, [s for _, s in surveys], [d for d, _ in surveys]))
+    return out
+
+
+def trend_one(line: str, track: str, urls: list[str], dates: list[str], options: dict) -> dict:
+    """One site's trend: its rows (Arrow IPC bytes) and its ``trends`` row,
+    or the row with the error (the line ``cms-host trend`` prints, or why
+    the site has no trend)."""
+    import datetime
+
+    t0 = time.perf_counter()
+    row = {
+        "line": line,
+        "track": track,
+        "surveys": len(urls),
+        "sources": urls,
+        "dates": [datetime.date.fromisoformat(d) for d in dates],
+        "error": None,
+        "blocks": None,
+    }
+    out = {}
+    copies = {}
+    try:
+        if len(set(dates)) < 2:
+            raise cms.Error(f"{len(urls)} survey(s) all of {dates[0]}: a trend needs surveys of at least two dates")
+        with tempfile.TemporaryDirectory(prefix="cms-fleet-") as tmp:
+            paths = [u if "://" not in u else _local_copy_as(u, tmp, i) for i, u in enumerate(urls)]
+            copies = {p: u for p, u in zip(paths, urls) if p != u}
+            # The survey blocks' dates, as grouped here: the trend follows the same surveys.
+            tr = cms.trend(paths, dates=dates, **options)
+        t = tr.table
+        n = t.num_rows
+        for k in SITE_KEYS:
+            t = t.append_column(pa.field(k, pa.string(), False), pa.array([row[k]] * n, pa.string()))
+        out["trend"] = t
+        row["blocks"] = len({(s, e) for s, e in zip(t["start_chainage_mm"].to_pylist(), t["end_chainage_mm"].to_pylist())})
+    except cms.Error as e:
+        # A copy's path in the message named as the job names the recording: its URL.
+        msg = str(e)
+        for p, u in copies.items():
+            msg = msg.replace(p, u)
+        row["error"] = msg
+    row["seconds"] = time.perf_counter() - t0
+    out["trends"] = pa.Table.from_pylist([row], schema=TRENDS_SCHEMA)
+    return {k: _ipc(t) for k, t in out.items()}
+
+
+def _local_copy_as(url: str, tmp: str, i: int) -> str:
+    """A URL's recording copied to its own folder of ``tmp`` (two surveys
+    of a site may share a file name)."""
+    d = os.path.join(tmp, str(i))
+    os.makedirs(d)
+    return _local_copy(url, d)
+
+
+def run_trends(runs: pa.Table, client, options: dict) -> dict:
+    """The trend of every site of ``runs`` on the Dask ``client``: the
+    ``trend`` and ``trends`` tables (``None``: no site)."""
+    topts = {k: options[k] for k in TREND_OPTIONS}
+    futures = [client.submit(trend_one, line, track, urls, dates, topts, pure=False) for line, track, urls, dates in sites(runs)]
+    results = client.gather(futures)
+    tables = {}
+    for name in ("trend", "trends"):
+        parts = [_table(r[name]) for r in results if name in r]
+        tables[name] = pa.concat_tables(parts, promote_options="default") if parts else None
+    return tables
+
+
 def _is_dataset(path: str) -> bool:
     return os.path.isfile(os.path.join(path, MARKER))
 
@@ -186,11 +291,10 @@ def write(output: str, tables: dict, about: dict) -> None:
     os.makedirs(parent, exist_ok=True)
     tmp = tempfile.mkdtemp(prefix=".cms-fleet-", dir=parent)
     try:
-        part = ds.partitioning(
-            pa.schema([pa.field("line", pa.string()), pa.field("track", pa.string()), pa.field("year", pa.int32())]),
-            flavor="hive",
-        )
+        keys = {"line": pa.string(), "track": pa.string(), "year": pa.int32()}
         for name in TABLES:
+            by = SITE_KEYS if name in ("trend", "trends") else PARTITIONS
+            part = ds.partitioning(pa.schema([pa.field(k, keys[k]) for k in by]), flavor="hive")
             t = tables.get(name)
             if t is None or t.num_rows == 0:
                 os.makedirs(os.path.join(tmp, name))
@@ -267,8 +371,12 @@ def main(argv: Optional[list[str]] = None) -> int:
             t1 = time.perf_counter()
             tables = run(urls, client, options)
             t2 = time.perf_counter()
+            tables.update(run_trends(tables["runs"], client, options))
+            t3 = time.perf_counter()
         runs = tables["runs"]
         failed = [(s, e) for s, e in zip(runs["source"].to_pylist(), runs["error"].to_pylist()) if e]
+        trends = tables["trends"]
+        untrended = [] if trends is None else [r for r in trends.to_pylist() if r["error"]]
         about = {
             "schema": cms.SCHEMA_VERSION,
             "input": a.input,
@@ -277,6 +385,9 @@ def main(argv: Optional[list[str]] = None) -> int:
             "options": options,
             "workers": workers,
             "analysis_s": round(t2 - t1, 3),
+            "sites": 0 if trends is None else trends.num_rows,
+            "trends_failed": len(untrended),
+            "trend_s": round(t3 - t2, 3),
         }
         write(a.output, tables, about)
     except cms.Error as e:
@@ -284,9 +395,13 @@ def main(argv: Optional[list[str]] = None) -> int:
         return 2
     for s, e in failed:
         print(f"error: {e}", file=sys.stderr)
+    # A site without a trend is data, not a failure of the job: named, and in `trends`.
+    for r in untrended:
+        print(f"note: no trend for {r['line']} / {r['track']}: {r['error']}", file=sys.stderr)
     print(
         f"{a.output}: {len(urls)} recordings ({len(failed)} failed) on {workers} workers in {t2 - t1:.2f} s "
-        f"({len(urls) / (t2 - t1):.1f} recordings/s; cluster start {t1 - t0:.1f} s)"
+        f"({len(urls) / (t2 - t1):.1f} recordings/s; cluster start {t1 - t0:.1f} s); "
+        f"{about['sites']} sites, {about['sites'] - len(untrended)} with a trend, in {t3 - t2:.2f} s"
     )
     return 1 if failed else 0
 

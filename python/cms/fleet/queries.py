@@ -1,12 +1,14 @@
 """``python -m cms.fleet.queries DATASET``: example DuckDB queries over a
 dataset of ``cms.fleet.job`` — the blocks over the limit across the
-network, the worst sites, and the reprofiling length per line. Each is a
+network, the worst sites, the reprofiling length per line, and the blocks
+that will cross their limit soonest. Each is a
 plain SQL text (``QUERIES``) over ``read_parquet(…, hive_partitioning = true)``:
 copy it into any DuckDB."""
 
 from __future__ import annotations
 
 import os
+import re
 import sys
 
 import duckdb
@@ -39,16 +41,40 @@ QUERIES = {
         FROM read_parquet('{d}/runs/**/*.parquet', hive_partitioning = true)
         WHERE error IS NULL
         GROUP BY ALL ORDER BY reprofile_m DESC, line, track""",
+    "the blocks that will cross their EN 13231-3 limit soonest (trend of each site)": """
+        SELECT line, track, round(start_chainage_mm / 1000, 1) AS from_m, round(end_chainage_mm / 1000, 1) AS to_m,
+               band_lo_mm || '-' || band_hi_mm AS band_mm,
+               round(1000 * limit_mm, 1) AS limit_um,
+               round(1000 * last_figure_mm, 1) AS last_um, last_date,
+               round(1000 * growth_mm_per_year, 2) AS growth_um_per_year,
+               round(1000 * u_growth_mm_per_year, 2) AS u_growth_um_per_year,
+               crossing, crossing_date, crossing_earliest_date, crossing_latest_date
+        FROM read_parquet('{d}/trend/**/*.parquet', hive_partitioning = true)
+        WHERE crossing IN ('already_over', 'on')
+        ORDER BY crossing <> 'already_over', crossing_date, line, track, start_chainage_mm
+        LIMIT 10""",
 }
 
 
+def _has_files(dataset: str, sql: str) -> bool:
+    """Whether the table the query reads holds a Parquet file: a table the
+    job wrote no row of (no site surveyed at two dates has no ``trend``)
+    is an empty folder, which DuckDB's ``read_parquet`` refuses."""
+    table = re.search(r"\{d\}/(\w+)/", sql).group(1)
+    return any(f.endswith(".parquet") for _, _, files in os.walk(os.path.join(dataset, table)) for f in files)
+
+
 def run(dataset: str) -> dict:
-    """Each query's result as (column names, rows)."""
+    """Each query's result as (column names, rows); ``([], [])`` when the
+    table it reads holds no row."""
     if not os.path.isfile(os.path.join(dataset, "_cms_fleet.json")):
         raise cms.Error(f"{dataset}: not a dataset of cms.fleet.job (no _cms_fleet.json)")
     con = duckdb.connect()
     out = {}
     for title, sql in QUERIES.items():
+        if not _has_files(dataset, sql):
+            out[title] = ([], [])
+            continue
         cur = con.execute(sql.format(d=dataset.replace("'", "''")))
         out[title] = ([c[0] for c in cur.description], cur.fetchall())
     return out
@@ -66,6 +92,9 @@ def main(argv=None) -> int:
         return 2
     for title, (cols, rows) in results.items():
         print(f"## {title}\n")
+        if not cols:
+            print("(no rows: the dataset holds none of this table)\n")
+            continue
         print("| " + " | ".join(cols) + " |")
         print("|" + "---|" * len(cols))
         for r in rows:

@@ -59,6 +59,42 @@ def write_one(cms_host: str, out: str, k: int, frames: int, points: int) -> str:
     return name
 
 
+def write_site(
+    out: str,
+    cms_host: str,
+    survey: dict,
+    dates: list[str],
+    amplitudes_um: list[float],
+    frames: int,
+    points: int,
+    zone_m: tuple[float, float],
+    wavelength_mm: float = 50.0,
+) -> list[str]:
+    """One site surveyed on each of ``dates``: the same rail (``survey``'s
+    line, track, start chainage), its zone corrugated at ``amplitudes_um``
+    in turn, a new noise seed each survey (as docs/trend.md's surveys).
+    The recordings' paths, in date order."""
+    os.makedirs(out, exist_ok=True)
+    paths = []
+    for i, (date, amp) in enumerate(zip(dates, amplitudes_um)):
+        name = os.path.join(out, f"site-{i}.cmsrec")
+        toml = os.path.join(out, f".site-{i}.survey.toml")
+        with open(toml, "w") as f:
+            for key, value in {**survey, "date": date}.items():
+                f.write(f'{key} = "{value}"\n')
+        cmd = [
+            cms_host, "bench", "recording", "--frames", str(frames), "--points", str(points), "--seed", str(10 + i),
+            "--survey", toml, "--zone-m", f"{zone_m[0]}:{zone_m[1]}", "--wavelength-mm", str(wavelength_mm),
+            "--amplitude-um", str(amp), "--out", name,
+        ]
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        os.unlink(toml)
+        if r.returncode != 0:
+            raise RuntimeError(f"{' '.join(cmd)}: {r.stderr.strip()}")
+        paths.append(name)
+    return paths
+
+
 def write_fleet(out: str, count: int, frames: int, points: int, cms_host: str, jobs: int = 2) -> list[str]:
     """Writes the fleet into ``out``; the recordings' paths."""
     os.makedirs(out, exist_ok=True)
