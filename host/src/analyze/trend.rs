@@ -97,6 +97,11 @@ pub enum TrendError {
     /// The first survey has no blocks (nothing measured).
     #[error("{0} has no blocks: nothing measured to follow")]
     NoBlocks(String),
+    /// The first survey has blocks but no figure in any (each under half measured).
+    #[error(
+        "{0} has no block with a figure ({1} m blocks need at least half of their length measured): use shorter blocks (--block-m) or a longer survey"
+    )]
+    NoFigures(String, f64),
     /// A survey's lines could not be read back (their temporary storage).
     #[error("{0}: {1}")]
     Scratch(String, String),
@@ -254,6 +259,9 @@ pub fn trend(surveys: &[SurveyRun], opts: &Options) -> Result<Trend, TrendError>
         let hi = a.lasers.iter().map(|l| l.stitched.x_mm(l.stitched.z.len())).fold(f64::NEG_INFINITY, f64::max);
         format!("{} to {}", crate::analyze::chainage(lo), crate::analyze::chainage(hi))
     };
+    if covered.first() == Some(&false) {
+        return Err(TrendError::NoFigures(first.name.clone(), verdict.options.block_mm / 1000.0));
+    }
     if let Some(i) = covered.iter().position(|c| !c) {
         return Err(TrendError::NoOverlap(
             order[i].name.clone(),
