@@ -121,7 +121,7 @@ fn read(path: &Path) -> (Vec<Mark>, Vec<(u32, u64, i64)>) {
 /// The odometer of the frame the head had last taken when the mark was
 /// made (by the mark's time on the head's clock: the frame before it and
 /// the host time since), and the travel of one frame there (µm). The mark
-/// is at that frame, or at the one before when that frame was still on
+/// is at that frame, or at one before it when that frame was still on
 /// its way over the link.
 fn odometer_at(m: &Mark, frames: &[(u32, u64, i64)]) -> (i64, i64) {
     let t = m.head_us + m.after_us;
@@ -194,7 +194,9 @@ fn marks_typed_on_the_terminal_appear_in_the_report_at_their_chainage() {
         let chainage_mm: f64 = row[0].parse().unwrap();
         let (at, travel) = odometer_at(m, &frames);
         let head_mm = 41_100_000.0 - at as f64 / 1000.0;
-        assert!((chainage_mm - head_mm).abs() <= travel as f64 / 1000.0, "{row:?}: the head at {head_mm} mm");
+        // The frame last received may trail the head's last by what the
+        // link still holds: on a loaded machine a frame and a little more.
+        assert!((chainage_mm - head_mm).abs() <= 2.0 * travel as f64 / 1000.0, "{row:?}: the head at {head_mm} mm");
         assert!((chainage_mm - (41_100_000.0 - m.odometer_mm())).abs() < 1e-3, "{row:?}");
         assert!(out.contains(&format!("  {} {}", row[1], m.kind)), "{out}");
     }
