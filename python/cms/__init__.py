@@ -37,13 +37,14 @@ class Analysis:
     """One ``analyze`` call's result.
 
     ``profile``, ``blocks``, ``zones``: the ``pyarrow.Table`` of each export
-    (docs/exports.md, the schema ``SCHEMA_VERSION``); ``summary``: the
+    (docs/exports.md, the schema ``SCHEMA_VERSION``; ``profile`` ``None``
+    when ``analyze`` was asked to leave it out); ``summary``: the
     ``--json`` object. ``tables`` holds the three by name.
     """
 
     __slots__ = ("profile", "blocks", "zones", "summary")
 
-    def __init__(self, profile: pa.Table, blocks: pa.Table, zones: pa.Table, summary: dict):
+    def __init__(self, profile: Optional[pa.Table], blocks: pa.Table, zones: pa.Table, summary: dict):
         self.profile = profile
         self.blocks = blocks
         self.zones = zones
@@ -54,7 +55,7 @@ class Analysis:
         return {"profile": self.profile, "blocks": self.blocks, "zones": self.zones}
 
     def __repr__(self) -> str:
-        rows = ", ".join(f"{k} {t.num_rows} rows" for k, t in self.tables.items())
+        rows = ", ".join(f"{k} {t.num_rows} rows" for k, t in self.tables.items() if t is not None)
         return f"<cms.Analysis {rows}>"
 
 
@@ -98,12 +99,15 @@ def analyze(
     calibration: Optional[PathLike] = None,
     allow_repeated_runs: bool = False,
     allow_mixed_heads: bool = False,
+    profile: bool = True,
 ) -> Analysis:
     """``cms-host analyze PATHS…`` with the same options (``--chainage``,
     ``--edition 2006|2012``, ``--block-m``, ``--search-m``, ``--dx-mm``,
     ``--direction auto|forward|reverse``, ``--register offset-tilt|offset|none``,
     ``--segment-mm``, ``--no-spike-removal``, ``--no-curvature``,
     ``--calibration``, ``--allow-repeated-runs``, ``--allow-mixed-heads``).
+    ``profile=False`` leaves the profile out (``None``): one row per sample
+    of track, which a job over many long recordings has no use for.
 
     Raises ``cms.Error`` with the message ``cms-host analyze`` prints after
     ``error:``. The GIL is released while the recordings are analysed.
@@ -127,8 +131,9 @@ def analyze(
         calibration=None if calibration is None else os.fspath(calibration),
         allow_repeated_runs=bool(allow_repeated_runs),
         allow_mixed_heads=bool(allow_mixed_heads),
+        profile=bool(profile),
     )
-    return Analysis(_table(profile), _table(blocks), _table(zones), json.loads(summary))
+    return Analysis(None if profile is None else _table(profile), _table(blocks), _table(zones), json.loads(summary))
 
 
 class Trend:

@@ -229,8 +229,9 @@ fn registration(s: Option<&str>) -> PyResult<Registration> {
     }
 }
 
-/// The three tables (profile, blocks, zones) as lists of columns, and the report's JSON text.
-type Analysed<'py> = (Bound<'py, PyList>, Bound<'py, PyList>, Bound<'py, PyList>, String);
+/// The three tables (profile, blocks, zones) as lists of columns (the
+/// profile `None` when not asked for), and the report's JSON text.
+type Analysed<'py> = (Option<Bound<'py, PyList>>, Bound<'py, PyList>, Bound<'py, PyList>, String);
 
 /// `cms-host analyze PATHS… --json --parquet`: the tables (profile,
 /// blocks, zones) as lists of columns and the report's JSON text.
@@ -238,7 +239,7 @@ type Analysed<'py> = (Bound<'py, PyList>, Bound<'py, PyList>, Bound<'py, PyList>
 #[pyo3(signature = (
     paths, chainage=None, edition="2006", block_m=50.0, search_m=25.0, dx_mm=None, direction=None,
     register=None, segment_mm=1000.0, spike_removal=true, curvature=true, calibration=None,
-    allow_repeated_runs=false, allow_mixed_heads=false
+    allow_repeated_runs=false, allow_mixed_heads=false, profile=true
 ))]
 #[allow(clippy::too_many_arguments)]
 fn analyze<'py>(
@@ -257,6 +258,7 @@ fn analyze<'py>(
     calibration: Option<PathBuf>,
     allow_repeated_runs: bool,
     allow_mixed_heads: bool,
+    profile: bool,
 ) -> PyResult<Analysed<'py>> {
     if paths.is_empty() {
         return Err(Error::new_err("the following required arguments were not provided: <RECORDING|PROFILE.csv>..."));
@@ -292,9 +294,13 @@ fn analyze<'py>(
     let opts = settings.options();
     let (source, a) = py.detach(|| runs::run(&req, &opts, &cms_host::progress::Silent)).map_err(py_err)?;
     let summary = cms_host::report::json::to_json(&source, &a).to_string();
-    let profile = py.detach(|| exports::profile_table(&source, &a)).map_err(py_err)?;
+    // One row per sample: only when asked (a fleet's job has no use for it).
+    let profile = match profile {
+        true => Some(table(py, &py.detach(|| exports::profile_table(&source, &a)).map_err(py_err)?)?),
+        false => None,
+    };
     Ok((
-        table(py, &profile)?,
+        profile,
         table(py, &exports::blocks_table(&source, &a))?,
         table(py, &exports::zones_table(&source, &a))?,
         summary,

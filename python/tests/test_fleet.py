@@ -114,6 +114,10 @@ def test_the_tables_equal_the_cli_parquet_exports(fleet, tmp_path):
         assert t.column_names == f.column_names, name
         # The profile's source is a dictionary here (one string, not one per sample).
         assert t.cast(f.schema).equals(f.cast(f.schema)), name
+    # Without the profile (as the fleet job asks): the same figures, no profile.
+    b = cms.analyze(p, block_m=BLOCK_M, profile=False)
+    assert b.profile is None and b.blocks.equals(a.blocks) and b.zones.equals(a.zones)
+    assert b.summary == a.summary
 
 
 def test_the_dataset_holds_every_recording_with_the_cli_figures(fleet, dataset):

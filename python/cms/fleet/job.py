@@ -113,7 +113,7 @@ def analyse_one(url: str, options: dict) -> dict:
             path = url if "://" not in url else _local_copy(url, tmp)
             survey = cms.read_survey(path) or {}
             keys = {k: survey.get(k) for k in PARTITIONS}
-            a = cms.analyze(path, **options)
+            a = cms.analyze(path, profile=False, **options)
         v = a.summary["verdict"]
         limits = {(b["lo_mm"], b["hi_mm"]): b["limit_mm"] for b in v["bands"]}
         zones = a.zones.append_column(
