@@ -392,7 +392,7 @@ fn fixes_written(frames: u32, rate_hz: u32) -> u64 {
 
 /// `bench recording --gnss`: the receiver on `register` from the survey's
 /// start chainage, the whole run on the register; UTC from 08:00 of the
-/// survey's date (2026-01-01 without one).
+/// survey's date (the first of January 2026 without one).
 fn synthetic_gnss(
     register: &std::path::Path,
     survey: Option<&cms_host::recording::survey_info::Survey>,
