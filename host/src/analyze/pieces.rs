@@ -64,6 +64,7 @@ pub struct PieceLine {
     pub bands: Vec<Option<BandTrace>>,
     ext_z_um: Vec<f64>,
     ext_start: usize,
+    /// The line's continuous runs (grid indices), all of them.
     runs: Vec<Range<usize>>,
     dx_mm: f64,
 }
@@ -72,6 +73,32 @@ impl PieceLine {
     /// The stretch read for the piece: its core and margins.
     pub fn stretch(&self, core: Range<usize>) -> Stretch<'_> {
         Stretch { z_um: &self.ext_z_um, start: self.ext_start, core, runs: &self.runs, dx_mm: self.dx_mm }
+    }
+
+    /// The line's runs cut to the grid indices `within`.
+    pub fn runs_within(&self, within: &Range<usize>) -> Vec<Range<usize>> {
+        self.runs.iter().map(|r| r.start.max(within.start)..r.end.min(within.end)).filter(|r| !r.is_empty()).collect()
+    }
+
+    /// The stretch read, with every sample outside the grid indices
+    /// `within` a gap (a block seen on its own: its edges are run ends).
+    pub fn masked(&self, within: &Range<usize>) -> Vec<f64> {
+        let mut z = self.ext_z_um.clone();
+        for (i, v) in z.iter_mut().enumerate() {
+            if !within.contains(&(self.ext_start + i)) {
+                *v = f64::NAN;
+            }
+        }
+        z
+    }
+
+    pub fn dx_mm(&self) -> f64 {
+        self.dx_mm
+    }
+
+    /// Grid index of the stretch's first sample.
+    pub fn ext_start(&self) -> usize {
+        self.ext_start
     }
 }
 
@@ -93,15 +120,15 @@ pub fn runs(s: &Stitched) -> Vec<Range<usize>> {
     out
 }
 
-/// The pieces' cores of a section on `grid`: whole blocks of
-/// `opts.verdict.block_mm` from chainage multiples of it, at least
-/// [`CORE_MM`] each.
+/// The pieces' cores of a section on `grid`, from chainage multiples of
+/// the block `opts.verdict.block_mm`: whole blocks, at least [`CORE_MM`]
+/// each; a block longer than that is cut into equal pieces of at most
+/// [`CORE_MM`], so that block edges are always piece edges.
 pub fn cores(grid: &Grid, opts: &Options) -> Vec<Range<usize>> {
     let block = opts.verdict.block_mm;
     let first = (grid.origin_mm / block).floor() * block;
-    let per = (CORE_MM / block).ceil().max(1.0);
-    let at =
-        |k: f64| (((first + k * per * block - grid.origin_mm) / grid.dx_mm).ceil().max(0.0) as usize).min(grid.len);
+    let unit = if block <= CORE_MM { block * (CORE_MM / block).ceil() } else { block / (block / CORE_MM).ceil() };
+    let at = |k: f64| (((first + k * unit - grid.origin_mm) / grid.dx_mm).ceil().max(0.0) as usize).min(grid.len);
     let mut out = Vec::new();
     let mut k = 0.0;
     let mut lo = 0;
@@ -148,8 +175,7 @@ pub fn walk_section(
                 let v = s.z.read(lo - off..hi - off).map_err(ScratchError)?;
                 z[lo - ext.start..lo - ext.start + v.len()].copy_from_slice(&v);
             }
-            let runs: Vec<Range<usize>> =
-                runs.iter().filter(|r| r.start < ext.end && r.end > ext.start).cloned().collect();
+            let runs = runs.clone();
             let mut line = PieceLine {
                 laser: s.laser,
                 z_um: z[core.start - ext.start..core.end - ext.start].to_vec(),
@@ -172,24 +198,45 @@ pub fn walk_section(
     Ok(())
 }
 
-/// The blocks of a piece (a piece is whole blocks of `block_mm` from
-/// chainage multiples of it): each block's samples (indices in the core)
-/// and its chainage from and to, mm.
-pub fn blocks(p: &Piece, block_mm: f64) -> Vec<(Range<usize>, (f64, f64))> {
+/// A block of the verdict met by a piece.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BlockPart {
+    /// Its samples in the piece (indices in the core).
+    pub range: Range<usize>,
+    /// Its chainage from and to, mm.
+    pub span_mm: (f64, f64),
+    /// All its samples (grid indices): a block longer than a piece is met
+    /// by several, in order.
+    pub grid: Range<usize>,
+    /// Whether the piece holds its last sample.
+    pub ends: bool,
+}
+
+/// The blocks a piece meets (blocks of `block_mm` from chainage multiples
+/// of it, whole in a piece or spanning several whole pieces: [`cores`]).
+pub fn blocks(p: &Piece, block_mm: f64) -> Vec<BlockPart> {
     let (dx, origin) = (p.grid.dx_mm, p.grid.origin_mm);
     let index = |x: f64| (((x - origin) / dx).ceil().max(0.0) as usize).min(p.grid.len);
-    let piece_start = origin + p.core.start as f64 * dx;
-    let mut start = (piece_start / block_mm).floor() * block_mm;
-    // The first block of a later piece starts where the piece does.
-    if p.core.start > 0 && index(start) < p.core.start {
+    // The block holding the piece's first sample (its chainage divided
+    // by the block length may round either way).
+    let mut start = ((origin + p.core.start as f64 * dx) / block_mm).floor() * block_mm;
+    if index(start + block_mm) <= p.core.start {
         start += block_mm;
+    }
+    if index(start) > p.core.start {
+        start -= block_mm;
     }
     let mut out = Vec::new();
     while index(start) < p.core.end {
         let end = start + block_mm;
         let (lo, hi) = (index(start).max(p.core.start), index(end).min(p.core.end));
         if hi > lo {
-            out.push((lo - p.core.start..hi - p.core.start, (start, end)));
+            out.push(BlockPart {
+                range: lo - p.core.start..hi - p.core.start,
+                span_mm: (start, end),
+                grid: index(start)..index(end),
+                ends: index(end) <= p.core.end,
+            });
         }
         start = end;
     }
@@ -256,5 +303,49 @@ mod tests {
         // Blocks of 50 m from chainage multiples: 41 m to 50 m, then every 50 m.
         let b = &a.verdict.blocks;
         assert_eq!((b[0].start_mm, b[1].start_mm, b.len()), (0.0, 50_000.0, 7));
+        blocks_are_the_whole_lines(&z, &a);
+        // Blocks longer than a piece (150 m: two pieces of 75 m each) sum over their pieces.
+        let mut opts = Options::default();
+        opts.verdict.block_mm = 150_000.0;
+        let line = profile::stitched(1, 41_000.0, 1.0, z.clone());
+        let stitching = Stitching {
+            direction: Direction::Forward,
+            direction_residuals_um: None,
+            direction_given: true,
+            lasers: vec![line],
+        };
+        let a = judge(stitching, Vec::new(), &opts, &crate::progress::Silent).unwrap();
+        assert_eq!(cores(&Grid::of(&a.lasers, 1.0), &opts).len(), 5);
+        assert_eq!(a.verdict.blocks.iter().map(|b| b.start_mm).collect::<Vec<_>>(), [0.0, 150_000.0, 300_000.0]);
+        blocks_are_the_whole_lines(&z, &a);
+    }
+
+    /// Each block's RMS per band and ISO 3095 verdict as the whole line's
+    /// samples of the block give them (the line starts at 41 m, 1 mm apart).
+    fn blocks_are_the_whole_lines(z: &[f64], a: &crate::analyze::Analysis) {
+        let (_, traces) = en13231::analyze_traced(z, 1.0).unwrap();
+        for b in &a.verdict.blocks {
+            let lo = (b.start_mm - 41_000.0).max(0.0) as usize;
+            let hi = ((b.end_mm - 41_000.0) as usize).min(z.len());
+            for (k, t) in traces.iter().enumerate() {
+                let v: Vec<f64> =
+                    t.as_ref().unwrap().band_mm[lo..hi].iter().copied().filter(|v| v.is_finite()).collect();
+                let rms = (v.iter().map(|v| v * v).sum::<f64>() / v.len() as f64).sqrt();
+                let got = b.rms_mm[k].unwrap();
+                assert!((got - rms).abs() <= 1e-7 * rms + 1e-12, "block {} band {k}: {got} vs {rms}", b.start_mm);
+            }
+            let whole = en15610::analyze(&z[lo..hi], 1.0, &en15610::Options::default()).ok().map(|r| {
+                let mut e: Vec<f64> = r
+                    .spectrum
+                    .bands
+                    .iter()
+                    .filter(|b| b.exceeds() == Some(true))
+                    .map(|b| b.nominal_wavelength_mm)
+                    .collect();
+                e.sort_by(|a, b| b.total_cmp(a));
+                e
+            });
+            assert_eq!(b.iso3095_exceeded, whole, "block {}", b.start_mm);
+        }
     }
 }

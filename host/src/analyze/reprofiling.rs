@@ -32,6 +32,7 @@ use std::fmt::Write as _;
 
 use super::chainage;
 use super::pieces::Piece;
+use crate::analyze::standards::Stretch;
 use crate::analyze::standards::{en13231, en15610};
 
 /// Which edition's criterion judges a position.
@@ -174,7 +175,21 @@ pub struct Builder {
     /// index, exceeding positions, worst peak-to-peak) and the section grid's origin.
     open: Vec<Option<(usize, usize, usize, f64)>>,
     origin_mm: f64,
+    /// The block being summed (a block may span several pieces).
+    block: Option<OpenBlock>,
 }
+
+/// A block's figures summed over the pieces that hold it.
+struct OpenBlock {
+    span_mm: (f64, f64),
+    /// Per line (by laser): per band the band values' sum of squares and
+    /// count, and its EN 15610 spectrum of the block's own samples
+    /// (`None`: the block's runs cannot hold a segment).
+    lines: Vec<BlockLine>,
+}
+
+/// One line's sums over a block: (laser, per band (Σ v², n), spectrum).
+type BlockLine = (usize, [(f64, usize); 4], Option<en15610::Welch>);
 
 impl Builder {
     pub fn new(opts: &Options, dx_mm: f64) -> Builder {
@@ -201,6 +216,7 @@ impl Builder {
             why: vec![None; en13231::BANDS.len()],
             open: vec![None; en13231::BANDS.len()],
             origin_mm: 0.0,
+            block: None,
         }
     }
 
@@ -298,18 +314,83 @@ impl Builder {
         }
     }
 
-    /// The blocks of a piece.
+    /// The blocks a piece meets: summed in, and given out when whole.
     fn blocks(&mut self, p: &Piece) {
-        for (range, span) in crate::analyze::pieces::blocks(p, self.v.options.block_mm) {
-            if let Some(b) = block_of(p, range, span, self.dx_mm) {
-                self.v.blocks.push(b);
+        let default = en15610::Options::default();
+        for part in crate::analyze::pieces::blocks(p, self.v.options.block_mm) {
+            if self.block.as_ref().is_none_or(|b| b.span_mm != part.span_mm) {
+                self.close_block();
+                let lines = p
+                    .lines
+                    .iter()
+                    .map(|l| {
+                        let welch = en15610::Welch::new(&l.runs_within(&part.grid), l.dx_mm(), &default).ok();
+                        (l.laser, [(0.0, 0); 4], welch)
+                    })
+                    .collect();
+                self.block = Some(OpenBlock { span_mm: part.span_mm, lines });
+            }
+            let Some(open) = &mut self.block else { continue };
+            let core = p.core.start + part.range.start..p.core.start + part.range.end;
+            for l in &p.lines {
+                let Some((_, sums, welch)) = open.lines.iter_mut().find(|o| o.0 == l.laser) else { continue };
+                for (sum, t) in sums.iter_mut().zip(&l.bands) {
+                    let Some(t) = t else { continue };
+                    for v in t.band_mm[part.range.clone()].iter().filter(|v| v.is_finite()) {
+                        sum.0 += v * v;
+                        sum.1 += 1;
+                    }
+                }
+                if let Some(w) = welch {
+                    // The block on its own: its edges are its runs' ends.
+                    let z = l.masked(&part.grid);
+                    let runs = l.runs_within(&part.grid);
+                    let stretch =
+                        Stretch { z_um: &z, start: l.ext_start(), core: core.clone(), runs: &runs, dx_mm: l.dx_mm() };
+                    w.add(&stretch, &default);
+                }
+            }
+            if part.ends {
+                self.close_block();
             }
         }
+    }
+
+    /// Gives out the block being summed, if it has figures.
+    fn close_block(&mut self) {
+        let Some(open) = self.block.take() else { return };
+        let mut rms = vec![None; en13231::BANDS.len()];
+        let mut exceeded: Option<Vec<f64>> = None;
+        for (_, sums, welch) in &open.lines {
+            for (b, &(sq, n)) in sums.iter().enumerate() {
+                if n > 0 {
+                    let v = (sq / n as f64).sqrt();
+                    rms[b] = Some(rms[b].map_or(v, |w: f64| w.max(v)));
+                }
+            }
+            if let Some(w) = welch {
+                let e = exceeded.get_or_insert_with(Vec::new);
+                for b in w.spectrum().bands.iter().filter(|b| b.exceeds() == Some(true)) {
+                    if !e.contains(&b.nominal_wavelength_mm) {
+                        e.push(b.nominal_wavelength_mm);
+                    }
+                }
+            }
+        }
+        if rms.iter().all(Option::is_none) && exceeded.is_none() {
+            return;
+        }
+        if let Some(e) = &mut exceeded {
+            e.sort_by(|a, b| b.total_cmp(a));
+        }
+        let (start_mm, end_mm) = open.span_mm;
+        self.v.blocks.push(Block { start_mm, end_mm, rms_mm: rms, iso3095_exceeded: exceeded });
     }
 
     /// The verdict, every zone closed.
     pub fn finish(mut self) -> ReprofilingVerdict {
         self.close_zones();
+        self.close_block();
         self.v.zones.sort_by(|a, b| a.start_mm.total_cmp(&b.start_mm));
         for (row, why) in self.v.rows.iter_mut().zip(self.why) {
             if row.measured_mm == 0.0 {
@@ -318,43 +399,6 @@ impl Builder {
         }
         self.v
     }
-}
-
-/// One block's figures from the piece's samples `range` (indices in its core).
-fn block_of(p: &Piece, range: std::ops::Range<usize>, (start_mm, end_mm): (f64, f64), dx: f64) -> Option<Block> {
-    if range.is_empty() {
-        return None;
-    }
-    let mut rms = vec![None; en13231::BANDS.len()];
-    let mut exceeded: Option<Vec<f64>> = None;
-    for l in &p.lines {
-        for (b, t) in l.bands.iter().enumerate() {
-            let Some(t) = t else { continue };
-            let (sq, n) = t.band_mm[range.clone()]
-                .iter()
-                .filter(|v| v.is_finite())
-                .fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
-            if n > 0 {
-                let v = (sq / n as f64).sqrt();
-                rms[b] = Some(rms[b].map_or(v, |w: f64| w.max(v)));
-            }
-        }
-        if let Ok(r) = en15610::analyze(&l.z_um[range.clone()], dx, &en15610::Options::default()) {
-            let e = exceeded.get_or_insert_with(Vec::new);
-            for w in r.spectrum.bands.iter().filter(|b| b.exceeds() == Some(true)).map(|b| b.nominal_wavelength_mm) {
-                if !e.contains(&w) {
-                    e.push(w);
-                }
-            }
-        }
-    }
-    if rms.iter().all(Option::is_none) && exceeded.is_none() {
-        return None;
-    }
-    if let Some(e) = &mut exceeded {
-        e.sort_by(|a, b| b.total_cmp(a));
-    }
-    Some(Block { start_mm, end_mm, rms_mm: rms, iso3095_exceeded: exceeded })
 }
 
 fn band_name(b: &en13231::Band) -> String {

@@ -294,15 +294,32 @@ pub type BlockFigures = std::collections::HashMap<(i64, usize), (f64, f64)>;
 pub fn block_figures(a: &Analysis, edition: Edition) -> Result<BlockFigures, crate::Error> {
     let mut out = std::collections::HashMap::new();
     let block_mm = a.verdict.options.block_mm;
+    // The block being filled (a block may span several pieces): its
+    // start and, per band, the largest line's criterion per position.
+    let mut open: Option<(f64, Vec<Vec<f64>>)> = None;
+    let close = |open: &mut Option<(f64, Vec<Vec<f64>>)>, out: &mut BlockFigures| {
+        if let Some((lo, values)) = open.take() {
+            for (b, value) in values.iter().enumerate() {
+                if let Some(f) = block_figure(value, edition) {
+                    out.insert((block_key(lo), b), f);
+                }
+            }
+        }
+    };
     a.for_each_piece(|p| {
-        for (range, (lo, hi)) in crate::analyze::pieces::blocks(p, block_mm) {
-            let dx = p.grid.dx_mm;
-            let n = ((hi - lo) / dx).round().max(1.0) as usize;
-            for b in 0..en13231::BANDS.len() {
-                // Per position of the block: the largest line's criterion.
-                let mut value = vec![f64::NAN; n];
+        let dx = p.grid.dx_mm;
+        for part in crate::analyze::pieces::blocks(p, block_mm) {
+            let (lo, hi) = part.span_mm;
+            if open.as_ref().is_none_or(|o| o.0 != lo) {
+                close(&mut open, &mut out);
+                let n = ((hi - lo) / dx).round().max(1.0) as usize;
+                open = Some((lo, vec![vec![f64::NAN; n]; en13231::BANDS.len()]));
+            }
+            let Some((_, values)) = &mut open else { continue };
+            for (b, value) in values.iter_mut().enumerate() {
+                let n = value.len();
                 for t in p.lines.iter().filter_map(|l| l.bands.get(b).and_then(Option::as_ref)) {
-                    for i in range.clone() {
+                    for i in part.range.clone() {
                         let mean = t.mean_pp_mm[i];
                         let v = match edition {
                             Edition::En2006 => mean,
@@ -317,13 +334,14 @@ pub fn block_figures(a: &Analysis, edition: Edition) -> Result<BlockFigures, cra
                         *slot = if slot.is_nan() { v } else { slot.max(v) };
                     }
                 }
-                if let Some(f) = block_figure(&value, edition) {
-                    out.insert((block_key(lo), b), f);
-                }
+            }
+            if part.ends {
+                close(&mut open, &mut out);
             }
         }
         Ok(())
     })?;
+    close(&mut open, &mut out);
     Ok(out)
 }
 
