@@ -3,8 +3,9 @@
 //! windows and the verdict's blocks, never by the length of track.
 //!
 //! Each section ([`super::Section`]) is cut into *pieces*: whole blocks
-//! of the verdict (at least [`CORE_MM`] of track), so that no block
-//! spans two. A piece's lines are read with a margin on either side
+//! of the verdict (at least [`CORE_MM`] of track), or, for a block longer
+//! than that, equal parts of one block, whose figures the verdict sums
+//! over its pieces ([`BlockPart`]). A piece's lines are read with a margin on either side
 //! ([`margin_mm`]: half the longest EN 13231-3 window and 20 of the
 //! band's longest wavelengths for its filters to settle, or an EN 15610
 //! segment and the wheel's reach) and each band is filtered over the
