@@ -271,15 +271,8 @@ mod tests {
             })
             .collect();
         z[150_000..150_700].iter_mut().for_each(|v| *v = f64::NAN);
-        let line = profile::stitched(1, 41_000.0, 1.0, z.clone());
-        let stitching = Stitching {
-            direction: Direction::Forward,
-            direction_residuals_um: None,
-            direction_given: true,
-            lasers: vec![line],
-        };
         let opts = Options::default();
-        let a = judge(stitching, Vec::new(), &opts, &crate::progress::Silent).unwrap();
+        let a = judged(&z, &opts);
         assert_eq!(cores(&Grid::of(&a.lasers, 1.0), &opts).len(), 4);
         let whole = en13231::analyze(&z, 1.0).unwrap();
         let got = a.lasers[0].bands.as_ref().unwrap();
@@ -308,17 +301,22 @@ mod tests {
         // Blocks longer than a piece (150 m: two pieces of 75 m each) sum over their pieces.
         let mut opts = Options::default();
         opts.verdict.block_mm = 150_000.0;
-        let line = profile::stitched(1, 41_000.0, 1.0, z.clone());
+        let a = judged(&z, &opts);
+        assert_eq!(cores(&Grid::of(&a.lasers, 1.0), &opts).len(), 5);
+        assert_eq!(a.verdict.blocks.iter().map(|b| b.start_mm).collect::<Vec<_>>(), [0.0, 150_000.0, 300_000.0]);
+        blocks_are_the_whole_lines(&z, &a);
+    }
+
+    /// One line of heights `z` from chainage 41 m, 1 mm apart, judged.
+    fn judged(z: &[f64], opts: &Options) -> crate::analyze::Analysis {
+        let line = profile::stitched(1, 41_000.0, 1.0, z.to_vec());
         let stitching = Stitching {
             direction: Direction::Forward,
             direction_residuals_um: None,
             direction_given: true,
             lasers: vec![line],
         };
-        let a = judge(stitching, Vec::new(), &opts, &crate::progress::Silent).unwrap();
-        assert_eq!(cores(&Grid::of(&a.lasers, 1.0), &opts).len(), 5);
-        assert_eq!(a.verdict.blocks.iter().map(|b| b.start_mm).collect::<Vec<_>>(), [0.0, 150_000.0, 300_000.0]);
-        blocks_are_the_whole_lines(&z, &a);
+        judge(stitching, Vec::new(), opts, &crate::progress::Silent).unwrap()
     }
 
     /// Each block's RMS per band and ISO 3095 verdict as the whole line's
