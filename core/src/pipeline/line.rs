@@ -429,15 +429,15 @@ impl LineCheck {
         // side (−1: none, the first and last `k` points), and those
         // distances for the bound.
         let judged = if n > 2 * k { k..n - k } else { 0..0 };
-        self.off[..n].fill(-1);
-        for i in judged.clone() {
-            self.off[i] = match self.line_at((i - k, i + 1), self.row[i]) {
-                Some(line) => (i64::from(self.pos[i]) - line).unsigned_abs().min(i32::MAX as u64) as i32,
+        self.off[..judged.start.max(n.min(k))].fill(-1);
+        self.off[judged.end.max(judged.start)..n].fill(-1);
+        let mut m = 0;
+        for i in judged {
+            let d = match self.line_at((i - k, i + 1), self.row[i]) {
+                Some(line) => distance(self.pos[i], line),
                 None => -1,
             };
-        }
-        let mut m = 0;
-        for &d in &self.off[judged] {
+            self.off[i] = d;
             if d >= 0 {
                 self.res[m] = d;
                 m += 1;
@@ -463,6 +463,15 @@ impl LineCheck {
                 points[usize::from(self.good[i])].flags.insert(Flags::OFF_LINE);
             }
         }
+    }
+}
+
+/// |`at` − `line`| (Q16.16 px), at most `i32::MAX`.
+#[inline(always)]
+fn distance(at: i32, line: i64) -> i32 {
+    match i32::try_from(line) {
+        Ok(l) => at.abs_diff(l).min(i32::MAX as u32) as i32,
+        Err(_) => (i64::from(at) - line).unsigned_abs().min(i32::MAX as u64) as i32,
     }
 }
 
