@@ -251,6 +251,15 @@ pub fn bench_table(r: &BenchReport, clock_mhz: u32) -> String {
         }
         s.push('\n');
     }
+    if let Some(w) = whole_table(r) {
+        s.push_str(&w);
+    }
+    s + &misses(r)
+}
+
+/// The line naming the configurations whose rows did not all give the
+/// expected stripes (empty if there is none).
+fn misses(r: &BenchReport) -> String {
     let misses: Vec<String> = r
         .rows
         .iter()
@@ -264,13 +273,11 @@ pub fn bench_table(r: &BenchReport, clock_mhz: u32) -> String {
             format!("{} {}x{}{w}: {}/{}", b.method, b.len, b.stripes, b.found.0, b.found.1)
         })
         .collect();
-    if let Some(w) = whole_table(r) {
-        s.push_str(&w);
+    if misses.is_empty() {
+        String::new()
+    } else {
+        format!("\n# rows without exactly the expected stripes: {}\n", misses.join(", "))
     }
-    if !misses.is_empty() {
-        let _ = writeln!(s, "\n# rows without exactly the expected stripes: {}", misses.join(", "));
-    }
-    s
 }
 
 /// A row's whole cost for the methods the head runs ([`HEAD_METHODS`]):
