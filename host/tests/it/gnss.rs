@@ -73,7 +73,7 @@ fn a_run_with_gnss_is_placed_on_its_register_and_a_wrong_one_is_reported() {
     let rec = record(dir.path(), "run", "120", "41+100", "up");
 
     let info = String::from_utf8(run(&["info", s(&rec)]).stdout).unwrap();
-    assert!(info.contains("format: 5"), "{info}");
+    assert!(info.contains("format: 6"), "{info}");
     let line = info.lines().find(|l| l.starts_with("gnss: ")).unwrap_or_else(|| panic!("{info}"));
     let fixes: u64 = line["gnss: ".len()..].split(' ').next().unwrap().parse().unwrap();
     let placed: u64 = line.split("), ").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap();

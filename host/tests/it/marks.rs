@@ -173,7 +173,7 @@ fn marks_typed_on_the_terminal_appear_in_the_report_at_their_chainage() {
     }
 
     let info = String::from_utf8(run(&["info", s(&rec)]).stdout).unwrap();
-    assert!(info.contains("format: 5 ") && info.contains("marks: 3\n"), "{info}");
+    assert!(info.contains("format: 6 ") && info.contains("marks: 3\n"), "{info}");
     assert!(info.contains("mark: kilometre_post \"12.300\" at odometer "), "{info}");
     let o = run(&["export", s(&rec), "--format", "marks", "--out", "-"]);
     let csv = String::from_utf8(o.stdout).unwrap();
