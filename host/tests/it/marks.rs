@@ -262,11 +262,12 @@ fn a_mark_from_the_page_is_recorded_where_the_head_was() {
 }
 
 /// Rewrites a recording's format version to 4 (the header's checksum made
-/// again): what a build of format 4 wrote, byte for byte, since format 5
-/// only adds the marks such a file does not hold.
+/// again): what a build of format 4 wrote, byte for byte, since formats 5
+/// and 6 only add what such a file does not hold (marks, and fixes with
+/// the receiver's σ, which the simulated receiver does not send).
 fn as_format_4(path: &Path) {
     let mut b = std::fs::read(path).unwrap();
-    assert_eq!(u16::from_le_bytes([b[8], b[9]]), 5);
+    assert_eq!(u16::from_le_bytes([b[8], b[9]]), 6);
     let survey_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
     b[8] = 4;
     let end = 16 + survey_len;
