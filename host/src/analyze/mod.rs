@@ -28,6 +28,7 @@
 pub mod live;
 pub mod marks;
 pub mod pieces;
+pub mod placing;
 pub mod profile;
 pub mod reprofiling;
 pub mod runs;
@@ -309,6 +310,9 @@ pub struct Analysis {
     pub lasers: Vec<LaserAnalysis>,
     /// Zones, the reprofiling table and blocks over all the lines.
     pub verdict: reprofiling::ReprofilingVerdict,
+    /// With a track register: how each run was placed by its GNSS fixes
+    /// or its typed start ([`placing`]), one per run; empty without.
+    pub gnss_placing: Vec<placing::GnssPlacing>,
 }
 
 /// One section of the survey line: a stretch measured without a gap
@@ -479,7 +483,14 @@ pub fn judge(
         }
     }
     progress.end();
-    Ok(Analysis { options: opts.clone(), stitching, joins, lasers, verdict: verdict.finish() })
+    Ok(Analysis {
+        options: opts.clone(),
+        stitching,
+        joins,
+        lasers,
+        verdict: verdict.finish(),
+        gnss_placing: Vec::new(),
+    })
 }
 
 /// Which EN 13231-3 bands a line's plan evaluates.
