@@ -53,7 +53,7 @@ fn fraction(s: &str) -> Result<f64, String> {
     Ok(v)
 }
 
-fn speed(s: &str) -> Result<f64, String> {
+pub(crate) fn speed(s: &str) -> Result<f64, String> {
     let v = finite(s, "speed")?;
     if v.abs() > 100_000.0 {
         return Err(format!("speed must be within ±100000 mm/s, got {v}"));
@@ -215,7 +215,7 @@ impl SimPortArgs {
 
 /// Parses `--light`: comma-separated items (see [`SimulateArgs::light`]);
 /// the ranges are checked when the scene is built.
-fn parse_light(s: &str) -> Result<LightModel, String> {
+pub(crate) fn parse_light(s: &str) -> Result<LightModel, String> {
     const ITEMS: &str = "speckle[=F-NUMBER], patterns=K, focus=MM, oxidation, grease, band, glints, ghost";
     let mut light = LightModel::incoherent();
     for item in s.split(',').map(str::trim) {

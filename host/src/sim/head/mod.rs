@@ -480,6 +480,9 @@ mod scene {
         fn row(&mut self, r: u16, out: &mut [u16]) {
             self.scene.render_shot_row(&self.shot, r as usize, out);
         }
+        fn cpu(&self) -> std::time::Duration {
+            self.scene.light_threads_cpu()
+        }
     }
 }
 

@@ -23,6 +23,7 @@
 //! are rendered exactly as the clean renderer always did.
 
 pub(crate) mod coherent;
+mod ring;
 pub(crate) mod surface;
 #[cfg(test)]
 mod tests;
