@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 use crate::sim::scene::{LightModel, Scene, SimConfig};
 
 use super::BenchError;
+use super::speed::median;
 
 /// Options of the render benchmark.
 #[derive(Debug, Clone)]
@@ -24,18 +25,6 @@ pub struct RenderOptions {
 /// The process's CPU time so far, every thread.
 fn process_cpu() -> Duration {
     nix::time::clock_gettime(nix::time::ClockId::CLOCK_PROCESS_CPUTIME_ID).map(Duration::from).unwrap_or_default()
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        f64::NAN
-    } else if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        (v[n / 2 - 1] + v[n / 2]) / 2.0
-    }
 }
 
 /// What a light model is, in words.
@@ -74,7 +63,7 @@ pub fn render(o: &RenderOptions) -> Result<String, BenchError> {
         cpu.push((process_cpu() - c).as_secs_f64() * 1e3);
     }
     let (lo, hi) = wall.iter().fold((f64::INFINITY, 0.0f64), |(a, b), &x| (a.min(x), b.max(x)));
-    let (w, c) = (median(&mut wall), median(&mut cpu));
+    let (w, c) = (median(&wall), median(&cpu));
     let mut s = String::new();
     let _ = writeln!(
         s,

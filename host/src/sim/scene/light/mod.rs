@@ -143,6 +143,13 @@ impl LightModel {
         LightModel { speckle: Some(Speckle { f_number, patterns: 1 }), ..LightModel::default() }
     }
 
+    /// The push-trolley setting of docs/light.md: one laser pattern
+    /// through the lens at F/4 (with the reference camera's 100 µs
+    /// exposure): `speckle(4.0)`.
+    pub fn push_trolley() -> LightModel {
+        LightModel::speckle(4.0)
+    }
+
     /// Oxidation: dark patches 10–60 mm long, 5–30 mm wide, 5–40 % of the
     /// steel's reflectance, sharp edges, 8 per metre over the rail top.
     pub fn oxidation() -> Patches {
