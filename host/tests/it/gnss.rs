@@ -27,6 +27,7 @@ fn record(dir: &Path, name: &str, frames: &str, start: &str, heading: &str) -> P
     let o = run(&[
         "listen",
         "sim",
+        "--sim-light=incoherent",
         "--gnss",
         "sim",
         "--frames",

@@ -35,7 +35,7 @@ struct Listen {
 impl Listen {
     fn start(dir: &Path, args: &[&str]) -> Listen {
         let mut child = Command::new(bin())
-            .args(["listen", "sim"])
+            .args(["listen", "sim", "--sim-light=incoherent"])
             .args(args)
             .env("CMS_SIM_STATE", dir.join("sim-state"))
             .stdin(Stdio::piped())
@@ -280,7 +280,7 @@ fn as_format_4(path: &Path) {
 fn a_format_4_recording_still_reads_and_takes_no_marks() {
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("old.cmsrec");
-    let o = run(&["listen", "sim", "--gnss", "sim", "--frames", "60", "--record", s(&rec)]);
+    let o = run(&["listen", "sim", "--sim-light=incoherent", "--gnss", "sim", "--frames", "60", "--record", s(&rec)]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     as_format_4(&rec);
     let info = String::from_utf8(run(&["info", s(&rec)]).stdout).unwrap();

@@ -42,6 +42,7 @@ pub(super) fn sim_recording(dir: &Path, secs: &str) -> (PathBuf, String) {
     let l = run(&[
         "listen",
         "sim",
+        "--sim-light=incoherent",
         "--sim-state",
         s,
         "--sim-speed-mm-s",
@@ -442,7 +443,19 @@ fn a_survey_file_travels_with_the_recording() {
     let (r, s) = (rec.to_str().unwrap(), survey.to_str().unwrap());
     let state = dir.path().join("state");
     let st = state.to_str().unwrap();
-    let l = run(&["listen", "sim", "--sim-state", st, "--frames", "20", "--record", r, "--survey", s]);
+    let l = run(&[
+        "listen",
+        "sim",
+        "--sim-light=incoherent",
+        "--sim-state",
+        st,
+        "--frames",
+        "20",
+        "--record",
+        r,
+        "--survey",
+        s,
+    ]);
     assert!(l.status.success(), "{}", String::from_utf8_lossy(&l.stderr));
     let info = String::from_utf8(run(&["info", r]).stdout).unwrap();
     assert!(info.contains("format: 6 (wire protocol 4)\n") && info.contains("survey: line = \"LN 1234\""), "{info}");
