@@ -5,7 +5,7 @@ such as ``s3://bucket/surveys`` with its filesystem package installed — is
 analysed on its own, as ``cms-host analyze RECORDING`` would, on a Dask
 cluster: a LocalCluster of N single-threaded worker processes on this
 machine, or the scheduler at ADDRESS (the same code on a cluster; its
-workers need the ``cms`` package and must reach INPUT). The blocks, the
+workers need the ``cms`` package and must reach INPUT and OUTPUT). The blocks, the
 zones and one row per recording (``runs``) go into OUTPUT as a
 hive-partitioned Parquet dataset ``TABLE/line=…/track=…/year=…/``.
 
