@@ -84,15 +84,18 @@ def list_recordings(source: str) -> list[tuple[str, int]]:
     else:
         import fsspec
 
-        fs, root = fsspec.core.url_to_fs(source)
-        fs.invalidate_cache()
-        if not fs.isdir(root):
-            raise cms.Error(f"{source}: not a folder")
-        found = sorted(
-            (fs.unstrip_protocol(p), int(info.get("size") or 0))
-            for p, info in fs.find(root, detail=True).items()
-            if p.endswith(".cmsrec")
-        )
+        try:
+            fs, root = fsspec.core.url_to_fs(source)
+            fs.invalidate_cache()
+            if not fs.isdir(root):
+                raise cms.Error(f"{source}: not a folder")
+            found = sorted(
+                (fs.unstrip_protocol(p), int(info.get("size") or 0))
+                for p, info in fs.find(root, detail=True).items()
+                if p.endswith(".cmsrec")
+            )
+        except (ImportError, ValueError, OSError) as e:
+            raise cms.Error(f"{source}: {e}".replace("\n", " ")) from e
     if not found:
         raise cms.Error(f"{source}: no recordings (*.cmsrec)")
     return found
@@ -395,6 +398,10 @@ def _inside(a: str, b: str) -> bool:
     return a == b or a.startswith(b + os.sep)
 
 
+class ClusterError(Exception):
+    """The Dask scheduler cannot be reached: its address and why."""
+
+
 def client_for(workers: Optional[int], scheduler: Optional[str]):
     """A Dask client: of the scheduler at ``scheduler``, else of a
     LocalCluster of ``workers`` single-threaded processes."""
@@ -403,7 +410,10 @@ def client_for(workers: Optional[int], scheduler: Optional[str]):
     # The cluster's own lines (workers starting, closing) are not the job's output.
     logging.getLogger("distributed").setLevel(logging.WARNING)
     if scheduler:
-        return Client(scheduler)
+        try:
+            return Client(scheduler)
+        except OSError as e:
+            raise ClusterError(f"{scheduler}: {e}".replace("\n", " ")) from e
     cluster = LocalCluster(
         n_workers=workers or os.cpu_count() or 1,
         threads_per_worker=1,
@@ -476,7 +486,10 @@ def main(argv: Optional[list[str]] = None) -> int:
             target.discard()
         print(f"error: {e}", file=sys.stderr)
         # Bad input or output: 2; the dataset's location failing mid-way: 1.
-        return 1 if isinstance(e, store.StoreError) and not isinstance(e, store.NotADataset) else 2
+        return 1 if isinstance(e, store.StoreError) and not isinstance(e, store.Refused) else 2
+    except ClusterError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 3
     except BaseException:
         if target is not None:
             target.discard()

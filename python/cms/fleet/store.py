@@ -57,7 +57,12 @@ class StoreError(Exception):
     it and why."""
 
 
-class NotADataset(StoreError):
+class Refused(StoreError):
+    """A location that cannot be used as given: a bad output, not a
+    failure on the way."""
+
+
+class NotADataset(Refused):
     """An existing OUTPUT that is not a dataset of the job (never replaced)."""
 
 
@@ -77,7 +82,7 @@ def _fs(url: str):
     try:
         return fsspec.core.url_to_fs(url)
     except (ImportError, ValueError) as e:
-        raise StoreError(f"{url}: {e}") from e
+        raise Refused(f"{url}: {e}".replace("\n", " ")) from e
 
 
 def _join(base: str, rel: str) -> str:
