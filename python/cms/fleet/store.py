@@ -156,19 +156,22 @@ def table_files(dataset: str, name: str, manifest: Optional[dict] = None) -> lis
     m = manifest if manifest is not None else read_manifest(dataset)
     root = data_root(dataset, m)
     if is_url(root):
-        return [_join(root, rel) for rel, _ in m["files"].get(name, [])]
-    return [os.path.join(_local(root), rel) for rel, _ in m["files"].get(name, [])]
+        return [_join(root, rel) for rel, _ in m.get("files", {}).get(name, [])]
+    return [os.path.join(_local(root), rel) for rel, _ in m.get("files", {}).get(name, [])]
 
 
 def open_table(dataset: str, name: str) -> Optional[ds.Dataset]:
     """Table ``name`` of ``dataset`` read through its manifest, with its
     partition keys as columns; ``None`` when it has no rows."""
     m = read_manifest(dataset)
+    root = data_root(dataset, m)
+    part = ds.partitioning(pa.schema([pa.field(k, _KEY_TYPES[k]) for k in PARTITIONS[name]]), flavor="hive")
+    if "files" not in m and not is_url(root):
+        # A folder whose manifest predates the file lists: the folder is the dataset, whole.
+        return ds.dataset(os.path.join(_local(root), name), format="parquet", partitioning=part)
     files = table_files(dataset, name, m)
     if not files:
         return None
-    root = data_root(dataset, m)
-    part = ds.partitioning(pa.schema([pa.field(k, _KEY_TYPES[k]) for k in PARTITIONS[name]]), flavor="hive")
     if is_url(root):
         from pyarrow.fs import FSSpecHandler, PyFileSystem
 
