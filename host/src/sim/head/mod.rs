@@ -23,30 +23,12 @@ use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
 use std::thread::JoinHandle;
 
 pub use scene::SceneCamera;
-pub use server::{MAX_WIDTH, Pty, RowRenderer, ServeOptions, ServeSummary, serve};
+pub use server::{MAX_WIDTH, RowRenderer, ServeOptions, ServeSummary, serve};
 
+use crate::sim::pty::Pty;
 use crate::sim::scene::{Corrugation, SimConfig};
 
-/// Why the simulated head could not start or stopped.
-#[derive(Debug, thiserror::Error)]
-pub enum SimulateError {
-    /// A bad option (exit status 2).
-    #[error("{0}")]
-    Usage(String),
-    /// A system call on the pty or the terminal failed (exit status 1).
-    #[error("{0}: {1}")]
-    Io(&'static str, #[source] io::Error),
-}
-
-impl crate::error::Classify for SimulateError {
-    fn class(&self) -> crate::Class {
-        match self {
-            SimulateError::Usage(_) => crate::Class::Input,
-            _ => crate::Class::Other,
-        }
-    }
-}
-
+pub use crate::sim::SimulateError;
 pub use crate::sim::scene::Preset;
 
 /// One corrugation component, `WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG]`.
