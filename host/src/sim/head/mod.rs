@@ -31,6 +31,13 @@ use crate::sim::scene::{Corrugation, SimConfig};
 pub use crate::sim::SimulateError;
 pub use crate::sim::scene::Preset;
 
+/// The simulated head's travel when none is asked for, mm/s: three
+/// quarters of the fastest at which the reference head's 69 mm frames
+/// still overlap by the stitcher's 3 mm at `listen`'s 30 frames/s
+/// (`serve::speed_limit_mm_s`, 1.98 m/s), so that every join of a default
+/// run registers with ~19 mm of overlap.
+pub const DEFAULT_SPEED_MM_S: f64 = 1500.0;
+
 /// One corrugation component, `WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CorrugationSpec {
@@ -54,7 +61,7 @@ pub struct HeadOptions {
     /// The camera's highest frame rate, Hz: the host's `Start` picks the
     /// rate, and one above this is refused (out of range).
     pub rate: u16,
-    /// Travel speed along the rail, mm/s.
+    /// Travel speed along the rail, mm/s ([`DEFAULT_SPEED_MM_S`] if none).
     pub speed_mm_s: Option<f64>,
     /// A corrugation component (repeat for several).
     pub corrugation: Vec<CorrugationSpec>,
@@ -322,9 +329,7 @@ pub fn sim_config(args: &HeadOptions) -> Result<SimConfig, SimulateError> {
     }
     // Counts are codes at the chosen bit depth; the model works in electrons.
     let e_per_count = cfg.camera.gain_e_per_dn();
-    if let Some(v) = args.speed_mm_s {
-        cfg.speed_mm_s = v;
-    }
+    cfg.speed_mm_s = args.speed_mm_s.unwrap_or(DEFAULT_SPEED_MM_S);
     if !args.corrugation.is_empty() {
         cfg.rail.corrugation = args
             .corrugation
