@@ -109,7 +109,7 @@ async fn guard(State(ctx): State<Context>, req: Request, next: Next) -> Response
         r
     };
     let mut resp = match checked(&ctx.local, ctx.token.as_ref(), &req) {
-        Err(r) => refuse(r),
+        Err(r) => refuse(*r),
         Ok(_)
             if req.method() != axum::http::Method::GET
                 && req.method() != axum::http::Method::HEAD
@@ -140,14 +140,14 @@ pub(super) fn checked(
     local: &SocketAddr,
     token: Option<&Token>,
     req: &Request,
-) -> Result<Option<HeaderValue>, Response> {
+) -> Result<Option<HeaderValue>, Box<Response>> {
     let host = req.headers().get(header::HOST).and_then(|h| h.to_str().ok()).unwrap_or("");
     if local.ip().is_loopback() && !loopback_host(host, local.port()) {
         // A page of another site whose name was made to resolve here
         // (DNS rebinding) sends its own name.
-        return Err(
-            (StatusCode::MISDIRECTED_REQUEST, "this server answers to its loopback address only\n").into_response()
-        );
+        return Err(Box::new(
+            (StatusCode::MISDIRECTED_REQUEST, "this server answers to its loopback address only\n").into_response(),
+        ));
     }
     match admit(token, local.port(), req.uri(), req.headers()) {
         Admission::In => Ok(None),
@@ -158,7 +158,7 @@ pub(super) fn checked(
                 r.headers_mut()
                     .insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer realm=\"cms-host view\""));
             }
-            Err(r)
+            Err(Box::new(r))
         }
     }
 }

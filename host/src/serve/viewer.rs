@@ -494,7 +494,7 @@ async fn frame(State(ctx): State<Ctx>, req: Request) -> Response {
 /// other than GET or HEAD; and its headers on every response.
 async fn guard(State(ctx): State<Ctx>, req: Request, next: Next) -> Response {
     let mut resp = match super::http::checked(&ctx.local, ctx.token.as_ref(), &req) {
-        Err(r) => r,
+        Err(r) => *r,
         Ok(_) if req.method() != axum::http::Method::GET && req.method() != axum::http::Method::HEAD => {
             (StatusCode::METHOD_NOT_ALLOWED, "the viewer is read-only\n").into_response()
         }
