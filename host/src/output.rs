@@ -182,41 +182,105 @@ pub fn write_atomically<F>(path: &Path, write: F) -> Result<(), OutputError>
 where
     F: FnOnce(&mut (dyn Write + Send)) -> io::Result<()>,
 {
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let target = check_target(path)?;
-    let wr = |source| OutputError::Write { path: path.to_path_buf(), source };
-    let dir = match target.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-    let tmp = dir.join(format!(".{name}.{}-{n}.tmp", std::process::id()));
-    let file = OpenOptions::new().write(true).create_new(true).open(&tmp).map_err(|source| {
-        if matches!(source.kind(), io::ErrorKind::NotFound | io::ErrorKind::NotADirectory) {
-            OutputError::NoDirectory { path: path.to_path_buf(), source }
-        } else {
-            wr(source)
-        }
-    })?;
-    let result = (|| {
-        // Keep the mode of the file being replaced (an existing 0600 stays 0600).
-        if let Ok(old) = fs::metadata(&target) {
-            file.set_permissions(old.permissions())?;
-        }
-        let mut out = BufWriter::with_capacity(256 << 10, file);
-        write(&mut out)?;
-        let file = out.into_inner().map_err(io::IntoInnerError::into_error)?;
-        file.sync_all()?;
-        drop(file);
-        fs::rename(&tmp, &target)?;
-        sync_dir(&dir)
-    })();
-    if let Err(e) = result {
-        let _ = fs::remove_file(&tmp);
-        return Err(wr(e));
+    let mut f = AtomicFile::create(path)?;
+    match write(&mut f) {
+        Ok(()) => f.commit(),
+        Err(e) => Err(f.failed(e)),
     }
-    Ok(())
+}
+
+/// A file written atomically, as [`write_atomically`] writes one, for
+/// several files filled at once (one walk along a line feeding each): a
+/// temporary file beside the target, renamed over it by
+/// [`AtomicFile::commit`]; dropped before that, it is removed and the
+/// target is untouched.
+pub struct AtomicFile {
+    /// The target, as given.
+    path: PathBuf,
+    target: PathBuf,
+    dir: PathBuf,
+    tmp: PathBuf,
+    out: Option<BufWriter<File>>,
+}
+
+impl AtomicFile {
+    /// Creates the temporary file for `path` (checked as a target first:
+    /// never a device, a FIFO or a directory).
+    pub fn create(path: &Path) -> Result<AtomicFile, OutputError> {
+        static COUNTER: AtomicU64 = AtomicU64::new(0);
+        let target = check_target(path)?;
+        let dir = match target.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let name = target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+        let tmp = dir.join(format!(".{name}.{}-{n}.tmp", std::process::id()));
+        let file = OpenOptions::new().write(true).create_new(true).open(&tmp).map_err(|source| {
+            if matches!(source.kind(), io::ErrorKind::NotFound | io::ErrorKind::NotADirectory) {
+                OutputError::NoDirectory { path: path.to_path_buf(), source }
+            } else {
+                OutputError::Write { path: path.to_path_buf(), source }
+            }
+        })?;
+        let mut f = AtomicFile { path: path.to_path_buf(), target, dir, tmp, out: None };
+        // Keep the mode of the file being replaced (an existing 0600 stays 0600).
+        if let Ok(old) = fs::metadata(&f.target) {
+            file.set_permissions(old.permissions()).map_err(|e| f.failed(e))?;
+        }
+        f.out = Some(BufWriter::with_capacity(256 << 10, file));
+        Ok(f)
+    }
+
+    /// `e`, a failure while writing, as this file's error.
+    pub fn failed(&self, source: io::Error) -> OutputError {
+        OutputError::Write { path: self.path.clone(), source }
+    }
+
+    /// Flushes, syncs and renames the file over its target.
+    pub fn commit(mut self) -> Result<(), OutputError> {
+        let out = self.out.take();
+        let result = (|| {
+            let file = out.ok_or_else(|| io::Error::other("already committed"))?;
+            let file = file.into_inner().map_err(io::IntoInnerError::into_error)?;
+            file.sync_all()?;
+            drop(file);
+            fs::rename(&self.tmp, &self.target)?;
+            sync_dir(&self.dir)
+        })();
+        result.map_err(|e| {
+            let _ = fs::remove_file(&self.tmp);
+            self.failed(e)
+        })
+    }
+}
+
+impl Write for AtomicFile {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        match &mut self.out {
+            Some(o) => o.write(buf),
+            None => Err(io::Error::other("already committed")),
+        }
+    }
+
+    fn write_all(&mut self, buf: &[u8]) -> io::Result<()> {
+        match &mut self.out {
+            Some(o) => o.write_all(buf),
+            None => Err(io::Error::other("already committed")),
+        }
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        self.out.as_mut().map_or(Ok(()), Write::flush)
+    }
+}
+
+impl Drop for AtomicFile {
+    fn drop(&mut self) {
+        if self.out.take().is_some() {
+            let _ = fs::remove_file(&self.tmp);
+        }
+    }
 }
 
 /// Commits a directory's entries (the rename). File systems that cannot

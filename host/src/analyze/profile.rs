@@ -59,8 +59,12 @@ pub struct ProfileFile {
 pub fn read(path: &Path, dx_mm: Option<f64>) -> Result<(ProfileFile, Stitching), Error> {
     let name = path.display();
     let text = std::fs::read(path).map_err(|e| Error::Input(format!("cannot read {name}: {e}")))?;
-    let text = String::from_utf8(text).map_err(|_| Error::Input(format!("{name}: not a text file")))?;
-    parse(&text, dx_mm).map_err(|e| Error::Input(format!("{name}: {e}")))
+    // Neither named .cmsrec nor starting with CMSREC, so taken for a
+    // profile CSV: the error says so, as a recording's says it was one.
+    let text = String::from_utf8(text).map_err(|_| {
+        Error::Input(format!("{name}: read as a profile CSV (not a .cmsrec recording): not a text file"))
+    })?;
+    parse(&text, dx_mm).map_err(|e| Error::Input(format!("{name}: read as a profile CSV: {e}")))
 }
 
 /// Largest height a profile may hold, µm: 100 mm, beyond the range of any

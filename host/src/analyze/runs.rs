@@ -238,13 +238,12 @@ pub fn survey(path: &Path) -> Result<Option<Survey>, Error> {
     Ok(Some(survey))
 }
 
-/// Whether a file is a recording (by its magic) rather than a profile.
+/// Whether a file is read as a recording rather than a profile CSV
+/// ([`crate::recording::taken_for_recording`]: by its name or its first
+/// bytes).
 pub fn is_recording(path: &Path) -> Result<bool, Error> {
-    use std::io::Read as _;
-    let mut f = std::fs::File::open(path).map_err(|e| Error::Input(format!("cannot read {}: {e}", path.display())))?;
-    let mut magic = [0u8; 8];
-    // Shorter than a recording's magic: not a recording.
-    Ok(f.read_exact(&mut magic).is_ok() && magic == crate::recording::MAGIC)
+    crate::recording::taken_for_recording(path)
+        .map_err(|e| Error::Input(format!("cannot read {}: {e}", path.display())))
 }
 
 /// One recording read and stitched (slid across with a calibration).

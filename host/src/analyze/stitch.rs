@@ -83,8 +83,8 @@
 
 use cms_core::protocol::{LASERS, Profile};
 
-pub use super::store::gaps_in;
 use super::store::{Cells, FitLog, Samples};
+pub use super::store::{Gap, gaps_in};
 
 /// Most cells of a stitched profile (20 km at 1 mm).
 pub const MAX_CELLS: usize = 20_000_000;
@@ -218,15 +218,6 @@ pub enum StitchError {
     /// an I/O error is not `Clone`).
     #[error("cannot keep the stitched profile in a temporary file: {0}")]
     Spill(String),
-}
-
-/// A stretch of track no frame covered.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Gap {
-    /// Track position of the first missing sample, mm.
-    pub start_mm: f64,
-    /// Length, mm (missing samples × spacing).
-    pub length_mm: f64,
 }
 
 /// How one frame was registered.

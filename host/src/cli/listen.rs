@@ -17,6 +17,7 @@ use cms_host::calib::file::CalibrationFile;
 use cms_host::device::listen::LinkState;
 use cms_host::device::listen::{self, ListenOptions, RowsRequest, StatusLine, Summary};
 use cms_host::recording::survey_info::MAX_BYTES as MAX_SURVEY_BYTES;
+use cms_host::serve::access::Token;
 use cms_host::serve::{DEFAULT_ADDR, DISPLAY_HZ, Feed, LiveView, ServeOptions};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
@@ -124,6 +125,11 @@ pub struct ListenArgs {
     /// recording goes on at full rate whatever the browser does.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8130", value_parser = parse_serve_addr)]
     pub serve: Option<SocketAddr>,
+    /// The live view's secret (16 to 128 letters, digits, `-`, `_`, `.`,
+    /// `~`): every request must carry it. Off loopback the view has one
+    /// anyway (random, in the address printed); on loopback only if given.
+    #[arg(long, value_name = "TOKEN", requires = "serve", value_parser = Token::given)]
+    pub serve_token: Option<Token>,
 }
 
 /// `--serve ADDR`: `IP:PORT` or `IP` (port 8130).
@@ -481,6 +487,7 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
                 placement,
                 recording: opts.record.is_some(),
                 marks: Some(marks.clone()),
+                token: args.serve_token.clone(),
             };
             let v = LiveView::start(&opts).map_err(cms_host::Error::from)?;
             let _ = writeln!(io::stderr(), "listen: live view on {} (read-only but for event marks)", v.url());

@@ -179,7 +179,8 @@ pub struct SimPortArgs {
     /// With PORT `sim`: the simulated head's state directory (its kept calibration).
     #[arg(long = "sim-state", value_name = "DIR")]
     pub sim_state: Option<PathBuf>,
-    /// With PORT `sim`: travel speed of the simulated head along the rail, mm/s.
+    /// With PORT `sim`: travel speed of the simulated head along the rail,
+    /// mm/s (1500: frames overlap by ~19 mm at 30 frames/s).
     #[arg(long = "sim-speed-mm-s", value_name = "V", value_parser = speed)]
     pub sim_speed_mm_s: Option<f64>,
     /// With PORT `sim`: a corrugation component of the simulated rail (repeat for several).

@@ -6,6 +6,7 @@ use std::net::SocketAddr;
 
 use clap::Args;
 use cms_host::Error;
+use cms_host::serve::access::Token;
 use cms_host::serve::viewer::{View, Viewer};
 
 use super::analyze::AnalysisArgs;
@@ -20,6 +21,11 @@ pub struct ViewArgs {
     /// given (`0.0.0.0:8130` opens it to the network; port 0 picks a free one).
     #[arg(long, value_name = "ADDR", default_value_t = cms_host::serve::DEFAULT_ADDR)]
     pub serve: SocketAddr,
+    /// The viewer's secret (16 to 128 letters, digits, `-`, `_`, `.`,
+    /// `~`): every request must carry it. Off loopback the viewer has one
+    /// anyway (random, in the address printed); on loopback only if given.
+    #[arg(long, value_name = "TOKEN", value_parser = Token::given)]
+    pub serve_token: Option<Token>,
 }
 
 /// Analyses the inputs as `cms-host analyze` does (or reads a report
@@ -40,9 +46,9 @@ pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
         }
         _ => View::open(&args.analysis.request(), &args.analysis.options(), &Bar::stderr())?,
     };
-    let viewer = Viewer::start(view, args.serve).map_err(Error::from)?;
+    let viewer = Viewer::start(view, args.serve, args.serve_token.clone()).map_err(Error::from)?;
     let mut err = std::io::stderr().lock();
-    writeln!(err, "view: on http://{}/ (Ctrl-C to stop)", viewer.addr()).map_err(Error::Output)?;
+    writeln!(err, "view: on {} (Ctrl-C to stop)", viewer.url()).map_err(Error::Output)?;
     drop(err);
     viewer.wait();
     Ok(())

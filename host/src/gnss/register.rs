@@ -86,6 +86,26 @@ impl crate::error::Classify for RegisterError {
     }
 }
 
+/// Why vertices do not make a centreline.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum CentrelineError {
+    /// Fewer than two vertices.
+    #[error("{count} vertices; a centreline needs at least 2")]
+    TooFew {
+        /// The vertices given.
+        count: usize,
+    },
+    /// A chainage not above the one before it.
+    #[error("chainage {to_m} m after {from_m} m: chainages must increase along the centreline")]
+    NotIncreasing {
+        /// The chainage of the vertex before, m.
+        from_m: f64,
+        /// This vertex's chainage, m.
+        to_m: f64,
+    },
+}
+
 /// A point on the earth, WGS 84.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Geodetic {
@@ -187,15 +207,15 @@ pub struct OnTrack {
 
 impl Register {
     /// A register from its vertices (in chainage order).
-    pub fn new(vertices: &[(Geodetic, f64)]) -> Result<Register, String> {
+    pub fn new(vertices: &[(Geodetic, f64)]) -> Result<Register, CentrelineError> {
         if vertices.len() < 2 {
-            return Err(format!("{} vertices; a centreline needs at least 2", vertices.len()));
+            return Err(CentrelineError::TooFew { count: vertices.len() });
         }
         let mut segments = Vec::with_capacity(vertices.len() - 1);
         for w in vertices.windows(2) {
             let ((a, ca), (b, cb)) = (w[0], w[1]);
             if cb <= ca {
-                return Err(format!("chainage {cb} m after {ca} m: chainages must increase along the centreline"));
+                return Err(CentrelineError::NotIncreasing { from_m: ca, to_m: cb });
             }
             let plane = Plane::at(a);
             segments.push(Segment { from: a, plane, to_en: plane.en(b), chainage_m: (ca, cb) });
@@ -249,7 +269,7 @@ impl Register {
         if !header {
             return Err((0, "empty: no lat_deg,lon_deg,chainage_m header".into()));
         }
-        Register::new(&v).map_err(|why| (0, why))
+        Register::new(&v).map_err(|e| (0, e.to_string()))
     }
 
     /// The register's chainages, first and last, m.

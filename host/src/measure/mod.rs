@@ -359,8 +359,7 @@ pub fn measure_file(
     progress: &dyn Progress,
 ) -> Result<(Vec<Measurement>, Vec<String>), Error> {
     let name = path.display().to_string();
-    let named = path.extension().is_some_and(|e| e.eq_ignore_ascii_case(recording::EXTENSION));
-    if named || is_recording(path) {
+    if recording::taken_for_recording(path).unwrap_or(false) {
         return measure_recording(m, path, &name, cal_name, progress);
     }
     let rows = input::read_rows(path)?;
@@ -426,12 +425,6 @@ impl Measurement {
             .map(|v| v.level)
             .fold(joint, Level::max)
     }
-}
-
-/// Whether `path` is a recording (by its header).
-fn is_recording(path: &Path) -> bool {
-    let mut h = [0u8; 8];
-    std::fs::File::open(path).and_then(|mut f| io::Read::read_exact(&mut f, &mut h)).is_ok() && h == recording::MAGIC
 }
 
 /// The text report of one measurement.

@@ -118,6 +118,16 @@ pub const EXTENSION: &str = "cmsrec";
 pub const MAGIC: [u8; 8] = *b"CMSREC\0\x01";
 /// Length of the header.
 pub const HEADER_LEN: usize = 16;
+
+/// Whether `path` is to be read as a recording: named `.cmsrec`, or
+/// starting as one does (`CMSREC`), whatever follows. Such a file's errors
+/// are a recording's ("not a CMS recording: …"), never another format's.
+pub fn taken_for_recording(path: &std::path::Path) -> io::Result<bool> {
+    // Opened whatever its name: a missing file is an error, not a recording.
+    let mut start = Vec::with_capacity(6);
+    std::fs::File::open(path)?.take(6).read_to_end(&mut start)?;
+    Ok(path.extension().is_some_and(|e| e.eq_ignore_ascii_case(EXTENSION)) || start == MAGIC[..6])
+}
 /// The format version this build writes (it reads 1 to 5 as well).
 pub const FORMAT_VERSION: u16 = 6;
 /// The first format that may hold host records ([`HostRecord`]).

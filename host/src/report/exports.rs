@@ -48,6 +48,7 @@ use crate::Error;
 use crate::analyze::pieces::Piece;
 use crate::analyze::standards::en13231;
 use crate::analyze::{Analysis, Source};
+use crate::output::AtomicFile;
 
 /// Version of the schema below, in each file's key-value metadata as `cms.schema`.
 pub const SCHEMA_VERSION: &str = "cms-host analyze exports 2";
@@ -447,23 +448,57 @@ fn row_group<W: std::io::Write + Send>(w: &mut SerializedFileWriter<W>, t: &Tabl
     Ok(())
 }
 
-/// The profile as a Parquet file written into `out` a row group per
-/// piece of the line (never whole in memory).
-fn write_profile(
-    out: &mut (dyn std::io::Write + Send),
-    source: &Source,
-    a: &Analysis,
-    meta: &[(&str, String)],
-) -> Result<(), Error> {
-    let (name, lines) = (source.name(), line_numbers(a));
-    let empty = profile_rows(&name, &lines, &Piece::empty());
-    let io = |e: std::io::Error| Error::Output(e);
-    let mut w =
-        SerializedFileWriter::new(out, Arc::new(schema("profile", &empty).map_err(io)?), Arc::new(properties(meta)))
-            .map_err(|e| io(perr(e)))?;
-    a.for_each_piece(|p| row_group(&mut w, &profile_rows(&name, &lines, p)).map_err(io))?;
-    w.close().map_err(|e| io(perr(e)))?;
-    Ok(())
+/// `profile.parquet` written a row group per piece of the line (never
+/// whole in memory), from a walk along the line ([`Analysis::for_each_piece`])
+/// that may write other files too.
+pub(crate) struct ProfileParquet {
+    w: SerializedFileWriter<AtomicFile>,
+    path: std::path::PathBuf,
+    name: String,
+    lines: Vec<usize>,
+}
+
+impl ProfileParquet {
+    /// Starts `dir/profile.parquet` for `a`'s lines.
+    pub(crate) fn create(dir: &Path, source: &Source, a: &Analysis) -> Result<ProfileParquet, Error> {
+        let path = dir.join(FILES[0]);
+        let (name, lines) = (source.name(), line_numbers(a));
+        let empty = profile_rows(&name, &lines, &Piece::empty());
+        let file = AtomicFile::create(&path)?;
+        let schema = schema("profile", &empty).map_err(|e| file.failed(e))?;
+        let w = SerializedFileWriter::new(file, Arc::new(schema), Arc::new(properties(&meta(source, a))))
+            .map_err(|e| Error::Output(std::io::Error::other(format!("{}: {e}", path.display()))))?;
+        Ok(ProfileParquet { w, path, name, lines })
+    }
+
+    fn failed(&self, e: impl std::fmt::Display) -> Error {
+        Error::Output(std::io::Error::other(format!("{}: {e}", self.path.display())))
+    }
+
+    /// Writes one piece's rows as a row group.
+    pub(crate) fn piece(&mut self, p: &Piece) -> Result<(), Error> {
+        let rows = profile_rows(&self.name, &self.lines, p);
+        row_group(&mut self.w, &rows).map_err(|e| self.failed(e))
+    }
+
+    /// Writes the footer and puts the file in place.
+    pub(crate) fn commit(self) -> Result<(), Error> {
+        let failed = |e: parquet::errors::ParquetError| {
+            Error::Output(std::io::Error::other(format!("{}: {e}", self.path.display())))
+        };
+        let file = self.w.into_inner().map_err(failed)?;
+        Ok(file.commit()?)
+    }
+}
+
+/// Every file's key-value metadata.
+fn meta(source: &Source, a: &Analysis) -> Vec<(&'static str, String)> {
+    vec![
+        ("cms.source", source.name()),
+        ("cms.dx_mm", a.options.stitch.dx_mm.to_string()),
+        ("cms.edition", a.verdict.options.edition.name().to_string()),
+        ("cms.block_mm", a.verdict.options.block_mm.to_string()),
+    ]
 }
 
 /// The file names written by [`write()`].
@@ -483,28 +518,17 @@ pub fn write(dir: &Path, source: &Source, a: &Analysis) -> Result<(), Error> {
     crate::output::set::write_set(dir, owns, |d| write_files(d, source, a))
 }
 
-/// Writes the three files into `dir` (one file at a time, each whole).
+/// Writes the four files into `dir` (one file at a time, each whole).
 pub(crate) fn write_files(dir: &Path, source: &Source, a: &Analysis) -> Result<(), Error> {
-    let meta = vec![
-        ("cms.source", source.name()),
-        ("cms.dx_mm", a.options.stitch.dx_mm.to_string()),
-        ("cms.edition", a.verdict.options.edition.name().to_string()),
-        ("cms.block_mm", a.verdict.options.block_mm.to_string()),
-    ];
-    let profile = dir.join(FILES[0]);
-    let mut failed = None;
-    crate::output::write_atomically(&profile, |w| {
-        write_profile(w, source, a, &meta).map_err(|e| {
-            let m = format!("{}: {e}", profile.display());
-            failed = Some(e);
-            std::io::Error::other(m)
-        })
-    })
-    .map_err(|e| match (failed.take(), e) {
-        (Some(Error::Module(m)), _) => Error::Module(m),
-        (_, e @ crate::output::OutputError::NotRegular { .. }) => Error::from(e),
-        (_, e) => Error::Output(std::io::Error::other(e.to_string())),
-    })?;
+    let mut profile = ProfileParquet::create(dir, source, a)?;
+    a.for_each_piece(|p| profile.piece(p))?;
+    profile.commit()?;
+    write_tables(dir, source, a)
+}
+
+/// Writes `blocks.parquet`, `zones.parquet` and `fixes.parquet` into `dir`.
+pub(crate) fn write_tables(dir: &Path, source: &Source, a: &Analysis) -> Result<(), Error> {
+    let meta = meta(source, a);
     let tables =
         [("blocks", blocks_table(source, a)), ("zones", zones_table(source, a)), ("fixes", fixes_table(source, a))];
     for ((name, t), file) in tables.iter().zip(&FILES[1..]) {

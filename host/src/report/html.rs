@@ -11,6 +11,7 @@
 
 use std::fmt::Write as _;
 
+use crate::analyze::marks::PlacedMark;
 use crate::analyze::standards::{StandardsError, en13231, en15610, fmt_mm};
 use crate::analyze::stitch::Stitched;
 use crate::analyze::{Analysis, LaserAnalysis, Recording, Source, chainage, fmt_len, reprofiling};
@@ -124,7 +125,7 @@ pub fn page(title: &str, source: &Source, a: &Analysis, track: Option<&Track>, f
     );
     html.push_str(&survey(source, a));
     html.push_str(&verdict(a, figs.zones));
-    html.push_str(&super::marks::html(&super::marks::of(source, a)));
+    html.push_str(&marks(&super::marks::of(source, a)));
     html.push_str(&inputs(source, a));
     html.push_str(&gnss_track(source, track, figs.track));
     let several = a.sections().len() > 1;
@@ -663,6 +664,23 @@ fn roughness(r: &Result<en15610::Roughness, StandardsError>) -> String {
     s
 }
 
+/// The HTML report's "Marks" section: a table in chainage order.
+fn marks(marks: &[PlacedMark]) -> String {
+    let mut s = String::from("<section id=\"marks\"><h2>Marks</h2>\n");
+    if marks.is_empty() {
+        s.push_str("<p>No event marks were recorded.</p>\n");
+    } else {
+        s.push_str(&table("marks", &super::marks::HEAD, &super::marks::rows(marks)));
+        let _ = writeln!(
+            s,
+            "<p>Each mark at the odometer of the frame before it (to within one frame's travel); also in {}.</p>",
+            super::marks::CSV_FILE
+        );
+    }
+    s.push_str("</section>\n");
+    s
+}
+
 /// The plots section.
 fn plots(figures: &[(String, String, String)]) -> String {
     let mut s = String::from("<section id=\"plots\"><h2>Plots</h2>\n");
@@ -698,5 +716,16 @@ mod tests {
         assert_eq!(cell_class("-12.5"), Some("num"));
         assert_eq!(cell_class("not evaluated: too short"), None);
         assert_eq!(cell_class("okay"), None);
+    }
+
+    #[test]
+    fn the_marks_section_holds_every_mark_escaped() {
+        let h = marks(&super::super::marks::tests::marks());
+        assert!(
+            h.contains("<table class=\"marks\">") && h.contains("<td>12+345.250</td><td>kilometre post</td>"),
+            "{h}"
+        );
+        assert!(h.contains("a &lt;b&gt;") && !h.contains("<b>"), "{h}");
+        assert!(marks(&[]).contains("No event marks"));
     }
 }

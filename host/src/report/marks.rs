@@ -87,7 +87,7 @@ pub fn to_json(marks: &[PlacedMark]) -> Value {
     )
 }
 
-fn rows(marks: &[PlacedMark]) -> Vec<Vec<String>> {
+pub(super) fn rows(marks: &[PlacedMark]) -> Vec<Vec<String>> {
     marks
         .iter()
         .map(|m| {
@@ -103,23 +103,7 @@ fn rows(marks: &[PlacedMark]) -> Vec<Vec<String>> {
         .collect()
 }
 
-const HEAD: [&str; 6] = ["chainage", "kind", "text", "run", "odometer", "after frame"];
-
-/// The HTML report's "Marks" section: a table in chainage order.
-pub fn html(marks: &[PlacedMark]) -> String {
-    let mut s = String::from("<section id=\"marks\"><h2>Marks</h2>\n");
-    if marks.is_empty() {
-        s.push_str("<p>No event marks were recorded.</p>\n");
-    } else {
-        s.push_str(&super::html::table("marks", &HEAD, &rows(marks)));
-        let _ = writeln!(
-            s,
-            "<p>Each mark at the odometer of the frame before it (to within one frame's travel); also in {CSV_FILE}.</p>"
-        );
-    }
-    s.push_str("</section>\n");
-    s
-}
+pub(super) const HEAD: [&str; 6] = ["chainage", "kind", "text", "run", "odometer", "after frame"];
 
 /// The Markdown report's "Marks" section.
 pub fn markdown(marks: &[PlacedMark]) -> String {
@@ -138,11 +122,11 @@ pub fn markdown(marks: &[PlacedMark]) -> String {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::recording::mark::{Mark, MarkKind};
 
-    fn marks() -> Vec<PlacedMark> {
+    pub(in crate::report) fn marks() -> Vec<PlacedMark> {
         let m = |kind, text: &str, odometer_um| Mark {
             kind,
             text: text.into(),
@@ -159,7 +143,7 @@ mod tests {
     }
 
     #[test]
-    fn csv_html_and_markdown_hold_every_mark() {
+    fn csv_and_markdown_hold_every_mark() {
         let m = marks();
         let c = csv(&m);
         assert_eq!(
@@ -168,16 +152,9 @@ mod tests {
              12345250.000,12+345.250,1,kilometre_post,\"12.3\",250.000,30,1000000\n\
              ,,2,note,\"a <b> | \"\"c\"\"\",-4.000,30,1000000\n"
         );
-        let h = html(&m);
-        assert!(
-            h.contains("<table class=\"marks\">") && h.contains("<td>12+345.250</td><td>kilometre post</td>"),
-            "{h}"
-        );
-        assert!(h.contains("a &lt;b&gt;") && !h.contains("<b>"), "{h}");
         let md = markdown(&m);
         assert!(md.contains("| 12+345.250 | kilometre post | 12.3 | 1 | 250.000 mm | 30 |"), "{md}");
         assert!(md.contains("a <b> \\| \"c\""), "{md}");
-        assert!(html(&[]).contains("No event marks"));
         assert_eq!(to_json(&m)[0]["chainage"], "12+345.250");
         assert!(to_json(&m)[1]["chainage_mm"].is_null());
     }

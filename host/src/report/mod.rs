@@ -27,8 +27,9 @@
 //! Long profiles are plotted through a min/max envelope of at most
 //! [`MAX_PLOT_POINTS`] points per line (the CSVs keep every sample),
 //! gathered as the line is walked piece by piece ([`traces`]); the
-//! per-sample files are written the same way, so a report of any length
-//! of track is written in the memory of one piece.
+//! per-sample files are written in the same walk, so a report of any
+//! length of track is written in the memory of one piece, and each
+//! piece's bands are worked out once.
 
 pub mod exports;
 pub mod html;
@@ -40,14 +41,17 @@ pub mod track;
 pub mod trend;
 
 use std::fmt::Write as _;
+use std::io::Write as _;
 use std::path::Path;
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use crate::Error;
+use crate::analyze::pieces::Piece;
 use crate::analyze::standards::{en13231, en15610};
-use crate::analyze::{Analysis, Source, reprofiling};
+use crate::analyze::{Analysis, LaserAnalysis, Source, reprofiling};
+use crate::output::AtomicFile;
 use crate::plot::{self, Figure, err};
 
 /// Most points of one plotted line.
@@ -329,80 +333,132 @@ impl Figure for ZoneFig<'_> {
     }
 }
 
-/// The stitched profiles on one grid per section: `x_mm,laser_K_um…`,
-/// the sections one after the other (the stretches between them, never
-/// measured, have no rows), written piece by piece.
-fn profile_csv(a: &Analysis, w: &mut dyn std::io::Write) -> Result<(), Error> {
+/// The lines of `profile.csv`'s columns, in order.
+fn profile_lines(a: &Analysis) -> Vec<usize> {
     let mut lines: Vec<usize> = a.lasers.iter().map(|l| l.stitched.laser).collect();
     lines.sort_unstable();
     lines.dedup();
+    lines
+}
+
+/// The header of `profile.csv`: `x_mm,laser_K_um…`.
+fn profile_csv_header(lines: &[usize]) -> String {
     let mut s = String::from("x_mm");
-    for k in &lines {
+    for k in lines {
         let _ = write!(s, ",laser_{k}_um");
     }
     s.push('\n');
-    a.for_each_piece(|p| {
-        for i in 0..p.core.len() {
-            let _ = write!(s, "{}", p.grid.chainage_mm(p.core.start + i));
-            for k in &lines {
-                match p.lines.iter().find(|l| l.laser == *k).map(|l| l.z_um[i]).filter(|v| v.is_finite()) {
-                    Some(v) => {
-                        let _ = write!(s, ",{v:.4}");
-                    }
-                    None => s.push(','),
-                }
-            }
-            s.push('\n');
-        }
-        w.write_all(s.as_bytes()).map_err(Error::Output)?;
-        s.clear();
-        Ok(())
-    })?;
-    w.write_all(s.as_bytes()).map_err(Error::Output)
+    s
 }
 
-/// A line's band signals (`bands_laserK.csv`), written piece by piece.
-fn bands_csv(a: &Analysis, index: usize, w: &mut dyn std::io::Write) -> Result<(), Error> {
-    let Some(l) = a.lasers.get(index) else { return Ok(()) };
-    let Ok(b) = &l.bands else { return Ok(()) };
-    let mut s = en13231::bands_csv_header(b);
-    a.for_each_piece(|p| {
-        if p.section != l.stitched.section {
-            return Ok(());
-        }
-        if let Some(pl) = p.lines.iter().find(|pl| pl.laser == l.stitched.laser) {
-            let x0 = p.grid.chainage_mm(p.core.start);
-            // The line's own extent only, as its samples run.
-            let (lo, hi) = (l.stitched.x0_mm, l.stitched.x_mm(l.stitched.z.len()));
-            let keep: Vec<usize> = (0..p.core.len())
-                .filter(|&i| (lo - 1e-6..hi - 1e-6).contains(&p.grid.chainage_mm(p.core.start + i)))
-                .collect();
-            if let (Some(&f), Some(&e)) = (keep.first(), keep.last()) {
-                let cut: Vec<Option<en13231::BandTrace>> = pl
-                    .bands
-                    .iter()
-                    .map(|t| {
-                        t.as_ref().map(|t| en13231::BandTrace {
-                            band_mm: t.band_mm[f..=e].to_vec(),
-                            mean_pp_mm: Vec::new(),
-                            max_pp_mm: Vec::new(),
-                        })
-                    })
-                    .collect();
-                let n = e + 1 - f;
-                let mut all = cut;
-                // A band not evaluated still has its (empty) column.
-                for t in all.iter_mut().filter(|t| t.is_none()) {
-                    *t = Some(en13231::BandTrace { band_mm: vec![f64::NAN; n], ..Default::default() });
+/// One piece's rows of `profile.csv`: the stitched profiles on one grid
+/// per section, the sections one after the other (the stretches between
+/// them, never measured, have no rows).
+fn profile_csv_rows(s: &mut String, lines: &[usize], p: &Piece) {
+    for i in 0..p.core.len() {
+        let _ = write!(s, "{}", p.grid.chainage_mm(p.core.start + i));
+        for k in lines {
+            match p.lines.iter().find(|l| l.laser == *k).map(|l| l.z_um[i]).filter(|v| v.is_finite()) {
+                Some(v) => {
+                    let _ = write!(s, ",{v:.4}");
                 }
-                en13231::bands_csv_rows(&mut s, x0 + f as f64 * p.grid.dx_mm, p.grid.dx_mm, &all);
+                None => s.push(','),
             }
         }
-        w.write_all(s.as_bytes()).map_err(Error::Output)?;
-        s.clear();
+        s.push('\n');
+    }
+}
+
+/// One piece's rows of a line's band signals (`bands_laserK.csv`).
+fn bands_csv_rows(s: &mut String, l: &LaserAnalysis, p: &Piece) {
+    if p.section != l.stitched.section {
+        return;
+    }
+    let Some(pl) = p.lines.iter().find(|pl| pl.laser == l.stitched.laser) else { return };
+    let x0 = p.grid.chainage_mm(p.core.start);
+    // The line's own extent only, as its samples run.
+    let (lo, hi) = (l.stitched.x0_mm, l.stitched.x_mm(l.stitched.z.len()));
+    let keep: Vec<usize> =
+        (0..p.core.len()).filter(|&i| (lo - 1e-6..hi - 1e-6).contains(&p.grid.chainage_mm(p.core.start + i))).collect();
+    let (Some(&f), Some(&e)) = (keep.first(), keep.last()) else { return };
+    let n = e + 1 - f;
+    let all: Vec<Option<en13231::BandTrace>> = pl
+        .bands
+        .iter()
+        .map(|t| {
+            Some(match t {
+                Some(t) => en13231::BandTrace {
+                    band_mm: t.band_mm[f..=e].to_vec(),
+                    mean_pp_mm: Vec::new(),
+                    max_pp_mm: Vec::new(),
+                },
+                // A band not evaluated still has its (empty) column.
+                None => en13231::BandTrace { band_mm: vec![f64::NAN; n], ..Default::default() },
+            })
+        })
+        .collect();
+    en13231::bands_csv_rows(s, x0 + f as f64 * p.grid.dx_mm, p.grid.dx_mm, &all);
+}
+
+/// Everything the report writes per sample, filled in one walk along the
+/// line ([`Analysis::for_each_piece`]): `profile.csv`, each line's
+/// `bands_…csv`, `profile.parquet` and the plots' traces. The band
+/// filters and windows of every piece are worked out once for them all.
+struct Walk<'a> {
+    a: &'a Analysis,
+    lines: Vec<usize>,
+    profile: AtomicFile,
+    /// Per line with bands: its index in `a.lasers` and its file.
+    bands: Vec<(usize, AtomicFile)>,
+    parquet: exports::ProfileParquet,
+    traces: traces::Gather,
+    /// Text of the piece being written.
+    text: String,
+}
+
+impl<'a> Walk<'a> {
+    fn begin(dir: &Path, source: &Source, a: &'a Analysis) -> Result<Walk<'a>, Error> {
+        let lines = profile_lines(a);
+        let mut profile = AtomicFile::create(&dir.join("profile.csv"))?;
+        profile.write_all(profile_csv_header(&lines).as_bytes()).map_err(|e| profile.failed(e))?;
+        let several = a.sections().len() > 1;
+        let mut bands = Vec::new();
+        for (k, l) in a.lasers.iter().enumerate() {
+            if let Ok(b) = &l.bands {
+                let (name, _) = line_names(&l.stitched, several);
+                let mut f = AtomicFile::create(&dir.join(format!("bands_{name}.csv")))?;
+                f.write_all(en13231::bands_csv_header(b).as_bytes()).map_err(|e| f.failed(e))?;
+                bands.push((k, f));
+            }
+        }
+        let parquet = exports::ProfileParquet::create(dir, source, a)?;
+        let traces = traces::Gather::new(a, MAX_PLOT_POINTS);
+        Ok(Walk { a, lines, profile, bands, parquet, traces, text: String::new() })
+    }
+
+    fn piece(&mut self, p: &Piece) -> Result<(), Error> {
+        self.text.clear();
+        profile_csv_rows(&mut self.text, &self.lines, p);
+        self.profile.write_all(self.text.as_bytes()).map_err(|e| self.profile.failed(e))?;
+        for (k, f) in &mut self.bands {
+            self.text.clear();
+            bands_csv_rows(&mut self.text, &self.a.lasers[*k], p);
+            f.write_all(self.text.as_bytes()).map_err(|e| f.failed(e))?;
+        }
+        self.parquet.piece(p)?;
+        self.traces.piece(p);
         Ok(())
-    })?;
-    w.write_all(s.as_bytes()).map_err(Error::Output)
+    }
+
+    /// Puts every file in place; the traces for the plots.
+    fn finish(self) -> Result<Vec<traces::LineTraces>, Error> {
+        self.profile.commit()?;
+        for (_, f) in self.bands {
+            f.commit()?;
+        }
+        self.parquet.commit()?;
+        Ok(self.traces.finish())
+    }
 }
 
 fn registration_csv(a: &Analysis) -> String {
@@ -505,21 +561,20 @@ fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Resu
     put("summary.txt", summary)?;
     // `analyze --json`'s object: what `cms-host view DIR` shows.
     put("analysis.json", &format!("{:#}\n", json::to_json(source, a)))?;
-    streamed(&dir.join("profile.csv"), &mut |w| profile_csv(a, w))?;
     put("registration.csv", &registration_csv(a))?;
     put("gaps.csv", &gaps_csv(a))?;
-    exports::write_files(dir, source, a)?;
+    exports::write_tables(dir, source, a)?;
     let several = a.sections().len() > 1;
-    for (k, l) in a.lasers.iter().enumerate() {
+    for l in &a.lasers {
         let (name, _) = line_names(&l.stitched, several);
-        if l.bands.is_ok() {
-            streamed(&dir.join(format!("bands_{name}.csv")), &mut |w| bands_csv(a, k, w))?;
-        }
         if let Ok(r) = &l.roughness {
             put(&format!("spectrum_{name}.csv"), &en15610::spectrum_csv(&r.spectrum))?;
         }
     }
-    let traces = traces::of(a, MAX_PLOT_POINTS)?;
+    // One walk for every per-sample file and the plots' traces.
+    let mut walk = Walk::begin(dir, source, a)?;
+    a.for_each_piece(|p| walk.piece(p))?;
+    let traces = walk.finish()?;
     let plots = plots(dir, a, &traces)?;
     let zone_svg = if a.lasers.is_empty() {
         String::new()
@@ -541,22 +596,6 @@ fn write_files(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Resu
     let figs = html::Figures { zones: &zone_svg, plots: &plots, track: track_svg.as_deref() };
     put("report.html", &html::page(&title, source, a, track.as_ref(), &figs))?;
     Ok(())
-}
-
-/// A file written atomically by `write`, piece by piece.
-fn streamed(path: &Path, write: &mut dyn FnMut(&mut dyn std::io::Write) -> Result<(), Error>) -> Result<(), Error> {
-    let mut failed = None;
-    let r = crate::output::write_atomically(path, |w| {
-        write(w).map_err(|e| {
-            let m = e.to_string();
-            failed = Some(e);
-            std::io::Error::other(m)
-        })
-    });
-    match (r, failed) {
-        (Err(_), Some(e)) => Err(e),
-        (r, _) => Ok(r?),
-    }
 }
 
 /// The plots of the plots section, written as SVG and PNG: (title, file

@@ -6,6 +6,7 @@
 //! and still shows every peak.
 
 use crate::Error;
+use crate::analyze::pieces::Piece;
 use crate::analyze::reprofiling::Edition;
 use crate::analyze::standards::en13231;
 use crate::analyze::{Analysis, stitch};
@@ -94,44 +95,68 @@ pub struct LineTraces {
 }
 
 /// Every line's traces, in the order of [`Analysis::lasers`], the profile
-/// with at most `max_points` points a line and the criterion half that.
+/// with at most `max_points` points a line and the criterion half that:
+/// a walk of its own ([`Gather`] takes part in another's).
 pub fn of(a: &Analysis, max_points: usize) -> Result<Vec<LineTraces>, Error> {
-    let bands = en13231::BANDS.len();
-    let per = |finite: usize, max: usize| (2 * finite.max(1)).div_ceil(max.max(2)).max(1);
-    struct Series {
-        profile: Thinned,
-        band: Vec<Thinned>,
-        pp: Vec<Thinned>,
-        criterion: Vec<Thinned>,
-    }
-    let mut series: Vec<Series> = a
-        .lasers
-        .iter()
-        .map(|l| {
-            let n = l.stitched.z.finite();
-            let (p, c) = (per(n, max_points), per(n, max_points / 2));
-            Series {
-                profile: Thinned::new(p),
-                band: (0..bands).map(|_| Thinned::new(p)).collect(),
-                pp: (0..bands).map(|_| Thinned::new(p)).collect(),
-                criterion: (0..bands).map(|_| Thinned::new(c)).collect(),
-            }
-        })
-        .collect();
-    // Where each section's lines start in `a.lasers`.
-    let sections = a.sections();
-    let mut first = std::collections::HashMap::new();
-    let mut at = 0;
-    for s in &sections {
-        first.insert(s.number, at);
-        at += s.lasers.len();
-    }
-    let edition = a.verdict.options.edition;
+    let mut g = Gather::new(a, max_points);
     a.for_each_piece(|p| {
-        let base = first.get(&p.section).copied().unwrap_or(0);
+        g.piece(p);
+        Ok(())
+    })?;
+    Ok(g.finish())
+}
+
+/// One line's series as they are thinned.
+struct Series {
+    profile: Thinned,
+    band: Vec<Thinned>,
+    pp: Vec<Thinned>,
+    criterion: Vec<Thinned>,
+}
+
+/// The traces of [`of`], gathered from the pieces of a walk along the
+/// survey line ([`Analysis::for_each_piece`]) that writes other files too.
+pub struct Gather {
+    series: Vec<Series>,
+    /// Where each section's lines start in `a.lasers`.
+    first: std::collections::HashMap<usize, usize>,
+    edition: Edition,
+}
+
+impl Gather {
+    /// Ready for `a`'s pieces, at most `max_points` points a line.
+    pub fn new(a: &Analysis, max_points: usize) -> Gather {
+        let bands = en13231::BANDS.len();
+        let per = |finite: usize, max: usize| (2 * finite.max(1)).div_ceil(max.max(2)).max(1);
+        let series = a
+            .lasers
+            .iter()
+            .map(|l| {
+                let n = l.stitched.z.finite();
+                let (p, c) = (per(n, max_points), per(n, max_points / 2));
+                Series {
+                    profile: Thinned::new(p),
+                    band: (0..bands).map(|_| Thinned::new(p)).collect(),
+                    pp: (0..bands).map(|_| Thinned::new(p)).collect(),
+                    criterion: (0..bands).map(|_| Thinned::new(c)).collect(),
+                }
+            })
+            .collect();
+        let mut first = std::collections::HashMap::new();
+        let mut at = 0;
+        for s in &a.sections() {
+            first.insert(s.number, at);
+            at += s.lasers.len();
+        }
+        Gather { series, first, edition: a.verdict.options.edition }
+    }
+
+    /// Takes one piece's samples and band traces.
+    pub fn piece(&mut self, p: &Piece) {
+        let base = self.first.get(&p.section).copied().unwrap_or(0);
         let (x0, dx) = (p.grid.origin_mm, p.grid.dx_mm);
         for (k, l) in p.lines.iter().enumerate() {
-            let Some(s) = series.get_mut(base + k) else { continue };
+            let Some(s) = self.series.get_mut(base + k) else { continue };
             let mut all: Vec<&mut Thinned> = vec![&mut s.profile];
             all.extend(s.band.iter_mut().chain(s.pp.iter_mut()));
             if p.core.start == 0 {
@@ -147,7 +172,7 @@ pub fn of(a: &Analysis, max_points: usize) -> Result<Vec<LineTraces>, Error> {
                     let i = p.core.start + j;
                     s.band[b].push(i, v * 1000.0);
                     s.pp[b].push(i, m * 1000.0);
-                    let c = match edition {
+                    let c = match self.edition {
                         Edition::En2006 => m,
                         Edition::En2012 if m.is_finite() => band.abs(),
                         Edition::En2012 => f64::NAN,
@@ -156,21 +181,24 @@ pub fn of(a: &Analysis, max_points: usize) -> Result<Vec<LineTraces>, Error> {
                 }
             }
         }
-        Ok(())
-    })?;
-    Ok(series
-        .into_iter()
-        .map(|s| {
-            let mut profile = s.profile.finish();
-            // The median of the thinned points: a plot's offset, not a figure.
-            let m = stitch::median(profile.iter().flatten().map(|p| p.1).collect()).unwrap_or(0.0);
-            profile.iter_mut().flatten().for_each(|p| p.1 -= m);
-            LineTraces {
-                profile,
-                band: s.band.into_iter().map(Thinned::finish).collect(),
-                mean_pp: s.pp.into_iter().map(Thinned::finish).collect(),
-                criterion: s.criterion.into_iter().map(Thinned::finish).collect(),
-            }
-        })
-        .collect())
+    }
+
+    /// The traces, once every piece was taken.
+    pub fn finish(self) -> Vec<LineTraces> {
+        self.series
+            .into_iter()
+            .map(|s| {
+                let mut profile = s.profile.finish();
+                // The median of the thinned points: a plot's offset, not a figure.
+                let m = stitch::median(profile.iter().flatten().map(|p| p.1).collect()).unwrap_or(0.0);
+                profile.iter_mut().flatten().for_each(|p| p.1 -= m);
+                LineTraces {
+                    profile,
+                    band: s.band.into_iter().map(Thinned::finish).collect(),
+                    mean_pp: s.pp.into_iter().map(Thinned::finish).collect(),
+                    criterion: s.criterion.into_iter().map(Thinned::finish).collect(),
+                }
+            })
+            .collect()
+    }
 }

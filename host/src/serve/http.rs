@@ -14,6 +14,7 @@ use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 
+use super::access::{Admission, Token, admit};
 use super::{MAX_PAGES, SEND_TIMEOUT, Shared};
 use crate::device::listen::{MarkRefused, MarkSender};
 use crate::recording::mark::{MarkEntry, MarkKind};
@@ -53,6 +54,8 @@ pub(super) struct Context {
     pub marks: Option<MarkSender>,
     /// Where the run lies, to give a mark's chainage.
     pub placement: Option<Placement>,
+    /// The secret every request carries (`None`: on loopback, none asked).
+    pub token: Option<Token>,
 }
 
 /// Serves on `listener` until `shutdown`; the runtime (and with it every
@@ -101,29 +104,63 @@ pub(super) fn loopback_host(host: &str, port: u16) -> bool {
 
 /// The refusals every request passes, and the headers every response gets.
 async fn guard(State(ctx): State<Context>, req: Request, next: Next) -> Response {
-    let refuse = |code: StatusCode, why: &'static str| {
+    let refuse = |r: Response| {
         ctx.shared.refused.fetch_add(1, Ordering::Relaxed);
-        (code, why).into_response()
-    };
-    let host = req.headers().get(header::HOST).and_then(|h| h.to_str().ok()).unwrap_or("");
-    let mut resp = if ctx.local.ip().is_loopback() && !loopback_host(host, ctx.local.port()) {
-        // A page of another site whose name was made to resolve here
-        // (DNS rebinding) sends its own name.
-        refuse(StatusCode::MISDIRECTED_REQUEST, "this server answers to its loopback address only\n")
-    } else if req.method() != axum::http::Method::GET
-        && req.method() != axum::http::Method::HEAD
-        && !(req.method() == axum::http::Method::POST && req.uri().path() == "/marks")
-    {
-        refuse(StatusCode::METHOD_NOT_ALLOWED, "the live view is read-only but for POST /marks\n")
-    } else {
-        let r = next.run(req).await;
-        if r.status().is_client_error() {
-            ctx.shared.refused.fetch_add(1, Ordering::Relaxed);
-        }
         r
+    };
+    let mut resp = match checked(&ctx.local, ctx.token.as_ref(), &req) {
+        Err(r) => refuse(*r),
+        Ok(_)
+            if req.method() != axum::http::Method::GET
+                && req.method() != axum::http::Method::HEAD
+                && !(req.method() == axum::http::Method::POST && req.uri().path() == "/marks") =>
+        {
+            refuse((StatusCode::METHOD_NOT_ALLOWED, "the live view is read-only but for POST /marks\n").into_response())
+        }
+        Ok(cookie) => {
+            let mut r = next.run(req).await;
+            if r.status().is_client_error() {
+                ctx.shared.refused.fetch_add(1, Ordering::Relaxed);
+            }
+            if let Some(c) = cookie {
+                r.headers_mut().insert(header::SET_COOKIE, c);
+            }
+            r
+        }
     };
     harden(resp.headers_mut());
     resp
+}
+
+/// The checks of who asks, before what is asked: on loopback the `Host`,
+/// then the token where the view has one ([`super::access`]). The cookie
+/// to set where the request came in by the token in its address, or the
+/// refusal.
+pub(super) fn checked(
+    local: &SocketAddr,
+    token: Option<&Token>,
+    req: &Request,
+) -> Result<Option<HeaderValue>, Box<Response>> {
+    let host = req.headers().get(header::HOST).and_then(|h| h.to_str().ok()).unwrap_or("");
+    if local.ip().is_loopback() && !loopback_host(host, local.port()) {
+        // A page of another site whose name was made to resolve here
+        // (DNS rebinding) sends its own name.
+        return Err(Box::new(
+            (StatusCode::MISDIRECTED_REQUEST, "this server answers to its loopback address only\n").into_response(),
+        ));
+    }
+    match admit(token, local.port(), req.uri(), req.headers()) {
+        Admission::In => Ok(None),
+        Admission::InSetCookie(c) => Ok(Some(c)),
+        Admission::Out(code, why) => {
+            let mut r = (code, why).into_response();
+            if code == StatusCode::UNAUTHORIZED {
+                r.headers_mut()
+                    .insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer realm=\"cms-host view\""));
+            }
+            Err(Box::new(r))
+        }
+    }
 }
 
 /// The headers every response of the live view and the viewer gets.

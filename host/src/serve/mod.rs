@@ -46,6 +46,10 @@
 //! 'none'`, scripts, styles and connections to the server itself only).
 //!
 //! It binds to loopback ([`DEFAULT_ADDR`]) unless an address is given.
+//! Off loopback every request must carry the run's secret token
+//! ([`access`]): without it the page, the socket and `POST /marks` are
+//! answered 401 (403 with a wrong one) before any of the above, and
+//! nothing reaches the recording. The address printed carries the token.
 //!
 //! # Marks
 //!
@@ -72,6 +76,7 @@
 //! sets it per thread): on a loaded machine the listener's loop, which
 //! reads the port and records, is scheduled before the view's work.
 
+pub mod access;
 mod http;
 mod hub;
 pub mod viewer;
@@ -128,6 +133,9 @@ pub struct ServeOptions {
     pub recording: bool,
     /// Where `POST /marks` sends event marks (`None`: refused).
     pub marks: Option<crate::device::listen::MarkSender>,
+    /// The secret asked of every request (`--serve-token`); off loopback
+    /// one is made when none is given ([`access`]).
+    pub token: Option<access::Token>,
 }
 
 /// Why the live view could not start.
@@ -146,6 +154,9 @@ pub enum ServeError {
     /// The server's or the hub's thread could not start.
     #[error("cannot start the live view: {0}")]
     Start(#[source] std::io::Error),
+    /// The view's token: a given one refused, or none could be made.
+    #[error(transparent)]
+    Token(#[from] access::TokenError),
 }
 
 impl crate::error::Classify for ServeError {
@@ -155,6 +166,7 @@ impl crate::error::Classify for ServeError {
             // the user picks another.
             ServeError::Bind { .. } => crate::Class::Input,
             ServeError::Start(_) => crate::Class::Other,
+            ServeError::Token(e) => crate::error::Classify::class(e),
         }
     }
 }
@@ -261,6 +273,7 @@ impl std::fmt::Display for ViewSummary {
 /// A running live view: the server and the hub.
 pub struct LiveView {
     addr: SocketAddr,
+    token: Option<access::Token>,
     feed: Feed,
     shared: Arc<Shared>,
     shutdown: Option<tokio::sync::oneshot::Sender<()>>,
@@ -272,6 +285,7 @@ impl LiveView {
     /// Binds `opts.addr` and starts serving (the address is bound before
     /// this returns: a port in use fails here, before any listening).
     pub fn start(opts: &ServeOptions) -> Result<LiveView, ServeError> {
+        let token = access::token_for(opts.addr, opts.token.clone())?;
         let listener = TcpListener::bind(opts.addr).map_err(|source| ServeError::Bind { addr: opts.addr, source })?;
         let addr = listener.local_addr().map_err(ServeError::Start)?;
         listener.set_nonblocking(true).map_err(ServeError::Start)?;
@@ -296,6 +310,7 @@ impl LiveView {
                 local: addr,
                 marks: opts.marks.clone(),
                 placement: opts.placement,
+                token: token.clone(),
             };
             std::thread::Builder::new()
                 .name("cms-view-http".into())
@@ -307,6 +322,7 @@ impl LiveView {
         };
         Ok(LiveView {
             addr,
+            token,
             feed: Feed { tx, shared: shared.clone() },
             shared,
             shutdown: Some(shutdown),
@@ -320,9 +336,9 @@ impl LiveView {
         self.addr
     }
 
-    /// The page's address.
+    /// The page's address, with the token where the view asks for one.
     pub fn url(&self) -> String {
-        format!("http://{}/", self.addr)
+        access::page_url(self.addr, self.token.as_ref())
     }
 
     /// The listener's end.

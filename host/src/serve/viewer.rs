@@ -18,8 +18,9 @@
 //! limits and by the analysis, not by the number of frames.
 //!
 //! The server is the live view's (the refusals and headers of `serve`'s HTTP side):
-//! loopback unless an address is given, read-only (GET and HEAD), every
-//! asset embedded, every malformed query a 400 naming the parameter.
+//! loopback unless an address is given, off loopback only with the run's
+//! token ([`super::access`]), read-only (GET and HEAD), every asset
+//! embedded, every malformed query a 400 naming the parameter.
 
 use std::fmt::Write as _;
 use std::net::SocketAddr;
@@ -35,6 +36,7 @@ use axum::routing::get;
 use serde_json::json;
 
 use super::ServeError;
+use super::access::{Token, page_url, token_for};
 use crate::Error;
 use crate::analyze::runs::{self, Request as AnalysisRequest};
 use crate::analyze::store::{Samples, ScratchError};
@@ -378,16 +380,20 @@ fn param<T: std::str::FromStr>(query: Option<&str>, name: &str) -> Result<T, Str
 /// A running viewer.
 pub struct Viewer {
     addr: SocketAddr,
+    token: Option<Token>,
     thread: std::thread::JoinHandle<()>,
 }
 
 impl Viewer {
-    /// Serves `view` on `addr` (port 0: any free one).
-    pub fn start(view: View, addr: SocketAddr) -> Result<Viewer, ServeError> {
+    /// Serves `view` on `addr` (port 0: any free one), to whoever holds
+    /// `token` where one is given, and off loopback to whoever holds a
+    /// random one ([`super::access`]).
+    pub fn start(view: View, addr: SocketAddr, token: Option<Token>) -> Result<Viewer, ServeError> {
+        let token = token_for(addr, token)?;
         let listener = std::net::TcpListener::bind(addr).map_err(|source| ServeError::Bind { addr, source })?;
         let local = listener.local_addr().map_err(ServeError::Start)?;
         listener.set_nonblocking(true).map_err(ServeError::Start)?;
-        let ctx = Ctx { view: Arc::new(view), local };
+        let ctx = Ctx { view: Arc::new(view), local, token: token.clone() };
         let thread = std::thread::Builder::new()
             .name("cms-view".into())
             .spawn(move || {
@@ -400,12 +406,17 @@ impl Viewer {
                 });
             })
             .map_err(ServeError::Start)?;
-        Ok(Viewer { addr: local, thread })
+        Ok(Viewer { addr: local, token, thread })
     }
 
     /// The address served.
     pub fn addr(&self) -> SocketAddr {
         self.addr
+    }
+
+    /// The page's address, with the token where the viewer asks for one.
+    pub fn url(&self) -> String {
+        page_url(self.addr, self.token.as_ref())
     }
 
     /// Serves until the process ends (Ctrl-C: the viewer writes nothing).
@@ -418,6 +429,7 @@ impl Viewer {
 struct Ctx {
     view: Arc<View>,
     local: SocketAddr,
+    token: Option<Token>,
 }
 
 fn router(ctx: Ctx) -> Router {
@@ -481,13 +493,18 @@ async fn frame(State(ctx): State<Ctx>, req: Request) -> Response {
 /// The live view's refusals: another host name on loopback, a method
 /// other than GET or HEAD; and its headers on every response.
 async fn guard(State(ctx): State<Ctx>, req: Request, next: Next) -> Response {
-    let host = req.headers().get(header::HOST).and_then(|h| h.to_str().ok()).unwrap_or("");
-    let mut resp = if ctx.local.ip().is_loopback() && !super::http::loopback_host(host, ctx.local.port()) {
-        (StatusCode::MISDIRECTED_REQUEST, "this server answers to its loopback address only\n").into_response()
-    } else if req.method() != axum::http::Method::GET && req.method() != axum::http::Method::HEAD {
-        (StatusCode::METHOD_NOT_ALLOWED, "the viewer is read-only\n").into_response()
-    } else {
-        next.run(req).await
+    let mut resp = match super::http::checked(&ctx.local, ctx.token.as_ref(), &req) {
+        Err(r) => *r,
+        Ok(_) if req.method() != axum::http::Method::GET && req.method() != axum::http::Method::HEAD => {
+            (StatusCode::METHOD_NOT_ALLOWED, "the viewer is read-only\n").into_response()
+        }
+        Ok(cookie) => {
+            let mut r = next.run(req).await;
+            if let Some(c) = cookie {
+                r.headers_mut().insert(header::SET_COOKIE, c);
+            }
+            r
+        }
     };
     super::http::harden(resp.headers_mut());
     resp

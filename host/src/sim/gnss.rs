@@ -23,7 +23,8 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use crate::gnss::register::{Register, offset};
 use crate::gnss::sentence::sentence;
 use crate::gnss::{Fix, Quality};
-use crate::sim::head::{Pty, SimulateError};
+use crate::sim::SimulateError;
+use crate::sim::pty::Pty;
 use crate::sim::scene::noise::Rng;
 
 /// The built-in register: 3 km from chainage 41+000 (examples/track-register.csv).

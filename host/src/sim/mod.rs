@@ -5,6 +5,7 @@
 //!   row by row with its truth.
 //! * [`gnss`] — a simulated GNSS receiver riding with the simulated head
 //!   along a track register's centreline (`listen sim --gnss sim`).
+//! * [`pty`] — the pseudo-terminal a simulated device serves on.
 //! * [`head`] — the simulated head: `cms_core::pipeline::Head` on a
 //!   pseudo-terminal, fed by [`scene`] (`cms-host simulate`, `listen sim`).
 //! * [`calibration`] — calibration images of the simulated head and its
@@ -24,6 +25,30 @@ pub mod calibration;
 pub mod closed_loop;
 pub mod gnss;
 pub mod head;
+pub mod pty;
 pub mod real_light;
 pub mod scene;
 pub mod synthetic;
+
+use std::io;
+
+/// Why a simulated device (the head, its GNSS receiver) could not start
+/// or stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum SimulateError {
+    /// A bad option (exit status 2).
+    #[error("{0}")]
+    Usage(String),
+    /// A system call on the pty or the terminal failed (exit status 1).
+    #[error("{0}: {1}")]
+    Io(&'static str, #[source] io::Error),
+}
+
+impl crate::error::Classify for SimulateError {
+    fn class(&self) -> crate::Class {
+        match self {
+            SimulateError::Usage(_) => crate::Class::Input,
+            _ => crate::Class::Other,
+        }
+    }
+}

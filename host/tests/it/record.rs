@@ -782,14 +782,12 @@ fn fuzz_frame_readers_bounded() {
 fn fuzz_seed_corpus_is_current() {
     big(|| {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/corpus/decode");
-        let mut checked = 0;
         for name in ["dev-hello-1", "dev-profile-1", "dev-status-1", "dev-ack-1", "dev-error-1", "dev-rawrows-1"] {
             let f = std::fs::read(dir.join(name)).unwrap();
             let mut d = Deframer::new();
             let mut ok = 0;
             d.feed(&f, |r, _| ok += r.is_ok() as u32);
             assert_eq!(ok, 1, "{name}: regenerate the seeds (see docs/fuzzing.md)");
-            checked += 1;
         }
         for k in 0..12 {
             let f = std::fs::read(dir.join(format!("cmd-{k:02}"))).unwrap();
@@ -797,8 +795,6 @@ fn fuzz_seed_corpus_is_current() {
             let mut ok = 0;
             r.feed(&f, |c: Result<Command, WireError>| ok += c.is_ok() as u32);
             assert_eq!(ok, 1, "cmd-{k:02}: regenerate the seeds (see docs/fuzzing.md)");
-            checked += 1;
         }
-        assert_eq!(checked, 18);
     })
 }

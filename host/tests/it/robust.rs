@@ -262,3 +262,31 @@ fn measure_of_a_bad_recording_says_so() {
         assert_eq!(e.matches(s(f)).count(), 1, "{e}");
     }
 }
+
+/// `analyze` says what it took an input for. Random bytes named `.cmsrec`,
+/// or any name starting with `CMSREC`, are read as a recording, and the
+/// error is a recording's; the same bytes under another name are read as
+/// a profile CSV, and the error says so. One line, exit status 2.
+#[test]
+fn analyze_names_what_it_took_the_input_for() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut rng = cms_study::Rng::new(0xbad_c5e);
+    let noise: Vec<u8> = (0..4096).map(|_| rng.next_u64() as u8 | 0x80).collect();
+    let write = |name: &str, bytes: &[u8]| {
+        let p = dir.path().join(name);
+        std::fs::write(&p, bytes).unwrap();
+        p
+    };
+    let as_rec = write("bad.cmsrec", &noise);
+    let e = one_line_error(&run(&["analyze", s(&as_rec)]));
+    assert!(e.contains("not a CMS recording: the file does not start with CMSREC"), "{e}");
+    let started = write("started.dat", &[b"CMSREC\0\x01\x09\0".as_slice(), &noise].concat());
+    let e = one_line_error(&run(&["analyze", s(&started)]));
+    assert!(e.contains("recording format version 9"), "{e}");
+    let as_csv = write("bad.bin", &noise);
+    let e = one_line_error(&run(&["analyze", s(&as_csv)]));
+    assert!(e.contains("bad.bin: read as a profile CSV") && !e.contains("recording format"), "{e}");
+    let text = write("p.csv", b"x_mm,z_um\n0,1\nnot,numbers\n");
+    let e = one_line_error(&run(&["analyze", s(&text)]));
+    assert!(e.contains("p.csv: read as a profile CSV: "), "{e}");
+}

@@ -20,8 +20,6 @@ use std::sync::{Arc, Mutex, MutexGuard};
 pub use cells::Cells;
 pub use fits::{FIT_BUFFER, FitLog};
 
-use super::stitch::Gap;
-
 /// Samples a reader of a whole line takes at a time (512 KB of `f64`).
 pub const STRETCH: usize = 1 << 16;
 
@@ -109,6 +107,15 @@ impl Samples {
     pub fn finite(&self) -> usize {
         self.finite
     }
+}
+
+/// A stretch of track no frame covered.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gap {
+    /// Track position of the first missing sample, mm.
+    pub start_mm: f64,
+    /// Length, mm (missing samples × spacing).
+    pub length_mm: f64,
 }
 
 /// The runs of missing samples of a profile read in stretches, and the

@@ -12,89 +12,11 @@ use super::section::JoinedLine;
 use super::{Heading, JoinOptions, origin, read_oriented};
 use crate::analyze::standards::en13231;
 use crate::analyze::stitch::{Stitched, Stitching};
-use crate::analyze::store::STRETCH;
 
 /// Most of a run a registration correlates, mm: the stretch of the run
 /// nearest its start that the shifts searched can lay on the section (see
 /// the module docs of [`super`]).
 pub(super) const MAX_CORRELATED_MM: f64 = 100_000.0;
-
-/// A least-squares line `d ≈ a + b (x − xm)` fitted as points come
-/// (sums about the first point, so that grid indices of millions keep
-/// their precision).
-#[derive(Debug, Clone, Copy, Default)]
-pub(super) struct LineAcc {
-    n: usize,
-    origin: (f64, f64),
-    sx: f64,
-    sd: f64,
-    sxx: f64,
-    sxd: f64,
-    sdd: f64,
-}
-
-impl LineAcc {
-    pub fn push(&mut self, x: f64, d: f64) {
-        if self.n == 0 {
-            self.origin = (x, d);
-        }
-        let (x, d) = (x - self.origin.0, d - self.origin.1);
-        self.n += 1;
-        self.sx += x;
-        self.sd += d;
-        self.sxx += x * x;
-        self.sxd += x * d;
-        self.sdd += d * d;
-    }
-
-    /// Points taken.
-    pub fn len(&self) -> usize {
-        self.n
-    }
-
-    /// `(xm, a, b, rms)`: the line (tilt 0 when the points do not spread)
-    /// and the RMS of the points about it.
-    pub fn fit(&self) -> Option<(f64, f64, f64, f64)> {
-        if self.n == 0 {
-            return None;
-        }
-        let n = self.n as f64;
-        let (mx, md) = (self.sx / n, self.sd / n);
-        let sxx = self.sxx - self.sx * mx;
-        let sxd = self.sxd - self.sx * md;
-        let sdd = self.sdd - self.sd * md;
-        let b = if sxx > 0.0 { sxd / sxx } else { 0.0 };
-        let rss = (sdd - b * sxd).max(0.0);
-        Some((self.origin.0 + mx, self.origin.1 + md, b, (rss / n).sqrt()))
-    }
-}
-
-/// The line fit of a run's line minus the joined line `j` over their
-/// overlap, the run's `n` samples (read by `read`, in stretches) from grid
-/// index `at`: points (grid index, run − joined).
-pub(super) fn overlap_fit(
-    j: &JoinedLine,
-    n: usize,
-    at: i64,
-    read: impl Fn(Range<usize>) -> io::Result<Vec<f64>>,
-) -> io::Result<LineAcc> {
-    let mut acc = LineAcc::default();
-    let lo = usize::try_from(j.base - at).unwrap_or(0).min(n);
-    let hi = usize::try_from(j.end() - at).unwrap_or(0).min(n);
-    let mut from = lo;
-    while from < hi {
-        let to = (from + STRETCH).min(hi);
-        let v = read(from..to)?;
-        let y = j.values(at + from as i64..at + to as i64)?;
-        for (k, (x, y)) in v.iter().zip(&y).enumerate() {
-            if x.is_finite() && y.is_finite() {
-                acc.push((at + (from + k) as i64) as f64, x - y);
-            }
-        }
-        from = to;
-    }
-    Ok(acc)
-}
 
 /// Mean over the overlapping lines of the RMS after offset and tilt, and
 /// the overlap's length in samples (of the longest line's), with the run
@@ -111,7 +33,7 @@ pub(super) fn residual(
     let mut overlap = 0;
     for (l, o) in on_grid(run, h, g0, dx) {
         let Some(j) = joined.iter().find(|j| j.line == l.laser) else { continue };
-        let acc = overlap_fit(j, l.z.len(), start + o, |r| read_oriented(l, h, r))?;
+        let acc = j.overlap_fit(l.z.len(), start + o, |r| read_oriented(l, h, r))?;
         if let Some((_, _, _, rms)) = acc.fit().filter(|_| acc.len() >= 3) {
             sum += rms;
             lines += 1;

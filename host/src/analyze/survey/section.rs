@@ -7,11 +7,60 @@ use std::io;
 use std::ops::Range;
 use std::sync::Mutex;
 
-use super::register::overlap_fit;
 use super::resample::{LOBES, shifted};
 use super::{Heading, read_oriented, to_chainage};
 use crate::analyze::stitch::{FrameFit, Join, Stitched, Stitching, gaps_in};
 use crate::analyze::store::{Cells, STRETCH, Samples};
+
+/// A least-squares line `d ≈ a + b (x − xm)` fitted as points come
+/// (sums about the first point, so that grid indices of millions keep
+/// their precision).
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct LineAcc {
+    n: usize,
+    origin: (f64, f64),
+    sx: f64,
+    sd: f64,
+    sxx: f64,
+    sxd: f64,
+    sdd: f64,
+}
+
+impl LineAcc {
+    pub fn push(&mut self, x: f64, d: f64) {
+        if self.n == 0 {
+            self.origin = (x, d);
+        }
+        let (x, d) = (x - self.origin.0, d - self.origin.1);
+        self.n += 1;
+        self.sx += x;
+        self.sd += d;
+        self.sxx += x * x;
+        self.sxd += x * d;
+        self.sdd += d * d;
+    }
+
+    /// Points taken.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    /// `(xm, a, b, rms)`: the line (tilt 0 when the points do not spread)
+    /// and the RMS of the points about it.
+    pub fn fit(&self) -> Option<(f64, f64, f64, f64)> {
+        if self.n == 0 {
+            return None;
+        }
+        let n = self.n as f64;
+        let (mx, md) = (self.sx / n, self.sd / n);
+        let sxx = self.sxx - self.sx * mx;
+        let sxd = self.sxd - self.sx * md;
+        let sdd = self.sdd - self.sd * md;
+        let b = if sxx > 0.0 { sxd / sxx } else { 0.0 };
+        let rss = (sdd - b * sxd).max(0.0);
+        Some((self.origin.0 + mx, self.origin.1 + md, b, (rss / n).sqrt()))
+    }
+}
 
 /// One line of a section: sample `i` at chainage `g0 + i·dx` mm for `i`
 /// in `base..end` (sums and counts in a cell store, so that runs average
@@ -43,6 +92,33 @@ impl JoinedLine {
     /// and outside the line).
     pub fn values(&self, range: Range<i64>) -> io::Result<Vec<f64>> {
         self.cells().values(range)
+    }
+
+    /// The line fit of a run's line minus this line over their overlap,
+    /// the run's `n` samples (read by `read`, in stretches) from grid index
+    /// `at`: points (grid index, run − joined).
+    pub fn overlap_fit(
+        &self,
+        n: usize,
+        at: i64,
+        read: impl Fn(Range<usize>) -> io::Result<Vec<f64>>,
+    ) -> io::Result<LineAcc> {
+        let mut acc = LineAcc::default();
+        let lo = usize::try_from(self.base - at).unwrap_or(0).min(n);
+        let hi = usize::try_from(self.end - at).unwrap_or(0).min(n);
+        let mut from = lo;
+        while from < hi {
+            let to = (from + STRETCH).min(hi);
+            let v = read(from..to)?;
+            let y = self.values(at + from as i64..at + to as i64)?;
+            for (k, (x, y)) in v.iter().zip(&y).enumerate() {
+                if x.is_finite() && y.is_finite() {
+                    acc.push((at + (from + k) as i64) as f64, x - y);
+                }
+            }
+            from = to;
+        }
+        Ok(acc)
     }
 
     /// Grows the line to cover grid indices `lo..hi`.
@@ -197,7 +273,7 @@ impl Section {
             let at = lo + o;
             let mut correction = (0.0, 0.0, 0.0);
             if let Some(j) = self.lines.iter().find(|j| j.line == l.laser) {
-                let acc = overlap_fit(j, l.z.len(), at, |range| placed(l, heading, frac, range))?;
+                let acc = j.overlap_fit(l.z.len(), at, |range| placed(l, heading, frac, range))?;
                 if let Some((xm, a, b, rms)) = acc.fit().filter(|_| acc.len() >= 3) {
                     residual_sum.0 += rms;
                     residual_sum.1 += 1;

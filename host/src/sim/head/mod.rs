@@ -23,31 +23,21 @@ use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
 use std::thread::JoinHandle;
 
 pub use scene::SceneCamera;
-pub use server::{MAX_WIDTH, Pty, RowRenderer, ServeOptions, ServeSummary, serve};
+pub use server::{MAX_WIDTH, RowRenderer, ServeOptions, ServeSummary, serve};
 
+use crate::sim::pty::Pty;
 use crate::sim::scene::{Corrugation, SimConfig};
 
-/// Why the simulated head could not start or stopped.
-#[derive(Debug, thiserror::Error)]
-pub enum SimulateError {
-    /// A bad option (exit status 2).
-    #[error("{0}")]
-    Usage(String),
-    /// A system call on the pty or the terminal failed (exit status 1).
-    #[error("{0}: {1}")]
-    Io(&'static str, #[source] io::Error),
-}
-
-impl crate::error::Classify for SimulateError {
-    fn class(&self) -> crate::Class {
-        match self {
-            SimulateError::Usage(_) => crate::Class::Input,
-            _ => crate::Class::Other,
-        }
-    }
-}
-
+pub use crate::sim::SimulateError;
 pub use crate::sim::scene::Preset;
+
+/// The simulated head's travel when none is asked for, mm/s: a quarter of
+/// the fastest at which the reference head's 69 mm frames still overlap by
+/// the stitcher's 3 mm at `listen`'s 30 frames/s (`serve::speed_limit_mm_s`,
+/// 1.98 m/s), so that every join of a default run registers with ~52 mm of
+/// overlap, and still with ~19 mm when rendering laser light on a busy
+/// machine holds the head to 10 frames/s.
+pub const DEFAULT_SPEED_MM_S: f64 = 500.0;
 
 /// One corrugation component, `WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -72,7 +62,7 @@ pub struct HeadOptions {
     /// The camera's highest frame rate, Hz: the host's `Start` picks the
     /// rate, and one above this is refused (out of range).
     pub rate: u16,
-    /// Travel speed along the rail, mm/s.
+    /// Travel speed along the rail, mm/s ([`DEFAULT_SPEED_MM_S`] if none).
     pub speed_mm_s: Option<f64>,
     /// A corrugation component (repeat for several).
     pub corrugation: Vec<CorrugationSpec>,
@@ -359,9 +349,7 @@ pub fn sim_config(args: &HeadOptions) -> Result<SimConfig, SimulateError> {
     }
     // Counts are codes at the chosen bit depth; the model works in electrons.
     let e_per_count = cfg.camera.gain_e_per_dn();
-    if let Some(v) = args.speed_mm_s {
-        cfg.speed_mm_s = v;
-    }
+    cfg.speed_mm_s = args.speed_mm_s.unwrap_or(DEFAULT_SPEED_MM_S);
     if !args.corrugation.is_empty() {
         cfg.rail.corrugation = args
             .corrugation

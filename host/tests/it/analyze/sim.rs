@@ -481,3 +481,56 @@ fn a_survey_file_travels_with_the_recording() {
     let e = one_line_error(&run(&["listen", "sim", "--sim-state", st, "--frames", "2", "--record", r, "--survey", s]));
     assert!(e.contains("lnie"), "{e}");
 }
+
+/// The README's main job within its own limits: `listen sim` at its
+/// default speed, recorded for two seconds, then `analyze`. The default
+/// travel is under the live page's limit for the reference head's 68.6 mm
+/// frames, and every join the head travelled less than that limit's frame
+/// step to (less one 1 mm sample) registers: the page's limit is the one
+/// `analyze` needs. (A machine too busy to render the real-time head in
+/// time leaves longer steps; those may be unregistered.)
+#[test]
+fn the_main_job_registers_every_join() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("sim.cmsrec");
+    let state = dir.path().join("state");
+    let l = run(&[
+        "listen",
+        "sim",
+        "--sim-state",
+        state.to_str().unwrap(),
+        "--duration",
+        "2",
+        "--record",
+        rec.to_str().unwrap(),
+    ]);
+    assert!(l.status.success(), "{l:?}");
+    let rate_hz = 30.0;
+    let limit_mm_s = cms_host::serve::speed_limit_mm_s(68.6, rate_hz).unwrap();
+    assert!(cms_host::sim::head::DEFAULT_SPEED_MM_S < limit_mm_s, "{limit_mm_s}");
+    let mut odometer_mm = std::collections::BTreeMap::new();
+    recording::scan_file(&rec, |m| {
+        if let cms_core::protocol::DeviceMsg::Profile(p) = m {
+            odometer_mm.insert(p.seq, p.odometer_um as f64 / 1000.0);
+        }
+        Ok(())
+    })
+    .unwrap();
+    let o = run(&["analyze", rec.to_str().unwrap(), "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let a: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let lasers = a["lasers"].as_array().unwrap();
+    assert_eq!(lasers.len(), 3, "{a}");
+    let within = limit_mm_s / rate_hz - 1.0;
+    let steps: Vec<f64> = odometer_mm.values().collect::<Vec<_>>().windows(2).map(|w| w[1] - w[0]).collect();
+    assert!(steps.iter().any(|&s| s <= within), "no step within the limit: {steps:?}");
+    for l in lasers {
+        for j in l["unregistered_joins"].as_array().unwrap() {
+            let seq = j["seq"].as_u64().unwrap() as u32;
+            let here = odometer_mm[&seq];
+            let before = odometer_mm.range(..seq).next_back().map(|(_, &o)| o);
+            let step = before.map_or(f64::INFINITY, |b| here - b);
+            assert!(step > within, "frame {seq}, {step:.1} mm after the one before (limit {within:.1} mm): {j}");
+        }
+    }
+}

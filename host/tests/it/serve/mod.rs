@@ -9,6 +9,7 @@
 
 mod browser;
 mod feed;
+mod token;
 mod viewer;
 
 use std::collections::BTreeMap;
@@ -26,10 +27,13 @@ use crate::common::bin;
 /// A `cms-host listen sim --serve 127.0.0.1:0 --record …` process.
 struct Listen {
     child: Child,
-    /// `http://127.0.0.1:PORT/`.
+    /// The page's address as printed: `http://127.0.0.1:PORT/`, with
+    /// `?token=…` where the view has one.
     url: String,
-    /// `127.0.0.1:PORT`.
+    /// `127.0.0.1:PORT` (also for a view bound to every address).
     host: String,
+    /// The view's token, where it has one.
+    token: Option<String>,
     rec: PathBuf,
     stderr: JoinHandle<String>,
 }
@@ -37,9 +41,15 @@ struct Listen {
 impl Listen {
     /// Starts it with `extra` arguments, and waits for its address.
     fn start(dir: &Path, extra: &[&str]) -> Listen {
+        Listen::start_on(dir, "127.0.0.1:0", extra)
+    }
+
+    /// Starts it serving on `serve` with `extra` arguments, and waits for
+    /// its address.
+    fn start_on(dir: &Path, serve: &str, extra: &[&str]) -> Listen {
         let rec = dir.join("live.cmsrec");
         let mut child = Command::new(bin())
-            .args(["listen", "sim", "--sim-light=incoherent", "--serve", "127.0.0.1:0", "--record"])
+            .args(["listen", "sim", "--sim-light=incoherent", "--serve", serve, "--record"])
             .arg(&rec)
             .args(extra)
             .env("CMS_SIM_STATE", dir.join("sim-state"))
@@ -65,8 +75,10 @@ impl Listen {
                 break rest.split_whitespace().next().unwrap().to_string();
             }
         };
-        let host = url.trim_start_matches("http://").trim_end_matches('/').to_string();
-        Listen { child, url, host, rec, stderr }
+        let (addr, query) = url.trim_start_matches("http://").split_once('/').unwrap();
+        let host = addr.replace("0.0.0.0:", "127.0.0.1:");
+        let token = query.strip_prefix("?token=").map(String::from);
+        Listen { child, url, host, token, rec, stderr }
     }
 
     /// Ctrl-C, then its exit status and stderr.

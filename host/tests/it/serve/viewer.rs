@@ -25,7 +25,7 @@ impl View {
         let mut child = Command::new(bin())
             .arg("view")
             .args(args)
-            .args(["--serve", "127.0.0.1:0"])
+            .args(if args.contains(&"--serve") { &[][..] } else { &["--serve", "127.0.0.1:0"][..] })
             .stdin(Stdio::null())
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
@@ -41,7 +41,7 @@ impl View {
         let host = loop {
             let line = rx.recv_timeout(Duration::from_secs(120)).expect("view names its address");
             if let Some(rest) = line.strip_prefix("view: on http://") {
-                break rest.split('/').next().unwrap().to_string();
+                break rest.split('/').next().unwrap().replace("0.0.0.0:", "127.0.0.1:");
             }
         };
         View { child, host }
@@ -237,4 +237,32 @@ fn the_viewer_of_a_report_folder_shows_the_same() {
     assert_eq!(o.status.code(), Some(2));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("--block-m") && err.lines().count() == 1, "{err}");
+}
+
+/// Off loopback the viewer asks for its token (`--serve-token` here):
+/// without it the page and the API are 401, with a wrong one 403; the
+/// address printed carries it, and with it (in the address, then as the
+/// cookie it sets, or as a bearer) the analysis is served.
+#[test]
+fn off_loopback_the_viewer_asks_for_its_token() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("run.cmsrec");
+    let r = rec.to_str().unwrap();
+    let o = run(&["bench", "recording", "--frames", "300", "--out", r]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let view = View::start(&[r, "--serve", "0.0.0.0:0", "--serve-token", "viewer-token-0123456789"]);
+    let port = view.host.rsplit(':').next().unwrap().to_string();
+    let get = |path: &str, extra: &str| {
+        format!("GET {path} HTTP/1.1\r\nHost: survey-laptop.example:{port}\r\n{extra}Connection: close\r\n\r\n")
+    };
+    assert_eq!(view.status(&get("/", "")), 401);
+    assert_eq!(view.status(&get("/api/analysis", "")), 401);
+    assert_eq!(view.status(&get("/api/profile?from_mm=0&to_mm=1000&bins=10", "")), 401);
+    assert_eq!(view.status(&get("/api/frame?i=0", "Authorization: Bearer viewer-token-wrong-0000\r\n")), 403);
+    assert_eq!(view.status(&get("/?token=viewer-token-0123456789", "")), 200);
+    assert_eq!(
+        view.status(&get("/api/frame?i=0", &format!("Cookie: cms_view_{port}=viewer-token-0123456789\r\n"))),
+        200
+    );
+    assert_eq!(view.status(&get("/api/analysis", "Authorization: Bearer viewer-token-0123456789\r\n")), 200);
 }
