@@ -25,6 +25,7 @@
 //! 100 000-frame recording (`cms-host bench recording`, 1.7 km of rail,
 //! 778 MB) takes about 14 s and 52 MB (docs/benchmarks.md).
 
+pub mod floor;
 pub mod live;
 pub mod marks;
 pub mod pieces;
@@ -47,6 +48,7 @@ use crate::measure::corrugation::Across;
 use crate::measure::{Measurer, Profiles};
 use crate::progress::Progress;
 use crate::recording::{self, ScanStats};
+use pieces::Wanted;
 use stitch::{FrameAssembler, FramePoints, Stitched, Stitching};
 
 /// What [`analyze`] needs besides the frames.
@@ -295,7 +297,26 @@ pub fn slide_frame(f: &mut FramePoints, m: &Measurer) -> bool {
 pub struct LaserAnalysis {
     pub stitched: Stitched,
     pub bands: Result<en13231::BandAnalysis, StandardsError>,
+    /// Per EN 13231-3 band: one line's noise floor and whether it allows
+    /// a verdict on this line (under the verdict's edition).
+    pub judgements: Vec<floor::BandJudgement>,
+    /// Its third octaves carry the floor ([`en15610::ThirdOctave::floor_db`]).
     pub roughness: Result<en15610::Roughness, StandardsError>,
+}
+
+/// A section's running band seen through all its lines: the profile the
+/// verdict judges ([`reprofiling`]) and EN 15610's lines averaged.
+#[derive(Debug, Clone)]
+pub struct RunningBandAnalysis {
+    pub section: usize,
+    /// Lines combined.
+    pub lines: usize,
+    /// EN 13231-3 of the lines' mean, where every line has a sample.
+    pub bands: Result<en13231::BandAnalysis, StandardsError>,
+    /// Per band: the mean's floor (`1/√lines` of a line's) and whether it allows a verdict.
+    pub judgements: Vec<floor::BandJudgement>,
+    /// EN 15610: the lines' spectra energy-averaged, with the floor (`None`: no line has a spectrum).
+    pub roughness: Option<en15610::Spectrum>,
 }
 
 /// The whole analysis.
@@ -307,6 +328,11 @@ pub struct Analysis {
     pub joins: Vec<survey::RunJoin>,
     /// Every line of every section, section by section ([`Analysis::sections`]).
     pub lasers: Vec<LaserAnalysis>,
+    /// The instrument's noise floor, measured on the lines (`None`: no
+    /// section has two lines, so it is not known).
+    pub floor: Option<floor::Floor>,
+    /// Each section's running band (sections of two lines or more).
+    pub running_bands: Vec<RunningBandAnalysis>,
     /// Zones, the reprofiling table and blocks over all the lines.
     pub verdict: reprofiling::ReprofilingVerdict,
 }
@@ -405,8 +431,10 @@ pub fn analyze(frames: &[FramePoints], opts: &Options) -> Result<Analysis, Error
 }
 
 /// Runs both standards on every laser's stitched profile and judges the
-/// survey line, walking it piece by piece ([`pieces`]); `progress` is
-/// told the metres of line judged.
+/// survey line: first the noise floor from the lines' null combinations
+/// ([`floor::measure`], one walk), then the standards and the verdict,
+/// walking it piece by piece ([`pieces`]); `progress` is told the metres
+/// of line walked.
 pub fn judge(
     mut stitching: Stitching,
     joins: Vec<survey::RunJoin>,
@@ -414,6 +442,7 @@ pub fn judge(
     progress: &dyn Progress,
 ) -> Result<Analysis, Error> {
     let stitched = std::mem::take(&mut stitching.lasers);
+    let floor = floor::measure(&stitched, opts, progress)?;
     let total_m: u64 = stitched
         .chunk_by(|a, b| a.section == b.section)
         .map(|s| (Grid::of_lines(&s.iter().collect::<Vec<_>>(), s[0].dx_mm).len as f64 * s[0].dx_mm / 1000.0) as u64)
@@ -421,8 +450,15 @@ pub fn judge(
     progress.begin("judging", total_m, "m");
     let mut done_m = 0.0;
     let dx = stitched.first().map_or(opts.stitch.dx_mm, |s| s.dx_mm);
-    let mut verdict = reprofiling::Builder::new(&opts.verdict, dx);
+    let mut verdict = reprofiling::Builder::new(&opts.verdict, dx, floor.clone());
+    let edition = opts.verdict.edition;
+    let line_judgements: Vec<floor::BandJudgement> = en13231::BANDS
+        .iter()
+        .enumerate()
+        .map(|(b, band)| floor::BandJudgement::of(floor.as_ref().and_then(|f| f.band(b).copied()), edition, band))
+        .collect();
     let mut lasers = Vec::new();
+    let mut running_bands = Vec::new();
     for section in stitched.chunk_by(|a, b| a.section == b.section) {
         let mut bands = Vec::new();
         let mut welch = Vec::new();
@@ -445,8 +481,10 @@ pub fn judge(
         }
         let lines: Vec<(&Stitched, [bool; 4])> = section.iter().zip(&bands).map(|(s, a)| (s, evaluated(a))).collect();
         let mut sums = vec![[en13231::BandSums::default(); 4]; section.len()];
+        let mut mean_sums = [en13231::BandSums::default(); 4];
         let mut spikes = vec![0usize; section.len()];
-        pieces::walk_section(section[0].section, &lines, opts, &mut |p| {
+        let want = Wanted { lines: true, mean: true, nulls: false };
+        pieces::walk_section(section[0].section, &lines, opts, want, &mut |p| {
             for (k, l) in p.lines.iter().enumerate() {
                 for ((sum, t), band) in sums[k].iter_mut().zip(&l.bands).zip(&en13231::BANDS) {
                     if let Some(t) = t {
@@ -457,11 +495,19 @@ pub fn judge(
                     spikes[k] += w.add(&l.stretch(p.core.clone()), &opts.roughness);
                 }
             }
+            if let Some(rb) = &p.band {
+                for ((sum, t), band) in mean_sums.iter_mut().zip(&rb.mean.bands).zip(&en13231::BANDS) {
+                    if let Some(t) = t {
+                        sum.add(band, t);
+                    }
+                }
+            }
             verdict.piece(p);
             done_m += p.core.len() as f64 * p.grid.dx_mm / 1000.0;
             progress.set(done_m as u64);
             Ok(())
         })?;
+        let mut spectra = Vec::new();
         for (k, s) in section.iter().enumerate() {
             let mut bands = bands[k].clone();
             if let Ok(a) = &mut bands {
@@ -472,14 +518,63 @@ pub fn judge(
                 }
             }
             let roughness = match &welch[k] {
-                Ok(w) => Ok(en15610::Roughness { spectrum: w.spectrum(), spikes_removed: spikes[k] }),
+                Ok(w) => {
+                    let mut spectrum = w.spectrum();
+                    spectra.push(spectrum.clone());
+                    if let Some(f) = &floor {
+                        f.mark(&mut spectrum);
+                    }
+                    Ok(en15610::Roughness { spectrum, spikes_removed: spikes[k] })
+                }
                 Err(e) => Err(e.clone()),
             };
-            lasers.push(LaserAnalysis { stitched: s.clone(), bands, roughness });
+            lasers.push(LaserAnalysis { stitched: s.clone(), bands, judgements: line_judgements.clone(), roughness });
+        }
+        if section.len() >= 2 {
+            running_bands.push(running_band(section, &mean_sums, &spectra, floor.as_ref(), edition));
         }
     }
     progress.end();
-    Ok(Analysis { options: opts.clone(), stitching, joins, lasers, verdict: verdict.finish() })
+    Ok(Analysis { options: opts.clone(), stitching, joins, lasers, floor, running_bands, verdict: verdict.finish() })
+}
+
+/// A section's running band from its mean's band sums and its lines' spectra.
+fn running_band(
+    section: &[Stitched],
+    sums: &[en13231::BandSums; 4],
+    spectra: &[en15610::Spectrum],
+    floor: Option<&floor::Floor>,
+    edition: reprofiling::Edition,
+) -> RunningBandAnalysis {
+    let dx = section[0].dx_mm;
+    let grid = Grid::of_lines(&section.iter().collect::<Vec<_>>(), dx);
+    let runs: Vec<Vec<std::ops::Range<usize>>> = section
+        .iter()
+        .map(|s| {
+            let off = grid.offset(s);
+            pieces::runs(s).into_iter().map(|r| r.start + off..r.end + off).collect()
+        })
+        .collect();
+    let common = pieces::common_runs(&runs);
+    let mut bands = en13231::plan(&common, grid.len, dx);
+    if let Ok(a) = &mut bands {
+        for (r, sum) in a.bands.iter_mut().zip(sums) {
+            if let Ok(st) = &mut r.outcome {
+                *st = sum.stats(&r.band, dx);
+            }
+        }
+    }
+    let k = section.len();
+    let judgements = en13231::BANDS
+        .iter()
+        .enumerate()
+        .map(|(b, band)| floor::BandJudgement::of(floor.and_then(|f| Some(f.band(b)?.of_mean(k))), edition, band))
+        .collect();
+    let mut roughness = en15610::energy_average(spectra);
+    if let (Some(s), Some(f)) = (&mut roughness, floor) {
+        f.mark(s);
+    }
+    RunningBandAnalysis { section: section[0].section, lines: k, bands, judgements, roughness }
 }
 
 /// Which EN 13231-3 bands a line's plan evaluates.
@@ -501,7 +596,7 @@ impl Analysis {
         for section in self.sections() {
             let lines: Vec<(&Stitched, [bool; 4])> =
                 section.lasers.iter().map(|l| (&l.stitched, evaluated(&l.bands))).collect();
-            pieces::walk_section(section.number, &lines, &self.options, &mut f)?;
+            pieces::walk_section(section.number, &lines, &self.options, Wanted::LINES, &mut f)?;
         }
         Ok(())
     }

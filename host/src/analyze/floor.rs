@@ -1,0 +1,295 @@
+//! The instrument's noise floor, measured on the survey's own data, and
+//! what it lets the standards judge.
+//!
+//! # What the lines see
+//!
+//! Corrugation runs across the rail head: the three lines, a few
+//! millimetres apart on the running band, see the same rail. Speckle is
+//! tied to each line's own patch of surface and sensor noise to each
+//! line's own pixels: independent from line to line. So the lines' *null
+//! combinations* ([`crate::analyze::pieces::RunningBand`], Helmert
+//! contrasts: each line's weight summing to zero, orthonormal) hold no
+//! common rail at all, only what differs among the lines, with the
+//! statistics of one line's noise when the lines' noises are alike. Each
+//! is run through exactly the processing a line goes through — the
+//! EN 13231-3 band filters and moving windows, EN 15610's spike removal,
+//! curvature processing and Welch spectrum — so the floor carries the
+//! nonlinear steps' effect on noise (the wheel riding on speckle's peaks,
+//! spikes that are noise), not only its linear part.
+//!
+//! What it can and cannot see (docs/noise-floor.md):
+//! * it sees speckle, sensor noise, the stitch's per-line errors and any
+//!   disturbance of one line (grease, a glint);
+//! * it counts rail that differs across the running band (a defect under
+//!   one line only) as noise: the floor is then too high, never too low —
+//!   a band may be *not judged* that could have been;
+//! * it cannot see what is common to the lines: a stitch error shared by
+//!   all (the frames are registered line by line, so their errors are
+//!   not), a vibration of the whole head, a calibration error.
+//!
+//! # The floor of each figure
+//!
+//! A line's floor in an EN 13231-3 band is the null lines' RMS, average
+//! and worst mean peak-to-peak; the running band's profile (the lines'
+//! mean) has `1/√k` of it for `k` lines ([`BandFloor::of_mean`]). In
+//! EN 15610 it is the null lines' one-third-octave spectrum.
+//!
+//! # Verdicts the floor supports
+//!
+//! * EN 13231-3:2006: a band is judged when its floor's average mean
+//!   peak-to-peak is at most half the limit ([`JUDGED_SHARE_OF_LIMIT`]):
+//!   noise alone then cannot carry a window over it.
+//! * EN 13231-3:2012 (isolated points): when the floor's largest
+//!   displacement (half the worst window max − min of the null lines) is
+//!   at most half the limit.
+//! * ISO 3095: a one-third octave is judged when its level is at least
+//!   [`en15610::FLOOR_MARGIN_DB`] over its floor (twice the floor's power: at least
+//!   as much rail as noise).
+//!
+//! A one-line profile (another instrument's CSV, a head with one line)
+//! has no null combination: its floor is not known and it is judged as
+//! measured, saying so.
+
+use std::ops::Range;
+
+use super::pieces::{self, Wanted};
+use super::stitch::Stitched;
+use super::{Grid, Options};
+use crate::Error;
+use crate::analyze::standards::en13231::{self, BandSums};
+use crate::analyze::standards::en15610;
+use crate::progress::Progress;
+
+/// An EN 13231-3 band is judged when its floor is at most this share of its limit.
+pub const JUDGED_SHARE_OF_LIMIT: f64 = 0.5;
+
+/// The survey's noise floor.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Floor {
+    /// Lines combined (the fewest of any section measured).
+    pub lines: usize,
+    /// Length where every line of a section has a sample, mm.
+    pub measured_mm: f64,
+    /// One line's floor per EN 13231-3 band ([`en13231::BANDS`] order;
+    /// `None` where the common runs are too short for the band).
+    pub bands: Vec<Option<BandFloor>>,
+    /// One line's floor per one-third octave (`None`: no common run holds a segment).
+    pub spectrum: Option<en15610::Spectrum>,
+    /// "Spikes" EN 15610's spike removal took out of the null lines per
+    /// metre: noise that looks like dirt.
+    pub spikes_per_m: f64,
+}
+
+/// One line's noise floor in an EN 13231-3 band.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BandFloor {
+    /// RMS of the band-filtered noise, mm.
+    pub rms_mm: f64,
+    /// Mean over the window positions of the noise's mean peak-to-peak, mm.
+    pub average_mean_pp_mm: f64,
+    /// Largest mean peak-to-peak of a window of noise, mm.
+    pub worst_mean_pp_mm: f64,
+    /// Largest displacement of the noise, mm (half the largest window max − min).
+    pub peak_mm: f64,
+    /// Share of the lines' band power they have in common, 0–1: near 0
+    /// where the band holds noise (or rail that differs across the
+    /// band), near 1 where common rail stands far above the noise.
+    pub coherence: f64,
+}
+
+impl BandFloor {
+    /// The floor of the mean of `k` lines: independent noises average as `1/√k`.
+    pub fn of_mean(&self, k: usize) -> BandFloor {
+        let s = 1.0 / (k.max(1) as f64).sqrt();
+        BandFloor {
+            rms_mm: self.rms_mm * s,
+            average_mean_pp_mm: self.average_mean_pp_mm * s,
+            worst_mean_pp_mm: self.worst_mean_pp_mm * s,
+            peak_mm: self.peak_mm * s,
+            coherence: self.coherence,
+        }
+    }
+
+    /// The floor in the quantity `edition` judges: the average mean
+    /// peak-to-peak (2006) or the largest displacement (2012), mm.
+    pub fn judged_quantity_mm(&self, edition: super::reprofiling::Edition) -> f64 {
+        match edition {
+            super::reprofiling::Edition::En2006 => self.average_mean_pp_mm,
+            super::reprofiling::Edition::En2012 => self.peak_mm,
+        }
+    }
+
+    /// Why a band with this floor cannot be judged against `limit_mm`
+    /// under `edition`, or `None` when it can.
+    pub fn not_judged(&self, edition: super::reprofiling::Edition, limit_mm: f64) -> Option<String> {
+        let f = self.judged_quantity_mm(edition);
+        (f > JUDGED_SHARE_OF_LIMIT * limit_mm).then(|| {
+            let what = match edition {
+                super::reprofiling::Edition::En2006 => "mean peak-to-peak",
+                super::reprofiling::Edition::En2012 => "largest displacement",
+            };
+            format!(
+                "not judged: the instrument's noise floor ({what} {:.1} µm) is over half the {:.0} µm limit",
+                f * 1000.0,
+                limit_mm * 1000.0
+            )
+        })
+    }
+}
+
+/// A figure's floor and whether it can be judged.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct BandJudgement {
+    /// The floor of the profile judged (`None`: not known).
+    pub floor: Option<BandFloor>,
+    /// Why the band is not judged (the floor is too high), if it is not.
+    pub not_judged: Option<String>,
+}
+
+impl BandJudgement {
+    /// The judgement of a profile whose floor is `floor`, against the
+    /// `edition`'s limit for `band` (none: nothing to judge).
+    pub fn of(floor: Option<BandFloor>, edition: super::reprofiling::Edition, band: &en13231::Band) -> BandJudgement {
+        let not_judged = floor.zip(edition.limit_mm(band)).and_then(|(f, lim)| f.not_judged(edition, lim));
+        BandJudgement { floor, not_judged }
+    }
+}
+
+/// Sums over the null lines and the mean line of one band, in any order.
+#[derive(Debug, Clone, Copy, Default)]
+struct Sums {
+    nulls: BandSums,
+    mean: BandSums,
+    seen: bool,
+}
+
+/// Measures the floor of a survey's lines (`stitched`, section by
+/// section), walking each section with two lines or more once; `None`
+/// when no section has two lines with samples in common.
+pub fn measure(stitched: &[Stitched], opts: &Options, progress: &dyn Progress) -> Result<Option<Floor>, Error> {
+    let mut sums = [Sums::default(); 4];
+    let mut welch: Option<en15610::Welch> = None;
+    let (mut lines, mut measured_mm, mut spikes) = (usize::MAX, 0.0, 0usize);
+    let sections: Vec<&[Stitched]> = stitched.chunk_by(|a, b| a.section == b.section).collect();
+    let total_m: f64 = sections.iter().map(|s| section_len_mm(s) / 1000.0).sum();
+    progress.begin("noise floor", total_m as u64, "m");
+    let mut done_m = 0.0;
+    for section in sections {
+        if section.len() < 2 {
+            continue;
+        }
+        let dx = section[0].dx_mm;
+        let common = common_runs(section, dx);
+        if common.is_empty() {
+            continue;
+        }
+        lines = lines.min(section.len());
+        measured_mm += common.iter().map(|r| r.len()).sum::<usize>() as f64 * dx;
+        if welch.is_none() {
+            welch = en15610::Welch::new(&common, dx, &opts.roughness).ok();
+        }
+        let evaluate = pieces::evaluated_on(&common, dx);
+        let with: Vec<(&Stitched, [bool; 4])> = section.iter().map(|s| (s, evaluate)).collect();
+        let want = Wanted { lines: false, mean: true, nulls: true };
+        pieces::walk_section(section[0].section, &with, opts, want, &mut |p| {
+            let Some(band) = &p.band else { return Ok(()) };
+            for (b, (s, spec)) in sums.iter_mut().zip(&en13231::BANDS).enumerate() {
+                if let Some(t) = band.mean.bands.get(b).and_then(Option::as_ref) {
+                    s.mean.add(spec, t);
+                }
+                for n in &band.nulls {
+                    if let Some(t) = n.bands.get(b).and_then(Option::as_ref) {
+                        s.nulls.add(spec, t);
+                        s.seen = true;
+                    }
+                }
+            }
+            if let Some(w) = &mut welch {
+                for n in &band.nulls {
+                    spikes += w.add(&n.stretch(p.core.clone()), &opts.roughness);
+                }
+            }
+            done_m += p.core.len() as f64 * p.grid.dx_mm / 1000.0;
+            progress.set(done_m as u64);
+            Ok(())
+        })?;
+    }
+    progress.end();
+    if lines == usize::MAX {
+        return Ok(None);
+    }
+    let dx = stitched[0].dx_mm;
+    let bands = sums
+        .iter()
+        .zip(&en13231::BANDS)
+        .map(|(s, band)| {
+            s.seen.then(|| {
+                let n = s.nulls.stats(band, dx);
+                let m = s.mean.stats(band, dx);
+                BandFloor {
+                    rms_mm: n.rms_mm,
+                    average_mean_pp_mm: n.average_mean_pp_mm,
+                    worst_mean_pp_mm: n.worst_mean_pp_mm,
+                    peak_mm: n.worst_max_pp_mm / 2.0,
+                    coherence: coherence(m.rms_mm, n.rms_mm, lines),
+                }
+            })
+        })
+        .collect();
+    let nulls = (lines - 1) as f64;
+    Ok(Some(Floor {
+        lines,
+        measured_mm,
+        bands,
+        spectrum: welch.map(|w| w.spectrum()),
+        spikes_per_m: spikes as f64 / nulls / (measured_mm / 1000.0).max(1e-9),
+    }))
+}
+
+/// The share of `k` lines' band power they have in common, from the
+/// RMS of their mean and of their null combinations: per line the power
+/// is `mean² + (k−1)/k · null²` (the transform is orthonormal), the
+/// common part `mean² − null²/k`.
+pub fn coherence(mean_rms: f64, null_rms: f64, k: usize) -> f64 {
+    let k = k.max(2) as f64;
+    let (m2, n2) = (mean_rms * mean_rms, null_rms * null_rms);
+    let total = m2 + (k - 1.0) / k * n2;
+    if total > 0.0 { ((m2 - n2 / k) / total).clamp(0.0, 1.0) } else { 0.0 }
+}
+
+/// The runs (grid indices of the section) where every line has a sample.
+fn common_runs(section: &[Stitched], dx_mm: f64) -> Vec<Range<usize>> {
+    let grid = Grid::of_lines(&section.iter().collect::<Vec<_>>(), dx_mm);
+    let runs: Vec<Vec<Range<usize>>> = section
+        .iter()
+        .map(|s| {
+            let off = grid.offset(s);
+            pieces::runs(s).into_iter().map(|r| r.start + off..r.end + off).collect()
+        })
+        .collect();
+    pieces::common_runs(&runs)
+}
+
+fn section_len_mm(section: &[Stitched]) -> f64 {
+    let dx = section[0].dx_mm;
+    Grid::of_lines(&section.iter().collect::<Vec<_>>(), dx).len as f64 * dx
+}
+
+impl Floor {
+    /// One line's floor in band `b`.
+    pub fn band(&self, b: usize) -> Option<&BandFloor> {
+        self.bands.get(b).and_then(Option::as_ref)
+    }
+
+    /// One line's floor at the one-third octave `k`, dB re 1 µm.
+    pub fn third_octave_db(&self, k: i32) -> Option<f64> {
+        self.spectrum.as_ref()?.bands.iter().find(|b| b.k == k).map(|b| b.level_db)
+    }
+
+    /// Sets each one-third octave's floor of a line's spectrum.
+    pub fn mark(&self, s: &mut en15610::Spectrum) {
+        for b in &mut s.bands {
+            b.floor_db = self.third_octave_db(b.k);
+        }
+    }
+}
