@@ -293,3 +293,111 @@ impl Floor {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::analyze::stitch::{Direction, Stitching};
+    use crate::analyze::{Analysis, judge, profile};
+
+    /// Three lines 1 mm apart over `n` samples: the rail `rail(x_mm)` on
+    /// each, plus independent Gaussian noise of `sigma_um` per sample.
+    fn survey(n: usize, sigma_um: f64, rail: &dyn Fn(f64) -> f64, seed: u64) -> Analysis {
+        let mut s = seed.max(1);
+        let mut uniform = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let mut gauss = move || (-2.0 * uniform().ln()).sqrt() * (std::f64::consts::TAU * uniform()).cos();
+        let lasers = (0..3)
+            .map(|k| {
+                let z = (0..n).map(|i| rail(i as f64) + sigma_um * gauss()).collect();
+                profile::stitched(k, 0.0, 1.0, z)
+            })
+            .collect();
+        let stitching =
+            Stitching { direction: Direction::Forward, direction_residuals_um: None, direction_given: true, lasers };
+        judge(stitching, Vec::new(), &Options::default(), &crate::progress::Silent).unwrap()
+    }
+
+    fn line_stats(a: &Analysis, k: usize, b: usize) -> en13231::BandStats {
+        a.lasers[k].bands.as_ref().unwrap().bands[b].outcome.clone().unwrap()
+    }
+
+    fn corrugated(x: f64) -> f64 {
+        15.0 * (x * std::f64::consts::TAU / 20.0).sin() + 20.0 * (x * std::f64::consts::TAU / 60.0 + 1.0).sin()
+    }
+
+    /// On a smooth rail the floor is what each line reads, band by band
+    /// and third octave by third octave, and nothing is judged on noise;
+    /// on a corrugated rail under the same noise the floor stays where it was.
+    #[test]
+    fn the_floor_is_what_a_smooth_rail_reads_and_does_not_move_with_corrugation() {
+        let n = 12_000;
+        let smooth = survey(n, 27.0, &|_| 0.0, 3);
+        let f = smooth.floor.as_ref().expect("three lines: a floor");
+        assert_eq!(f.lines, 3);
+        for b in 0..3 {
+            let fl = f.band(b).unwrap();
+            for k in 0..3 {
+                let st = line_stats(&smooth, k, b);
+                let r = fl.rms_mm / st.rms_mm;
+                assert!((0.8..1.25).contains(&r), "band {b} line {k}: floor RMS {} vs {}", fl.rms_mm, st.rms_mm);
+                let r = fl.average_mean_pp_mm / st.average_mean_pp_mm;
+                assert!((0.8..1.25).contains(&r), "band {b} line {k}: floor p-p {r}");
+            }
+            assert!(fl.coherence < 0.1, "band {b}: noise is not common: {}", fl.coherence);
+        }
+        let spectrum = f.spectrum.as_ref().unwrap();
+        let lines = smooth.running_bands[0].roughness.as_ref().unwrap();
+        for (fb, mb) in spectrum.bands.iter().zip(&lines.bands) {
+            assert!((fb.level_db - mb.level_db).abs() < 1.5, "{fb:?} vs {mb:?}");
+            assert_eq!(mb.exceeds(), None, "within 3 dB of the floor: not judged ({mb:?})");
+        }
+        // Noise never fails: the 10–30 mm band's floor is over half its limit, not judged.
+        let v = &smooth.verdict;
+        assert!(v.rows[0].judgement.not_judged.is_some(), "{:?}", v.rows[0]);
+        assert_eq!(v.rows[0].passes(v.options.edition), None);
+        assert_eq!(v.reprofile_mm, 0.0);
+        assert!(v.zones.is_empty());
+        assert!(v.blocks.iter().all(|b| b.iso3095_exceeded.as_ref().is_none_or(Vec::is_empty)));
+        for l in &smooth.lasers {
+            assert!(l.roughness.as_ref().unwrap().spectrum.bands.iter().all(|b| b.exceeds() != Some(true)));
+        }
+
+        let rough = survey(n, 27.0, &corrugated, 3);
+        let g = rough.floor.as_ref().unwrap();
+        for b in 0..3 {
+            let (x, y) = (f.band(b).unwrap(), g.band(b).unwrap());
+            assert!((y.rms_mm / x.rms_mm - 1.0).abs() < 0.02, "band {b}: {} vs {}", x.rms_mm, y.rms_mm);
+        }
+        assert!(g.band(0).unwrap().coherence > 0.4 && g.band(1).unwrap().coherence > 0.8, "{g:?}");
+    }
+
+    /// Corrugation over the limits in two bands under a floor that allows
+    /// a verdict: both bands judged, and failed, on the running band.
+    #[test]
+    fn corrugation_over_the_floor_is_judged_and_fails() {
+        let a = survey(6_000, 8.0, &corrugated, 5);
+        let v = &a.verdict;
+        for b in 0..2 {
+            let row = &v.rows[b];
+            assert!(row.judgement.not_judged.is_none(), "band {b}: {row:?}");
+            assert_eq!(row.passes(v.options.edition), Some(false), "band {b}: {row:?}");
+        }
+        assert!(v.reprofile_mm > 0.9 * v.measured_mm, "{} of {}", v.reprofile_mm, v.measured_mm);
+    }
+
+    #[test]
+    fn coherence_is_the_common_share_of_the_lines_power() {
+        // Identical lines: no null power.
+        assert_eq!(coherence(1.0, 0.0, 3), 1.0);
+        // Pure noise of one line's σ: the mean has σ/√3, the nulls σ.
+        assert!(coherence(1.0 / 3f64.sqrt(), 1.0, 3).abs() < 1e-12);
+        // Common rail of power 1 over noise of power 1: half the lines' power is common.
+        let m = (1.0 + 1.0 / 3.0f64).sqrt();
+        assert!((coherence(m, 1.0, 3) - 0.5).abs() < 1e-12);
+    }
+}

@@ -592,11 +592,20 @@ impl Analysis {
     /// Walks the survey line piece by piece, every section in chainage
     /// order, with the lines' samples and band traces (what plots and
     /// exports are written from; recomputed, never held whole).
-    pub fn for_each_piece(&self, mut f: impl FnMut(&pieces::Piece) -> Result<(), Error>) -> Result<(), Error> {
+    pub fn for_each_piece(&self, f: impl FnMut(&pieces::Piece) -> Result<(), Error>) -> Result<(), Error> {
+        self.for_each_piece_with(Wanted::LINES, f)
+    }
+
+    /// [`Analysis::for_each_piece`], each piece with what `wanted` asks for.
+    pub fn for_each_piece_with(
+        &self,
+        wanted: Wanted,
+        mut f: impl FnMut(&pieces::Piece) -> Result<(), Error>,
+    ) -> Result<(), Error> {
         for section in self.sections() {
             let lines: Vec<(&Stitched, [bool; 4])> =
                 section.lasers.iter().map(|l| (&l.stitched, evaluated(&l.bands))).collect();
-            pieces::walk_section(section.number, &lines, &self.options, Wanted::LINES, &mut f)?;
+            pieces::walk_section(section.number, &lines, &self.options, wanted, &mut f)?;
         }
         Ok(())
     }
