@@ -37,14 +37,19 @@
 //! # Verdicts the floor supports
 //!
 //! * EN 13231-3:2006: a band is judged when its floor's average mean
-//!   peak-to-peak is at most half the limit ([`JUDGED_SHARE_OF_LIMIT`]):
-//!   noise alone then cannot carry a window over it.
+//!   peak-to-peak is at most `1/√2` of the limit ([`JUDGED_SHARE_OF_LIMIT`]:
+//!   the noise's power at most half the limit's), and a position exceeds
+//!   where the rail's own mean peak-to-peak does: the reading with the
+//!   noise's power taken out, `reading > √(limit² + floor²)`
+//!   ([`BandFloor::threshold_mm`]). Noise alone then cannot carry a window
+//!   over it, and rail at the limit is not hidden by it.
 //! * EN 13231-3:2012 (isolated points): when the floor's largest
 //!   displacement (half the worst window max − min of the null lines) is
 //!   at most half the limit.
 //! * ISO 3095: a one-third octave is judged when its level is at least
 //!   [`en15610::FLOOR_MARGIN_DB`] over its floor (twice the floor's power: at least
-//!   as much rail as noise).
+//!   as much rail as noise), and more where few segments make level and
+//!   floor uncertain ([`en15610::ThirdOctave::margin_over_floor_db`]).
 //!
 //! A one-line profile (another instrument's CSV, a head with one line)
 //! has no null combination: its floor is not known and it is judged as
@@ -60,8 +65,14 @@ use crate::analyze::standards::en13231::{self, BandSums};
 use crate::analyze::standards::en15610;
 use crate::progress::Progress;
 
-/// An EN 13231-3 band is judged when its floor is at most this share of its limit.
-pub const JUDGED_SHARE_OF_LIMIT: f64 = 0.5;
+/// An EN 13231-3:2006 band is judged when its floor's mean peak-to-peak
+/// is at most this share of its limit (the floor's power at most half the
+/// limit's: 3 dB under it).
+pub const JUDGED_SHARE_OF_LIMIT: f64 = std::f64::consts::FRAC_1_SQRT_2;
+
+/// An EN 13231-3:2012 band (isolated points) is judged when the floor's
+/// largest displacement is at most this share of its limit.
+pub const JUDGED_SHARE_OF_LIMIT_2012: f64 = 0.5;
 
 /// The survey's noise floor.
 #[derive(Debug, Clone, PartialEq)]
@@ -123,17 +134,29 @@ impl BandFloor {
     /// under `edition`, or `None` when it can.
     pub fn not_judged(&self, edition: super::reprofiling::Edition, limit_mm: f64) -> Option<String> {
         let f = self.judged_quantity_mm(edition);
-        (f > JUDGED_SHARE_OF_LIMIT * limit_mm).then(|| {
-            let what = match edition {
-                super::reprofiling::Edition::En2006 => "mean peak-to-peak",
-                super::reprofiling::Edition::En2012 => "largest displacement",
-            };
+        let (share, what, words) = match edition {
+            super::reprofiling::Edition::En2006 => (JUDGED_SHARE_OF_LIMIT, "mean peak-to-peak", "over 0.71 ×"),
+            super::reprofiling::Edition::En2012 => (JUDGED_SHARE_OF_LIMIT_2012, "largest displacement", "over half"),
+        };
+        (f > share * limit_mm).then(|| {
             format!(
-                "not judged: the instrument's noise floor ({what} {:.1} µm) is over half the {:.0} µm limit",
+                "not judged: the instrument's noise floor ({what} {:.1} µm) is {words} the {:.0} µm limit",
                 f * 1000.0,
                 limit_mm * 1000.0
             )
         })
+    }
+
+    /// The reading over which a position exceeds `limit_mm`: under 2006
+    /// the rail's own mean peak-to-peak is over the limit when the
+    /// reading, its noise's power taken out, is — `√(limit² + floor²)`
+    /// (noise and rail are independent, their powers add); under 2012 the
+    /// limit itself (a judged band's noise peaks stay under half of it).
+    pub fn threshold_mm(&self, edition: super::reprofiling::Edition, limit_mm: f64) -> f64 {
+        match edition {
+            super::reprofiling::Edition::En2006 => limit_mm.hypot(self.average_mean_pp_mm),
+            super::reprofiling::Edition::En2012 => limit_mm,
+        }
     }
 }
 
@@ -144,14 +167,19 @@ pub struct BandJudgement {
     pub floor: Option<BandFloor>,
     /// Why the band is not judged (the floor is too high), if it is not.
     pub not_judged: Option<String>,
+    /// The reading over which a position exceeds ([`BandFloor::threshold_mm`];
+    /// the limit where the floor is not known; `None`: no limit), mm.
+    pub threshold_mm: Option<f64>,
 }
 
 impl BandJudgement {
     /// The judgement of a profile whose floor is `floor`, against the
     /// `edition`'s limit for `band` (none: nothing to judge).
     pub fn of(floor: Option<BandFloor>, edition: super::reprofiling::Edition, band: &en13231::Band) -> BandJudgement {
-        let not_judged = floor.zip(edition.limit_mm(band)).and_then(|(f, lim)| f.not_judged(edition, lim));
-        BandJudgement { floor, not_judged }
+        let limit = edition.limit_mm(band);
+        let not_judged = floor.zip(limit).and_then(|(f, lim)| f.not_judged(edition, lim));
+        let threshold_mm = limit.map(|lim| floor.map_or(lim, |f| f.threshold_mm(edition, lim)));
+        BandJudgement { floor, not_judged, threshold_mm }
     }
 }
 
@@ -283,13 +311,19 @@ impl Floor {
 
     /// One line's floor at the one-third octave `k`, dB re 1 µm.
     pub fn third_octave_db(&self, k: i32) -> Option<f64> {
-        self.spectrum.as_ref()?.bands.iter().find(|b| b.k == k).map(|b| b.level_db)
+        self.third_octave(k).map(|b| b.level_db)
     }
 
-    /// Sets each one-third octave's floor of a line's spectrum.
+    fn third_octave(&self, k: i32) -> Option<&en15610::ThirdOctave> {
+        self.spectrum.as_ref()?.bands.iter().find(|b| b.k == k)
+    }
+
+    /// Sets each one-third octave's floor (and how well it is known) of a line's spectrum.
     pub fn mark(&self, s: &mut en15610::Spectrum) {
         for b in &mut s.bands {
-            b.floor_db = self.third_octave_db(b.k);
+            let f = self.third_octave(b.k);
+            b.floor_db = f.map(|f| f.level_db);
+            b.floor_dof = f.map(|f| f.dof);
         }
     }
 }
@@ -298,7 +332,7 @@ impl Floor {
 mod tests {
     use super::*;
     use crate::analyze::stitch::{Direction, Stitching};
-    use crate::analyze::{Analysis, judge, profile};
+    use crate::analyze::{Analysis, judge, profile, reprofiling};
 
     /// Three lines 1 mm apart over `n` samples: the rail `rail(x_mm)` on
     /// each, plus independent Gaussian noise of `sigma_um` per sample.
@@ -356,10 +390,10 @@ mod tests {
             assert!((fb.level_db - mb.level_db).abs() < 1.5, "{fb:?} vs {mb:?}");
             assert_eq!(mb.exceeds(), None, "within 3 dB of the floor: not judged ({mb:?})");
         }
-        // Noise never fails: the 10–30 mm band's floor is over half its limit, not judged.
+        // Noise never fails: the running band's 10–30 mm floor (about 12 µm
+        // mean peak-to-peak) leaves the band judged, and it passes.
         let v = &smooth.verdict;
-        assert!(v.rows[0].judgement.not_judged.is_some(), "{:?}", v.rows[0]);
-        assert_eq!(v.rows[0].passes(v.options.edition), None);
+        assert!(v.rows.iter().all(|r| r.passes(v.options.edition) != Some(false)), "{:?}", v.rows);
         assert_eq!(v.reprofile_mm, 0.0);
         assert!(v.zones.is_empty());
         assert!(v.blocks.iter().all(|b| b.iso3095_exceeded.as_ref().is_none_or(Vec::is_empty)));
@@ -374,6 +408,20 @@ mod tests {
             assert!((y.rms_mm / x.rms_mm - 1.0).abs() < 0.02, "band {b}: {} vs {}", x.rms_mm, y.rms_mm);
         }
         assert!(g.band(0).unwrap().coherence > 0.4 && g.band(1).unwrap().coherence > 0.8, "{g:?}");
+    }
+
+    /// A floor too high for a verdict: not judged, the floor and the limit
+    /// named, never failed; the bands it allows are judged.
+    #[test]
+    fn a_floor_over_the_limit_is_not_judged() {
+        let a = survey(6_000, 60.0, &|_| 0.0, 9);
+        let v = &a.verdict;
+        let why = v.rows[0].judgement.not_judged.as_ref().expect("10–30 mm at 60 µm a sample: not judged");
+        assert!(why.contains("noise floor") && why.contains("20 µm limit"), "{why}");
+        assert_eq!(v.rows[0].passes(v.options.edition), None);
+        assert_eq!((v.reprofile_mm, v.zones.len()), (0.0, 0));
+        assert!(a.lasers.iter().all(|l| l.judgements[0].not_judged.is_some()));
+        assert!(reprofiling::describe(v).contains("not judged"), "{}", reprofiling::describe(v));
     }
 
     /// Corrugation over the limits in two bands under a floor that allows

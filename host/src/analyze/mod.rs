@@ -457,6 +457,15 @@ pub fn judge(
         .enumerate()
         .map(|(b, band)| floor::BandJudgement::of(floor.as_ref().and_then(|f| f.band(b).copied()), edition, band))
         .collect();
+    // 2006: a window exceeds where the rail's own mean peak-to-peak does (the floor's power taken out).
+    let over_of = |floor: Option<(&floor::Floor, usize)>| -> [f64; 4] {
+        std::array::from_fn(|b| {
+            let band = &en13231::BANDS[b];
+            let f = floor.and_then(|(f, k)| Some(f.band(b)?.of_mean(k)));
+            f.map_or(band.mean_pp_limit_mm, |f| f.threshold_mm(reprofiling::Edition::En2006, band.mean_pp_limit_mm))
+        })
+    };
+    let line_over = over_of(floor.as_ref().map(|f| (f, 1)));
     let mut lasers = Vec::new();
     let mut running_bands = Vec::new();
     for section in stitched.chunk_by(|a, b| a.section == b.section) {
@@ -486,9 +495,9 @@ pub fn judge(
         let want = Wanted { lines: true, mean: true, nulls: false };
         pieces::walk_section(section[0].section, &lines, opts, want, &mut |p| {
             for (k, l) in p.lines.iter().enumerate() {
-                for ((sum, t), band) in sums[k].iter_mut().zip(&l.bands).zip(&en13231::BANDS) {
+                for (((sum, t), band), over) in sums[k].iter_mut().zip(&l.bands).zip(&en13231::BANDS).zip(&line_over) {
                     if let Some(t) = t {
-                        sum.add(band, t);
+                        sum.add_over(band, t, *over);
                     }
                 }
                 if let Ok(w) = &mut welch[k] {
@@ -496,9 +505,11 @@ pub fn judge(
                 }
             }
             if let Some(rb) = &p.band {
-                for ((sum, t), band) in mean_sums.iter_mut().zip(&rb.mean.bands).zip(&en13231::BANDS) {
+                let over = over_of(floor.as_ref().map(|f| (f, rb.lines)));
+                for (((sum, t), band), over) in mean_sums.iter_mut().zip(&rb.mean.bands).zip(&en13231::BANDS).zip(&over)
+                {
                     if let Some(t) = t {
-                        sum.add(band, t);
+                        sum.add_over(band, t, *over);
                     }
                 }
             }

@@ -275,7 +275,9 @@ impl Builder {
             None => p.lines.iter().collect(),
         };
         for (b, band) in en13231::BANDS.iter().enumerate() {
-            let limit = edition.limit_mm(band).filter(|_| self.v.rows[b].judgement.not_judged.is_none());
+            // A judged band's positions exceed over its threshold (the floor's power taken out).
+            let j = &self.v.rows[b].judgement;
+            let limit = j.threshold_mm.filter(|_| j.not_judged.is_none());
             let (mut measured_n, mut over_n) = (0usize, 0usize);
             for i in 0..n {
                 // Measured; over the limit; worst window p-p.

@@ -264,7 +264,7 @@ fn reprofiling_rows(v: &reprofiling::ReprofilingVerdict) -> Vec<Vec<String>> {
                     },
                 ],
             };
-            row.insert(2, floor);
+            row.push(floor);
             row
         })
         .collect()
@@ -323,7 +323,7 @@ fn verdict(a: &Analysis, zone_svg: &str) -> String {
     s.push_str("<h3>Reprofiling table</h3>\n");
     s.push_str(&table(
         "reprofiling",
-        &["band", "limit, mm", "noise floor, mm", "measured, m", "exceeding, m", "exceeding, %", "verdict"],
+        &["band", "limit, mm", "measured, m", "exceeding, m", "exceeding, %", "verdict", "noise floor, mm"],
         &reprofiling_rows(v),
     ));
     s.push_str(&floor(a));
@@ -657,9 +657,8 @@ fn bands(b: &Result<en13231::BandAnalysis, StandardsError>, judgements: &[BandJu
                 None if b.outcome.as_ref().is_ok_and(|st| st.passes) => "yes".into(),
                 None => "NO".into(),
             };
-            let rest = match &b.outcome {
+            let mut rest = match &b.outcome {
                 Ok(st) => vec![
-                    floor,
                     format!("{:.4}", st.average_mean_pp_mm),
                     format!("{:.4}", st.worst_mean_pp_mm),
                     format!("{:.4}", st.worst_max_pp_mm),
@@ -671,8 +670,9 @@ fn bands(b: &Result<en13231::BandAnalysis, StandardsError>, judgements: &[BandJu
                         _ => String::new(),
                     },
                 ],
-                Err(e) => vec![dash(), dash(), dash(), dash(), dash(), dash(), dash(), e.to_string()],
+                Err(e) => vec![dash(), dash(), dash(), dash(), dash(), dash(), e.to_string()],
             };
+            rest.push(floor);
             head.into_iter().chain(rest).collect()
         })
         .collect();
@@ -682,7 +682,6 @@ fn bands(b: &Result<en13231::BandAnalysis, StandardsError>, judgements: &[BandJu
             "band",
             "window, mm",
             "limit, mm",
-            "noise floor, mean peak-to-peak, mm",
             "average mean peak-to-peak, mm",
             "worst mean peak-to-peak, mm",
             "worst max peak-to-peak, mm",
@@ -690,6 +689,7 @@ fn bands(b: &Result<en13231::BandAnalysis, StandardsError>, judgements: &[BandJu
             "exceeding, %",
             "pass",
             "note",
+            "noise floor, mean peak-to-peak, mm",
         ],
         &rows,
     ));

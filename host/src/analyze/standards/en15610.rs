@@ -150,6 +150,11 @@ pub struct ThirdOctave {
     /// The instrument's noise floor in this band, dB re 1 µm, where it is
     /// known ([`crate::analyze::floor`]).
     pub floor_db: Option<f64>,
+    /// Degrees of freedom of the level's estimate: twice the FFT bins in
+    /// the band (at least one) times the segments averaged.
+    pub dof: f64,
+    /// Degrees of freedom of the floor's estimate.
+    pub floor_dof: Option<f64>,
 }
 
 impl ThirdOctave {
@@ -159,9 +164,22 @@ impl ThirdOctave {
     }
 
     /// Whether the level stands far enough over the noise floor to be
-    /// judged ([`FLOOR_MARGIN_DB`]); true where the floor is not known.
+    /// judged ([`ThirdOctave::margin_over_floor_db`]); true where the floor
+    /// is not known.
     pub fn judged(&self) -> bool {
-        self.floor_db.is_none_or(|f| self.level_db - f >= FLOOR_MARGIN_DB)
+        self.floor_db.is_none_or(|f| self.level_db - f >= self.margin_over_floor_db())
+    }
+
+    /// How far over its floor the level must stand to be judged, dB: at
+    /// least [`FLOOR_MARGIN_DB`], and more where level and floor are
+    /// estimated from few segments — noise alone reads over its floor by
+    /// this at most once in a hundred: the ratio of two χ² estimates with
+    /// `ν` and `ν_f` degrees of freedom, `ln` of which has a variance of
+    /// about `2/ν + 2/ν_f`, at 2.33 of its standard deviations.
+    pub fn margin_over_floor_db(&self) -> f64 {
+        let nf = self.floor_dof.unwrap_or(f64::INFINITY);
+        let sd_ln = (2.0 / self.dof.max(1.0) + 2.0 / nf.max(1.0)).sqrt();
+        FLOOR_MARGIN_DB.max(10.0 * std::f64::consts::LOG10_E * 2.33 * sd_ln)
     }
 
     /// Whether the level is over the ISO 3095 limit (`None`: no limit, or
@@ -314,13 +332,12 @@ pub fn energy_average(spectra: &[Spectrum]) -> Option<Spectrum> {
     let mut out = first.clone();
     out.segments = spectra.iter().map(|s| s.segments).sum();
     for b in &mut out.bands {
-        let powers: Vec<f64> = spectra
-            .iter()
-            .filter_map(|s| s.bands.iter().find(|o| o.k == b.k))
-            .map(|o| 10f64.powf(o.level_db / 10.0))
-            .collect();
-        b.level_db = 10.0 * (powers.iter().sum::<f64>() / powers.len() as f64).max(1e-30).log10();
+        let same: Vec<&ThirdOctave> = spectra.iter().filter_map(|s| s.bands.iter().find(|o| o.k == b.k)).collect();
+        let power: f64 = same.iter().map(|o| 10f64.powf(o.level_db / 10.0)).sum();
+        b.level_db = 10.0 * (power / same.len() as f64).max(1e-30).log10();
+        b.dof = same.iter().map(|o| o.dof).sum();
         b.floor_db = None;
+        b.floor_dof = None;
     }
     Some(out)
 }
@@ -502,6 +519,8 @@ fn bands_of(power: &[f64], m: usize, dx_mm: f64, count: usize) -> Spectrum {
             level_db: 10.0 * ms_um2.max(1e-30).log10(),
             iso3095_limit_db: iso3095_limit_db(nominal),
             floor_db: None,
+            dof: 2.0 * ((f_hi - f_lo) / df).max(1.0) * count as f64,
+            floor_dof: None,
         });
     }
     Spectrum { dx_mm, segment_mm: seg_len_mm, segments: count, bands }
