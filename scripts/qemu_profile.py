@@ -2,6 +2,7 @@
 """Where the instructions of a `cwt` row go on thumbv7em (QEMU, exact counts).
 
     scripts/qemu_profile.py [--full] [--track] [--method NAME] [--lines N] [--annotate FN]
+    scripts/qemu_profile.py --method line     (the head's line pass over one frame)
 
 Builds `cms-qemu-profile` (firmware/qemu/src/bin/profile.rs: 64 of the
 benchmark's three-stripe rows through `detect_in` with three 96-px windows,
@@ -107,9 +108,15 @@ def main():
                     per_pc[pc] += 1
     if not on:
         sys.exit("marker_start never ran")
-    what = "detect (full row)" if args.full else (
-        "detect_tracked, three 96-px windows, ±20 px tracks" if args.track else "detect_in, three 96-px windows")
-    print(f"{args.method}, 752 px x 3 stripes, {what}: {total / ROWS:.0f} instructions per row ({ROWS} rows)")
+    global ROWS
+    if args.method == "line":
+        # One frame of 480 rows (firmware/qemu/src/bin/profile.rs).
+        ROWS = 480
+        print(f"line pass, one frame of 3 lasers x 480 rows: {total / ROWS:.0f} instructions per row of the frame")
+    else:
+        what = "detect (full row)" if args.full else (
+            "detect_tracked, three 96-px windows, ±20 px tracks" if args.track else "detect_in, three 96-px windows")
+        print(f"{args.method}, 752 px x 3 stripes, {what}: {total / ROWS:.0f} instructions per row ({ROWS} rows)")
     print("\nper function (inlined code in its caller):")
     for f, c in per_fn.most_common(20):
         name = re.sub(r"17h[0-9a-f]{16}E$", "", f)

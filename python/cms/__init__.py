@@ -100,12 +100,15 @@ def analyze(
     allow_repeated_runs: bool = False,
     allow_mixed_heads: bool = False,
     profile: bool = True,
+    track_register: Optional[PathLike] = None,
 ) -> Analysis:
     """``cms-host analyze PATHS…`` with the same options (``--chainage``,
     ``--edition 2006|2012``, ``--block-m``, ``--search-m``, ``--dx-mm``,
     ``--direction auto|forward|reverse``, ``--register offset-tilt|offset|none``,
     ``--segment-mm``, ``--no-spike-removal``, ``--no-curvature``,
-    ``--calibration``, ``--allow-repeated-runs``, ``--allow-mixed-heads``).
+    ``--calibration``, ``--allow-repeated-runs``, ``--allow-mixed-heads``,
+    ``--track-register``: the summary's ``gnss_placing`` says what placed
+    each run).
     ``profile=False`` leaves the profile out (``None``): one row per sample
     of track, which a job over many long recordings has no use for.
 
@@ -132,6 +135,7 @@ def analyze(
         allow_repeated_runs=bool(allow_repeated_runs),
         allow_mixed_heads=bool(allow_mixed_heads),
         profile=bool(profile),
+        track_register=None if track_register is None else os.fspath(track_register),
     )
     return Analysis(None if profile is None else _table(profile), _table(blocks), _table(zones), json.loads(summary))
 

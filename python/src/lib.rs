@@ -239,7 +239,7 @@ type Analysed<'py> = (Option<Bound<'py, PyList>>, Bound<'py, PyList>, Bound<'py,
 #[pyo3(signature = (
     paths, chainage=None, edition="2006", block_m=50.0, search_m=25.0, dx_mm=None, direction=None,
     register=None, segment_mm=1000.0, spike_removal=true, curvature=true, calibration=None,
-    allow_repeated_runs=false, allow_mixed_heads=false, profile=true
+    allow_repeated_runs=false, allow_mixed_heads=false, profile=true, track_register=None
 ))]
 #[allow(clippy::too_many_arguments)]
 fn analyze<'py>(
@@ -259,6 +259,7 @@ fn analyze<'py>(
     allow_repeated_runs: bool,
     allow_mixed_heads: bool,
     profile: bool,
+    track_register: Option<PathBuf>,
 ) -> PyResult<Analysed<'py>> {
     if paths.is_empty() {
         return Err(Error::new_err("the following required arguments were not provided: <RECORDING|PROFILE.csv>..."));
@@ -281,6 +282,7 @@ fn analyze<'py>(
         ("--register", register.is_some()),
         ("--allow-repeated-runs", allow_repeated_runs),
         ("--allow-mixed-heads", allow_mixed_heads),
+        ("--track-register", track_register.is_some()),
     ];
     let req = Request {
         inputs: paths,
@@ -290,6 +292,7 @@ fn analyze<'py>(
         search_mm: search_m * 1000.0,
         dx_mm,
         recording_only: only_recordings.iter().filter(|(_, given)| *given).map(|(f, _)| f.to_string()).collect(),
+        track_register,
     };
     let opts = settings.options();
     let (source, a) = py.detach(|| runs::run(&req, &opts, &cms_host::progress::Silent)).map_err(py_err)?;

@@ -3,8 +3,10 @@
 # (tests/requirements.txt) made under the Cargo target folder, the `cms`
 # package built into it from the workspace (maturin, sharing the target
 # folder's compiled crates), then pytest: a synthetic fleet of
-# recordings, the Dask job on a LocalCluster, every recording's figures
-# against `cms-host analyze --json`, the DuckDB queries.
+# recordings, the Dask job on a scheduler and workers started from the
+# command line and on a LocalCluster, from and into a bucket of an
+# S3-compatible server (moto_server) started here, every recording's
+# figures against `cms-host analyze --json`, the DuckDB queries.
 #
 # Never skips: a missing Python, package or binary fails the run.
 #   CMS_HOST          the release cms-host to compare with (default: built here)

@@ -43,10 +43,13 @@ def fleet(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
-def dataset(fleet):
+def dataset(fleet, cluster):
+    """The fleet's dataset, made on a scheduler and two workers started
+    from the command line (conftest.py), the workers writing into a
+    folder they share with the client."""
     d, _ = fleet
     out = str(d / "dataset")
-    assert job.main([str(d / "in"), out, "--workers", "2", "--block-m", str(BLOCK_M)]) == 0
+    assert job.main([str(d / "in"), out, "--scheduler", cluster, "--block-m", str(BLOCK_M)]) == 0
     return out
 
 
@@ -339,3 +342,14 @@ def test_the_dataset_holds_each_sites_trend(site):
     assert first["crossing_date"].isoformat() == min(
         (b for b in nearest if b["crossing"]["kind"] == "on"), key=lambda b: b["crossing"]["date"]
     )["crossing"]["date"]
+
+
+def test_tasks_are_cut_by_count_and_bytes_in_order():
+    small = [(f"r{i}", 1000) for i in range(10_000)]
+    tasks = list(job.batches(small, 2))
+    assert [u for t in tasks for u in t] == [u for u, _ in small]
+    assert max(map(len, tasks)) == job.MAX_TASK_RECORDINGS and len(tasks) == 157
+    # Few recordings: at least TASKS_IN_FLIGHT_PER_WORKER tasks per worker.
+    assert [len(t) for t in job.batches(small[:20], 2)] == [3] * 6 + [2]
+    big = [(f"b{i}", 40 << 20) for i in range(100)]
+    assert [len(t) for t in job.batches(big, 2)] == [2] * 50

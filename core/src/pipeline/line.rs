@@ -175,7 +175,8 @@ impl Counts {
     /// read back from a profile (a host's count per frame).
     pub fn of(lasers: &[LaserPoints]) -> Counts {
         let mut c = Counts::default();
-        for p in lasers.iter().flat_map(|l| l.points.iter()) {
+        const COUNTED: u8 = Flags::REJECTED.0 | Flags::SECOND_DROPPED.0;
+        for p in lasers.iter().flat_map(|l| l.points.iter()).filter(|p| p.flags.0 & COUNTED != 0) {
             c.add_flags(p.flags);
         }
         c
@@ -209,6 +210,13 @@ impl Counts {
 pub struct LineCheck {
     /// Indices into the laser's points of those not rejected, ascending.
     good: [u16; MAX_ROWS_PER_PROFILE],
+    /// The good points' positions, Q16.16 px, and rows, in the order of
+    /// `good`: the loops read them contiguously instead of through `good`.
+    pos: [i32; MAX_ROWS_PER_PROFILE],
+    row: [u16; MAX_ROWS_PER_PROFILE],
+    /// Twice the centre row of the block starting at each good index (the
+    /// sum of its two middle rows).
+    c2: [i32; MAX_ROWS_PER_PROFILE],
     /// Median position of the block of `BLOCK_POINTS` good points starting
     /// at each good index, Q16.16 px.
     med: [i32; MAX_ROWS_PER_PROFILE],
@@ -224,6 +232,9 @@ impl Default for LineCheck {
     fn default() -> Self {
         LineCheck {
             good: [0; MAX_ROWS_PER_PROFILE],
+            pos: [0; MAX_ROWS_PER_PROFILE],
+            row: [0; MAX_ROWS_PER_PROFILE],
+            c2: [0; MAX_ROWS_PER_PROFILE],
             med: [0; MAX_ROWS_PER_PROFILE],
             res: [0; MAX_ROWS_PER_PROFILE],
             off: [0; MAX_ROWS_PER_PROFILE],
@@ -257,13 +268,24 @@ impl LineCheck {
             let k = usize::from(lp.laser);
             let band = rules.bands.get(k).copied().flatten();
             let points = lp.points.as_mut_slice();
-            let glint = self.glint_width(rules, points);
-            for p in points.iter_mut() {
-                p.flags.insert(single_rule(glint, band, p));
+            let mine = |(l, _): &&(u8, Point)| usize::from(*l) == k;
+            // The glint width matters to saturated stripes only (a second
+            // candidate may be one): without any, the median is not sought,
+            // and without a band either no point can be flagged alone.
+            let saturated = points.iter().any(|p| p.flags.contains(Flags::SATURATED));
+            let glint = if saturated || seconds.iter().any(|s| mine(&s)) {
+                self.glint_width(rules, points)
+            } else {
+                rules.glint_width
+            };
+            if saturated || band.is_some() {
+                for p in points.iter_mut() {
+                    p.flags.insert(single_rule(glint, band, p));
+                }
             }
             self.index(points);
             let mut swapped = false;
-            for (_, alt) in seconds.iter().filter(|(l, _)| usize::from(*l) == k) {
+            for (_, alt) in seconds.iter().filter(mine) {
                 swapped |= self.second(glint, band, points, alt);
             }
             if swapped {
@@ -291,12 +313,15 @@ impl LineCheck {
         Px(((i64::from(median) * GLINT_WIDTH_Q8) >> 8) as i32).max(rules.glint_width)
     }
 
-    /// The good points' list and their blocks' medians.
+    /// The good points' list, positions and rows, and their blocks'
+    /// medians and centres.
     fn index(&mut self, points: &[Point]) {
         let mut n = 0;
         for (i, p) in points.iter().enumerate() {
             if !p.flags.rejected() {
                 self.good[n] = i as u16;
+                self.pos[n] = p.position.0;
+                self.row[n] = p.row;
                 n += 1;
             }
         }
@@ -304,16 +329,18 @@ impl LineCheck {
         if n < BLOCK_POINTS {
             return;
         }
+        let (pos, row) = (&self.pos[..n], &self.row[..n]);
+        let h = BLOCK_POINTS / 2;
+        for ((c, a), b) in self.c2.iter_mut().zip(&row[h - 1..n - h]).zip(&row[h..=n - h]) {
+            *c = i32::from(*a) + i32::from(*b);
+        }
         // The block slides one point at a time: its sorted positions lose
         // the point that leaves and take the one that enters.
-        let at = |i: usize| points[usize::from(self.good[i])].position.0;
         let mut v = [0i32; BLOCK_POINTS];
-        for (i, x) in v.iter_mut().enumerate() {
-            *x = at(i);
-        }
+        v.copy_from_slice(&pos[..BLOCK_POINTS]);
         self.med[0] = block_median(&mut v);
-        for j in 1..=n - BLOCK_POINTS {
-            let (out, new) = (at(j - 1), at(j + BLOCK_POINTS - 1));
+        let med = &mut self.med[1..=n - BLOCK_POINTS];
+        for ((m, &out), &new) in med.iter_mut().zip(pos).zip(&pos[BLOCK_POINTS..]) {
             let mut h = v.iter().position(|&x| x == out).unwrap_or(0);
             while h + 1 < BLOCK_POINTS && v[h + 1] < new {
                 v[h] = v[h + 1];
@@ -324,64 +351,47 @@ impl LineCheck {
                 h -= 1;
             }
             v[h] = new;
-            self.med[j] = ((i64::from(v[BLOCK_POINTS / 2 - 1]) + i64::from(v[BLOCK_POINTS / 2])) >> 1) as i32;
+            *m = ((i64::from(v[BLOCK_POINTS / 2 - 1]) + i64::from(v[BLOCK_POINTS / 2])) >> 1) as i32;
         }
-    }
-
-    /// Twice the centre row of block `j` (the sum of its two middle rows).
-    fn centre2(&self, points: &[Point], j: usize) -> i64 {
-        let row = |i: usize| i64::from(points[usize::from(self.good[i])].row);
-        row(j + BLOCK_POINTS / 2 - 1) + row(j + BLOCK_POINTS / 2)
     }
 
     /// The line through the medians of blocks `a` and `b` (`a` before `b`)
     /// at `row`, Q16.16 px.
-    fn line_at(&self, points: &[Point], (a, b): (usize, usize), row: u16) -> Option<i64> {
-        let (ca, cb) = (self.centre2(points, a), self.centre2(points, b));
-        let (ma, mb) = (i64::from(self.med[a]), i64::from(self.med[b]));
-        if cb <= ca {
-            return None;
-        }
-        // 32-bit division where it fits (a hardware divide on a Cortex-M;
-        // the 64-bit one is a library call ten times slower).
-        let num = (mb - ma) * (2 * i64::from(row) - ca);
-        let q = match (i32::try_from(num), i32::try_from(cb - ca)) {
-            (Ok(n), Ok(d)) => i64::from(n / d),
-            _ => num / (cb - ca),
-        };
-        Some(ma + q)
+    #[inline(always)]
+    fn line_at(&self, (a, b): (usize, usize), row: u16) -> Option<i64> {
+        let (ca, cb) = (self.c2[a], self.c2[b]);
+        let (ma, mb) = (self.med[a], self.med[b]);
+        line_through((ca, ma), (cb, mb), row)
     }
 
     /// The local lines' predictions at `row`, whose good points before it
     /// are `good[..before]` and after it `good[after..]`: the line through
     /// the two blocks just before, the one through the two just after, and
     /// the one through the block either side.
-    fn predictions(&self, points: &[Point], row: u16, before: usize, after: usize) -> [Option<i64>; 3] {
-        let [left, right] = self.sides(points, row, before, after);
-        [left, right, self.centred(points, row, before, after)]
+    fn predictions(&self, row: u16, before: usize, after: usize) -> [Option<i64>; 3] {
+        let [left, right] = self.sides(row, before, after);
+        [left, right, self.centred(row, before, after)]
     }
 
     /// The line through the two blocks just before `row`, and the one
     /// through the two just after ([`LineCheck::predictions`]).
-    fn sides(&self, points: &[Point], row: u16, before: usize, after: usize) -> [Option<i64>; 2] {
+    fn sides(&self, row: u16, before: usize, after: usize) -> [Option<i64>; 2] {
         let k = BLOCK_POINTS;
-        let left = (before >= 2 * k).then(|| self.line_at(points, (before - 2 * k, before - k), row)).flatten();
-        let right = (after + 2 * k <= self.n_good).then(|| self.line_at(points, (after, after + k), row)).flatten();
+        let left = (before >= 2 * k).then(|| self.line_at((before - 2 * k, before - k), row)).flatten();
+        let right = (after + 2 * k <= self.n_good).then(|| self.line_at((after, after + k), row)).flatten();
         [left, right]
     }
 
     /// The line through the block either side of `row`.
-    fn centred(&self, points: &[Point], row: u16, before: usize, after: usize) -> Option<i64> {
+    fn centred(&self, row: u16, before: usize, after: usize) -> Option<i64> {
         let k = BLOCK_POINTS;
-        (before >= k && after + k <= self.n_good).then(|| self.line_at(points, (before - k, after), row)).flatten()
+        (before >= k && after + k <= self.n_good).then(|| self.line_at((before - k, after), row)).flatten()
     }
 
     /// Where `row` falls in the good list: `(before, after)`.
-    fn split(&self, points: &[Point], row: u16) -> (usize, usize) {
-        let good = &self.good[..self.n_good];
-        let before = good.partition_point(|&g| points[usize::from(g)].row < row);
-        let after = good.partition_point(|&g| points[usize::from(g)].row <= row);
-        (before, after)
+    fn split(&self, row: u16) -> (usize, usize) {
+        let rows = &self.row[..self.n_good];
+        (rows.partition_point(|&r| r < row), rows.partition_point(|&r| r <= row))
     }
 
     /// Judges a second candidate `alt` against the point of its row: the
@@ -391,8 +401,8 @@ impl LineCheck {
         let Ok(i) = points.binary_search_by_key(&alt.row, |p| p.row) else { return false };
         let mut alt = *alt;
         alt.flags.insert(single_rule(glint, band, &alt));
-        let (before, after) = self.split(points, alt.row);
-        let [left, right, centred] = self.predictions(points, alt.row, before, after);
+        let (before, after) = self.split(alt.row);
+        let [left, right, centred] = self.predictions(alt.row, before, after);
         let swap = match centred.or(left).or(right) {
             _ if alt.flags.rejected() => false,
             _ if points[i].flags.rejected() => true,
@@ -414,45 +424,73 @@ impl LineCheck {
     /// Flags the good points off the local line by more than the bound.
     fn continuity(&mut self, points: &mut [Point]) {
         let n = self.n_good;
-        let mut m = 0;
+        let k = BLOCK_POINTS;
         // Each point's distance from the line through the blocks either
-        // side (−1: none), and those distances for the bound.
-        for i in 0..n {
-            let p = &points[usize::from(self.good[i])];
-            self.off[i] = match self.centred(points, p.row, i, i + 1) {
-                Some(line) => {
-                    let d = (i64::from(p.position.0) - line).unsigned_abs().min(i32::MAX as u64) as i32;
-                    self.res[m] = d;
-                    m += 1;
-                    d
-                }
+        // side (−1: none, the first and last `k` points), and those
+        // distances for the bound.
+        let judged = if n > 2 * k { k..n - k } else { 0..0 };
+        self.off[..judged.start.max(n.min(k))].fill(-1);
+        self.off[judged.end.max(judged.start)..n].fill(-1);
+        let mut m = 0;
+        for i in judged {
+            let d = match self.line_at((i - k, i + 1), self.row[i]) {
+                Some(line) => distance(self.pos[i], line),
                 None => -1,
             };
+            self.off[i] = d;
+            if d >= 0 {
+                self.res[m] = d;
+                m += 1;
+            }
         }
         if m < MIN_SCATTER_POINTS {
             return;
         }
         let (_, &mut mad, _) = self.res[..m].select_nth_unstable(m / 2);
         let bound = ((i64::from(mad) * BOUND_MADS_Q8) >> 8).max(i64::from(MIN_BOUND.0));
-        // Flagged after every judgement: the medians are of the points as
-        // they came, so one outlier cannot hide another.
+        // The medians are of the points as they came (flags do not move
+        // them), so one outlier cannot hide another.
         for i in 0..n {
-            if self.off[i] >= 0 && i64::from(self.off[i]) <= bound {
-                self.off[i] = 0;
+            let off = self.off[i];
+            if off >= 0 && i64::from(off) <= bound {
                 continue;
             }
-            let p = &points[usize::from(self.good[i])];
-            let [left, right] = self.sides(points, p.row, i, i + 1);
-            let near = |line: &Option<i64>| line.is_some_and(|l| (i64::from(p.position.0) - l).abs() <= bound);
-            let judged = self.off[i] >= 0 || left.is_some() || right.is_some();
-            self.off[i] = if judged && !near(&left) && !near(&right) { -2 } else { 0 };
-        }
-        for i in 0..n {
-            if self.off[i] == -2 {
+            let [left, right] = self.sides(self.row[i], i, i + 1);
+            let at = i64::from(self.pos[i]);
+            let near = |line: &Option<i64>| line.is_some_and(|l| (at - l).abs() <= bound);
+            let judged = off >= 0 || left.is_some() || right.is_some();
+            if judged && !near(&left) && !near(&right) {
                 points[usize::from(self.good[i])].flags.insert(Flags::OFF_LINE);
             }
         }
     }
+}
+
+/// |`at` − `line`| (Q16.16 px), at most `i32::MAX`.
+#[inline(always)]
+fn distance(at: i32, line: i64) -> i32 {
+    match i32::try_from(line) {
+        Ok(l) => at.abs_diff(l).min(i32::MAX as u32) as i32,
+        Err(_) => (i64::from(at) - line).unsigned_abs().min(i32::MAX as u64) as i32,
+    }
+}
+
+/// The line through the block medians `(ca, ma)` and `(cb, mb)` (twice the
+/// centre row, Q16.16 px) at `row`, Q16.16 px; `None` unless `cb > ca`.
+#[inline(always)]
+fn line_through((ca, ma): (i32, i32), (cb, mb): (i32, i32), row: u16) -> Option<i64> {
+    if cb <= ca {
+        return None;
+    }
+    let (d, t) = (cb - ca, 2 * i32::from(row) - ca);
+    // 32-bit products and division where they fit (the common case: block
+    // medians a few pixels apart; a hardware divide on a Cortex-M, where
+    // the 64-bit one is a library call ten times slower).
+    if let Some(num) = mb.checked_sub(ma).and_then(|dm| dm.checked_mul(t)) {
+        return Some(i64::from(ma) + i64::from(num / d));
+    }
+    let num = (i64::from(mb) - i64::from(ma)) * i64::from(t);
+    Some(i64::from(ma) + num / i64::from(d))
 }
 
 /// The rules that judge a point alone: glint (narrower than `glint`),

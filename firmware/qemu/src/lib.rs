@@ -29,5 +29,6 @@
 pub mod board;
 pub mod clock;
 pub mod executor;
+pub mod line_frame;
 pub mod uart;
 pub mod vectors;

@@ -29,6 +29,7 @@ pub mod floor;
 pub mod live;
 pub mod marks;
 pub mod pieces;
+pub mod placing;
 pub mod profile;
 pub mod reprofiling;
 pub mod runs;
@@ -335,6 +336,9 @@ pub struct Analysis {
     pub running_bands: Vec<RunningBandAnalysis>,
     /// Zones, the reprofiling table and blocks over all the lines.
     pub verdict: reprofiling::ReprofilingVerdict,
+    /// With a track register: how each run was placed by its GNSS fixes
+    /// or its typed start ([`placing`]), one per run; empty without.
+    pub gnss_placing: Vec<placing::GnssPlacing>,
 }
 
 /// One section of the survey line: a stretch measured without a gap
@@ -546,7 +550,16 @@ pub fn judge(
         }
     }
     progress.end();
-    Ok(Analysis { options: opts.clone(), stitching, joins, lasers, floor, running_bands, verdict: verdict.finish() })
+    Ok(Analysis {
+        options: opts.clone(),
+        stitching,
+        joins,
+        lasers,
+        floor,
+        running_bands,
+        verdict: verdict.finish(),
+        gnss_placing: Vec::new(),
+    })
 }
 
 /// A section's running band from its mean's band sums and its lines' spectra.

@@ -12,7 +12,7 @@ use crate::analyze::reprofiling::{self, Edition};
 use crate::analyze::standards::en15610;
 use crate::analyze::stitch::{self, Direction, Registration, Stitcher};
 use crate::analyze::survey::{self, Placement};
-use crate::analyze::{self, Analysis, Options, Recording, RunsAllowed, Source, profile};
+use crate::analyze::{self, Analysis, Options, Recording, RunsAllowed, Source, placing, profile};
 use crate::calib::file::CalibrationFile;
 use crate::measure::Measurer;
 use crate::progress::Progress;
@@ -38,6 +38,9 @@ pub struct Request {
     /// Options given that apply only to recordings (their flags, to name
     /// them when the input is a profile: refused, never ignored).
     pub recording_only: Vec<String>,
+    /// A track register: each run with GNSS fixes placed by them, its
+    /// typed start checked against them ([`crate::analyze::placing`]).
+    pub track_register: Option<PathBuf>,
 }
 
 /// The settings a user gives `analyze` (the command line's flags, the
@@ -162,6 +165,7 @@ pub fn run(req: &Request, opts: &Options, progress: &dyn Progress) -> Result<(So
     let kinds = req.inputs.iter().map(|p| is_recording(p)).collect::<Result<Vec<bool>, Error>>()?;
     let recordings = kinds.iter().filter(|&&r| r).count();
     let mut placements = req.placements.clone();
+    let mut gnss_placing = Vec::new();
     let (source, runs) = if recordings == 0 {
         let [path] = req.inputs.as_slice() else {
             return Err(Error::Input(format!(
@@ -207,6 +211,12 @@ pub fn run(req: &Request, opts: &Options, progress: &dyn Progress) -> Result<(So
             };
             placements.push(p);
         }
+        if let Some(path) = &req.track_register {
+            let register = crate::gnss::register::Register::load(path).map_err(|e| Error::Input(e.to_string()))?;
+            let paths: Vec<&Path> = recs.iter().map(|(p, _)| p.as_path()).collect();
+            gnss_placing = placing::place(&register, &paths, &placements, req.search_mm / 1000.0)?;
+            placements = gnss_placing.iter().map(placing::GnssPlacing::placement).collect();
+        }
         (Source::Recordings(recs), runs)
     };
     let join_opts = survey::JoinOptions {
@@ -216,7 +226,8 @@ pub fn run(req: &Request, opts: &Options, progress: &dyn Progress) -> Result<(So
     };
     let (stitching, joins) =
         survey::join(runs, &placements, &join_opts).map_err(|e| Error::Input(format!("{}: {e}", source.name())))?;
-    let a = analyze::judge(stitching, joins, &opts, progress)?;
+    let mut a = analyze::judge(stitching, joins, &opts, progress)?;
+    a.gnss_placing = gnss_placing;
     Ok((source, a))
 }
 

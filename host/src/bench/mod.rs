@@ -6,6 +6,8 @@
 //!   the Cramér–Rao bound (docs/reference.md §1), and the paper's own
 //!   synthetic protocol (§6.2, Table 3) beside random sub-pixel offsets.
 //! * [`speed`] — nanoseconds per row of every method, methods interleaved.
+//! * [`render`] — milliseconds of rendering a frame of the simulated head's
+//!   scene under a light model.
 //! * [`corrugation`] — the closed loop of [`crate::sim::closed_loop`]: the
 //!   paper's four corrugation samples through the simulated head.
 //! * [`floor`] — the noise floor over a smooth rail against the head's
@@ -18,6 +20,7 @@
 pub mod accuracy;
 pub mod corrugation;
 pub mod floor;
+pub mod render;
 pub mod speckle;
 pub mod speed;
 

@@ -43,7 +43,8 @@ fn fastest(v: &[f64]) -> f64 {
     v.iter().copied().fold(f64::NAN, f64::min)
 }
 
-fn median(v: &[f64]) -> f64 {
+/// The median (NaN of nothing).
+pub(super) fn median(v: &[f64]) -> f64 {
     let mut s = v.to_vec();
     s.sort_by(f64::total_cmp);
     let n = s.len();

@@ -107,6 +107,12 @@ pub struct AnalysisArgs {
     /// takes out the ±2–5 % height scale of the outer lines on a crowned rail.
     #[arg(long, value_name = "CAL.toml")]
     pub calibration: Option<PathBuf>,
+    /// A track register (`lat_deg,lon_deg,chainage_m`, docs/gnss.md): each
+    /// run with GNSS fixes is placed by them, its typed start (--chainage,
+    /// the survey's) checked against them and reported disputed beyond
+    /// their combined tolerance; a run without a start is placed too.
+    #[arg(long = "track-register", value_name = "REGISTER.csv")]
+    pub track_register: Option<PathBuf>,
 }
 
 /// Arguments of `cms-host analyze`.
@@ -216,6 +222,7 @@ impl AnalysisArgs {
             ("--register", args.register.is_some()),
             ("--allow-repeated-runs", args.allow_repeated_runs),
             ("--allow-mixed-heads", args.allow_mixed_heads),
+            ("--track-register", args.track_register.is_some()),
         ];
         runs::Request {
             inputs: args.inputs.clone(),
@@ -225,6 +232,7 @@ impl AnalysisArgs {
             search_mm: args.search_m * 1000.0,
             dx_mm: args.dx_mm,
             recording_only: only_recordings.iter().filter(|(_, given)| *given).map(|(f, _)| f.to_string()).collect(),
+            track_register: args.track_register.clone(),
         }
     }
 }

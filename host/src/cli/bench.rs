@@ -18,6 +18,8 @@
 //!   per-point bound against aperture, speed, exposure and angle, beside
 //!   what the detector achieves) and the real-light sweep
 //!   (`cms_host::sim::real_light`): `speckle.md`, `speckle.csv`.
+//! * `bench render` — milliseconds of rendering a frame of the reference
+//!   head's scene under a light model (`cms_host::bench::render`).
 //! * `bench recording` — writes a synthetic calibrated recording of any
 //!   length (`cms_host::sim::synthetic`), the input of the scale benchmarks of
 //!   `analyze` and `export` (docs/benchmarks.md); with `--gnss REGISTER.csv`
@@ -54,6 +56,8 @@ pub enum BenchCmd {
     /// Real light on the reference head: the speckle budget (bound per point against aperture, speed, exposure and
     /// triangulation angle, beside the detector) and the real-light sweep; writes speckle.md and speckle.csv.
     Speckle(SpeckleArgs),
+    /// Milliseconds of rendering a frame of the reference head's scene under a light (as `listen sim` renders it).
+    Render(RenderArgs),
     /// Writes a synthetic calibrated recording (a known rail, no rendering) to time analyze and export at scale;
     /// with --gnss, the simulated GNSS receiver's fixes on a track register among its frames.
     Recording(RecordingArgs),
@@ -214,6 +218,20 @@ pub struct CorrugationArgs {
     pub out: PathBuf,
 }
 
+/// Options of `bench render`.
+#[derive(Args, Debug, Clone)]
+pub struct RenderArgs {
+    /// The light on the rail (as `simulate --light`).
+    #[arg(long, value_name = "SPEC", default_value = "speckle=4", value_parser = super::simulate::parse_light)]
+    pub light: cms_host::sim::scene::LightModel,
+    /// Travel speed along the rail, mm/s [default: the reference head's, 2000].
+    #[arg(long = "speed-mm-s", value_name = "V", default_value_t = 2000.0, value_parser = super::simulate::speed)]
+    pub speed_mm_s: f64,
+    /// Frames timed (after one untimed).
+    #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    pub frames: u64,
+}
+
 /// Options of `bench speckle`.
 #[derive(Args, Debug, Clone)]
 pub struct SpeckleArgs {
@@ -322,6 +340,11 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
             reduced: s.reduced,
             threads: s.threads.map(|t| t as usize),
             out: s.out.clone(),
+        })?,
+        BenchCmd::Render(r) => bench::render::render(&bench::render::RenderOptions {
+            light: r.light.clone(),
+            speed_mm_s: r.speed_mm_s,
+            frames: r.frames,
         })?,
         BenchCmd::Recording(r) => recording(&r)?,
         BenchCmd::AnnexA(a) => annex_a(&a)?,

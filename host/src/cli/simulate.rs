@@ -53,7 +53,7 @@ fn fraction(s: &str) -> Result<f64, String> {
     Ok(v)
 }
 
-fn speed(s: &str) -> Result<f64, String> {
+pub(crate) fn speed(s: &str) -> Result<f64, String> {
     let v = finite(s, "speed")?;
     if v.abs() > 100_000.0 {
         return Err(format!("speed must be within ±100000 mm/s, got {v}"));
@@ -118,10 +118,10 @@ pub struct SimulateArgs {
     /// Start without the factory calibration (pixels only until one is uploaded).
     #[arg(long)]
     pub uncalibrated: bool,
-    /// The light on the rail, comma-separated: speckle[=F-NUMBER] (laser speckle through the lens, F/8 if no number),
-    /// patterns=K (independent speckle patterns), focus=MM (where the lens is focused), oxidation, grease, band
-    /// (the running band), glints, ghost (a secondary reflection of the middle line). Speckle costs about 0.1 s of
-    /// rendering a frame at F/8 (0.3 s at F/4), which caps the frame rate.
+    /// The light on the rail, comma-separated: incoherent (clean stripes, the default), speckle[=F-NUMBER] (laser
+    /// speckle through the lens, F/8 if no number), patterns=K (independent speckle patterns), focus=MM (where the
+    /// lens is focused), oxidation, grease, band (the running band), glints, ghost (a secondary reflection of the
+    /// middle line). Speckle's rendering can cap the frame rate: `cms-host bench render` measures it.
     #[arg(long, value_name = "SPEC", value_parser = parse_light)]
     pub light: Option<LightModel>,
 }
@@ -191,7 +191,8 @@ pub struct SimPortArgs {
     /// With PORT `sim`: the simulated head starts without its factory calibration.
     #[arg(long = "sim-uncalibrated")]
     pub sim_uncalibrated: bool,
-    /// With PORT `sim`: the light on the simulated rail (as `simulate --light`).
+    /// With PORT `sim`: the light on the simulated rail (as `simulate --light`) [default: speckle=4, laser light
+    /// at the push-trolley setting; `incoherent`: the clean stripes].
     #[arg(long = "sim-light", value_name = "SPEC", value_parser = parse_light_boxed)]
     pub sim_light: Option<Box<LightModel>>,
 }
@@ -215,8 +216,8 @@ impl SimPortArgs {
 
 /// Parses `--light`: comma-separated items (see [`SimulateArgs::light`]);
 /// the ranges are checked when the scene is built.
-fn parse_light(s: &str) -> Result<LightModel, String> {
-    const ITEMS: &str = "speckle[=F-NUMBER], patterns=K, focus=MM, oxidation, grease, band, glints, ghost";
+pub(crate) fn parse_light(s: &str) -> Result<LightModel, String> {
+    const ITEMS: &str = "incoherent, speckle[=F-NUMBER], patterns=K, focus=MM, oxidation, grease, band, glints, ghost";
     let mut light = LightModel::incoherent();
     for item in s.split(',').map(str::trim) {
         let (key, value) = item.split_once('=').map_or((item, None), |(k, v)| (k.trim(), Some(v.trim())));
@@ -245,6 +246,7 @@ fn parse_light(s: &str) -> Result<LightModel, String> {
                 let f_number = light.speckle.map_or(8.0, |s| s.f_number);
                 light.speckle = Some(Speckle { f_number, patterns: k as u32 });
             }
+            "incoherent" => flag(&mut light, |l| l.speckle = None)?,
             "focus" => light.focus_mm = Some(number("MM")?),
             "oxidation" => flag(&mut light, |l| l.oxidation = LightModel::oxidation())?,
             "grease" => flag(&mut light, |l| l.grease = LightModel::grease())?,
@@ -329,7 +331,10 @@ mod tests {
         assert_eq!((l.oxidation, l.ghosts.len(), l.focus_mm), (LightModel::oxidation(), 1, Some(230.0)));
         assert_eq!(parse_light("speckle").unwrap().speckle, Some(Speckle { f_number: 8.0, patterns: 1 }));
         assert!(parse_light("glints,band,grease").unwrap().speckle.is_none());
-        for bad in ["", "laser", "speckle=x", "focus", "patterns=1.5", "patterns=0", "glints=2", "speckle=nan"] {
+        assert_eq!(parse_light("speckle=4,incoherent").unwrap(), LightModel::incoherent());
+        for bad in
+            ["", "laser", "speckle=x", "focus", "patterns=1.5", "patterns=0", "glints=2", "speckle=nan", "incoherent=1"]
+        {
             assert!(parse_light(bad).is_err(), "{bad}");
         }
     }

@@ -4,14 +4,17 @@
 //!
 //! # What is read
 //! A receiver sends, once per epoch (1–20 Hz), a `GGA` (time, position,
-//! fix quality, satellites, HDOP, altitude), usually an `RMC` (date,
-//! status, speed and course over ground) and a `VTG` (speed and course).
-//! The sentences are parsed by the `nmea` crate (checksums checked there:
-//! a damaged sentence is counted and dropped, never half-used); this
-//! module gathers one epoch's sentences into a [`Fix`] (see
-//! [`Assembler`]): the `GGA` opens an epoch, `RMC` and `VTG` of the same
-//! time complete it, the next epoch's first sentence ends it. Talker IDs
-//! (`GP`, `GN`, `GL`, `GA`, ...) are all taken.
+//! fix quality, satellites, HDOP, altitude) or a `GNS`, usually an `RMC`
+//! (date, status, speed and course over ground) and a `VTG` (speed and
+//! course), often a `GST` (its own σ) and a `ZDA` (date), in an order of
+//! its maker's, and on the same port proprietary sentences and binary
+//! frames of its own protocols. [`framing`] cuts the port's bytes into
+//! sentences and frames (each frame by its own sync, length and
+//! checksum: skipped, counted as other); [`sentence`] checks each
+//! sentence's checksum and reads it (a damaged sentence is counted and
+//! dropped, never half-used); [`epoch`] gathers one epoch's sentences by
+//! their UTC time into a [`Fix`] (see [`Assembler`]). Every talker (`GP`,
+//! `GN`, `GL`, `GA`, `GB`, ...) is taken.
 //!
 //! # Time alignment
 //! A fix is placed against the head's frames by **host receive times**:
@@ -25,12 +28,17 @@
 //! 20–100 mm along the track, at 50 km/h 0.3–1.4 m. The register check
 //! ([`register`]) takes it into its tolerance.
 
+pub mod epoch;
+pub mod framing;
 pub mod receiver;
 pub mod register;
 pub mod sentence;
+#[cfg(test)]
+mod streams;
 
+pub use epoch::Assembler;
 pub use receiver::{Receiver, ReceiverError, ReceiverStats};
-pub use sentence::{Assembler, SentenceError};
+pub use sentence::SentenceError;
 
 use serde::{Deserialize, Serialize};
 
@@ -150,13 +158,21 @@ pub struct Fix {
     pub speed_mm_s: Option<f64>,
     /// Course over ground, degrees clockwise from true north.
     pub course_deg: Option<f64>,
+    /// The receiver's own horizontal standard uncertainty, m: its `GST`'s
+    /// error ellipse semi-major σ (the largest in any direction). Recorded
+    /// from format 6 on.
+    pub receiver_sigma_m: Option<f64>,
 }
 
 impl Fix {
     /// The horizontal standard uncertainty assumed for this fix, m: the
-    /// solution's typical uncertainty scaled by its HDOP (at least 1).
+    /// receiver's own when it gave one, else the solution's typical
+    /// uncertainty scaled by its HDOP (at least 1).
     pub fn sigma_m(&self) -> f64 {
-        self.quality.typical_sigma_m() * self.hdop.unwrap_or(1.0).max(1.0)
+        match self.receiver_sigma_m {
+            Some(s) if s.is_finite() && s > 0.0 => s,
+            _ => self.quality.typical_sigma_m() * self.hdop.unwrap_or(1.0).max(1.0),
+        }
     }
 }
 

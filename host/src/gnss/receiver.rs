@@ -1,6 +1,7 @@
 //! A GNSS receiver on its own serial port, read by a thread of its own.
 //!
-//! The thread reads lines, gathers them into fixes ([`Assembler`]) and
+//! The thread cuts the port's bytes into sentences and binary frames
+//! ([`Framer`]), gathers the sentences into fixes ([`Assembler`]) and
 //! hands each fix, stamped with the host time its epoch's first sentence
 //! arrived, to the listener through a bounded channel. A listener that
 //! falls behind never stalls the port: a fix that finds the channel full
@@ -15,7 +16,7 @@ use std::sync::mpsc::{Receiver as Rx, SyncSender, TrySendError, sync_channel};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use super::sentence::MAX_LINE_BYTES;
+use super::framing::{Framer, Piece};
 use super::{Assembler, Fix};
 
 /// Fixes that may wait for the listener (at 20 Hz, 12 s).
@@ -57,8 +58,13 @@ pub struct ReceiverStats {
     pub fixes: u64,
     /// Fixes lost because the listener's channel was full.
     pub dropped: u64,
-    /// Sentences that failed their checksum or did not parse.
-    pub invalid: u64,
+    /// NMEA sentences damaged: a checksum or syntax that fails, or cut short.
+    pub damaged: u64,
+    /// Sentences and frames skipped whole: proprietary and other kinds of
+    /// sentence, sentences of an epoch already given out, binary frames.
+    pub other: u64,
+    /// Bytes in no sentence and no frame.
+    pub stray_bytes: u64,
     /// Epochs without a position.
     pub no_position: u64,
     /// Times the port failed and was reopened.
@@ -69,7 +75,9 @@ pub struct ReceiverStats {
 struct Shared {
     fixes: AtomicU64,
     dropped: AtomicU64,
-    invalid: AtomicU64,
+    damaged: AtomicU64,
+    other: AtomicU64,
+    stray_bytes: AtomicU64,
     no_position: AtomicU64,
     outages: AtomicU64,
 }
@@ -126,7 +134,9 @@ impl Receiver {
         ReceiverStats {
             fixes: g(&s.fixes),
             dropped: g(&s.dropped),
-            invalid: g(&s.invalid),
+            damaged: g(&s.damaged),
+            other: g(&s.other),
+            stray_bytes: g(&s.stray_bytes),
             no_position: g(&s.no_position),
             outages: g(&s.outages),
         }
@@ -142,48 +152,51 @@ impl Drop for Receiver {
     }
 }
 
-/// Splits bytes into lines and lines into fixes.
-struct Lines {
-    line: Vec<u8>,
-    /// The line is longer than any sentence: dropped up to its end.
-    overlong: bool,
-    asm: Assembler,
-    /// When the open epoch's first sentence arrived.
+/// Cuts bytes into pieces and sentences into fixes.
+#[derive(Default)]
+pub(super) struct Lines {
+    pub(super) framer: Framer,
+    pub(super) asm: Assembler,
+    /// Binary frames skipped.
+    pub(super) frames: u64,
+    /// Sentences cut short or too long.
+    pub(super) broken: u64,
+    /// When the open epoch's first timed sentence arrived.
     opened: Option<Instant>,
 }
 
 impl Lines {
-    fn feed(&mut self, bytes: &[u8], now: Instant, out: &mut impl FnMut(Instant, Fix)) {
-        for &b in bytes {
-            if b != b'\n' {
-                if self.line.len() < MAX_LINE_BYTES + 2 {
-                    self.line.push(b);
-                } else {
-                    self.overlong = true;
-                }
-                continue;
-            }
-            let text = String::from_utf8_lossy(&self.line).into_owned();
-            let was_open = self.opened;
-            if self.overlong {
-                self.asm.invalid += 1;
-            } else if let Ok(closed) = self.asm.line(&text) {
-                if let (Some(f), Some(t)) = (closed, was_open) {
-                    out(t, f);
-                }
-                if text.get(3..6) == Some("GGA") {
-                    self.opened = Some(now);
+    pub(super) fn feed(&mut self, bytes: &[u8], now: Instant, out: &mut impl FnMut(Instant, Fix)) {
+        let Lines { framer, asm, frames, broken, opened } = self;
+        framer.feed(bytes, &mut |piece| match piece {
+            Piece::Line(line) => {
+                let (before, was_open) = (asm.epochs_opened(), *opened);
+                if let Ok(closed) = asm.line(line) {
+                    if asm.epochs_opened() != before {
+                        *opened = Some(now);
+                    }
+                    if let Some(f) = closed {
+                        out(was_open.unwrap_or(now), f);
+                    }
                 }
             }
-            self.line.clear();
-            self.overlong = false;
-        }
+            Piece::Broken => *broken += 1,
+            Piece::Frame(_) => *frames += 1,
+        });
     }
 
-    fn idle(&mut self, out: &mut impl FnMut(Instant, Fix)) {
-        if let (Some(f), Some(t)) = (self.asm.flush(), self.opened.take()) {
-            out(t, f);
+    pub(super) fn idle(&mut self, out: &mut impl FnMut(Instant, Fix)) {
+        if let Some(f) = self.asm.flush() {
+            out(self.opened.unwrap_or_else(Instant::now), f);
         }
+        self.opened = None;
+    }
+
+    fn publish(&self, shared: &Shared) {
+        shared.damaged.store(self.asm.invalid + self.broken, Ordering::Relaxed);
+        shared.other.store(self.asm.ignored + self.asm.late + self.frames, Ordering::Relaxed);
+        shared.stray_bytes.store(self.framer.stray_bytes, Ordering::Relaxed);
+        shared.no_position.store(self.asm.no_position, Ordering::Relaxed);
     }
 }
 
@@ -195,7 +208,7 @@ fn read_loop(
     stop: &AtomicBool,
     shared: &Shared,
 ) {
-    let mut lines = Lines { line: Vec::new(), overlong: false, asm: Assembler::new(), opened: None };
+    let mut lines = Lines::default();
     let mut buf = [0u8; 1024];
     let mut send = |t: Instant, f: Fix| match tx.try_send((t, f)) {
         Ok(()) => {
@@ -227,10 +240,10 @@ fn read_loop(
                 }
             }
         }
-        shared.invalid.store(lines.asm.invalid, Ordering::Relaxed);
-        shared.no_position.store(lines.asm.no_position, Ordering::Relaxed);
+        lines.publish(shared);
     }
     lines.idle(&mut send);
+    lines.publish(shared);
 }
 
 #[cfg(test)]
@@ -240,7 +253,7 @@ mod tests {
 
     #[test]
     fn an_epoch_is_stamped_when_its_first_sentence_arrived() {
-        let mut l = Lines { line: Vec::new(), overlong: false, asm: Assembler::new(), opened: None };
+        let mut l = Lines::default();
         let t0 = Instant::now();
         let t1 = t0 + Duration::from_millis(100);
         let gga = |t: &str| sentence(&format!("GPGGA,{t},4807.038,N,01131.000,E,4,08,0.9,545.4,M,46.9,M,,"));
@@ -259,8 +272,9 @@ mod tests {
         l.idle(&mut |t, f| got.push((t, f)));
         assert_eq!((got.len(), got[1].0), (2, t1));
         // A line without end is dropped, counted once.
-        l.feed(&[b'$'; 2000], t1, &mut |t, f| got.push((t, f)));
+        l.feed(b"$", t1, &mut |t, f| got.push((t, f)));
+        l.feed(&[b'A'; 2000], t1, &mut |t, f| got.push((t, f)));
         l.feed(b"\n", t1, &mut |t, f| got.push((t, f)));
-        assert_eq!((got.len(), l.asm.invalid), (2, 1));
+        assert_eq!((got.len(), l.broken, l.asm.invalid), (2, 1, 0));
     }
 }

@@ -453,6 +453,7 @@ mod tests {
             hdop: Some(0.8),
             speed_mm_s: Some(1000.0),
             course_deg: None,
+            receiver_sigma_m: None,
         }
     }
 

@@ -118,12 +118,15 @@ pub const EXTENSION: &str = "cmsrec";
 pub const MAGIC: [u8; 8] = *b"CMSREC\0\x01";
 /// Length of the header.
 pub const HEADER_LEN: usize = 16;
-/// The format version this build writes (it reads 1 to 4 as well).
-pub const FORMAT_VERSION: u16 = 5;
+/// The format version this build writes (it reads 1 to 5 as well).
+pub const FORMAT_VERSION: u16 = 6;
 /// The first format that may hold host records ([`HostRecord`]).
 pub const HOST_RECORDS_FORMAT: u16 = 4;
 /// The first format that may hold event marks ([`HostRecord::Mark`]).
 pub const MARKS_FORMAT: u16 = 5;
+/// The first format whose fixes may carry the receiver's own σ
+/// ([`HostRecord::frame_in`]).
+pub const RECEIVER_SIGMA_FORMAT: u16 = 6;
 /// The first format whose header and survey block carry a checksum.
 pub const CHECKSUMMED_FORMAT: u16 = 3;
 /// Bytes of the header and survey block's checksum.
@@ -316,15 +319,18 @@ mod tests {
     fn header_round_trip_and_refusals() {
         let h: [u8; HEADER_LEN] = header()[..HEADER_LEN].try_into().unwrap();
         assert_eq!(&h[..8], b"CMSREC\0\x01");
-        assert_eq!(parse_header(&h).unwrap(), Header { format: 5, protocol: PROTOCOL_VERSION, survey_len: 0 });
+        assert_eq!(parse_header(&h).unwrap(), Header { format: 6, protocol: PROTOCOL_VERSION, survey_len: 0 });
         assert!(parse_header(&h[..10]).unwrap_err().to_string().contains("shorter"));
         let mut bad = h;
         bad[0] = b'X';
         assert!(parse_header(&bad).unwrap_err().to_string().contains("CMSREC"));
-        let mut v6 = h;
-        v6[8] = 6;
-        assert!(parse_header(&v6).unwrap_err().to_string().contains("version 6; this cms-host reads versions 1 to 5"));
+        let mut v7 = h;
+        v7[8] = 7;
+        assert!(parse_header(&v7).unwrap_err().to_string().contains("version 7; this cms-host reads versions 1 to 6"));
         // Every older format is still read.
+        let mut v5 = h;
+        v5[8] = 5;
+        assert!(parse_header(&v5).unwrap().holds_marks());
         for old in 1..=4u8 {
             let mut v = h;
             v[8] = old;

@@ -150,7 +150,7 @@ impl Recorder {
                 ),
             });
         }
-        self.out.write_all(&r.frame()).map_err(|e| self.err("cannot write", e))?;
+        self.out.write_all(&r.frame_in(self.format)).map_err(|e| self.err("cannot write", e))?;
         self.host_records += 1;
         self.dirty_since.get_or_insert_with(Instant::now);
         self.tick()

@@ -122,11 +122,45 @@ fn num(v: f64) -> Value {
     if v.is_finite() { json!(v) } else { Value::Null }
 }
 
+/// How a run was placed with a track register: by what, GNSS's fit or why
+/// there is none, the typed start and whether it is disputed.
+fn placing_json(p: &crate::analyze::placing::GnssPlacing) -> Value {
+    let (fit, why) = match &p.fit {
+        Ok(f) => (
+            json!({
+                "start_m": f.start_m,
+                "start_chainage": survey::Chainage(f.start_m).to_string(),
+                "heading": f.heading.name(),
+                "tolerance_m": f.tolerance_m,
+                "fixes": f.fixes,
+                "disagreeing": f.disagreeing,
+            }),
+            Value::Null,
+        ),
+        Err(why) => (Value::Null, json!(why)),
+    };
+    json!({
+        "run": p.run,
+        "placed_by": p.used.name(),
+        "gnss": fit,
+        "gnss_unavailable": why,
+        "typed_start_m": p.typed.start_m,
+        "typed_heading": p.typed.heading.map(|h| h.name()),
+        "typed_tolerance_m": p.typed_tolerance_m,
+        "start_difference_m": p.start_difference_m().map(|(d, _)| d),
+        "combined_tolerance_m": p.start_difference_m().map(|(_, t)| t),
+        "start_disputed": p.start_disputed(),
+        "heading_disputed": p.heading_disputed(),
+        "summary": p.to_string(),
+    })
+}
+
 /// The analysis as one JSON object.
 pub fn to_json(source: &Source, a: &Analysis) -> Value {
     let lasers: Vec<Value> = a.lasers.iter().map(laser_json).collect();
     let mut o = source_json(source, a);
     o["dx_mm"] = json!(a.options.stitch.dx_mm);
+    o["gnss_placing"] = json!(a.gnss_placing.iter().map(placing_json).collect::<Vec<_>>());
     o["run_joins"] = json!(
         a.joins
             .iter()

@@ -92,6 +92,9 @@ pub fn describe(source: &Source, a: &Analysis) -> String {
             let _ = writeln!(s, "{}", describe_join(j));
         }
     }
+    for p in &a.gnss_placing {
+        let _ = writeln!(s, "{p}");
+    }
     s.push_str(&describe_sections(a));
     s
 }

@@ -422,6 +422,7 @@ mod tests {
                         hdop: Some(0.9),
                         speed_mm_s: Some(1000.0),
                         course_deg: Some(60.0),
+                        receiver_sigma_m: None,
                     },
                 }
             })

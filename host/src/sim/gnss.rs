@@ -105,6 +105,7 @@ impl Antenna {
             hdop: Some(0.8),
             speed_mm_s: Some(speed_mm_s),
             course_deg: Some(if o.direction < 0.0 { (heading + 180.0) % 360.0 } else { heading }),
+            receiver_sigma_m: None,
         }
     }
 }

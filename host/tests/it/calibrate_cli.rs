@@ -25,7 +25,7 @@ fn upload_is_kept_across_restarts_and_points_carry_millimetres() {
     assert!(said.contains("loaded by the head") && said.contains("detector scales"), "{said}");
     assert!(state.join("calibration.frame").exists());
 
-    let l = run(&["listen", "sim", "--sim-state", state_s, "--frames", "3", "--json"]);
+    let l = run(&["listen", "sim", "--sim-light=incoherent", "--sim-state", state_s, "--frames", "3", "--json"]);
     assert!(l.status.success(), "{l:?}");
     let said = String::from_utf8_lossy(&l.stderr);
     assert!(said.contains("restored from") && said.contains("listen: calibration: 0x"), "{said}");

@@ -23,7 +23,7 @@ fn a_capture_from_the_simulated_head_shows_the_lit_laser_only() {
     let lit = dir.path().join("lit.png");
     let mut bits = 0;
     for (path, lasers) in [(&dark, "0"), (&lit, "2")] {
-        let o = run(&["capture", "sim", "--out", path.to_str().unwrap(), "--lasers", lasers]);
+        let o = run(&["capture", "sim", "--sim-light=incoherent", "--out", path.to_str().unwrap(), "--lasers", lasers]);
         assert!(o.status.success(), "{o:?}");
         let out = String::from_utf8_lossy(&o.stdout);
         assert!(out.contains("752×480 px, "), "{out}");

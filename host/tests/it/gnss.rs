@@ -27,6 +27,7 @@ fn record(dir: &Path, name: &str, frames: &str, start: &str, heading: &str) -> P
     let o = run(&[
         "listen",
         "sim",
+        "--sim-light=incoherent",
         "--gnss",
         "sim",
         "--frames",
@@ -73,7 +74,7 @@ fn a_run_with_gnss_is_placed_on_its_register_and_a_wrong_one_is_reported() {
     let rec = record(dir.path(), "run", "120", "41+100", "up");
 
     let info = String::from_utf8(run(&["info", s(&rec)]).stdout).unwrap();
-    assert!(info.contains("format: 5"), "{info}");
+    assert!(info.contains("format: 6"), "{info}");
     let line = info.lines().find(|l| l.starts_with("gnss: ")).unwrap_or_else(|| panic!("{info}"));
     let fixes: u64 = line["gnss: ".len()..].split(' ').next().unwrap().parse().unwrap();
     let placed: u64 = line.split("), ").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap();
@@ -348,4 +349,60 @@ fn bench_recording_gnss_misuse_is_refused_in_one_line() {
     let e = bench(&["--gnss", "/nonexistent/reg.csv", "--start-chainage", "0+095"]);
     assert!(e.contains("/nonexistent/reg.csv"), "{e}");
     assert!(!out.exists(), "nothing written");
+}
+
+/// `analyze --track-register`: a run with fixes and no typed start is
+/// placed by them, within their tolerance of where it was; a typed start
+/// 100 m off is disputed, named, and GNSS places the run; one that agrees
+/// is said to.
+#[test]
+fn analyze_places_a_run_by_its_fixes_and_checks_its_typed_start() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("run.cmsrec");
+    let o = run(&[
+        "bench",
+        "recording",
+        "--frames",
+        "900",
+        "--step-mm",
+        "33",
+        "--points",
+        "16",
+        "--seed",
+        "5",
+        "--start-chainage",
+        "41+100",
+        "--gnss",
+        REGISTER,
+        "--out",
+        s(&rec),
+    ]);
+    assert!(o.status.success(), "{o:?}");
+    let analyze = |extra: &[&str]| {
+        let mut args = vec!["analyze", s(&rec), "--track-register", REGISTER];
+        args.extend_from_slice(extra);
+        let o = run(&args);
+        assert!(o.status.success(), "{o:?}");
+        String::from_utf8(o.stdout).unwrap()
+    };
+    // No typed start (`--chainage auto` sets the survey's aside).
+    let json: serde_json::Value = serde_json::from_str(&analyze(&["--chainage", "auto", "--json"])).unwrap();
+    let p = &json["gnss_placing"][0];
+    assert_eq!((p["placed_by"].as_str(), p["typed_start_m"].as_f64()), (Some("gnss"), None), "{p}");
+    let (start, tol) = (p["gnss"]["start_m"].as_f64().unwrap(), p["gnss"]["tolerance_m"].as_f64().unwrap());
+    assert!((start - 41_100.0).abs() <= tol && tol < 0.2, "{p}");
+    assert_eq!(p["gnss"]["heading"].as_str(), Some("up"), "{p}");
+    let used = json["run_joins"][0]["start_m"].as_f64().unwrap();
+    assert!((used - start).abs() < 1e-6, "{json}");
+
+    // A typed start 100 m off: disputed, GNSS places the run.
+    let out = analyze(&["--chainage", "41+200"]);
+    let line = out.lines().find(|l| l.starts_with("run 1: placed by")).unwrap_or_else(|| panic!("{out}"));
+    assert!(line.contains("placed by GNSS — GNSS puts position 0 at 41+100.0"), "{line}");
+    assert!(line.contains("typed start 41+200.000 is +100.0") && line.contains("START DISPUTED"), "{line}");
+    assert!(out.contains("run 1: position 0 at chainage 41+100.0"), "{out}");
+    // The survey's own start (41+100) agrees.
+    let out = analyze(&[]);
+    assert!(out.contains("typed start 41+100.000 is ") && out.contains(": agrees (combined tolerance 25.0"), "{out}");
+    assert!(!out.contains("DISPUTED"), "{out}");
 }

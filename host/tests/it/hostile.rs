@@ -107,6 +107,7 @@ fn survey_text_cannot_drive_the_terminal() {
     let l = run(&[
         "listen",
         "sim",
+        "--sim-light=incoherent",
         "--sim-state",
         s(&state),
         "--frames",
@@ -171,7 +172,18 @@ fn tracking_overlapping_windows_is_refused_not_lossy() {
     let manual = ["--window", "0:250-400", "--window", "1:330-450", "--window", "2:440-520", "--track", "8"];
     let e = one_line_error(&run(&[&["listen", "sim", "--sim-state", st, "--frames", "2"][..], &manual].concat()));
     assert!(e.contains("laser 0") && e.contains("laser 1"), "{e}");
-    let o = run(&["listen", "sim", "--sim-state", st, "--windows-from", cal, "--frames", "3", "--json"]);
+    let o = run(&[
+        "listen",
+        "sim",
+        "--sim-light=incoherent",
+        "--sim-state",
+        st,
+        "--windows-from",
+        cal,
+        "--frames",
+        "3",
+        "--json",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     for line in String::from_utf8(o.stdout).unwrap().lines() {
         let v: serde_json::Value = serde_json::from_str(line).unwrap();

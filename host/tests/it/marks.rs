@@ -35,7 +35,7 @@ struct Listen {
 impl Listen {
     fn start(dir: &Path, args: &[&str]) -> Listen {
         let mut child = Command::new(bin())
-            .args(["listen", "sim"])
+            .args(["listen", "sim", "--sim-light=incoherent"])
             .args(args)
             .env("CMS_SIM_STATE", dir.join("sim-state"))
             .stdin(Stdio::piped())
@@ -173,7 +173,7 @@ fn marks_typed_on_the_terminal_appear_in_the_report_at_their_chainage() {
     }
 
     let info = String::from_utf8(run(&["info", s(&rec)]).stdout).unwrap();
-    assert!(info.contains("format: 5 ") && info.contains("marks: 3\n"), "{info}");
+    assert!(info.contains("format: 6 ") && info.contains("marks: 3\n"), "{info}");
     assert!(info.contains("mark: kilometre_post \"12.300\" at odometer "), "{info}");
     let o = run(&["export", s(&rec), "--format", "marks", "--out", "-"]);
     let csv = String::from_utf8(o.stdout).unwrap();
@@ -262,11 +262,12 @@ fn a_mark_from_the_page_is_recorded_where_the_head_was() {
 }
 
 /// Rewrites a recording's format version to 4 (the header's checksum made
-/// again): what a build of format 4 wrote, byte for byte, since format 5
-/// only adds the marks such a file does not hold.
+/// again): what a build of format 4 wrote, byte for byte, since formats 5
+/// and 6 only add what such a file does not hold (marks, and fixes with
+/// the receiver's σ, which the simulated receiver does not send).
 fn as_format_4(path: &Path) {
     let mut b = std::fs::read(path).unwrap();
-    assert_eq!(u16::from_le_bytes([b[8], b[9]]), 5);
+    assert_eq!(u16::from_le_bytes([b[8], b[9]]), 6);
     let survey_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
     b[8] = 4;
     let end = 16 + survey_len;
@@ -279,7 +280,7 @@ fn as_format_4(path: &Path) {
 fn a_format_4_recording_still_reads_and_takes_no_marks() {
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("old.cmsrec");
-    let o = run(&["listen", "sim", "--gnss", "sim", "--frames", "60", "--record", s(&rec)]);
+    let o = run(&["listen", "sim", "--sim-light=incoherent", "--gnss", "sim", "--frames", "60", "--record", s(&rec)]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     as_format_4(&rec);
     let info = String::from_utf8(run(&["info", s(&rec)]).stdout).unwrap();

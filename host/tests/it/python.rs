@@ -1,9 +1,12 @@
 //! The Python package (`python/`, `cms`) and its fleet job, through their
 //! own test script: a pinned virtual environment, the package built into it
 //! from the workspace, a fleet of 100 synthetic recordings analysed on a
-//! Dask LocalCluster, every recording's figures in the dataset against this
-//! binary's `analyze --json`, the DuckDB queries. The script fails (never
-//! skips) when Python, a package or the build is missing.
+//! Dask scheduler and workers started from the command line (and on a
+//! LocalCluster), a fleet read from and written to a bucket of an
+//! S3-compatible server started here, every recording's figures in the
+//! dataset against this binary's `analyze --json`, the DuckDB queries. The
+//! script fails (never skips) when Python, a package or the build is
+//! missing.
 
 use std::path::Path;
 use std::process::Command;

@@ -256,7 +256,7 @@ fn a_recording_is_committed_within_a_second_of_each_frame_and_at_exit() {
             .args(["-tt", "-e", "trace=openat,write,fdatasync", "-o"])
             .arg(&log)
             .arg(env!("CARGO_BIN_EXE_cms-host"))
-            .args(["listen", "sim", "--lasers", "1", "--duration", duration, "--sim-state"])
+            .args(["listen", "sim", "--sim-light=incoherent", "--lasers", "1", "--duration", duration, "--sim-state"])
             .arg(&state)
             .arg("--record")
             .arg(&rec)

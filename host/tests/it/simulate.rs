@@ -479,7 +479,7 @@ fn paper_preset_streams_a_frame_in_parts() {
 #[test]
 fn listen_sim_crosses_the_pty() {
     let out = Process::new(BIN)
-        .args(["listen", "sim", "--frames", "30", "--json", "--sim-seed", "4"])
+        .args(["listen", "sim", "--sim-light=incoherent", "--frames", "30", "--json", "--sim-seed", "4"])
         .stdin(Stdio::null())
         .output()
         .unwrap();

@@ -5,7 +5,7 @@ such as ``s3://bucket/surveys`` with its filesystem package installed — is
 analysed on its own, as ``cms-host analyze RECORDING`` would, on a Dask
 cluster: a LocalCluster of N single-threaded worker processes on this
 machine, or the scheduler at ADDRESS (the same code on a cluster; its
-workers need the ``cms`` package and must reach INPUT). The blocks, the
+workers need the ``cms`` package and must reach INPUT and OUTPUT). The blocks, the
 zones and one row per recording (``runs``) go into OUTPUT as a
 hive-partitioned Parquet dataset ``TABLE/line=…/track=…/year=…/``.
 
@@ -16,68 +16,107 @@ surveys of at least two dates followed as ``cms-host trend`` follows them
 ``trend/line=…/track=…/``, and one row per group in ``trends`` (its
 surveys, or why it has no trend).
 
-OUTPUT is a local folder (on a cluster: one the client writes). It is
-written whole into a sibling temporary folder and then renamed into
-place: OUTPUT holds the old dataset or the new one, never a mix. An
-existing OUTPUT is replaced only when it is a dataset of this job.
+OUTPUT is a folder (on a cluster: one the workers share at the same
+path) or an fsspec URL of a bucket prefix. The workers write their own
+partition files into a staging location and send the client only their
+paths, row counts and the recordings' errors; the client publishes the
+dataset whole (``cms.fleet.store``): OUTPUT holds the old dataset or the
+new one, never a mix. An existing OUTPUT is replaced only when it is a
+dataset of this job.
 
 A recording that cannot be analysed is not dropped silently: its ``runs``
 row carries the error (the line ``cms-host analyze`` prints), the other
 recordings are written, and the job exits with status 1 naming it.
 """
 
+
 from __future__ import annotations
 
 import argparse
-import json
+import datetime
 import logging
+import math
 import os
-import shutil
 import sys
 import tempfile
 import time
-from typing import Optional
+from typing import Callable, Iterable, Iterator, Optional
 
 import pyarrow as pa
-import pyarrow.dataset as ds
 
 import cms
 
-#: The file that marks OUTPUT as this job's dataset (and says how it was made).
-MARKER = "_cms_fleet.json"
+from . import store
+
+#: The file that marks OUTPUT as this job's dataset: its manifest.
+MARKER = store.MANIFEST
 #: The tables of the dataset, each a folder of OUTPUT.
-TABLES = ("blocks", "zones", "runs", "trend", "trends")
-#: The partition keys, in order.
-PARTITIONS = ("line", "track", "year")
+TABLES = tuple(store.PARTITIONS)
+#: The partition keys of the recordings' tables, in order.
+PARTITIONS = store.PARTITIONS["blocks"]
 #: The partition keys of the trend's tables: a site's surveys span years.
-SITE_KEYS = ("line", "track")
+SITE_KEYS = store.PARTITIONS["trend"]
 #: The options of ``cms.trend`` the job passes on (the others are ``cms.trend``'s defaults).
 TREND_OPTIONS = ("edition", "block_m")
 #: The analysis options the job passes on (the keywords of ``cms.analyze``).
 OPTIONS = ("edition", "block_m", "dx_mm", "segment_mm")
+#: A task's recordings: at most this many, and no more once they reach MAX_TASK_BYTES.
+MAX_TASK_RECORDINGS = 64
+MAX_TASK_BYTES = 64 << 20
+#: Tasks in flight per worker: enough to keep every worker busy, few enough
+#: that the client and the scheduler hold a bounded number of futures.
+TASKS_IN_FLIGHT_PER_WORKER = 4
 
 
-def list_recordings(source: str) -> list[str]:
-    """The recordings under ``source`` (a folder, or an fsspec URL), sorted;
-    an error naming ``source`` when it holds none. A folder's are paths
-    under it as given (the ``source`` column then names each file as
-    ``cms-host analyze`` run here would); a URL's are URLs."""
+def list_recordings(source: str) -> list[tuple[str, int]]:
+    """The recordings under ``source`` (a folder, or an fsspec URL) with
+    their sizes in bytes, sorted; an error naming ``source`` when it holds
+    none. A folder's are paths under it as given (the ``source`` column
+    then names each file as ``cms-host analyze`` run here would); a URL's
+    are URLs."""
     if "://" not in source:
         if not os.path.isdir(source):
             raise cms.Error(f"{source}: not a folder")
         found = sorted(
-            os.path.join(d, f) for d, _, files in os.walk(source) for f in files if f.endswith(".cmsrec")
+            (p, os.path.getsize(p))
+            for p in (os.path.join(d, f) for d, _, files in os.walk(source) for f in files if f.endswith(".cmsrec"))
         )
     else:
         import fsspec
 
-        fs, root = fsspec.core.url_to_fs(source)
-        if not fs.isdir(root):
-            raise cms.Error(f"{source}: not a folder")
-        found = sorted(fs.unstrip_protocol(p) for p in fs.find(root) if p.endswith(".cmsrec"))
+        try:
+            fs, root = fsspec.core.url_to_fs(source)
+            fs.invalidate_cache()
+            if not fs.isdir(root):
+                raise cms.Error(f"{source}: not a folder")
+            found = sorted(
+                (fs.unstrip_protocol(p), int(info.get("size") or 0))
+                for p, info in fs.find(root, detail=True).items()
+                if p.endswith(".cmsrec")
+            )
+        except (ImportError, ValueError, OSError) as e:
+            raise cms.Error(f"{source}: {e}".replace("\n", " ")) from e
     if not found:
         raise cms.Error(f"{source}: no recordings (*.cmsrec)")
     return found
+
+
+def batches(recordings: list[tuple[str, int]], workers: int) -> Iterator[list[str]]:
+    """The recordings cut into tasks in order: at least
+    ``TASKS_IN_FLIGHT_PER_WORKER`` tasks per worker while there are
+    recordings enough, each of at most ``MAX_TASK_RECORDINGS`` recordings
+    and closed once it holds ``MAX_TASK_BYTES``."""
+    per = max(1, min(MAX_TASK_RECORDINGS, math.ceil(len(recordings) / (TASKS_IN_FLIGHT_PER_WORKER * max(1, workers)))))
+    task: list[str] = []
+    size = 0
+    for url, n in recordings:
+        task.append(url)
+        size += n
+        if len(task) == per or size >= MAX_TASK_BYTES:
+            yield task
+            task, size = [], 0
+    if task:
+        yield task
 
 
 def _local_copy(url: str, tmp: str) -> str:
@@ -102,15 +141,17 @@ def _with_keys(t: pa.Table, keys: dict, source: str) -> pa.Table:
 
 
 def analyse_one(url: str, options: dict) -> dict:
-    """One recording analysed: its blocks, zones and runs row (Arrow IPC
-    bytes, cheap to send back), or its error in the runs row."""
+    """One recording analysed: its blocks, zones and runs row as tables
+    (the runs row with its error when it cannot be analysed)."""
     t0 = time.perf_counter()
     keys = {"line": None, "track": None, "year": None}
     row = {"source": url, "error": None}
     out = {}
+    path = url
     try:
         with tempfile.TemporaryDirectory(prefix="cms-fleet-") as tmp:
-            path = url if "://" not in url else _local_copy(url, tmp)
+            if "://" in url:
+                path = _local_copy(url, tmp)
             survey = cms.read_survey(path) or {}
             keys = {k: survey.get(k) for k in PARTITIONS}
             a = cms.analyze(path, profile=False, **options)
@@ -132,12 +173,14 @@ def analyse_one(url: str, options: dict) -> dict:
             blocks=a.blocks.num_rows,
             zones=a.zones.num_rows,
         )
-    except cms.Error as e:
-        row["error"] = str(e)
+    except (cms.Error, OSError) as e:
+        # A copy's path in the message named as the job names the recording: its URL.
+        msg = str(e).replace(path, url)
+        row["error"] = msg if isinstance(e, cms.Error) else f"{url}: {msg}"
     row.update(keys)
     row["seconds"] = time.perf_counter() - t0
     out["runs"] = pa.Table.from_pylist([row], schema=RUNS_SCHEMA)
-    return {k: _ipc(t) for k, t in out.items()}
+    return out
 
 
 RUNS_SCHEMA = pa.schema(
@@ -159,28 +202,26 @@ RUNS_SCHEMA = pa.schema(
     ]
 )
 
-
-def _ipc(t: pa.Table) -> bytes:
-    sink = pa.BufferOutputStream()
-    with pa.ipc.new_stream(sink, t.schema) as w:
-        w.write_table(t)
-    return sink.getvalue().to_pybytes()
+#: What a task sends back of each recording: enough for the client to
+#: name the failures and group the sites, nothing of the tables.
+RUN_KEYS = ("source", "error", "line", "track", "date", "measured_mm")
 
 
-def _table(b: bytes) -> pa.Table:
-    return pa.ipc.open_stream(b).read_all()
+def _concat(parts: list) -> Optional[pa.Table]:
+    return pa.concat_tables(parts, promote_options="default") if parts else None
 
 
-def run(urls: list[str], client, options: dict) -> dict:
-    """Analyses ``urls`` on the Dask ``client``: each table concatenated
-    over the recordings, in the order of ``urls``."""
-    futures = client.map(analyse_one, urls, options=options, pure=False)
-    results = client.gather(futures)
-    tables = {}
-    for name in TABLES:
-        parts = [_table(r[name]) for r in results if name in r]
-        tables[name] = pa.concat_tables(parts, promote_options="default") if parts else None
-    return tables
+def analyse_task(urls: list[str], stage: str, task: int, options: dict) -> dict:
+    """A task's recordings analysed on a worker, its tables written by the
+    worker into ``stage`` (one file per table and partition): back go the
+    files' paths and row counts, and per recording the ``RUN_KEYS``."""
+    parts: dict = {"blocks": [], "zones": [], "runs": []}
+    for url in urls:
+        for name, t in analyse_one(url, options).items():
+            parts[name].append(t)
+    runs = _concat(parts["runs"])
+    files = store.write_tables(stage, {k: _concat(v) for k, v in parts.items()}, f"{task:06d}")
+    return {"files": files, "runs": runs.select(list(RUN_KEYS)).to_pylist()}
 
 
 TRENDS_SCHEMA = pa.schema(
@@ -197,28 +238,32 @@ TRENDS_SCHEMA = pa.schema(
 )
 
 
-def sites(runs: pa.Table) -> list[tuple[str, str, list[str], list[str]]]:
+class Sites:
     """The analysed recordings grouped by the ``line`` and ``track`` of
-    their survey blocks: (line, track, sources, dates), the sources in
-    date order (then by name). A recording without a line, track or date
-    belongs to no site."""
-    groups: dict = {}
-    for r in runs.to_pylist():
-        if r["error"] is None and r["line"] is not None and r["track"] is not None and r["date"] is not None:
-            groups.setdefault((r["line"], r["track"]), []).append((r["date"], r["source"]))
-    out = []
-    for (line, track), surveys in sorted(groups.items()):
-        surveys.sort()
-        out.append((line, track, [s for _, s in surveys], [d for d, _ in surveys]))
-    return out
+    their survey blocks, as the tasks report them. A recording without a
+    line, track or date belongs to no site."""
+
+    def __init__(self) -> None:
+        self._groups: dict = {}
+
+    def add(self, run: dict) -> None:
+        if run["error"] is None and run["line"] is not None and run["track"] is not None and run["date"] is not None:
+            self._groups.setdefault((run["line"], run["track"]), []).append((run["date"], run["source"]))
+
+    def __len__(self) -> int:
+        return len(self._groups)
+
+    def __iter__(self) -> Iterator[tuple[str, str, list[str], list[str]]]:
+        """(line, track, sources, dates), the sources in date order (then by name)."""
+        for (line, track), surveys in sorted(self._groups.items()):
+            surveys = sorted(surveys)
+            yield line, track, [s for _, s in surveys], [d for d, _ in surveys]
 
 
 def trend_one(line: str, track: str, urls: list[str], dates: list[str], options: dict) -> dict:
-    """One site's trend: its rows (Arrow IPC bytes) and its ``trends`` row,
-    or the row with the error (the line ``cms-host trend`` prints, or why
-    the site has no trend)."""
-    import datetime
-
+    """One site's trend: its rows and its ``trends`` row as tables, or the
+    row with the error (the line ``cms-host trend`` prints, or why the
+    site has no trend)."""
     t0 = time.perf_counter()
     row = {
         "line": line,
@@ -245,15 +290,23 @@ def trend_one(line: str, track: str, urls: list[str], dates: list[str], options:
             t = t.append_column(pa.field(k, pa.string(), False), pa.array([row[k]] * n, pa.string()))
         out["trend"] = t
         row["blocks"] = len({(s, e) for s, e in zip(t["start_chainage_mm"].to_pylist(), t["end_chainage_mm"].to_pylist())})
-    except cms.Error as e:
+    except (cms.Error, OSError) as e:
         # A copy's path in the message named as the job names the recording: its URL.
         msg = str(e)
         for p, u in copies.items():
             msg = msg.replace(p, u)
-        row["error"] = msg
+        row["error"] = msg if isinstance(e, cms.Error) else f"{line} / {track}: {msg}"
     row["seconds"] = time.perf_counter() - t0
     out["trends"] = pa.Table.from_pylist([row], schema=TRENDS_SCHEMA)
-    return {k: _ipc(t) for k, t in out.items()}
+    return out
+
+
+def trend_task(line: str, track: str, urls: list[str], dates: list[str], stage: str, task: int, options: dict) -> dict:
+    """One site's trend on a worker, its tables written by the worker into
+    ``stage``: back go the files and the site's error (``None``: followed)."""
+    out = trend_one(line, track, urls, dates, options)
+    files = store.write_tables(stage, out, f"{task:06d}")
+    return {"files": files, "site": {"line": line, "track": track, "error": out["trends"]["error"][0].as_py()}}
 
 
 def _local_copy_as(url: str, tmp: str, i: int) -> str:
@@ -264,67 +317,89 @@ def _local_copy_as(url: str, tmp: str, i: int) -> str:
     return _local_copy(url, d)
 
 
-def run_trends(runs: pa.Table, client, options: dict) -> dict:
-    """The trend of every site of ``runs`` on the Dask ``client``: the
-    ``trend`` and ``trends`` tables (``None``: no site)."""
+def bounded(client, fn: Callable, argsets: Iterable[tuple], in_flight: int) -> Iterator:
+    """``fn(*args)`` of every ``args`` on the Dask ``client``, at most
+    ``in_flight`` tasks submitted at once: each result is yielded as it
+    comes (in any order) and its future released, so neither the client
+    nor the scheduler ever holds more than ``in_flight`` of them."""
+    from dask.distributed import as_completed
+
+    todo = iter(argsets)
+    running = as_completed()
+    for args in todo:
+        running.add(client.submit(fn, *args, pure=False))
+        if running.count() >= in_flight:
+            break
+    for future in running:
+        result = future.result()
+        future.release()
+        nxt = next(todo, None)
+        if nxt is not None:
+            running.add(client.submit(fn, *nxt, pure=False))
+        yield result
+
+
+class Manifest:
+    """What the tasks sent back, gathered on the client: the files of each
+    table with their row counts, the recordings that failed, the sites."""
+
+    def __init__(self) -> None:
+        self.files: dict = {name: [] for name in TABLES}
+        self.recordings = 0
+        self.measured_mm = 0.0
+        self.failed: list[tuple[str, str]] = []
+        self.sites = Sites()
+        self.untrended: list[dict] = []
+        self.trends = 0
+
+    def add_files(self, files: dict) -> None:
+        for name, fs in files.items():
+            self.files[name].extend(fs)
+
+    def add_runs(self, runs: list[dict]) -> None:
+        for r in runs:
+            self.recordings += 1
+            self.measured_mm += r["measured_mm"] or 0.0
+            if r["error"] is not None:
+                self.failed.append((r["source"], r["error"]))
+            self.sites.add(r)
+
+    def rows(self, name: str) -> int:
+        return sum(n for _, n in self.files[name])
+
+
+def run(recordings: list[tuple[str, int]], client, options: dict, stage: str, workers: int, m: Manifest) -> None:
+    """Analyses ``recordings`` on the Dask ``client``, the workers writing
+    the tables into ``stage``; what they send back gathered into ``m``."""
+    tasks = ((urls, stage, i, options) for i, urls in enumerate(batches(recordings, workers)))
+    for r in bounded(client, analyse_task, tasks, TASKS_IN_FLIGHT_PER_WORKER * max(1, workers)):
+        m.add_files(r["files"])
+        m.add_runs(r["runs"])
+
+
+def run_trends(client, options: dict, stage: str, workers: int, m: Manifest) -> None:
+    """The trend of every site of ``m`` on the Dask ``client``, the workers
+    writing the ``trend`` and ``trends`` tables into ``stage``."""
     topts = {k: options[k] for k in TREND_OPTIONS}
-    futures = [client.submit(trend_one, line, track, urls, dates, topts, pure=False) for line, track, urls, dates in sites(runs)]
-    results = client.gather(futures)
-    tables = {}
-    for name in ("trend", "trends"):
-        parts = [_table(r[name]) for r in results if name in r]
-        tables[name] = pa.concat_tables(parts, promote_options="default") if parts else None
-    return tables
-
-
-def _is_dataset(path: str) -> bool:
-    return os.path.isfile(os.path.join(path, MARKER))
-
-
-def write(output: str, tables: dict, about: dict) -> None:
-    """Writes the dataset into ``output`` atomically (a sibling temporary
-    folder renamed into place)."""
-    output = os.path.abspath(output)
-    if os.path.lexists(output) and not (os.path.isdir(output) and _is_dataset(output)):
-        raise cms.Error(f"{output}: exists and is not a dataset of cms.fleet.job; give a new folder")
-    parent = os.path.dirname(output)
-    os.makedirs(parent, exist_ok=True)
-    tmp = tempfile.mkdtemp(prefix=".cms-fleet-", dir=parent)
-    try:
-        keys = {"line": pa.string(), "track": pa.string(), "year": pa.int32()}
-        for name in TABLES:
-            by = SITE_KEYS if name in ("trend", "trends") else PARTITIONS
-            part = ds.partitioning(pa.schema([pa.field(k, keys[k]) for k in by]), flavor="hive")
-            t = tables.get(name)
-            if t is None or t.num_rows == 0:
-                os.makedirs(os.path.join(tmp, name))
-                continue
-            ds.write_dataset(
-                t,
-                os.path.join(tmp, name),
-                format="parquet",
-                partitioning=part,
-                basename_template=name + "-{i}.parquet",
-                existing_data_behavior="error",
-            )
-        with open(os.path.join(tmp, MARKER), "w") as f:
-            json.dump(about, f, indent=1)
-        old = None
-        if os.path.lexists(output):
-            old = tempfile.mkdtemp(prefix=".cms-fleet-old-", dir=parent)
-            os.rename(output, os.path.join(old, "d"))
-        os.rename(tmp, output)
-        tmp = None
-        if old:
-            shutil.rmtree(old)
-    finally:
-        if tmp:
-            shutil.rmtree(tmp, ignore_errors=True)
+    tasks = ((line, track, urls, dates, stage, i, topts) for i, (line, track, urls, dates) in enumerate(m.sites))
+    for r in bounded(client, trend_task, tasks, TASKS_IN_FLIGHT_PER_WORKER * max(1, workers)):
+        m.add_files(r["files"])
+        m.trends += 1
+        if r["site"]["error"]:
+            m.untrended.append(r["site"])
 
 
 def _inside(a: str, b: str) -> bool:
+    """Whether location ``a`` is ``b`` or under it (folders, or URLs)."""
+    if store.is_url(a) or store.is_url(b):
+        a, b = a.rstrip("/"), b.rstrip("/")
+        return a == b or a.startswith(b + "/")
     a, b = os.path.realpath(a), os.path.realpath(b)
     return a == b or a.startswith(b + os.sep)
+
+
+class ClusterError(Exception):
+    """The Dask scheduler cannot be reached: its address and why."""
 
 
 def client_for(workers: Optional[int], scheduler: Optional[str]):
@@ -335,7 +410,10 @@ def client_for(workers: Optional[int], scheduler: Optional[str]):
     # The cluster's own lines (workers starting, closing) are not the job's output.
     logging.getLogger("distributed").setLevel(logging.WARNING)
     if scheduler:
-        return Client(scheduler)
+        try:
+            return Client(scheduler)
+        except OSError as e:
+            raise ClusterError(f"{scheduler}: {e}".replace("\n", " ")) from e
     cluster = LocalCluster(
         n_workers=workers or os.cpu_count() or 1,
         threads_per_worker=1,
@@ -346,10 +424,44 @@ def client_for(workers: Optional[int], scheduler: Optional[str]):
     return Client(cluster)
 
 
+def _job(a: argparse.Namespace, options: dict, target: store.Target) -> tuple[Manifest, dict]:
+    """The job's two passes on the cluster, into ``target``'s staging."""
+    recordings = list_recordings(a.input)
+    m = Manifest()
+    t0 = time.perf_counter()
+    with client_for(a.workers, a.scheduler) as client:
+        if a.scheduler is None:
+            client.wait_for_workers(a.workers or os.cpu_count() or 1)
+        workers = len(client.nthreads())
+        stage = target.begin()
+        t1 = time.perf_counter()
+        run(recordings, client, options, stage, workers, m)
+        t2 = time.perf_counter()
+        run_trends(client, options, stage, workers, m)
+        t3 = time.perf_counter()
+    about = {
+        "schema": cms.SCHEMA_VERSION,
+        "input": a.input,
+        "recordings": m.recordings,
+        "failed": len(m.failed),
+        "km": round(m.measured_mm / 1e6, 6),
+        "options": options,
+        "workers": workers,
+        "cluster_start_s": round(t1 - t0, 3),
+        "analysis_s": round(t2 - t1, 3),
+        "sites": m.trends,
+        "trends_failed": len(m.untrended),
+        "trend_s": round(t3 - t2, 3),
+        "rows": {name: m.rows(name) for name in TABLES},
+        "files": m.files,
+    }
+    return m, about
+
+
 def main(argv: Optional[list[str]] = None) -> int:
     p = argparse.ArgumentParser(prog="python -m cms.fleet.job", description=__doc__.split("\n\n")[1])
     p.add_argument("input", metavar="INPUT", help="a folder or fsspec URL holding *.cmsrec recordings")
-    p.add_argument("output", metavar="OUTPUT", help="the dataset folder to write (replaced whole)")
+    p.add_argument("output", metavar="OUTPUT", help="the dataset to write (a folder or a bucket URL; replaced whole)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--workers", type=int, help="LocalCluster worker processes (default: one per CPU)")
     g.add_argument("--scheduler", metavar="ADDRESS", help="a Dask scheduler (tcp://host:8786) instead of a LocalCluster")
@@ -361,49 +473,40 @@ def main(argv: Optional[list[str]] = None) -> int:
     if a.workers is not None and a.workers < 1:
         p.error(f"--workers {a.workers}: at least 1")
     options = {"edition": a.edition, "block_m": a.block_m, "dx_mm": a.dx_mm, "segment_mm": a.segment_mm}
+    target = None
     try:
-        if "://" not in a.input and (_inside(a.output, a.input) or _inside(a.input, a.output)):
+        if _inside(a.output, a.input) or _inside(a.input, a.output):
             raise cms.Error(f"{a.output}: inside the input {a.input} (or holding it); write the dataset elsewhere")
-        urls = list_recordings(a.input)
-        t0 = time.perf_counter()
-        with client_for(a.workers, a.scheduler) as client:
-            workers = len(client.scheduler_info()["workers"])
-            t1 = time.perf_counter()
-            tables = run(urls, client, options)
-            t2 = time.perf_counter()
-            tables.update(run_trends(tables["runs"], client, options))
-            t3 = time.perf_counter()
-        runs = tables["runs"]
-        failed = [(s, e) for s, e in zip(runs["source"].to_pylist(), runs["error"].to_pylist()) if e]
-        trends = tables["trends"]
-        untrended = [] if trends is None else [r for r in trends.to_pylist() if r["error"]]
-        about = {
-            "schema": cms.SCHEMA_VERSION,
-            "input": a.input,
-            "recordings": len(urls),
-            "failed": len(failed),
-            "options": options,
-            "workers": workers,
-            "analysis_s": round(t2 - t1, 3),
-            "sites": 0 if trends is None else trends.num_rows,
-            "trends_failed": len(untrended),
-            "trend_s": round(t3 - t2, 3),
-        }
-        write(a.output, tables, about)
-    except cms.Error as e:
+        target = store.Target(a.output)
+        target.check()
+        m, about = _job(a, options, target)
+        target.publish(about)
+    except (cms.Error, store.StoreError) as e:
+        if target is not None:
+            target.discard()
         print(f"error: {e}", file=sys.stderr)
-        return 2
-    for s, e in failed:
+        # Bad input or output: 2; the dataset's location failing mid-way: 1.
+        return 1 if isinstance(e, store.StoreError) and not isinstance(e, store.Refused) else 2
+    except ClusterError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 3
+    except BaseException:
+        if target is not None:
+            target.discard()
+        raise
+    for _, e in m.failed:
         print(f"error: {e}", file=sys.stderr)
     # A site without a trend is data, not a failure of the job: named, and in `trends`.
-    for r in untrended:
+    for r in m.untrended:
         print(f"note: no trend for {r['line']} / {r['track']}: {r['error']}", file=sys.stderr)
+    secs = about["analysis_s"]
     print(
-        f"{a.output}: {len(urls)} recordings ({len(failed)} failed) on {workers} workers in {t2 - t1:.2f} s "
-        f"({len(urls) / (t2 - t1):.1f} recordings/s; cluster start {t1 - t0:.1f} s); "
-        f"{about['sites']} sites, {about['sites'] - len(untrended)} with a trend, in {t3 - t2:.2f} s"
+        f"{a.output}: {m.recordings} recordings ({len(m.failed)} failed), {about['km']:.3f} km, "
+        f"on {about['workers']} workers in {secs:.2f} s "
+        f"({m.recordings / secs:.1f} recordings/s; cluster start {about['cluster_start_s']:.1f} s); "
+        f"{about['sites']} sites, {about['sites'] - len(m.untrended)} with a trend, in {about['trend_s']:.2f} s"
     )
-    return 1 if failed else 0
+    return 1 if m.failed else 0
 
 
 if __name__ == "__main__":

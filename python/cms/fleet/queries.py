@@ -13,7 +13,7 @@ import sys
 
 import duckdb
 
-import cms
+from . import store
 
 QUERIES = {
     "blocks over the ISO 3095 limit, per line and track": """
@@ -56,26 +56,39 @@ QUERIES = {
 }
 
 
-def _has_files(dataset: str, sql: str) -> bool:
-    """Whether the table the query reads holds a Parquet file: a table the
-    job wrote no row of (no site surveyed at two dates has no ``trend``)
-    is an empty folder, which DuckDB's ``read_parquet`` refuses."""
-    table = re.search(r"\{d\}/(\w+)/", sql).group(1)
+def _table_of(sql: str) -> str:
+    return re.search(r"\{d\}/(\w+)/", sql).group(1)
+
+
+def _has_rows(dataset: str, manifest: dict, table: str) -> bool:
+    """Whether ``table`` holds a row: a table the job wrote no row of (no
+    site surveyed at two dates has no ``trend``) has no file, which
+    DuckDB's ``read_parquet`` refuses. A dataset whose manifest predates
+    the row counts is looked at."""
+    rows = manifest.get("rows")
+    if rows is not None:
+        return rows.get(table, 0) > 0
     return any(f.endswith(".parquet") for _, _, files in os.walk(os.path.join(dataset, table)) for f in files)
 
 
 def run(dataset: str) -> dict:
     """Each query's result as (column names, rows); ``([], [])`` when the
-    table it reads holds no row."""
-    if not os.path.isfile(os.path.join(dataset, "_cms_fleet.json")):
-        raise cms.Error(f"{dataset}: not a dataset of cms.fleet.job (no _cms_fleet.json)")
+    table it reads holds no row. The dataset is read through its
+    manifest: for a bucket, only under the prefix it names (the run
+    published last), with the bucket's fsspec filesystem."""
+    manifest = store.read_manifest(dataset)
+    root = store.data_root(dataset, manifest)
     con = duckdb.connect()
+    if store.is_url(root):
+        import fsspec
+
+        con.register_filesystem(fsspec.core.url_to_fs(root)[0])
     out = {}
     for title, sql in QUERIES.items():
-        if not _has_files(dataset, sql):
+        if not _has_rows(dataset, manifest, _table_of(sql)):
             out[title] = ([], [])
             continue
-        cur = con.execute(sql.format(d=dataset.replace("'", "''")))
+        cur = con.execute(sql.format(d=root.replace("'", "''")))
         out[title] = ([c[0] for c in cur.description], cur.fetchall())
     return out
 
@@ -87,7 +100,7 @@ def main(argv=None) -> int:
         return 2
     try:
         results = run(argv[0])
-    except (cms.Error, duckdb.Error) as e:
+    except (store.StoreError, duckdb.Error) as e:
         print(f"error: {e}".replace("\n", " "), file=sys.stderr)
         return 2
     for title, (cols, rows) in results.items():

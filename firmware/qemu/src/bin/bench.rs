@@ -16,6 +16,13 @@
 //! clock with its interrupt off, so the count is 40 ns — 40 instructions —
 //! per step, ±0.2 instructions per row after the division.
 //!
+//! Last, the head's line pass (`cms_core::pipeline::line`) over one frame of
+//! three lasers × 480 rows (`cms_qemu::line_frame`, no second candidates),
+//! run 2 and 2 + 8 times on a fresh copy of the frame, the copy timed alone
+//! and taken off: `line` gives its instructions a frame, which the head
+//! spends once a frame, after its rows (`cms-host bench qemu` spreads them
+//! over the frame's rows for a row's whole cost).
+//!
 //! Output on UART0, one line per measurement, then QEMU is told to exit
 //! (semihosting):
 //!
@@ -25,6 +32,7 @@
 //! method=cwt size=752x3 window=0 rows=256 ns_short=… ns_long=… found=320/320
 //! method=cwt size=752x3 window=96 rows=256 ns_short=… ns_long=… found=320/320
 //! method=cwt size=752x3 window=96 track=20 rows=256 ns_short=… ns_long=… found=320/320
+//! line rows=480 frame=… off_line=36
 //! done
 //! ```
 
@@ -34,8 +42,13 @@
 use core::fmt::Write as _;
 
 use cms_core::peak::{ColumnWindow, Config, Detector, Stripes, Track, Windows};
+use cms_core::pipeline::default_detector;
+use cms_core::pipeline::line::{LineCheck, Rules, Seconds};
+use cms_core::protocol::MAX_ROWS_PER_PROFILE;
 use cms_qemu::board::{Board, SYSCLK_HZ};
+use cms_qemu::line_frame::{Lasers, build};
 use cms_qemu::{clock, uart};
+use static_cell::StaticCell;
 
 mod data {
     include!(concat!(env!("OUT_DIR"), "/bench_data.rs"));
@@ -55,6 +68,48 @@ enum Search<'a> {
     Full,
     Windows(&'a Windows),
     Tracked(&'a Windows),
+}
+
+/// The line pass's frame, the copy it runs on, and its scratch.
+struct LineBufs {
+    frame: Lasers,
+    work: Lasers,
+    seconds: Seconds,
+    check: LineCheck,
+}
+static LINE_BUFS: StaticCell<LineBufs> = StaticCell::new();
+
+/// Instructions of the line pass over one frame (see the header), and the
+/// points it flagged off the line.
+fn line_pass() -> (u64, u32) {
+    let b = LINE_BUFS.init(LineBufs {
+        frame: Lasers::new(),
+        work: Lasers::new(),
+        seconds: Seconds::new(),
+        check: LineCheck::default(),
+    });
+    build(&mut b.frame, &mut b.seconds, 0);
+    let rules = Rules::new(&default_detector(), None);
+    let LineBufs { frame, work, seconds, check } = b;
+    let mut per_call = |pass: bool| {
+        let mut off_line = 0;
+        let mut run = |n: usize| {
+            let t0 = clock::counter();
+            for _ in 0..n {
+                work.clone_from(frame);
+                if pass {
+                    off_line = check.check(&rules, core::hint::black_box(work.as_mut_slice()), seconds).off_line;
+                }
+                core::hint::black_box(&work);
+            }
+            clock::elapsed_ticks(t0) as u64 * clock::NS_PER_TICK
+        };
+        let short = run(2);
+        ((run(10) - short) / 8, off_line)
+    };
+    let (copy, _) = per_call(false);
+    let (pass, off_line) = per_call(true);
+    (pass.saturating_sub(copy), off_line)
 }
 
 /// Iterations of the calibration loop (2 instructions each).
@@ -170,6 +225,8 @@ fn main() -> ! {
             }
         }
     }
+    let (line, off_line) = line_pass();
+    let _ = writeln!(w, "line rows={} frame={line} off_line={off_line}", MAX_ROWS_PER_PROFILE);
     let _ = writeln!(w, "done");
     cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_SUCCESS);
     loop {

@@ -19,17 +19,14 @@
 use core::fmt::Write as _;
 use core::hint::black_box;
 
-use cms_core::fixed::Px;
-use cms_core::peak::Flags;
 use cms_core::pipeline::default_detector;
 use cms_core::pipeline::line::{Counts, LineCheck, Rules, Seconds};
-use cms_core::protocol::{LASERS, LaserPoints, MAX_ROWS_PER_PROFILE, Point};
+use cms_core::protocol::{LASERS, MAX_ROWS_PER_PROFILE};
 use cms_qemu::board::SYSCLK_HZ;
+use cms_qemu::line_frame::{Lasers, build};
 use cms_qemu::{clock, uart};
 use heapless::Vec;
 use static_cell::StaticCell;
-
-type Lasers = Vec<LaserPoints, LASERS>;
 
 struct Bufs {
     frame: Lasers,
@@ -50,45 +47,6 @@ fn per_call(mut f: impl FnMut()) -> u64 {
     };
     let short = run(2);
     (run(10) - short) / 8
-}
-
-/// A uniform scatter in ±`amp_q16` (Q16.16 px), deterministic.
-fn scatter(state: &mut u32, amp_q16: i32) -> i32 {
-    *state ^= *state << 13;
-    *state ^= *state >> 17;
-    *state ^= *state << 5;
-    ((i64::from(*state) * 2 * i64::from(amp_q16)) >> 32) as i32 - amp_q16
-}
-
-fn point(row: u16, position: Px) -> Point {
-    Point { row, position, strength: 1000, width: Px::from_int(2), flags: Flags::NONE, metric: None }
-}
-
-/// The frame and `n_seconds` second candidates of laser 1.
-fn build(frame: &mut Lasers, seconds: &mut Seconds, n_seconds: usize) {
-    let mut s = 0x9e37_79b9u32;
-    frame.clear();
-    seconds.clear();
-    for k in 0..LASERS as u8 {
-        let mut points = Vec::new();
-        for r in 0..MAX_ROWS_PER_PROFILE as u16 {
-            let rr = i32::from(r);
-            // 200 + 180 k px, 0.05 px a row, a crown of 5 px.
-            let mut x =
-                ((200 + 180 * i32::from(k)) << 16) + rr * 3277 - ((rr - 240) * (rr - 240) * 5) / 58 * 65536 / 1000;
-            x += scatter(&mut s, 39_322);
-            if r % 40 == 17 {
-                x += 6 << 16;
-            }
-            let _ = points.push(point(r, Px(x)));
-        }
-        let _ = frame.push(LaserPoints { laser: k, points });
-    }
-    for i in 0..n_seconds {
-        let r = (i * MAX_ROWS_PER_PROFILE / n_seconds.max(1)) as u16;
-        let p = frame[1].points[usize::from(r)];
-        let _ = seconds.push((1, point(r, p.position + Px::from_int(12))));
-    }
 }
 
 #[cortex_m_rt::entry]

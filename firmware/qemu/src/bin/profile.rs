@@ -9,7 +9,13 @@
 //! scripts/qemu_profile.py --full     # the full-row search (`detect`) instead
 //! scripts/qemu_profile.py --track    # `detect_tracked`, a track of ±20 px
 //! scripts/qemu_profile.py --method centroid   # another method's configuration
+//! scripts/qemu_profile.py --method line       # the line pass over one frame
 //! ```
+//!
+//! `--method line` profiles the head's line pass instead
+//! (`cms_core::pipeline::line`, `cms-qemu-line`'s frame without second
+//! candidates), run once over the frame: the script gives its
+//! instructions per row of the frame (480).
 //!
 //! QEMU runs with `-singlestep -d exec,nochain` (one translation block per
 //! instruction, each logged with its address); the script counts the
@@ -23,6 +29,7 @@
 
 use cms_core::peak::{ColumnWindow, Config, Detector, Stripes, Track, Windows};
 use cms_qemu::board::SYSCLK_HZ;
+use cms_qemu::line_frame::{Lasers, build};
 use cms_qemu::uart;
 use static_cell::StaticCell;
 
@@ -51,9 +58,26 @@ fn marker_end() {
     cortex_m::asm::nop();
 }
 
+/// The line pass over one frame between the markers.
+fn line_pass() {
+    use cms_core::pipeline::default_detector;
+    use cms_core::pipeline::line::{LineCheck, Rules, Seconds};
+    static BUFS: StaticCell<(Lasers, Seconds, LineCheck)> = StaticCell::new();
+    let (frame, seconds, check) = BUFS.init((Lasers::new(), Seconds::new(), LineCheck::default()));
+    build(frame, seconds, 0);
+    let rules = Rules::new(&default_detector(), None);
+    marker_start();
+    let _ = check.check(&rules, core::hint::black_box(frame.as_mut_slice()), seconds);
+    marker_end();
+}
+
 #[cortex_m_rt::entry]
 fn main() -> ! {
     uart::init(SYSCLK_HZ, 115_200);
+    if option_env!("CMS_PROFILE_METHOD") == Some("line") {
+        line_pass();
+        cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_SUCCESS);
+    }
     let Some(set) = data::SETS.iter().find(|s| s.stripes == 3) else {
         panic!("no three-stripe rows");
     };

@@ -363,11 +363,16 @@ impl fmt::Display for GnssSummary {
             ),
             None => ", no fix".to_string(),
         };
+        let s = &self.stats;
         write!(
             f,
-            "gnss {}: {} fixes{last}; {} sentences damaged, {} epochs without a position, {} fixes dropped, {} outages",
-            self.port, self.fixes, self.stats.invalid, self.stats.no_position, self.stats.dropped, self.stats.outages
-        )
+            "gnss {}: {} fixes{last}; {} sentences damaged, {} other sentences and frames, {} epochs without a position, {} fixes dropped, {} outages",
+            self.port, self.fixes, s.damaged, s.other, s.no_position, s.dropped, s.outages
+        )?;
+        if s.stray_bytes > 0 {
+            write!(f, ", {} stray bytes", s.stray_bytes)?;
+        }
+        Ok(())
     }
 }
 

@@ -48,7 +48,19 @@ pub struct BenchReport {
     pub calibration: (u64, u64),
     /// Every configuration.
     pub rows: Vec<BenchRow>,
+    /// The line pass: rows of its frame, and its instructions a frame
+    /// (`None`: an image from before it was counted).
+    pub line: Option<(u64, u64)>,
 }
+
+/// The methods the head runs, and under which light: the centroid under
+/// laser light (the real head's), the CWT under incoherent light
+/// (docs/light.md).
+pub const HEAD_METHODS: [(&str, &str); 2] = [("centroid", "laser"), ("cwt", "incoherent")];
+/// A row's whole cost the head may spend (detection and its share of the
+/// line pass), instructions: three stripes over the full row, and tracked.
+/// Half of 480 MHz at the sensor's 28 800 rows/s is 8 333.
+pub const WHOLE_BUDGET: [u64; 2] = [8_000, 6_000];
 
 fn field<'a>(line: &'a str, key: &str) -> Option<&'a str> {
     line.split_whitespace().find_map(|w| w.strip_prefix(key)?.strip_prefix('='))
@@ -70,6 +82,7 @@ pub fn parse_bench(text: &str) -> Result<BenchReport, QemuError> {
         .trim_start_matches("cms-qemu-bench ")
         .to_string();
     let mut calibration = None;
+    let mut line = None;
     let mut rows = Vec::new();
     let mut done = false;
     for l in lines {
@@ -102,6 +115,12 @@ pub fn parse_bench(text: &str) -> Result<BenchReport, QemuError> {
             };
             let instructions = (long - short) as f64 / n as f64;
             rows.push(BenchRow { method, len, stripes, window_px, track_px, instructions, found });
+        } else if l.starts_with("line ") {
+            let (n, frame) = (num(l, "rows")?, num(l, "frame")?);
+            if n == 0 {
+                return Err(QemuError::Bench(format!("a line pass over no rows in {l:?}")));
+            }
+            line = Some((n, frame));
         } else if l == "done" {
             done = true;
         } else if l.starts_with("panic") || l.contains("panic:") {
@@ -112,7 +131,7 @@ pub fn parse_bench(text: &str) -> Result<BenchReport, QemuError> {
     if !done {
         return Err(QemuError::Bench("the output ends before `done`".into()));
     }
-    Ok(BenchReport { board, calibration, rows })
+    Ok(BenchReport { board, calibration, rows, line })
 }
 
 /// Runs the benchmark image under `-icount shift=0,sleep=off` and returns its
@@ -232,6 +251,15 @@ pub fn bench_table(r: &BenchReport, clock_mhz: u32) -> String {
         }
         s.push('\n');
     }
+    if let Some(w) = whole_table(r) {
+        s.push_str(&w);
+    }
+    s + &misses(r)
+}
+
+/// The line naming the configurations whose rows did not all give the
+/// expected stripes (empty if there is none).
+fn misses(r: &BenchReport) -> String {
     let misses: Vec<String> = r
         .rows
         .iter()
@@ -245,10 +273,60 @@ pub fn bench_table(r: &BenchReport, clock_mhz: u32) -> String {
             format!("{} {}x{}{w}: {}/{}", b.method, b.len, b.stripes, b.found.0, b.found.1)
         })
         .collect();
-    if !misses.is_empty() {
-        let _ = writeln!(s, "\n# rows without exactly the expected stripes: {}", misses.join(", "));
+    if misses.is_empty() {
+        String::new()
+    } else {
+        format!("\n# rows without exactly the expected stripes: {}\n", misses.join(", "))
     }
-    s
+}
+
+/// A row's whole cost for the methods the head runs ([`HEAD_METHODS`]):
+/// detection of three stripes over the full row and tracked, plus the line
+/// pass's instructions a frame over the frame's rows; `None` without a line
+/// pass in the report.
+fn whole_table(r: &BenchReport) -> Option<String> {
+    use std::fmt::Write as _;
+    let (rows, frame) = r.line?;
+    let line = frame as f64 / rows as f64;
+    let mut s = format!(
+        "\n# A row's whole cost on the head: detection (752 px × 3) + the line pass ({} instructions a frame of {rows} rows \
+         = {} a row); budget {} full row, {} tracked\n\n\
+         | method | light | full row | + line pass | whole | tracked ±20 px | + line pass | whole | within budget |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|---|\n",
+        group(frame),
+        group(line.round() as u64),
+        group(WHOLE_BUDGET[0]),
+        group(WHOLE_BUDGET[1])
+    );
+    for (m, light) in HEAD_METHODS {
+        let of = |tracked: bool| {
+            r.rows.iter().find(|b| {
+                b.method == m
+                    && b.len == 752
+                    && b.stripes == 3
+                    && (b.window_px > 0 && b.track_px > 0) == tracked
+                    && (tracked || b.window_px == 0)
+            })
+        };
+        let (Some(full), Some(tracked)) = (of(false), of(true)) else {
+            continue;
+        };
+        let whole = [full.instructions + line, tracked.instructions + line];
+        let ok = whole[0] <= WHOLE_BUDGET[0] as f64 && whole[1] <= WHOLE_BUDGET[1] as f64;
+        let n = |v: f64| group(v.round() as u64);
+        let _ = writeln!(
+            s,
+            "| {m} | {light} | {} | {} | {} | {} | {} | {} | {} |",
+            n(full.instructions),
+            n(line),
+            n(whole[0]),
+            n(tracked.instructions),
+            n(line),
+            n(whole[1]),
+            if ok { "yes" } else { "no" }
+        );
+    }
+    Some(s)
 }
 
 /// 12345678 → "12 345 678" (the thin grouping of the docs' tables).

@@ -527,6 +527,7 @@ mod tests {
                     method=cwt size=752x3 rows=256 ns_short=640 ns_long=25600640 found=319/320\n\
                     method=cwt size=752x3 window=96 rows=256 ns_short=640 ns_long=1280640 found=320/320\n\
                     method=cwt size=752x3 window=96 track=20 rows=256 ns_short=640 ns_long=640640 found=320/320\n\
+                    line rows=480 frame=960000 off_line=36\n\
                     done\n";
         let r = parse_bench(text).unwrap();
         assert_eq!(r.calibration, (1000, 2000));
@@ -542,6 +543,11 @@ mod tests {
         // 4 800 rows/s × 0.144 mm = 0.69 m/s; × 1 mm = 4.8 m/s.
         assert!(t.contains("| cwt | 6912.00 / 48000.0 | 0.69 / 4.8 | 13.82 / 96.0 | 27.65 / 192.0 |"), "{t}");
         assert!(t.contains("cwt 752x3: 319/320"), "{t}");
+        // The whole cost: 100 000 + 960 000 / 480 full, 2 500 + 2 000 tracked.
+        assert_eq!(r.line, Some((480, 960_000)));
+        assert!(t.contains("| cwt | incoherent | 100 000 | 2 000 | 102 000 | 2 500 | 2 000 | 4 500 | no |"), "{t}");
+        let old = text.replace("line rows=480 frame=960000 off_line=36\n", "");
+        assert!(!bench_table(&parse_bench(&old).unwrap(), 480).contains("whole cost"));
         for bad in
             ["", "calibration loop_iterations=1 ns=2\ndone", "cms-qemu-bench x\ncalibration loop_iterations=1 ns=2"]
         {

@@ -240,7 +240,9 @@ pub struct SimPort {
     pub sim_roughness_um: Option<f64>,
     /// With PORT `sim`: the simulated head starts without its factory calibration.
     pub sim_uncalibrated: bool,
-    /// With PORT `sim`: the light on the simulated rail (speckle, finish, glints, ghosts).
+    /// With PORT `sim`: the light on the simulated rail (speckle, finish,
+    /// glints, ghosts); `None`: [`port_light`] (laser speckle at F/4 on the
+    /// reference head).
     pub sim_light: Option<crate::sim::scene::LightModel>,
     /// With PORT `sim`: a simulated GNSS receiver rides with the head
     /// ([`crate::sim::gnss`]).
@@ -272,25 +274,42 @@ pub fn resolve_port(port: &str, sim: &SimPort) -> Result<(PathBuf, Option<SimHan
         }
         return Ok((PathBuf::from(port), None));
     }
+    let args = port_options(sim);
+    let (path, mut handle) = spawn_on_pty(&args)?;
+    if let (Some(g), Some(tap)) = (&sim.sim_gnss, &args.odometer_tap) {
+        handle.gnss = Some(crate::sim::gnss::GnssSim::spawn(g.clone(), tap.clone())?);
+    }
+    Ok((path, Some(handle)))
+}
+
+/// The simulated head PORT `sim` starts.
+fn port_options(sim: &SimPort) -> HeadOptions {
     // The listener's `--rate` decides: the camera allows up to 1000 Hz.
-    let args = HeadOptions {
+    let preset = sim.sim_preset.unwrap_or(Preset::Reference);
+    HeadOptions {
         seed: sim.sim_seed.unwrap_or(1),
-        preset: sim.sim_preset.unwrap_or(Preset::Reference),
+        preset,
         rate: 1000,
         state: sim.sim_state.clone(),
         speed_mm_s: sim.sim_speed_mm_s,
         corrugation: sim.sim_corrugation.clone(),
         roughness_um: sim.sim_roughness_um,
         factory_calibration: !sim.sim_uncalibrated,
-        light: sim.sim_light.clone(),
+        light: Some(sim.sim_light.clone().unwrap_or_else(|| port_light(preset))),
         odometer_tap: sim.sim_gnss.as_ref().map(|_| Arc::new(AtomicI64::new(crate::sim::gnss::NO_FRAME))),
         ..HeadOptions::default()
-    };
-    let (path, mut handle) = spawn_on_pty(&args)?;
-    if let (Some(g), Some(tap)) = (&sim.sim_gnss, &args.odometer_tap) {
-        handle.gnss = Some(crate::sim::gnss::GnssSim::spawn(g.clone(), tap.clone())?);
     }
-    Ok((path, Some(handle)))
+}
+
+/// The light PORT `sim` shines without `--sim-light`: the reference head's
+/// lasers at the push-trolley setting of docs/light.md (speckle through the
+/// lens at F/4; the camera's 100 µs exposure), the paper's geometry in
+/// incoherent light (its synthetic protocol's).
+pub fn port_light(preset: Preset) -> crate::sim::scene::LightModel {
+    match preset {
+        Preset::Reference => crate::sim::scene::LightModel::push_trolley(),
+        Preset::Paper => crate::sim::scene::LightModel::incoherent(),
+    }
 }
 
 /// Runs `f` on the device path of a `listen` PORT (see [`resolve_port`]);
@@ -480,6 +499,9 @@ mod scene {
         fn row(&mut self, r: u16, out: &mut [u16]) {
             self.scene.render_shot_row(&self.shot, r as usize, out);
         }
+        fn cpu(&self) -> std::time::Duration {
+            self.scene.light_threads_cpu()
+        }
     }
 }
 
@@ -487,6 +509,20 @@ mod scene {
 mod tests {
     use super::*;
     use crate::sim::scene::Scene;
+
+    #[test]
+    fn port_sim_shines_laser_light_unless_told() {
+        use crate::sim::scene::LightModel;
+        let light = |sim: &SimPort| sim_config(&port_options(sim)).unwrap().light;
+        assert_eq!(light(&SimPort::default()), LightModel::speckle(4.0));
+        assert_eq!(light(&SimPort::default()).method(), cms_core::peak::Method::Centroid);
+        let told = SimPort { sim_light: Some(LightModel::incoherent()), ..SimPort::default() };
+        assert_eq!(light(&told), LightModel::incoherent());
+        let paper = SimPort { sim_preset: Some(Preset::Paper), ..SimPort::default() };
+        assert_eq!(light(&paper), LightModel::incoherent());
+        // `simulate` keeps the preset's light.
+        assert_eq!(sim_config(&HeadOptions::default()).unwrap().light, LightModel::incoherent());
+    }
 
     #[test]
     fn counts_are_codes_at_the_chosen_depth() {

@@ -63,7 +63,8 @@ impl Threaded {
                         return;
                     }
                 }
-                cpu.store((super::server::thread_cpu() - cpu0).as_nanos() as u64, Ordering::Relaxed);
+                let spent = super::server::thread_cpu() - cpu0 + renderer.cpu();
+                cpu.store(spent.as_nanos() as u64, Ordering::Relaxed);
             }
         })?;
         let readout = Readout::full(size.1);

@@ -462,6 +462,19 @@ impl Scene {
         truth
     }
 
+    /// CPU time the light model's threads have spent rendering (each
+    /// laser's speckled stripe renders on a thread of its own): beside the
+    /// calling thread's, which it does not include.
+    pub fn light_threads_cpu(&self) -> std::time::Duration {
+        self.light_cache.threads_cpu()
+    }
+
+    /// The light model's last grid per laser: samples across the line,
+    /// along it, and sub-exposures (what a speckled stripe costs).
+    pub fn light_grids(&self) -> Vec<(usize, usize, usize)> {
+        self.light_cache.grids()
+    }
+
     /// Triangulates pixel `(u, v)` of laser `laser`'s stripe: the
     /// camera-frame point where its ray meets the laser plane, mm (`None` if
     /// parallel or behind the camera). `Scene::camera_pose` maps it onto the rail.
@@ -635,34 +648,36 @@ impl Scene {
         }
         let exposure = sane_exposure(shot.exposure_us);
         let cam = &self.cfg.camera;
-        let mut tiles = Vec::with_capacity(self.laser_count());
-        let mut cache = std::mem::take(&mut self.light_cache);
-        for k in 0..self.laser_count() {
-            if shot.laser_mask & (1 << k) == 0 {
-                tiles.push(None);
-                continue;
-            }
-            let lines: Vec<Option<StripeTruth>> =
-                (0..self.height()).map(|r| self.solve(k, Some(shot.odometer_mm), r as f64, exposure)).collect();
-            let ts = TileShot {
-                light: &self.cfg.light,
-                seed: self.cfg.seed,
-                laser: k,
-                wavelength_um: self.cfg.lasers[k].wavelength_nm * 1e-3,
-                pixel_pitch_um: cam.pixel_pitch_um,
-                fx_px: cam.intrinsics.fx_px,
-                focus_mm: self.cfg.light.focus_mm.unwrap_or(self.cfg.head.standoff_mm),
-                lines: &lines,
-                gain_e_per_dn: self.gain_e_per_dn,
-                odometer_mm: shot.odometer_mm,
-                travel_mm: self.cfg.speed_mm_s * exposure * 1e-6,
-                row_mm: self.guess[k],
-                width_px: self.width(),
-            };
-            tiles.push(cache.render(&ts));
-        }
-        cache.keep(key, tiles);
-        self.light_cache = cache;
+        let lines: Vec<Option<Vec<Option<StripeTruth>>>> = (0..self.laser_count())
+            .map(|k| {
+                (shot.laser_mask & (1 << k) != 0).then(|| {
+                    (0..self.height()).map(|r| self.solve(k, Some(shot.odometer_mm), r as f64, exposure)).collect()
+                })
+            })
+            .collect();
+        let width_px = self.width();
+        let shots: Vec<Option<TileShot>> = lines
+            .iter()
+            .enumerate()
+            .map(|(k, lines)| {
+                lines.as_ref().map(|lines| TileShot {
+                    light: &self.cfg.light,
+                    seed: self.cfg.seed,
+                    laser: k,
+                    wavelength_um: self.cfg.lasers[k].wavelength_nm * 1e-3,
+                    pixel_pitch_um: cam.pixel_pitch_um,
+                    fx_px: cam.intrinsics.fx_px,
+                    focus_mm: self.cfg.light.focus_mm.unwrap_or(self.cfg.head.standoff_mm),
+                    lines,
+                    gain_e_per_dn: self.gain_e_per_dn,
+                    odometer_mm: shot.odometer_mm,
+                    travel_mm: self.cfg.speed_mm_s * exposure * 1e-6,
+                    row_mm: self.guess[k],
+                    width_px,
+                })
+            })
+            .collect();
+        self.light_cache.render_shot(key, &shots);
     }
 
     /// Noise, banding, saturation and quantisation of a row.

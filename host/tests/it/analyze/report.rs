@@ -49,6 +49,7 @@ fn recording_with_fixes(dir: &Path) -> (std::path::PathBuf, Vec<Placed>) {
                 hdop: Some(0.7),
                 speed_mm_s: Some(510.0),
                 course_deg: Some(HEADING_DEG),
+                receiver_sigma_m: None,
             },
         };
         fixes.push(p.clone());

@@ -42,6 +42,7 @@ pub(super) fn sim_recording(dir: &Path, secs: &str) -> (PathBuf, String) {
     let l = run(&[
         "listen",
         "sim",
+        "--sim-light=incoherent",
         "--sim-state",
         s,
         "--sim-speed-mm-s",
@@ -442,10 +443,22 @@ fn a_survey_file_travels_with_the_recording() {
     let (r, s) = (rec.to_str().unwrap(), survey.to_str().unwrap());
     let state = dir.path().join("state");
     let st = state.to_str().unwrap();
-    let l = run(&["listen", "sim", "--sim-state", st, "--frames", "20", "--record", r, "--survey", s]);
+    let l = run(&[
+        "listen",
+        "sim",
+        "--sim-light=incoherent",
+        "--sim-state",
+        st,
+        "--frames",
+        "20",
+        "--record",
+        r,
+        "--survey",
+        s,
+    ]);
     assert!(l.status.success(), "{}", String::from_utf8_lossy(&l.stderr));
     let info = String::from_utf8(run(&["info", r]).stdout).unwrap();
-    assert!(info.contains("format: 5 (wire protocol 4)\n") && info.contains("survey: line = \"LN 1234\""), "{info}");
+    assert!(info.contains("format: 6 (wire protocol 4)\n") && info.contains("survey: line = \"LN 1234\""), "{info}");
     let o = run(&["analyze", r, "--json"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();

@@ -146,7 +146,7 @@ fn cli_kill_9_loses_at_most_the_frame_in_flight() {
     for (k, n) in [7usize, 13, 22, 31, 40].into_iter().enumerate() {
         let rec = dir.path().join(format!("kill{k}.cmsrec"));
         let mut child = Process::new(bin())
-            .args(["listen", "sim", "--json", "--rate", "100", "--record"])
+            .args(["listen", "sim", "--sim-light=incoherent", "--json", "--rate", "100", "--record"])
             .arg(&rec)
             .env("CMS_SIM_STATE", dir.path().join("sim-state"))
             .stdin(Stdio::null())
@@ -188,7 +188,7 @@ fn last_json_frame(args: &[&str]) -> serde_json::Value {
 #[test]
 fn cli_listen_sets_search_windows() {
     let points = |windows: &[&str]| -> Vec<usize> {
-        let mut args = vec!["listen", "sim", "--frames", "2", "--json"];
+        let mut args = vec!["listen", "sim", "--sim-light=incoherent", "--frames", "2", "--json"];
         for w in windows {
             args.extend(["--window", w]);
         }
@@ -205,7 +205,15 @@ fn cli_listen_sets_search_windows() {
     // Windows from the calibration's working range hold every line.
     let cal = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/v3/cal.toml");
     assert_eq!(points(&[]), [480, 480, 480]);
-    let out = crate::common::run(&["listen", "sim", "--frames", "2", "--windows-from", cal.to_str().unwrap()]);
+    let out = crate::common::run(&[
+        "listen",
+        "sim",
+        "--sim-light=incoherent",
+        "--frames",
+        "2",
+        "--windows-from",
+        cal.to_str().unwrap(),
+    ]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success() && err.contains("listen: search windows from "), "{err}");
     assert!(err.contains("listen: frames: 2 "), "{err}");
@@ -223,7 +231,8 @@ fn cli_listen_sets_search_windows() {
 #[test]
 fn cli_listen_tracks_search_windows() {
     let run = |extra: &[&str]| -> Vec<Vec<f64>> {
-        let mut args = vec!["listen", "sim", "--frames", "2", "--json", "--sim-speed-mm-s", "0"];
+        let mut args =
+            vec!["listen", "sim", "--sim-light=incoherent", "--frames", "2", "--json", "--sim-speed-mm-s", "0"];
         args.extend(["--window", "0:278-342", "--window", "1:347-411", "--window", "2:418-482"]);
         args.extend(extra);
         let v = last_json_frame(&args);
@@ -267,7 +276,8 @@ fn cli_listen_tracks_search_windows() {
 fn cli_listen_reads_a_row_window_and_a_row_skip() {
     type Points = Vec<std::collections::BTreeMap<u64, (f64, f64)>>;
     let frame = |extra: &[&str]| -> Points {
-        let mut args = vec!["listen", "sim", "--frames", "2", "--json", "--sim-speed-mm-s", "0"];
+        let mut args =
+            vec!["listen", "sim", "--sim-light=incoherent", "--frames", "2", "--json", "--sim-speed-mm-s", "0"];
         args.extend(extra);
         let v = last_json_frame(&args);
         v["lasers"]

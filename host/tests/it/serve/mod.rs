@@ -39,7 +39,7 @@ impl Listen {
     fn start(dir: &Path, extra: &[&str]) -> Listen {
         let rec = dir.join("live.cmsrec");
         let mut child = Command::new(bin())
-            .args(["listen", "sim", "--serve", "127.0.0.1:0", "--record"])
+            .args(["listen", "sim", "--sim-light=incoherent", "--serve", "127.0.0.1:0", "--record"])
             .arg(&rec)
             .args(extra)
             .env("CMS_SIM_STATE", dir.join("sim-state"))

@@ -23,6 +23,7 @@
 //! are rendered exactly as the clean renderer always did.
 
 pub(crate) mod coherent;
+mod ring;
 pub(crate) mod surface;
 #[cfg(test)]
 mod tests;
@@ -140,6 +141,13 @@ impl LightModel {
     /// Fully developed speckle through a lens at `f_number`, one pattern.
     pub fn speckle(f_number: f64) -> LightModel {
         LightModel { speckle: Some(Speckle { f_number, patterns: 1 }), ..LightModel::default() }
+    }
+
+    /// The push-trolley setting of docs/light.md: one laser pattern
+    /// through the lens at F/4 (with the reference camera's 100 µs
+    /// exposure): `speckle(4.0)`.
+    pub fn push_trolley() -> LightModel {
+        LightModel::speckle(4.0)
     }
 
     /// Oxidation: dark patches 10–60 mm long, 5–30 mm wide, 5–40 % of the

@@ -7,7 +7,8 @@
 use rustfft::num_complex::Complex;
 
 use super::super::StripeTruth;
-use super::coherent::{Filter, Pupil, fft_size, phasor};
+use super::coherent::{Filter, Pupil, fft_size};
+use super::ring::PhasorRing;
 use super::{LightModel, surface};
 
 /// Stream of the speckle phases (one sub-stream per laser and pattern).
@@ -98,13 +99,79 @@ fn line_at(lines: &[Option<StripeTruth>], v: f64, gain: f64) -> Option<Line> {
     }
 }
 
-/// The shot's tiles and the filters kept between shots.
+/// `peak · exp(−d²/(2σ²))` at `d = d0 + j·step` into (`add`: onto) `out[j]`,
+/// by the recurrence `g(d + δ) = g(d) · exp(−(2dδ + δ²)/(2σ²))` from the
+/// peak outwards on either side (three `exp` a side instead of one a sample;
+/// each step's relative error is the rounding's, 10⁻¹⁶).
+fn gaussian_row(out: &mut [f64], peak: f64, d0: f64, step: f64, sigma: f64, add: bool) {
+    let inv = -0.5 / (sigma * sigma);
+    // The sample nearest the peak, then outwards.
+    let n = out.len();
+    let jc = ((-d0 / step).round().max(0.0) as usize).min(n.saturating_sub(1));
+    let mut put = |j: usize, g: f64| {
+        if add {
+            out[j] += g;
+        } else {
+            out[j] = g;
+        }
+    };
+    let d = d0 + jc as f64 * step;
+    for dir in [1.0f64, -1.0] {
+        let mut j = jc;
+        let mut g = peak * (inv * d * d).exp();
+        // g(d ± δ) / g(d) = exp(inv (±2dδ + δ²)); its own ratio exp(2 inv δ²).
+        let mut ratio = (inv * (dir * 2.0 * d * step + step * step)).exp();
+        let growth = (2.0 * inv * step * step).exp();
+        if dir > 0.0 {
+            put(j, g);
+        }
+        loop {
+            if dir > 0.0 {
+                if j + 1 >= n {
+                    break;
+                }
+                j += 1;
+            } else {
+                if j == 0 {
+                    break;
+                }
+                j -= 1;
+            }
+            g *= ratio;
+            ratio *= growth;
+            put(j, g);
+        }
+    }
+}
+
+/// The shot's tiles and, per laser, what is kept between shots.
 #[derive(Default)]
 pub(crate) struct LightCache {
     key: Option<(u64, u64, u64, u8)>,
     tiles: Vec<Option<LaserTile>>,
-    filters: Vec<Option<(FilterKey, Filter)>>,
+    lasers: Vec<LaserState>,
+    /// CPU time of the lasers' threads, summed.
+    threads_cpu: std::time::Duration,
 }
+
+/// One laser's filter, phasor rings and buffers, kept between shots.
+#[derive(Default)]
+struct LaserState {
+    filter: Option<(FilterKey, Filter<f32>)>,
+    /// Pattern `k`'s surface cells in ring `min(k, RINGS − 1)`: the first
+    /// patterns are kept from shot to shot, the others drawn each shot.
+    rings: Vec<PhasorRing>,
+    illum: Vec<f64>,
+    lateral: Vec<f64>,
+    amp: Vec<f32>,
+    field: Vec<Complex<f32>>,
+    acc: Vec<f32>,
+    /// The last tile's grid: samples across, along, sub-exposures.
+    grid: (usize, usize, usize),
+}
+
+/// Phasor rings per laser (their memory: a shot's cells, about 4 MB at F/4).
+const RINGS: usize = 3;
 
 /// What a filter was made for: grid size, samples per pixel, pupil.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -128,19 +195,76 @@ impl LightCache {
         (frame_index, odometer_mm.to_bits(), exposure_us.to_bits(), mask)
     }
 
+    /// Each laser's last tile's grid: samples across the line, along it,
+    /// and sub-exposures.
+    pub fn grids(&self) -> Vec<(usize, usize, usize)> {
+        self.lasers.iter().map(|l| l.grid).collect()
+    }
+
+    /// CPU time the lasers' threads have spent so far (not the caller's).
+    pub fn threads_cpu(&self) -> std::time::Duration {
+        self.threads_cpu
+    }
+
     /// The tiles of shot `key`, if they are the ones kept.
     pub fn tiles_for(&self, key: (u64, u64, u64, u8)) -> Option<&[Option<LaserTile>]> {
         (self.key == Some(key)).then_some(&self.tiles[..])
     }
 
-    /// Keeps `tiles` as shot `key`'s.
-    pub fn keep(&mut self, key: (u64, u64, u64, u8), tiles: Vec<Option<LaserTile>>) {
+    /// Renders the tiles of shot `key`, one per laser (`None`: the laser is
+    /// off or its line in no row), and keeps them. The lasers render on
+    /// threads of their own when the host has cores for them; each tile
+    /// depends only on its laser's shot, so the pixels are the same either way.
+    pub fn render_shot(&mut self, key: (u64, u64, u64, u8), shots: &[Option<TileShot>]) {
+        if self.lasers.len() < shots.len() {
+            self.lasers.resize_with(shots.len(), LaserState::default);
+        }
+        let lit = shots.iter().flatten().count();
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let tiles = if lit < 2 || cores < 2 {
+            self.lasers.iter_mut().zip(shots).map(|(st, s)| s.as_ref().and_then(|s| st.render(s))).collect()
+        } else {
+            let (tiles, cpu): (Vec<_>, Vec<_>) = std::thread::scope(|scope| {
+                let jobs: Vec<_> = self
+                    .lasers
+                    .iter_mut()
+                    .zip(shots)
+                    .map(|(st, s)| {
+                        s.as_ref().map(|s| {
+                            scope.spawn(move || {
+                                let t0 = thread_cpu();
+                                let tile = st.render(s);
+                                (tile, thread_cpu().saturating_sub(t0))
+                            })
+                        })
+                    })
+                    .collect();
+                jobs.into_iter()
+                    .map(|j| {
+                        j.map_or((None, std::time::Duration::ZERO), |j| {
+                            j.join().unwrap_or_else(|p| std::panic::resume_unwind(p))
+                        })
+                    })
+                    .unzip()
+            });
+            self.threads_cpu += cpu.into_iter().sum();
+            tiles
+        };
         self.key = Some(key);
         self.tiles = tiles;
     }
+}
 
+/// CPU time of the calling thread so far.
+fn thread_cpu() -> std::time::Duration {
+    nix::time::clock_gettime(nix::time::ClockId::CLOCK_THREAD_CPUTIME_ID)
+        .map(std::time::Duration::from)
+        .unwrap_or_default()
+}
+
+impl LaserState {
     /// Renders one laser's tile (`None`: its line is in no row).
-    pub fn render(&mut self, s: &TileShot) -> Option<LaserTile> {
+    fn render(&mut self, s: &TileShot) -> Option<LaserTile> {
         let h_img = s.lines.len();
         let rows: Vec<&StripeTruth> = s.lines.iter().flatten().collect();
         if rows.is_empty() {
@@ -187,25 +311,28 @@ impl LightCache {
         // The geometric illumination (fixed to the head) and, per sample,
         // where on the rail top it falls (for the reflectance).
         let finish = light.oxidation.per_m > 0.0 || light.grease.per_m > 0.0 || light.band.is_some();
-        let mut illum = vec![0.0f64; w * h];
-        let mut lateral = if finish { vec![0.0f64; w * h] } else { Vec::new() };
+        let illum = &mut self.illum;
+        illum.clear();
+        illum.resize(w * h, 0.0);
+        let lateral = &mut self.lateral;
+        lateral.clear();
+        if finish {
+            lateral.resize(w * h, 0.0);
+        }
         for i in 0..nrows * q {
             let v = sample_v(i);
             let Some(l) = line_at(s.lines, v, s.gain_e_per_dn) else { continue };
             let mm_per_px = l.depth_mm / s.fx_px;
-            let inv = -0.5 / (l.sigma * l.sigma);
-            for j in 0..ncols * q {
-                let u = sample_u(j);
-                let d = u - l.c;
-                let mut e = l.peak_e * (inv * d * d).exp();
-                for g in &ghosts {
-                    let sg = l.sigma * g.sigma_factor;
-                    let dg = d - g.offset_px - g.tilt_px_per_row * (v - mid_row);
-                    e += g.fraction * l.peak_e * (-0.5 * dg * dg / (sg * sg)).exp();
-                }
-                illum[i * w + j] = e;
-                if finish {
-                    lateral[i * w + j] = l.y_mm + d * mm_per_px;
+            let out = &mut illum[i * w..i * w + ncols * q];
+            let d0 = sample_u(0) - l.c;
+            gaussian_row(out, l.peak_e, d0, 1.0 / q as f64, l.sigma, false);
+            for g in &ghosts {
+                let dg0 = d0 - g.offset_px - g.tilt_px_per_row * (v - mid_row);
+                gaussian_row(out, g.fraction * l.peak_e, dg0, 1.0 / q as f64, l.sigma * g.sigma_factor, true);
+            }
+            if finish {
+                for (j, y) in lateral[i * w..i * w + ncols * q].iter_mut().enumerate() {
+                    *y = l.y_mm + (sample_u(j) - l.c) * mm_per_px;
                 }
             }
         }
@@ -221,11 +348,14 @@ impl LightCache {
             if steps == 1 { 0.0 } else { s.travel_mm * (m as f64 / (steps - 1) as f64 - 0.5) }
         };
         let patterns = light.speckle.map_or(1, |sp| sp.patterns as usize);
-        let mut acc = vec![0.0f64; w * h];
+        self.grid = (w, h, steps);
         let reflect = |m: usize, i: usize, j: usize| {
             let x = s.odometer_mm + shift_mm(m) + a_mm + b_mm * sample_v(i);
             surface::reflectance(light, s.seed, x, lateral[i * w + j])
         };
+        let acc = &mut self.acc;
+        acc.clear();
+        acc.resize(w * h, 0.0);
         match pupil {
             None => {
                 for m in 0..steps {
@@ -233,7 +363,7 @@ impl LightCache {
                         for j in 0..ncols * q {
                             let e = illum[i * w + j];
                             if e > 0.0 {
-                                acc[i * w + j] += if finish { e * reflect(m, i, j) } else { e };
+                                acc[i * w + j] += (if finish { e * reflect(m, i, j) } else { e }) as f32;
                             }
                         }
                     }
@@ -241,37 +371,44 @@ impl LightCache {
             }
             Some(p) => {
                 let key = FilterKey { w, h, q, pupil: p };
-                if self.filters.len() <= s.laser {
-                    self.filters.resize_with(s.laser + 1, || None);
+                if self.filter.as_ref().is_none_or(|(k, _)| *k != key) {
+                    self.filter = Some((key, Filter::new(&p, q, w, h)));
                 }
-                let slot = &mut self.filters[s.laser];
-                if slot.as_ref().is_none_or(|(k, _)| *k != key) {
-                    *slot = Some((key, Filter::new(&p, q, w, h)));
-                }
-                let filter = &mut slot.as_mut().expect("made above").1;
+                let filter = &mut self.filter.as_mut().expect("made above").1;
                 // Surface cell of sample row i at sub-exposure m: i + n_m.
                 let n_m: Vec<i64> = (0..steps)
                     .map(|m| ((s.odometer_mm + shift_mm(m) + a_mm) / b_mm * q as f64).round() as i64)
                     .collect();
-                let amp: Vec<f64> = illum.iter().map(|e| e.sqrt()).collect();
-                let mut field = vec![Complex::new(0.0, 0.0); w * h];
+                let amp = &mut self.amp;
+                amp.clear();
+                amp.extend(illum.iter().map(|e| e.sqrt() as f32));
+                let field = &mut self.field;
+                field.clear();
+                field.resize(w * h, Complex::new(0.0, 0.0));
                 let j0 = u0 * q as i64;
+                let (lit_w, lit_h) = (ncols * q, nrows * q);
+                let n_lo = n_m.iter().copied().min().unwrap_or(0);
+                let n_hi = n_m.iter().copied().max().unwrap_or(0) + lit_h as i64;
+                if self.rings.is_empty() {
+                    self.rings.resize_with(RINGS, PhasorRing::new);
+                }
                 for k in 0..patterns {
                     let stream = SPECKLE_STREAM ^ ((s.laser as u64) << 32) ^ ((k as u64) << 48);
+                    let ring = &mut self.rings[k.min(RINGS - 1)];
+                    ring.prepare(s.seed, stream, j0..j0 + lit_w as i64, n_lo..n_hi, q as i64);
                     for (m, &n0) in n_m.iter().enumerate() {
-                        for i in 0..h {
-                            for j in 0..w {
-                                let a = amp[i * w + j];
-                                field[i * w + j] = if a > 0.0 {
-                                    let r = if finish { reflect(m, i, j).sqrt() } else { 1.0 };
-                                    phasor(s.seed, stream, j0 + j as i64, n0 + i as i64) * (a * r)
-                                } else {
-                                    Complex::new(0.0, 0.0)
-                                };
+                        for i in 0..lit_h {
+                            let cells = ring.row(n0 + i as i64, j0);
+                            let (f_row, a_row) = (&mut field[i * w..i * w + lit_w], &amp[i * w..i * w + lit_w]);
+                            for (j, ((f, &a), c)) in f_row.iter_mut().zip(a_row).zip(cells).enumerate() {
+                                let r = if finish && a > 0.0 { reflect(m, i, j).sqrt() as f32 } else { 1.0 };
+                                *f = c * (a * r);
                             }
+                            field[i * w + lit_w..(i + 1) * w].fill(Complex::new(0.0, 0.0));
                         }
-                        filter.apply(&mut field);
-                        for (a, f) in acc.iter_mut().zip(&field) {
+                        field[lit_h * w..].fill(Complex::new(0.0, 0.0));
+                        filter.apply(field);
+                        for (a, f) in acc.iter_mut().zip(field.iter()) {
                             *a += f.norm_sqr();
                         }
                     }
@@ -290,7 +427,7 @@ impl LightCache {
                 let mut sum = 0.0;
                 for i in (r + g_rows as usize) * q..(r + g_rows as usize + 1) * q {
                     for j in col as usize * q..(col as usize + 1) * q {
-                        sum += acc[i * w + j];
+                        sum += f64::from(acc[i * w + j]);
                     }
                 }
                 *out = sum * norm;
