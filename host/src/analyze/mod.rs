@@ -25,6 +25,7 @@
 //! 100 000-frame recording (`cms-host bench recording`, 1.7 km of rail,
 //! 778 MB) takes about 14 s and 52 MB (docs/benchmarks.md).
 
+pub mod floor;
 pub mod live;
 pub mod marks;
 pub mod pieces;
@@ -48,6 +49,7 @@ use crate::measure::corrugation::Across;
 use crate::measure::{Measurer, Profiles};
 use crate::progress::Progress;
 use crate::recording::{self, ScanStats};
+use pieces::Wanted;
 use stitch::{FrameAssembler, FramePoints, Stitched, Stitching};
 
 /// What [`analyze`] needs besides the frames.
@@ -296,7 +298,26 @@ pub fn slide_frame(f: &mut FramePoints, m: &Measurer) -> bool {
 pub struct LaserAnalysis {
     pub stitched: Stitched,
     pub bands: Result<en13231::BandAnalysis, StandardsError>,
+    /// Per EN 13231-3 band: one line's noise floor and whether it allows
+    /// a verdict on this line (under the verdict's edition).
+    pub judgements: Vec<floor::BandJudgement>,
+    /// Its third octaves carry the floor ([`en15610::ThirdOctave::floor_db`]).
     pub roughness: Result<en15610::Roughness, StandardsError>,
+}
+
+/// A section's running band seen through all its lines: the profile the
+/// verdict judges ([`reprofiling`]) and EN 15610's lines averaged.
+#[derive(Debug, Clone)]
+pub struct RunningBandAnalysis {
+    pub section: usize,
+    /// Lines combined.
+    pub lines: usize,
+    /// EN 13231-3 of the lines' mean, where every line has a sample.
+    pub bands: Result<en13231::BandAnalysis, StandardsError>,
+    /// Per band: the mean's floor (`1/√lines` of a line's) and whether it allows a verdict.
+    pub judgements: Vec<floor::BandJudgement>,
+    /// EN 15610: the lines' spectra energy-averaged, with the floor (`None`: no line has a spectrum).
+    pub roughness: Option<en15610::Spectrum>,
 }
 
 /// The whole analysis.
@@ -308,6 +329,11 @@ pub struct Analysis {
     pub joins: Vec<survey::RunJoin>,
     /// Every line of every section, section by section ([`Analysis::sections`]).
     pub lasers: Vec<LaserAnalysis>,
+    /// The instrument's noise floor, measured on the lines (`None`: no
+    /// section has two lines, so it is not known).
+    pub floor: Option<floor::Floor>,
+    /// Each section's running band (sections of two lines or more).
+    pub running_bands: Vec<RunningBandAnalysis>,
     /// Zones, the reprofiling table and blocks over all the lines.
     pub verdict: reprofiling::ReprofilingVerdict,
     /// With a track register: how each run was placed by its GNSS fixes
@@ -409,8 +435,10 @@ pub fn analyze(frames: &[FramePoints], opts: &Options) -> Result<Analysis, Error
 }
 
 /// Runs both standards on every laser's stitched profile and judges the
-/// survey line, walking it piece by piece ([`pieces`]); `progress` is
-/// told the metres of line judged.
+/// survey line: first the noise floor from the lines' null combinations
+/// ([`floor::measure`], one walk), then the standards and the verdict,
+/// walking it piece by piece ([`pieces`]); `progress` is told the metres
+/// of line walked.
 pub fn judge(
     mut stitching: Stitching,
     joins: Vec<survey::RunJoin>,
@@ -418,6 +446,7 @@ pub fn judge(
     progress: &dyn Progress,
 ) -> Result<Analysis, Error> {
     let stitched = std::mem::take(&mut stitching.lasers);
+    let floor = floor::measure(&stitched, opts, progress)?;
     let total_m: u64 = stitched
         .chunk_by(|a, b| a.section == b.section)
         .map(|s| (Grid::of_lines(&s.iter().collect::<Vec<_>>(), s[0].dx_mm).len as f64 * s[0].dx_mm / 1000.0) as u64)
@@ -425,8 +454,24 @@ pub fn judge(
     progress.begin("judging", total_m, "m");
     let mut done_m = 0.0;
     let dx = stitched.first().map_or(opts.stitch.dx_mm, |s| s.dx_mm);
-    let mut verdict = reprofiling::Builder::new(&opts.verdict, dx);
+    let mut verdict = reprofiling::Builder::new(&opts.verdict, dx, floor.clone());
+    let edition = opts.verdict.edition;
+    let line_judgements: Vec<floor::BandJudgement> = en13231::BANDS
+        .iter()
+        .enumerate()
+        .map(|(b, band)| floor::BandJudgement::of(floor.as_ref().and_then(|f| f.band(b).copied()), edition, band))
+        .collect();
+    // 2006: a window exceeds where the rail's own mean peak-to-peak does (the floor's power taken out).
+    let over_of = |floor: Option<(&floor::Floor, usize)>| -> [f64; 4] {
+        std::array::from_fn(|b| {
+            let band = &en13231::BANDS[b];
+            let f = floor.and_then(|(f, k)| Some(f.band(b)?.of_mean(k)));
+            f.map_or(band.mean_pp_limit_mm, |f| f.threshold_mm(reprofiling::Edition::En2006, band.mean_pp_limit_mm))
+        })
+    };
+    let line_over = over_of(floor.as_ref().map(|f| (f, 1)));
     let mut lasers = Vec::new();
+    let mut running_bands = Vec::new();
     for section in stitched.chunk_by(|a, b| a.section == b.section) {
         let mut bands = Vec::new();
         let mut welch = Vec::new();
@@ -449,16 +494,27 @@ pub fn judge(
         }
         let lines: Vec<(&Stitched, [bool; 4])> = section.iter().zip(&bands).map(|(s, a)| (s, evaluated(a))).collect();
         let mut sums = vec![[en13231::BandSums::default(); 4]; section.len()];
+        let mut mean_sums = [en13231::BandSums::default(); 4];
         let mut spikes = vec![0usize; section.len()];
-        pieces::walk_section(section[0].section, &lines, opts, &mut |p| {
+        let want = Wanted { lines: true, mean: true, nulls: false };
+        pieces::walk_section(section[0].section, &lines, opts, want, &mut |p| {
             for (k, l) in p.lines.iter().enumerate() {
-                for ((sum, t), band) in sums[k].iter_mut().zip(&l.bands).zip(&en13231::BANDS) {
+                for (((sum, t), band), over) in sums[k].iter_mut().zip(&l.bands).zip(&en13231::BANDS).zip(&line_over) {
                     if let Some(t) = t {
-                        sum.add(band, t);
+                        sum.add_over(band, t, *over);
                     }
                 }
                 if let Ok(w) = &mut welch[k] {
                     spikes[k] += w.add(&l.stretch(p.core.clone()), &opts.roughness);
+                }
+            }
+            if let Some(rb) = &p.band {
+                let over = over_of(floor.as_ref().map(|f| (f, rb.lines)));
+                for (((sum, t), band), over) in mean_sums.iter_mut().zip(&rb.mean.bands).zip(&en13231::BANDS).zip(&over)
+                {
+                    if let Some(t) = t {
+                        sum.add_over(band, t, *over);
+                    }
                 }
             }
             verdict.piece(p);
@@ -466,6 +522,7 @@ pub fn judge(
             progress.set(done_m as u64);
             Ok(())
         })?;
+        let mut spectra = Vec::new();
         for (k, s) in section.iter().enumerate() {
             let mut bands = bands[k].clone();
             if let Ok(a) = &mut bands {
@@ -476,10 +533,20 @@ pub fn judge(
                 }
             }
             let roughness = match &welch[k] {
-                Ok(w) => Ok(en15610::Roughness { spectrum: w.spectrum(), spikes_removed: spikes[k] }),
+                Ok(w) => {
+                    let mut spectrum = w.spectrum();
+                    spectra.push(spectrum.clone());
+                    if let Some(f) = &floor {
+                        f.mark(&mut spectrum);
+                    }
+                    Ok(en15610::Roughness { spectrum, spikes_removed: spikes[k] })
+                }
                 Err(e) => Err(e.clone()),
             };
-            lasers.push(LaserAnalysis { stitched: s.clone(), bands, roughness });
+            lasers.push(LaserAnalysis { stitched: s.clone(), bands, judgements: line_judgements.clone(), roughness });
+        }
+        if section.len() >= 2 {
+            running_bands.push(running_band(section, &mean_sums, &spectra, floor.as_ref(), edition));
         }
     }
     progress.end();
@@ -488,9 +555,50 @@ pub fn judge(
         stitching,
         joins,
         lasers,
+        floor,
+        running_bands,
         verdict: verdict.finish(),
         gnss_placing: Vec::new(),
     })
+}
+
+/// A section's running band from its mean's band sums and its lines' spectra.
+fn running_band(
+    section: &[Stitched],
+    sums: &[en13231::BandSums; 4],
+    spectra: &[en15610::Spectrum],
+    floor: Option<&floor::Floor>,
+    edition: reprofiling::Edition,
+) -> RunningBandAnalysis {
+    let dx = section[0].dx_mm;
+    let grid = Grid::of_lines(&section.iter().collect::<Vec<_>>(), dx);
+    let runs: Vec<Vec<std::ops::Range<usize>>> = section
+        .iter()
+        .map(|s| {
+            let off = grid.offset(s);
+            pieces::runs(s).into_iter().map(|r| r.start + off..r.end + off).collect()
+        })
+        .collect();
+    let common = pieces::common_runs(&runs);
+    let mut bands = en13231::plan(&common, grid.len, dx);
+    if let Ok(a) = &mut bands {
+        for (r, sum) in a.bands.iter_mut().zip(sums) {
+            if let Ok(st) = &mut r.outcome {
+                *st = sum.stats(&r.band, dx);
+            }
+        }
+    }
+    let k = section.len();
+    let judgements = en13231::BANDS
+        .iter()
+        .enumerate()
+        .map(|(b, band)| floor::BandJudgement::of(floor.and_then(|f| Some(f.band(b)?.of_mean(k))), edition, band))
+        .collect();
+    let mut roughness = en15610::energy_average(spectra);
+    if let (Some(s), Some(f)) = (&mut roughness, floor) {
+        f.mark(s);
+    }
+    RunningBandAnalysis { section: section[0].section, lines: k, bands, judgements, roughness }
 }
 
 /// Which EN 13231-3 bands a line's plan evaluates.
@@ -508,11 +616,20 @@ impl Analysis {
     /// Walks the survey line piece by piece, every section in chainage
     /// order, with the lines' samples and band traces (what plots and
     /// exports are written from; recomputed, never held whole).
-    pub fn for_each_piece(&self, mut f: impl FnMut(&pieces::Piece) -> Result<(), Error>) -> Result<(), Error> {
+    pub fn for_each_piece(&self, f: impl FnMut(&pieces::Piece) -> Result<(), Error>) -> Result<(), Error> {
+        self.for_each_piece_with(Wanted::LINES, f)
+    }
+
+    /// [`Analysis::for_each_piece`], each piece with what `wanted` asks for.
+    pub fn for_each_piece_with(
+        &self,
+        wanted: Wanted,
+        mut f: impl FnMut(&pieces::Piece) -> Result<(), Error>,
+    ) -> Result<(), Error> {
         for section in self.sections() {
             let lines: Vec<(&Stitched, [bool; 4])> =
                 section.lasers.iter().map(|l| (&l.stitched, evaluated(&l.bands))).collect();
-            pieces::walk_section(section.number, &lines, &self.options, &mut f)?;
+            pieces::walk_section(section.number, &lines, &self.options, wanted, &mut f)?;
         }
         Ok(())
     }

@@ -44,16 +44,62 @@ pub struct Piece {
     pub grid: Grid,
     /// Grid indices of the piece's own samples.
     pub core: Range<usize>,
-    /// The section's lines, in its order.
+    /// The section's lines, in its order (empty when not [`Wanted::lines`]).
     pub lines: Vec<PieceLine>,
+    /// The running band's profile and the lines' null combinations, when
+    /// [`Wanted`] and the section has two lines or more.
+    pub band: Option<RunningBand>,
 }
 
 impl Piece {
     /// A piece of nothing (a table's columns without rows).
     pub fn empty() -> Piece {
-        Piece { section: 0, grid: Grid { origin_mm: 0.0, dx_mm: 1.0, len: 0 }, core: 0..0, lines: Vec::new() }
+        Piece {
+            section: 0,
+            grid: Grid { origin_mm: 0.0, dx_mm: 1.0, len: 0 },
+            core: 0..0,
+            lines: Vec::new(),
+            band: None,
+        }
     }
 }
+
+/// What a walk builds of each piece.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Wanted {
+    /// Each line, with its band traces.
+    pub lines: bool,
+    /// The mean of the lines (the running band's profile), with its band traces.
+    pub mean: bool,
+    /// The lines' null combinations, with their band traces.
+    pub nulls: bool,
+}
+
+impl Wanted {
+    /// The lines alone (what plots and exports are written from).
+    pub const LINES: Wanted = Wanted { lines: true, mean: false, nulls: false };
+}
+
+/// The running band seen through all its lines at once: their mean, and
+/// their null combinations (Helmert contrasts: orthonormal, each line's
+/// weight summing to zero). Rail that is common to the lines is in the
+/// mean alone; a null combination holds only what differs among them —
+/// speckle and sensor noise (independent on each line) and rail that is
+/// not common across the band — with the statistics of one line's noise
+/// when the lines' noises are alike. Both are defined where every line
+/// of the section has a sample.
+#[derive(Debug)]
+pub struct RunningBand {
+    /// How many lines were combined.
+    pub lines: usize,
+    /// Their mean (`laser` is [`MEAN_LINE`]; empty traces when not wanted).
+    pub mean: PieceLine,
+    /// `lines − 1` null combinations (`laser` is [`MEAN_LINE`] + 1 + j).
+    pub nulls: Vec<PieceLine>,
+}
+
+/// The `laser` number of the running band's mean line (the nulls follow it).
+pub const MEAN_LINE: usize = 1000;
 
 /// One line of a piece.
 #[derive(Debug)]
@@ -145,11 +191,13 @@ pub fn cores(grid: &Grid, opts: &Options) -> Vec<Range<usize>> {
 }
 
 /// Walks the lines of one section (`lines`, each with which bands to
-/// trace) piece by piece, handing each piece to `f`.
+/// trace) piece by piece, handing each piece to `f` with what `wanted`
+/// asks for.
 pub fn walk_section(
     section: usize,
     lines: &[(&Stitched, [bool; 4])],
     opts: &Options,
+    wanted: Wanted,
     f: &mut dyn FnMut(&Piece) -> Result<(), Error>,
 ) -> Result<(), Error> {
     let Some((first, _)) = lines.first() else { return Ok(()) };
@@ -164,9 +212,13 @@ pub fn walk_section(
             runs(s).into_iter().map(|r| r.start + off..r.end + off).collect()
         })
         .collect();
+    let combine = (wanted.mean || wanted.nulls) && lines.len() >= 2;
+    let common = if combine { common_runs(&line_runs) } else { Vec::new() };
+    let common_bands = evaluated_on(&common, dx);
     for core in cores(&grid, opts) {
         let ext = core.start.saturating_sub(margin)..(core.end + margin).min(grid.len);
-        let mut piece = Piece { section, grid, core: core.clone(), lines: Vec::new() };
+        let mut piece = Piece { section, grid, core: core.clone(), lines: Vec::new(), band: None };
+        let mut read = Vec::new();
         for ((s, evaluate), runs) in lines.iter().zip(&line_runs) {
             let off = grid.offset(s);
             let mut z = vec![f64::NAN; ext.len()];
@@ -176,27 +228,133 @@ pub fn walk_section(
                 let v = s.z.read(lo - off..hi - off).map_err(ScratchError)?;
                 z[lo - ext.start..lo - ext.start + v.len()].copy_from_slice(&v);
             }
-            let runs = runs.clone();
-            let mut line = PieceLine {
-                laser: s.laser,
-                z_um: z[core.start - ext.start..core.end - ext.start].to_vec(),
-                bands: Vec::new(),
-                ext_z_um: z,
-                ext_start: ext.start,
-                runs,
-                dx_mm: dx,
-            };
-            let stretch = line.stretch(core.clone());
-            line.bands = en13231::BANDS
-                .iter()
-                .zip(evaluate)
-                .map(|(band, &yes)| if yes { en13231::trace(&stretch, band).ok() } else { None })
-                .collect();
-            piece.lines.push(line);
+            if combine {
+                read.push(z.clone());
+            }
+            if wanted.lines {
+                piece.lines.push(PieceLine::traced(s.laser, z, &ext, &core, runs.clone(), dx, evaluate));
+            }
+        }
+        if combine {
+            piece.band = Some(running_band(&read, &ext, &core, &common, dx, &common_bands, wanted));
         }
         f(&piece)?;
     }
     Ok(())
+}
+
+impl PieceLine {
+    /// A line over a stretch `ext` (grid indices) of heights `z`, with
+    /// the traces of the bands `evaluate` names.
+    fn traced(
+        laser: usize,
+        z: Vec<f64>,
+        ext: &Range<usize>,
+        core: &Range<usize>,
+        runs: Vec<Range<usize>>,
+        dx_mm: f64,
+        evaluate: &[bool; 4],
+    ) -> PieceLine {
+        let mut line = PieceLine {
+            laser,
+            z_um: z[core.start - ext.start..core.end - ext.start].to_vec(),
+            bands: Vec::new(),
+            ext_z_um: z,
+            ext_start: ext.start,
+            runs,
+            dx_mm,
+        };
+        let stretch = line.stretch(core.clone());
+        line.bands = en13231::BANDS
+            .iter()
+            .zip(evaluate)
+            .map(|(band, &yes)| if yes { en13231::trace(&stretch, band).ok() } else { None })
+            .collect();
+        line
+    }
+}
+
+/// The runs every line has a sample in (grid indices, in order).
+pub fn common_runs(line_runs: &[Vec<Range<usize>>]) -> Vec<Range<usize>> {
+    let mut common = line_runs.first().cloned().unwrap_or_default();
+    for runs in &line_runs[1.min(line_runs.len())..] {
+        let mut next = Vec::new();
+        for a in &common {
+            for b in runs {
+                let r = a.start.max(b.start)..a.end.min(b.end);
+                if !r.is_empty() {
+                    next.push(r);
+                }
+            }
+        }
+        common = next;
+    }
+    common
+}
+
+/// Which EN 13231-3 bands runs sampled `dx_mm` apart can evaluate.
+pub fn evaluated_on(runs: &[Range<usize>], dx_mm: f64) -> [bool; 4] {
+    let mut out = [false; 4];
+    let samples = runs.last().map_or(0, |r| r.end);
+    if let Ok(plan) = en13231::plan(runs, samples, dx_mm) {
+        for (o, r) in out.iter_mut().zip(&plan.bands) {
+            *o = r.outcome.is_ok();
+        }
+    }
+    out
+}
+
+/// The running band of a piece from its lines' stretches `z` (each over
+/// `ext`): the mean and the Helmert contrasts
+/// `n_j = (z_0 + … + z_{j−1} − j·z_j) / √(j(j+1))`, NaN where a line has none.
+fn running_band(
+    z: &[Vec<f64>],
+    ext: &Range<usize>,
+    core: &Range<usize>,
+    common: &[Range<usize>],
+    dx_mm: f64,
+    evaluate: &[bool; 4],
+    wanted: Wanted,
+) -> RunningBand {
+    let k = z.len();
+    let none = [false; 4];
+    let combine = |weights: &dyn Fn(usize) -> f64| -> Vec<f64> {
+        (0..ext.len())
+            .map(|i| {
+                let mut v = 0.0;
+                for (line, zl) in z.iter().enumerate() {
+                    v += weights(line) * zl[i];
+                }
+                v
+            })
+            .collect()
+    };
+    let mean = combine(&|_| 1.0 / k as f64);
+    let mean = PieceLine::traced(
+        MEAN_LINE,
+        mean,
+        ext,
+        core,
+        common.to_vec(),
+        dx_mm,
+        if wanted.mean { evaluate } else { &none },
+    );
+    let nulls = if wanted.nulls {
+        (1..k)
+            .map(|j| {
+                let norm = ((j * (j + 1)) as f64).sqrt();
+                let n = combine(&|line| match line.cmp(&j) {
+                    std::cmp::Ordering::Less => 1.0 / norm,
+                    std::cmp::Ordering::Equal => -(j as f64) / norm,
+                    std::cmp::Ordering::Greater => 0.0,
+                });
+                PieceLine::traced(MEAN_LINE + j, n, ext, core, common.to_vec(), dx_mm, evaluate)
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    RunningBand { lines: k, mean, nulls }
 }
 
 /// A block of the verdict met by a piece.

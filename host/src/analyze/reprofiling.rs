@@ -14,10 +14,19 @@
 //! Both sets come from secondary sources (trade documentation), not the
 //! standard's text: every report says so ([`Edition::source`]).
 //!
+//! # The profile judged, and the floor
+//!
+//! A rail is reprofiled across its running band, and corrugation runs
+//! across it: where a section has two lines or more, the verdict judges
+//! the running band's profile, the mean of its lines
+//! ([`crate::analyze::pieces::RunningBand`]), whose noise is `1/√k` of a
+//! line's. A band whose noise floor ([`crate::analyze::floor`]) does not
+//! allow a verdict is *not judged*: no zone, no length to reprofile, the
+//! floor and the limit named. A section of one line is judged on it.
+//!
 //! # Zones
 //!
-//! A position exceeds when any line exceeds there (the lines are the
-//! running band; a rail is reprofiled across it). Exceeding positions
+//! A position exceeds when the profile judged exceeds there. Exceeding positions
 //! closer than one window of the band are one zone (the rail between
 //! would be ground with it). Each zone has its start and end chainage,
 //! its band and its largest peak-to-peak (the largest window max − min of
@@ -31,6 +40,7 @@
 use std::fmt::Write as _;
 
 use super::chainage;
+use super::floor::{BandJudgement, Floor};
 use super::pieces::Piece;
 use crate::analyze::standards::Stretch;
 use crate::analyze::standards::{en13231, en15610};
@@ -118,6 +128,8 @@ pub struct BandRow {
     pub exceeding_mm: f64,
     /// Why the band has no figures (too short a record, too coarse a sampling).
     pub not_evaluated: Option<String>,
+    /// The floor of the profile judged and whether it allows a verdict.
+    pub judgement: BandJudgement,
 }
 
 impl BandRow {
@@ -129,6 +141,9 @@ impl BandRow {
     /// 2006: at most 5 % of the length exceeding; 2012: no isolated point over.
     pub fn passes(&self, edition: Edition) -> Option<bool> {
         self.limit_mm?;
+        if self.judgement.not_judged.is_some() {
+            return None;
+        }
         (self.measured_mm > 0.0).then(|| match edition {
             Edition::En2006 => self.exceeding_percent() <= en13231::MAX_EXCEEDING_PERCENT,
             Edition::En2012 => self.exceeding_mm == 0.0,
@@ -144,8 +159,15 @@ pub struct Block {
     /// Per band (in [`en13231::BANDS`] order): RMS of the band-filtered
     /// displacement over the block, largest over the lines, mm (`None` where not evaluated).
     pub rms_mm: Vec<Option<f64>>,
-    /// EN 15610 bands over the ISO 3095 limit on some line (`None`: no spectrum).
+    /// EN 15610 bands over the ISO 3095 limit (`None`: no spectrum): the
+    /// lines' spectra energy-averaged (EN 15610's lines across the
+    /// running band), judged where they stand over the noise floor.
     pub iso3095_exceeded: Option<Vec<f64>>,
+    /// EN 15610 bands over the ISO 3095 limit but within
+    /// [`en15610::FLOOR_MARGIN_DB`] of the floor: not judged.
+    pub iso3095_not_judged: Vec<f64>,
+    /// Per band: one line's noise floor RMS, mm (`None`: not known).
+    pub floor_rms_mm: Vec<Option<f64>>,
 }
 
 /// The whole verdict.
@@ -169,6 +191,7 @@ pub struct ReprofilingVerdict {
 pub struct Builder {
     v: ReprofilingVerdict,
     dx_mm: f64,
+    floor: Option<Floor>,
     /// Per band: why no line evaluated it (the last reason seen).
     why: Vec<Option<String>>,
     /// Per band: the zone still open (first and last exceeding grid
@@ -192,15 +215,23 @@ struct OpenBlock {
 type BlockLine = (usize, [(f64, usize); 4], Option<en15610::Welch>);
 
 impl Builder {
-    pub fn new(opts: &Options, dx_mm: f64) -> Builder {
+    /// A verdict judged against `floor` (one line's, of the survey):
+    /// the running band's profile of `floor.lines` lines.
+    pub fn new(opts: &Options, dx_mm: f64, floor: Option<Floor>) -> Builder {
         let rows = en13231::BANDS
             .iter()
-            .map(|band| BandRow {
+            .enumerate()
+            .map(|(b, band)| BandRow {
                 band: *band,
                 limit_mm: opts.edition.limit_mm(band),
                 measured_mm: 0.0,
                 exceeding_mm: 0.0,
                 not_evaluated: None,
+                judgement: BandJudgement::of(
+                    floor.as_ref().and_then(|f| Some(f.band(b)?.of_mean(f.lines))),
+                    opts.edition,
+                    band,
+                ),
             })
             .collect();
         Builder {
@@ -213,6 +244,7 @@ impl Builder {
                 blocks: vec![],
             },
             dx_mm,
+            floor,
             why: vec![None; en13231::BANDS.len()],
             open: vec![None; en13231::BANDS.len()],
             origin_mm: 0.0,
@@ -237,13 +269,20 @@ impl Builder {
         let edition = self.v.options.edition;
         let mut any_over = vec![false; n];
         let mut any_measured = vec![false; n];
+        // The running band's profile where the section has one, else its line.
+        let judged: Vec<&crate::analyze::pieces::PieceLine> = match &p.band {
+            Some(band) => vec![&band.mean],
+            None => p.lines.iter().collect(),
+        };
         for (b, band) in en13231::BANDS.iter().enumerate() {
-            let limit = edition.limit_mm(band);
+            // A judged band's positions exceed over its threshold (the floor's power taken out).
+            let j = &self.v.rows[b].judgement;
+            let limit = j.threshold_mm.filter(|_| j.not_judged.is_none());
             let (mut measured_n, mut over_n) = (0usize, 0usize);
             for i in 0..n {
-                // Measured on some line; over on some line; worst window p-p.
+                // Measured; over the limit; worst window p-p.
                 let (mut measured, mut over, mut worst) = (false, false, 0.0f64);
-                for t in p.lines.iter().filter_map(|l| l.bands.get(b).and_then(Option::as_ref)) {
+                for t in judged.iter().filter_map(|l| l.bands.get(b).and_then(Option::as_ref)) {
                     let mean = t.mean_pp_mm[i];
                     let value = match edition {
                         Edition::En2006 => mean,
@@ -261,7 +300,7 @@ impl Builder {
                 }
                 measured_n += usize::from(measured);
                 over_n += usize::from(over);
-                if limit.is_some() {
+                if edition.limit_mm(band).is_some() {
                     any_over[i] |= over;
                     any_measured[i] |= measured;
                 }
@@ -360,7 +399,7 @@ impl Builder {
     fn close_block(&mut self) {
         let Some(open) = self.block.take() else { return };
         let mut rms = vec![None; en13231::BANDS.len()];
-        let mut exceeded: Option<Vec<f64>> = None;
+        let mut spectra = Vec::new();
         for (_, sums, welch) in &open.lines {
             for (b, &(sq, n)) in sums.iter().enumerate() {
                 if n > 0 {
@@ -368,23 +407,40 @@ impl Builder {
                     rms[b] = Some(rms[b].map_or(v, |w: f64| w.max(v)));
                 }
             }
-            if let Some(w) = welch {
-                let e = exceeded.get_or_insert_with(Vec::new);
-                for b in w.spectrum().bands.iter().filter(|b| b.exceeds() == Some(true)) {
-                    if !e.contains(&b.nominal_wavelength_mm) {
-                        e.push(b.nominal_wavelength_mm);
-                    }
-                }
+            if let Some(w) = welch
+                && w.segments() > 0
+            {
+                spectra.push(w.spectrum());
             }
         }
-        if rms.iter().all(Option::is_none) && exceeded.is_none() {
+        let mut spectrum = en15610::energy_average(&spectra);
+        if let (Some(s), Some(f)) = (&mut spectrum, &self.floor) {
+            f.mark(s);
+        }
+        if rms.iter().all(Option::is_none) && spectrum.is_none() {
             return;
         }
-        if let Some(e) = &mut exceeded {
+        let over = |judged: bool| -> Vec<f64> {
+            let mut e: Vec<f64> = spectrum
+                .iter()
+                .flat_map(|s| &s.bands)
+                .filter(|b| b.judged() == judged && b.iso3095_limit_db.is_some_and(|l| b.level_db > l))
+                .map(|b| b.nominal_wavelength_mm)
+                .collect();
             e.sort_by(|a, b| b.total_cmp(a));
-        }
+            e
+        };
         let (start_mm, end_mm) = open.span_mm;
-        self.v.blocks.push(Block { start_mm, end_mm, rms_mm: rms, iso3095_exceeded: exceeded });
+        let floor_rms_mm =
+            (0..en13231::BANDS.len()).map(|b| self.floor.as_ref().and_then(|f| f.band(b)).map(|f| f.rms_mm)).collect();
+        self.v.blocks.push(Block {
+            start_mm,
+            end_mm,
+            rms_mm: rms,
+            iso3095_exceeded: spectrum.as_ref().map(|_| over(true)),
+            iso3095_not_judged: over(false),
+            floor_rms_mm,
+        });
     }
 
     /// The verdict, every zone closed.
@@ -411,7 +467,13 @@ pub fn describe(v: &ReprofilingVerdict) -> String {
     let mut s = String::new();
     let e = v.options.edition;
     let _ = writeln!(s, "verdict by {} — {}", e.name(), e.source());
-    if v.measured_mm > 0.0 {
+    if v.measured_mm > 0.0 && v.rows.iter().all(|r| r.limit_mm.is_none() || r.judgement.not_judged.is_some()) {
+        let _ = writeln!(
+            s,
+            "reprofiling: not judged: no band's noise floor allows a verdict ({:.3} km measured; see below)",
+            v.measured_mm / 1e6
+        );
+    } else if v.measured_mm > 0.0 {
         let _ = writeln!(
             s,
             "reprofiling: {:.3} km of {:.3} km should be reprofiled ({:.1} %)",
@@ -428,17 +490,20 @@ pub fn describe(v: &ReprofilingVerdict) -> String {
         "band", "limit_mm", "measured_m", "exceeding_m", "exceeding_%", "pass"
     );
     for r in &v.rows {
-        match (&r.not_evaluated, r.limit_mm) {
-            (Some(why), _) => {
+        match (&r.not_evaluated, r.limit_mm, &r.judgement.not_judged) {
+            (Some(why), _, _) => {
                 let _ = writeln!(s, "{:<14} not evaluated: {why}", band_name(&r.band));
             }
-            (None, None) => {
+            (None, None, _) => {
                 let _ = writeln!(s, "{:<14} no {} limit known: not judged", band_name(&r.band), e.name());
             }
-            (None, Some(lim)) => {
+            (None, Some(_), Some(why)) => {
+                let _ = writeln!(s, "{:<14} {why}", band_name(&r.band));
+            }
+            (None, Some(lim), None) => {
                 let _ = writeln!(
                     s,
-                    "{:<14} {:>9.3} {:>12.1} {:>13.1} {:>11.1} {:>6}",
+                    "{:<14} {:>9.3} {:>12.1} {:>13.1} {:>11.1} {:>6}{}",
                     band_name(&r.band),
                     lim,
                     r.measured_mm / 1000.0,
@@ -448,7 +513,10 @@ pub fn describe(v: &ReprofilingVerdict) -> String {
                         Some(true) => "yes",
                         Some(false) => "NO",
                         None => "-",
-                    }
+                    },
+                    r.judgement
+                        .floor
+                        .map_or(String::new(), |f| format!("  (floor {:.1} µm)", f.judged_quantity_mm(e) * 1000.0))
                 );
             }
         }
@@ -485,13 +553,15 @@ pub fn describe(v: &ReprofilingVerdict) -> String {
     for b in &v.blocks {
         let rms: Vec<String> =
             b.rms_mm.iter().map(|r| r.map_or("-".into(), |v| format!("{:.1}", v * 1000.0))).collect();
-        let iso = match &b.iso3095_exceeded {
+        let list = |e: &[f64]| e.iter().map(|w| format!("{w}")).collect::<Vec<_>>().join(", ");
+        let mut iso = match &b.iso3095_exceeded {
             None => "no spectrum".to_string(),
             Some(e) if e.is_empty() => "ISO 3095 pass".to_string(),
-            Some(e) => {
-                format!("ISO 3095 FAIL at {} mm", e.iter().map(|w| format!("{w}")).collect::<Vec<_>>().join(", "))
-            }
+            Some(e) => format!("ISO 3095 FAIL at {} mm", list(e)),
         };
+        if !b.iso3095_not_judged.is_empty() {
+            let _ = write!(iso, " (not judged at the noise floor: {} mm)", list(&b.iso3095_not_judged));
+        }
         let _ = writeln!(s, "  {} – {}: {}; {iso}", chainage(b.start_mm), chainage(b.end_mm), rms.join(" / "));
     }
     s

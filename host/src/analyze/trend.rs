@@ -23,8 +23,8 @@
 //! A block's figure in a band is what the verdict judges, reduced to one
 //! number that crosses the limit when the block starts failing: under
 //! EN 13231-3:2006 (mean peak-to-peak, at most 5 % of the length over) the
-//! 95th percentile of the mean peak-to-peak along the block (largest line
-//! at each position) — over the limit exactly when more than 5 % of the
+//! 95th percentile of the mean peak-to-peak along the block (of the
+//! running band's profile, the lines' mean, as the verdict judges) — over the limit exactly when more than 5 % of the
 //! block is; under 2012 (isolated points) the largest |displacement|. A
 //! block measured over less than half its length in a survey has no
 //! figure there.
@@ -43,7 +43,9 @@
 //! `t* ± 2·u(t*)` (open when the growth is not 2 u(b) above zero). A block
 //! whose last figure is over the limit is *already over*; one not growing
 //! or crossing later than [`Options::horizon_years`] after the last survey
-//! is *not within* that horizon.
+//! is *not within* that horizon. A band whose noise floor, in the latest
+//! survey, does not allow a verdict has no crossing: *at the noise floor*
+//! (growth within the floor is not growth).
 
 use std::fmt;
 
@@ -141,6 +143,10 @@ pub enum Crossing {
     NotWithin(f64),
     /// The band has no limit under the edition, or too few figures to fit.
     NotJudged,
+    /// The last survey's noise floor does not allow the band a verdict
+    /// ([`crate::analyze::floor`]): growth within the floor is not
+    /// growth. The floor in the edition's quantity, mm.
+    AtTheFloor(f64),
 }
 
 /// One block and band's trend.
@@ -196,6 +202,7 @@ impl fmt::Display for Crossing {
             Crossing::On { date, earliest, latest } => write!(f, "{date} ({} to {})", end(earliest), end(latest)),
             Crossing::NotWithin(y) => write!(f, "not within {y} years"),
             Crossing::NotJudged => write!(f, "not judged"),
+            Crossing::AtTheFloor(x) => write!(f, "not judged: at the noise floor ({:.1} µm)", x * 1000.0),
         }
     }
 }
@@ -231,9 +238,15 @@ pub fn trend(surveys: &[SurveyRun], opts: &Options) -> Result<Trend, TrendError>
         .iter()
         .map(|s| block_figures(&s.analysis, edition).map_err(|e| TrendError::Scratch(s.name.clone(), e.to_string())))
         .collect::<Result<Vec<_>, TrendError>>()?;
+    // The floor of the latest survey: a band it does not allow a verdict has no crossing.
+    let latest = &order[order.len() - 1].analysis.verdict;
     for blk in &verdict.blocks {
         for (b, band) in en13231::BANDS.iter().enumerate() {
             let limit_mm = edition.limit_mm(band);
+            let at_floor = latest.rows.get(b).and_then(|r| {
+                r.judgement.not_judged.as_ref()?;
+                Some(r.judgement.floor?.judged_quantity_mm(edition))
+            });
             let figures: Vec<Option<(f64, f64, f64)>> = per_survey
                 .iter()
                 .zip(&years)
@@ -242,16 +255,12 @@ pub fn trend(surveys: &[SurveyRun], opts: &Options) -> Result<Trend, TrendError>
             for (c, f) in covered.iter_mut().zip(&figures) {
                 *c |= f.is_some();
             }
-            blocks.push(fit_block(
-                blk.start_mm,
-                blk.end_mm,
-                *band,
-                limit_mm,
-                figures,
-                t0,
-                years[years.len() - 1],
-                opts,
-            ));
+            let mut fit =
+                fit_block(blk.start_mm, blk.end_mm, *band, limit_mm, figures, t0, years[years.len() - 1], opts);
+            if let Some(x) = at_floor {
+                fit.crossing = Crossing::AtTheFloor(x);
+            }
+            blocks.push(fit);
         }
     }
     let span = |a: &Analysis| {
@@ -290,7 +299,8 @@ pub type BlockFigures = std::collections::HashMap<(i64, usize), (f64, f64)>;
 
 /// Every block's figure in every band of an analysis, with its standard
 /// uncertainty (see [`block_figure`]), by ([`block_key`], band), in one
-/// walk along the line.
+/// walk along the line: of the running band's profile where a section
+/// has one (what the verdict judges), else the largest line's.
 pub fn block_figures(a: &Analysis, edition: Edition) -> Result<BlockFigures, crate::Error> {
     let mut out = std::collections::HashMap::new();
     let block_mm = a.verdict.options.block_mm;
@@ -306,8 +316,13 @@ pub fn block_figures(a: &Analysis, edition: Edition) -> Result<BlockFigures, cra
             }
         }
     };
-    a.for_each_piece(|p| {
+    let want = crate::analyze::pieces::Wanted { lines: true, mean: true, nulls: false };
+    a.for_each_piece_with(want, |p| {
         let dx = p.grid.dx_mm;
+        let judged: Vec<&crate::analyze::pieces::PieceLine> = match &p.band {
+            Some(band) => vec![&band.mean],
+            None => p.lines.iter().collect(),
+        };
         for part in crate::analyze::pieces::blocks(p, block_mm) {
             let (lo, hi) = part.span_mm;
             if open.as_ref().is_none_or(|o| o.0 != lo) {
@@ -318,7 +333,7 @@ pub fn block_figures(a: &Analysis, edition: Edition) -> Result<BlockFigures, cra
             let Some((_, values)) = &mut open else { continue };
             for (b, value) in values.iter_mut().enumerate() {
                 let n = value.len();
-                for t in p.lines.iter().filter_map(|l| l.bands.get(b).and_then(Option::as_ref)) {
+                for t in judged.iter().filter_map(|l| l.bands.get(b).and_then(Option::as_ref)) {
                     for i in part.range.clone() {
                         let mean = t.mean_pp_mm[i];
                         let v = match edition {

@@ -10,6 +10,8 @@
 //!   scene under a light model.
 //! * [`corrugation`] — the closed loop of [`crate::sim::closed_loop`]: the
 //!   paper's four corrugation samples through the simulated head.
+//! * [`floor`] — the noise floor over a smooth rail against the head's
+//!   optics and timing ([`crate::sim::floor`]).
 //!
 //! `bench qemu` is the emulated head's ([`crate::device::qemu`]); `bench
 //! annex-a` and `bench recording` are the simulator's
@@ -17,6 +19,7 @@
 
 pub mod accuracy;
 pub mod corrugation;
+pub mod floor;
 pub mod render;
 pub mod speckle;
 pub mod speed;

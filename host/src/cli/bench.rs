@@ -65,6 +65,26 @@ pub enum BenchCmd {
     /// limits (1 / 1 / 2 µm) and a commercial trolley's own figures.
     #[command(name = "annex-a")]
     AnnexA(AnnexAArgs),
+    /// The noise floor over a smooth rail against aperture, speed, exposure, frame overlap, rows and wavelength:
+    /// the floor analyze reports beside what the rail reads, the minimum detectable corrugation; writes floor.md.
+    Floor(FloorArgs),
+}
+
+/// Options of `bench floor`.
+#[derive(Args, Debug, Clone)]
+pub struct FloorArgs {
+    /// The reduced sweep: the push-trolley setting alone.
+    #[arg(long)]
+    pub reduced: bool,
+    /// Length of smooth rail per setting, m (1.2 to 100).
+    #[arg(long = "length-m", default_value_t = 3.0)]
+    pub length_m: f64,
+    /// Worker threads [default: all cores].
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=256))]
+    pub threads: Option<u64>,
+    /// Output directory (created if missing).
+    #[arg(long, default_value = "out/floor")]
+    pub out: PathBuf,
 }
 
 /// Options of `bench annex-a`.
@@ -328,6 +348,12 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
         })?,
         BenchCmd::Recording(r) => recording(&r)?,
         BenchCmd::AnnexA(a) => annex_a(&a)?,
+        BenchCmd::Floor(f) => bench::floor::floor(&bench::floor::FloorOptions {
+            reduced: f.reduced,
+            length_mm: f.length_m * 1000.0,
+            threads: f.threads.map(|t| t as usize),
+            out: f.out.clone(),
+        })?,
     };
     let mut out = std::io::stdout().lock();
     out.write_all(text.as_bytes()).and_then(|()| out.flush()).context("writing the report to stdout")

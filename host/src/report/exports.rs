@@ -185,7 +185,9 @@ pub fn profile_table(source: &Source, a: &Analysis) -> Result<Table, Error> {
 /// `rms_um_LO_HI` per band (largest line; null where not evaluated),
 /// `iso3095_pass` (null: no spectrum), `iso3095_exceeded_mm` (a list of
 /// the one-third-octave wavelengths over the limit; empty on a pass, null
-/// without a spectrum).
+/// without a spectrum), `floor_rms_um_LO_HI` per band (one line's noise
+/// floor; null where not known), `iso3095_not_judged_mm` (the wavelengths
+/// over the limit but within 3 dB of the floor: not judged).
 pub fn blocks_table(source: &Source, a: &Analysis) -> Table {
     let b = &a.verdict.blocks;
     let n = b.len();
@@ -209,6 +211,15 @@ pub fn blocks_table(source: &Source, a: &Analysis) -> Table {
         "iso3095_exceeded_mm",
         true,
         Values::ListF64(b.iter().map(|b| b.iso3095_exceeded.clone()).collect()),
+    ));
+    for (k, band) in en13231::BANDS.iter().enumerate() {
+        let v = b.iter().map(|b| b.floor_rms_mm.get(k).copied().flatten().map(|v| v * 1000.0)).collect();
+        columns.push(col(format!("floor_rms_um_{}", band_key(band)), true, Values::F64(v)));
+    }
+    columns.push(col(
+        "iso3095_not_judged_mm",
+        false,
+        Values::ListF64(b.iter().map(|b| Some(b.iso3095_not_judged.clone())).collect()),
     ));
     Table { columns }
 }

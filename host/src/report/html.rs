@@ -18,6 +18,7 @@ use crate::analyze::{Analysis, LaserAnalysis, Recording, Source, chainage, fmt_l
 
 use super::text;
 use super::track::Track;
+use crate::analyze::floor::BandJudgement;
 
 /// Screen and print styles (see the module docs).
 pub const STYLE: &str = "body{font-family:sans-serif;max-width:1450px;margin:auto;padding:0 8px}\
@@ -56,7 +57,7 @@ fn cell_class(c: &str) -> Option<&'static str> {
     let verdict = c.split([' ', ':']).next().unwrap_or("");
     match verdict {
         "FAIL" | "NO" | "EXCEEDS" => Some("bad"),
-        "pass" | "yes" | "ok" => Some("good"),
+        "pass" | "yes" | "ok" | "within" => Some("good"),
         _ if c.parse::<f64>().is_ok() => Some("num"),
         _ => None,
     }
@@ -232,8 +233,17 @@ fn reprofiling_rows(v: &reprofiling::ReprofilingVerdict) -> Vec<Vec<String>> {
         .iter()
         .map(|r| {
             let band = band_name(&r.band);
-            match (&r.not_evaluated, r.limit_mm) {
+            let floor = r.judgement.floor.map_or(dash(), |f| format!("{:.4}", f.judged_quantity_mm(e)));
+            let mut row = match (&r.not_evaluated, r.limit_mm) {
                 (Some(why), _) => vec![band, dash(), dash(), dash(), dash(), format!("not evaluated: {why}")],
+                (None, _) if r.judgement.not_judged.is_some() => vec![
+                    band,
+                    r.limit_mm.map_or(dash(), |l| format!("{l:.3}")),
+                    format!("{:.1}", r.measured_mm / 1000.0),
+                    dash(),
+                    dash(),
+                    r.judgement.not_judged.clone().unwrap_or_default(),
+                ],
                 (None, None) => vec![
                     band,
                     dash(),
@@ -254,7 +264,9 @@ fn reprofiling_rows(v: &reprofiling::ReprofilingVerdict) -> Vec<Vec<String>> {
                         None => dash(),
                     },
                 ],
-            }
+            };
+            row.push(floor);
+            row
         })
         .collect()
 }
@@ -271,11 +283,16 @@ fn blocks(v: &reprofiling::ReprofilingVerdict) -> String {
         .map(|b| {
             let mut r = vec![chainage(b.start_mm), chainage(b.end_mm)];
             r.extend(b.rms_mm.iter().map(|v| v.map_or("-".into(), |v| format!("{:.1}", v * 1000.0))));
-            r.push(match &b.iso3095_exceeded {
+            let list = |e: &[f64]| e.iter().map(|w| w.to_string()).collect::<Vec<_>>().join(", ");
+            let mut iso = match &b.iso3095_exceeded {
                 None => "no spectrum".into(),
                 Some(e) if e.is_empty() => "pass".into(),
-                Some(e) => format!("FAIL at {} mm", e.iter().map(|w| w.to_string()).collect::<Vec<_>>().join(", ")),
-            });
+                Some(e) => format!("FAIL at {} mm", list(e)),
+            };
+            if !b.iso3095_not_judged.is_empty() {
+                let _ = write!(iso, "; not judged at the noise floor: {} mm", list(&b.iso3095_not_judged));
+            }
+            r.push(iso);
             r
         })
         .collect();
@@ -290,18 +307,27 @@ fn verdict(a: &Analysis, zone_svg: &str) -> String {
     let mut s = String::from("<section id=\"verdict\"><h2>Verdict</h2>\n");
     let _ = writeln!(s, "<p><strong>{}</strong> — limits: {}</p>", escape(e.name()), escape(e.source()));
     let pct = if v.measured_mm > 0.0 { 100.0 * v.reprofile_mm / v.measured_mm } else { 0.0 };
-    let _ = writeln!(
-        s,
-        "<p class=\"reprofile\">{:.3} km of {:.3} km should be reprofiled ({pct:.1} %).</p>",
-        v.reprofile_mm / 1e6,
-        v.measured_mm / 1e6
-    );
+    if v.rows.iter().all(|r| r.limit_mm.is_none() || r.judgement.not_judged.is_some()) {
+        let _ = writeln!(
+            s,
+            "<p class=\"reprofile\">Not judged: no band's noise floor allows a verdict ({:.3} km measured).</p>",
+            v.measured_mm / 1e6
+        );
+    } else {
+        let _ = writeln!(
+            s,
+            "<p class=\"reprofile\">{:.3} km of {:.3} km should be reprofiled ({pct:.1} %).</p>",
+            v.reprofile_mm / 1e6,
+            v.measured_mm / 1e6
+        );
+    }
     s.push_str("<h3>Reprofiling table</h3>\n");
     s.push_str(&table(
         "reprofiling",
-        &["band", "limit, mm", "measured, m", "exceeding, m", "exceeding, %", "verdict"],
+        &["band", "limit, mm", "measured, m", "exceeding, m", "exceeding, %", "verdict", "noise floor, mm"],
         &reprofiling_rows(v),
     ));
+    s.push_str(&floor(a));
     let _ = writeln!(s, "<h3>Exceedance zones ({})</h3>", v.zones.len());
     if v.zones.is_empty() {
         s.push_str("<p>None.</p>\n");
@@ -492,6 +518,60 @@ fn gnss_track(source: &Source, track: Option<&Track>, svg: Option<&str>) -> Stri
     s
 }
 
+/// The noise floor (one line's, from the lines' null combinations) and
+/// each section's running band: the profile the verdict judges.
+fn floor(a: &Analysis) -> String {
+    let mut s = String::from("<h3>Noise floor and the running band</h3>\n");
+    let Some(f) = &a.floor else {
+        s.push_str("<p>The noise floor is not known (no section has two lines to tell rail from noise): the verdict is as measured.</p>\n");
+        return s;
+    };
+    let _ = writeln!(
+        s,
+        "<p>One line's noise floor, from the {} lines' null combinations over {:.1} m (what the lines do not have in common: speckle, sensor noise, the stitch's per-line errors; see docs/noise-floor.md). EN 15610's spike removal takes {:.1} \"spikes\" a metre out of noise alone.</p>",
+        f.lines,
+        f.measured_mm / 1000.0,
+        f.spikes_per_m
+    );
+    let dash = || "-".to_string();
+    let rows: Vec<Vec<String>> = en13231::BANDS
+        .iter()
+        .enumerate()
+        .map(|(b, band)| match f.band(b) {
+            Some(x) => vec![
+                band_name(band),
+                format!("{:.1}", x.rms_mm * 1000.0),
+                format!("{:.1}", x.average_mean_pp_mm * 1000.0),
+                format!("{:.1}", x.of_mean(f.lines).average_mean_pp_mm * 1000.0),
+                format!("{:.0}", band.mean_pp_limit_mm * 1000.0),
+                format!("{:.2}", x.coherence),
+            ],
+            None => vec![band_name(band), dash(), dash(), dash(), dash(), "runs too short".into()],
+        })
+        .collect();
+    s.push_str(&table(
+        "floor",
+        &[
+            "band",
+            "one line's floor, RMS µm",
+            "one line's floor, mean peak-to-peak µm",
+            "running band's floor, mean peak-to-peak µm",
+            "2006 limit, µm",
+            "coherence of the lines",
+        ],
+        &rows,
+    ));
+    for rb in &a.running_bands {
+        let _ = writeln!(s, "<h4>Running band of section {}: the mean of {} lines</h4>", rb.section, rb.lines);
+        s.push_str(&bands(&rb.bands, &rb.judgements));
+        if let Some(sp) = &rb.roughness {
+            let _ = writeln!(s, "<p>EN 15610: the {} lines' spectra energy-averaged.</p>", rb.lines);
+            s.push_str(&roughness(&Ok(en15610::Roughness { spectrum: sp.clone(), spikes_removed: 0 })));
+        }
+    }
+    s
+}
+
 /// One line's section: its stitching, the EN 13231-3 bands and the EN
 /// 15610 roughness.
 fn line(l: &LaserAnalysis, several: bool) -> String {
@@ -500,7 +580,7 @@ fn line(l: &LaserAnalysis, several: bool) -> String {
     s.push_str("<h3>Stitched line</h3>\n");
     s.push_str(&stitched(&l.stitched));
     s.push_str("<h3>EN 13231-3 bands</h3>\n");
-    s.push_str(&bands(&l.bands));
+    s.push_str(&bands(&l.bands, &l.judgements));
     s.push_str("<h3>EN 15610 roughness</h3>\n");
     s.push_str(&roughness(&l.roughness));
     s.push_str("</section>\n");
@@ -553,7 +633,7 @@ fn stitched(l: &Stitched) -> String {
 }
 
 /// One line's EN 13231-3 outcome: a row per band.
-fn bands(b: &Result<en13231::BandAnalysis, StandardsError>) -> String {
+fn bands(b: &Result<en13231::BandAnalysis, StandardsError>, judgements: &[BandJudgement]) -> String {
     let a = match b {
         Ok(a) => a,
         Err(e) => return format!("<p>EN 13231-3 bands not evaluated: {}</p>\n", escape(&e.to_string())),
@@ -568,16 +648,24 @@ fn bands(b: &Result<en13231::BandAnalysis, StandardsError>) -> String {
     let rows: Vec<Vec<String>> = a
         .bands
         .iter()
-        .map(|b| {
+        .enumerate()
+        .map(|(k, b)| {
+            let j = judgements.get(k);
+            let floor = j.and_then(|j| j.floor).map_or(dash(), |f| format!("{:.4}", f.average_mean_pp_mm));
             let head = vec![band_name(&b.band), fmt_mm(b.band.window_mm), format!("{:.3}", b.band.mean_pp_limit_mm)];
-            let rest = match &b.outcome {
+            let verdict = match j.and_then(|j| j.not_judged.clone()) {
+                Some(why) => why,
+                None if b.outcome.as_ref().is_ok_and(|st| st.passes) => "yes".into(),
+                None => "NO".into(),
+            };
+            let mut rest = match &b.outcome {
                 Ok(st) => vec![
                     format!("{:.4}", st.average_mean_pp_mm),
                     format!("{:.4}", st.worst_mean_pp_mm),
                     format!("{:.4}", st.worst_max_pp_mm),
                     format!("{:.4}", st.rms_mm),
                     format!("{:.1}", st.exceeding_percent),
-                    if st.passes { "yes" } else { "NO" }.into(),
+                    verdict,
                     match (b.band.abs_limit_mm, st.abs_exceeding_percent) {
                         (Some(lim), Some(p)) => format!("2012 Class 1 ±{lim:.3} mm: {p:.1} % of length over"),
                         _ => String::new(),
@@ -585,6 +673,7 @@ fn bands(b: &Result<en13231::BandAnalysis, StandardsError>) -> String {
                 ],
                 Err(e) => vec![dash(), dash(), dash(), dash(), dash(), dash(), e.to_string()],
             };
+            rest.push(floor);
             head.into_iter().chain(rest).collect()
         })
         .collect();
@@ -601,6 +690,7 @@ fn bands(b: &Result<en13231::BandAnalysis, StandardsError>) -> String {
             "exceeding, %",
             "pass",
             "note",
+            "noise floor, mean peak-to-peak, mm",
         ],
         &rows,
     ));
@@ -626,16 +716,20 @@ fn roughness(r: &Result<en15610::Roughness, StandardsError>) -> String {
         .bands
         .iter()
         .map(|b| {
-            let (limit, margin, verdict) = match (b.iso3095_limit_db, b.margin_db(), b.exceeds()) {
-                (Some(l), Some(m), Some(e)) => (format!("{l:.1}"), format!("{m:.1}"), if e { "EXCEEDS" } else { "ok" }),
-                _ => ("-".into(), "-".into(), ""),
-            };
-            vec![fmt_mm(b.nominal_wavelength_mm), format!("{:.1}", b.level_db), limit, margin, verdict.into()]
+            let dash = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
+            vec![
+                fmt_mm(b.nominal_wavelength_mm),
+                format!("{:.1}", b.level_db),
+                dash(b.floor_db),
+                dash(b.iso3095_limit_db),
+                dash(b.margin_db()),
+                b.verdict(),
+            ]
         })
         .collect();
     s.push_str(&table(
         "spectrum",
-        &["wavelength, mm", "level, dB", "ISO 3095 limit, dB", "margin, dB", "verdict"],
+        &["wavelength, mm", "level, dB", "noise floor, dB", "ISO 3095 limit, dB", "margin, dB", "verdict"],
         &rows,
     ));
     let missing = crate::analyze::iso3095_not_evaluated(r);

@@ -4,6 +4,8 @@ use std::path::Path;
 
 use serde_json::{Value, json};
 
+use crate::analyze::floor::{BandFloor, BandJudgement};
+use crate::analyze::standards::{StandardsError, en13231, en15610};
 use crate::analyze::stitch::{Direction, Registration};
 use crate::analyze::{
     Analysis, LaserAnalysis, Recording, Source, chainage, iso3095_not_evaluated, reprofiling, spectrum_peak, survey,
@@ -25,6 +27,9 @@ fn verdict_json(v: &reprofiling::ReprofilingVerdict) -> Value {
             "exceeding_percent": r.exceeding_percent(),
             "passes": r.passes(e),
             "not_evaluated": r.not_evaluated,
+            "judged": r.limit_mm.is_some() && r.not_evaluated.is_none() && r.judgement.not_judged.is_none(),
+            "not_judged": r.judgement.not_judged,
+            "floor": floor_json(r.judgement.floor.as_ref()),
         })).collect::<Vec<_>>(),
         "zones": v.zones.iter().map(|z| json!({
             "lo_mm": z.band.lo_mm,
@@ -41,9 +46,76 @@ fn verdict_json(v: &reprofiling::ReprofilingVerdict) -> Value {
             "start_mm": b.start_mm,
             "end_mm": b.end_mm,
             "rms_mm": b.rms_mm,
+            "floor_rms_mm": b.floor_rms_mm,
             "iso3095_exceeded_mm": b.iso3095_exceeded,
+            "iso3095_not_judged_mm": b.iso3095_not_judged,
         })).collect::<Vec<_>>(),
     })
+}
+
+fn floor_json(f: Option<&BandFloor>) -> Value {
+    match f {
+        Some(f) => json!({
+            "rms_mm": num(f.rms_mm),
+            "average_mean_pp_mm": num(f.average_mean_pp_mm),
+            "worst_mean_pp_mm": num(f.worst_mean_pp_mm),
+            "peak_mm": num(f.peak_mm),
+            "coherence": num(f.coherence),
+        }),
+        None => Value::Null,
+    }
+}
+
+/// The survey's noise floor (one line's) and each section's running band.
+fn survey_floor_json(a: &Analysis) -> Value {
+    let floor = a.floor.as_ref().map(|f| {
+        json!({
+            "lines": f.lines,
+            "measured_mm": f.measured_mm,
+            "bands": f.bands.iter().zip(&en13231::BANDS).map(|(b, band)| {
+                let mut o = floor_json(b.as_ref());
+                if let Value::Object(m) = &mut o {
+                    m.insert("lo_mm".into(), json!(band.lo_mm));
+                    m.insert("hi_mm".into(), json!(band.hi_mm));
+                }
+                o
+            }).collect::<Vec<_>>(),
+            "en15610": f.spectrum.as_ref().map(|s| s.bands.iter().map(|b| json!({
+                "nominal_wavelength_mm": b.nominal_wavelength_mm,
+                "floor_db": num(b.level_db),
+            })).collect::<Vec<_>>()),
+            "spikes_per_m": num(f.spikes_per_m),
+        })
+    });
+    json!({
+        "floor": floor,
+        "running_bands": a.running_bands.iter().map(|rb| json!({
+            "section": rb.section,
+            "lines": rb.lines,
+            "en13231": bands_json(&rb.bands, &rb.judgements),
+            "en15610": rb.roughness.as_ref().map(|s| json!({
+                "segments": s.segments,
+                "bands": third_octaves_json(s),
+            })),
+        })).collect::<Vec<_>>(),
+    })
+}
+
+fn third_octaves_json(s: &en15610::Spectrum) -> Vec<Value> {
+    s.bands
+        .iter()
+        .map(|b| {
+            json!({
+                "nominal_wavelength_mm": b.nominal_wavelength_mm,
+                "wavelength_mm": b.wavelength_mm,
+                "level_db": num(b.level_db),
+                "iso3095_limit_db": b.iso3095_limit_db,
+                "floor_db": b.floor_db.map(num),
+                "judged": b.judged(),
+                "exceeds": b.exceeds(),
+            })
+        })
+        .collect()
 }
 
 fn num(v: f64) -> Value {
@@ -132,6 +204,7 @@ pub fn to_json(source: &Source, a: &Analysis) -> Value {
             })
             .collect::<Vec<_>>()
     );
+    o["noise"] = survey_floor_json(a);
     o["verdict"] = verdict_json(&a.verdict);
     if matches!(source, Source::Recordings(_)) {
         o["marks"] = super::marks::to_json(&super::marks::of(source, a));
@@ -160,22 +233,25 @@ fn laser_json(l: &LaserAnalysis) -> Value {
             "seq": j.seq, "at_mm": j.at_mm, "overlap_mm": j.overlap_mm,
         })).collect::<Vec<_>>(),
         "gaps": s.gaps.iter().map(|g| json!({ "start_mm": g.start_mm, "length_mm": g.length_mm })).collect::<Vec<_>>(),
-        "en13231": bands_json(l),
+        "en13231": bands_json(&l.bands, &l.judgements),
         "en15610": roughness_json(l),
     })
 }
 
-/// The EN 13231-3 band analysis of one laser.
-fn bands_json(l: &LaserAnalysis) -> Value {
-    match &l.bands {
+/// The EN 13231-3 band analysis of one profile, each band with its floor.
+fn bands_json(b: &Result<en13231::BandAnalysis, StandardsError>, judgements: &[BandJudgement]) -> Value {
+    match b {
         Ok(b) => json!({
             "record_mm": b.record_mm,
             "runs": b.runs,
-            "bands": b.bands.iter().map(|r| {
+            "bands": b.bands.iter().enumerate().map(|(k, r)| {
                 let mut o = json!({
                     "lo_mm": r.band.lo_mm, "hi_mm": r.band.hi_mm, "window_mm": r.band.window_mm,
                     "mean_pp_limit_mm": r.band.mean_pp_limit_mm, "edge_mm": r.edge_mm,
                 });
+                let j = judgements.get(k);
+                o["floor"] = floor_json(j.and_then(|j| j.floor.as_ref()));
+                o["not_judged"] = json!(j.and_then(|j| j.not_judged.clone()));
                 match &r.outcome {
                     Ok(st) => {
                         o["average_mean_pp_mm"] = num(st.average_mean_pp_mm);
@@ -185,7 +261,9 @@ fn bands_json(l: &LaserAnalysis) -> Value {
                         o["exceeding_percent"] = num(st.exceeding_percent);
                         o["exceeding_mm"] = num(st.exceeding_mm);
                         o["windows"] = json!(st.windows);
-                        o["passes"] = json!(st.passes);
+                        let judged = j.is_none_or(|j| j.not_judged.is_none());
+                        o["judged"] = json!(judged);
+                        o["passes"] = if judged { json!(st.passes) } else { Value::Null };
                         if let Some(p) = st.abs_exceeding_percent {
                             o["abs_limit_mm"] = json!(r.band.abs_limit_mm);
                             o["abs_exceeding_percent"] = num(p);
@@ -207,13 +285,7 @@ fn roughness_json(l: &LaserAnalysis) -> Value {
             "segments": r.spectrum.segments,
             "segment_mm": r.spectrum.segment_mm,
             "spikes_removed": r.spikes_removed,
-            "bands": r.spectrum.bands.iter().map(|b| json!({
-                "nominal_wavelength_mm": b.nominal_wavelength_mm,
-                "wavelength_mm": b.wavelength_mm,
-                "level_db": num(b.level_db),
-                "iso3095_limit_db": b.iso3095_limit_db,
-                "exceeds": b.exceeds(),
-            })).collect::<Vec<_>>(),
+            "bands": third_octaves_json(&r.spectrum),
             "not_evaluated": iso3095_not_evaluated(r).iter().map(|(w, why)| json!({
                 "nominal_wavelength_mm": w, "why": why,
             })).collect::<Vec<_>>(),

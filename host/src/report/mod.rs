@@ -652,7 +652,11 @@ fn markdown(
 ) -> String {
     let head = text::describe(source, a);
     let verdict_text = reprofiling::describe(&a.verdict);
-    let mut md = format!("# {title}\n\n## Survey\n\n```text\n{head}```\n\n## Verdict\n\n```text\n{verdict_text}```\n");
+    let floor_text = text::describe_floor(a);
+    let mut md = format!(
+        "# {title}\n\n## Survey\n\n```text\n{head}```\n\n## Verdict\n\n```text\n{verdict_text}```\n\n\
+         ## Noise floor and the running band\n\n```text\n{floor_text}```\n"
+    );
     if zones {
         md.push_str("\n![Exceedance along chainage](zones.svg) ([PNG](zones.png))\n");
     }
@@ -678,7 +682,7 @@ fn markdown(
         let text = format!(
             "{}\n{}\n{}",
             text::describe_stitched(&l.stitched),
-            text::describe_bands(&l.bands),
+            text::describe_bands(&l.bands, &l.judgements),
             text::describe_roughness(&l.roughness)
         );
         let _ = write!(md, "\n## {k}\n\n```text\n{text}```\n");

@@ -308,12 +308,140 @@ pub fn describe_roughness(r: &Result<en15610::Roughness, StandardsError>) -> Str
     s
 }
 
-/// One laser's EN 13231-3 outcome.
-pub fn describe_bands(b: &Result<en13231::BandAnalysis, StandardsError>) -> String {
-    match b {
-        Ok(a) => en13231::band_table(a),
-        Err(e) => format!("EN 13231-3 bands not evaluated: {e}\n"),
+/// One profile's EN 13231-3 outcome, each band with its noise floor
+/// and whether the floor allows a verdict (`judgements` in band order;
+/// empty: the floor is not known).
+pub fn describe_bands(
+    b: &Result<en13231::BandAnalysis, StandardsError>,
+    judgements: &[crate::analyze::floor::BandJudgement],
+) -> String {
+    let a = match b {
+        Ok(a) => a,
+        Err(e) => return format!("EN 13231-3 bands not evaluated: {e}\n"),
+    };
+    let mut s = format!(
+        "EN 13231-3 wavelength bands: record {} mm, spacing {} mm, {} run(s)\n",
+        fmt_len(a.record_mm),
+        a.dx_mm,
+        a.runs
+    );
+    let _ = writeln!(
+        s,
+        "{:<10} {:>8} {:>10} {:>11} {:>10} {:>8} {:>12} {:>12} {:>10}  verdict",
+        "band_mm",
+        "limit_mm",
+        "avg_pp_mm",
+        "worst_pp_mm",
+        "max_pp_mm",
+        "rms_mm",
+        "exceeding_%",
+        "floor_pp_mm",
+        "floor_rms"
+    );
+    for (k, r) in a.bands.iter().enumerate() {
+        let name = format!("{}-{}", fmt_len(r.band.lo_mm), fmt_len(r.band.hi_mm));
+        let j = judgements.get(k);
+        let floor = j.and_then(|j| j.floor);
+        let (fpp, frms) = floor
+            .map_or(("-".into(), "-".into()), |f| (format!("{:.4}", f.average_mean_pp_mm), format!("{:.4}", f.rms_mm)));
+        match &r.outcome {
+            Ok(st) => {
+                let verdict = match j.and_then(|j| j.not_judged.as_ref()) {
+                    Some(why) => why.clone(),
+                    None if st.passes => "pass".into(),
+                    None => "FAILS".into(),
+                };
+                let _ = writeln!(
+                    s,
+                    "{:<10} {:>8.3} {:>10.4} {:>11.4} {:>10.4} {:>8.4} {:>12.1} {:>12} {:>10}  {}",
+                    name,
+                    r.band.mean_pp_limit_mm,
+                    st.average_mean_pp_mm,
+                    st.worst_mean_pp_mm,
+                    st.worst_max_pp_mm,
+                    st.rms_mm,
+                    st.exceeding_percent,
+                    fpp,
+                    frms,
+                    verdict
+                );
+            }
+            Err(e) => {
+                let _ = writeln!(s, "{name:<10} {:>8.3}  not evaluated: {e}", r.band.mean_pp_limit_mm);
+            }
+        }
     }
+    if judgements.iter().all(|j| j.floor.is_none()) {
+        let _ = writeln!(s, "noise floor: not known (one line: no other line to tell rail from noise)");
+    }
+    s
+}
+
+/// The survey's noise floor and each section's running band (the
+/// profile the verdict judges).
+pub fn describe_floor(a: &Analysis) -> String {
+    let mut s = String::new();
+    let Some(f) = &a.floor else {
+        let _ = writeln!(
+            s,
+            "noise floor: not known (no section has two lines to tell rail from noise): verdicts as measured"
+        );
+        return s;
+    };
+    let _ = writeln!(
+        s,
+        "noise floor of one line, from the {} lines' null combinations over {:.1} m (docs/noise-floor.md):",
+        f.lines,
+        f.measured_mm / 1000.0
+    );
+    for (b, band) in en13231::BANDS.iter().enumerate() {
+        match f.band(b) {
+            Some(x) => {
+                let _ = writeln!(
+                    s,
+                    "  {:>4}–{:<4} mm: RMS {:.1} µm, mean peak-to-peak {:.1} µm (limit {:.0}), coherence of the lines {:.2}",
+                    fmt_len(band.lo_mm),
+                    fmt_len(band.hi_mm),
+                    x.rms_mm * 1000.0,
+                    x.average_mean_pp_mm * 1000.0,
+                    band.mean_pp_limit_mm * 1000.0,
+                    x.coherence
+                );
+            }
+            None => {
+                let _ = writeln!(
+                    s,
+                    "  {:>4}–{:<4} mm: not measured (runs too short)",
+                    fmt_len(band.lo_mm),
+                    fmt_len(band.hi_mm)
+                );
+            }
+        }
+    }
+    if let Some(sp) = &f.spectrum {
+        let list: Vec<String> =
+            sp.bands.iter().map(|b| format!("{} mm {:.1}", fmt_len(b.nominal_wavelength_mm), b.level_db)).collect();
+        let _ = writeln!(s, "  EN 15610 floor (dB re 1 µm): {}", list.join(", "));
+        let _ = writeln!(s, "  spike removal takes {:.1} \"spikes\" per metre out of noise alone", f.spikes_per_m);
+    }
+    for rb in &a.running_bands {
+        let _ = writeln!(
+            s,
+            "\nrunning band of section {} (the mean of {} lines; what the verdict judges):",
+            rb.section, rb.lines
+        );
+        for line in describe_bands(&rb.bands, &rb.judgements).lines() {
+            let _ = writeln!(s, "  {line}");
+        }
+        if let Some(sp) = &rb.roughness {
+            let r = en15610::Roughness { spectrum: sp.clone(), spikes_removed: 0 };
+            let _ = writeln!(s, "  EN 15610, the {} lines' spectra energy-averaged:", rb.lines);
+            for line in en15610::spectrum_table(&r).lines().skip(1) {
+                let _ = writeln!(s, "  {line}");
+            }
+        }
+    }
+    s
 }
 
 /// The printed summary.
@@ -328,13 +456,15 @@ pub fn summary(source: &Source, a: &Analysis) -> String {
         for l in sec.lasers {
             s.push('\n');
             s.push_str(&describe_stitched(&l.stitched));
-            for part in [describe_bands(&l.bands), describe_roughness(&l.roughness)] {
+            for part in [describe_bands(&l.bands, &l.judgements), describe_roughness(&l.roughness)] {
                 for line in part.lines() {
                     let _ = writeln!(s, "  {line}");
                 }
             }
         }
     }
+    s.push('\n');
+    s.push_str(&describe_floor(a));
     s.push('\n');
     s.push_str(&reprofiling::describe(&a.verdict));
     let marks = super::marks::summary(source, a);

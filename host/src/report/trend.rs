@@ -214,6 +214,7 @@ pub fn json(t: &Trend) -> String {
         }),
         Crossing::NotWithin(y) => json!({"kind": "not_within", "years": y}),
         Crossing::NotJudged => json!({"kind": "not_judged"}),
+        Crossing::AtTheFloor(x) => json!({"kind": "at_the_floor", "floor_mm": x}),
     };
     let v = json!({
         "edition": t.edition.name(),
@@ -346,6 +347,7 @@ pub fn trend_table(t: &Trend) -> Table {
         Crossing::On { .. } => "on",
         Crossing::NotWithin(_) => "not_within",
         Crossing::NotJudged => "not_judged",
+        Crossing::AtTheFloor(_) => "at_the_floor",
     };
     Table {
         columns: vec![

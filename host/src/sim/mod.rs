@@ -15,6 +15,9 @@
 //! * [`real_light`] — the reference head through speckle, oxidation,
 //!   grease, glints and ghost lines, points and corrugation against the
 //!   truth (`bench speckle`).
+//! * [`floor`] — the noise floor closed loop: the head over a smooth or
+//!   corrugated rail under a chosen light, judged as `analyze` judges
+//!   (`bench floor`).
 //! * [`annex_a`] — EN 13231-3 Annex A: the simulated head over a reference
 //!   beam (`bench annex-a`).
 //! * [`synthetic`] — a calibrated recording of any length over a known rail,
@@ -23,6 +26,7 @@
 pub mod annex_a;
 pub mod calibration;
 pub mod closed_loop;
+pub mod floor;
 pub mod gnss;
 pub mod head;
 pub mod pty;

@@ -189,6 +189,13 @@ pub struct BandSums {
 impl BandSums {
     /// Adds a piece's trace of `band`.
     pub fn add(&mut self, band: &Band, t: &BandTrace) {
+        self.add_over(band, t, band.mean_pp_limit_mm);
+    }
+
+    /// [`BandSums::add`], a window exceeding where its mean peak-to-peak
+    /// is over `threshold_mm` (the limit with a noise floor's power added:
+    /// `crate::analyze::floor::BandFloor::threshold_mm`).
+    pub fn add_over(&mut self, band: &Band, t: &BandTrace, threshold_mm: f64) {
         for v in t.band_mm.iter().filter(|v| v.is_finite()) {
             self.sq_mm2 += v * v;
             self.count += 1;
@@ -204,7 +211,7 @@ impl BandSums {
             self.sum_mean_mm += mn;
             self.worst_mean_mm = self.worst_mean_mm.max(mn);
             self.worst_max_mm = self.worst_max_mm.max(mx);
-            if mn > band.mean_pp_limit_mm {
+            if mn > threshold_mm {
                 self.exceeding += 1;
             }
         }

@@ -64,6 +64,10 @@ pub const WHEEL_RADIUS_MM: f64 = 375.0;
 pub const MAX_DX_MM: f64 = 1.0;
 /// EN 15610 segments: at least this long, mm.
 pub const MIN_SEGMENT_MM: f64 = 1000.0;
+/// A one-third octave is judged against ISO 3095 when its level is this
+/// much over the instrument's noise floor there, dB: twice the floor's
+/// power, at least as much rail as noise ([`crate::analyze::floor`]).
+pub const FLOOR_MARGIN_DB: f64 = 3.0;
 
 /// ISO 3095 limit spectrum: (nominal wavelength mm, level dB re 1 µm).
 pub const ISO3095_LIMIT: [(f64, f64); 22] = [
@@ -143,6 +147,14 @@ pub struct ThirdOctave {
     pub level_db: f64,
     /// The ISO 3095 limit for this band, where the table has one.
     pub iso3095_limit_db: Option<f64>,
+    /// The instrument's noise floor in this band, dB re 1 µm, where it is
+    /// known ([`crate::analyze::floor`]).
+    pub floor_db: Option<f64>,
+    /// Degrees of freedom of the level's estimate: twice the FFT bins in
+    /// the band (at least one) times the segments averaged.
+    pub dof: f64,
+    /// Degrees of freedom of the floor's estimate.
+    pub floor_dof: Option<f64>,
 }
 
 impl ThirdOctave {
@@ -151,9 +163,42 @@ impl ThirdOctave {
         self.iso3095_limit_db.map(|l| l - self.level_db)
     }
 
-    /// Whether the level is over the ISO 3095 limit.
+    /// Whether the level stands far enough over the noise floor to be
+    /// judged ([`ThirdOctave::margin_over_floor_db`]); true where the floor
+    /// is not known.
+    pub fn judged(&self) -> bool {
+        self.floor_db.is_none_or(|f| self.level_db - f >= self.margin_over_floor_db())
+    }
+
+    /// How far over its floor the level must stand to be judged, dB: at
+    /// least [`FLOOR_MARGIN_DB`], and more where level and floor are
+    /// estimated from few segments — noise alone reads over its floor by
+    /// this at most once in a hundred: the ratio of two χ² estimates with
+    /// `ν` and `ν_f` degrees of freedom, `ln` of which has a variance of
+    /// about `2/ν + 2/ν_f`, at 2.33 of its standard deviations.
+    pub fn margin_over_floor_db(&self) -> f64 {
+        let nf = self.floor_dof.unwrap_or(f64::INFINITY);
+        let sd_ln = (2.0 / self.dof.max(1.0) + 2.0 / nf.max(1.0)).sqrt();
+        FLOOR_MARGIN_DB.max(10.0 * std::f64::consts::LOG10_E * 2.33 * sd_ln)
+    }
+
+    /// Whether the level is over the ISO 3095 limit (`None`: no limit, or
+    /// not [`ThirdOctave::judged`]: the floor cannot tell).
     pub fn exceeds(&self) -> Option<bool> {
+        if !self.judged() {
+            return None;
+        }
         self.iso3095_limit_db.map(|l| self.level_db > l)
+    }
+
+    /// The verdict in words: "EXCEEDS", "within", "not judged (floor … dB)" or "-".
+    pub fn verdict(&self) -> String {
+        match (self.exceeds(), self.floor_db) {
+            (Some(true), _) => "EXCEEDS".into(),
+            (Some(false), _) => "within".into(),
+            (None, Some(f)) if self.iso3095_limit_db.is_some() => format!("not judged (floor {f:.1} dB)"),
+            (None, _) => "-".into(),
+        }
     }
 }
 
@@ -266,12 +311,35 @@ impl Welch {
         self.count += 1;
     }
 
+    /// Segments added so far.
+    pub fn segments(&self) -> usize {
+        self.count
+    }
+
     /// The one-third-octave spectrum of the segments added.
     pub fn spectrum(&self) -> Spectrum {
         let count_f = self.count.max(1) as f64;
         let power: Vec<f64> = self.power.iter().map(|p| p / count_f).collect();
         bands_of(&power, self.m, self.dx_mm, self.count)
     }
+}
+
+/// The energy average of spectra of one sampling and segment length (the
+/// lines across the running band, as EN 15610 averages them): each band's
+/// mean power over the spectra that have it; `None` without spectra.
+pub fn energy_average(spectra: &[Spectrum]) -> Option<Spectrum> {
+    let first = spectra.first()?;
+    let mut out = first.clone();
+    out.segments = spectra.iter().map(|s| s.segments).sum();
+    for b in &mut out.bands {
+        let same: Vec<&ThirdOctave> = spectra.iter().filter_map(|s| s.bands.iter().find(|o| o.k == b.k)).collect();
+        let power: f64 = same.iter().map(|o| 10f64.powf(o.level_db / 10.0)).sum();
+        b.level_db = 10.0 * (power / same.len() as f64).max(1e-30).log10();
+        b.dof = same.iter().map(|o| o.dof).sum();
+        b.floor_db = None;
+        b.floor_dof = None;
+    }
+    Some(out)
 }
 
 fn check_spectrum_args(longest: usize, dx_mm: f64, segment_mm: f64) -> Result<usize, StandardsError> {
@@ -450,6 +518,9 @@ fn bands_of(power: &[f64], m: usize, dx_mm: f64, count: usize) -> Spectrum {
             nominal_wavelength_mm: nominal,
             level_db: 10.0 * ms_um2.max(1e-30).log10(),
             iso3095_limit_db: iso3095_limit_db(nominal),
+            floor_db: None,
+            dof: 2.0 * ((f_hi - f_lo) / df).max(1.0) * count as f64,
+            floor_dof: None,
         });
     }
     Spectrum { dx_mm, segment_mm: seg_len_mm, segments: count, bands }
@@ -471,28 +542,30 @@ fn band_power(power: &[f64], df: f64, f_lo: f64, f_hi: f64) -> f64 {
 }
 
 /// The spectrum as CSV, one line per band, long wavelengths first:
-/// `k,centre_per_m,wavelength_mm,nominal_wavelength_mm,level_db,iso3095_limit_db,margin_db,exceeds`
-/// (the last three empty where ISO 3095 has no value).
+/// `k,centre_per_m,wavelength_mm,nominal_wavelength_mm,level_db,iso3095_limit_db,margin_db,exceeds,floor_db,judged`
+/// (limit and margin empty where ISO 3095 has no value, `exceeds` empty
+/// there and where the noise floor cannot tell, `floor_db` empty where
+/// it is not known).
 pub fn spectrum_csv(s: &Spectrum) -> String {
     let mut out = String::from(
-        "k,centre_per_m,wavelength_mm,nominal_wavelength_mm,level_db,iso3095_limit_db,margin_db,exceeds\n",
+        "k,centre_per_m,wavelength_mm,nominal_wavelength_mm,level_db,iso3095_limit_db,margin_db,exceeds,floor_db,judged\n",
     );
+    let opt = |v: Option<String>| v.unwrap_or_default();
     for b in &s.bands {
-        let _ = write!(
+        let _ = writeln!(
             out,
-            "{},{:.4},{:.4},{},{:.2}",
+            "{},{:.4},{:.4},{},{:.2},{},{},{},{},{}",
             b.k,
             b.centre_per_m,
             b.wavelength_mm,
             fmt_mm(b.nominal_wavelength_mm),
-            b.level_db
+            b.level_db,
+            opt(b.iso3095_limit_db.map(|l| format!("{l:.1}"))),
+            opt(b.margin_db().map(|m| format!("{m:.2}"))),
+            opt(b.exceeds().map(|e| e.to_string())),
+            opt(b.floor_db.map(|f| format!("{f:.2}"))),
+            b.judged()
         );
-        match (b.iso3095_limit_db, b.margin_db(), b.exceeds()) {
-            (Some(l), Some(m), Some(e)) => {
-                let _ = writeln!(out, ",{l:.1},{m:.2},{e}");
-            }
-            _ => out.push_str(",,,\n"),
-        }
     }
     out
 }
@@ -509,20 +582,22 @@ pub fn spectrum_table(r: &Roughness) -> String {
         s.dx_mm,
         r.spikes_removed
     );
-    let _ = writeln!(out, "{:>14} {:>9} {:>10} {:>10}  verdict", "wavelength_mm", "level_db", "limit_db", "margin_db");
+    let _ = writeln!(
+        out,
+        "{:>14} {:>9} {:>10} {:>10} {:>9}  verdict",
+        "wavelength_mm", "level_db", "limit_db", "margin_db", "floor_db"
+    );
+    let dash = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
     for b in &s.bands {
-        let (limit, margin, verdict) = match (b.iso3095_limit_db, b.margin_db(), b.exceeds()) {
-            (Some(l), Some(m), Some(e)) => (format!("{l:.1}"), format!("{m:.1}"), if e { "EXCEEDS" } else { "ok" }),
-            _ => ("-".into(), "-".into(), ""),
-        };
         let _ = writeln!(
             out,
-            "{:>14} {:>9.1} {:>10} {:>10}  {}",
+            "{:>14} {:>9.1} {:>10} {:>10} {:>9}  {}",
             fmt_mm(b.nominal_wavelength_mm),
             b.level_db,
-            limit,
-            margin,
-            verdict
+            dash(b.iso3095_limit_db),
+            dash(b.margin_db()),
+            dash(b.floor_db),
+            b.verdict()
         );
     }
     out

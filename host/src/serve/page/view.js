@@ -41,11 +41,17 @@ function tables(a) {
   const v = a.verdict;
   const bands = $("bands").tBodies[0];
   let failed = 0;
+  let notJudged = 0;
   for (const b of v.bands) {
-    const verdict = b.not_evaluated ? "not evaluated" : b.passes ? "pass" : "over the limit";
-    if (!b.not_evaluated && !b.passes) failed += 1;
-    row(bands, [b.lo_mm + "–" + b.hi_mm + " mm", fmt(b.limit_mm * 1000, 1, "µm"), fmt(b.measured_mm / 1000, 1, "m"),
-      fmt(b.exceeding_mm / 1000, 1, "m"), fmt(b.exceeding_percent, 1, "%"), verdict], b.passes ? "" : "fail");
+    // Only a judged band fails: one whose noise floor allows a verdict.
+    const verdict = b.not_evaluated ? "not evaluated"
+      : b.not_judged ? b.not_judged
+      : b.passes === true ? "pass" : b.passes === false ? "over the limit" : "not judged (no limit)";
+    if (b.passes === false) failed += 1;
+    if (b.not_judged) notJudged += 1;
+    const floor = b.floor ? fmt((v.edition.endsWith("2012") ? b.floor.peak_mm : b.floor.average_mean_pp_mm) * 1000, 1, "µm") : "–";
+    row(bands, [b.lo_mm + "–" + b.hi_mm + " mm", fmt(b.limit_mm * 1000, 1, "µm"), floor, fmt(b.measured_mm / 1000, 1, "m"),
+      fmt(b.exceeding_mm / 1000, 1, "m"), fmt(b.exceeding_percent, 1, "%"), verdict], b.passes === false ? "fail" : "");
   }
   const zones = $("zones").tBodies[0];
   for (const z of v.zones) {
@@ -54,8 +60,11 @@ function tables(a) {
   }
   const blocks = $("blocks").tBodies[0];
   for (const b of v.blocks) {
-    const iso = b.iso3095_exceeded_mm === null ? "no spectrum"
+    let iso = b.iso3095_exceeded_mm === null ? "no spectrum"
       : b.iso3095_exceeded_mm.length === 0 ? "pass" : "over at " + b.iso3095_exceeded_mm.join(", ") + " mm";
+    if (b.iso3095_not_judged_mm && b.iso3095_not_judged_mm.length) {
+      iso += "; not judged at the noise floor: " + b.iso3095_not_judged_mm.join(", ") + " mm";
+    }
     row(blocks, [chainage(b.start_mm), chainage(b.end_mm), ...b.rms_mm.map((r) => fmt(r === null ? NaN : r * 1000, 1)), iso],
       b.iso3095_exceeded_mm && b.iso3095_exceeded_mm.length ? "fail" : "");
   }
@@ -63,9 +72,12 @@ function tables(a) {
   const mt = $("marks").tBodies[0];
   for (const m of marks) row(mt, [m.chainage || chainage(m.chainage_mm), m.kind || "", m.text || ""]);
   $("markcount").textContent = String(marks.length);
-  $("verdict").textContent = failed ? "reprofile" : "within the limits";
-  $("verdict").className = failed ? "verdict failed" : "verdict good";
-  $("verdictwhy").textContent = failed ? failed + " band(s) over the limit" : "every evaluated band passes";
+  const judged = v.bands.filter((b) => b.passes === true || b.passes === false).length;
+  $("verdict").textContent = failed ? "reprofile" : judged ? "within the limits" : "not judged";
+  $("verdict").className = failed ? "verdict failed" : judged ? "verdict good" : "verdict";
+  $("verdictwhy").textContent = failed ? failed + " band(s) over the limit"
+    : judged ? "every judged band passes" + (notJudged ? "; " + notJudged + " band(s) not judged at the noise floor" : "")
+    : "no band's noise floor allows a verdict";
   $("reprofile").textContent = fmt(v.reprofile_mm / 1000, 1, "m");
   $("measured").textContent = fmt(v.measured_mm / 1000, 1, "m");
   $("edition").textContent = v.edition;

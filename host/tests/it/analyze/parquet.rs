@@ -385,6 +385,11 @@ fn parquet_exports_read_back_with_an_independent_reader() {
             s("rms_um_300_1000", "DOUBLE", true),
             s("iso3095_pass", "BOOLEAN", true),
             s("iso3095_exceeded_mm", "LIST<DOUBLE>", true),
+            s("floor_rms_um_10_30", "DOUBLE", true),
+            s("floor_rms_um_30_100", "DOUBLE", true),
+            s("floor_rms_um_100_300", "DOUBLE", true),
+            s("floor_rms_um_300_1000", "DOUBLE", true),
+            s("iso3095_not_judged_mm", "LIST<DOUBLE>", false),
         ]
     );
     let blocks = verdict["blocks"].as_array().unwrap();

@@ -534,3 +534,91 @@ fn the_main_job_registers_every_join() {
         }
     }
 }
+
+// ------------------------------------------------------------ the noise floor
+
+/// The simulated head at the recommended push-trolley setting (F/4 laser
+/// light, 100 µs, 1.5 m/s) over a perfectly smooth rail: every band and
+/// one-third octave carries its floor, within a factor 2 (6 dB) of what
+/// the smooth rail reads; nothing fails, nothing exceeds, nothing is to
+/// be reprofiled. The reduced version of `cms-host bench floor`.
+#[test]
+fn a_smooth_rail_under_laser_light_reads_its_floor_and_never_fails() {
+    use cms_host::analyze::standards::en13231::BANDS;
+    use cms_host::bench::floor::{measured, measured_spectrum};
+    let a = cms_host::sim::floor::run(&cms_host::sim::floor::Setting::push_trolley(1500.0)).unwrap();
+    let f = a.floor.as_ref().expect("three lines: the floor is known");
+    for (b, band) in BANDS.iter().enumerate().take(2) {
+        let (rms, pp) = measured(&a, b).unwrap();
+        let fl = f.band(b).unwrap();
+        for (what, got, want) in [("RMS", fl.rms_mm, rms), ("mean p-p", fl.average_mean_pp_mm, pp)] {
+            assert!(
+                (0.5..2.0).contains(&(got / want)),
+                "{}: floor {what} {got} mm, smooth rail {want} mm",
+                band.name()
+            );
+        }
+        // Speckle is not common to the lines.
+        assert!(fl.coherence < 0.2, "{}: coherence {}", band.name(), fl.coherence);
+    }
+    let floor = f.spectrum.as_ref().unwrap();
+    let read = measured_spectrum(&a).unwrap();
+    for b in &read.bands {
+        let fb = floor.bands.iter().find(|x| x.k == b.k).unwrap();
+        assert!(
+            (b.level_db - fb.level_db).abs() <= 6.0,
+            "{} mm: {} dB read, floor {} dB",
+            b.nominal_wavelength_mm,
+            b.level_db,
+            fb.level_db
+        );
+        assert_ne!(b.exceeds(), Some(true), "{b:?}");
+    }
+    let v = &a.verdict;
+    assert_eq!(v.reprofile_mm, 0.0, "{v:?}");
+    assert!(v.zones.is_empty(), "{:?}", v.zones);
+    assert!(v.rows.iter().all(|r| r.passes(v.options.edition) != Some(false)), "{:?}", v.rows);
+    assert!(v.blocks.iter().all(|b| b.iso3095_exceeded.as_ref().is_none_or(Vec::is_empty)), "{:?}", v.blocks);
+    for l in &a.lasers {
+        for (r, j) in l.bands.as_ref().unwrap().bands.iter().zip(&l.judgements) {
+            if let Ok(st) = &r.outcome {
+                assert!(
+                    st.passes || j.not_judged.is_some(),
+                    "laser {}: {} fails on noise",
+                    l.stitched.laser,
+                    r.band.name()
+                );
+            }
+        }
+        assert!(l.roughness.as_ref().unwrap().spectrum.bands.iter().all(|b| b.exceeds() != Some(true)));
+    }
+}
+
+/// The same light over a rail corrugated over the limits in two bands
+/// (20 mm × 15 µm, 60 mm × 20 µm): both bands judged, and failed, on the
+/// running band; the floor where the smooth rail has it.
+#[test]
+fn corrugation_over_the_limits_under_laser_light_is_judged_and_fails() {
+    use cms_host::sim::floor::{Setting, run};
+    use cms_host::sim::scene::Corrugation;
+    let mut s = Setting::push_trolley(1500.0);
+    s.corrugation = vec![
+        Corrugation { wavelength_mm: 20.0, amplitude_um: 15.0, phase_rad: 0.0 },
+        Corrugation { wavelength_mm: 60.0, amplitude_um: 20.0, phase_rad: 1.0 },
+    ];
+    let a = run(&s).unwrap();
+    let v = &a.verdict;
+    for row in &v.rows[..2] {
+        eprintln!("{row:?}");
+        assert!(row.judgement.not_judged.is_none(), "{row:?}");
+        assert_eq!(row.passes(v.options.edition), Some(false), "{row:?}");
+    }
+    assert!(v.reprofile_mm > 0.5 * v.measured_mm, "{} of {}", v.reprofile_mm, v.measured_mm);
+    let f = a.floor.as_ref().unwrap();
+    for b in 0..2 {
+        let fl = f.band(b).unwrap();
+        // The smooth rail's floor at this setting: 9.9 / 5.5 µm RMS (docs/benchmarks.md).
+        assert!(fl.rms_mm < [0.015, 0.009][b], "band {b}: {fl:?}");
+        assert!(fl.coherence > 0.5, "band {b}: the corrugation is common to the lines: {fl:?}");
+    }
+}

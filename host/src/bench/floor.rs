@@ -1,0 +1,224 @@
+//! `bench floor`: the instrument's noise floor against the head's optics
+//! and timing, and whether the floor `analyze` reports is the floor a
+//! smooth rail really reads.
+//!
+//! Each setting drives the simulated head ([`crate::sim::floor`]) over a
+//! smooth rail (no corrugation, no roughness: everything it reads is the
+//! instrument's own) and judges it as `analyze` does. Per EN 13231-3
+//! band it reports one line's reported floor beside what the smooth rail
+//! reads on a line (their ratio is the floor estimator's error), the
+//! running band's floor (the mean of the lines, the profile the verdict
+//! judges) against half the 2006 limit, and the minimum detectable
+//! corrugation: the peak-to-peak of a sine whose band power equals the
+//! running band's noise power (ISO 11843's detection limit with the
+//! judging rule of [`crate::analyze::floor`]: a level 3 dB over the
+//! floor). Per one-third octave, the same against ISO 3095.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use super::{BenchError, put};
+use crate::analyze::Analysis;
+use crate::analyze::standards::{en13231, en15610};
+use crate::sim::closed_loop::ClosedLoopError;
+use crate::sim::floor::{self as sf, Setting};
+
+/// Options of the floor benchmark.
+#[derive(Debug, Clone)]
+pub struct FloorOptions {
+    /// The reduced sweep: the push-trolley setting alone, 1.5 m of rail.
+    pub reduced: bool,
+    /// Length of rail per setting, mm.
+    pub length_mm: f64,
+    /// Worker threads (`None`: one a core).
+    pub threads: Option<usize>,
+    /// Folder of the files.
+    pub out: PathBuf,
+}
+
+/// One row of the sweep: what was set, and the smooth rail judged.
+#[derive(Debug, Clone)]
+pub struct FloorRow {
+    pub name: String,
+    pub setting: Setting,
+    pub analysis: Analysis,
+}
+
+/// The sweep's settings: the push-trolley setting, then one thing
+/// changed at a time — aperture, speed (motion averaging), exposure,
+/// frame overlap, rows per millimetre, the laser's wavelength.
+pub fn settings(reduced: bool, length_mm: f64) -> Vec<(String, Setting)> {
+    let base = Setting::push_trolley(length_mm);
+    let with = |name: &str, f: &dyn Fn(&mut Setting)| {
+        let mut s = base.clone();
+        f(&mut s);
+        (name.to_string(), s)
+    };
+    if reduced {
+        return vec![with("push trolley: F/4, 100 µs, 1.5 m/s", &|_| {})];
+    }
+    vec![
+        with("push trolley: F/4, 100 µs, 1.5 m/s", &|_| {}),
+        with("F/2.8", &|s| s.f_number = Some(2.8)),
+        with("F/5.6", &|s| s.f_number = Some(5.6)),
+        with("F/8", &|s| s.f_number = Some(8.0)),
+        with("0.5 m/s", &|s| s.speed_mm_s = 500.0),
+        with("5 m/s (vehicle)", &|s| s.speed_mm_s = 5000.0),
+        with("exposure 30 µs", &|s| s.exposure_us = 30.0),
+        with("exposure 300 µs", &|s| s.exposure_us = 300.0),
+        with("a frame every 10 mm", &|s| s.step_mm = 10.0),
+        with("a frame every 60 mm", &|s| s.step_mm = 60.0),
+        with("every 2nd row", &|s| s.row_step = 2),
+        with("405 nm lasers", &|s| s.wavelength_nm = 405.0),
+        with("405 nm, F/2.8", &|s| {
+            s.wavelength_nm = 405.0;
+            s.f_number = Some(2.8);
+        }),
+        with("incoherent light (no speckle)", &|s| s.f_number = None),
+    ]
+}
+
+/// Runs the settings on `threads` workers, in order.
+pub fn sweep(settings: &[(String, Setting)], threads: usize) -> Vec<Result<FloorRow, ClosedLoopError>> {
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let results = std::sync::Mutex::new(Vec::new());
+    std::thread::scope(|scope| {
+        for _ in 0..threads.clamp(1, settings.len().max(1)) {
+            scope.spawn(|| {
+                loop {
+                    let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    let Some((name, s)) = settings.get(i) else { break };
+                    let got = std::panic::catch_unwind(|| sf::run(s))
+                        .unwrap_or_else(|_| Err(ClosedLoopError::Panicked(name.clone())))
+                        .map(|analysis| FloorRow { name: name.clone(), setting: s.clone(), analysis });
+                    if let Ok(mut r) = results.lock() {
+                        r.push((i, got));
+                    }
+                }
+            });
+        }
+    });
+    let mut r = results.into_inner().unwrap_or_default();
+    r.sort_by_key(|(i, _)| *i);
+    r.into_iter().map(|(_, g)| g).collect()
+}
+
+/// What a smooth rail reads in band `b`, averaged over its lines: RMS and
+/// the average mean peak-to-peak, mm.
+pub fn measured(a: &Analysis, b: usize) -> Option<(f64, f64)> {
+    let stats: Vec<&en13231::BandStats> =
+        a.lasers.iter().filter_map(|l| l.bands.as_ref().ok()?.bands.get(b)?.outcome.as_ref().ok()).collect();
+    if stats.is_empty() {
+        return None;
+    }
+    let n = stats.len() as f64;
+    let rms = (stats.iter().map(|s| s.rms_mm * s.rms_mm).sum::<f64>() / n).sqrt();
+    Some((rms, stats.iter().map(|s| s.average_mean_pp_mm).sum::<f64>() / n))
+}
+
+/// What a smooth rail reads in each one-third octave, the lines' spectra
+/// energy-averaged (the running band's EN 15610 spectrum).
+pub fn measured_spectrum(a: &Analysis) -> Option<&en15610::Spectrum> {
+    a.running_bands.first()?.roughness.as_ref()
+}
+
+/// The sweep as Markdown: per setting and band, the floor reported and
+/// measured, the running band's floor against half the limit and the
+/// minimum detectable corrugation; then the EN 15610 floor.
+pub fn markdown(rows: &[FloorRow]) -> String {
+    let mut md = String::from(
+        "| setting | band mm | floor RMS µm (reported / smooth rail) | floor mean p-p µm (reported / smooth rail) | running band mean p-p µm | half the 2006 limit µm | judged | detectable p-p µm |\n|---|---|---:|---:|---:|---:|---|---:|\n",
+    );
+    for r in rows {
+        let Some(f) = &r.analysis.floor else {
+            let _ = writeln!(md, "| {} | – | floor not known | | | | | |", r.name);
+            continue;
+        };
+        for (b, band) in en13231::BANDS.iter().enumerate().take(3) {
+            let (Some(fl), Some((rms, pp))) = (f.band(b), measured(&r.analysis, b)) else { continue };
+            let mean = fl.of_mean(f.lines);
+            let judged = r.analysis.verdict.rows[b].judgement.not_judged.is_none();
+            let _ = writeln!(
+                md,
+                "| {} | {}–{} | {:.2} / {:.2} | {:.1} / {:.1} | {:.1} | {:.0} | {} | {:.1} |",
+                r.name,
+                band.lo_mm,
+                band.hi_mm,
+                fl.rms_mm * 1e3,
+                rms * 1e3,
+                fl.average_mean_pp_mm * 1e3,
+                pp * 1e3,
+                mean.average_mean_pp_mm * 1e3,
+                band.mean_pp_limit_mm * 1e3 / 2.0,
+                if judged { "yes" } else { "no" },
+                detectable_pp_mm(mean.rms_mm) * 1e3,
+            );
+        }
+    }
+    md.push_str(
+        "\n### EN 15610: one line's floor per one-third octave (reported / smooth rail, dB re 1 µm) against ISO 3095\n\n",
+    );
+    let waves = [250.0, 100.0, 50.0, 25.0, 10.0, 5.0];
+    let _ = writeln!(
+        md,
+        "| setting | {} |\n|---|{}",
+        waves.iter().map(|w| format!("{w} mm")).collect::<Vec<_>>().join(" | "),
+        "---:|".repeat(waves.len())
+    );
+    for r in rows {
+        let cells: Vec<String> = waves
+            .iter()
+            .map(|&w| {
+                let at = |s: Option<&en15610::Spectrum>| {
+                    s.and_then(|s| s.bands.iter().find(|b| (b.nominal_wavelength_mm - w).abs() < 1e-6))
+                        .map(|b| b.level_db)
+                };
+                match (
+                    at(r.analysis.floor.as_ref().and_then(|f| f.spectrum.as_ref())),
+                    at(measured_spectrum(&r.analysis)),
+                ) {
+                    (Some(f), Some(m)) => format!("{f:.1} / {m:.1}"),
+                    _ => "–".into(),
+                }
+            })
+            .collect();
+        let _ = writeln!(md, "| {} | {} |", r.name, cells.join(" | "));
+    }
+    let limits: Vec<String> =
+        waves.iter().map(|&w| en15610::iso3095_limit_db(w).map_or("–".into(), |l| format!("{l:.1}"))).collect();
+    let _ = writeln!(md, "| ISO 3095 limit | {} |", limits.join(" | "));
+    md
+}
+
+/// The peak-to-peak of a sine whose band RMS is `rms_mm`: `2√2 · rms`.
+pub fn detectable_pp_mm(rms_mm: f64) -> f64 {
+    2.0 * std::f64::consts::SQRT_2 * rms_mm
+}
+
+/// The sweep, written into `a.out` (`floor.md`); returns the report.
+pub fn floor(a: &FloorOptions) -> Result<String, BenchError> {
+    if !(a.length_mm >= sf::MIN_LENGTH_MM && a.length_mm <= 100_000.0) {
+        return Err(BenchError::Options(format!(
+            "{} m of rail: at least {} m and at most 100 m",
+            a.length_mm / 1e3,
+            sf::MIN_LENGTH_MM / 1e3
+        )));
+    }
+    super::create_dir(&a.out)?;
+    let t = Instant::now();
+    let set = settings(a.reduced, a.length_mm);
+    let mut rows = Vec::new();
+    for got in sweep(&set, super::threads(a.threads)) {
+        rows.push(got?);
+    }
+    let md = format!(
+        "# The noise floor against the head's optics and timing\n\n`cms-host bench floor{}` ({:.1} m of smooth rail per setting, a frame every 30 mm unless set): {:.0} s.\n\n{}",
+        if a.reduced { " --reduced" } else { "" },
+        a.length_mm / 1e3,
+        t.elapsed().as_secs_f64(),
+        markdown(&rows)
+    );
+    put(&a.out.join("floor.md"), &md)?;
+    Ok(md)
+}

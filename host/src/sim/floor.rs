@@ -1,0 +1,117 @@
+//! The instrument's noise floor, closed loop: the simulated head driven
+//! over a rail of known profile under a chosen light, every frame
+//! rendered, detected and triangulated as the head does, stitched and
+//! judged as `analyze` judges a recording — so that the floor the
+//! analysis reports ([`crate::analyze::floor`]) can be held against what
+//! a smooth rail really reads, and the head's optics and timing chosen
+//! from it (`cms-host bench floor`).
+//!
+//! Frames are rendered off line, not at the head's frame rate: the step
+//! between frames is a setting of its own, and the speed sets only the
+//! travel during the exposure (the motion that averages speckle). The
+//! speckle is tied to the rail, so frames that overlap see the same
+//! pattern where they overlap: the step changes how often a point is
+//! seen, not its speckle.
+//!
+//! Cost: a frame of 480 rows under speckle at F/4 renders in about
+//! 150 ms; a 3 m rail at a frame every 30 mm is 100 frames.
+
+use crate::analyze::stitch::{self, FramePoints, Stitcher};
+use crate::analyze::{self, Analysis};
+use crate::measure::Measurer;
+use crate::sim::calibration::truth::truth;
+use crate::sim::closed_loop::{ClosedLoopError, detector, frame_profiles};
+use crate::sim::scene::{Corrugation, LightModel, RailModel, Scene, SimConfig, Speckle};
+
+/// One setting of the head and one rail.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Setting {
+    /// The lens's F-number (`None`: incoherent light, no speckle).
+    pub f_number: Option<f64>,
+    /// Exposure, µs.
+    pub exposure_us: f64,
+    /// Travel speed, mm/s (the motion during the exposure).
+    pub speed_mm_s: f64,
+    /// Travel between frames, mm (a frame sees about 69 mm).
+    pub step_mm: f64,
+    /// Every `row_step`-th image row (1, 2, 4: the head's row skip).
+    pub row_step: usize,
+    /// The lasers' wavelength, nm (the reference head's is 685).
+    pub wavelength_nm: f64,
+    /// Length of rail driven over, mm.
+    pub length_mm: f64,
+    /// The rail's corrugation (none: a smooth rail).
+    pub corrugation: Vec<Corrugation>,
+    /// Seed of the sensor noise and the surface.
+    pub seed: u64,
+}
+
+impl Setting {
+    /// The push-trolley setting `docs/light.md` recommends (F/4, 100 µs,
+    /// walking pace 1.5 m/s) over `length_mm` of smooth rail, a frame
+    /// every 30 mm.
+    pub fn push_trolley(length_mm: f64) -> Setting {
+        Setting {
+            f_number: Some(4.0),
+            exposure_us: 100.0,
+            speed_mm_s: 1500.0,
+            step_mm: 30.0,
+            row_step: 1,
+            wavelength_nm: 685.0,
+            length_mm,
+            corrugation: Vec::new(),
+            seed: 11,
+        }
+    }
+
+    /// The simulated head's configuration for this setting.
+    pub fn config(&self) -> SimConfig {
+        let mut cfg = SimConfig::reference();
+        cfg.rail = RailModel { corrugation: self.corrugation.clone(), roughness_rms_um: 0.0, ..RailModel::default() };
+        cfg.light = LightModel {
+            speckle: self.f_number.map(|f_number| Speckle { f_number, patterns: 1 }),
+            ..LightModel::incoherent()
+        };
+        cfg.camera.exposure_us = self.exposure_us;
+        for l in &mut cfg.lasers {
+            l.wavelength_nm = self.wavelength_nm;
+        }
+        cfg.speed_mm_s = self.speed_mm_s;
+        cfg.frame_rate_hz = self.speed_mm_s / self.step_mm;
+        cfg.seed = self.seed;
+        cfg
+    }
+}
+
+/// Shortest rail, mm: the 10–30 mm band's window and its edge zones
+/// (720 mm) and an EN 15610 segment with margin.
+pub const MIN_LENGTH_MM: f64 = 1200.0;
+
+/// Drives the head over the rail and judges what it measured with
+/// `analyze`'s defaults.
+pub fn run(s: &Setting) -> Result<Analysis, ClosedLoopError> {
+    if !(s.length_mm >= MIN_LENGTH_MM && s.length_mm <= 1e6 && s.step_mm > 0.0 && s.speed_mm_s > 0.0) {
+        return Err(ClosedLoopError::Options(format!(
+            "{} mm of rail at {} mm a frame and {} mm/s: at least {} mm, a positive step and speed",
+            s.length_mm, s.step_mm, s.speed_mm_s, MIN_LENGTH_MM
+        )));
+    }
+    let cfg = s.config();
+    let mut scene = Scene::new(cfg.clone())?;
+    let m = Measurer::new(&truth(&scene))?;
+    let mut det = detector(&cfg)?;
+    let opts = analyze::Options::default();
+    let mut stitcher = Stitcher::new(&opts.stitch).map_err(|e| ClosedLoopError::Analysis(e.to_string()))?;
+    let frames = (s.length_mm / s.step_mm).ceil() as u64 + 1;
+    for n in 0..frames {
+        let p = frame_profiles(&mut scene, n, &m, &mut det, s.row_step)?;
+        let mut f = FramePoints { seq: n as u32, odometer_mm: scene.odometer_mm(n), ..FramePoints::default() };
+        for (k, line) in p.iter().enumerate() {
+            f.lasers[k] = line.iter().map(|&(a, h)| (a, h * 1000.0)).collect();
+        }
+        stitcher.push(&f);
+    }
+    let stitching: stitch::Stitching = stitcher.finish().map_err(|e| ClosedLoopError::Analysis(e.to_string()))?;
+    analyze::judge(stitching, Vec::new(), &opts, &crate::progress::Silent)
+        .map_err(|e| ClosedLoopError::Analysis(e.to_string()))
+}
