@@ -51,4 +51,3 @@ pub fn build(frame: &mut Lasers, seconds: &mut Seconds, n_seconds: usize) {
         let _ = seconds.push((1, point(r, p.position + Px::from_int(12))));
     }
 }
-
