@@ -8,7 +8,8 @@
 //! band it reports one line's reported floor beside what the smooth rail
 //! reads on a line (their ratio is the floor estimator's error), the
 //! running band's floor (the mean of the lines, the profile the verdict
-//! judges) against half the 2006 limit, and the minimum detectable
+//! judges) against `1/√2` of the 2006 limit (what it takes to be judged),
+//! and the minimum detectable
 //! corrugation: the peak-to-peak of a sine whose band power equals the
 //! running band's noise power (ISO 11843's detection limit with the
 //! judging rule of [`crate::analyze::floor`]: a level 3 dB over the
@@ -128,7 +129,7 @@ pub fn measured_spectrum(a: &Analysis) -> Option<&en15610::Spectrum> {
 /// minimum detectable corrugation; then the EN 15610 floor.
 pub fn markdown(rows: &[FloorRow]) -> String {
     let mut md = String::from(
-        "| setting | band mm | floor RMS µm (reported / smooth rail) | floor mean p-p µm (reported / smooth rail) | running band mean p-p µm | half the 2006 limit µm | judged | detectable p-p µm |\n|---|---|---:|---:|---:|---:|---|---:|\n",
+        "| setting | band mm | floor RMS µm (reported / smooth rail) | floor mean p-p µm (reported / smooth rail) | running band mean p-p µm | 0.71 × the 2006 limit µm | judged | detectable p-p µm |\n|---|---|---:|---:|---:|---:|---|---:|\n",
     );
     for r in rows {
         let Some(f) = &r.analysis.floor else {
@@ -150,7 +151,7 @@ pub fn markdown(rows: &[FloorRow]) -> String {
                 fl.average_mean_pp_mm * 1e3,
                 pp * 1e3,
                 mean.average_mean_pp_mm * 1e3,
-                band.mean_pp_limit_mm * 1e3 / 2.0,
+                band.mean_pp_limit_mm * 1e3 * crate::analyze::floor::JUDGED_SHARE_OF_LIMIT,
                 if judged { "yes" } else { "no" },
                 detectable_pp_mm(mean.rms_mm) * 1e3,
             );
