@@ -61,7 +61,7 @@ use super::pieces::{self, Wanted};
 use super::stitch::Stitched;
 use super::{Grid, Options};
 use crate::Error;
-use crate::analyze::standards::en13231::{self, BandSums};
+use crate::analyze::standards::en13231::{self, BandSums, Edition};
 use crate::analyze::standards::en15610;
 use crate::progress::Progress;
 
@@ -123,20 +123,20 @@ impl BandFloor {
 
     /// The floor in the quantity `edition` judges: the average mean
     /// peak-to-peak (2006) or the largest displacement (2012), mm.
-    pub fn judged_quantity_mm(&self, edition: super::reprofiling::Edition) -> f64 {
+    pub fn judged_quantity_mm(&self, edition: Edition) -> f64 {
         match edition {
-            super::reprofiling::Edition::En2006 => self.average_mean_pp_mm,
-            super::reprofiling::Edition::En2012 => self.peak_mm,
+            Edition::En2006 => self.average_mean_pp_mm,
+            Edition::En2012 => self.peak_mm,
         }
     }
 
     /// Why a band with this floor cannot be judged against `limit_mm`
     /// under `edition`, or `None` when it can.
-    pub fn not_judged(&self, edition: super::reprofiling::Edition, limit_mm: f64) -> Option<String> {
+    pub fn not_judged(&self, edition: Edition, limit_mm: f64) -> Option<String> {
         let f = self.judged_quantity_mm(edition);
         let (share, what, words) = match edition {
-            super::reprofiling::Edition::En2006 => (JUDGED_SHARE_OF_LIMIT, "mean peak-to-peak", "over 0.71 ×"),
-            super::reprofiling::Edition::En2012 => (JUDGED_SHARE_OF_LIMIT_2012, "largest displacement", "over half"),
+            Edition::En2006 => (JUDGED_SHARE_OF_LIMIT, "mean peak-to-peak", "over 0.71 ×"),
+            Edition::En2012 => (JUDGED_SHARE_OF_LIMIT_2012, "largest displacement", "over half"),
         };
         (f > share * limit_mm).then(|| {
             format!(
@@ -152,10 +152,10 @@ impl BandFloor {
     /// reading, its noise's power taken out, is — `√(limit² + floor²)`
     /// (noise and rail are independent, their powers add); under 2012 the
     /// limit itself (a judged band's noise peaks stay under half of it).
-    pub fn threshold_mm(&self, edition: super::reprofiling::Edition, limit_mm: f64) -> f64 {
+    pub fn threshold_mm(&self, edition: Edition, limit_mm: f64) -> f64 {
         match edition {
-            super::reprofiling::Edition::En2006 => limit_mm.hypot(self.average_mean_pp_mm),
-            super::reprofiling::Edition::En2012 => limit_mm,
+            Edition::En2006 => limit_mm.hypot(self.average_mean_pp_mm),
+            Edition::En2012 => limit_mm,
         }
     }
 }
@@ -175,7 +175,7 @@ pub struct BandJudgement {
 impl BandJudgement {
     /// The judgement of a profile whose floor is `floor`, against the
     /// `edition`'s limit for `band` (none: nothing to judge).
-    pub fn of(floor: Option<BandFloor>, edition: super::reprofiling::Edition, band: &en13231::Band) -> BandJudgement {
+    pub fn of(floor: Option<BandFloor>, edition: Edition, band: &en13231::Band) -> BandJudgement {
         let limit = edition.limit_mm(band);
         let not_judged = floor.zip(limit).and_then(|(f, lim)| f.not_judged(edition, lim));
         let threshold_mm = limit.map(|lim| floor.map_or(lim, |f| f.threshold_mm(edition, lim)));
@@ -332,7 +332,7 @@ impl Floor {
 mod tests {
     use super::*;
     use crate::analyze::stitch::{Direction, Stitching};
-    use crate::analyze::{Analysis, judge, profile, reprofiling};
+    use crate::analyze::{Analysis, judge, profile};
 
     /// Three lines 1 mm apart over `n` samples: the rail `rail(x_mm)` on
     /// each, plus independent Gaussian noise of `sigma_um` per sample.
@@ -421,7 +421,6 @@ mod tests {
         assert_eq!(v.rows[0].passes(v.options.edition), None);
         assert_eq!((v.reprofile_mm, v.zones.len()), (0.0, 0));
         assert!(a.lasers.iter().all(|l| l.judgements[0].not_judged.is_some()));
-        assert!(reprofiling::describe(v).contains("not judged"), "{}", reprofiling::describe(v));
     }
 
     /// Corrugation over the limits in two bands under a floor that allows

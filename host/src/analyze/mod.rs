@@ -524,14 +524,7 @@ pub fn judge(
         })?;
         let mut spectra = Vec::new();
         for (k, s) in section.iter().enumerate() {
-            let mut bands = bands[k].clone();
-            if let Ok(a) = &mut bands {
-                for (r, sum) in a.bands.iter_mut().zip(&sums[k]) {
-                    if let Ok(st) = &mut r.outcome {
-                        *st = sum.stats(&r.band, a.dx_mm);
-                    }
-                }
-            }
+            let bands = summed(&bands[k], &sums[k]);
             let roughness = match &welch[k] {
                 Ok(w) => {
                     let mut spectrum = w.spectrum();
@@ -562,6 +555,22 @@ pub fn judge(
     })
 }
 
+/// A profile's plan with its band figures summed over the pieces.
+fn summed(
+    plan: &Result<en13231::BandAnalysis, StandardsError>,
+    sums: &[en13231::BandSums; 4],
+) -> Result<en13231::BandAnalysis, StandardsError> {
+    let mut bands = plan.clone();
+    if let Ok(a) = &mut bands {
+        for (r, sum) in a.bands.iter_mut().zip(sums) {
+            if let Ok(st) = &mut r.outcome {
+                *st = sum.stats(&r.band, a.dx_mm);
+            }
+        }
+    }
+    bands
+}
+
 /// A section's running band from its mean's band sums and its lines' spectra.
 fn running_band(
     section: &[Stitched],
@@ -580,14 +589,7 @@ fn running_band(
         })
         .collect();
     let common = pieces::common_runs(&runs);
-    let mut bands = en13231::plan(&common, grid.len, dx);
-    if let Ok(a) = &mut bands {
-        for (r, sum) in a.bands.iter_mut().zip(sums) {
-            if let Ok(st) = &mut r.outcome {
-                *st = sum.stats(&r.band, dx);
-            }
-        }
-    }
+    let bands = summed(&en13231::plan(&common, grid.len, dx), sums);
     let k = section.len();
     let judgements = en13231::BANDS
         .iter()

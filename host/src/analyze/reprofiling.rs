@@ -45,49 +45,7 @@ use super::pieces::Piece;
 use crate::analyze::standards::Stretch;
 use crate::analyze::standards::{en13231, en15610};
 
-/// Which edition's criterion judges a position.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum Edition {
-    /// EN 13231-3:2006: moving-window mean peak-to-peak, share of length exceeding.
-    #[default]
-    En2006,
-    /// EN 13231-3:2012: isolated points, |band displacement| over the Class 1 limit.
-    En2012,
-}
-
-impl Edition {
-    /// "EN 13231-3:2006".
-    pub fn name(self) -> &'static str {
-        match self {
-            Edition::En2006 => "EN 13231-3:2006",
-            Edition::En2012 => "EN 13231-3:2012",
-        }
-    }
-
-    /// Where the limits come from, as every report states it.
-    pub fn source(self) -> &'static str {
-        match self {
-            Edition::En2006 => {
-                "moving-window mean peak-to-peak limits 0.02 / 0.02 / 0.03 / 0.15 mm over windows of \
-                 600 / 600 / 1000 / 5000 mm, at most 5 % of the length exceeding: a secondary source's \
-                 account of the 2006 criteria (not checked against the standard's text)"
-            }
-            Edition::En2012 => {
-                "isolated points: |band-filtered displacement| over ±0.010 mm in 30–100 mm (Class 1), as \
-                 trade documentation quotes the 2012 edition (not checked against the standard's text); \
-                 no 2012 limit is known to this build for the other bands"
-            }
-        }
-    }
-
-    /// The limit a band is judged against under this edition (mm), if any.
-    pub fn limit_mm(self, band: &en13231::Band) -> Option<f64> {
-        match self {
-            Edition::En2006 => Some(band.mean_pp_limit_mm),
-            Edition::En2012 => band.abs_limit_mm,
-        }
-    }
-}
+pub use crate::analyze::standards::en13231::Edition;
 
 /// Options of the verdict ([`Builder`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -541,9 +499,15 @@ pub fn describe(v: &ReprofilingVerdict) -> String {
             let _ = writeln!(s, "  … and {} more (see the report)", v.zones.len() - 50);
         }
     }
+    describe_blocks(v, &mut s);
+    s
+}
+
+/// The blocks' lines of [`describe`].
+fn describe_blocks(v: &ReprofilingVerdict, s: &mut String) {
     if v.blocks.iter().all(|b| b.rms_mm.iter().all(Option::is_none) && b.iso3095_exceeded.is_none()) {
         let _ = writeln!(s, "blocks of {} m: no band or spectrum evaluated", v.options.block_mm / 1000.0);
-        return s;
+        return;
     }
     let _ = writeln!(
         s,
@@ -564,5 +528,4 @@ pub fn describe(v: &ReprofilingVerdict) -> String {
         }
         let _ = writeln!(s, "  {} – {}: {}; {iso}", chainage(b.start_mm), chainage(b.end_mm), rms.join(" / "));
     }
-    s
 }

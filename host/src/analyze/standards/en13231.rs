@@ -98,6 +98,50 @@ pub const BANDS: [Band; 4] = [
     Band { lo_mm: 300.0, hi_mm: 1000.0, window_mm: 5000.0, mean_pp_limit_mm: 0.15, abs_limit_mm: None },
 ];
 
+/// Which edition's criterion judges a position.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Edition {
+    /// EN 13231-3:2006: moving-window mean peak-to-peak, share of length exceeding.
+    #[default]
+    En2006,
+    /// EN 13231-3:2012: isolated points, |band displacement| over the Class 1 limit.
+    En2012,
+}
+
+impl Edition {
+    /// "EN 13231-3:2006".
+    pub fn name(self) -> &'static str {
+        match self {
+            Edition::En2006 => "EN 13231-3:2006",
+            Edition::En2012 => "EN 13231-3:2012",
+        }
+    }
+
+    /// Where the limits come from, as every report states it.
+    pub fn source(self) -> &'static str {
+        match self {
+            Edition::En2006 => {
+                "moving-window mean peak-to-peak limits 0.02 / 0.02 / 0.03 / 0.15 mm over windows of \
+                 600 / 600 / 1000 / 5000 mm, at most 5 % of the length exceeding: a secondary source's \
+                 account of the 2006 criteria (not checked against the standard's text)"
+            }
+            Edition::En2012 => {
+                "isolated points: |band-filtered displacement| over ±0.010 mm in 30–100 mm (Class 1), as \
+                 trade documentation quotes the 2012 edition (not checked against the standard's text); \
+                 no 2012 limit is known to this build for the other bands"
+            }
+        }
+    }
+
+    /// The limit a band is judged against under this edition (mm), if any.
+    pub fn limit_mm(self, band: &Band) -> Option<f64> {
+        match self {
+            Edition::En2006 => Some(band.mean_pp_limit_mm),
+            Edition::En2012 => band.abs_limit_mm,
+        }
+    }
+}
+
 /// At most this share of the length may exceed the mean peak-to-peak limit
 /// (2006-style, secondary source).
 pub const MAX_EXCEEDING_PERCENT: f64 = 5.0;

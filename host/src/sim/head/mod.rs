@@ -553,7 +553,9 @@ mod tests {
             let oa = inline.begin_frame(frame, t_us, 100, 0b101);
             let ob = threaded.begin_frame(frame, t_us, 100, 0b101);
             assert_eq!(oa, ob);
-            assert_eq!(oa, t_us as i64 * 2, "2 m/s = 2 µm/µs, from 0");
+            // DEFAULT_SPEED_MM_S mm/s is DEFAULT_SPEED_MM_S / 1000 µm/µs, from 0.
+            let want = t_us as f64 * DEFAULT_SPEED_MM_S / 1000.0;
+            assert!((oa as f64 - want).abs() <= 1.0, "{oa} µm at {t_us} µs: {want}");
             for r in 0..480 {
                 inline.row(r, &mut a);
                 threaded.row(r, &mut b);
