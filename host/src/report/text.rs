@@ -372,7 +372,7 @@ pub fn describe_bands(
         }
     }
     if judgements.iter().all(|j| j.floor.is_none()) {
-        let _ = writeln!(s, "noise floor: not known (one line: no other line to tell rail from noise)");
+        let _ = writeln!(s, "noise floor: not known here (one line, or the lines' common runs too short for the band)");
     }
     s
 }

@@ -494,8 +494,9 @@ proptest! {
         let Ok(stats) = read else { return Ok(()) };
         prop_assert!(got.iter().all(|m| msgs.contains(m)), "a message read that was not written");
         match recording::survey_of(&path) {
+            // A flipped version byte may make it format 2 (its survey has no checksum) or 1 (no survey).
+            Ok(Some(_)) if stats.header.is_some_and(|h| h.format < recording::CHECKSUMMED_FORMAT) => {}
             Ok(Some(t)) => prop_assert_eq!(t.as_str(), survey),
-            // A flipped version byte may make it a format-1 file (no survey).
             Ok(None) => prop_assert!(stats.header.is_some_and(|h| h.format == 1)),
             Err(e) => prop_assert!(e.to_string().contains("survey block"), "{e}"),
         }
