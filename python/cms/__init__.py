@@ -163,11 +163,14 @@ def trend(
     block_m: float = 50.0,
     search_m: float = 2.0,
     horizon_years: float = 10.0,
+    track_register: Optional[PathLike] = None,
 ) -> Trend:
     """``cms-host trend PATHS…`` with the same options (``--date
     YYYY-MM-DD`` and ``--chainage KM+M[:up|:down]``, one per recording in
     order; ``--edition 2006|2012``, ``--block-m``, ``--search-m``,
-    ``--horizon-years``): each recording one survey of the site.
+    ``--horizon-years``, ``--track-register``): each recording one survey
+    of the site; with a track register, each survey's ``gnss_placing`` in
+    the summary says what placed its runs.
 
     Raises ``cms.Error`` with the message ``cms-host trend`` prints after
     ``error:``. The GIL is released while the surveys are analysed.
@@ -186,6 +189,7 @@ def trend(
         block_m=float(block_m),
         search_m=float(search_m),
         horizon_years=float(horizon_years),
+        track_register=None if track_register is None else os.fspath(track_register),
     )
     return Trend(_table(columns), json.loads(summary))
 

@@ -318,7 +318,7 @@ type Trended<'py> = (Bound<'py, PyList>, String);
 /// command's own code ([`cms_host::report::trend::survey_runs`]), the
 /// trend of [`cms_host::analyze::trend::trend`].
 #[pyfunction]
-#[pyo3(signature = (paths, dates=None, chainage=None, edition="2006", block_m=50.0, search_m=2.0, horizon_years=10.0))]
+#[pyo3(signature = (paths, dates=None, chainage=None, edition="2006", block_m=50.0, search_m=2.0, horizon_years=10.0, track_register=None))]
 #[allow(clippy::too_many_arguments)]
 fn trend<'py>(
     py: Python<'py>,
@@ -329,6 +329,7 @@ fn trend<'py>(
     block_m: f64,
     search_m: f64,
     horizon_years: f64,
+    track_register: Option<PathBuf>,
 ) -> PyResult<Trended<'py>> {
     use cms_host::analyze::trend as tr;
     use cms_host::recording::survey_info::SurveyDate;
@@ -365,8 +366,14 @@ fn trend<'py>(
     let topts = tr::Options { search_mm: search_m * 1000.0, horizon_years, ..tr::Options::default() };
     let t = py
         .detach(|| -> Result<tr::Trend, cms_host::Error> {
-            let surveys =
-                cms_host::report::trend::survey_runs(&paths, &placements, &dates, &opts, &cms_host::progress::Silent)?;
+            let surveys = cms_host::report::trend::survey_runs(
+                &paths,
+                &placements,
+                &dates,
+                track_register.as_deref(),
+                &opts,
+                &cms_host::progress::Silent,
+            )?;
             Ok(tr::trend(&surveys, &topts)?)
         })
         .map_err(py_err)?;

@@ -353,3 +353,34 @@ def test_tasks_are_cut_by_count_and_bytes_in_order():
     assert [len(t) for t in job.batches(small[:20], 2)] == [3] * 6 + [2]
     big = [(f"b{i}", 40 << 20) for i in range(100)]
     assert [len(t) for t in job.batches(big, 2)] == [2] * 50
+
+
+REGISTER = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", "examples", "track-register.csv"))
+
+
+def test_the_job_places_runs_by_their_fixes(tmp_path, cluster):
+    """``--track-register``: each recording's runs placed by their GNSS
+    fixes (``runs.placed_by``), its blocks those of ``cms-host analyze
+    --track-register --json``, the site followed at the fixes' chainage."""
+    survey = {**SITE, "line": "LN 4 GNSS", "start_chainage": "41+100"}
+    paths = synth.write_site(str(tmp_path / "in"), CMS_HOST, survey, SITE_DATES[:2], [4.0, 8.0], 600, 120, (2.0, 6.0), gnss=REGISTER)
+    out = str(tmp_path / "dataset")
+    assert job.main([str(tmp_path / "in"), out, "--scheduler", cluster, "--block-m", str(BLOCK_M), "--track-register", REGISTER]) == 0
+    part = ds.partitioning(flavor="hive")
+    runs = ds.dataset(os.path.join(out, "runs"), format="parquet", partitioning=part).to_table().to_pylist()
+    assert sorted(r["source"] for r in runs) == paths and {r["placed_by"] for r in runs} == {"gnss"}, runs
+    blocks = _group(ds.dataset(os.path.join(out, "blocks"), format="parquet", partitioning=part).to_table())
+    for p in paths:
+        r = cli("analyze", p, "--block-m", str(BLOCK_M), "--track-register", REGISTER, "--json")
+        assert r.returncode == 0, r.stderr
+        v = json.loads(r.stdout)
+        assert v["gnss_placing"][0]["placed_by"] == "gnss"
+        want = blocks_of(v)
+        assert abs(want[0]["start_chainage_mm"] - 41_100_000.0) < 200.0, want[0]
+        got = sorted(blocks[p], key=lambda r: r["start_chainage_mm"])
+        assert pick(got, want[0].keys()) == want, p
+    trends = ds.dataset(os.path.join(out, "trends"), format="parquet", partitioning=part).to_table().to_pylist()
+    assert [t["error"] for t in trends] == [None], trends
+    # A register that is not there: refused before any work, nothing written.
+    assert job.main([str(tmp_path / "in"), str(tmp_path / "d2"), "--workers", "1", "--track-register", str(tmp_path / "no.csv")]) == 2
+    assert not os.path.exists(tmp_path / "d2")

@@ -173,6 +173,9 @@ pub struct Trend {
     pub block_mm: f64,
     /// The surveys' names and dates, in date order.
     pub surveys: Vec<(String, SurveyDate)>,
+    /// Per survey (in date order), how a track register placed its runs
+    /// (empty: no register given).
+    pub placings: Vec<Vec<crate::analyze::placing::GnssPlacing>>,
     pub registrations: Vec<Registration>,
     /// Per block, per band ([`en13231::BANDS`] order).
     pub blocks: Vec<BlockTrend>,
@@ -284,6 +287,7 @@ pub fn trend(surveys: &[SurveyRun], opts: &Options) -> Result<Trend, TrendError>
         edition,
         block_mm: verdict.options.block_mm,
         surveys: order.iter().map(|s| (s.name.clone(), s.date)).collect(),
+        placings: order.iter().map(|s| s.analysis.gnss_placing.clone()).collect(),
         registrations,
         blocks,
     })

@@ -27,6 +27,10 @@ pub struct TrendArgs {
     /// Each survey's date, one per recording in order (default its survey block's `date`).
     #[arg(long, value_name = "YYYY-MM-DD", value_parser = date)]
     pub date: Vec<SurveyDate>,
+    /// A track register (CSV): each survey's runs with GNSS fixes placed by
+    /// them, their typed starts checked against them (as `analyze --track-register`).
+    #[arg(long = "track-register", value_name = "REGISTER.csv")]
+    pub track_register: Option<PathBuf>,
     /// The EN 13231-3 edition whose criterion and limits are followed.
     #[arg(long, value_enum, default_value_t = EditionArg::En2006)]
     pub edition: EditionArg,
@@ -99,8 +103,14 @@ pub fn run(args: &TrendArgs) -> anyhow::Result<()> {
         },
         ..Options::default()
     };
-    let surveys =
-        cms_host::report::trend::survey_runs(&args.inputs, &args.chainage, &args.date, &opts, &Bar::stderr())?;
+    let surveys = cms_host::report::trend::survey_runs(
+        &args.inputs,
+        &args.chainage,
+        &args.date,
+        args.track_register.as_deref(),
+        &opts,
+        &Bar::stderr(),
+    )?;
     let topts = trend::Options {
         search_mm: args.search_m * 1000.0,
         horizon_years: args.horizon_years,

@@ -124,7 +124,7 @@ fn num(v: f64) -> Value {
 
 /// How a run was placed with a track register: by what, GNSS's fit or why
 /// there is none, the typed start and whether it is disputed.
-fn placing_json(p: &crate::analyze::placing::GnssPlacing) -> Value {
+pub(crate) fn placing_json(p: &crate::analyze::placing::GnssPlacing) -> Value {
     let (fit, why) = match &p.fit {
         Ok(f) => (
             json!({

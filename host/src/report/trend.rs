@@ -48,6 +48,9 @@ pub fn summary(t: &Trend) -> String {
             },
         };
         let _ = writeln!(s, "  {} {}  {}", date, crate::output::printable(name), check);
+        for p in t.placings.get(i).into_iter().flatten() {
+            let _ = writeln!(s, "    {p}");
+        }
     }
     let near = t.nearest();
     if near.is_empty() {
@@ -219,7 +222,11 @@ pub fn json(t: &Trend) -> String {
     let v = json!({
         "edition": t.edition.name(),
         "block_mm": t.block_mm,
-        "surveys": t.surveys.iter().map(|(n, d)| json!({"name": n, "date": d.to_string()})).collect::<Vec<_>>(),
+        "surveys": t.surveys.iter().enumerate().map(|(i, (n, d))| json!({
+            "name": n,
+            "date": d.to_string(),
+            "gnss_placing": t.placings.get(i).map(|p| p.iter().map(super::json::placing_json).collect::<Vec<_>>()),
+        })).collect::<Vec<_>>(),
         "registrations": t.registrations.iter().map(|r| json!({
             "survey": r.survey + 1,
             "shift_mm": r.shift_mm,
@@ -264,6 +271,7 @@ pub fn survey_runs(
     inputs: &[std::path::PathBuf],
     chainage: &[crate::analyze::survey::Placement],
     dates: &[SurveyDate],
+    track_register: Option<&Path>,
     opts: &crate::analyze::Options,
     progress: &dyn crate::progress::Progress,
 ) -> Result<Vec<SurveyRun>, Error> {
@@ -287,6 +295,7 @@ pub fn survey_runs(
             inputs: vec![path.clone()],
             placements: chainage.get(i).copied().into_iter().collect(),
             search_mm: 25_000.0,
+            track_register: track_register.map(Path::to_path_buf),
             ..crate::analyze::runs::Request::default()
         };
         let (_, analysis) = crate::analyze::runs::run(&req, opts, progress)?;

@@ -406,3 +406,56 @@ fn analyze_places_a_run_by_its_fixes_and_checks_its_typed_start() {
     assert!(out.contains("typed start 41+100.000 is ") && out.contains(": agrees (combined tolerance 25.0"), "{out}");
     assert!(!out.contains("DISPUTED"), "{out}");
 }
+
+/// `trend --track-register`: two surveys of one rail a year apart, each
+/// typed 100 m off where their fixes put them, are both placed by GNSS
+/// (disputed, named under each survey) and followed at the fixes' chainage.
+#[test]
+fn trend_places_each_survey_by_its_fixes() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut recs = Vec::new();
+    for (seed, date) in [("5", "2025-03-01"), ("6", "2026-03-01")] {
+        let rec = dir.path().join(format!("{date}.cmsrec"));
+        let o = run(&[
+            "bench",
+            "recording",
+            "--frames",
+            "900",
+            "--points",
+            "120",
+            "--seed",
+            seed,
+            "--start-chainage",
+            "41+100",
+            "--date",
+            date,
+            "--gnss",
+            REGISTER,
+            "--out",
+            s(&rec),
+        ]);
+        assert!(o.status.success(), "{o:?}");
+        recs.push(rec);
+    }
+    let trend = |extra: &[&str]| {
+        let mut args = vec!["trend", s(&recs[0]), s(&recs[1]), "--block-m", "5", "--chainage", "41+200"];
+        args.extend_from_slice(&["--chainage", "41+200"]);
+        args.extend_from_slice(extra);
+        let o = run(&args);
+        assert!(o.status.success(), "{o:?}");
+        String::from_utf8(o.stdout).unwrap()
+    };
+    let text = trend(&["--track-register", REGISTER]);
+    let placed: Vec<&str> = text.lines().filter(|l| l.trim_start().starts_with("run 1: placed by GNSS")).collect();
+    assert_eq!(placed.len(), 2, "{text}");
+    assert!(placed.iter().all(|l| l.contains("START DISPUTED")), "{text}");
+    let first_block = |json: &str| {
+        let v: serde_json::Value = serde_json::from_str(json).unwrap();
+        v["blocks"][0]["start_mm"].as_f64().unwrap()
+    };
+    let by_gnss = first_block(&trend(&["--track-register", REGISTER, "--json"]));
+    assert!((by_gnss - 41_100_000.0).abs() < 200.0, "{by_gnss}");
+    // Without the register the typed start places them, 100 m on.
+    let typed = first_block(&trend(&["--json"]));
+    assert!((typed - 41_200_000.0).abs() < 1.0, "{typed}");
+}

@@ -10,6 +10,7 @@ mod capture_cli;
 mod common;
 mod corrugation_sim;
 mod detect;
+mod durability;
 mod exit_codes;
 mod fit;
 mod gnss;

@@ -24,6 +24,11 @@ dataset whole (``cms.fleet.store``): OUTPUT holds the old dataset or the
 new one, never a mix. An existing OUTPUT is replaced only when it is a
 dataset of this job.
 
+With ``--track-register REGISTER`` (a path or URL the workers can read)
+each run with GNSS fixes is placed by them, as ``cms-host analyze
+--track-register`` places it, and the trends follow the same placing;
+``runs.placed_by`` says what placed each recording's runs.
+
 A recording that cannot be analysed is not dropped silently: its ``runs``
 row carries the error (the line ``cms-host analyze`` prints), the other
 recordings are written, and the job exits with status 1 naming it.
@@ -57,9 +62,9 @@ PARTITIONS = store.PARTITIONS["blocks"]
 #: The partition keys of the trend's tables: a site's surveys span years.
 SITE_KEYS = store.PARTITIONS["trend"]
 #: The options of ``cms.trend`` the job passes on (the others are ``cms.trend``'s defaults).
-TREND_OPTIONS = ("edition", "block_m")
+TREND_OPTIONS = ("edition", "block_m", "track_register")
 #: The analysis options the job passes on (the keywords of ``cms.analyze``).
-OPTIONS = ("edition", "block_m", "dx_mm", "segment_mm")
+OPTIONS = ("edition", "block_m", "dx_mm", "segment_mm", "track_register")
 #: A task's recordings: at most this many, and no more once they reach MAX_TASK_BYTES.
 MAX_TASK_RECORDINGS = 64
 MAX_TASK_BYTES = 64 << 20
@@ -128,6 +133,15 @@ def _local_copy(url: str, tmp: str) -> str:
     return local
 
 
+def _with_register(options: dict, tmp: str) -> dict:
+    """``options`` with the track register's URL (when it is one) as a
+    local copy in ``tmp``: each worker reads it where the job was told."""
+    reg = options.get("track_register")
+    if reg is None or "://" not in reg:
+        return options
+    return {**options, "track_register": _local_copy(reg, tmp)}
+
+
 def _with_keys(t: pa.Table, keys: dict, source: str) -> pa.Table:
     """``t`` with ``source`` set to the recording's name and the partition
     keys as columns."""
@@ -154,7 +168,7 @@ def analyse_one(url: str, options: dict) -> dict:
                 path = _local_copy(url, tmp)
             survey = cms.read_survey(path) or {}
             keys = {k: survey.get(k) for k in PARTITIONS}
-            a = cms.analyze(path, profile=False, **options)
+            a = cms.analyze(path, profile=False, **_with_register(options, tmp))
         v = a.summary["verdict"]
         limits = {(b["lo_mm"], b["hi_mm"]): b["limit_mm"] for b in v["bands"]}
         zones = a.zones.append_column(
@@ -170,6 +184,7 @@ def analyse_one(url: str, options: dict) -> dict:
             edition=v["edition"],
             measured_mm=v["measured_mm"],
             reprofile_mm=v["reprofile_mm"],
+            placed_by=",".join(p["placed_by"] for p in a.summary["gnss_placing"]) if options.get("track_register") else None,
             blocks=a.blocks.num_rows,
             zones=a.zones.num_rows,
         )
@@ -193,6 +208,7 @@ RUNS_SCHEMA = pa.schema(
         pa.field("edition", pa.string()),
         pa.field("measured_mm", pa.float64()),
         pa.field("reprofile_mm", pa.float64()),
+        pa.field("placed_by", pa.string()),
         pa.field("blocks", pa.int64()),
         pa.field("zones", pa.int64()),
         pa.field("line", pa.string()),
@@ -283,7 +299,7 @@ def trend_one(line: str, track: str, urls: list[str], dates: list[str], options:
             paths = [u if "://" not in u else _local_copy_as(u, tmp, i) for i, u in enumerate(urls)]
             copies = {p: u for p, u in zip(paths, urls) if p != u}
             # The survey blocks' dates, as grouped here: the trend follows the same surveys.
-            tr = cms.trend(paths, dates=dates, **options)
+            tr = cms.trend(paths, dates=dates, **_with_register(options, tmp))
         t = tr.table
         n = t.num_rows
         for k in SITE_KEYS:
@@ -380,7 +396,7 @@ def run(recordings: list[tuple[str, int]], client, options: dict, stage: str, wo
 def run_trends(client, options: dict, stage: str, workers: int, m: Manifest) -> None:
     """The trend of every site of ``m`` on the Dask ``client``, the workers
     writing the ``trend`` and ``trends`` tables into ``stage``."""
-    topts = {k: options[k] for k in TREND_OPTIONS}
+    topts = {k: options[k] for k in TREND_OPTIONS if k in options}
     tasks = ((line, track, urls, dates, stage, i, topts) for i, (line, track, urls, dates) in enumerate(m.sites))
     for r in bounded(client, trend_task, tasks, TASKS_IN_FLIGHT_PER_WORKER * max(1, workers)):
         m.add_files(r["files"])
@@ -469,10 +485,20 @@ def main(argv: Optional[list[str]] = None) -> int:
     p.add_argument("--block-m", type=float, default=50.0)
     p.add_argument("--dx-mm", type=float)
     p.add_argument("--segment-mm", type=float, default=1000.0)
+    p.add_argument(
+        "--track-register",
+        metavar="REGISTER",
+        help="a track register (CSV, a path or URL the workers can read): runs with GNSS fixes placed by them (as analyze --track-register)",
+    )
     a = p.parse_args(argv)
     if a.workers is not None and a.workers < 1:
         p.error(f"--workers {a.workers}: at least 1")
     options = {"edition": a.edition, "block_m": a.block_m, "dx_mm": a.dx_mm, "segment_mm": a.segment_mm}
+    if a.track_register is not None:
+        if "://" not in a.track_register and not os.path.isfile(a.track_register):
+            print(f"error: --track-register {a.track_register}: no such file", file=sys.stderr)
+            return 2
+        options["track_register"] = a.track_register
     target = None
     try:
         if _inside(a.output, a.input) or _inside(a.input, a.output):

@@ -16,6 +16,7 @@ import os
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
+from typing import Optional
 
 LINES = ("LN 1 Northtown–Southville", "LN 2 Harbour branch", "LN 7 Ridge loop")
 TRACKS = ("up main", "down main")
@@ -69,11 +70,14 @@ def write_site(
     points: int,
     zone_m: tuple[float, float],
     wavelength_mm: float = 50.0,
+    gnss: Optional[str] = None,
 ) -> list[str]:
     """One site surveyed on each of ``dates``: the same rail (``survey``'s
     line, track, start chainage), its zone corrugated at ``amplitudes_um``
     in turn, a new noise seed each survey (as docs/trend.md's surveys).
-    The recordings' paths, in date order."""
+    With ``gnss`` (a track register) a simulated receiver's fixes ride
+    along from the survey's start chainage. The recordings' paths, in date
+    order."""
     os.makedirs(out, exist_ok=True)
     paths = []
     for i, (date, amp) in enumerate(zip(dates, amplitudes_um)):
@@ -87,6 +91,8 @@ def write_site(
             "--survey", toml, "--zone-m", f"{zone_m[0]}:{zone_m[1]}", "--wavelength-mm", str(wavelength_mm),
             "--amplitude-um", str(amp), "--out", name,
         ]
+        if gnss is not None:
+            cmd += ["--gnss", gnss]
         r = subprocess.run(cmd, capture_output=True, text=True)
         os.unlink(toml)
         if r.returncode != 0:
