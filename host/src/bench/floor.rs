@@ -30,6 +30,8 @@ use crate::sim::floor::{self as sf, Setting};
 pub struct FloorOptions {
     /// The reduced sweep: the push-trolley setting alone, 1.5 m of rail.
     pub reduced: bool,
+    /// Only the settings whose name holds this text.
+    pub only: Option<String>,
     /// Length of rail per setting, mm.
     pub length_mm: f64,
     /// Worker threads (`None`: one a core).
@@ -46,38 +48,50 @@ pub struct FloorRow {
     pub analysis: Analysis,
 }
 
-/// The sweep's settings: the push-trolley setting, then one thing
-/// changed at a time — aperture, speed (motion averaging), exposure,
-/// frame overlap, rows per millimetre, the laser's wavelength.
-pub fn settings(reduced: bool, length_mm: f64) -> Vec<(String, Setting)> {
-    let base = Setting::push_trolley(length_mm);
+/// The sweep's settings: the recommended push-trolley setting, then a
+/// base (F/4, 100 µs, 1.5 m/s) and one thing changed at a time from it —
+/// aperture, speed (motion averaging), exposure, frame overlap, rows per
+/// millimetre, the laser's wavelength. `only`: the settings whose name
+/// holds that text.
+pub fn settings(reduced: bool, length_mm: f64, only: Option<&str>) -> Vec<(String, Setting)> {
+    let trolley = ("push trolley: F/2.8, 100 µs, 1.5 m/s".to_string(), Setting::push_trolley(length_mm));
+    if reduced {
+        return vec![trolley];
+    }
+    let base = Setting { f_number: Some(4.0), ..Setting::push_trolley(length_mm) };
     let with = |name: &str, f: &dyn Fn(&mut Setting)| {
         let mut s = base.clone();
         f(&mut s);
         (name.to_string(), s)
     };
-    if reduced {
-        return vec![with("push trolley: F/4, 100 µs, 1.5 m/s", &|_| {})];
-    }
-    vec![
-        with("push trolley: F/4, 100 µs, 1.5 m/s", &|_| {}),
-        with("F/2.8", &|s| s.f_number = Some(2.8)),
+    let all = vec![
+        trolley,
+        with("F/4, 100 µs, 1.5 m/s", &|_| {}),
         with("F/5.6", &|s| s.f_number = Some(5.6)),
         with("F/8", &|s| s.f_number = Some(8.0)),
-        with("0.5 m/s", &|s| s.speed_mm_s = 500.0),
-        with("5 m/s (vehicle)", &|s| s.speed_mm_s = 5000.0),
-        with("exposure 30 µs", &|s| s.exposure_us = 30.0),
-        with("exposure 300 µs", &|s| s.exposure_us = 300.0),
-        with("a frame every 10 mm", &|s| s.step_mm = 10.0),
-        with("a frame every 60 mm", &|s| s.step_mm = 60.0),
-        with("every 2nd row", &|s| s.row_step = 2),
-        with("405 nm lasers", &|s| s.wavelength_nm = 405.0),
+        with("F/4, 0.5 m/s", &|s| s.speed_mm_s = 500.0),
+        with("F/4, 5 m/s (vehicle)", &|s| s.speed_mm_s = 5000.0),
+        with("F/4, exposure 30 µs", &|s| s.exposure_us = 30.0),
+        with("F/4, exposure 300 µs", &|s| s.exposure_us = 300.0),
+        with("F/4, a frame every 10 mm", &|s| s.step_mm = 10.0),
+        with("F/4, a frame every 60 mm", &|s| s.step_mm = 60.0),
+        with("F/4, every 2nd row", &|s| s.row_step = 2),
+        with("405 nm lasers, F/4", &|s| s.wavelength_nm = 405.0),
         with("405 nm, F/2.8", &|s| {
             s.wavelength_nm = 405.0;
             s.f_number = Some(2.8);
         }),
+        with("405 nm, F/5.6, 5 m/s (vehicle)", &|s| {
+            s.wavelength_nm = 405.0;
+            s.f_number = Some(5.6);
+            s.speed_mm_s = 5000.0;
+        }),
         with("incoherent light (no speckle)", &|s| s.f_number = None),
-    ]
+    ];
+    match only {
+        Some(text) => all.into_iter().filter(|(name, _)| name.contains(text)).collect(),
+        None => all,
+    }
 }
 
 /// Runs the settings on `threads` workers, in order.
@@ -208,7 +222,13 @@ pub fn floor(a: &FloorOptions) -> Result<String, BenchError> {
     }
     super::create_dir(&a.out)?;
     let t = Instant::now();
-    let set = settings(a.reduced, a.length_mm);
+    let set = settings(a.reduced, a.length_mm, a.only.as_deref());
+    if set.is_empty() {
+        return Err(BenchError::Options(format!(
+            "--only {:?}: no setting's name holds it (`bench floor` without --only lists them in floor.md)",
+            a.only.as_deref().unwrap_or_default()
+        )));
+    }
     let mut rows = Vec::new();
     for got in sweep(&set, super::threads(a.threads)) {
         rows.push(got?);

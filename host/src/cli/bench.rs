@@ -79,6 +79,9 @@ pub struct FloorArgs {
     /// Length of smooth rail per setting, m (1.2 to 100).
     #[arg(long = "length-m", default_value_t = 3.0)]
     pub length_m: f64,
+    /// Only the settings whose name holds TEXT (e.g. "405 nm").
+    #[arg(long, value_name = "TEXT")]
+    pub only: Option<String>,
     /// Worker threads [default: all cores].
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=256))]
     pub threads: Option<u64>,
@@ -222,7 +225,7 @@ pub struct CorrugationArgs {
 #[derive(Args, Debug, Clone)]
 pub struct RenderArgs {
     /// The light on the rail (as `simulate --light`).
-    #[arg(long, value_name = "SPEC", default_value = "speckle=4", value_parser = super::simulate::parse_light)]
+    #[arg(long, value_name = "SPEC", default_value = "speckle=2.8", value_parser = super::simulate::parse_light)]
     pub light: cms_host::sim::scene::LightModel,
     /// Travel speed along the rail, mm/s [default: the reference head's, 2000].
     #[arg(long = "speed-mm-s", value_name = "V", default_value_t = 2000.0, value_parser = super::simulate::speed)]
@@ -350,6 +353,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
         BenchCmd::AnnexA(a) => annex_a(&a)?,
         BenchCmd::Floor(f) => bench::floor::floor(&bench::floor::FloorOptions {
             reduced: f.reduced,
+            only: f.only.clone(),
             length_mm: f.length_m * 1000.0,
             threads: f.threads.map(|t| t as usize),
             out: f.out.clone(),

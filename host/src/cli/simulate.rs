@@ -192,7 +192,7 @@ pub struct SimPortArgs {
     /// With PORT `sim`: the simulated head starts without its factory calibration.
     #[arg(long = "sim-uncalibrated")]
     pub sim_uncalibrated: bool,
-    /// With PORT `sim`: the light on the simulated rail (as `simulate --light`) [default: speckle=4, laser light
+    /// With PORT `sim`: the light on the simulated rail (as `simulate --light`) [default: speckle=2.8, laser light
     /// at the push-trolley setting; `incoherent`: the clean stripes].
     #[arg(long = "sim-light", value_name = "SPEC", value_parser = parse_light_boxed)]
     pub sim_light: Option<Box<LightModel>>,

@@ -47,12 +47,12 @@ pub struct Setting {
 }
 
 impl Setting {
-    /// The push-trolley setting `docs/light.md` recommends (F/4, 100 µs,
+    /// The push-trolley setting `docs/light.md` recommends (F/2.8, 100 µs,
     /// walking pace 1.5 m/s) over `length_mm` of smooth rail, a frame
     /// every 30 mm.
     pub fn push_trolley(length_mm: f64) -> Setting {
         Setting {
-            f_number: Some(4.0),
+            f_number: Some(crate::sim::scene::light::PUSH_TROLLEY_F_NUMBER),
             exposure_us: 100.0,
             speed_mm_s: 1500.0,
             step_mm: 30.0,

@@ -68,6 +68,27 @@ pub const MIN_SEGMENT_MM: f64 = 1000.0;
 /// much over the instrument's noise floor there, dB: twice the floor's
 /// power, at least as much rail as noise ([`crate::analyze::floor`]).
 pub const FLOOR_MARGIN_DB: f64 = 3.0;
+/// Standard deviations of the level-to-floor ratio noise alone must not
+/// reach: one-sided 5 × 10⁻⁴ of the normal, so that a survey's three lines
+/// of about 17 third octaves each (and its blocks') read noise over the
+/// floor's margin once in more than a hundred smooth-rail surveys, not
+/// once in three as a per-band 1 % would.
+pub const NOISE_OVER_FLOOR_Z: f64 = 3.29;
+/// The Hann window's equivalent noise bandwidth, bins: the band's bins
+/// are correlated through the window, so a band of `B` bins holds about
+/// `B / 1.5` independent ones.
+const HANN_ENBW_BINS: f64 = 1.5;
+/// The variance of a Welch average of Hann segments at 50 % overlap
+/// against independent ones: `1 + 2c²` with the window's overlap
+/// correlation `c = 0.167`.
+const HANN_HALF_OVERLAP_VARIANCE: f64 = 1.056;
+
+/// Effective degrees of freedom of a one-third octave's level averaged
+/// over `segments` Hann segments at 50 % overlap, the band `bins` FFT
+/// bins wide: `2 · max(bins / ENBW, 1) · segments / (1 + 2c²)`.
+pub fn welch_dof(bins: f64, segments: usize) -> f64 {
+    2.0 * (bins / HANN_ENBW_BINS).max(1.0) * segments as f64 / HANN_HALF_OVERLAP_VARIANCE
+}
 
 /// ISO 3095 limit spectrum: (nominal wavelength mm, level dB re 1 µm).
 pub const ISO3095_LIMIT: [(f64, f64); 22] = [
@@ -150,8 +171,8 @@ pub struct ThirdOctave {
     /// The instrument's noise floor in this band, dB re 1 µm, where it is
     /// known ([`crate::analyze::floor`]).
     pub floor_db: Option<f64>,
-    /// Degrees of freedom of the level's estimate: twice the FFT bins in
-    /// the band (at least one) times the segments averaged.
+    /// Effective degrees of freedom of the level's estimate
+    /// ([`welch_dof`]).
     pub dof: f64,
     /// Degrees of freedom of the floor's estimate.
     pub floor_dof: Option<f64>,
@@ -172,14 +193,13 @@ impl ThirdOctave {
 
     /// How far over its floor the level must stand to be judged, dB: at
     /// least [`FLOOR_MARGIN_DB`], and more where level and floor are
-    /// estimated from few segments — noise alone reads over its floor by
-    /// this at most once in a hundred: the ratio of two χ² estimates with
-    /// `ν` and `ν_f` degrees of freedom, `ln` of which has a variance of
-    /// about `2/ν + 2/ν_f`, at 2.33 of its standard deviations.
+    /// estimated from few segments: the ratio of two χ² estimates with `ν`
+    /// and `ν_f` degrees of freedom, `ln` of which has a variance of about
+    /// `2/ν + 2/ν_f`, at [`NOISE_OVER_FLOOR_Z`] of its standard deviations.
     pub fn margin_over_floor_db(&self) -> f64 {
         let nf = self.floor_dof.unwrap_or(f64::INFINITY);
         let sd_ln = (2.0 / self.dof.max(1.0) + 2.0 / nf.max(1.0)).sqrt();
-        FLOOR_MARGIN_DB.max(10.0 * std::f64::consts::LOG10_E * 2.33 * sd_ln)
+        FLOOR_MARGIN_DB.max(10.0 * std::f64::consts::LOG10_E * NOISE_OVER_FLOOR_Z * sd_ln)
     }
 
     /// Whether the level is over the ISO 3095 limit (`None`: no limit, or
@@ -519,7 +539,7 @@ fn bands_of(power: &[f64], m: usize, dx_mm: f64, count: usize) -> Spectrum {
             level_db: 10.0 * ms_um2.max(1e-30).log10(),
             iso3095_limit_db: iso3095_limit_db(nominal),
             floor_db: None,
-            dof: 2.0 * ((f_hi - f_lo) / df).max(1.0) * count as f64,
+            dof: welch_dof((f_hi - f_lo) / df, count),
             floor_dof: None,
         });
     }

@@ -35,8 +35,8 @@ pub use crate::sim::scene::Preset;
 /// the fastest at which the reference head's 69 mm frames still overlap by
 /// the stitcher's 3 mm at `listen`'s 30 frames/s (`serve::speed_limit_mm_s`,
 /// 1.98 m/s), so that every join of a default run registers with ~52 mm of
-/// overlap, and still with ~19 mm when rendering laser light on a busy
-/// machine holds the head to 10 frames/s.
+/// overlap. Rendering laser light slower than the head's rate holds the
+/// trolley back ([`server::SimCamera::streaming_at`]) instead of opening gaps.
 pub const DEFAULT_SPEED_MM_S: f64 = 500.0;
 
 /// One corrugation component, `WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG]`.
@@ -231,7 +231,7 @@ pub struct SimPort {
     /// With PORT `sim`: the simulated head starts without its factory calibration.
     pub sim_uncalibrated: bool,
     /// With PORT `sim`: the light on the simulated rail (speckle, finish,
-    /// glints, ghosts); `None`: [`port_light`] (laser speckle at F/4 on the
+    /// glints, ghosts); `None`: [`port_light`] (laser speckle at F/2.8 on the
     /// reference head).
     pub sim_light: Option<crate::sim::scene::LightModel>,
     /// With PORT `sim`: a simulated GNSS receiver rides with the head
@@ -293,7 +293,7 @@ fn port_options(sim: &SimPort) -> HeadOptions {
 
 /// The light PORT `sim` shines without `--sim-light`: the reference head's
 /// lasers at the push-trolley setting of docs/light.md (speckle through the
-/// lens at F/4; the camera's 100 µs exposure), the paper's geometry in
+/// lens at F/2.8; the camera's 100 µs exposure), the paper's geometry in
 /// incoherent light (its synthetic protocol's).
 pub fn port_light(preset: Preset) -> crate::sim::scene::LightModel {
     match preset {
@@ -502,7 +502,7 @@ mod tests {
     fn port_sim_shines_laser_light_unless_told() {
         use crate::sim::scene::LightModel;
         let light = |sim: &SimPort| sim_config(&port_options(sim)).unwrap().light;
-        assert_eq!(light(&SimPort::default()), LightModel::speckle(4.0));
+        assert_eq!(light(&SimPort::default()), LightModel::speckle(2.8));
         assert_eq!(light(&SimPort::default()).method(), cms_core::peak::Method::Centroid);
         let told = SimPort { sim_light: Some(LightModel::incoherent()), ..SimPort::default() };
         assert_eq!(light(&told), LightModel::incoherent());

@@ -66,6 +66,14 @@ pub trait RowRenderer {
     }
 }
 
+/// The most trolley time between two exposures, in frame periods
+/// (`NUM / DEN` = 1.5): a head that keeps its rate is never held (its
+/// exposures jitter within half a period), one the renderer holds back
+/// moves 1.5 periods of travel a frame.
+pub const HELD_PERIODS: f64 = HELD_PERIODS_NUM as f64 / HELD_PERIODS_DEN as f64;
+const HELD_PERIODS_NUM: u64 = 3;
+const HELD_PERIODS_DEN: u64 = 2;
+
 /// The simulated camera: a [`RowRenderer`] behind `cms_core`'s [`Camera`].
 ///
 /// It reads what the real sensor would: the rows of its readout
@@ -78,6 +86,12 @@ pub struct SimCamera<R> {
     readout: Readout,
     /// The next output row of the exposed frame (an index into `readout`).
     next_row: Option<u16>,
+    /// The streaming frame period, µs (`None`: not started).
+    period_us: Option<u64>,
+    /// Real and trolley time at the last exposure, µs.
+    clock: Option<(u64, u64)>,
+    /// Real time the trolley waited for the renderer, µs.
+    held_us: u64,
 }
 
 /// A row was asked for while no frame was exposed, or past the last row.
@@ -88,7 +102,38 @@ impl<R: RowRenderer> SimCamera<R> {
     /// A camera whose clock (the odometer's time base) starts at `start`.
     pub fn new(renderer: R, start: Instant) -> Self {
         let readout = Readout::full(renderer.size().1);
-        SimCamera { renderer, start, frame: 0, readout, next_row: None }
+        SimCamera { renderer, start, frame: 0, readout, next_row: None, period_us: None, clock: None, held_us: 0 }
+    }
+
+    /// The host started streaming at `rate_hz`. A real trolley moves while
+    /// its camera films at that rate; a simulated one whose frames take
+    /// longer to render than a period would move past them unfilmed and
+    /// leave gaps a real head never has, so the trolley's clock advances at
+    /// most [`HELD_PERIODS`] periods between two exposures: it waits for the
+    /// renderer, and its frames overlap as the asked speed and rate make
+    /// them.
+    pub fn streaming_at(&mut self, rate_hz: u16) {
+        self.period_us = (rate_hz > 0).then(|| 1_000_000 / u64::from(rate_hz));
+    }
+
+    /// Real time the trolley waited for the renderer.
+    pub fn held(&self) -> Duration {
+        Duration::from_micros(self.held_us)
+    }
+
+    /// The trolley's clock at an exposure at real time `real_us`.
+    fn trolley_us(&mut self, real_us: u64) -> u64 {
+        let t = match self.clock {
+            None => real_us,
+            Some((r0, t0)) => {
+                let dt = real_us.saturating_sub(r0);
+                let step = self.period_us.map_or(dt, |p| dt.min(p * HELD_PERIODS_NUM / HELD_PERIODS_DEN));
+                self.held_us += dt - step;
+                t0 + step
+            }
+        };
+        self.clock = Some((real_us, t));
+        t
     }
 
     /// Frames exposed so far.
@@ -114,7 +159,8 @@ impl<R: RowRenderer> Camera for SimCamera<R> {
         self.renderer.bits()
     }
     fn expose(&mut self, exposure_us: u32, laser_mask: u8) -> Result<i64, NoFrame> {
-        let t_us = self.start.elapsed().as_micros() as u64;
+        let real_us = self.start.elapsed().as_micros() as u64;
+        let t_us = self.trolley_us(real_us);
         let odometer = self.renderer.begin_frame(self.frame, t_us, exposure_us, laser_mask);
         self.frame += 1;
         self.next_row = Some(0);
@@ -236,6 +282,8 @@ pub struct ServeSummary {
     pub link_errors: u64,
     /// Lasers lit when the server stopped (before the head was dropped).
     pub lasers_at_exit: u8,
+    /// Real time the trolley waited for the renderer ([`SimCamera::streaming_at`]).
+    pub trolley_held: Duration,
 }
 
 impl ServeSummary {
@@ -252,7 +300,7 @@ impl std::fmt::Display for ServeSummary {
             f,
             "served {:.1} s: {} frames ({:.1}/s), {} skipped by the head, {} profiles dropped on the link, \
              {} commands, {} bad host frames, {:.1} MB sent, CPU {:.2} ms/frame (head {:.2} + render {:.2}); \
-             lasers off",
+             trolley held {:.1} s for the renderer; lasers off",
             secs,
             self.frames,
             self.frames as f64 / secs.max(1e-9),
@@ -264,6 +312,7 @@ impl std::fmt::Display for ServeSummary {
             self.cpu_per_frame().as_secs_f64() * 1e3,
             self.cpu.as_secs_f64() * 1e3 / self.frames.max(1) as f64,
             self.render_cpu.as_secs_f64() * 1e3 / self.frames.max(1) as f64,
+            self.trolley_held.as_secs_f64(),
         )
     }
 }
@@ -481,6 +530,9 @@ pub fn serve<R: RowRenderer>(
         read_commands(&mut pty, &mut reader, &mut rx, &mut decoded)?;
         let now_us = start.elapsed().as_micros() as u64;
         for r in decoded.drain(..) {
+            if let Ok(Command { msg: HostMsg::Start(st), .. }) = &r {
+                camera.streaming_at(st.rate_hz);
+            }
             handle_command(&mut head, r, now_us, &camera, &mut out, opts, &mut summary);
         }
         // The head: watchdog, due frame, status.
@@ -520,6 +572,7 @@ pub fn serve<R: RowRenderer>(
     summary.link_dropped_other = out.dropped_other;
     summary.lasers_at_exit = head.lasers_on();
     summary.render_cpu = camera.renderer().cpu();
+    summary.trolley_held = camera.held();
     drop(head); // lasers off (the head's Drop)
     if logged != 0 && opts.log_lasers {
         log(format_args!("lasers off"));
@@ -632,4 +685,51 @@ fn wait_for_host(pty: &Pty, streaming: bool) -> Result<(), SimulateError> {
         std::thread::sleep(Duration::from_millis(tick as u64));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A renderer of dark rows whose odometer is its trolley time (µm per µs).
+    struct Dark;
+
+    impl RowRenderer for Dark {
+        fn size(&self) -> (u16, u16) {
+            (8, 4)
+        }
+        fn bits(&self) -> u8 {
+            10
+        }
+        fn begin_frame(&mut self, _frame: u64, t_us: u64, _exposure_us: u32, _mask: u8) -> i64 {
+            t_us as i64
+        }
+        fn row(&mut self, _r: u16, out: &mut [u16]) {
+            out.fill(0);
+        }
+    }
+
+    /// A head that keeps its rate is never held; one the renderer holds
+    /// back moves at most 1.5 periods of travel a frame, and the wait is
+    /// counted. Before streaming starts the clock is real time.
+    #[test]
+    fn the_trolley_waits_for_the_renderer() {
+        let mut c = SimCamera::new(Dark, Instant::now());
+        assert_eq!((c.trolley_us(0), c.trolley_us(500_000)), (0, 500_000));
+        c.streaming_at(30);
+        let p = 33_333;
+        let mut real = 500_000;
+        for jitter in [0, 10_000, -10_000, 16_000] {
+            let t0 = c.clock.unwrap().1;
+            real = (real as i64 + p as i64 + jitter) as u64;
+            assert_eq!(c.trolley_us(real) - t0, (p as i64 + jitter) as u64);
+        }
+        assert_eq!(c.held(), Duration::ZERO);
+        let t0 = c.clock.unwrap().1;
+        assert_eq!(c.trolley_us(real + 300_000) - t0, p * 3 / 2);
+        assert_eq!(c.held(), Duration::from_micros(300_000 - p * 3 / 2));
+        c.streaming_at(0);
+        let t0 = c.clock.unwrap().1;
+        assert_eq!(c.trolley_us(real + 400_000) - t0, 100_000);
+    }
 }

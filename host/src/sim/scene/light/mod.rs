@@ -33,6 +33,11 @@ pub(crate) use tile::{LightCache, TileShot};
 
 use super::{SimError, check};
 
+/// The push-trolley aperture (`docs/light.md`, "What to set"): the
+/// widest whose depth of field (18 mm) still holds a trolley's stand-off,
+/// and the one that brings the 10–30 mm band's floor 6 dB under its limit.
+pub const PUSH_TROLLEY_F_NUMBER: f64 = 2.8;
+
 /// How the rail returns the lasers' light.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct LightModel {
@@ -144,10 +149,10 @@ impl LightModel {
     }
 
     /// The push-trolley setting of docs/light.md: one laser pattern
-    /// through the lens at F/4 (with the reference camera's 100 µs
-    /// exposure): `speckle(4.0)`.
+    /// through the lens at [`PUSH_TROLLEY_F_NUMBER`] (with the reference
+    /// camera's 100 µs exposure).
     pub fn push_trolley() -> LightModel {
-        LightModel::speckle(4.0)
+        LightModel::speckle(PUSH_TROLLEY_F_NUMBER)
     }
 
     /// Oxidation: dark patches 10–60 mm long, 5–30 mm wide, 5–40 % of the
