@@ -588,7 +588,8 @@ impl<const W: usize> Detector<W> {
             let in_place = in_place
                 && screened
                 && (lo..hi).contains(&bright)
-                && (CENTROID || row[bright].value() < sat && coarse::window_is_clean(&row[lo..hi], sat, level));
+                && (CENTROID
+                    || row[bright].value() < sat && coarse::window_is_clean_at(&row[lo..hi], sat, level, bright - lo));
             let (got, spikes) = if in_place {
                 let view = RowView {
                     x: &row[lo..hi],
