@@ -22,7 +22,10 @@ use core::cell::Cell;
 use heapless::Vec;
 
 mod clean;
-pub use clean::{PAIR_LEVEL_MAX, PAIR_SAT_LIMIT, window_is_clean, window_is_clean_at, window_is_clean_scalar};
+pub use clean::{
+    PAIR_LEVEL_MAX, PAIR_SAT_LIMIT, window_is_clean, window_is_clean_at, window_is_clean_centred,
+    window_is_clean_scalar,
+};
 
 /// Most hot-pixel candidates examined per window (the first ones in it).
 pub const MAX_SPIKES: usize = 64;

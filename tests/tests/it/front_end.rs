@@ -328,9 +328,10 @@ proptest! {
             }
             // The detector's case: the window centred on its brightest pixel.
             if top_from == 0 {
+                let half = [18, 10, 6][(next() % 3) as usize];
                 let bright = (0..len).fold(0, |b, i| if row[i] > row[b] { i } else { b });
-                let lo = bright.saturating_sub(18);
-                row = row[lo..(bright + 19).min(len)].to_vec();
+                let lo = bright.saturating_sub(half);
+                row = row[lo..(bright + half + 1).min(len)].to_vec();
                 top = bright - lo;
             } else if top_from == 1 {
                 top = c.saturating_add_signed(top_step);
@@ -345,6 +346,10 @@ proptest! {
         let want = coarse::window_is_clean_scalar(&row, sat, level);
         prop_assert_eq!(coarse::window_is_clean(&row, sat, level), want);
         prop_assert_eq!(coarse::window_is_clean_at(&row, sat, level, top), want, "top {}", top);
+        // Sized for windows of 2H + 1 centred on their candidate (and any other row).
+        prop_assert_eq!(coarse::window_is_clean_centred::<u16, 18>(&row, sat, level), want);
+        prop_assert_eq!(coarse::window_is_clean_centred::<u16, 10>(&row, sat, level), want);
+        prop_assert_eq!(coarse::window_is_clean_centred::<u16, 6>(&row, sat, level), want);
     }
 
     /// The window's copy and spike screen, and the repair, equal the plain

@@ -73,6 +73,81 @@ pub fn window_is_clean_at<P: Pixel>(row: &[P], sat: i32, level: i32, top: usize)
     (left | right | x3 as u32) & !(sat as u32 * LANES) == 0
 }
 
+/// [`window_is_clean_at`] for a window of `2·H + 1` pixels centred on its
+/// candidate (`top = H`), `H ≡ 2 (mod 4)`: each side `H` pixels long
+/// (`H − 2` centres, whole chunks), so the loops have known lengths and no
+/// bounds to test. Other windows take [`window_is_clean_at`].
+#[inline(never)]
+pub fn window_is_clean_centred<P: Pixel, const H: usize>(row: &[P], sat: i32, level: i32) -> bool {
+    let n = row.len();
+    let (Some((left, rest)), true) = (row.split_first_chunk::<H>(), H % 4 == 2 && H >= 6 && n == 2 * H + 1) else {
+        return window_is_clean_at(row, sat, level, H);
+    };
+    let Some(right) = rest.last_chunk::<H>() else {
+        return window_is_clean_at(row, sat, level, H);
+    };
+    if !pairs_apply(n, sat, level) {
+        return window_is_clean(row, sat, level);
+    }
+    // x[H − 3 ..= H + 3]: the last three of the left side, the top, the
+    // first three of the right.
+    let (x0, x1, x2) = (left[H - 3].value(), left[H - 2].value(), left[H - 1].value());
+    let (x3, x4, x5, x6) = (rest[0].value(), right[0].value(), right[1].value(), right[2].value());
+    let (d1, d2, d3) = (2 * x1 - x0 - x2, 2 * x2 - x1 - x3, 2 * x3 - x2 - x4);
+    let (d4, d5) = (2 * x4 - x3 - x5, 2 * x5 - x4 - x6);
+    let top_ok = |d: i32, l: i32, r: i32| d <= level || l + r > level;
+    if !(top_ok(d2, d1, d3) && top_ok(d3, d2, d4) && top_ok(d4, d3, d5)) {
+        return false;
+    }
+    let k = lanes_k(level);
+    let pair = |a: P, b: P| a.value() as u32 | (b.value() as u32) << 16;
+    // The test words of a chunk of four pixels `p` after the word `e`.
+    let chunk = |e: u32, p: &[P]| {
+        let (lo, hi) = (pair(p[0], p[1]), pair(p[2], p[3]));
+        let b0 = (e >> 16) | (lo << 16);
+        let b1 = (lo >> 16) | (hi << 16);
+        let t = k.wrapping_add(b0 << 1).wrapping_sub(e.wrapping_add(lo))
+            | k.wrapping_add(b1 << 1).wrapping_sub(lo.wrapping_add(hi));
+        (t, lo | hi, hi)
+    };
+    // Eight pixels an iteration (the loop's count and branch shared), then
+    // the last four where `H − 2` is not a multiple of eight.
+    let sweep = |side: &[P; H]| {
+        let mut e = pair(side[0], side[1]);
+        let (mut hits, mut all) = (0u32, e);
+        let (eights, rest) = side[2..].as_chunks::<8>();
+        for p in eights {
+            let (t0, a0, e0) = chunk(e, &p[..4]);
+            let (t1, a1, e1) = chunk(e0, &p[4..]);
+            (hits, all, e) = (hits | t0 | t1, all | a0 | a1, e1);
+        }
+        if rest.len() == 4 {
+            let (t, a, _) = chunk(e, rest);
+            (hits, all) = (hits | t, all | a);
+        }
+        (hits, all)
+    };
+    let ((h0, a0), (h1, a1)) = (sweep(left), sweep(right));
+    if (h0 | h1) & SIGNS != 0 && !clean_sides(row, [h0, h1], k, level, H) {
+        return false;
+    }
+    (a0 | a1 | x3 as u32) & !(sat as u32 * LANES) == 0
+}
+
+/// The sign bits of both halves of a word.
+const SIGNS: u32 = 0x8000_8000;
+
+/// `window_is_clean_centred`'s rare path: where some centre of a side
+/// (`1 ..= top − 2`, `top + 2 ..= n − 2`) passed the first test (`hits`:
+/// the side's test words OR-ed), that side's chunks again with the
+/// stripe-top test (`clean_centres`); whether every centre passes.
+#[cold]
+#[inline(never)]
+fn clean_sides<P: Pixel>(row: &[P], hits: [u32; 2], k: u32, level: i32, top: usize) -> bool {
+    (hits[0] & SIGNS == 0 || clean_centres(row, 1, top - 2, k, level).is_some())
+        && (hits[1] & SIGNS == 0 || clean_centres(row, top + 2, row.len() - 2, k, level).is_some())
+}
+
 /// Whether [`window_is_clean`]'s words apply: at least 6 pixels, `sat =
 /// 2^b − 1 < 2^13` and `0 ≤ level ≤ 0x4001`.
 #[inline(always)]
@@ -172,7 +247,6 @@ struct PairScan {
 /// per scan costs more than the spills.
 #[inline(always)]
 fn scan_pairs<P: Pixel>(ps: &[[P; 4]], mut e: u32, k: u32) -> PairScan {
-    const SIGNS: u32 = 0x8000_8000;
     let pair = |a: P, b: P| a.value() as u32 | (b.value() as u32) << 16;
     let mut all = 0;
     for (c, p) in ps.iter().enumerate() {
