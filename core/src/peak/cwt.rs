@@ -247,6 +247,61 @@ fn ratio_q_wide(num: i64, den: i64, bits: u32) -> i64 {
     ((n << bits) / d) as i64
 }
 
+/// The response on rung `k` at `c` for [`climb_scale`]: straight from the
+/// row in 32 bits where the plan allows it (`k32`, [`ricker_sum32`]), else
+/// from the row folded about `c` ([`Folded`]).
+#[inline(always)]
+fn climb_response<S: Sample>(x: &[S], folded: &mut Folded<'_, '_, S>, k32: Option<usize>, c: usize, k: usize) -> i32 {
+    if k32.is_some_and(|k32| k <= k32)
+        && let Some(acc) = ricker_sum32(x, c, k)
+    {
+        // |acc| < 2^31 and `norm` < 2^31: a 32 × 32 → 64 multiply.
+        return ((acc as i64 * (RUNGS[k].norm as i32) as i64) >> NORM_SHIFT) as i32;
+    }
+    folded.at(c);
+    folded.response_q8(k).0 as i32
+}
+
+/// `confirm`'s climb in scale from rung `k0` at position `c`, within the
+/// width limits' rungs `w_lo ..= w_hi`: the best rung and the responses at
+/// it and at both its neighbours (`i32::MIN` where not evaluated: beyond
+/// the limits). Inlined, and each response in it: a call per response
+/// cost about a fifth of it.
+#[inline(always)]
+fn climb_scale<S: Sample>(
+    x: &[S],
+    folded: &mut Folded<'_, '_, S>,
+    k32: Option<usize>,
+    c: usize,
+    k0: usize,
+    (w_lo, w_hi): (usize, usize),
+) -> (usize, [i32; 3]) {
+    let mut k = k0;
+    let mut here = climb_response(x, folded, k32, c, k);
+    let (mut below, mut above) = (i32::MIN, i32::MIN);
+    while k < w_hi {
+        let r = climb_response(x, folded, k32, c, k + 1);
+        if r <= here {
+            above = r;
+            break;
+        }
+        (below, here) = (here, r);
+        k += 1;
+    }
+    if k == k0 {
+        while k > w_lo {
+            let r = climb_response(x, folded, k32, c, k - 1);
+            if r <= here {
+                below = r;
+                break;
+            }
+            (above, here) = (here, r);
+            k -= 1;
+        }
+    }
+    (k, [below, here, above])
+}
+
 /// A candidate confirmed as a stripe by the multi-scale test.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Confirmed {
@@ -353,45 +408,9 @@ pub(crate) fn confirm<S: Sample>(
     // bits ([`ricker_sum32`]): the same values, no sums to make first.
     let mut folded = Folded::new(x, c0, scratch);
     let k32 = v.plan.ricker32_k;
-    let mut climb_scale = |c: usize, k0: usize| -> (usize, [i32; 3]) {
-        let mut response = |k: usize| -> i32 {
-            if k32.is_some_and(|k32| k <= k32)
-                && let Some(acc) = ricker_sum32(x, c, k)
-            {
-                // |acc| < 2^31 and `norm` < 2^31: a 32 × 32 → 64 multiply.
-                return r32((acc as i64 * (RUNGS[k].norm as i32) as i64) >> NORM_SHIFT);
-            }
-            folded.at(c);
-            r32(folded.response_q8(k).0)
-        };
-        let mut k = k0;
-        let mut here = response(k);
-        let (mut below, mut above) = (i32::MIN, i32::MIN);
-        while k < w_hi {
-            let r = response(k + 1);
-            if r <= here {
-                above = r;
-                break;
-            }
-            (below, here) = (here, r);
-            k += 1;
-        }
-        if k == k0 {
-            while k > w_lo {
-                let r = response(k - 1);
-                if r <= here {
-                    below = r;
-                    break;
-                }
-                (above, here) = (here, r);
-                k -= 1;
-            }
-        }
-        (k, [below, here, above])
-    };
     let mut c = c0;
     let k_start = v.plan.k_start;
-    let (mut kb, mut resp) = climb_scale(c, k_start);
+    let (mut kb, mut resp) = climb_scale(x, &mut folded, k32, c, k_start, (w_lo, w_hi));
     // Pixel level. A stripe narrower than 4 px: its brightest pixel (where
     // the candidate starts) is within a pixel of the response's maximum, and
     // the parabola through the three pixels (its vertex does not see a
@@ -435,7 +454,7 @@ pub(crate) fn confirm<S: Sample>(
             moved += 1;
         }
         if moved > 0 {
-            (kb, resp) = climb_scale(c, kb);
+            (kb, resp) = climb_scale(x, &mut folded, k32, c, kb, (w_lo, w_hi));
         }
         if left != i32::MIN && right != i32::MIN { vertex(left, best, right) } else { 0 }
     };
