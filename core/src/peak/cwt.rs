@@ -247,14 +247,69 @@ fn ratio_q_wide(num: i64, den: i64, bits: u32) -> i64 {
     ((n << bits) / d) as i64
 }
 
+/// The response on rung `k` at `c` for [`climb_scale`]: straight from the
+/// row in 32 bits where the plan allows it (`k32`, [`ricker_sum32`]), else
+/// from the row folded about `c` ([`Folded`]).
+#[inline(always)]
+fn climb_response<S: Sample>(x: &[S], folded: &mut Folded<'_, '_, S>, k32: Option<usize>, c: usize, k: usize) -> i32 {
+    if k32.is_some_and(|k32| k <= k32)
+        && let Some(acc) = ricker_sum32(x, c, k)
+    {
+        // |acc| < 2^31 and `norm` < 2^31: a 32 × 32 → 64 multiply.
+        return ((acc as i64 * (RUNGS[k].norm as i32) as i64) >> NORM_SHIFT) as i32;
+    }
+    folded.at(c);
+    folded.response_q8(k).0 as i32
+}
+
+/// `confirm`'s climb in scale from rung `k0` at position `c`, within the
+/// width limits' rungs `w_lo ..= w_hi`: the best rung and the responses at
+/// it and at both its neighbours (`i32::MIN` where not evaluated: beyond
+/// the limits). Inlined, and each response in it: a call per response
+/// cost about a fifth of it.
+#[inline(always)]
+fn climb_scale<S: Sample>(
+    x: &[S],
+    folded: &mut Folded<'_, '_, S>,
+    k32: Option<usize>,
+    c: usize,
+    k0: usize,
+    (w_lo, w_hi): (usize, usize),
+) -> (usize, [i32; 3]) {
+    let mut k = k0;
+    let mut here = climb_response(x, folded, k32, c, k);
+    let (mut below, mut above) = (i32::MIN, i32::MIN);
+    while k < w_hi {
+        let r = climb_response(x, folded, k32, c, k + 1);
+        if r <= here {
+            above = r;
+            break;
+        }
+        (below, here) = (here, r);
+        k += 1;
+    }
+    if k == k0 {
+        while k > w_lo {
+            let r = climb_response(x, folded, k32, c, k - 1);
+            if r <= here {
+                below = r;
+                break;
+            }
+            (above, here) = (here, r);
+            k -= 1;
+        }
+    }
+    (k, [below, here, above])
+}
+
 /// A candidate confirmed as a stripe by the multi-scale test.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Confirmed {
     /// Integer maximum of the best scale's response.
     pub c: usize,
-    /// Best rung and its sub-rung offset (Q16).
+    /// Best rung and its sub-rung offset (Q16, |·| ≤ ½).
     pub kb: usize,
-    pub dk_q16: i64,
+    pub dk_q16: i32,
     /// σ̂.
     pub width: Px,
     /// Amplitude estimate, counts.
@@ -279,7 +334,8 @@ pub(crate) fn refine<S: Sample>(v: &RowView<'_, S>, c0: usize, scratch: &mut [i3
     };
     let x = v.x;
     // Fit rung: nearest to 1.5 σ̂, i.e. kb + dk + 4·log2(1.5) (= 2.3399, Q16 153_348).
-    let j = ((((kb as i64) << 16) + dk_q16 + 153_348 + 32_768) >> 16).clamp(0, kernels::LADDER_LEN as i64 - 1) as usize;
+    // In 32 bits: kb < 2^5, |dk| ≤ 2^15.
+    let j = ((((kb as i32) << 16) + dk_q16 + 153_348 + 32_768) >> 16).clamp(0, kernels::LADDER_LEN as i32 - 1) as usize;
     // The whole kernel, tapered to zero at 4 s (`core/build.rs`): cut
     // where `D` is still 1.3 % of its peak, the slope jumped as a tap
     // entered at each whole pixel, and the secant across that jump moved
@@ -353,45 +409,9 @@ pub(crate) fn confirm<S: Sample>(
     // bits ([`ricker_sum32`]): the same values, no sums to make first.
     let mut folded = Folded::new(x, c0, scratch);
     let k32 = v.plan.ricker32_k;
-    let mut climb_scale = |c: usize, k0: usize| -> (usize, [i32; 3]) {
-        let mut response = |k: usize| -> i32 {
-            if k32.is_some_and(|k32| k <= k32)
-                && let Some(acc) = ricker_sum32(x, c, k)
-            {
-                // |acc| < 2^31 and `norm` < 2^31: a 32 × 32 → 64 multiply.
-                return r32((acc as i64 * (RUNGS[k].norm as i32) as i64) >> NORM_SHIFT);
-            }
-            folded.at(c);
-            r32(folded.response_q8(k).0)
-        };
-        let mut k = k0;
-        let mut here = response(k);
-        let (mut below, mut above) = (i32::MIN, i32::MIN);
-        while k < w_hi {
-            let r = response(k + 1);
-            if r <= here {
-                above = r;
-                break;
-            }
-            (below, here) = (here, r);
-            k += 1;
-        }
-        if k == k0 {
-            while k > w_lo {
-                let r = response(k - 1);
-                if r <= here {
-                    below = r;
-                    break;
-                }
-                (above, here) = (here, r);
-                k -= 1;
-            }
-        }
-        (k, [below, here, above])
-    };
     let mut c = c0;
     let k_start = v.plan.k_start;
-    let (mut kb, mut resp) = climb_scale(c, k_start);
+    let (mut kb, mut resp) = climb_scale(x, &mut folded, k32, c, k_start, (w_lo, w_hi));
     // Pixel level. A stripe narrower than 4 px: its brightest pixel (where
     // the candidate starts) is within a pixel of the response's maximum, and
     // the parabola through the three pixels (its vertex does not see a
@@ -435,7 +455,7 @@ pub(crate) fn confirm<S: Sample>(
             moved += 1;
         }
         if moved > 0 {
-            (kb, resp) = climb_scale(c, kb);
+            (kb, resp) = climb_scale(x, &mut folded, k32, c, kb, (w_lo, w_hi));
         }
         if left != i32::MIN && right != i32::MIN { vertex(left, best, right) } else { 0 }
     };
@@ -450,11 +470,11 @@ pub(crate) fn confirm<S: Sample>(
     let mut flags = Flags::NONE;
     // Width: parabola through the neighbouring rungs (log-scale axis).
     let [rm, _, rp] = resp;
-    let dk_q16: i64 = if kb > 0 && rm != i32::MIN && rp != i32::MIN {
+    let dk_q16: i32 = if kb > 0 && rm != i32::MIN && rp != i32::MIN {
         let (den, num) = (rm - 2 * r0 + rp, rm - rp);
         // (rm − rp) / (2 den) in Q16, |·| ≤ ½: a 32-bit division (`ratio_q32`).
         if den < 0 {
-            let q = ratio_q32(num.unsigned_abs(), den.unsigned_abs(), 15) as i64;
+            let q = ratio_q32(num.unsigned_abs(), den.unsigned_abs(), 15) as i32;
             if num < 0 { q } else { -q }
         } else {
             0
@@ -467,14 +487,18 @@ pub(crate) fn confirm<S: Sample>(
         flags.insert(Flags::LOW_CONFIDENCE);
     }
     // σ̂ = s_kb · 2^(dk/4) ≈ s_kb (1 + y + y²/2), y = dk · ln2/4 (11357/65536).
+    // In 32 bits (|dk| ≤ 2^15, |y| < 2^13), the width's product in 64.
     let y = (dk_q16 * 11357) >> 16;
     let factor = 65536 + y + ((y * y) >> 17);
-    let width = Px(((RUNGS[kb].scale_q16.0 as i64 * factor) >> 16) as i32);
+    let width = Px(((RUNGS[kb].scale_q16.0 as i64 * factor as i64) >> 16) as i32);
 
     // Detection test at the best scale: response above threshold × its noise.
-    let noise_resp_q8 = (v.noise_q8 as i64 * RUNGS[kb].noise_q8.0) >> 8;
+    // The rung's constants are below 2^31 (`rung_constants_fit_32_bits`):
+    // 32 × 32 → 64-bit multiplies, the same values.
+    let rung = &RUNGS[kb];
+    let noise_resp_q8 = (v.noise_q8 as i64 * (rung.noise_q8.0 as i32) as i64) >> 8;
     let thr = (noise_resp_q8 * v.cfg.threshold_sigma_q8 as i64) >> 8;
-    let amplitude = (r0 as i64 * RUNGS[kb].amp_inv) >> 24;
+    let amplitude = (r0 as i64 * (rung.amp_inv as i32) as i64) >> 24;
     let r0 = r0 as i64;
     if r0 <= thr || amplitude < v.cfg.min_amplitude as i64 || width < v.cfg.min_width || width > v.cfg.max_width {
         return Ok(None);

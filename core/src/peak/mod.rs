@@ -205,6 +205,11 @@ impl<S> RowView<'_, S> {
 /// exposure within 256 rows.
 pub const NOISE_ROWS: u16 = 256;
 
+/// The first window's reach either side of its candidate under the
+/// default scales (`Plan::typ_reach_px`), px: its spike screen is compiled
+/// for that length.
+const CENTRED_REACH_PX: usize = 18;
+
 /// The screen's threshold as a fraction of the detection threshold, Q8
 /// (0.6): the screen only nominates; the multi-scale test at the candidate
 /// decides, at the full threshold.
@@ -470,6 +475,19 @@ impl<const W: usize> Detector<W> {
         screened
     }
 
+    /// Whether the window `w` can be read in place, its candidate at `top`
+    /// ([`coarse::window_is_clean_at`]); a window of [`CENTRED_REACH_PX`]
+    /// either side of its candidate, the default scales' first window, by
+    /// the screen sized for it ([`coarse::window_is_clean_centred`]).
+    #[inline(always)]
+    fn window_is_clean<P: Pixel>(w: &[P], sat: i32, level: i32, top: usize) -> bool {
+        if top == CENTRED_REACH_PX && w.len() == 2 * CENTRED_REACH_PX + 1 {
+            coarse::window_is_clean_centred::<P, CENTRED_REACH_PX>(w, sat, level)
+        } else {
+            coarse::window_is_clean_at(w, sat, level, top)
+        }
+    }
+
     /// The brightest pixel of the raw row where the screen responded at
     /// `pos`: its stripe peaks within the response's centre window, ±B of
     /// the block boundary (not less: a stuck pixel on a stripe's flank pulls
@@ -588,7 +606,8 @@ impl<const W: usize> Detector<W> {
             let in_place = in_place
                 && screened
                 && (lo..hi).contains(&bright)
-                && (CENTROID || row[bright].value() < sat && coarse::window_is_clean(&row[lo..hi], sat, level));
+                && (CENTROID
+                    || row[bright].value() < sat && Self::window_is_clean(&row[lo..hi], sat, level, bright - lo));
             let (got, spikes) = if in_place {
                 let view = RowView {
                     x: &row[lo..hi],

@@ -183,3 +183,16 @@ impl Plan {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The head's scales (and the benchmark's, σ 2.5 px in 1.5–4 px) read
+    /// a first window of the length the sized spike screen is compiled for.
+    #[test]
+    fn the_default_first_window_is_the_sized_screens() {
+        let plan = Plan::new(&crate::pipeline::default_detector()).unwrap();
+        assert_eq!(plan.typ_reach_px, super::super::CENTRED_REACH_PX);
+    }
+}

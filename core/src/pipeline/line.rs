@@ -432,12 +432,15 @@ impl LineCheck {
         self.off[..judged.start.max(n.min(k))].fill(-1);
         self.off[judged.end.max(judged.start)..n].fill(-1);
         let mut m = 0;
-        for i in judged {
-            let d = match self.line_at((i - k, i + 1), self.row[i]) {
-                Some(line) => distance(self.pos[i], line),
-                None => -1,
-            };
-            self.off[i] = d;
+        // Point i against the blocks i − k and i + 1, as slices zipped
+        // from i = k (no index to test per point).
+        let (before, after) = (0..judged.len(), k + 1..k + 1 + judged.len());
+        let (c2, med) = (&self.c2, &self.med);
+        let blocks = c2[before.clone()].iter().zip(&c2[after.clone()]).zip(med[before].iter().zip(&med[after]));
+        let at = self.row[judged.clone()].iter().zip(&self.pos[judged.clone()]);
+        for ((((&ca, &cb), (&ma, &mb)), (&row, &pos)), off) in blocks.zip(at).zip(&mut self.off[judged]) {
+            let d = distance_to_line((ca, ma), (cb, mb), row, pos);
+            *off = d;
             if d >= 0 {
                 self.res[m] = d;
                 m += 1;
@@ -473,6 +476,23 @@ fn distance(at: i32, line: i64) -> i32 {
         Ok(l) => at.abs_diff(l).min(i32::MAX as u32) as i32,
         Err(_) => (i64::from(at) - line).unsigned_abs().min(i32::MAX as u64) as i32,
     }
+}
+
+/// [`distance`] of `at` from [`line_through`] (−1: no line), in 32 bits
+/// where the line's offset fits them (its sum with `ma` is then the same
+/// `i32` as the `i64` made by `line_through`).
+#[inline(always)]
+fn distance_to_line((ca, ma): (i32, i32), (cb, mb): (i32, i32), row: u16, at: i32) -> i32 {
+    if cb <= ca {
+        return -1;
+    }
+    let (d, t) = (cb - ca, 2 * i32::from(row) - ca);
+    if let Some(num) = mb.checked_sub(ma).and_then(|dm| dm.checked_mul(t))
+        && let Some(line) = ma.checked_add(num / d)
+    {
+        return at.abs_diff(line).min(i32::MAX as u32) as i32;
+    }
+    line_through((ca, ma), (cb, mb), row).map_or(-1, |line| distance(at, line))
 }
 
 /// The line through the block medians `(ca, ma)` and `(cb, mb)` (twice the

@@ -298,11 +298,13 @@ proptest! {
     /// The spike screen two pixels a word (`sat = 2^b − 1 < 2^13`) gives the
     /// scalar screen's answer, on rows with stripes, spikes and pairs, with
     /// pixels above the saturation level (up to the container's) or not, at
-    /// any level the word path takes.
+    /// any level the word path takes; and so does the screen told where the
+    /// candidate starts (`window_is_clean_at`), at the stripe's top, beside
+    /// it or anywhere.
     #[test]
     fn window_is_clean_in_pairs_is_the_scalar_test(
         bits in 8u32..=13, over in any::<bool>(), seed in any::<u64>(), len in 0usize..120, level in 0i32..=0x4001,
-        hot in 0usize..4,
+        hot in 0usize..4, top_from in 0usize..3, top_any in 0usize..130, top_step in -3isize..=3,
     ) {
         let sat = (1i32 << bits) - 1;
         let max = if over { 65_535 } else { sat };
@@ -317,20 +319,37 @@ proptest! {
         let noise = 1 + (next() % 40) as i32;
         let mut row: Vec<u16> = (0..len).map(|_| (base + (next() % noise as u64) as i32).min(sat) as u16).collect();
         // A stripe (its top passes the first test), and hot pixels.
+        let mut top = top_any;
         if len > 10 {
             let c = (next() % len as u64) as usize;
             for (i, p) in row.iter_mut().enumerate() {
                 let t = (i as f64 - c as f64) / 2.5;
                 *p = (*p as f64 + sat as f64 / 2.0 * (-t * t / 2.0).exp()).min(sat as f64) as u16;
             }
+            // The detector's case: the window centred on its brightest pixel.
+            if top_from == 0 {
+                let half = [18, 10, 6][(next() % 3) as usize];
+                let bright = (0..len).fold(0, |b, i| if row[i] > row[b] { i } else { b });
+                let lo = bright.saturating_sub(half);
+                row = row[lo..(bright + half + 1).min(len)].to_vec();
+                top = bright - lo;
+            } else if top_from == 1 {
+                top = c.saturating_add_signed(top_step);
+            }
         }
         for _ in 0..hot {
-            if len > 0 {
-                let i = (next() % len as u64) as usize;
+            if !row.is_empty() {
+                let i = (next() % row.len() as u64) as usize;
                 row[i] = (next() % (max as u64 + 1)) as u16;
             }
         }
-        prop_assert_eq!(coarse::window_is_clean(&row, sat, level), coarse::window_is_clean_scalar(&row, sat, level));
+        let want = coarse::window_is_clean_scalar(&row, sat, level);
+        prop_assert_eq!(coarse::window_is_clean(&row, sat, level), want);
+        prop_assert_eq!(coarse::window_is_clean_at(&row, sat, level, top), want, "top {}", top);
+        // Sized for windows of 2H + 1 centred on their candidate (and any other row).
+        prop_assert_eq!(coarse::window_is_clean_centred::<u16, 18>(&row, sat, level), want);
+        prop_assert_eq!(coarse::window_is_clean_centred::<u16, 10>(&row, sat, level), want);
+        prop_assert_eq!(coarse::window_is_clean_centred::<u16, 6>(&row, sat, level), want);
     }
 
     /// The window's copy and spike screen, and the repair, equal the plain

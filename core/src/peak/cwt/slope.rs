@@ -185,6 +185,38 @@ pub fn slope_pair32<S: Sample>(x: &[S], k: usize, p: usize, dp: kernels::DerivPa
     Some((fa - ga, fb - gb))
 }
 
+/// The slope at phases `t` and `t + 1` (`t` in phases from pixel 0, ≥ 0: a
+/// shift and a mask, `PHASES` being a power of two): two taps a word where
+/// `pairs` allows it ([`slope_pair32`]), else [`slope_pair`]; `None` past
+/// the row.
+#[inline(always)]
+fn slope_pair_at<S: Sample>(x: &[S], t: isize, d: Deriv, pairs: Option<kernels::DerivPairs>) -> Option<(i64, i64)> {
+    if t < 0 {
+        return None;
+    }
+    let n = x.len() as isize;
+    let (k, p) = (t >> PHASES.trailing_zeros(), (t as usize) & (PHASES - 1));
+    if let Some(dp) = pairs
+        && let Some((a, b)) = slope_pair32(x, k as usize, p, dp)
+    {
+        return Some((a as i64, b as i64));
+    }
+    if k < n && (p + 1 < PHASES || k + 1 < n) { Some(slope_pair_wide(x, k, p, d)) } else { None }
+}
+
+/// [`slope_pair`] out of line: the phases next to whole pixels and the
+/// widest rungs, whose taps are not stored in pairs.
+#[inline(never)]
+fn slope_pair_wide<S: Sample>(x: &[S], k: isize, p: usize, d: Deriv) -> (i64, i64) {
+    slope_pair(x, k, p, d)
+}
+
+/// [`slope_pair_at`] out of line, for the search's further pairs.
+#[inline(never)]
+fn slope_pair_at_far<S: Sample>(x: &[S], t: isize, d: Deriv, pairs: Option<kernels::DerivPairs>) -> Option<(i64, i64)> {
+    slope_pair_at(x, t, d, pairs)
+}
+
 /// Sub-pixel zero of the slope near `c` on derivative table `d`, Q16.16 px.
 /// `None` when no sign change is found within ±3 px.
 pub fn slope_zero<S: Sample>(x: &[S], c: usize, d: Deriv) -> Option<Px> {
@@ -262,20 +294,10 @@ pub fn slope_zero_near<S: Sample>(
     d: Deriv,
     pairs: Option<kernels::DerivPairs>,
 ) -> Option<Px> {
-    let n = x.len() as isize;
     let ph = PHASES as isize;
-    // The slope at phases t and t + 1 (t in phases from pixel 0, ≥ 0: a
-    // shift and a mask, PHASES being a power of two).
-    let pair = |t: isize| -> Option<(i64, i64)> {
-        if t < 0 {
-            return None;
-        }
-        let (k, p) = (t >> PHASES.trailing_zeros(), (t as usize) & (PHASES - 1));
-        if let Some((a, b)) = pairs.and_then(|dp| slope_pair32(x, k as usize, p, dp)) {
-            return Some((a as i64, b as i64));
-        }
-        (k < n && (p + 1 < PHASES || k + 1 < n)).then(|| slope_pair(x, k, p, d))
-    };
+    // The first pair inline (most stripes need no other), the search's
+    // further pairs by a call.
+    let pair = |t: isize| slope_pair_at_far(x, t, d, pairs);
     // The zero in [lo, lo + 1] (phases), fa > 0 ≥ fb.
     let zero = |lo: isize, fa: i64, fb: i64| {
         const STEP: i64 = 65536 / PHASES as i64;
@@ -283,7 +305,7 @@ pub fn slope_zero_near<S: Sample>(
         Px((lo as i64 * STEP + frac) as i32)
     };
     let mut t = c as isize * ph + guess as isize;
-    let (mut fa, mut fb) = pair(t)?;
+    let (mut fa, mut fb) = slope_pair_at(x, t, d, pairs)?;
     // The zero a phase beside the first pair: the line through it, not a
     // second pair. The guess is that close for nearly every stripe it
     // misses (its noise is about a phase); the line is then extrapolated by

@@ -100,6 +100,15 @@ fn responses_fit_32_bits() {
     }
 }
 
+/// The rung constants `confirm` multiplies as 32-bit values fit them.
+#[test]
+fn rung_constants_fit_32_bits() {
+    for (k, r) in RUNGS.iter().enumerate() {
+        assert!(i32::try_from(r.noise_q8.0).is_ok(), "rung {k}: noise {}", r.noise_q8.0);
+        assert!(i32::try_from(r.amp_inv).is_ok(), "rung {k}: amp_inv {}", r.amp_inv);
+    }
+}
+
 /// The 32-bit sum straight from the row equals the 64-bit one on the
 /// rungs the plan allows for 12-bit rows, wherever its taps fit.
 #[test]
