@@ -37,6 +37,8 @@
 //! doubtful. It is the live reading's verdict, not `analyze`'s on the
 //! recording.
 
+pub mod bands;
+
 use std::collections::VecDeque;
 use std::fmt::Write as _;
 
@@ -213,11 +215,11 @@ pub fn judge_sine(s: &Sine, samples: &[(f64, f64)], span_mm: f64, dx_mm: f64) ->
 }
 
 impl LiveEstimate {
-    /// Feeds one profile message.
-    pub fn push(&mut self, p: &Profile) {
-        if let Some(f) = self.asm.push(p) {
-            self.add(f);
-        }
+    /// Feeds one profile message; the frame it completed, if any.
+    pub fn push(&mut self, p: &Profile) -> Option<&FramePoints> {
+        let f = self.asm.push(p)?;
+        self.add(f);
+        self.window.back()
     }
 
     /// Adds a complete frame.

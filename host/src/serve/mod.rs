@@ -136,6 +136,8 @@ pub struct ServeOptions {
     /// The secret asked of every request (`--serve-token`); off loopback
     /// one is made when none is given ([`access`]).
     pub token: Option<access::Token>,
+    /// What the live EN 13231-3 band figures evaluate.
+    pub live_bands: crate::analyze::live::bands::LiveOptions,
 }
 
 /// Why the live view could not start.
