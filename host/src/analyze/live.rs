@@ -34,8 +34,10 @@
 //! amplitude's `σ √(2/N)` and the wavelength's Cramér–Rao bound for N
 //! samples over the span L, `σ_ω = (σ/A) √(24/(N L²))` — so a wave not
 //! told from the noise is failed and one too short a window holds is
-//! doubtful. It is the live reading's verdict, not `analyze`'s on the
-//! recording.
+//! doubtful. It is a diagnostic of the fit, not a verdict on the rail: a
+//! rail of several wavelengths does not fit one sine, and says so here.
+//! The rail's live verdict is [`bands`]': each line's EN 13231-3 figures
+//! so far, judged by `analyze`'s code against its floor.
 
 pub mod bands;
 

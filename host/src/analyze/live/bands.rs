@@ -467,16 +467,18 @@ fn state(
     let band = &en13231::BANDS[b];
     if b >= live_bands {
         let need = band.window_mm + 2.0 * EDGE_WAVELENGTHS * band.hi_mm;
-        return ("not evaluated", format!("not evaluated live (needs {need:.0} mm a stretch): analyze judges it"));
+        return ("not evaluated", format!("not evaluated live (it needs {need:.0} mm a stretch): analyze judges it"));
     }
     let Some(f) = since else {
         let need = band.window_mm + 2.0 * EDGE_WAVELENGTHS * band.hi_mm;
-        return ("not evaluated", format!("not yet: needs {need:.0} mm of track without a gap"));
+        return ("not evaluated", format!("not evaluated yet: it needs {need:.0} mm of track without a gap"));
     };
     if let Some(why) = &j.not_judged {
         return ("not judged", why.clone());
     }
-    let Some(limit) = limit_um else { return ("not judged", format!("no {} limit for this band", edition.name())) };
+    let Some(limit) = limit_um else {
+        return ("not judged", format!("not judged: no {} limit for this band", edition.name()));
+    };
     let threshold = j.threshold_mm.map_or(limit, |t| t * 1000.0);
     if f.exceeding_percent > en13231::MAX_EXCEEDING_PERCENT {
         let what = format!(

@@ -116,7 +116,7 @@ function bands(b) {
     add(fmt(band.floor_um, 1, "µm"));
     add(lasers.map((l) => cell(l.bands[i])).join(" · "));
     add(rb ? cell(rb.bands[i]) : "–");
-    add(judged.state + (judged.state === "within" || judged.state === "over" ? "" : ": " + judged.why), cls(judged.state), judged.why);
+    add(judged.state === "within" || judged.state === "over" ? judged.state : judged.why, cls(judged.state), judged.why);
     return tr;
   });
   body.replaceChildren(...rows);
