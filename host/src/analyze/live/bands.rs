@@ -131,6 +131,8 @@ pub struct Figures {
     pub worst_mean_pp_um: f64,
     /// Window positions over the threshold, %.
     pub exceeding_percent: f64,
+    /// Samples whose |band value| is over the 2012 limit, % (bands with one).
+    pub abs_exceeding_percent: Option<f64>,
     pub windows: usize,
 }
 
@@ -453,9 +455,9 @@ impl LiveBands {
 }
 
 /// A band's state and why: not evaluated (live, or the run too short),
-/// not judged (the floor), within or over (share of windows over the
-/// threshold against [`en13231::MAX_EXCEEDING_PERCENT`]; under 2012 any
-/// sample over the limit).
+/// not judged (the floor), within or over (2006: the share of windows
+/// over the threshold against [`en13231::MAX_EXCEEDING_PERCENT`]; 2012:
+/// any sample over the limit).
 fn state(
     b: usize,
     live_bands: usize,
@@ -480,6 +482,11 @@ fn state(
         return ("not judged", format!("not judged: no {} limit for this band", edition.name()));
     };
     let threshold = j.threshold_mm.map_or(limit, |t| t * 1000.0);
+    if edition == Edition::En2012 {
+        let over = f.abs_exceeding_percent.unwrap_or(0.0);
+        let what = format!("{over:.1} % of the samples over ±{limit:.0} µm");
+        return (if over > 0.0 { "over" } else { "within" }, what);
+    }
     if f.exceeding_percent > en13231::MAX_EXCEEDING_PERCENT {
         let what = format!(
             "{:.1} % of the windows over {threshold:.1} µm (the {limit:.0} µm limit with the floor's power)",
@@ -510,6 +517,7 @@ fn figures(s: &BandSums, sp: &Spread, band: &en13231::Band, dx_mm: f64) -> Figur
         mean_pp_u_um: (sd / windows_indep.sqrt()).hypot(sys(mean_pp_um)),
         worst_mean_pp_um: st.worst_mean_pp_mm * 1000.0,
         exceeding_percent: st.exceeding_percent,
+        abs_exceeding_percent: st.abs_exceeding_percent,
         windows: st.windows,
     }
 }

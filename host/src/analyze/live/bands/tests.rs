@@ -125,3 +125,19 @@ fn frames_that_would_not_stitch_are_flagged() {
     assert!(r.latest_unstitched.iter().all(|u| u.seq == 40 && u.kind == "gap"), "{:?}", r.latest_unstitched);
     assert!(r.status().contains("3 frame(s) not stitched (last seq 40"), "{}", r.status());
 }
+
+/// Under 2012 only 30–100 mm has a limit (±10 µm of band displacement):
+/// the 30 µm wave is over it, the other bands not judged for want of one.
+#[test]
+fn the_2012_edition_judges_isolated_points() {
+    let f = frames(3_000.0, 16.7, &rail);
+    let mut l = LiveBands::new(LiveOptions { edition: Edition::En2012, ..LiveOptions::default() });
+    for fr in &f {
+        l.add(fr);
+    }
+    let r = l.report().unwrap();
+    assert_eq!(r.edition, "EN 13231-3:2012");
+    let states: Vec<&str> = r.lines[0].bands.iter().map(|b| b.state).collect();
+    assert_eq!(states, ["not judged", "over", "not judged", "not evaluated"], "{r:?}");
+    assert!(r.lines[0].bands[1].why.contains("±10 µm"), "{:?}", r.lines[0].bands[1]);
+}
