@@ -20,7 +20,7 @@
 //! judged through analyze's code: its lines laid on one grid and read as
 //! one piece ([`pieces::piece_of`]: each line, their mean — the running
 //! band — and their Helmert null combinations, band-filtered by
-//! [`en13231::trace`]), the floor summed as [`floor::measure`] sums it
+//! [`en13231::trace`]), the floor summed as [`crate::analyze::floor::measure`] sums it
 //! ([`FloorSums`]), each band's figures as [`en13231::BandSums`], its
 //! verdict by [`BandJudgement`] (a band whose floor is over `1/√2` of the
 //! limit is *not judged*, a window exceeds over `√(limit² + floor²)`).
