@@ -5,22 +5,29 @@
 //! apart) over a rail with 30 µm of corrugation at 50 mm and 2 µm of noise
 //! per point: the window holds 16 frames, about half a metre of rail.
 //!
+//! The live EN 13231-3 band figures (`cms_host::analyze::live::bands`):
+//! a frame taken (stitched into one or two stretches, a stretch judged
+//! when its travel ends) over 7 m of the same frames at 0.5 m/s (16.7 mm
+//! apart), and the open stretch judged at its longest (4.3 m).
+//!
 //! `cargo bench -p cms-host --bench corrugation`.
 
 use cms_host::analyze::live::LiveEstimate;
+use cms_host::analyze::live::bands::LiveBands;
 use cms_host::analyze::stitch::FramePoints;
 use cms_study::Rng;
-use criterion::{Criterion, criterion_group, criterion_main};
+use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
 use std::hint::black_box;
 use std::time::Duration;
 
-fn window() -> LiveEstimate {
+/// `n` frames `step_mm` apart.
+fn frames(n: u32, step_mm: f64) -> Vec<FramePoints> {
     // The studies' seeded generator: 2 µm RMS of Gaussian noise per point.
     let mut rng = Rng::new(0x9e37_79b9_7f4a_7c15);
     let mut noise = move || 2.0 * rng.normal();
-    let mut live = LiveEstimate::default();
-    for i in 0..40u32 {
-        let o = 33.3 * i as f64;
+    let mut out = Vec::new();
+    for i in 0..n {
+        let o = step_mm * i as f64;
         let mut f = FramePoints { seq: i, odometer_mm: o, ..FramePoints::default() };
         for (k, pts) in f.lasers.iter_mut().enumerate() {
             *pts = (0..480)
@@ -28,9 +35,45 @@ fn window() -> LiveEstimate {
                 .map(|a| (a, 30.0 * (std::f64::consts::TAU * (o + a) / 50.0).sin() + 100.0 * k as f64 + noise()))
                 .collect();
         }
+        out.push(f);
+    }
+    out
+}
+
+fn window() -> LiveEstimate {
+    let mut live = LiveEstimate::default();
+    for f in frames(40, 33.3) {
         live.add(f);
     }
     live
+}
+
+fn bands(c: &mut Criterion) {
+    let run = frames(420, 16.7);
+    let mut g = c.benchmark_group("live");
+    g.sample_size(10).measurement_time(Duration::from_secs(10));
+    g.throughput(Throughput::Elements(run.len() as u64));
+    g.bench_function("bands_add_per_frame", |b| {
+        b.iter_batched(
+            LiveBands::default,
+            |mut live| {
+                for f in &run {
+                    live.add(f);
+                }
+                live
+            },
+            BatchSize::LargeInput,
+        )
+    });
+    let mut live = LiveBands::default();
+    for f in &run[..258] {
+        live.add(f);
+    }
+    let r = live.judge_open().expect("a report").clone();
+    println!("open stretch judged over {:.0} mm", r.recent_mm);
+    g.throughput(Throughput::Elements(1));
+    g.bench_function("bands_judge", |b| b.iter(|| black_box(live.judge_open().is_some())));
+    g.finish();
 }
 
 fn update(c: &mut Criterion) {
@@ -48,5 +91,5 @@ fn update(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, update);
+criterion_group!(benches, update, bands);
 criterion_main!(benches);

@@ -55,13 +55,14 @@
 //! has no null combination: its floor is not known and it is judged as
 //! measured, saying so.
 
+use std::borrow::Cow;
 use std::ops::Range;
 
-use super::pieces::{self, Wanted};
+use super::pieces::{self, RunningBand, Wanted};
 use super::stitch::Stitched;
 use super::{Grid, Options};
 use crate::Error;
-use crate::analyze::standards::en13231::{self, BandSums, Edition};
+use crate::analyze::standards::en13231::{self, BandSums, BandTrace, Edition};
 use crate::analyze::standards::en15610;
 use crate::progress::Progress;
 
@@ -191,11 +192,75 @@ struct Sums {
     seen: bool,
 }
 
+/// The floor's sums over pieces of running band, in any order: what
+/// [`measure`] makes a survey's floor of, and the live view a run's so far.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct FloorSums {
+    bands: [Sums; 4],
+}
+
+/// A trace cut to `within` (borrowed when that is all of it).
+fn cut<'a>(t: &'a BandTrace, within: &Range<usize>) -> Cow<'a, BandTrace> {
+    if within.start == 0 && within.end >= t.band_mm.len() {
+        Cow::Borrowed(t)
+    } else {
+        Cow::Owned(t.within(within.clone()))
+    }
+}
+
+impl FloorSums {
+    /// Adds a piece's running band over `within` (indices in the piece's core).
+    pub fn add(&mut self, band: &RunningBand, within: Range<usize>) {
+        for (b, (s, spec)) in self.bands.iter_mut().zip(&en13231::BANDS).enumerate() {
+            if let Some(t) = band.mean.bands.get(b).and_then(Option::as_ref) {
+                s.mean.add(spec, &cut(t, &within));
+            }
+            for n in &band.nulls {
+                if let Some(t) = n.bands.get(b).and_then(Option::as_ref) {
+                    s.nulls.add(spec, &cut(t, &within));
+                    s.seen = true;
+                }
+            }
+        }
+    }
+
+    /// Adds the sums of other pieces.
+    pub fn merge(&mut self, o: &FloorSums) {
+        for (s, o) in self.bands.iter_mut().zip(&o.bands) {
+            s.nulls.merge(&o.nulls);
+            s.mean.merge(&o.mean);
+            s.seen |= o.seen;
+        }
+    }
+
+    /// One line's floor per band ([`en13231::BANDS`] order; `None` where
+    /// no null line was traced) of `lines` lines sampled `dx_mm` apart.
+    pub fn bands(&self, lines: usize, dx_mm: f64) -> Vec<Option<BandFloor>> {
+        self.bands
+            .iter()
+            .zip(&en13231::BANDS)
+            .map(|(s, band)| {
+                s.seen.then(|| {
+                    let n = s.nulls.stats(band, dx_mm);
+                    let m = s.mean.stats(band, dx_mm);
+                    BandFloor {
+                        rms_mm: n.rms_mm,
+                        average_mean_pp_mm: n.average_mean_pp_mm,
+                        worst_mean_pp_mm: n.worst_mean_pp_mm,
+                        peak_mm: n.worst_max_pp_mm / 2.0,
+                        coherence: coherence(m.rms_mm, n.rms_mm, lines),
+                    }
+                })
+            })
+            .collect()
+    }
+}
+
 /// Measures the floor of a survey's lines (`stitched`, section by
 /// section), walking each section with two lines or more once; `None`
 /// when no section has two lines with samples in common.
 pub fn measure(stitched: &[Stitched], opts: &Options, progress: &dyn Progress) -> Result<Option<Floor>, Error> {
-    let mut sums = [Sums::default(); 4];
+    let mut sums = FloorSums::default();
     let mut welch: Option<en15610::Welch> = None;
     let (mut lines, mut measured_mm, mut spikes) = (usize::MAX, 0.0, 0usize);
     let sections: Vec<&[Stitched]> = stitched.chunk_by(|a, b| a.section == b.section).collect();
@@ -221,17 +286,7 @@ pub fn measure(stitched: &[Stitched], opts: &Options, progress: &dyn Progress) -
         let want = Wanted { lines: false, mean: true, nulls: true };
         pieces::walk_section(section[0].section, &with, opts, want, &mut |p| {
             let Some(band) = &p.band else { return Ok(()) };
-            for (b, (s, spec)) in sums.iter_mut().zip(&en13231::BANDS).enumerate() {
-                if let Some(t) = band.mean.bands.get(b).and_then(Option::as_ref) {
-                    s.mean.add(spec, t);
-                }
-                for n in &band.nulls {
-                    if let Some(t) = n.bands.get(b).and_then(Option::as_ref) {
-                        s.nulls.add(spec, t);
-                        s.seen = true;
-                    }
-                }
-            }
+            sums.add(band, 0..p.core.len());
             if let Some(w) = &mut welch {
                 for n in &band.nulls {
                     spikes += w.add(&n.stretch(p.core.clone()), &opts.roughness);
@@ -246,29 +301,11 @@ pub fn measure(stitched: &[Stitched], opts: &Options, progress: &dyn Progress) -
     if lines == usize::MAX {
         return Ok(None);
     }
-    let dx = stitched[0].dx_mm;
-    let bands = sums
-        .iter()
-        .zip(&en13231::BANDS)
-        .map(|(s, band)| {
-            s.seen.then(|| {
-                let n = s.nulls.stats(band, dx);
-                let m = s.mean.stats(band, dx);
-                BandFloor {
-                    rms_mm: n.rms_mm,
-                    average_mean_pp_mm: n.average_mean_pp_mm,
-                    worst_mean_pp_mm: n.worst_mean_pp_mm,
-                    peak_mm: n.worst_max_pp_mm / 2.0,
-                    coherence: coherence(m.rms_mm, n.rms_mm, lines),
-                }
-            })
-        })
-        .collect();
     let nulls = (lines - 1) as f64;
     Ok(Some(Floor {
         lines,
         measured_mm,
-        bands,
+        bands: sums.bands(lines, stitched[0].dx_mm),
         spectrum: welch.map(|w| w.spectrum()),
         spikes_per_m: spikes as f64 / nulls / (measured_mm / 1000.0).max(1e-9),
     }))

@@ -34,8 +34,12 @@
 //! amplitude's `σ √(2/N)` and the wavelength's Cramér–Rao bound for N
 //! samples over the span L, `σ_ω = (σ/A) √(24/(N L²))` — so a wave not
 //! told from the noise is failed and one too short a window holds is
-//! doubtful. It is the live reading's verdict, not `analyze`'s on the
-//! recording.
+//! doubtful. It is a diagnostic of the fit, not a verdict on the rail: a
+//! rail of several wavelengths does not fit one sine, and says so here.
+//! The rail's live verdict is [`bands`]': each line's EN 13231-3 figures
+//! so far, judged by `analyze`'s code against its floor.
+
+pub mod bands;
 
 use std::collections::VecDeque;
 use std::fmt::Write as _;
@@ -213,11 +217,11 @@ pub fn judge_sine(s: &Sine, samples: &[(f64, f64)], span_mm: f64, dx_mm: f64) ->
 }
 
 impl LiveEstimate {
-    /// Feeds one profile message.
-    pub fn push(&mut self, p: &Profile) {
-        if let Some(f) = self.asm.push(p) {
-            self.add(f);
-        }
+    /// Feeds one profile message; the frame it completed, if any.
+    pub fn push(&mut self, p: &Profile) -> Option<&FramePoints> {
+        let f = self.asm.push(p)?;
+        self.add(f);
+        self.window.back()
     }
 
     /// Adds a complete frame.

@@ -200,26 +200,69 @@ pub fn walk_section(
     wanted: Wanted,
     f: &mut dyn FnMut(&Piece) -> Result<(), Error>,
 ) -> Result<(), Error> {
-    let Some((first, _)) = lines.first() else { return Ok(()) };
-    let dx = first.dx_mm;
-    let stitched: Vec<&Stitched> = lines.iter().map(|l| l.0).collect();
-    let grid = Grid::of_lines(&stitched, dx);
-    let margin = (margin_mm(opts) / dx).ceil() as usize;
-    let line_runs: Vec<Vec<Range<usize>>> = stitched
-        .iter()
-        .map(|s| {
-            let off = grid.offset(s);
-            runs(s).into_iter().map(|r| r.start + off..r.end + off).collect()
-        })
-        .collect();
-    let combine = (wanted.mean || wanted.nulls) && lines.len() >= 2;
-    let common = if combine { common_runs(&line_runs) } else { Vec::new() };
-    let common_bands = evaluated_on(&common, dx);
-    for core in cores(&grid, opts) {
-        let ext = core.start.saturating_sub(margin)..(core.end + margin).min(grid.len);
-        let mut piece = Piece { section, grid, core: core.clone(), lines: Vec::new(), band: None };
+    let Some(s) = Laid::new(section, lines, wanted) else { return Ok(()) };
+    let margin = (margin_mm(opts) / s.grid.dx_mm).ceil() as usize;
+    for core in cores(&s.grid, opts) {
+        let ext = core.start.saturating_sub(margin)..(core.end + margin).min(s.grid.len);
+        f(&s.piece(core, ext)?)?;
+    }
+    Ok(())
+}
+
+/// One piece of a section's lines (as [`walk_section`] makes them): the
+/// grid indices `core`, read over `ext` (which holds it; cut to the
+/// grid); `None` without lines. A stretch seen on its own, as the live
+/// view sees the last one stitched, is one piece whose `ext` is all of it.
+pub fn piece_of(
+    section: usize,
+    lines: &[(&Stitched, [bool; 4])],
+    wanted: Wanted,
+    core: Range<usize>,
+    ext: Range<usize>,
+) -> Result<Option<Piece>, Error> {
+    let Some(s) = Laid::new(section, lines, wanted) else { return Ok(None) };
+    let ext = ext.start.min(core.start)..ext.end.max(core.end).min(s.grid.len);
+    let core = core.start.max(ext.start)..core.end.min(ext.end);
+    s.piece(core, ext).map(Some)
+}
+
+/// A section's lines laid on their grid, with their runs.
+struct Laid<'a> {
+    section: usize,
+    lines: &'a [(&'a Stitched, [bool; 4])],
+    wanted: Wanted,
+    grid: Grid,
+    line_runs: Vec<Vec<Range<usize>>>,
+    combine: bool,
+    common: Vec<Range<usize>>,
+    common_bands: [bool; 4],
+}
+
+impl<'a> Laid<'a> {
+    fn new(section: usize, lines: &'a [(&'a Stitched, [bool; 4])], wanted: Wanted) -> Option<Laid<'a>> {
+        let (first, _) = lines.first()?;
+        let dx = first.dx_mm;
+        let stitched: Vec<&Stitched> = lines.iter().map(|l| l.0).collect();
+        let grid = Grid::of_lines(&stitched, dx);
+        let line_runs: Vec<Vec<Range<usize>>> = stitched
+            .iter()
+            .map(|s| {
+                let off = grid.offset(s);
+                runs(s).into_iter().map(|r| r.start + off..r.end + off).collect()
+            })
+            .collect();
+        let combine = (wanted.mean || wanted.nulls) && lines.len() >= 2;
+        let common = if combine { common_runs(&line_runs) } else { Vec::new() };
+        let common_bands = evaluated_on(&common, dx);
+        Some(Laid { section, lines, wanted, grid, line_runs, combine, common, common_bands })
+    }
+
+    /// The piece of `core`, its lines read over `ext`.
+    fn piece(&self, core: Range<usize>, ext: Range<usize>) -> Result<Piece, Error> {
+        let (grid, dx) = (self.grid, self.grid.dx_mm);
+        let mut piece = Piece { section: self.section, grid, core: core.clone(), lines: Vec::new(), band: None };
         let mut read = Vec::new();
-        for ((s, evaluate), runs) in lines.iter().zip(&line_runs) {
+        for ((s, evaluate), runs) in self.lines.iter().zip(&self.line_runs) {
             let off = grid.offset(s);
             let mut z = vec![f64::NAN; ext.len()];
             // The line's own samples within the stretch.
@@ -228,19 +271,18 @@ pub fn walk_section(
                 let v = s.z.read(lo - off..hi - off).map_err(ScratchError)?;
                 z[lo - ext.start..lo - ext.start + v.len()].copy_from_slice(&v);
             }
-            if combine {
+            if self.combine {
                 read.push(z.clone());
             }
-            if wanted.lines {
+            if self.wanted.lines {
                 piece.lines.push(PieceLine::traced(s.laser, z, &ext, &core, runs.clone(), dx, evaluate));
             }
         }
-        if combine {
-            piece.band = Some(running_band(&read, &ext, &core, &common, dx, &common_bands, wanted));
+        if self.combine {
+            piece.band = Some(running_band(&read, &ext, &core, &self.common, dx, &self.common_bands, self.wanted));
         }
-        f(&piece)?;
+        Ok(piece)
     }
-    Ok(())
 }
 
 impl PieceLine {

@@ -83,6 +83,8 @@
 
 use cms_core::protocol::{LASERS, Profile};
 
+mod peek;
+
 use super::store::{Cells, FitLog, Samples};
 pub use super::store::{Gap, gaps_in};
 
@@ -452,14 +454,31 @@ impl Stitcher {
     /// The profiles: the direction chosen (with `Auto`), every laser that
     /// had points.
     pub fn finish(self) -> Result<Stitching, StitchError> {
-        if let Some(e) = self.error {
-            return Err(e);
+        let (with_points, direction, residuals) = self.choice()?;
+        let dx = self.opts.dx_mm;
+        let sign = if direction == Direction::Reverse { -1.0 } else { 1.0 };
+        let registration = self.opts.registration;
+        let lasers = self
+            .lanes
+            .into_iter()
+            .filter(|l| l.sign == sign && l.registration == registration && with_points.contains(&l.laser))
+            .map(|l| l.into_stitched(dx))
+            .collect::<Result<Vec<Stitched>, StitchError>>()?;
+        let direction_given = self.opts.direction != Direction::Auto;
+        Ok(Stitching { direction, direction_residuals_um: Some(residuals), direction_given, lasers })
+    }
+
+    /// The lasers with points, the direction ([`Direction::Auto`] chosen)
+    /// and the median residuals of forward and reverse.
+    #[allow(clippy::type_complexity)]
+    fn choice(&self) -> Result<(Vec<usize>, Direction, (Option<f64>, Option<f64>)), StitchError> {
+        if let Some(e) = &self.error {
+            return Err(e.clone());
         }
         let with_points: Vec<usize> = (0..LASERS).filter(|&k| self.points[k] > 0).collect();
         let Some(&busiest) = with_points.iter().max_by_key(|&&k| self.points[k]) else {
             return Err(StitchError::NoPoints);
         };
-        let dx = self.opts.dx_mm;
         let probe = |sign: f64| {
             self.lanes
                 .iter()
@@ -472,16 +491,7 @@ impl Stitcher {
             (Direction::Auto, _, _) => Direction::Forward,
             (d, _, _) => d,
         };
-        let sign = if direction == Direction::Reverse { -1.0 } else { 1.0 };
-        let registration = self.opts.registration;
-        let lasers = self
-            .lanes
-            .into_iter()
-            .filter(|l| l.sign == sign && l.registration == registration && with_points.contains(&l.laser))
-            .map(|l| l.into_stitched(dx))
-            .collect::<Result<Vec<Stitched>, StitchError>>()?;
-        let direction_given = self.opts.direction != Direction::Auto;
-        Ok(Stitching { direction, direction_residuals_um: Some((fwd, rev)), direction_given, lasers })
+        Ok((with_points, direction, (fwd, rev)))
     }
 }
 

@@ -35,6 +35,16 @@ pub enum EditionArg {
     En2012,
 }
 
+impl EditionArg {
+    /// The edition named.
+    pub fn edition(self) -> Edition {
+        match self {
+            EditionArg::En2006 => Edition::En2006,
+            EditionArg::En2012 => Edition::En2012,
+        }
+    }
+}
+
 /// `--register`.
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RegisterArg {
@@ -160,10 +170,7 @@ impl AnalysisArgs {
     pub fn options(&self) -> Options {
         let defaults = runs::Settings::default();
         runs::Settings {
-            edition: match self.edition {
-                EditionArg::En2006 => Edition::En2006,
-                EditionArg::En2012 => Edition::En2012,
-            },
+            edition: self.edition.edition(),
             block_m: self.block_m,
             dx_mm: self.dx_mm,
             direction: match self.direction {

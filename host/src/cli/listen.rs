@@ -13,6 +13,7 @@ use cms_core::peak::ColumnWindow;
 use cms_core::peak::window::MIN_WINDOW_PX;
 use cms_core::protocol::{LASERS, LaserPattern, Start};
 use cms_core::readout::RowSkip;
+use cms_host::analyze::live::bands::LiveOptions;
 use cms_host::calib::file::CalibrationFile;
 use cms_host::device::listen::LinkState;
 use cms_host::device::listen::{self, ListenOptions, RowsRequest, StatusLine, Summary};
@@ -116,6 +117,10 @@ pub struct ListenArgs {
     /// head along examples/track-register.csv, from chainage 41+100).
     #[arg(long, value_name = "GNSS_PORT")]
     pub gnss: Option<String>,
+    /// The EN 13231-3 edition whose limits the live band figures (status
+    /// line, live view) are held against, as `analyze --edition`.
+    #[arg(long, value_enum, default_value = "2006")]
+    pub edition: super::analyze::EditionArg,
     /// Baud rate of the GNSS receiver's port (a USB receiver ignores it).
     #[arg(long, value_name = "B", default_value_t = 115_200, value_parser = clap::value_parser!(u32).range(1..), requires = "gnss")]
     pub gnss_baud: u32,
@@ -252,6 +257,7 @@ impl ListenArgs {
             track_px: self.track_px,
             reconnect_timeout: self.reconnect_timeout,
             gnss: self.gnss.as_ref().map(|path| listen::GnssPort { path: path.clone(), baud: self.gnss_baud }),
+            live_bands: LiveOptions { edition: self.edition.edition(), ..LiveOptions::default() },
         }
     }
 }
@@ -488,6 +494,7 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
                 recording: opts.record.is_some(),
                 marks: Some(marks.clone()),
                 token: args.serve_token.clone(),
+                live_bands: opts.live_bands,
             };
             let v = LiveView::start(&opts).map_err(cms_host::Error::from)?;
             let _ = writeln!(io::stderr(), "listen: live view on {} (read-only but for event marks)", v.url());

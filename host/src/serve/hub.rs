@@ -12,6 +12,7 @@ use serde::Serialize;
 
 use super::http::Update;
 use super::{DISPLAY_HZ, Input, ServeOptions, Shared};
+use crate::analyze::live::bands::{BandsReport, LiveBands};
 use crate::analyze::live::{LaserEstimate, LiveEstimate};
 use crate::device::listen::LinkState;
 use crate::recording::FrameCounter;
@@ -81,7 +82,9 @@ struct Corrugation {
     length_mm: f64,
     wavelength_mm: Option<f64>,
     amplitude_um: Option<f64>,
-    /// "good", "doubtful", "failed", or "none" without a sine.
+    /// The sine's fit to its one-wavelength model, a diagnostic (a rail
+    /// of several wavelengths does not fit it): "good", "doubtful",
+    /// "failed", or "none" without a sine.
     verdict: String,
     /// The verdict's reasons, or why there is no sine.
     reasons: Vec<String>,
@@ -124,6 +127,8 @@ struct Snapshot<'a> {
     pages: u64,
     frame: Option<&'a FrameView>,
     corrugation: &'a [Corrugation],
+    /// The run's EN 13231-3 band figures so far (`None` before calibrated frames).
+    bands: Option<&'a BandsReport>,
 }
 
 #[derive(Debug, Serialize)]
@@ -165,6 +170,8 @@ struct Hub<'a> {
     live: LiveEstimate,
     estimate: Vec<Corrugation>,
     estimated_at: Option<Instant>,
+    bands: LiveBands,
+    bands_report: Option<BandsReport>,
     ticks: VecDeque<Tick>,
     frames_seen: u64,
 }
@@ -182,6 +189,8 @@ pub(super) fn run(rx: Receiver<Input>, out: tokio::sync::watch::Sender<Update>, 
         live: LiveEstimate::default(),
         estimate: Vec::new(),
         estimated_at: None,
+        bands: LiveBands::new(opts.live_bands),
+        bands_report: None,
         ticks: VecDeque::new(),
         frames_seen: 0,
     };
@@ -203,6 +212,7 @@ pub(super) fn run(rx: Receiver<Input>, out: tokio::sync::watch::Sender<Update>, 
         if (fresh && now >= due) || now.duration_since(last_sent) >= IDLE_EVERY {
             if hub.estimated_at.is_none_or(|t| now.duration_since(t) >= ESTIMATE_EVERY) {
                 hub.estimate = hub.live.estimate().iter().map(corrugation).collect();
+                hub.bands_report = hub.bands.report().cloned();
                 hub.estimated_at = Some(now);
             }
             let n = shared.updates.fetch_add(1, Ordering::Relaxed) + 1;
@@ -272,7 +282,9 @@ impl Hub<'_> {
     }
 
     fn profile(&mut self, p: &Profile) -> bool {
-        self.live.push(p);
+        if let Some(f) = self.live.push(p) {
+            self.bands.add(f);
+        }
         let complete = self.counter.profile(p);
         if p.part == 0 || self.building.as_ref().is_none_or(|b| b.seq != p.seq) {
             self.building = Some(FrameView {
@@ -448,6 +460,7 @@ impl Hub<'_> {
             pages: shared.pages_open.load(Ordering::Relaxed),
             frame: self.newest.as_ref(),
             corrugation: &self.estimate,
+            bands: self.bands_report.as_ref(),
         };
         serde_json::to_string(&s).unwrap_or_else(|e| format!("{{\"error\":\"{e}\"}}"))
     }

@@ -20,9 +20,10 @@
 //! bounded queue of [`QUEUE_MESSAGES`] with `try_send`, which never
 //! blocks; when the queue is full the view's copy is dropped and counted
 //! (`view_dropped`), the recording is not touched. The hub (a thread of its
-//! own) assembles frames, the frame rate, speed, lost and damaged frames and
+//! own) assembles frames, the frame rate, speed, lost and damaged frames,
 //! the running corrugation estimate ([`crate::analyze::live`], twice a
-//! second), and publishes an update — the newest frame's points and every
+//! second) and the run's EN 13231-3 band figures
+//! ([`crate::analyze::live::bands`]), and publishes an update — the newest frame's points and every
 //! figure, as one JSON text — at most [`DISPLAY_HZ`] times a second into a
 //! `watch` channel, which holds the newest update only. Each page's task
 //! sends the newest when it can: a slow page skips updates (counted,
@@ -136,6 +137,8 @@ pub struct ServeOptions {
     /// The secret asked of every request (`--serve-token`); off loopback
     /// one is made when none is given ([`access`]).
     pub token: Option<access::Token>,
+    /// What the live EN 13231-3 band figures evaluate.
+    pub live_bands: crate::analyze::live::bands::LiveOptions,
 }
 
 /// Why the live view could not start.

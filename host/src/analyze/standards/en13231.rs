@@ -217,6 +217,14 @@ pub struct BandTrace {
     pub max_pp_mm: Vec<f64>,
 }
 
+impl BandTrace {
+    /// The trace over `range` of its samples (cut to its length).
+    pub fn within(&self, range: std::ops::Range<usize>) -> BandTrace {
+        let cut = |v: &[f64]| v[range.start.min(v.len())..range.end.min(v.len())].to_vec();
+        BandTrace { band_mm: cut(&self.band_mm), mean_pp_mm: cut(&self.mean_pp_mm), max_pp_mm: cut(&self.max_pp_mm) }
+    }
+}
+
 /// A band's figures summed over the pieces of a profile, in any order.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct BandSums {
@@ -259,6 +267,23 @@ impl BandSums {
                 self.exceeding += 1;
             }
         }
+    }
+
+    /// Adds the sums of other pieces.
+    pub fn merge(&mut self, o: &BandSums) {
+        self.windows += o.windows;
+        self.exceeding += o.exceeding;
+        self.sum_mean_mm += o.sum_mean_mm;
+        self.worst_mean_mm = self.worst_mean_mm.max(o.worst_mean_mm);
+        self.worst_max_mm = self.worst_max_mm.max(o.worst_max_mm);
+        self.sq_mm2 += o.sq_mm2;
+        self.count += o.count;
+        self.abs_over += o.abs_over;
+    }
+
+    /// Window positions summed.
+    pub fn windows(&self) -> usize {
+        self.windows
     }
 
     /// The band's figures.

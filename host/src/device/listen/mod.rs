@@ -120,6 +120,9 @@ pub struct ListenOptions {
     /// A GNSS receiver to read beside the head: its fixes go into the
     /// recording among the frames ([`crate::gnss`]).
     pub gnss: Option<GnssPort>,
+    /// What the status line's EN 13231-3 band figures evaluate (the
+    /// edition's limits).
+    pub live_bands: crate::analyze::live::bands::LiveOptions,
 }
 
 /// A GNSS receiver's serial port.
@@ -147,6 +150,7 @@ impl Default for ListenOptions {
             track_px: None,
             reconnect_timeout: Duration::from_secs(30),
             gnss: None,
+            live_bands: crate::analyze::live::bands::LiveOptions::default(),
         }
     }
 }

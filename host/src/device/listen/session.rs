@@ -10,6 +10,7 @@ use cms_core::protocol::{DeviceMsg, HeadState, HostMsg, Profile, WireError};
 use cms_core::readout::Readout;
 
 use crate::analyze::live::LiveEstimate;
+use crate::analyze::live::bands::LiveBands;
 use crate::gnss::{Placed, Receiver};
 use crate::link::{Client, Greeting, Outbox, check_version};
 use crate::recording::HostRecord;
@@ -76,6 +77,8 @@ pub(super) struct Session<'a> {
     window_rates: WindowRates,
     /// The recent calibrated frames, for the corrugation estimate.
     live: LiveEstimate,
+    /// The run's EN 13231-3 band figures so far.
+    bands: LiveBands,
     /// The GNSS receiver read beside the head.
     pub(super) gnss: Option<Receiver>,
     /// The last profile: when it arrived, its time and odometer (µm).
@@ -232,7 +235,9 @@ impl Session<'_> {
         self.last_head = Some((now, p.timestamp_us, p.odometer_um));
         self.last_seq = p.seq;
         self.sum.profiles += 1;
-        self.live.push(p);
+        if let Some(f) = self.live.push(p) {
+            self.bands.add(f);
+        }
         let n = recording::points(p);
         self.sum.points += n;
         self.window_points += n;
@@ -352,7 +357,15 @@ impl Session<'_> {
             None => "?".to_string(),
         };
         // Once calibrated points flow: the sine fit of each laser's last half metre.
-        let corrugation = self.live.status();
+        let mut corrugation = self.live.status();
+        // And the run's EN 13231-3 bands so far, as analyze would judge them.
+        if let Some(b) = self.bands.report() {
+            let b = b.status();
+            if !b.is_empty() {
+                corrugation =
+                    if corrugation.is_empty() { b } else { format!("{corrugation} (one sine, a diagnostic); {b}") };
+            }
+        }
         // The head's own report, once it has one from streaming (the one
         // answering Start has an empty window).
         let head = match &self.sum.head {
@@ -416,6 +429,7 @@ impl<'a> Session<'a> {
             window_rejected: 0,
             window_rates: WindowRates::default(),
             live: LiveEstimate::default(),
+            bands: LiveBands::new(opts.live_bands),
             gnss: None,
             last_head: None,
             last_seq: 0,

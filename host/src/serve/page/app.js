@@ -80,15 +80,49 @@ function figures(u) {
       r.querySelector(".strength").textContent = fmt(l.mean_strength, 0);
     }
   }
+  // The one-sine fit: a diagnostic, never the rail's verdict (a rail of
+  // several wavelengths does not fit one sine).
+  const fits = { good: "fits", doubtful: "fits doubtfully", failed: "does not fit (several wavelengths?)", none: "none" };
   for (const c of u.corrugation) {
     const r = line(c.laser).root;
     r.querySelector(".wavelength").textContent = fmt(c.wavelength_mm, 1, "mm");
     r.querySelector(".amplitude").textContent = fmt(c.amplitude_um, 1, "µm");
     const v = r.querySelector(".verdict");
-    v.textContent = c.verdict;
-    v.className = "verdict " + c.verdict;
+    v.textContent = "one sine " + (fits[c.verdict] || c.verdict);
+    v.dataset.fit = c.verdict;
     r.querySelector(".reasons").textContent = c.reasons.join("; ");
   }
+  bands(u.bands);
+}
+
+// Each line's EN 13231-3 bands since the start (the last stretch in
+// brackets), the floor, and the running band's verdict.
+function bands(b) {
+  const body = $("bandtable").tBodies[0];
+  if (!b) { text("bandsedition", "(no calibrated frames yet)"); return; }
+  text("bandsedition", `${b.edition}: ${fmt(b.since_mm / 1000, 2, "m")} judged, last stretch ${fmt(b.recent_mm / 1000, 2, "m")}`);
+  const lasers = b.lines.filter((l) => l.laser !== null);
+  const rb = b.lines.find((l) => l.laser === null);
+  $("bandtable").querySelector("th.cols").textContent = lasers.map((l) => "L" + l.laser).join(" · ") || "lines";
+  const cell = (x) => !x ? "–" : x.since ? `${fmt(x.since.mean_pp_um, 1)} ± ${fmt(x.since.mean_pp_u_um, 1)}` + (x.recent ? ` (${fmt(x.recent.mean_pp_um, 1)})` : "") : "–";
+  const cls = (s) => s.replace(" ", "");
+  const rows = (lasers[0] || rb).bands.map((band, i) => {
+    const judged = rb ? rb.bands[i] : band;
+    const tr = document.createElement("tr");
+    tr.dataset.state = judged.state;
+    const add = (t, c, title) => { const td = document.createElement("td"); td.textContent = t; if (c) td.className = c; if (title) td.title = title; tr.appendChild(td); };
+    add(band.band);
+    add(fmt(band.limit_um, 0, "µm"));
+    add(fmt(band.floor_um, 1, "µm"));
+    add(lasers.map((l) => cell(l.bands[i])).join(" · "));
+    add(rb ? cell(rb.bands[i]) : "–");
+    add(judged.state === "within" || judged.state === "over" ? judged.state : judged.why, cls(judged.state), judged.why);
+    return tr;
+  });
+  body.replaceChildren(...rows);
+  const un = b.latest_unstitched[b.latest_unstitched.length - 1];
+  text("unstitched", b.unstitched === 0 ? "every frame stitched" : `${b.unstitched} frame(s) would not stitch; latest seq ${un.seq} at ${fmt(un.odometer_mm / 1000, 3, "m")}, laser ${un.laser}: ${un.kind}, overlap ${fmt(un.overlap_mm, 1, "mm")} (analyze registers a frame from 3 mm)`);
+  $("unstitched").className = b.unstitched === 0 ? "" : "warn";
 }
 
 function ticks(lo, hi, n) {

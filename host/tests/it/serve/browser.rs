@@ -209,6 +209,12 @@ impl Drop for Browser {
 /// What the page shows, read in one go (so of one update).
 const SHOWN: &str = r#"
 const t = (id) => document.getElementById(id).textContent;
+const bands = [...document.querySelectorAll('#bandtable tbody tr')].map((r) => ({ state: r.dataset.state, cells: [...r.cells].map((c) => c.textContent) }));
+// Anything red (the failed verdict's colours) among the lines and the bands.
+const red = [...document.querySelectorAll('#bands *, #lines *')].filter((e) => {
+  const s = getComputedStyle(e);
+  return s.backgroundColor === 'rgb(255, 227, 224)' || s.color === 'rgb(179, 38, 30)';
+}).length;
 const lines = [...document.querySelectorAll('#lines .line')].map((l) => {
   const q = (c) => l.querySelector(c).textContent;
   return { laser: Number(l.querySelector('.k').textContent), kept: q('.kept'), rejected: q('.rejected'),
@@ -217,7 +223,7 @@ const lines = [...document.querySelectorAll('#lines .line')].map((l) => {
 });
 return { seq: t('seq'), frames: t('frames'), fps: t('fps'), odometer: t('odometer'), lost: t('lost'),
          damaged: t('damaged'), speed: t('speed'), speedlimit: t('speedlimit'), speedwarn: t('speedwarn'),
-         phase: t('phase'), lasers: t('lasers'), updates: t('updates'), lines };
+         phase: t('phase'), lasers: t('lasers'), updates: t('updates'), lines, bands, red };
 "#;
 
 /// CPU time of process `pid` (every thread: the listener, the simulated
@@ -257,9 +263,9 @@ fn a_real_browser_shows_the_recorded_frames_live() {
             .to_string(),
     ));
     b.wait_for(
-        "return window.cmsView().updates >= 30 && document.querySelectorAll('#lines .verdict.good, #lines .verdict.doubtful, #lines .verdict.failed').length === 3",
+        "return window.cmsView().updates >= 30 && document.querySelectorAll('#lines .verdict[data-fit]').length === 3 && [...document.querySelectorAll('#bandtable tbody tr')].some((r) => r.dataset.state === 'over')",
         Duration::from_secs(90),
-        "live frames and corrugation estimates",
+        "live frames, corrugation estimates and the band table",
     );
     let shown = b.eval(SHOWN);
     // Two event marks: the Weld button clicked, then D typed with the text box filled.
@@ -314,6 +320,13 @@ fn a_real_browser_shows_the_recorded_frames_live() {
         assert!((number(&l["wavelength"]) - 50.0).abs() < 1.0, "laser {k}: {l}");
         assert!((number(&l["amplitude"]) - 30.0).abs() < 2.0, "laser {k}: {l}");
     }
+    // The band table: every band, the rail's 60 µm peak-to-peak over the
+    // 30–100 mm limit; nothing red, the one sine a diagnostic.
+    let bands = shown["bands"].as_array().unwrap();
+    assert_eq!(bands.len(), 4, "{shown}");
+    assert_eq!(bands[1]["state"], "over", "{shown}");
+    assert_eq!(bands[1]["cells"][0], "30–100 mm", "{shown}");
+    assert_eq!(shown["red"], 0, "{shown}");
     // The run's own counts: no frame damaged, all shown up to then.
     let shown_frames: u64 = shown["frames"].as_str().unwrap().parse().unwrap();
     assert!(shown_frames as usize <= frames.len() && shown_frames > 30, "{shown}");

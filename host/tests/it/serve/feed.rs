@@ -20,7 +20,7 @@ fn ws(host: &str) -> WebSocket<TcpStream> {
 
 /// A page that reads every update until the view closes: how many it got,
 /// and the last.
-fn reader(host: &str) -> JoinHandle<(u64, serde_json::Value)> {
+pub(super) fn reader(host: &str) -> JoinHandle<(u64, serde_json::Value)> {
     let mut s = ws(host);
     thread::spawn(move || {
         let (mut n, mut last) = (0, serde_json::Value::Null);

@@ -9,6 +9,7 @@
 
 mod browser;
 mod feed;
+mod live_bands;
 mod token;
 mod viewer;
 

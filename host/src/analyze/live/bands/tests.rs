@@ -1,0 +1,143 @@
+use super::*;
+use crate::analyze::{self, Analysis};
+
+/// Frames of three lines over `length_mm` of rail `rail(x)` (µm), `step_mm`
+/// apart, 480 points each over 68.6 mm, 2 µm of noise per point.
+fn frames(length_mm: f64, step_mm: f64, rail: &dyn Fn(f64) -> f64) -> Vec<FramePoints> {
+    let mut rng = cms_study::Rng::new(11);
+    let n = (length_mm / step_mm) as u32;
+    (0..n)
+        .map(|i| {
+            let o = step_mm * f64::from(i);
+            let mut f = FramePoints { seq: i, odometer_mm: o, ..FramePoints::default() };
+            for (k, pts) in f.lasers.iter_mut().enumerate() {
+                *pts = (0..480)
+                    .map(|r| -34.3 + 0.143 * f64::from(r))
+                    .map(|a| (a, rail(o + a) + 50.0 * k as f64 + 2.0 * rng.normal()))
+                    .collect();
+            }
+            f
+        })
+        .collect()
+}
+
+fn rail(x: f64) -> f64 {
+    use std::f64::consts::TAU;
+    30.0 * (TAU * x / 50.0).sin() + 20.0 * (TAU * x / 200.0 + 1.0).sin() + 3.0 * (TAU * x / 17.0).sin()
+}
+
+fn live(frames: &[FramePoints]) -> BandsReport {
+    let mut l = LiveBands::default();
+    for f in frames {
+        l.add(f);
+    }
+    l.report().cloned().expect("a report")
+}
+
+/// Each line's live figures since the start are analyze's of the same
+/// frames within their stated uncertainty, and so is the state.
+fn agree(r: &BandsReport, a: &Analysis) {
+    for la in &a.lasers {
+        let line = r.lines.iter().find(|l| l.laser == Some(la.stitched.laser)).expect("the laser's bands");
+        let bands = la.bands.as_ref().unwrap();
+        for b in 0..3 {
+            let got = &line.bands[b];
+            let Ok(want) = &bands.bands[b].outcome else {
+                assert_eq!(got.state, "not evaluated", "band {b}: {got:?}");
+                continue;
+            };
+            let f = got.since.expect("figures where analyze has them");
+            let (pp, rms) = (want.average_mean_pp_mm * 1000.0, want.rms_mm * 1000.0);
+            assert!((f.mean_pp_um - pp).abs() <= f.mean_pp_u_um, "laser {} band {b}: {f:?} vs {pp}", la.stitched.laser);
+            assert!((f.rms_um - rms).abs() <= f.rms_u_um, "laser {} band {b}: {f:?} vs {rms}", la.stitched.laser);
+            let state = match (&la.judgements[b].not_judged, want.passes) {
+                (Some(_), _) => "not judged",
+                (None, true) => "within",
+                (None, false) => "over",
+            };
+            assert_eq!(got.state, state, "laser {} band {b}: {got:?}", la.stitched.laser);
+        }
+    }
+    let rb = r.lines.iter().find(|l| l.laser.is_none()).expect("the running band");
+    for (b, row) in a.verdict.rows.iter().enumerate().take(3) {
+        let want = match (&row.judgement.not_judged, row.passes(a.verdict.options.edition)) {
+            (Some(_), _) => "not judged",
+            (None, Some(true)) => "within",
+            (None, Some(false)) => "over",
+            (None, None) => "not evaluated",
+        };
+        assert_eq!(rb.bands[b].state, want, "running band {b}: {:?}", rb.bands[b]);
+    }
+}
+
+/// 7 m of a rail of three wavelengths (two stretches and a part):
+/// the live figures are analyze's, the run's length too.
+#[test]
+fn live_bands_are_what_analyze_finds() {
+    let f = frames(7_000.0, 16.7, &rail);
+    let r = live(&f);
+    let a = analyze::analyze(&f, &analyze::Options::default()).unwrap();
+    agree(&r, &a);
+    let covered = a.lasers[0].stitched.length_mm();
+    assert!((r.since_mm - covered).abs() < 80.0, "{} of {covered}", r.since_mm);
+    assert_eq!(r.unstitched, 0);
+    // Every window counted once: the stretches' cores tile the run.
+    let rb = &r.lines[0].bands[0];
+    let windows = a.lasers[0].bands.as_ref().unwrap().bands[0].outcome.as_ref().unwrap().windows;
+    let got = rb.since.unwrap().windows;
+    assert!(got.abs_diff(windows) <= 2, "{got} windows vs {windows}");
+    assert!(r.status().contains("30–100 L0"), "{}", r.status());
+}
+
+/// Noise the floor does not allow a verdict on is not judged, named with
+/// the floor and the limit; never over.
+#[test]
+fn noise_is_not_judged() {
+    let mut rng = cms_study::Rng::new(5);
+    let mut f = frames(3_000.0, 16.7, &|_| 0.0);
+    for fr in &mut f {
+        for pts in &mut fr.lasers {
+            for p in pts.iter_mut() {
+                p.1 += 400.0 * rng.normal();
+            }
+        }
+    }
+    let r = live(&f);
+    for l in &r.lines {
+        let b = &l.bands[0];
+        assert_eq!(b.state, "not judged", "{b:?}");
+        assert!(b.why.contains("noise floor") && b.why.contains("20 µm limit"), "{}", b.why);
+    }
+    assert!(r.lines.iter().all(|l| l.bands.iter().all(|b| b.state != "over")), "{r:?}");
+}
+
+/// Frames too far apart to overlap are flagged where they are, as the
+/// joins analyze reports.
+#[test]
+fn frames_that_would_not_stitch_are_flagged() {
+    let mut f = frames(1_500.0, 16.7, &rail);
+    // A jump of 100 mm: the frame after it overlaps nothing.
+    for fr in f.iter_mut().skip(40) {
+        fr.odometer_mm += 100.0;
+    }
+    let r = live(&f);
+    assert_eq!(r.unstitched, 3, "{:?}", r.latest_unstitched);
+    assert!(r.latest_unstitched.iter().all(|u| u.seq == 40 && u.kind == "gap"), "{:?}", r.latest_unstitched);
+    assert!(r.status().contains("3 frame(s) not stitched (last seq 40"), "{}", r.status());
+}
+
+/// Under 2012 only 30–100 mm has a limit (±10 µm of band displacement):
+/// the 30 µm wave is over it, the other bands not judged for want of one.
+#[test]
+fn the_2012_edition_judges_isolated_points() {
+    let f = frames(3_000.0, 16.7, &rail);
+    let mut l = LiveBands::new(LiveOptions { edition: Edition::En2012, ..LiveOptions::default() });
+    for fr in &f {
+        l.add(fr);
+    }
+    let r = l.report().unwrap();
+    assert_eq!(r.edition, "EN 13231-3:2012");
+    let states: Vec<&str> = r.lines[0].bands.iter().map(|b| b.state).collect();
+    assert_eq!(states, ["not judged", "over", "not judged", "not evaluated"], "{r:?}");
+    assert!(r.lines[0].bands[1].why.contains("±10 µm"), "{:?}", r.lines[0].bands[1]);
+}
