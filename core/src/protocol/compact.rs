@@ -209,20 +209,34 @@ struct Track {
     height: i32,
 }
 
-impl Serialize for Profile {
+/// Writes `p` in version 4's encoding (for `#[serde(with)]`).
+pub(super) fn serialize<S: Serializer>(p: &Profile, s: S) -> Result<S::Ok, S::Error> {
+    V4(p).serialize(s)
+}
+
+/// Reads a profile in version 4's encoding (for `#[serde(with)]`).
+pub(super) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Profile, D::Error> {
+    d.deserialize_tuple(usize::MAX, ProfileVisitor)
+}
+
+/// A profile to write in version 4's encoding.
+struct V4<'a>(&'a Profile);
+
+impl Serialize for V4<'_> {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let profile = self.0;
         // postcard writes a tuple's elements without a length: the records
         // stream into the frame as they are made.
         let mut t = s.serialize_tuple(usize::MAX)?;
-        t.serialize_element(&self.seq)?;
-        t.serialize_element(&self.part)?;
-        t.serialize_element(&self.parts)?;
-        t.serialize_element(&self.timestamp_us)?;
-        t.serialize_element(&self.odometer_um)?;
-        t.serialize_element(&self.exposure_us)?;
-        t.serialize_element(&self.laser_mask)?;
-        t.serialize_element(&(self.lasers.len() as u8))?;
-        for lp in &self.lasers {
+        t.serialize_element(&profile.seq)?;
+        t.serialize_element(&profile.part)?;
+        t.serialize_element(&profile.parts)?;
+        t.serialize_element(&profile.timestamp_us)?;
+        t.serialize_element(&profile.odometer_um)?;
+        t.serialize_element(&profile.exposure_us)?;
+        t.serialize_element(&profile.laser_mask)?;
+        t.serialize_element(&(profile.lasers.len() as u8))?;
+        for lp in &profile.lasers {
             t.serialize_element(&lp.laser)?;
         }
         let mut next = [0usize; LASERS];
@@ -231,14 +245,15 @@ impl Serialize for Profile {
         fn at<'p>(next: &[usize; LASERS], j: usize, lp: &'p LaserPoints) -> Option<&'p Point> {
             lp.points.get(next[j])
         }
-        while let Some(row) = self.lasers.iter().enumerate().filter_map(|(j, lp)| at(&next, j, lp)).map(|p| p.row).min()
+        while let Some(row) =
+            profile.lasers.iter().enumerate().filter_map(|(j, lp)| at(&next, j, lp)).map(|p| p.row).min()
         {
             let skip = i32::from(row) - previous_row - 1;
             if skip < 0 {
                 return Err(ser::Error::custom("a laser's points are not in ascending rows"));
             }
             let mut head = if skip > 0 { SKIP_FOLLOWS } else { 0 };
-            for (j, lp) in self.lasers.iter().enumerate() {
+            for (j, lp) in profile.lasers.iter().enumerate() {
                 if let Some(p) = at(&next, j, lp).filter(|p| p.row == row) {
                     head |= 1 << j;
                     if p.metric.is_some() {
@@ -253,7 +268,7 @@ impl Serialize for Profile {
             if skip > 0 {
                 t.serialize_element(&(skip as u32))?;
             }
-            for (j, lp) in self.lasers.iter().enumerate() {
+            for (j, lp) in profile.lasers.iter().enumerate() {
                 if head & (1 << j) == 0 {
                     continue;
                 }
@@ -280,12 +295,6 @@ impl Serialize for Profile {
         }
         t.serialize_element(&0u8)?;
         t.end()
-    }
-}
-
-impl<'de> Deserialize<'de> for Profile {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Profile, D::Error> {
-        d.deserialize_tuple(usize::MAX, ProfileVisitor)
     }
 }
 
