@@ -6,6 +6,7 @@ use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use super::{BENCH_BIN, BENCH_TIMEOUT, Machine, QemuError, find_image, spawn_qemu, tail};
+use cms_core::protocol::PROTOCOL_VERSION;
 
 /// Options of `cms-host bench qemu`.
 #[derive(Debug, Clone, Default)]
@@ -421,7 +422,7 @@ pub fn wire_table(c: &WireCost) -> String {
     let per_frame = c.bytes as f64 / c.frames.max(1) as f64;
     let points = c.points as f64 / c.frames.max(1) as f64;
     format!(
-        "\n# Wire (protocol 4): the emulated head's frames, {} frames of {points:.0} points, no calibration\n\n\
+        "\n# Wire (protocol {PROTOCOL_VERSION}): the emulated head's frames, {} frames of {points:.0} points, no calibration\n\n\
          | bytes/point | bytes/frame | at 60 frames/s |\n|---:|---:|---:|\n| {:.2} | {per_frame:.0} | {:.0} kB/s |\n",
         c.frames,
         c.bytes_per_point(),
