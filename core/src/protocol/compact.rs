@@ -112,6 +112,13 @@ fn width_from_code(c: u8) -> Px {
 
 /// A height in [`HEIGHT_STEP_NM`], rounded half up, saturating.
 pub fn height_code(nm: i32) -> i32 {
+    // In `i32` where `2·nm + step` fits (a division by a constant the
+    // compiler turns into a multiplication; the head's heights are all
+    // there), else in `i64` (a library division on the head).
+    const FITS: i32 = i32::MAX / 2 - HEIGHT_STEP_NM;
+    if (-FITS..=FITS).contains(&nm) {
+        return (nm * 2 + HEIGHT_STEP_NM).div_euclid(2 * HEIGHT_STEP_NM);
+    }
     let step = i64::from(HEIGHT_STEP_NM);
     ((i64::from(nm) * 2 + step).div_euclid(2 * step)).clamp(i64::from(H_MIN), i64::from(H_MAX)) as i32
 }

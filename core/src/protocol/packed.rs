@@ -210,6 +210,9 @@ struct Track {
     /// `(seen - 1) % 8`.
     recent: [[i32; 8]; 3],
     seen: u32,
+    /// Sums of the newest four positions and of the four before them
+    /// (`S = new + old`, `D = new − old`); within ±2²⁵ each.
+    sums: [i32; 2],
     /// The last metric point: position code, row, along, height code.
     metric: Option<(i32, i32, [i32; 2])>,
     first_row: i32,
@@ -221,7 +224,16 @@ struct Track {
 
 impl Track {
     fn new(model: Model) -> Track {
-        Track { recent: [[0; 8]; 3], seen: 0, metric: None, first_row: 0, flags: 0, rice: [(16, 1); FIELDS], model }
+        Track {
+            recent: [[0; 8]; 3],
+            seen: 0,
+            sums: [0; 2],
+            metric: None,
+            first_row: 0,
+            flags: 0,
+            rice: [(16, 1); FIELDS],
+            model,
+        }
     }
 
     fn back(&self, f: usize, i: u32) -> i32 {
@@ -239,13 +251,9 @@ impl Track {
                 Some(v.clamp(Q_MIN.into(), Q_MAX.into()) as i32)
             }
             (POSITION, _) => {
-                let (mut s, mut d) = (0i64, 0i64);
-                for i in 1..=8 {
-                    let v = i64::from(self.back(f, i));
-                    s += v;
-                    d += if i <= 4 { v } else { -v };
-                }
-                Some(((4 * s + 9 * d + 16) >> 5).clamp(Q_MIN.into(), Q_MAX.into()) as i32)
+                // (4·S + 9·D + 16) >> 5 = (13·new − 5·old + 16) >> 5: within ±2²⁹·¹.
+                let [new, old] = self.sums;
+                Some(((13 * new - 5 * old + 16) >> 5).clamp(Q_MIN, Q_MAX))
             }
             (_, 1..=3) => Some(self.back(f, 1)),
             _ => Some((self.back(f, 1) + self.back(f, 2) + self.back(f, 3) + self.back(f, 4) + 2) >> 2),
@@ -256,6 +264,12 @@ impl Track {
         if self.seen == 0 {
             self.first_row = row;
         }
+        // The position leaving the newest four joins the older four, the
+        // one leaving the eight goes (zeros before there were that many).
+        let q = &self.recent[POSITION];
+        let (fourth, eighth) = (q[(self.seen.wrapping_sub(4) % 8) as usize], q[(self.seen % 8) as usize]);
+        let (fourth, eighth) = (if self.seen >= 4 { fourth } else { 0 }, if self.seen >= 8 { eighth } else { 0 });
+        self.sums = [self.sums[0] + v[POSITION] - fourth, self.sums[1] + fourth - eighth];
         for (r, x) in self.recent.iter_mut().zip(v) {
             r[(self.seen % 8) as usize] = x;
         }
@@ -270,13 +284,12 @@ impl Track {
         Some(if f == HEIGHT { v.clamp(-H_MAX, H_MAX) } else { v })
     }
 
+    /// The least `k` with `n·2ᵏ ≥ a`: from the bit lengths (`n·2ᵏ` has
+    /// `a`'s when `k` is their difference), one more if that falls short.
     fn k(&self, f: usize) -> u32 {
         let (a, n) = self.rice[f];
-        let mut k = 0;
-        while (u64::from(n) << k) < u64::from(a) {
-            k += 1;
-        }
-        k
+        let k = n.leading_zeros().saturating_sub(a.leading_zeros());
+        k + u32::from((u64::from(n) << k) < u64::from(a))
     }
 
     fn adapt(&mut self, f: usize, z: u32) {
@@ -324,6 +337,7 @@ struct BitWriter<T> {
 
 impl<T: SerializeTuple> BitWriter<T> {
     /// The low `n` (≤ 32) bits of `v`.
+    #[inline(always)]
     fn put(&mut self, v: u32, n: u32) -> Result<(), T::Error> {
         if n == 0 {
             return Ok(());
@@ -341,6 +355,12 @@ impl<T: SerializeTuple> BitWriter<T> {
         let q = u64::from(z) >> k;
         if q < u64::from(LIMIT) {
             let q = q as u32;
+            // q ones and a zero, then z's k low bits: in one go when they
+            // fit 32 bits (z's bits above k are q's).
+            if q + 1 + k <= 32 {
+                let low = u64::from(z) & ((1u64 << k) - 1);
+                return self.put(((((1u64 << q) - 1) << (k + 1)) | low) as u32, q + 1 + k);
+            }
             self.put(((1 << q) - 1) << 1, q + 1)?;
             let low = if k >= 32 { z } else { z & ((1u32 << k) - 1) };
             self.put(low, k.min(32))
@@ -702,4 +722,63 @@ fn read_point<'de, A: SeqAccess<'de>>(
     };
     t.push(rw, v);
     Ok(Point { row, position, strength, width, flags: Flags(flags), metric })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn line(
+        n: u16,
+        metric: impl Fn(i32, i32) -> (i32, i32),
+    ) -> heapless::Vec<Point, { super::super::MAX_ROWS_PER_PROFILE }> {
+        (0..n)
+            .map(|r| {
+                // 300 px, 0.2 px a row, a wobble of ±0.3 px.
+                let q = 300 * 256 + 51 * i32::from(r) + [0, 77, -40, 13, -77][usize::from(r) % 5];
+                let (along_um, h) = metric(q, i32::from(r));
+                Point {
+                    row: r + 10,
+                    position: Px(q << 8),
+                    strength: 150,
+                    width: Px(3 << 16),
+                    flags: Flags::NONE,
+                    metric: Some(Metric { along_um, height_nm: h * 100 }),
+                }
+            })
+            .collect()
+    }
+
+    /// The fit finds a metric point that follows the position and the row
+    /// exactly (up to the Q12 rounding of its coefficients).
+    #[test]
+    fn the_model_fits_a_linear_map() {
+        let pts = line(200, |q, r| (-34_000 + 143 * r + q / 50, -1_400 - 7 * (q - 300 * 256) + 2 * r));
+        let Model([along, height]) = Model::fit(&pts).unwrap();
+        let near = |c: i32, want: f64| (f64::from(c) / 4096.0 - want).abs() < 2e-3;
+        assert!(near(along[0], 0.02) && near(along[2], 143.0) && along[1].abs() < 8, "{along:?}");
+        assert!(near(height[0], -7.0) && near(height[2], 2.0) && height[1].abs() < 8, "{height:?}");
+    }
+
+    /// The predictions leave only rounding: such a line costs under 2 bytes
+    /// a point with its metric point, and decodes to itself.
+    #[test]
+    fn a_predicted_line_is_cheap_and_exact() {
+        let pts = line(480, |q, r| (-34_000 + 143 * r, -1_400 - (37 * (q - 300 * 256)) / 5));
+        let mut lasers = heapless::Vec::new();
+        lasers.push(LaserPoints { laser: 0, points: pts }).unwrap();
+        let p = Profile { lasers, ..Profile::empty() };
+        let mut buf = [0u8; 4096];
+        let bytes = postcard::to_slice(&p, &mut buf).unwrap();
+        assert!(bytes.len() < 2 * 480, "{} bytes", bytes.len());
+        let back: Profile = postcard::from_bytes(bytes).unwrap();
+        assert_eq!(back, p.on_wire());
+    }
+
+    #[test]
+    fn zigzag_inverts() {
+        for v in [0, 1, -1, 2, -2, i32::MAX, i32::MIN, 12345, -98765] {
+            assert_eq!(unzigzag(zigzag(v)), v);
+        }
+    }
 }
