@@ -175,10 +175,17 @@ def fit_v5(pts):
     m = [0.0] * 6
     b = [[0.0] * 3 for _ in range(2)]
     last = None
+    seen = 0
     for row, pos, _s, _w, _f, metric in pts:
         if metric is None:
             continue
+        seen += 1  # one step in four: from the metric point 4i to the next
+        if seen % 4 not in (1, 2):
+            continue
         q, v = round(pos * 256), [metric[0], (2 * metric[1] + 100) // 200]
+        if seen % 4 == 1:
+            last = (q, row, v)
+            continue
         if last is not None:
             dq = f32r(q - last[0])
             x = [dq, f32r(f32r(dq * f32r(row - first_row)) / 256.0), f32r(row - last[1])]
@@ -188,7 +195,6 @@ def fit_v5(pts):
                 y = f32r(v[fld] - last[2][fld])
                 for k in range(3):
                     b[fld][k] = f32r(b[fld][k] + f32r(x[k] * y))
-        last = (q, row, v)
     return [solve3_v5(m, bf) for bf in b]
 
 
