@@ -1,4 +1,6 @@
-//! Protocol version 4's compact `Profile`: what a profile costs on the wire.
+//! Protocol version 4's compact `Profile`, read from recordings
+//! ([`v4`](super::v4)), and the quantisation protocol 5 shares
+//! ([`packed`](super::packed) sends the same codes: [`Point::on_wire`]).
 //!
 //! # What
 //! A [`Profile`] is written in row order, one *row record* per image row
@@ -152,7 +154,7 @@ pub fn strength_from_code(c: u8) -> Option<u16> {
 }
 
 impl Point {
-    /// The point as protocol version 4 carries it: what a host decodes from
+    /// The point as protocol versions 4 and 5 carry it: what a host decodes from
     /// this point's bytes (position to 1/256 px, strength to its step, width
     /// to 1/16 px, height to 0.1 µm; row, flags and along unchanged).
     pub fn on_wire(&self) -> Point {
@@ -171,7 +173,7 @@ impl Point {
 }
 
 impl Profile {
-    /// The profile as protocol version 4 carries it ([`Point::on_wire`]
+    /// The profile as protocol versions 4 and 5 carry it ([`Point::on_wire`]
     /// for every point).
     pub fn on_wire(&self) -> Profile {
         let mut p = self.clone();
