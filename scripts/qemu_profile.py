@@ -3,6 +3,7 @@
 
     scripts/qemu_profile.py [--full] [--track] [--method NAME] [--lines N] [--annotate FN]
     scripts/qemu_profile.py --method line     (the head's line pass over one frame)
+    scripts/qemu_profile.py --method encode   (the link's encoder over one calibrated frame)
 
 Builds `cms-qemu-profile` (firmware/qemu/src/bin/profile.rs: 64 of the
 benchmark's three-stripe rows through `detect_in` with three 96-px windows,
@@ -109,10 +110,11 @@ def main():
     if not on:
         sys.exit("marker_start never ran")
     global ROWS
-    if args.method == "line":
+    if args.method in ("line", "encode"):
         # One frame of 480 rows (firmware/qemu/src/bin/profile.rs).
         ROWS = 480
-        print(f"line pass, one frame of 3 lasers x 480 rows: {total / ROWS:.0f} instructions per row of the frame")
+        what = "line pass" if args.method == "line" else "the link's encoder, calibrated"
+        print(f"{what}, one frame of 3 lasers x 480 rows: {total / ROWS:.0f} instructions per row of the frame")
     else:
         what = "detect (full row)" if args.full else (
             "detect_tracked, three 96-px windows, ±20 px tracks" if args.track else "detect_in, three 96-px windows")

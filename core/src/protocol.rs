@@ -40,7 +40,9 @@
 //! sizes its reader by [`MAX_READ_FRAME`] (version 3's frames were larger).
 
 pub mod compact;
+pub mod packed;
 pub mod v3;
+pub mod v4;
 
 use crate::fixed::Px;
 use crate::peak::{ColumnWindow, Config, Flags};
@@ -48,7 +50,7 @@ use heapless::{String, Vec};
 use serde::{Deserialize, Serialize};
 
 /// The protocol version this build speaks.
-pub const PROTOCOL_VERSION: u8 = 4;
+pub const PROTOCOL_VERSION: u8 = 5;
 /// Rows carried by one `Profile` message (a taller sensor sends several parts).
 pub const MAX_ROWS_PER_PROFILE: usize = 480;
 /// Lasers of the head.
@@ -58,17 +60,21 @@ pub const RAW_CHUNK_BYTES: usize = 1024;
 
 /// Largest postcard encoding of any message (the test
 /// `encoded_sizes_are_bounded` encodes the largest of each kind): a
-/// `Profile` ([`compact`]) of 1 440 points, each in a record of its own with
-/// the largest skip and every field at its largest — the variant, 39 bytes
-/// of header and end, 1 440 × (4 + 16) = 28 840.
-pub const MAX_MESSAGE: usize = 1
-    + compact::MAX_HEADER_BYTES
-    + LASERS * MAX_ROWS_PER_PROFILE * (compact::MAX_RECORD_BYTES + compact::MAX_POINT_BYTES);
+/// `Profile` ([`packed`]) of 1 440 points, each in a record of its own with
+/// the largest skip and every field escaped — the variant, 128 bytes of
+/// header and end, 1 440 × 179 bits = 32 220 bytes.
+pub const MAX_MESSAGE: usize =
+    1 + packed::MAX_HEADER_BYTES + (LASERS * MAX_ROWS_PER_PROFILE * packed::MAX_RECORD_BITS).div_ceil(8);
 /// Largest frame on the wire: version, message, CRC, COBS overhead
 /// (1 byte in 254, plus 1) and the delimiter.
 pub const MAX_FRAME: usize = frame_bound(MAX_MESSAGE);
-/// Largest frame a host reader meets: recordings may hold version-3 frames.
-pub const MAX_READ_FRAME: usize = if v3::MAX_FRAME > MAX_FRAME { v3::MAX_FRAME } else { MAX_FRAME };
+/// Largest frame a host reader meets: recordings may hold version-3 and
+/// version-4 frames.
+pub const MAX_READ_FRAME: usize = max(v3::MAX_FRAME, max(v4::MAX_FRAME, MAX_FRAME));
+
+const fn max(a: usize, b: usize) -> usize {
+    if a > b { a } else { b }
+}
 
 /// The largest frame of a message of at most `message` bytes.
 pub const fn frame_bound(message: usize) -> usize {
@@ -580,10 +586,11 @@ impl FromFrame for Command {
 }
 
 impl FromFrame for DeviceMsg {
-    /// Versions 4 and 3 ([`v3`]).
+    /// Versions 5, 4 ([`v4`]) and 3 ([`v3`]).
     fn from_payload(version: u8, payload: &[u8]) -> Result<DeviceMsg, WireError> {
         match version {
             PROTOCOL_VERSION => exactly(payload),
+            v4::VERSION => exactly::<v4::Read>(payload).map(|r| r.0),
             v3::VERSION => exactly::<v3::Read>(payload).map(|r| r.0),
             v => Err(WireError::Version(v)),
         }

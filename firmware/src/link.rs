@@ -27,8 +27,9 @@ use static_cell::StaticCell;
 /// The USB driver of this board.
 pub type UsbDriver = Driver<'static, USB_OTG_FS>;
 
-/// Outgoing bytes: room for two of the largest frames (`MAX_FRAME`, 28.9 KB
-/// in protocol 4; a full profile of three lasers is about 8 KB calibrated),
+/// Outgoing bytes: room for two of the largest frames (`MAX_FRAME`, 32.5 KB;
+/// a full profile of three lasers is about 2.7 KB calibrated, 4.7 KB under
+/// laser light),
 /// so the head encodes the next frame while the last goes out.
 pub const TX_BYTES: usize = 2 * MAX_FRAME;
 /// Packet size of the bulk endpoints (full speed).

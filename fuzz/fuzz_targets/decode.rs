@@ -1,5 +1,5 @@
 //! Arbitrary bytes into the frame readers of both directions:
-//! `FrameReader::<MAX_READ_FRAME>` decoding `DeviceMsg` of protocol 4 or 3
+//! `FrameReader::<MAX_READ_FRAME>` decoding `DeviceMsg` of protocol 5, 4 or 3
 //! (what the host reads) and
 //! `FrameReader::<MAX_COMMAND_FRAME>` decoding `Command` (what the head reads).
 //!
@@ -7,8 +7,8 @@
 //! frame handed out, and that every message that decodes re-encodes to a
 //! frame that decodes to a message with the same encoding (idempotent
 //! round trip; compared as bytes, so NaNs in a calibration compare equal;
-//! a version-3 profile re-encodes as version 4's, quantised, and the second
-//! encoding must equal the first).
+//! a version-3 or version-4 profile re-encodes as version 5's, quantised,
+//! and the second encoding must equal the first).
 
 #![no_main]
 
@@ -21,8 +21,8 @@ use serde::Serialize;
 
 fn round_trip<T: Serialize + FromFrame>(m: &T, out: &mut [u8]) {
     let f1 = match encode(m, out) {
-        // A version-3 profile may hold what version 4 cannot say (a laser's
-        // points out of row order); every version-4 message re-encodes.
+        // A version-3 profile may hold what version 5 cannot say (a laser's
+        // points out of row order); every version-4 or -5 message re-encodes.
         Err(WireError::Unencodable) => return,
         r => r.expect("a decoded message encodes").to_vec(),
     };

@@ -6,7 +6,8 @@
 //! cargo run -p cms-host --example fuzz_seeds -- fuzz/corpus/decode
 //! ```
 //!
-//! One frame per file (named after its message), plus a few streams of
+//! One frame per file (named after its message; a few profiles in
+//! protocol 4 too, as older recordings hold them), plus a few streams of
 //! several frames (a handshake, a stream with garbage between frames).
 //! Deterministic: the same files on every run.
 
@@ -15,7 +16,7 @@ use std::process::ExitCode;
 
 use cms_core::pipeline::{Camera, Head, Identity, LaserDriver, default_detector};
 use cms_core::protocol::{
-    Calibration, Command, DeviceMsg, HostMsg, LaserPattern, MAX_FRAME, PROTOCOL_VERSION, Start, Trigger, encode,
+    Calibration, Command, DeviceMsg, HostMsg, LaserPattern, MAX_FRAME, PROTOCOL_VERSION, Start, Trigger, encode, v4,
 };
 use cms_study::{Gauss, Rng, clean_row, quantise};
 
@@ -176,6 +177,12 @@ fn seed_files(cmd_frames: &[Seed], msgs: &[DeviceMsg]) -> Result<Vec<Seed>, Stri
         if *n <= 3 {
             files.push((format!("dev-{k}-{n}"), frame(m)?));
         }
+    }
+    // Profiles of protocol 4, as recordings made before protocol 5 hold them.
+    for (n, m) in msgs.iter().filter(|m| matches!(m, DeviceMsg::Profile(_))).take(3).enumerate() {
+        let mut out = vec![0u8; v4::MAX_FRAME];
+        let f = v4::encode(m, &mut out).map_err(|e| format!("cannot encode a version-4 profile: {e}"))?;
+        files.push((format!("dev-profile-v4-{}", n + 1), f.to_vec()));
     }
     files.extend(cmd_frames.iter().cloned());
     // Streams: a handshake, and profiles with garbage and a cut frame.

@@ -1,4 +1,6 @@
-//! Protocol version 4's compact `Profile`: what a profile costs on the wire.
+//! Protocol version 4's compact `Profile`, read from recordings
+//! ([`v4`](super::v4)), and the quantisation protocol 5 shares
+//! ([`packed`](super::packed) sends the same codes: [`Point::on_wire`]).
 //!
 //! # What
 //! A [`Profile`] is written in row order, one *row record* per image row
@@ -112,6 +114,13 @@ fn width_from_code(c: u8) -> Px {
 
 /// A height in [`HEIGHT_STEP_NM`], rounded half up, saturating.
 pub fn height_code(nm: i32) -> i32 {
+    // In `i32` where `2·nm + step` fits (a division by a constant the
+    // compiler turns into a multiplication; the head's heights are all
+    // there), else in `i64` (a library division on the head).
+    const FITS: i32 = i32::MAX / 2 - HEIGHT_STEP_NM;
+    if (-FITS..=FITS).contains(&nm) {
+        return (nm * 2 + HEIGHT_STEP_NM).div_euclid(2 * HEIGHT_STEP_NM);
+    }
     let step = i64::from(HEIGHT_STEP_NM);
     ((i64::from(nm) * 2 + step).div_euclid(2 * step)).clamp(i64::from(H_MIN), i64::from(H_MAX)) as i32
 }
@@ -145,7 +154,7 @@ pub fn strength_from_code(c: u8) -> Option<u16> {
 }
 
 impl Point {
-    /// The point as protocol version 4 carries it: what a host decodes from
+    /// The point as protocol versions 4 and 5 carry it: what a host decodes from
     /// this point's bytes (position to 1/256 px, strength to its step, width
     /// to 1/16 px, height to 0.1 µm; row, flags and along unchanged).
     pub fn on_wire(&self) -> Point {
@@ -164,7 +173,7 @@ impl Point {
 }
 
 impl Profile {
-    /// The profile as protocol version 4 carries it ([`Point::on_wire`]
+    /// The profile as protocol versions 4 and 5 carry it ([`Point::on_wire`]
     /// for every point).
     pub fn on_wire(&self) -> Profile {
         let mut p = self.clone();
@@ -209,20 +218,34 @@ struct Track {
     height: i32,
 }
 
-impl Serialize for Profile {
+/// Writes `p` in version 4's encoding (for `#[serde(with)]`).
+pub(super) fn serialize<S: Serializer>(p: &Profile, s: S) -> Result<S::Ok, S::Error> {
+    V4(p).serialize(s)
+}
+
+/// Reads a profile in version 4's encoding (for `#[serde(with)]`).
+pub(super) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Profile, D::Error> {
+    d.deserialize_tuple(usize::MAX, ProfileVisitor)
+}
+
+/// A profile to write in version 4's encoding.
+struct V4<'a>(&'a Profile);
+
+impl Serialize for V4<'_> {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let profile = self.0;
         // postcard writes a tuple's elements without a length: the records
         // stream into the frame as they are made.
         let mut t = s.serialize_tuple(usize::MAX)?;
-        t.serialize_element(&self.seq)?;
-        t.serialize_element(&self.part)?;
-        t.serialize_element(&self.parts)?;
-        t.serialize_element(&self.timestamp_us)?;
-        t.serialize_element(&self.odometer_um)?;
-        t.serialize_element(&self.exposure_us)?;
-        t.serialize_element(&self.laser_mask)?;
-        t.serialize_element(&(self.lasers.len() as u8))?;
-        for lp in &self.lasers {
+        t.serialize_element(&profile.seq)?;
+        t.serialize_element(&profile.part)?;
+        t.serialize_element(&profile.parts)?;
+        t.serialize_element(&profile.timestamp_us)?;
+        t.serialize_element(&profile.odometer_um)?;
+        t.serialize_element(&profile.exposure_us)?;
+        t.serialize_element(&profile.laser_mask)?;
+        t.serialize_element(&(profile.lasers.len() as u8))?;
+        for lp in &profile.lasers {
             t.serialize_element(&lp.laser)?;
         }
         let mut next = [0usize; LASERS];
@@ -231,14 +254,15 @@ impl Serialize for Profile {
         fn at<'p>(next: &[usize; LASERS], j: usize, lp: &'p LaserPoints) -> Option<&'p Point> {
             lp.points.get(next[j])
         }
-        while let Some(row) = self.lasers.iter().enumerate().filter_map(|(j, lp)| at(&next, j, lp)).map(|p| p.row).min()
+        while let Some(row) =
+            profile.lasers.iter().enumerate().filter_map(|(j, lp)| at(&next, j, lp)).map(|p| p.row).min()
         {
             let skip = i32::from(row) - previous_row - 1;
             if skip < 0 {
                 return Err(ser::Error::custom("a laser's points are not in ascending rows"));
             }
             let mut head = if skip > 0 { SKIP_FOLLOWS } else { 0 };
-            for (j, lp) in self.lasers.iter().enumerate() {
+            for (j, lp) in profile.lasers.iter().enumerate() {
                 if let Some(p) = at(&next, j, lp).filter(|p| p.row == row) {
                     head |= 1 << j;
                     if p.metric.is_some() {
@@ -253,7 +277,7 @@ impl Serialize for Profile {
             if skip > 0 {
                 t.serialize_element(&(skip as u32))?;
             }
-            for (j, lp) in self.lasers.iter().enumerate() {
+            for (j, lp) in profile.lasers.iter().enumerate() {
                 if head & (1 << j) == 0 {
                     continue;
                 }
@@ -280,12 +304,6 @@ impl Serialize for Profile {
         }
         t.serialize_element(&0u8)?;
         t.end()
-    }
-}
-
-impl<'de> Deserialize<'de> for Profile {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Profile, D::Error> {
-        d.deserialize_tuple(usize::MAX, ProfileVisitor)
     }
 }
 

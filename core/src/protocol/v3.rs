@@ -82,7 +82,7 @@ impl Serialize for Write<'_> {
     }
 }
 
-/// A command frame of version 3 or 4 (the same bytes but the version's):
+/// A command frame of version 3, 4 or 5 (the same bytes but the version's):
 /// what a store written by an earlier build holds (the simulated head keeps
 /// its calibration as a `SetCalibration` frame). A head's command reader
 /// takes [`Command`], this version's only.
@@ -92,14 +92,14 @@ pub struct AnyCommand(pub Command);
 impl FromFrame for AnyCommand {
     fn from_payload(version: u8, payload: &[u8]) -> Result<AnyCommand, WireError> {
         match version {
-            PROTOCOL_VERSION | VERSION => super::exactly(payload).map(AnyCommand),
+            PROTOCOL_VERSION | super::v4::VERSION | VERSION => super::exactly(payload).map(AnyCommand),
             v => Err(WireError::Version(v)),
         }
     }
 }
 
 /// Encodes `msg` as a version-3 frame into `out` (for tests and test data:
-/// the head speaks version 4). Returns the frame, delimiter included.
+/// the head speaks version 5). Returns the frame, delimiter included.
 pub fn encode<'a>(msg: &DeviceMsg, out: &'a mut [u8]) -> Result<&'a [u8], WireError> {
     super::encode_version(VERSION, &Write(msg), out)
 }

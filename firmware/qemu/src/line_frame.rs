@@ -2,12 +2,14 @@
 //! `cms-qemu-profile`): one frame of the reference head, three lasers × 480
 //! rows, each laser's line slanted and bent, a detector's scatter of
 //! ±0.6 px, one outlier in 40 rows, and second candidates in `n_seconds`
-//! rows of laser 1 (a ghost 12 px beside it). Deterministic.
+//! rows of laser 1 (a ghost 12 px beside it). Deterministic. [`calibrate`]
+//! gives its points metric points (the link's encoder's frame:
+//! `cms-qemu-bench`, `cms-qemu-profile`).
 
 use cms_core::fixed::Px;
 use cms_core::peak::Flags;
 use cms_core::pipeline::line::Seconds;
-use cms_core::protocol::{LASERS, LaserPoints, MAX_ROWS_PER_PROFILE, Point};
+use cms_core::protocol::{LASERS, LaserPoints, MAX_ROWS_PER_PROFILE, Metric, Point};
 use heapless::Vec;
 
 /// A frame's lasers' points.
@@ -49,5 +51,18 @@ pub fn build(frame: &mut Lasers, seconds: &mut Seconds, n_seconds: usize) {
         let r = (i * MAX_ROWS_PER_PROFILE / n_seconds.max(1)) as u16;
         let p = frame[1].points[usize::from(r)];
         let _ = seconds.push((1, point(r, p.position + Px::from_int(12))));
+    }
+}
+
+/// A metric point in every point, as the reference head's calibration
+/// makes them: 143 µm a row along, 190 µm of height a pixel sideways.
+pub fn calibrate(frame: &mut Lasers) {
+    for lp in frame.iter_mut() {
+        let x0 = lp.points.first().map_or(0, |q| q.position.0);
+        for q in lp.points.iter_mut() {
+            let dx = i64::from(q.position.0 - x0);
+            q.metric =
+                Some(Metric { along_um: -34_000 + 143 * i32::from(q.row), height_nm: -140_000 - ((dx * 190_000) >> 16) as i32 });
+        }
     }
 }

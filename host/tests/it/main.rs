@@ -31,3 +31,4 @@ mod standards;
 mod trend;
 mod triangulate_sim;
 mod v3_recording;
+mod v4_recording;

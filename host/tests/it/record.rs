@@ -36,7 +36,7 @@ fn frame<T: serde::Serialize>(msg: &T) -> Vec<u8> {
     encode(msg, &mut out).unwrap().to_vec()
 }
 
-/// A profile as a recording holds it (protocol 4 quantises: `on_wire`).
+/// A profile as a recording holds it (the wire quantises: `on_wire`).
 fn profile(seq: u32, rows: u16) -> DeviceMsg {
     let mut lasers = heapless::Vec::new();
     for k in 0..3u8 {

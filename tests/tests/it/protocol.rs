@@ -1,5 +1,5 @@
-//! The wire protocol: golden bytes (protocol 4, and protocol 3's that
-//! recordings hold), size bounds, round trips, resynchronisation.
+//! The wire protocol: golden bytes (protocol 5, and protocols 3's and 4's
+//! that recordings hold), size bounds, round trips, resynchronisation.
 
 use cms_core::fixed::Px;
 use cms_core::peak::{ColumnWindow, Flags};
@@ -79,6 +79,56 @@ fn rows_profile() -> Profile {
     }
 }
 
+/// Protocol 5's predictions at work (the "profile-line" golden of
+/// `golden.py`): laser 1's slanted line of 14 points, its metric model, an
+/// outlier escaped, flags new and repeated, a point without its metric
+/// point, a skip; laser 2 without metric points.
+fn line_profile() -> Profile {
+    type Raw = (u16, f64, u16, f64, u8, Option<(i32, i32)>);
+    let l1: [Raw; 14] = [
+        (10, 300.05078125, 150, 2.875, 0, Some((-28568, -141236))),
+        (11, 300.5078125, 150, 2.875, 0, Some((-28428, -149833))),
+        (12, 300.6875, 150, 2.75, 1, Some((-28286, -152775))),
+        (13, 301.0078125, 150, 2.875, 1, Some((-28140, -159162))),
+        (14, 301.3515625, 4095, 2.6875, 0, None),
+        (15, 301.8984375, 4095, 2.625, 32, Some((-27857, -176365))),
+        (16, 302.10546875, 150, 2.6875, 1, Some((-27713, -180134))),
+        (17, 302.50390625, 150, 2.8125, 0, Some((-27570, -187688))),
+        (18, 303.13671875, 150, 3.0, 0, Some((-27425, -199593))),
+        (19, 343.13671875, 150, 2.75, 0, Some((-27284, -959628))),
+        (20, 303.52734375, 160, 2.9375, 0, Some((-27138, -207317))),
+        (24, 304.109375, 160, 2.625, 0, Some((-26568, -218065))),
+        (25, 304.43359375, 150, 2.75, 1, Some((-26424, -224055))),
+        (26, 304.890625, 140, 2.6875, 0, Some((-26284, -232856))),
+    ];
+    let l2: [Raw; 2] = [(12, 512.5, 90, 2.0, 0, None), (13, 512.25, 88, 2.0625, 0, None)];
+    let points = |raw: &[Raw]| -> Vec<Point, MAX_ROWS_PER_PROFILE> {
+        raw.iter()
+            .map(|&(row, pos, strength, width, flags, metric)| Point {
+                row,
+                position: Px::from_f64(pos),
+                strength,
+                width: Px::from_f64(width),
+                flags: Flags(flags),
+                metric: metric.map(|(along_um, height_nm)| Metric { along_um, height_nm }),
+            })
+            .collect()
+    };
+    let mut lasers = Vec::new();
+    lasers.push(LaserPoints { laser: 1, points: points(&l1) }).unwrap();
+    lasers.push(LaserPoints { laser: 2, points: points(&l2) }).unwrap();
+    Profile {
+        seq: 9,
+        part: 0,
+        parts: 1,
+        timestamp_us: 166_666,
+        odometer_um: 70_000,
+        exposure_us: 100,
+        laser_mask: 6,
+        lasers,
+    }
+}
+
 fn sample_info() -> DeviceInfo {
     DeviceInfo {
         firmware: String::try_from("0.1.0").unwrap(),
@@ -121,6 +171,7 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
         ),
         ("profile", frame(&DeviceMsg::Profile(sample_profile()))),
         ("profile-rows", frame(&DeviceMsg::Profile(rows_profile()))),
+        ("profile-line", frame(&DeviceMsg::Profile(line_profile()))),
         ("hello", frame(&DeviceMsg::Hello(sample_info()))),
         (
             "raw",
@@ -177,11 +228,17 @@ fn goldens() -> std::vec::Vec<(&'static str, std::vec::Vec<u8>)> {
     ]
 }
 
-/// Protocol 3's frames (from `golden.py`) and what this build reads them as.
-fn goldens_v3() -> std::vec::Vec<(&'static str, DeviceMsg)> {
-    let mut info = sample_info();
-    info.protocol = 3;
-    vec![("profile-v3", DeviceMsg::Profile(sample_profile())), ("hello-v3", DeviceMsg::Hello(info))]
+/// Protocols 3's and 4's frames (from `golden.py`), what this build reads
+/// them as, and their version.
+fn goldens_old() -> std::vec::Vec<(&'static str, DeviceMsg, u8)> {
+    let info = |protocol| DeviceInfo { protocol, ..sample_info() };
+    vec![
+        ("profile-v3", DeviceMsg::Profile(sample_profile()), 3),
+        ("hello-v3", DeviceMsg::Hello(info(3)), 3),
+        ("profile-v4", DeviceMsg::Profile(sample_profile().on_wire()), 4),
+        ("profile-rows-v4", DeviceMsg::Profile(rows_profile().on_wire()), 4),
+        ("hello-v4", DeviceMsg::Hello(info(4)), 4),
+    ]
 }
 
 fn golden_lines() -> std::vec::Vec<(std::string::String, std::vec::Vec<u8>)> {
@@ -199,37 +256,37 @@ fn goldens_match_the_reference_encoder() {
     let want = include_str!("../../golden/frames.txt");
     let got: std::vec::Vec<_> = goldens().into_iter().map(|(name, bytes)| format!("{name}: {}", hex(&bytes))).collect();
     let want: std::vec::Vec<_> = want.lines().map(str::to_owned).collect();
-    assert_eq!(got.len(), 20, "one golden per message kind, two profiles");
+    assert_eq!(got.len(), 21, "one golden per message kind, three profiles");
     for (g, w) in got.iter().zip(&want) {
         assert_eq!(g, w);
     }
-    assert_eq!(want.len(), got.len() + goldens_v3().len());
+    assert_eq!(want.len(), got.len() + goldens_old().len());
 }
 
-/// Protocol 3's frames decode into this build's messages (recordings made
-/// before protocol 4), and the version-3 encoder kept for tests writes them.
+/// Protocols 3's and 4's frames decode into this build's messages
+/// (recordings made before protocol 5), and the encoders kept for tests
+/// write them.
 #[test]
-fn v3_goldens_decode_into_the_model() {
+fn old_goldens_decode_into_the_model() {
     let lines = golden_lines();
-    for (name, want) in goldens_v3() {
+    for (name, want, version) in goldens_old() {
         let (_, bytes) = lines.iter().find(|(n, _)| n == name).unwrap();
         let mut f = bytes[..bytes.len() - 1].to_vec();
         assert_eq!(decode_frame::<DeviceMsg>(&mut f).unwrap(), want, "{name}");
         let mut out = vec![0u8; v3::MAX_FRAME];
-        assert_eq!(v3::encode(&want, &mut out).unwrap(), &bytes[..], "{name}");
-        // A head of protocol 3 is not one the head's command reader obeys.
+        let written = if version == 3 { v3::encode(&want, &mut out) } else { v4::encode(&want, &mut out) };
+        assert_eq!(written.unwrap(), &bytes[..], "{name}");
+        // A host of an earlier protocol is not one the head's command reader obeys.
         let mut c = bytes[..bytes.len() - 1].to_vec();
-        assert_eq!(decode_frame::<Command>(&mut c), Err(WireError::Version(3)), "{name}");
+        assert_eq!(decode_frame::<Command>(&mut c), Err(WireError::Version(version)), "{name}");
     }
 }
 
 /// What a decoder gets back is the point quantised ([`Point::on_wire`]).
 #[test]
 fn goldens_decode_to_their_quantised_values() {
-    for (p, mut f) in [
-        (sample_profile(), frame(&DeviceMsg::Profile(sample_profile()))),
-        (rows_profile(), frame(&DeviceMsg::Profile(rows_profile()))),
-    ] {
+    for p in [sample_profile(), rows_profile(), line_profile()] {
+        let mut f = frame(&DeviceMsg::Profile(p.clone()));
         f.pop();
         assert_eq!(decode_frame::<DeviceMsg>(&mut f).unwrap(), DeviceMsg::Profile(p.on_wire()));
     }
@@ -340,20 +397,26 @@ fn encoded_sizes_are_bounded() {
         laser_mask: u8::MAX,
         lasers,
     });
-    let mut raw = vec![0u8; 2 * MAX_FRAME];
-    let n = postcard::to_slice(&profile, &mut raw).unwrap().len();
-    assert!(n <= MAX_MESSAGE, "profile {n} > {MAX_MESSAGE}");
-    // Short of the bound by the skips alone: the bound gives every record a
-    // 3-byte skip, and 65 535 rows leave room for one such a laser (the
-    // others skip nothing here).
-    assert!(n + 3 * LASERS * MAX_ROWS_PER_PROFILE > MAX_MESSAGE - 100, "MAX_MESSAGE is not tight: {n}");
-    assert!(frame(&profile).len() <= MAX_FRAME);
-    // And the same profile in protocol 3 fits its own bound (host readers
-    // are sized by MAX_READ_FRAME).
+    // In protocol 4 (recordings): its own bound, short of it by the skips
+    // alone (the bound gives every record a 3-byte skip, and 65 535 rows
+    // leave room for one such a laser; the others skip nothing here).
     let mut out = vec![0u8; v3::MAX_FRAME];
+    let n = v4::encode(&profile, &mut out).unwrap().len();
+    assert!(n <= v4::MAX_FRAME, "profile {n} > {}", v4::MAX_FRAME);
+    assert!(n + 3 * LASERS * MAX_ROWS_PER_PROFILE > v4::MAX_MESSAGE - 100, "v4::MAX_MESSAGE is not tight: {n}");
+    // And in protocol 3 (host readers are sized by MAX_READ_FRAME).
     let n = v3::encode(&profile, &mut out).unwrap().len();
     assert!(n <= v3::MAX_FRAME, "{n}");
-    const { assert!(v3::MAX_FRAME <= MAX_READ_FRAME && MAX_FRAME <= MAX_READ_FRAME) };
+    const { assert!(v3::MAX_FRAME <= MAX_READ_FRAME && v4::MAX_FRAME <= MAX_READ_FRAME && MAX_FRAME <= MAX_READ_FRAME) };
+    assert!(frame(&profile).len() <= MAX_FRAME);
+    let n = postcard::to_slice(&worst_packed_profile(), &mut out).unwrap().len();
+    assert!(n <= MAX_MESSAGE, "profile {n} > {MAX_MESSAGE}");
+    // The bound has every field escaped; the Rice codes adapt to the swings
+    // (their parameter follows the mean), so this profile reaches 60 % of
+    // it: every record's head at its longest, the flags new, the fields at
+    // their parameter's length.
+    assert!(n > MAX_MESSAGE / 2, "MAX_MESSAGE is not tight: {n} of {MAX_MESSAGE}");
+    assert!(frame(&worst_packed_profile()).len() <= MAX_FRAME);
 
     let mut info = sample_info();
     info.firmware = String::try_from("0123456789abcdef").unwrap();
@@ -389,6 +452,40 @@ fn encoded_sizes_are_bounded() {
         let len = frame(&c).len();
         assert!(len <= MAX_COMMAND_FRAME, "{c:?}: {len}");
     }
+}
+
+/// Protocol 5's most expensive profile we know: every point in a record of
+/// its own after a skip, its flags new, every field swinging between its
+/// extremes (a prediction from the last ones is as far off as can be).
+fn worst_packed_profile() -> DeviceMsg {
+    let mut lasers = Vec::new();
+    for k in 0..LASERS as u8 {
+        let points = (0..MAX_ROWS_PER_PROFILE)
+            .map(|i| {
+                let hi = (i / 2 + usize::from(k)) % 2 == 0;
+                let pick = |a, b| if hi { a } else { b };
+                Point {
+                    row: (6 * i) as u16 + 2 * u16::from(k),
+                    position: Px(pick(i32::MAX, i32::MIN)),
+                    strength: if hi { u16::MAX } else { 0 },
+                    width: Px(pick(i32::MAX, 0)),
+                    flags: Flags(if i % 2 == 0 { 0x55 } else { 0xaa }),
+                    metric: Some(Metric { along_um: pick(i32::MAX, i32::MIN), height_nm: pick(i32::MAX, i32::MIN) }),
+                }
+            })
+            .collect();
+        lasers.push(LaserPoints { laser: k, points }).unwrap();
+    }
+    DeviceMsg::Profile(Profile {
+        seq: u32::MAX,
+        part: u8::MAX,
+        parts: u8::MAX,
+        timestamp_us: u64::MAX,
+        odometer_um: i64::MIN,
+        exposure_us: u32::MAX,
+        laser_mask: u8::MAX,
+        lasers,
+    })
 }
 
 #[test]
@@ -543,6 +640,16 @@ proptest! {
         prop_assert_eq!(frame(&back), f0);
     }
 
+    /// A protocol-4 profile (a recording's), whatever its points, decodes
+    /// to its quantised self.
+    #[test]
+    fn v4_profiles_decode_to_their_quantised_values(p in arb_profile()) {
+        let mut out = vec![0u8; v4::MAX_FRAME];
+        let mut f = v4::encode(&DeviceMsg::Profile(p.clone()), &mut out).unwrap().to_vec();
+        f.pop();
+        prop_assert_eq!(decode_frame::<DeviceMsg>(&mut f).unwrap(), DeviceMsg::Profile(p.on_wire()));
+    }
+
     /// A protocol-3 profile, whatever its points, decodes unchanged.
     #[test]
     fn v3_profiles_decode_unchanged(p in arb_profile(), shuffle in any::<bool>()) {
@@ -558,9 +665,10 @@ proptest! {
         prop_assert_eq!(decode_frame::<DeviceMsg>(&mut f).unwrap(), DeviceMsg::Profile(p));
     }
 
-    /// Calibrated-head-like profiles cost at most 6 bytes a point.
+    /// Calibrated-head-like profiles cost at most 4 bytes a point (their
+    /// heights' noise does not follow the position: the model cannot help).
     #[test]
-    fn smooth_profiles_cost_under_six_bytes_a_point(x0 in 100.0f64..600.0, slope in -0.5f64..0.5, seed in any::<u64>()) {
+    fn smooth_profiles_cost_under_four_bytes_a_point(x0 in 100.0f64..600.0, slope in -0.5f64..0.5, seed in any::<u64>()) {
         let mut rng = seed | 1;
         let mut noise = move || {
             rng ^= rng << 13;
@@ -586,7 +694,7 @@ proptest! {
             lasers.push(LaserPoints { laser: k, points }).unwrap();
         }
         let n = frame(&DeviceMsg::Profile(Profile { lasers, ..Profile::EMPTY })).len();
-        prop_assert!(n <= 6 * LASERS * MAX_ROWS_PER_PROFILE, "{} bytes", n);
+        prop_assert!(n <= 4 * LASERS * MAX_ROWS_PER_PROFILE, "{} bytes", n);
     }
 
     #[test]

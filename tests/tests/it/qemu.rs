@@ -148,7 +148,7 @@ fn replay(s: &Session, start: Start) -> usize {
             }
         });
         assert_eq!(mine.len(), 1, "frame {i}: the replay made one profile");
-        // What the link carries: protocol 4 quantises positions, strengths,
+        // What the link carries: the wire quantises positions, strengths,
         // widths and heights; the emulated head's values are those, decoded.
         let mut want = mine.remove(0).on_wire();
         // The only field that depends on the clock.

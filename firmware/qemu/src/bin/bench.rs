@@ -23,6 +23,11 @@
 //! spends once a frame, after its rows (`cms-host bench qemu` spreads them
 //! over the frame's rows for a row's whole cost).
 //!
+//! And the link's encoder over the same frame calibrated (a metric point in
+//! every point): `encode` (protocol 5) and, for comparison, protocol 4's,
+//! run 1 and 1 + 4 times: `encode` gives their instructions a frame and
+//! their frames' bytes.
+//!
 //! Output on UART0, one line per measurement, then QEMU is told to exit
 //! (semihosting):
 //!
@@ -33,6 +38,7 @@
 //! method=cwt size=752x3 window=96 rows=256 ns_short=… ns_long=… found=320/320
 //! method=cwt size=752x3 window=96 track=20 rows=256 ns_short=… ns_long=… found=320/320
 //! line rows=480 frame=… off_line=36
+//! encode rows=480 frame=… bytes=… v4_frame=… v4_bytes=…
 //! done
 //! ```
 
@@ -44,9 +50,9 @@ use core::fmt::Write as _;
 use cms_core::peak::{ColumnWindow, Config, Detector, Stripes, Track, Windows};
 use cms_core::pipeline::default_detector;
 use cms_core::pipeline::line::{LineCheck, Rules, Seconds};
-use cms_core::protocol::MAX_ROWS_PER_PROFILE;
+use cms_core::protocol::{DeviceMsg, MAX_FRAME, MAX_ROWS_PER_PROFILE, Profile, encode, v4};
 use cms_qemu::board::{Board, SYSCLK_HZ};
-use cms_qemu::line_frame::{Lasers, build};
+use cms_qemu::line_frame::{Lasers, build, calibrate};
 use cms_qemu::{clock, uart};
 use static_cell::StaticCell;
 
@@ -110,6 +116,45 @@ fn line_pass() -> (u64, u32) {
     let (copy, _) = per_call(false);
     let (pass, off_line) = per_call(true);
     (pass.saturating_sub(copy), off_line)
+}
+
+/// The frame a calibrated head sends: the line pass's frame with a metric
+/// point in every point (`line_frame::calibrate`), and the frame buffer.
+struct WireBufs {
+    msg: DeviceMsg,
+    seconds: Seconds,
+    out: [u8; MAX_FRAME],
+}
+static WIRE_BUFS: StaticCell<WireBufs> = StaticCell::new();
+
+/// Instructions a frame of `encode` (protocol 5) and of `v4::encode`
+/// (protocol 4, for comparison), and their frames' bytes: each run 1 and
+/// 1 + 4 times, the difference divided by 4.
+fn encoder() -> [(u64, usize); 2] {
+    let b = WIRE_BUFS.init_with(|| WireBufs {
+        msg: DeviceMsg::Profile(Profile::empty()),
+        seconds: Seconds::new(),
+        out: [0; MAX_FRAME],
+    });
+    if let DeviceMsg::Profile(p) = &mut b.msg {
+        p.laser_mask = 7;
+        build(&mut p.lasers, &mut b.seconds, 0);
+        calibrate(&mut p.lasers);
+    }
+    let WireBufs { msg, out, .. } = b;
+    [true, false].map(|v5| {
+        let mut bytes = 0;
+        let mut run = |n: usize| {
+            let t0 = clock::counter();
+            for _ in 0..n {
+                let r = if v5 { encode(core::hint::black_box(&*msg), out) } else { v4::encode(msg, out) };
+                bytes = r.map_or(0, |f| f.len());
+            }
+            clock::elapsed_ticks(t0) as u64 * clock::NS_PER_TICK
+        };
+        let short = run(1);
+        ((run(5) - short) / 4, bytes)
+    })
 }
 
 /// Iterations of the calibration loop (2 instructions each).
@@ -227,6 +272,8 @@ fn main() -> ! {
     }
     let (line, off_line) = line_pass();
     let _ = writeln!(w, "line rows={} frame={line} off_line={off_line}", MAX_ROWS_PER_PROFILE);
+    let [(v5, bytes5), (v4, bytes4)] = encoder();
+    let _ = writeln!(w, "encode rows={} frame={v5} bytes={bytes5} v4_frame={v4} v4_bytes={bytes4}", MAX_ROWS_PER_PROFILE);
     let _ = writeln!(w, "done");
     cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_SUCCESS);
     loop {

@@ -10,6 +10,7 @@
 //! scripts/qemu_profile.py --track    # `detect_tracked`, a track of ±20 px
 //! scripts/qemu_profile.py --method centroid   # another method's configuration
 //! scripts/qemu_profile.py --method line       # the line pass over one frame
+//! scripts/qemu_profile.py --method encode     # the link's encoder over one calibrated frame
 //! ```
 //!
 //! `--method line` profiles the head's line pass instead
@@ -71,9 +72,29 @@ fn line_pass() {
     marker_end();
 }
 
+/// The link's encoder over the line pass's frame, calibrated, between the
+/// markers.
+fn encoder() {
+    use cms_core::pipeline::line::Seconds;
+    use cms_core::protocol::{DeviceMsg, MAX_FRAME, Profile, encode};
+    static BUFS: StaticCell<(DeviceMsg, Seconds, [u8; MAX_FRAME])> = StaticCell::new();
+    let (msg, seconds, out) = BUFS.init_with(|| (DeviceMsg::Profile(Profile::empty()), Seconds::new(), [0; MAX_FRAME]));
+    if let DeviceMsg::Profile(p) = msg {
+        build(&mut p.lasers, seconds, 0);
+        cms_qemu::line_frame::calibrate(&mut p.lasers);
+    }
+    marker_start();
+    let _ = encode(core::hint::black_box(&*msg), out);
+    marker_end();
+}
+
 #[cortex_m_rt::entry]
 fn main() -> ! {
     uart::init(SYSCLK_HZ, 115_200);
+    if option_env!("CMS_PROFILE_METHOD") == Some("encode") {
+        encoder();
+        cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_SUCCESS);
+    }
     if option_env!("CMS_PROFILE_METHOD") == Some("line") {
         line_pass();
         cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_SUCCESS);

@@ -6,6 +6,7 @@ use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use super::{BENCH_BIN, BENCH_TIMEOUT, Machine, QemuError, find_image, spawn_qemu, tail};
+use cms_core::protocol::PROTOCOL_VERSION;
 
 /// Options of `cms-host bench qemu`.
 #[derive(Debug, Clone, Default)]
@@ -51,6 +52,21 @@ pub struct BenchReport {
     /// The line pass: rows of its frame, and its instructions a frame
     /// (`None`: an image from before it was counted).
     pub line: Option<(u64, u64)>,
+    /// The link's encoder over a calibrated frame (`None`: an image from
+    /// before it was counted).
+    pub encode: Option<EncodeCost>,
+}
+
+/// The link's encoder over one calibrated frame, this protocol's and
+/// protocol 4's.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct EncodeCost {
+    /// Rows of the frame.
+    pub rows: u64,
+    /// Instructions a frame, and the frame's bytes.
+    pub frame: (u64, u64),
+    /// The same in protocol 4.
+    pub v4_frame: (u64, u64),
 }
 
 /// The methods the head runs, and under which light: the centroid under
@@ -83,6 +99,7 @@ pub fn parse_bench(text: &str) -> Result<BenchReport, QemuError> {
         .to_string();
     let mut calibration = None;
     let mut line = None;
+    let mut encode = None;
     let mut rows = Vec::new();
     let mut done = false;
     for l in lines {
@@ -121,6 +138,13 @@ pub fn parse_bench(text: &str) -> Result<BenchReport, QemuError> {
                 return Err(QemuError::Bench(format!("a line pass over no rows in {l:?}")));
             }
             line = Some((n, frame));
+        } else if l.starts_with("encode ") {
+            let rows = num(l, "rows")?;
+            let (frame, v4_frame) = ((num(l, "frame")?, num(l, "bytes")?), (num(l, "v4_frame")?, num(l, "v4_bytes")?));
+            if rows == 0 {
+                return Err(QemuError::Bench(format!("an encoder over no rows in {l:?}")));
+            }
+            encode = Some(EncodeCost { rows, frame, v4_frame });
         } else if l == "done" {
             done = true;
         } else if l.starts_with("panic") || l.contains("panic:") {
@@ -131,7 +155,7 @@ pub fn parse_bench(text: &str) -> Result<BenchReport, QemuError> {
     if !done {
         return Err(QemuError::Bench("the output ends before `done`".into()));
     }
-    Ok(BenchReport { board, calibration, rows, line })
+    Ok(BenchReport { board, calibration, rows, line, encode })
 }
 
 /// Runs the benchmark image under `-icount shift=0,sleep=off` and returns its
@@ -421,11 +445,34 @@ pub fn wire_table(c: &WireCost) -> String {
     let per_frame = c.bytes as f64 / c.frames.max(1) as f64;
     let points = c.points as f64 / c.frames.max(1) as f64;
     format!(
-        "\n# Wire (protocol 4): the emulated head's frames, {} frames of {points:.0} points, no calibration\n\n\
+        "\n# Wire (protocol {PROTOCOL_VERSION}): the emulated head's frames, {} frames of {points:.0} points, no calibration\n\n\
          | bytes/point | bytes/frame | at 60 frames/s |\n|---:|---:|---:|\n| {:.2} | {per_frame:.0} | {:.0} kB/s |\n",
         c.frames,
         c.bytes_per_point(),
         60.0 * per_frame / 1000.0
+    )
+}
+
+/// The encoder's section of `cms-host bench qemu` (empty without it in the
+/// report): instructions a frame and a row, and bytes a point.
+pub fn encode_table(r: &BenchReport) -> String {
+    let Some(e) = r.encode else { return String::new() };
+    let points = 3 * e.rows;
+    let line = |name: &str, (ins, bytes): (u64, u64)| {
+        format!(
+            "| {name} | {} | {} | {} | {:.2} |\n",
+            group(ins),
+            group((ins as f64 / e.rows as f64).round() as u64),
+            group(bytes),
+            bytes as f64 / points as f64
+        )
+    };
+    format!(
+        "\n# The link's encoder: one calibrated frame of {points} points ({} rows, three lasers, a metric point in each)\n\n\
+         | protocol | instructions a frame | a row | bytes a frame | bytes/point |\n|---|---:|---:|---:|---:|\n{}{}",
+        e.rows,
+        line(&PROTOCOL_VERSION.to_string(), e.frame),
+        line("4", e.v4_frame)
     )
 }
 
@@ -440,5 +487,5 @@ pub fn bench(a: &BenchOptions) -> Result<String, QemuError> {
             "the clock does not count instructions: {iters} iterations of 2 instructions took {ns} ns"
         )));
     }
-    Ok(bench_table(&report, a.clock_mhz) + &wire_table(&wire_cost(10)?))
+    Ok(bench_table(&report, a.clock_mhz) + &encode_table(&report) + &wire_table(&wire_cost(10)?))
 }

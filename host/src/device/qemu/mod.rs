@@ -45,8 +45,8 @@
 mod bench;
 
 pub use bench::{
-    BenchOptions, BenchReport, BenchRow, WireCost, bench, bench_table, parse_bench, run_bench_image, wire_cost,
-    wire_table,
+    BenchOptions, BenchReport, BenchRow, EncodeCost, WireCost, bench, bench_table, encode_table, parse_bench,
+    run_bench_image, wire_cost, wire_table,
 };
 
 use std::fmt;
@@ -528,6 +528,7 @@ mod tests {
                     method=cwt size=752x3 window=96 rows=256 ns_short=640 ns_long=1280640 found=320/320\n\
                     method=cwt size=752x3 window=96 track=20 rows=256 ns_short=640 ns_long=640640 found=320/320\n\
                     line rows=480 frame=960000 off_line=36\n\
+                    encode rows=480 frame=720000 bytes=3000 v4_frame=1440000 v4_bytes=8000\n\
                     done\n";
         let r = parse_bench(text).unwrap();
         assert_eq!(r.calibration, (1000, 2000));
@@ -546,6 +547,14 @@ mod tests {
         // The whole cost: 100 000 + 960 000 / 480 full, 2 500 + 2 000 tracked.
         assert_eq!(r.line, Some((480, 960_000)));
         assert!(t.contains("| cwt | incoherent | 100 000 | 2 000 | 102 000 | 2 500 | 2 000 | 4 500 | no |"), "{t}");
+        // The encoder: 720 000 / 480 = 1 500 a row, 3 000 B / 1 440 points.
+        assert_eq!(r.encode, Some(EncodeCost { rows: 480, frame: (720_000, 3000), v4_frame: (1_440_000, 8000) }));
+        let e = encode_table(&r);
+        assert!(
+            e.contains("| 5 | 720 000 | 1 500 | 3 000 | 2.08 |")
+                && e.contains("| 4 | 1 440 000 | 3 000 | 8 000 | 5.56 |"),
+            "{e}"
+        );
         let old = text.replace("line rows=480 frame=960000 off_line=36\n", "");
         assert!(!bench_table(&parse_bench(&old).unwrap(), 480).contains("whole cost"));
         for bad in

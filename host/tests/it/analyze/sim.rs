@@ -458,7 +458,7 @@ fn a_survey_file_travels_with_the_recording() {
     ]);
     assert!(l.status.success(), "{}", String::from_utf8_lossy(&l.stderr));
     let info = String::from_utf8(run(&["info", r]).stdout).unwrap();
-    assert!(info.contains("format: 6 (wire protocol 4)\n") && info.contains("survey: line = \"LN 1234\""), "{info}");
+    assert!(info.contains("format: 6 (wire protocol 5)\n") && info.contains("survey: line = \"LN 1234\""), "{info}");
     let o = run(&["analyze", r, "--json"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
