@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use clap::Args;
 use cms_host::Error;
 use cms_host::analyze::Options;
-use cms_host::analyze::reprofiling::{self, Edition};
+use cms_host::analyze::reprofiling;
 use cms_host::analyze::survey::Placement;
 use cms_host::analyze::trend;
 use cms_host::recording::survey_info::SurveyDate;
@@ -94,13 +94,7 @@ pub fn run(args: &TrendArgs) -> anyhow::Result<()> {
             .map_err(|e| anyhow::Error::from(Error::from(e)).context("--report"))?;
     }
     let opts = Options {
-        verdict: reprofiling::Options {
-            edition: match args.edition {
-                EditionArg::En2006 => Edition::En2006,
-                EditionArg::En2012 => Edition::En2012,
-            },
-            block_mm: args.block_m * 1000.0,
-        },
+        verdict: reprofiling::Options { edition: args.edition.edition(), block_mm: args.block_m * 1000.0 },
         ..Options::default()
     };
     let surveys = cms_host::report::trend::survey_runs(
