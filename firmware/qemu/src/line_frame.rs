@@ -61,8 +61,10 @@ pub fn calibrate(frame: &mut Lasers) {
         let x0 = lp.points.first().map_or(0, |q| q.position.0);
         for q in lp.points.iter_mut() {
             let dx = i64::from(q.position.0 - x0);
-            q.metric =
-                Some(Metric { along_um: -34_000 + 143 * i32::from(q.row), height_nm: -140_000 - ((dx * 190_000) >> 16) as i32 });
+            q.metric = Some(Metric {
+                along_um: -34_000 + 143 * i32::from(q.row),
+                height_nm: -140_000 - ((dx * 190_000) >> 16) as i32,
+            });
         }
     }
 }

@@ -273,7 +273,8 @@ fn main() -> ! {
     let (line, off_line) = line_pass();
     let _ = writeln!(w, "line rows={} frame={line} off_line={off_line}", MAX_ROWS_PER_PROFILE);
     let [(v5, bytes5), (v4, bytes4)] = encoder();
-    let _ = writeln!(w, "encode rows={} frame={v5} bytes={bytes5} v4_frame={v4} v4_bytes={bytes4}", MAX_ROWS_PER_PROFILE);
+    let _ =
+        writeln!(w, "encode rows={} frame={v5} bytes={bytes5} v4_frame={v4} v4_bytes={bytes4}", MAX_ROWS_PER_PROFILE);
     let _ = writeln!(w, "done");
     cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_SUCCESS);
     loop {
