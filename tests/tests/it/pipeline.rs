@@ -202,12 +202,13 @@ fn encoded_frame_sizes_for_the_link_budget() {
         println!("calibrated {calibrated}: {bytes} bytes per frame, {:.1} per point", bytes as f64 / points as f64);
         sizes.push(bytes);
     }
-    // Protocol 4: at least position, strength and width (3 bytes) a point,
-    // at most 6 with the metric point (the link's budget: 60 frames/s of
-    // 1 440 points within 60 % of USB full speed's 1 MB/s); calibration
-    // adds the two metric varints, a byte each at least.
-    assert!(sizes[0] >= 1440 * 3 && sizes[1] <= 1440 * 6, "{sizes:?}");
-    assert!(sizes[1] >= sizes[0] + 1440 * 2, "{sizes:?}");
+    // Protocol 5: at most 4 bytes a point with the metric point (the link's
+    // budget: 60 frames/s of 1 440 points within 35 % of USB full speed's
+    // 1 MB/s); no code is shorter than a bit, so a point costs at least a
+    // bit a field (position, strength, width) and the metric point two more
+    // (along, height).
+    assert!(sizes[1] <= 1440 * 4, "{sizes:?}");
+    assert!(sizes[0] * 8 >= 1440 * 3 && sizes[1] > sizes[0] + 1440 / 4, "{sizes:?}");
 }
 
 /// A camera like the board's (firmware/src/camera.rs): after an exposure
