@@ -27,11 +27,13 @@ use static_cell::StaticCell;
 /// The USB driver of this board.
 pub type UsbDriver = Driver<'static, USB_OTG_FS>;
 
-/// Outgoing bytes: room for two of the largest frames (`MAX_FRAME`, 32.5 KB;
-/// a full profile of three lasers is about 2.7 KB calibrated, 4.7 KB under
-/// laser light),
-/// so the head encodes the next frame while the last goes out.
-pub const TX_BYTES: usize = 2 * MAX_FRAME;
+/// Outgoing bytes: room for the largest frame (`MAX_FRAME`, 32.5 KB, a
+/// bound no real profile reaches) and 28 KB more — six full profiles of
+/// three lasers under laser light (4.3–4.7 KB calibrated; 2.7 KB in
+/// incoherent light) — so the head encodes the next frame while the last
+/// go out, within the static RAM budget (docs/firmware.md, "Sizes"). A
+/// frame that does not fit is dropped whole and counted.
+pub const TX_BYTES: usize = MAX_FRAME + 28 * 1024;
 /// Packet size of the bulk endpoints (full speed).
 const PACKET: usize = 64;
 
