@@ -447,11 +447,7 @@ pub fn judge(
 ) -> Result<Analysis, Error> {
     let stitched = std::mem::take(&mut stitching.lasers);
     let floor = floor::measure(&stitched, opts, progress)?;
-    let total_m: u64 = stitched
-        .chunk_by(|a, b| a.section == b.section)
-        .map(|s| (Grid::of_lines(&s.iter().collect::<Vec<_>>(), s[0].dx_mm).len as f64 * s[0].dx_mm / 1000.0) as u64)
-        .sum();
-    progress.begin("judging", total_m, "m");
+    progress.begin("judging", line_metres(&stitched), "m");
     let mut done_m = 0.0;
     let dx = stitched.first().map_or(opts.stitch.dx_mm, |s| s.dx_mm);
     let mut verdict = reprofiling::Builder::new(&opts.verdict, dx, floor.clone());
@@ -480,18 +476,7 @@ pub fn judge(
             bands.push(en13231::plan(&runs, s.z.len(), s.dx_mm));
             welch.push(en15610::Welch::new(&runs, s.dx_mm, &opts.roughness));
         }
-        for a in &bands {
-            match a {
-                Ok(a) => {
-                    for (b, r) in a.bands.iter().enumerate() {
-                        if let Err(e) = &r.outcome {
-                            verdict.not_evaluated(b, e.to_string());
-                        }
-                    }
-                }
-                Err(e) => (0..en13231::BANDS.len()).for_each(|b| verdict.not_evaluated(b, e.to_string())),
-            }
-        }
+        not_evaluated(&bands, &mut verdict);
         let lines: Vec<(&Stitched, [bool; 4])> = section.iter().zip(&bands).map(|(s, a)| (s, evaluated(a))).collect();
         let mut sums = vec![[en13231::BandSums::default(); 4]; section.len()];
         let mut mean_sums = [en13231::BandSums::default(); 4];
@@ -553,6 +538,30 @@ pub fn judge(
         verdict: verdict.finish(),
         gnss_placing: Vec::new(),
     })
+}
+
+/// The survey line's length, m, summed over its sections (the progress's whole).
+fn line_metres(stitched: &[Stitched]) -> u64 {
+    stitched
+        .chunk_by(|a, b| a.section == b.section)
+        .map(|s| (Grid::of_lines(&s.iter().collect::<Vec<_>>(), s[0].dx_mm).len as f64 * s[0].dx_mm / 1000.0) as u64)
+        .sum()
+}
+
+/// Tells the verdict which bands a section's lines could not evaluate, and why.
+fn not_evaluated(plans: &[Result<en13231::BandAnalysis, StandardsError>], verdict: &mut reprofiling::Builder) {
+    for a in plans {
+        match a {
+            Ok(a) => {
+                for (b, r) in a.bands.iter().enumerate() {
+                    if let Err(e) = &r.outcome {
+                        verdict.not_evaluated(b, e.to_string());
+                    }
+                }
+            }
+            Err(e) => (0..en13231::BANDS.len()).for_each(|b| verdict.not_evaluated(b, e.to_string())),
+        }
+    }
 }
 
 /// A profile's plan with its band figures summed over the pieces.
