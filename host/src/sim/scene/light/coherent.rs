@@ -217,9 +217,23 @@ pub(crate) fn phasor(seed: u64, stream: u64, a: i64, b: i64) -> Complex<f64> {
 /// [`phasor`] in `f32`: the same cell's phase to 24 bits (within 4·10⁻⁷
 /// rad of it), its cosine and sine by polynomials on the nearest quarter
 /// turn (within 3·10⁻⁷), without the library's `sin_cos`.
-#[inline]
+#[cfg(test)]
 pub(crate) fn phasor_f32(seed: u64, stream: u64, a: i64, b: i64) -> Complex<f32> {
-    let z = cell_hash(seed, stream, a, b);
+    phasor_f32_of_column(column_hash(seed, stream, a), b)
+}
+
+/// The part of a cell's hash its column `a` decides, shared by the cells
+/// of a column ([`phasor_f32_of_column`]).
+#[inline]
+pub(crate) fn column_hash(seed: u64, stream: u64, a: i64) -> u64 {
+    let z = seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    mix(z ^ (a as u64).wrapping_mul(0xD1B5_4A32_D192_ED03))
+}
+
+/// [`phasor_f32`] of cell `b` of the column whose [`column_hash`] is `column`.
+#[inline]
+pub(crate) fn phasor_f32_of_column(column: u64, b: i64) -> Complex<f32> {
+    let z = mix(column ^ (b as u64).wrapping_mul(0x8CB9_2BA7_2F3D_8DD7));
     // The phase in 2⁻²⁴ turns: the nearest quarter turn k (2²² of them)
     // and the rest r in [−π/4, π/4].
     let u = (z >> 40) as i64;
@@ -238,9 +252,7 @@ pub(crate) fn phasor_f32(seed: u64, stream: u64, a: i64, b: i64) -> Complex<f32>
 
 #[inline]
 fn cell_hash(seed: u64, stream: u64, a: i64, b: i64) -> u64 {
-    let mut z = seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    z = mix(z ^ (a as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
-    mix(z ^ (b as u64).wrapping_mul(0x8CB9_2BA7_2F3D_8DD7))
+    mix(column_hash(seed, stream, a) ^ (b as u64).wrapping_mul(0x8CB9_2BA7_2F3D_8DD7))
 }
 
 fn mix(mut x: u64) -> u64 {
