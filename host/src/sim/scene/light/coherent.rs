@@ -219,35 +219,38 @@ pub(crate) fn phasor(seed: u64, stream: u64, a: i64, b: i64) -> Complex<f64> {
 /// turn (within 3·10⁻⁷), without the library's `sin_cos`.
 #[cfg(test)]
 pub(crate) fn phasor_f32(seed: u64, stream: u64, a: i64, b: i64) -> Complex<f32> {
-    phasor_f32_of_column(column_hash(seed, stream, a), b)
+    phasor_of_turns(phase_turns(column_hash(seed, stream, a), b))
 }
 
 /// The part of a cell's hash its column `a` decides, shared by the cells
-/// of a column ([`phasor_f32_of_column`]).
+/// of a column ([`phase_turns`]).
 #[inline]
 pub(crate) fn column_hash(seed: u64, stream: u64, a: i64) -> u64 {
     let z = seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15);
     mix(z ^ (a as u64).wrapping_mul(0xD1B5_4A32_D192_ED03))
 }
 
-/// [`phasor_f32`] of cell `b` of the column whose [`column_hash`] is `column`.
+/// The phase of cell `b` of a column, in 2⁻²⁴ turns.
 #[inline]
-pub(crate) fn phasor_f32_of_column(column: u64, b: i64) -> Complex<f32> {
-    let z = mix(column ^ (b as u64).wrapping_mul(0x8CB9_2BA7_2F3D_8DD7));
-    // The phase in 2⁻²⁴ turns: the nearest quarter turn k (2²² of them)
-    // and the rest r in [−π/4, π/4].
-    let u = (z >> 40) as i64;
+pub(crate) fn phase_turns(column: u64, b: i64) -> i32 {
+    (mix(column ^ (b as u64).wrapping_mul(0x8CB9_2BA7_2F3D_8DD7)) >> 40) as i32
+}
+
+/// The unit phasor of a phase in 2⁻²⁴ turns: the nearest quarter turn `k`
+/// (2²² of them) and the rest `r` in [−π/4, π/4], its cosine and sine by
+/// polynomials, turned by `k` quarters without branches (so that a row of
+/// them vectorises).
+#[inline]
+pub(crate) fn phasor_of_turns(u: i32) -> Complex<f32> {
     let k = (u + (1 << 21)) >> 22;
     let r = (u - (k << 22)) as f32 * (std::f32::consts::FRAC_PI_2 / (1u32 << 22) as f32);
     let r2 = r * r;
     let sin = r * (1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0 + r2 * (1.0 / 362_880.0)))));
     let cos = 1.0 + r2 * (-0.5 + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40_320.0))));
-    match k & 3 {
-        0 => Complex::new(cos, sin),
-        1 => Complex::new(-sin, cos),
-        2 => Complex::new(-cos, -sin),
-        _ => Complex::new(sin, -cos),
-    }
+    let odd = k & 1 != 0;
+    let (x, y) = (if odd { -sin } else { cos }, if odd { cos } else { sin });
+    let sign = if k & 2 != 0 { -1.0 } else { 1.0 };
+    Complex::new(sign * x, sign * y)
 }
 
 #[inline]

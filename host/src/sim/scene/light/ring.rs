@@ -1,7 +1,7 @@
 //! The surface's speckle phasors along the rail, kept in a bounded ring.
 //!
 //! A surface cell's phase is a hash of the seed, the pattern's stream and
-//! the cell (`coherent::phasor_f32_of_column`): the same whichever frame sees it. The cells a
+//! the cell (`coherent::phase_turns`): the same whichever frame sees it. The cells a
 //! shot needs are a band of rows along the rail (the image's rows, the
 //! guards, and the travel in the exposure) times a band of columns about
 //! the line. Consecutive sub-exposures of a shot see the same band shifted
@@ -15,7 +15,7 @@ use rustfft::num_complex::Complex;
 
 #[cfg(test)]
 use super::coherent::phasor;
-use super::coherent::{column_hash, phasor_f32_of_column};
+use super::coherent::{column_hash, phase_turns, phasor_of_turns};
 
 /// Columns of cells kept beside the band a shot asked for, in samples per
 /// pixel (`q`) units: the line moves by a few pixels as the head's height
@@ -32,6 +32,8 @@ pub(crate) struct PhasorRing {
     lat_w: usize,
     /// The hash of each lateral cell's column, shared by its rows.
     columns: Vec<u64>,
+    /// A row's phases, 2⁻²⁴ turns.
+    turns: Vec<i32>,
     /// The along-rail cell each slot holds (`None`: not drawn).
     keys: Vec<Option<i64>>,
     cells: Vec<Complex<f32>>,
@@ -40,7 +42,16 @@ pub(crate) struct PhasorRing {
 impl PhasorRing {
     /// An empty ring.
     pub fn new() -> PhasorRing {
-        PhasorRing { seed: 0, stream: 0, lat0: 0, lat_w: 0, columns: Vec::new(), keys: Vec::new(), cells: Vec::new() }
+        PhasorRing {
+            seed: 0,
+            stream: 0,
+            lat0: 0,
+            lat_w: 0,
+            columns: Vec::new(),
+            turns: Vec::new(),
+            keys: Vec::new(),
+            cells: Vec::new(),
+        }
     }
 
     /// Makes the ring hold lateral cells `lat` of every row in `rows` at
@@ -73,8 +84,11 @@ impl PhasorRing {
         let slot = n.rem_euclid(self.keys.len() as i64) as usize;
         let cells = &mut self.cells[slot * self.lat_w..(slot + 1) * self.lat_w];
         if self.keys[slot] != Some(n) {
-            for (c, &column) in cells.iter_mut().zip(&self.columns) {
-                *c = phasor_f32_of_column(column, n);
+            // The hashes, then their phasors (a loop that vectorises).
+            self.turns.clear();
+            self.turns.extend(self.columns.iter().map(|&column| phase_turns(column, n)));
+            for (c, &u) in cells.iter_mut().zip(&self.turns) {
+                *c = phasor_of_turns(u);
             }
             self.keys[slot] = Some(n);
         }
