@@ -385,7 +385,10 @@ impl Plan {
                 .collect();
             plan.n_lo = n_m.iter().copied().min().unwrap_or(0);
             plan.shifts = n_m.iter().map(|n| (n - plan.n_lo) as usize).collect();
-            plan.lit_h = img_h + plan.shifts.iter().copied().max().unwrap_or(0);
+            // The travel's rows whatever the rounding of the shifts (so the
+            // grid, and its filter, stay from shot to shot).
+            let ext = if steps == 1 { 0 } else { (travel_rows.abs() * q as f64).ceil() as usize + 1 };
+            plan.lit_h = img_h + ext.max(plan.shifts.iter().copied().max().unwrap_or(0));
             plan.w = fft_size(ncols * q);
             plan.h = fft_size(plan.lit_h);
         }
