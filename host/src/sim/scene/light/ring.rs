@@ -1,15 +1,14 @@
 //! The surface's speckle phasors along the rail, kept in a bounded ring.
 //!
 //! A surface cell's phase is a hash of the seed, the pattern's stream and
-//! the cell (`coherent::phase_turns`): the same whichever frame sees it. The cells a
-//! shot needs are a band of rows along the rail (the image's rows, the
-//! guards, and the travel in the exposure) times a band of columns about
-//! the line. Consecutive sub-exposures of a shot see the same band shifted
-//! by a cell or two, and overlapping frames the same stretch of rail again:
-//! each row of cells is drawn once, kept in a ring indexed by its position
-//! along the rail, and reused until the rail has moved on by the ring's
-//! length. The values are the hash's, so a cell reads the same whether it
-//! came from the ring or was drawn anew.
+//! the cell (`coherent::phase_turns`): the same whichever frame sees it.
+//! The cells a shot needs are a band of rows along the rail (the image's
+//! rows, the guards, and the travel in the exposure) times a band of
+//! columns about the line, and overlapping frames see the same stretch of
+//! rail again: each row of cells is drawn once, kept in a ring indexed by
+//! its position along the rail, and reused until the rail has moved on by
+//! the ring's length. The values are the hash's, so a cell reads the same
+//! whether it came from the ring or was drawn anew.
 
 use rustfft::num_complex::Complex;
 
