@@ -173,11 +173,12 @@ impl<T: FftNum> Filter<T> {
         self.fwd_w.process(field);
         // The live columns, transposed into `scratch` (blocks of rows, for
         // the cache).
-        const B: usize = 16;
+        const B: usize = 32;
         for r0 in (0..h).step_by(B) {
-            for (l, &ku) in self.live.iter().enumerate() {
-                for r in r0..(r0 + B).min(h) {
-                    self.scratch[l * h + r] = field[r * w + ku];
+            let r1 = (r0 + B).min(h);
+            for (col, &ku) in self.scratch.chunks_exact_mut(h).zip(&self.live) {
+                for (s, f) in col[r0..r1].iter_mut().zip(field[r0 * w + ku..].iter().step_by(w)) {
+                    *s = *f;
                 }
             }
         }
@@ -188,14 +189,15 @@ impl<T: FftNum> Filter<T> {
         self.inv_h.process(&mut self.scratch);
         let zero = Complex::new(T::zero(), T::zero());
         for r0 in (0..h).step_by(B) {
-            for r in r0..(r0 + B).min(h) {
+            let r1 = (r0 + B).min(h);
+            for row in field[r0 * w..r1 * w].chunks_exact_mut(w) {
                 for d in &self.dead {
-                    field[r * w + d.start..r * w + d.end].fill(zero);
+                    row[d.clone()].fill(zero);
                 }
             }
-            for (l, &ku) in self.live.iter().enumerate() {
-                for r in r0..(r0 + B).min(h) {
-                    field[r * w + ku] = self.scratch[l * h + r];
+            for (col, &ku) in self.scratch.chunks_exact(h).zip(&self.live) {
+                for (f, s) in field[r0 * w + ku..].iter_mut().step_by(w).zip(&col[r0..r1]) {
+                    *f = *s;
                 }
             }
         }
