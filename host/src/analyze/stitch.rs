@@ -40,29 +40,40 @@
 //! Each frame's heights are relative to the head, which bounces and pitches
 //! on the trolley: between frames the whole profile may move by an offset
 //! and tilt. Frames are taken in the order they come — a recording's, the
-//! order the head travelled, whichever way — and each is registered onto
-//! what has been stitched before it ([`Stitcher`]; [`stitch`] takes a
-//! slice in odometer order): over the cells they share, the
-//! least-squares offset (and, if asked, tilt, when the overlap is at least
-//! [`Options::min_tilt_overlap_mm`] long) of the frame's values minus the
-//! stitched ones is subtracted from the whole frame, which is then averaged
-//! in (weighted by its points per cell). A frame that overlaps less than
-//! [`Options::min_overlap_mm`] cannot be registered: it is added as it is,
-//! and the join is reported (an *unregistered join*; across a gap it starts
-//! a new run). The registration's residual RMS over the overlap is kept per
-//! frame: with a rigid head it is the sensor noise averaged over a cell; a
-//! wrong direction or a bad odometer shows up there first.
+//! order the head travelled, whichever way ([`Stitcher`]; [`stitch`] takes a
+//! slice in odometer order).
 //!
-//! Registration chains: each frame's offset/tilt error carries into the
-//! ones after it. For offsets that is a random walk in height (measured on
-//! 2 m of synthetic rail, 35 mm overlaps, 2 µm noise per point, ±20 µm of
-//! bounce: 0.67 µm RMS left, against 6.5 µm without registration). For
-//! tilts it is a random walk in *slope*, integrated: the same rail with
-//! ±0.2 µm/mm of pitch per frame is left with 8.5 µm RMS by offset-and-tilt
-//! registration — the pitch is gone, but the walk costs more than the pitch
-//! did (6.6 µm with offsets only). So [`Registration::Offset`] is the
-//! default and [`Registration::OffsetTilt`] is for heads that really pitch
-//! over short records (`host/tests/it/analyze/recordings.rs` has the figures).
+//! [`Registration::Joint`] (the default) solves one offset per frame,
+//! common to its lines (the head is rigid), from all overlaps of all lines
+//! together — each frame with every later frame it overlaps, each cell
+//! weighted by its noise — by a fixed-lag least squares ([`solve`]: why,
+//! and why the head's roll is left to the null lines);
+//! [`Registration::JointPitch`] solves the pitch too. The solve's own
+//! error, common to all lines where no null line sees it, is propagated
+//! per band ([`share`], [`Stitching::share`]) for the floor to add.
+//!
+//! [`Registration::Offset`] and [`Registration::OffsetTilt`] register each
+//! line on its own: each frame onto what has been stitched before it, by
+//! the least-squares offset (and, if asked, tilt, when the overlap is at
+//! least [`Options::min_tilt_overlap_mm`] long) of the frame's values minus
+//! the stitched ones over the cells they share, subtracted from the whole
+//! frame. This chains: each frame's error carries into the ones after it,
+//! a random walk in height for offsets (measured on 2 m of synthetic rail,
+//! 35 mm overlaps, 2 µm noise per point, ±20 µm of bounce: 0.67 µm RMS
+//! left, against 6.5 µm without registration) and in *slope*, integrated,
+//! for tilts (the same rail with ±0.2 µm/mm of pitch per frame is left
+//! with 8.5 µm RMS: more than the pitch cost, 6.6 µm; figures in
+//! `host/tests/it/analyze/mod.rs`). The offset-only lanes also choose the
+//! direction.
+//!
+//! Either way a frame is then averaged in (weighted by its points per
+//! cell). A frame that overlaps less than [`Options::min_overlap_mm`]
+//! cannot be registered: it is added as it is, and the join is reported
+//! (an *unregistered join*; across a gap it starts a new run). The
+//! registration's residual RMS over the overlap (the corrected frame
+//! against what was stitched before it) is kept per frame: with a rigid
+//! head it is the sensor noise averaged over a cell; a wrong direction or
+//! a bad odometer shows up there first.
 //!
 //! # Gaps
 //!
@@ -73,7 +84,8 @@
 //! # Cost
 //!
 //! `O(P log P)` for P points (sorting each frame's points into cells) plus
-//! `O(C)` per frame for C cells it covers. Memory does not grow with the
+//! `O(C)` per frame for C cells it covers (the joint solve adds a few
+//! hundred flops per cell and a small dense solve per frame). Memory does not grow with the
 //! track: each lane (two per laser, one per direction; three or four when
 //! the registration is not offset-only) keeps its cells in a
 //! [`Cells`] store (≈ 1 MB in memory, the rest in a temporary file) and
@@ -86,8 +98,8 @@ use cms_core::protocol::LASERS;
 mod assemble;
 mod joint;
 mod peek;
-mod share;
-mod solve;
+pub mod share;
+pub mod solve;
 
 pub use assemble::FrameAssembler;
 pub use share::StitchShare;
