@@ -171,20 +171,20 @@ impl Solver {
         let centre_mm = (lo as f64 + hi as f64) / 2.0 * dx;
         let mut overlap_mm = [0.0; LASERS];
         let mut inv_var = [0.0; LASERS];
-        for k in 0..LASERS {
-            let shared: Vec<i64> = cells[k].iter().map(|c| c.0).filter(|c| self.open[k].contains_key(c)).collect();
+        for (k, line) in cells.iter().enumerate() {
+            let shared: Vec<i64> = line.iter().map(|c| c.0).filter(|c| self.open[k].contains_key(c)).collect();
             overlap_mm[k] = match (shared.first(), shared.last()) {
                 (Some(a), Some(b)) if shared.len() >= 2 => (b - a + 1) as f64 * dx,
                 _ => 0.0,
             };
-            if let Some(s) = self.window.back().and_then(|g| noise_per_point(&cells[k], &g.c.cells[k])) {
+            if let Some(s) = self.window.back().and_then(|g| noise_per_point(line, &g.c.cells[k])) {
                 self.sigma_um[k] = s.max(MIN_SIGMA_UM);
             }
             inv_var[k] = 1.0 / (self.sigma_um[k] * self.sigma_um[k]);
         }
         let registered = overlap_mm.iter().any(|&o| o >= self.min_overlap_mm);
-        for k in 0..LASERS {
-            let range = cells[k].first().zip(cells[k].last()).map(|(a, b)| (a.0, b.0));
+        for (k, line) in cells.iter().enumerate() {
+            let range = line.first().zip(line.last()).map(|(a, b)| (a.0, b.0));
             self.close_outside(k, range);
         }
         let id = self.next_id;
@@ -328,9 +328,9 @@ impl Solver {
                 let corr: f64 = (0..m).map(|a| g[a] * self.info[a * n + m + j]).sum();
                 info[i * nb + j] = self.info[(m + i) * n + m + j] - corr;
             }
-            for col in 0..1 + REPLICAS {
+            for (col, r) in rhs[i].iter_mut().enumerate() {
                 let corr: f64 = (0..m).map(|a| g[a] * self.rhs[a][col]).sum();
-                rhs[i][col] = self.rhs[m + i][col] - corr;
+                *r = self.rhs[m + i][col] - corr;
             }
         }
         self.info = info;
@@ -405,21 +405,17 @@ fn solve(info: &[f64], rhs: &[[f64; 1 + REPLICAS]], n: usize) -> Vec<[f64; 1 + R
     }
     let mut y = rhs.to_vec();
     for i in 0..n {
-        for col in 0..1 + REPLICAS {
-            let mut s = y[i][col];
-            for k in 0..i {
-                s -= l[i * n + k] * y[k][col];
-            }
-            y[i][col] = s / l[i * n + i];
+        let (done, rest) = y.split_at_mut(i);
+        for (col, v) in rest[0].iter_mut().enumerate() {
+            let s: f64 = done.iter().enumerate().map(|(k, d)| l[i * n + k] * d[col]).sum();
+            *v = (*v - s) / l[i * n + i];
         }
     }
     for i in (0..n).rev() {
-        for col in 0..1 + REPLICAS {
-            let mut s = y[i][col];
-            for k in i + 1..n {
-                s -= l[k * n + i] * y[k][col];
-            }
-            y[i][col] = s / l[i * n + i];
+        let (head, after) = y.split_at_mut(i + 1);
+        for (col, v) in head[i].iter_mut().enumerate() {
+            let s: f64 = after.iter().enumerate().map(|(j, d)| l[(i + 1 + j) * n + i] * d[col]).sum();
+            *v = (*v - s) / l[i * n + i];
         }
     }
     y
