@@ -213,7 +213,8 @@ pub struct FrameFit {
     pub centre_mm: f64,
     /// Length of its overlap with the frames before it, mm.
     pub overlap_mm: f64,
-    /// Offset subtracted, µm (at the overlap's centre).
+    /// Offset subtracted, µm (at the overlap's centre; at the frame's
+    /// centre with the joint registration).
     pub offset_um: f64,
     /// Tilt subtracted, µm per mm.
     pub tilt_um_per_mm: f64,

@@ -1,9 +1,11 @@
 //! The stitch's own share of the noise: the joint registration's errors
 //! ([`super::solve`]'s replicas) laid on the track as the profile lays its
-//! frames — each cell the weighted mean of the errors of the frames that
-//! cover it — and pushed through the EN 13231-3 band filters, in stretches
-//! (a stretch's margins let the filters settle, as the analysis's pieces
-//! do), so memory stays a stretch's whatever the track's length.
+//! frames — on each line each cell the mean of the errors of the frames
+//! that cover it, weighted by their points as the cells are, then the
+//! lines' mean, as the running band's profile takes it — and pushed
+//! through the EN 13231-3 band filters, in stretches (a stretch's margins
+//! let the filters settle, as the analysis's pieces do), so memory stays a
+//! stretch's whatever the track's length.
 
 use std::collections::BTreeMap;
 
@@ -44,8 +46,8 @@ impl StitchShare {
 #[derive(Debug)]
 pub struct ShareBuilder {
     dx_mm: f64,
-    /// Cells still open: per replica the weighted sum of errors, and the weight.
-    open: BTreeMap<i64, ([f64; REPLICAS], f64)>,
+    /// Cells still open: per line, per replica the weighted sum of errors, and the weight.
+    open: BTreeMap<i64, [([f64; REPLICAS], f64); LASERS]>,
     /// Closed samples not yet summed, per replica, in closing order (NaN: a gap).
     buf: [Vec<f64>; REPLICAS],
     /// Samples of `buf` already summed (the left margin).
@@ -73,11 +75,11 @@ impl ShareBuilder {
     /// are committed in the order they came).
     pub fn add(&mut self, f: &Committed) {
         let (mut lo, mut hi) = (i64::MAX, i64::MIN);
-        for (k, line) in f.cells.iter().enumerate().take(LASERS) {
+        for (k, line) in f.cells.iter().enumerate() {
             for &(c, _, n) in line {
-                let w = n as f64 * f.inv_var[k];
+                let w = n as f64;
                 let x = c as f64 * self.dx_mm - f.centre_mm;
-                let cell = self.open.entry(c).or_insert(([0.0; REPLICAS], 0.0));
+                let cell = &mut self.open.entry(c).or_insert([([0.0; REPLICAS], 0.0); LASERS])[k];
                 for (s, e) in cell.0.iter_mut().zip(&f.errors) {
                     *s += w * (e.0 + e.1 * x);
                 }
@@ -106,14 +108,17 @@ impl ShareBuilder {
             None => self.open.keys().copied().collect(),
         };
         for c in keys {
-            let Some((s, w)) = self.open.remove(&c) else { continue };
+            let Some(lines) = self.open.remove(&c) else { continue };
+            let seen: Vec<&([f64; REPLICAS], f64)> = lines.iter().filter(|l| l.1 > 0.0).collect();
+            let k = seen.len() as f64;
+            let mean: [f64; REPLICAS] = std::array::from_fn(|r| seen.iter().map(|l| l.0[r] / l.1).sum::<f64>() / k);
             // A sample not next to the last one starts a new run.
             if self.last.is_some_and(|l| (c - l).abs() != 1) {
                 self.buf.iter_mut().for_each(|b| b.push(f64::NAN));
             }
             self.last = Some(c);
-            for (b, s) in self.buf.iter_mut().zip(s) {
-                b.push(s / w);
+            for (b, v) in self.buf.iter_mut().zip(mean) {
+                b.push(v);
             }
         }
         if self.buf[0].len() >= self.done + (CORE_MARGINS + 1) * self.margin {
