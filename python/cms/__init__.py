@@ -104,7 +104,7 @@ def analyze(
 ) -> Analysis:
     """``cms-host analyze PATHS…`` with the same options (``--chainage``,
     ``--edition 2006|2012``, ``--block-m``, ``--search-m``, ``--dx-mm``,
-    ``--direction auto|forward|reverse``, ``--register offset-tilt|offset|none``,
+    ``--direction auto|forward|reverse``, ``--register joint|joint-pitch|offset-tilt|offset|none``,
     ``--segment-mm``, ``--no-spike-removal``, ``--no-curvature``,
     ``--calibration``, ``--allow-repeated-runs``, ``--allow-mixed-heads``,
     ``--track-register``: the summary's ``gnss_placing`` says what placed

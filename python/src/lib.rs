@@ -220,11 +220,13 @@ fn direction(s: Option<&str>) -> PyResult<Direction> {
 
 fn registration(s: Option<&str>) -> PyResult<Registration> {
     match s {
-        None | Some("offset") => Ok(Registration::Offset),
+        None | Some("joint") => Ok(Registration::Joint),
+        Some("joint-pitch") => Ok(Registration::JointPitch),
+        Some("offset") => Ok(Registration::Offset),
         Some("offset-tilt") => Ok(Registration::OffsetTilt),
         Some("none") => Ok(Registration::None),
         Some(o) => Err(Error::new_err(format!(
-            "invalid value '{o}' for '--register <REGISTER>' [possible values: offset-tilt, offset, none]"
+            "invalid value '{o}' for '--register <REGISTER>' [possible values: joint, joint-pitch, offset-tilt, offset, none]"
         ))),
     }
 }

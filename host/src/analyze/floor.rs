@@ -23,9 +23,11 @@
 //! * it counts rail that differs across the running band (a defect under
 //!   one line only) as noise: the floor is then too high, never too low —
 //!   a band may be *not judged* that could have been;
-//! * it cannot see what is common to the lines: a stitch error shared by
-//!   all (the frames are registered line by line, so their errors are
-//!   not), a vibration of the whole head, a calibration error.
+//! * it cannot see what is common to the lines: a vibration of the whole
+//!   head, a calibration error, and the joint registration's error (one
+//!   offset per frame for all its lines): that one is propagated from the
+//!   solve ([`crate::analyze::stitch::StitchShare`]) and added in
+//!   quadrature ([`Floor::with_stitch`]), so the floor is not too low.
 //!
 //! # The floor of each figure
 //!
@@ -107,18 +109,37 @@ pub struct BandFloor {
     /// where the band holds noise (or rail that differs across the
     /// band), near 1 where common rail stands far above the noise.
     pub coherence: f64,
+    /// The stitch's own share, common to all lines, mm RMS: included in
+    /// the figures above ([`BandFloor::with_stitch`]; 0 when none).
+    pub stitch_rms_mm: f64,
 }
 
 impl BandFloor {
-    /// The floor of the mean of `k` lines: independent noises average as `1/√k`.
+    /// The floor of the mean of `k` lines: independent noises average as
+    /// `1/√k`, the stitch's share common to them does not.
     pub fn of_mean(&self, k: usize) -> BandFloor {
-        let s = 1.0 / (k.max(1) as f64).sqrt();
+        let own2 = (self.rms_mm.powi(2) - self.stitch_rms_mm.powi(2)).max(0.0);
+        let rms = (own2 / k.max(1) as f64 + self.stitch_rms_mm.powi(2)).sqrt();
+        self.scaled(rms)
+    }
+
+    /// This floor with a share common to all lines (the stitch's, mm RMS)
+    /// added in quadrature; the peak-to-peak figures grow as the RMS does.
+    pub fn with_stitch(&self, stitch_rms_mm: f64) -> BandFloor {
+        let own2 = (self.rms_mm.powi(2) - self.stitch_rms_mm.powi(2)).max(0.0);
+        let stitch_rms_mm = stitch_rms_mm.max(0.0);
+        BandFloor { stitch_rms_mm, ..self.scaled((own2 + stitch_rms_mm.powi(2)).sqrt()) }
+    }
+
+    /// The figures scaled to an RMS of `rms_mm`.
+    fn scaled(&self, rms_mm: f64) -> BandFloor {
+        let s = if self.rms_mm > 0.0 { rms_mm / self.rms_mm } else { 1.0 };
         BandFloor {
-            rms_mm: self.rms_mm * s,
+            rms_mm,
             average_mean_pp_mm: self.average_mean_pp_mm * s,
             worst_mean_pp_mm: self.worst_mean_pp_mm * s,
             peak_mm: self.peak_mm * s,
-            coherence: self.coherence,
+            ..*self
         }
     }
 
@@ -249,6 +270,7 @@ impl FloorSums {
                         worst_mean_pp_mm: n.worst_mean_pp_mm,
                         peak_mm: n.worst_max_pp_mm / 2.0,
                         coherence: coherence(m.rms_mm, n.rms_mm, lines),
+                        stitch_rms_mm: 0.0,
                     }
                 })
             })
@@ -341,6 +363,18 @@ fn section_len_mm(section: &[Stitched]) -> f64 {
 }
 
 impl Floor {
+    /// The floor with the stitch's own share (common to all lines, which
+    /// the null lines cannot see) added in quadrature in each band it was
+    /// measured in.
+    pub fn with_stitch(mut self, share: &crate::analyze::stitch::StitchShare) -> Floor {
+        for (b, f) in self.bands.iter_mut().enumerate() {
+            if let (Some(f), Some(s)) = (f.as_mut(), share.rms_mm(b)) {
+                *f = f.with_stitch(s);
+            }
+        }
+        self
+    }
+
     /// One line's floor in band `b`.
     pub fn band(&self, b: usize) -> Option<&BandFloor> {
         self.bands.get(b).and_then(Option::as_ref)
@@ -388,8 +422,13 @@ mod tests {
                 profile::stitched(k, 0.0, 1.0, z)
             })
             .collect();
-        let stitching =
-            Stitching { direction: Direction::Forward, direction_residuals_um: None, direction_given: true, lasers };
+        let stitching = Stitching {
+            direction: Direction::Forward,
+            direction_residuals_um: None,
+            direction_given: true,
+            lasers,
+            share: None,
+        };
         judge(stitching, Vec::new(), &Options::default(), &crate::progress::Silent).unwrap()
     }
 

@@ -436,7 +436,7 @@ pub fn analyze(frames: &[FramePoints], opts: &Options) -> Result<Analysis, Error
 
 /// Runs both standards on every laser's stitched profile and judges the
 /// survey line: first the noise floor from the lines' null combinations
-/// ([`floor::measure`], one walk), then the standards and the verdict,
+/// ([`floor::measure`], one walk; the stitch's own share added), then the standards and the verdict,
 /// walking it piece by piece ([`pieces`]); `progress` is told the metres
 /// of line walked.
 pub fn judge(
@@ -447,6 +447,10 @@ pub fn judge(
 ) -> Result<Analysis, Error> {
     let stitched = std::mem::take(&mut stitching.lasers);
     let floor = floor::measure(&stitched, opts, progress)?;
+    let floor = match &stitching.share {
+        Some(share) => floor.map(|f| f.with_stitch(share)),
+        None => floor,
+    };
     progress.begin("judging", line_metres(&stitched), "m");
     let mut done_m = 0.0;
     let dx = stitched.first().map_or(opts.stitch.dx_mm, |s| s.dx_mm);

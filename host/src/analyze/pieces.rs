@@ -515,6 +515,7 @@ mod tests {
             direction_residuals_um: None,
             direction_given: true,
             lasers: vec![line],
+            share: None,
         };
         judge(stitching, Vec::new(), opts, &crate::progress::Silent).unwrap()
     }

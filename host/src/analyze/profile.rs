@@ -210,7 +210,13 @@ fn parse_text(text: &str, dx_mm: Option<f64>) -> Result<(ProfileFile, Stitching)
     };
     Ok((
         info,
-        Stitching { direction: Direction::Forward, direction_residuals_um: None, direction_given: false, lasers },
+        Stitching {
+            direction: Direction::Forward,
+            direction_residuals_um: None,
+            direction_given: false,
+            lasers,
+            share: None,
+        },
     ))
 }
 

@@ -67,7 +67,7 @@ impl Default for Settings {
             block_m: 50.0,
             dx_mm: None,
             direction: Direction::Auto,
-            registration: Registration::Offset,
+            registration: stitch::Options::default().registration,
             segment_mm: en15610::MIN_SEGMENT_MM,
             remove_spikes: true,
             curvature: true,

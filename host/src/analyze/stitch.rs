@@ -40,29 +40,40 @@
 //! Each frame's heights are relative to the head, which bounces and pitches
 //! on the trolley: between frames the whole profile may move by an offset
 //! and tilt. Frames are taken in the order they come — a recording's, the
-//! order the head travelled, whichever way — and each is registered onto
-//! what has been stitched before it ([`Stitcher`]; [`stitch`] takes a
-//! slice in odometer order): over the cells they share, the
-//! least-squares offset (and, if asked, tilt, when the overlap is at least
-//! [`Options::min_tilt_overlap_mm`] long) of the frame's values minus the
-//! stitched ones is subtracted from the whole frame, which is then averaged
-//! in (weighted by its points per cell). A frame that overlaps less than
-//! [`Options::min_overlap_mm`] cannot be registered: it is added as it is,
-//! and the join is reported (an *unregistered join*; across a gap it starts
-//! a new run). The registration's residual RMS over the overlap is kept per
-//! frame: with a rigid head it is the sensor noise averaged over a cell; a
-//! wrong direction or a bad odometer shows up there first.
+//! order the head travelled, whichever way ([`Stitcher`]; [`stitch`] takes a
+//! slice in odometer order).
 //!
-//! Registration chains: each frame's offset/tilt error carries into the
-//! ones after it. For offsets that is a random walk in height (measured on
-//! 2 m of synthetic rail, 35 mm overlaps, 2 µm noise per point, ±20 µm of
-//! bounce: 0.67 µm RMS left, against 6.5 µm without registration). For
-//! tilts it is a random walk in *slope*, integrated: the same rail with
-//! ±0.2 µm/mm of pitch per frame is left with 8.5 µm RMS by offset-and-tilt
-//! registration — the pitch is gone, but the walk costs more than the pitch
-//! did (6.6 µm with offsets only). So [`Registration::Offset`] is the
-//! default and [`Registration::OffsetTilt`] is for heads that really pitch
-//! over short records (`host/tests/it/analyze/recordings.rs` has the figures).
+//! [`Registration::Joint`] (the default) solves one offset per frame,
+//! common to its lines (the head is rigid), from all overlaps of all lines
+//! together — each frame with every later frame it overlaps, each cell
+//! weighted by its noise — by a fixed-lag least squares ([`solve`]: why,
+//! and why the head's roll is left to the null lines);
+//! [`Registration::JointPitch`] solves the pitch too. The solve's own
+//! error, common to all lines where no null line sees it, is propagated
+//! per band ([`share`], [`Stitching::share`]) for the floor to add.
+//!
+//! [`Registration::Offset`] and [`Registration::OffsetTilt`] register each
+//! line on its own: each frame onto what has been stitched before it, by
+//! the least-squares offset (and, if asked, tilt, when the overlap is at
+//! least [`Options::min_tilt_overlap_mm`] long) of the frame's values minus
+//! the stitched ones over the cells they share, subtracted from the whole
+//! frame. This chains: each frame's error carries into the ones after it,
+//! a random walk in height for offsets (measured on 2 m of synthetic rail,
+//! 35 mm overlaps, 2 µm noise per point, ±20 µm of bounce: 0.67 µm RMS
+//! left, against 6.5 µm without registration) and in *slope*, integrated,
+//! for tilts (the same rail with ±0.2 µm/mm of pitch per frame is left
+//! with 8.5 µm RMS: more than the pitch cost, 6.6 µm; figures in
+//! `host/tests/it/analyze/mod.rs`). The offset-only lanes also choose the
+//! direction.
+//!
+//! Either way a frame is then averaged in (weighted by its points per
+//! cell). A frame that overlaps less than [`Options::min_overlap_mm`]
+//! cannot be registered: it is added as it is, and the join is reported
+//! (an *unregistered join*; across a gap it starts a new run). The
+//! registration's residual RMS over the overlap (the corrected frame
+//! against what was stitched before it) is kept per frame: with a rigid
+//! head it is the sensor noise averaged over a cell; a wrong direction or
+//! a bad odometer shows up there first.
 //!
 //! # Gaps
 //!
@@ -73,7 +84,8 @@
 //! # Cost
 //!
 //! `O(P log P)` for P points (sorting each frame's points into cells) plus
-//! `O(C)` per frame for C cells it covers. Memory does not grow with the
+//! `O(C)` per frame for C cells it covers (the joint solve adds a few
+//! hundred flops per cell and a small dense solve per frame). Memory does not grow with the
 //! track: each lane (two per laser, one per direction; three or four when
 //! the registration is not offset-only) keeps its cells in a
 //! [`Cells`] store (≈ 1 MB in memory, the rest in a temporary file) and
@@ -81,9 +93,16 @@
 //! streams. A grid longer than [`MAX_CELLS`] is refused; a temporary
 //! file that fails is [`StitchError::Spill`].
 
-use cms_core::protocol::{LASERS, Profile};
+use cms_core::protocol::LASERS;
 
+mod assemble;
+mod joint;
 mod peek;
+pub mod share;
+pub mod solve;
+
+pub use assemble::FrameAssembler;
+pub use share::StitchShare;
 
 use super::store::{Cells, FitLog, Samples};
 pub use super::store::{Gap, gaps_in};
@@ -109,54 +128,6 @@ impl FramePoints {
     }
 }
 
-/// Gathers the calibrated points of profile messages into frames (the parts
-/// of one frame share its `seq` and odometer). Points without a metric
-/// (no calibration loaded) and points the head's line pass rejected
-/// ([`Flags::rejected`](cms_core::peak::Flags::rejected)) are counted and
-/// left out.
-#[derive(Debug, Default)]
-pub struct FrameAssembler {
-    current: Option<FramePoints>,
-    /// Points without a triangulated position.
-    pub uncalibrated_points: u64,
-    /// Points with one.
-    pub calibrated_points: u64,
-    /// Points the line pass rejected.
-    pub rejected_points: u64,
-}
-
-impl FrameAssembler {
-    /// Feeds one profile message; returns the previous frame when this one
-    /// starts a new frame.
-    pub fn push(&mut self, p: &Profile) -> Option<FramePoints> {
-        let odometer_mm = p.odometer_um as f64 / 1000.0;
-        let done = match &self.current {
-            Some(f) if f.seq == p.seq && f.odometer_mm == odometer_mm && p.part != 0 => None,
-            _ => self.current.take(),
-        };
-        let f = self.current.get_or_insert_with(|| FramePoints { seq: p.seq, odometer_mm, ..FramePoints::default() });
-        for l in &p.lasers {
-            let Some(dst) = f.lasers.get_mut(l.laser as usize) else { continue };
-            for pt in &l.points {
-                match pt.metric {
-                    _ if pt.flags.rejected() => self.rejected_points += 1,
-                    Some(m) => {
-                        dst.push((m.along_um as f64 / 1000.0, m.height_nm as f64 / 1000.0));
-                        self.calibrated_points += 1;
-                    }
-                    None => self.uncalibrated_points += 1,
-                }
-            }
-        }
-        done.filter(|f| f.points() > 0)
-    }
-
-    /// The last frame, if it has points.
-    pub fn finish(&mut self) -> Option<FramePoints> {
-        self.current.take().filter(|f| f.points() > 0)
-    }
-}
-
 /// How image rows map onto the track.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Direction {
@@ -177,6 +148,18 @@ pub enum Registration {
     Offset,
     /// A height offset and a tilt.
     OffsetTilt,
+    /// One height offset per frame, common to its lines, solved from all
+    /// overlaps of all lines together ([`solve`]).
+    Joint,
+    /// [`Registration::Joint`] with the head's pitch (a tilt common to the lines).
+    JointPitch,
+}
+
+impl Registration {
+    /// Whether frames are registered by the joint solve.
+    pub fn is_joint(self) -> bool {
+        matches!(self, Registration::Joint | Registration::JointPitch)
+    }
 }
 
 /// Options of [`stitch`].
@@ -197,7 +180,7 @@ impl Default for Options {
         Options {
             dx_mm: 1.0,
             direction: Direction::Auto,
-            registration: Registration::Offset,
+            registration: Registration::Joint,
             min_overlap_mm: 3.0,
             min_tilt_overlap_mm: 10.0,
         }
@@ -230,7 +213,8 @@ pub struct FrameFit {
     pub centre_mm: f64,
     /// Length of its overlap with the frames before it, mm.
     pub overlap_mm: f64,
-    /// Offset subtracted, µm (at the overlap's centre).
+    /// Offset subtracted, µm (at the overlap's centre; at the frame's
+    /// centre with the joint registration).
     pub offset_um: f64,
     /// Tilt subtracted, µm per mm.
     pub tilt_um_per_mm: f64,
@@ -307,6 +291,9 @@ pub struct Stitching {
     /// Whether the direction was given (not [`Direction::Auto`]).
     pub direction_given: bool,
     pub lasers: Vec<Stitched>,
+    /// The joint registration's own error per band, common to all lines
+    /// (`None`: not registered jointly).
+    pub share: Option<StitchShare>,
 }
 
 /// The direction that registers better wins when its median residual is
@@ -366,6 +353,8 @@ pub fn stitch(frames: &[FramePoints], opts: &Options) -> Result<Stitching, Stitc
 pub struct Stitcher {
     opts: Options,
     lanes: Vec<Lane>,
+    /// The joint solve of each direction a joint lane is stitched in.
+    joints: Vec<joint::JointSolve>,
     /// Finite points per laser.
     points: [usize; LASERS],
     error: Option<StitchError>,
@@ -420,43 +409,57 @@ impl Stitcher {
                 });
             }
         }
-        Ok(Stitcher { opts: *opts, lanes, points: [0; LASERS], error: None })
+        let joints = if opts.registration.is_joint() {
+            kinds.iter().filter(|k| k.1 == opts.registration).map(|k| joint::JointSolve::new(k.0, opts)).collect()
+        } else {
+            Vec::new()
+        };
+        Ok(Stitcher { opts: *opts, lanes, joints, points: [0; LASERS], error: None })
     }
 
     /// Adds one frame. A frame that would stretch a profile beyond
     /// [`MAX_CELLS`] is left out, and [`Stitcher::finish`] says so.
     pub fn push(&mut self, f: &FramePoints) {
-        let dx = self.opts.dx_mm;
         if !f.odometer_mm.is_finite() || self.error.is_some() {
             return;
         }
         for k in 0..LASERS {
-            let pts = &f.lasers[k];
-            self.points[k] += pts.iter().filter(|p| finite(**p)).count();
-            let mut last_sign = f64::NAN;
-            let mut cells = Vec::new();
-            for lane in self.lanes.iter_mut().filter(|l| l.laser == k) {
-                if lane.sign != last_sign {
-                    cells = frame_cells(pts, f.odometer_mm, lane.sign, dx);
-                    last_sign = lane.sign;
-                }
-                if cells.is_empty() {
-                    continue;
-                }
-                if let Err(e) = lane.add(f.seq, &cells, &self.opts) {
-                    self.error = Some(e);
-                    return;
+            self.points[k] += f.lasers[k].iter().filter(|p| finite(**p)).count();
+        }
+        if let Err(e) = self.push_frame(f) {
+            self.error = Some(e);
+        }
+    }
+
+    fn push_frame(&mut self, f: &FramePoints) -> Result<(), StitchError> {
+        for sign in [1.0, -1.0] {
+            if !self.lanes.iter().any(|l| l.sign == sign) {
+                continue;
+            }
+            let cells: [Vec<(i64, f64, usize)>; LASERS] =
+                std::array::from_fn(|k| frame_cells(&f.lasers[k], f.odometer_mm, sign, self.opts.dx_mm));
+            for lane in self.lanes.iter_mut().filter(|l| l.sign == sign && !l.registration.is_joint()) {
+                if !cells[lane.laser].is_empty() {
+                    lane.add(f.seq, &cells[lane.laser], &self.opts)?;
                 }
             }
+            if let Some(j) = self.joints.iter_mut().find(|j| j.sign == sign) {
+                j.push(f.seq, cells, &mut self.lanes)?;
+            }
         }
+        Ok(())
     }
 
     /// The profiles: the direction chosen (with `Auto`), every laser that
     /// had points.
-    pub fn finish(self) -> Result<Stitching, StitchError> {
+    pub fn finish(mut self) -> Result<Stitching, StitchError> {
         let (with_points, direction, residuals) = self.choice()?;
         let dx = self.opts.dx_mm;
         let sign = if direction == Direction::Reverse { -1.0 } else { 1.0 };
+        let mut share = None;
+        if let Some(j) = self.joints.iter_mut().find(|j| j.sign == sign) {
+            share = j.finish(&mut self.lanes)?;
+        }
         let registration = self.opts.registration;
         let lasers = self
             .lanes
@@ -465,7 +468,7 @@ impl Stitcher {
             .map(|l| l.into_stitched(dx))
             .collect::<Result<Vec<Stitched>, StitchError>>()?;
         let direction_given = self.opts.direction != Direction::Auto;
-        Ok(Stitching { direction, direction_residuals_um: Some(residuals), direction_given, lasers })
+        Ok(Stitching { direction, direction_residuals_um: Some(residuals), direction_given, lasers, share })
     }
 
     /// The lasers with points, the direction ([`Direction::Auto`] chosen)
@@ -751,7 +754,7 @@ mod tests {
     fn assembler_joins_parts_and_skips_uncalibrated_points() {
         use cms_core::fixed::Px;
         use cms_core::peak::Flags;
-        use cms_core::protocol::{LaserPoints, Metric, Point};
+        use cms_core::protocol::{LaserPoints, Metric, Point, Profile};
         let pt = |m: Option<Metric>| Point {
             row: 0,
             position: Px::from_f64(1.0),

@@ -48,9 +48,14 @@ impl EditionArg {
 /// `--register`.
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RegisterArg {
-    /// Height offset and tilt per frame from its overlap.
+    /// One height offset per frame, common to its lines, solved from all
+    /// overlaps of all lines together, each weighted by its noise.
+    Joint,
+    /// The joint solve with the head's pitch (a tilt per frame common to its lines).
+    JointPitch,
+    /// Height offset and tilt per frame from its overlap, each line on its own.
     OffsetTilt,
-    /// Height offset only.
+    /// Height offset per frame from its overlap, each line on its own.
     Offset,
     /// No registration: overlapping frames averaged as they are.
     None,
@@ -99,7 +104,7 @@ pub struct AnalysisArgs {
     /// How image rows map onto the track (recordings; default auto).
     #[arg(long, value_enum)]
     pub direction: Option<DirectionArg>,
-    /// What registration corrects per frame (recordings; default offset).
+    /// What registration corrects per frame (recordings; default joint).
     #[arg(long, value_enum)]
     pub register: Option<RegisterArg>,
     /// EN 15610 Welch segment length, mm (1000 to 1e6; wavelengths up to a quarter of it).
@@ -181,6 +186,8 @@ impl AnalysisArgs {
             },
             registration: match self.register {
                 None => defaults.registration,
+                Some(RegisterArg::Joint) => Registration::Joint,
+                Some(RegisterArg::JointPitch) => Registration::JointPitch,
                 Some(RegisterArg::OffsetTilt) => Registration::OffsetTilt,
                 Some(RegisterArg::Offset) => Registration::Offset,
                 Some(RegisterArg::None) => Registration::None,

@@ -61,6 +61,7 @@ fn floor_json(f: Option<&BandFloor>) -> Value {
             "worst_mean_pp_mm": num(f.worst_mean_pp_mm),
             "peak_mm": num(f.peak_mm),
             "coherence": num(f.coherence),
+            "stitch_rms_mm": num(f.stitch_rms_mm),
         }),
         None => Value::Null,
     }
@@ -87,8 +88,16 @@ fn survey_floor_json(a: &Analysis) -> Value {
             "spikes_per_m": num(f.spikes_per_m),
         })
     });
+    let stitch = a.stitching.share.map(|s| {
+        en13231::BANDS
+            .iter()
+            .enumerate()
+            .map(|(b, band)| json!({ "lo_mm": band.lo_mm, "hi_mm": band.hi_mm, "rms_mm": s.rms_mm(b).map(num) }))
+            .collect::<Vec<_>>()
+    });
     json!({
         "floor": floor,
+        "stitch": stitch,
         "running_bands": a.running_bands.iter().map(|rb| json!({
             "section": rb.section,
             "lines": rb.lines,
@@ -318,6 +327,8 @@ fn source_json(source: &Source, a: &Analysis) -> Value {
                 Registration::OffsetTilt => "offset-tilt",
                 Registration::Offset => "offset",
                 Registration::None => "none",
+                Registration::Joint => "joint",
+                Registration::JointPitch => "joint-pitch",
             });
             o
         }

@@ -24,6 +24,8 @@ pub(super) fn registration_name(r: Registration) -> &'static str {
         Registration::OffsetTilt => "offset and tilt",
         Registration::Offset => "offset",
         Registration::None => "none",
+        Registration::Joint => "joint offset",
+        Registration::JointPitch => "joint offset and pitch",
     }
 }
 
@@ -417,6 +419,21 @@ pub fn describe_floor(a: &Analysis) -> String {
                 );
             }
         }
+    }
+    if let Some(share) = &a.stitching.share {
+        let list: Vec<String> = en13231::BANDS
+            .iter()
+            .enumerate()
+            .map(|(b, band)| {
+                let v = share.rms_mm(b).map_or("not measured".into(), |v| format!("{:.2} µm", v * 1000.0));
+                format!("{}–{} mm {v}", fmt_len(band.lo_mm), fmt_len(band.hi_mm))
+            })
+            .collect();
+        let _ = writeln!(
+            s,
+            "  the stitch's own share (the joint registration's error, common to all lines, propagated; added above): RMS {}",
+            list.join(", ")
+        );
     }
     if let Some(sp) = &f.spectrum {
         let list: Vec<String> =

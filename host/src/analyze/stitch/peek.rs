@@ -38,7 +38,7 @@ impl Stitcher {
             });
         }
         let direction_given = self.opts.direction != Direction::Auto;
-        Ok(Stitching { direction, direction_residuals_um: Some(residuals), direction_given, lasers })
+        Ok(Stitching { direction, direction_residuals_um: Some(residuals), direction_given, lasers, share: None })
     }
 
     /// The frames each laser's lane in `direction` joined without

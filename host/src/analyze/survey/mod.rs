@@ -280,6 +280,7 @@ pub fn join(
             direction_residuals_um: None,
             direction_given: false,
             lasers: Vec::new(),
+            share: None,
         };
         return Ok((empty, vec![]));
     };
@@ -293,6 +294,11 @@ pub fn join(
     let (direction, direction_residuals_um, direction_given) =
         (runs[0].direction, runs[0].direction_residuals_um, runs[0].direction_given);
     let section_gap = (opts.section_gap_mm / dx).ceil() as i64;
+    // The runs' stitch shares, summed (each run's error is its own).
+    let mut share: Option<crate::analyze::stitch::StitchShare> = None;
+    for r in runs.iter().filter_map(|r| r.share.as_ref()) {
+        share.get_or_insert_default().merge(r);
+    }
     for (r, run) in runs.into_iter().enumerate() {
         if let Some(l) = run.lasers.iter().find(|l| (l.dx_mm - dx).abs() > 1e-9 * dx) {
             return Err(JoinError::Spacing { run: r + 1, dx_mm: l.dx_mm, first_mm: dx });
@@ -340,7 +346,7 @@ pub fn join(
         }
         lasers.extend(s.into_stitched(k + 1, g0, dx)?);
     }
-    Ok((Stitching { direction, direction_residuals_um, direction_given, lasers }, report))
+    Ok((Stitching { direction, direction_residuals_um, direction_given, lasers, share }, report))
 }
 
 /// Where and how a run goes on the line ([`place_run`]).

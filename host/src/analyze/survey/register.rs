@@ -322,6 +322,7 @@ mod tests {
             direction_residuals_um: None,
             direction_given: true,
             lasers: vec![line],
+            share: None,
         }
     }
 
