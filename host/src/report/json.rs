@@ -89,6 +89,7 @@ fn survey_floor_json(a: &Analysis) -> Value {
     });
     json!({
         "floor": floor,
+        "predicted": super::optics::json(a),
         "running_bands": a.running_bands.iter().map(|rb| json!({
             "section": rb.section,
             "lines": rb.lines,
