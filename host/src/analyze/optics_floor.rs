@@ -317,7 +317,7 @@ mod tests {
         assert!((b.correlation_mm - 0.142_86).abs() < 1e-5, "{b:?}");
         assert!((b.speckle_psd_um2_mm - 530.2).abs() < 0.2, "{b:?}");
         assert!((b.travel_mm - 0.15).abs() < 1e-12);
-        let by_hand = ((530.2 + 1.5) * (1.0 / 10.0 - 1.0 / 30.0)).sqrt();
+        let by_hand = ((530.2f64 + 1.5) * (1.0 / 10.0 - 1.0 / 30.0)).sqrt();
         let rms = b.band_rms_um(&en13231::BANDS[0]);
         // The filter's skirts and the smear: within 3 % of the ideal band.
         assert!((rms / by_hand - 1.0).abs() < 0.03, "{rms} against {by_hand}");
