@@ -604,4 +604,20 @@ mod tests {
             assert!(parse_row_skip(bad).is_err(), "{bad}");
         }
     }
+
+    #[test]
+    fn optics_of_two_sources_agree_or_are_refused() {
+        let o = |t: &str, from: &str| Some((parse_optics(t).unwrap(), from.to_string()));
+        assert_eq!(merge_optics(o("2.8@685", "--optics"), None).unwrap(), o("2.8@685", "--optics"));
+        assert_eq!(merge_optics(None, o("2.8@685", "cal.toml")).unwrap(), o("2.8@685", "cal.toml"));
+        assert!(merge_optics(o("2.8@685", "--optics"), o("2.8@685", "cal.toml")).is_ok());
+        let e = merge_optics(o("4@685", "--optics"), o("2.8@685", "cal.toml")).unwrap_err().0;
+        assert!(e.contains("--optics says the optics are F/4, 685 nm, cal.toml says F/2.8, 685 nm"), "{e}");
+        // The survey block: the survey given, with the optics after it.
+        let text = with_optics(Some("line = \"LN 1\"\n".into()), o("2.8@685", "--optics")).unwrap().unwrap();
+        assert_eq!(text, "line = \"LN 1\"\n\n[optics]\nf_number = 2.8\nwavelength_nm = 685.0\n");
+        assert_eq!(with_optics(None, None).unwrap(), None);
+        let theirs = with_optics(Some(text), o("4@685", "--optics")).unwrap_err().0;
+        assert!(theirs.contains("[optics] are F/2.8, 685 nm"), "{theirs}");
+    }
 }

@@ -522,8 +522,10 @@ fn a_recording_says_what_optics_it_was_made_with() {
         (p["checked"].as_bool(), p["f_number"].as_f64(), p["source"].as_str()),
         (Some(true), Some(4.0), Some("given"))
     );
-    let e = one_line_error(&run(&["analyze", pr, "--optics", "0.3@685"]));
-    assert!(e.contains("f_number 0.3"), "{e}");
+    let bad = run(&["analyze", pr, "--optics", "0.3@685"]);
+    let e = String::from_utf8_lossy(&bad.stderr);
+    assert_eq!(bad.status.code(), Some(2), "{e}");
+    assert!(e.starts_with("error: ") && e.contains("f_number 0.3: a lens's F-number is 0.7 to 64"), "{e}");
 }
 
 /// The README's main job within its own limits: `listen sim` at its
