@@ -53,10 +53,9 @@ pub fn describe(a: &Analysis) -> String {
             Some(c) => {
                 let _ = writeln!(
                     s,
-                    "  {name}: predicted RMS {:.1} µm, measured {:.1} µm, {:+.1} dB: {}",
+                    "  {name}: predicted RMS {:.1} µm, measured {:.1} µm: {}",
                     c.predicted_rms_mm * 1000.0,
                     c.measured_rms_mm * 1000.0,
-                    c.ratio_db,
                     c.says()
                 );
             }
