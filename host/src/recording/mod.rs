@@ -36,7 +36,10 @@
 //! the first frame delimiter after the header, wherever a damaged length
 //! says the block ends. Versions 1 and 2 carry no such checksum: their
 //! header and survey are read as they are, and `info` says they are
-//! unprotected.
+//! unprotected. A later format's version byte damaged into 1 or 2 is
+//! caught all the same: its block still ends with the header's checksum
+//! under its real version, so it is read as that version and its survey
+//! reported damaged.
 //!
 //! The survey block says what the recording is of (line, track, rail,
 //! start chainage, operator: `listen --survey FILE.toml`); it is written
@@ -246,25 +249,61 @@ pub fn parse_header(h: &[u8]) -> Result<Header, HeaderError> {
 /// The survey block after a header, as read.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub(crate) struct Block {
+    /// The header as its checksum proves it: the one parsed, or, where a
+    /// damaged version byte says format 1 or 2, the checksummed format
+    /// the header's checksum was made with.
+    pub header: Header,
     /// The survey's text (`None`: none, or the block is damaged).
     pub survey: Option<String>,
     /// Why the block cannot be trusted, with the bytes read for it (the
     /// frames' reader starts on them: a damaged length may have taken
     /// frames into the block).
     pub damage: Option<(String, Vec<u8>)>,
+    /// Bytes read past an intact block while looking for a checksum there:
+    /// the start of the frames.
+    pub after: Vec<u8>,
 }
 
 /// Reads the block after the header `raw` (parsed as `h`): the survey
 /// text and, from format 3, the checksum over header and text. A block cut
 /// short, not UTF-8 or failing its checksum is damage, not an error: only
 /// the reading itself fails with an error.
+///
+/// Formats 1 and 2 carry no checksum, so one flipped bit of a later
+/// format's version byte (6 → 2) would otherwise make a checksummed file
+/// read as an unprotected one, its checksum taken for frame bytes and its
+/// host records for damage. Where the four bytes after such a block are
+/// the checksum of the header under a checksummed version, the version
+/// byte is what is damaged: the block is reported damaged and read as that
+/// version. By chance a real format-2 file does so once in 2³⁰.
 pub(crate) fn read_block(r: &mut impl Read, raw: &[u8], h: &Header) -> io::Result<Block> {
-    let want = h.block_len() as usize;
-    let mut bytes = Vec::with_capacity(want);
-    r.take(want as u64).read_to_end(&mut bytes)?;
-    let damaged = |why: &str, bytes: Vec<u8>| Block { survey: None, damage: Some((why.to_string(), bytes)) };
-    if bytes.len() != want {
-        return Ok(damaged("cut short", bytes));
+    let mut bytes = Vec::with_capacity(h.block_len() as usize);
+    r.take(h.block_len()).read_to_end(&mut bytes)?;
+    let damaged = |header: Header, why: &str, bytes: Vec<u8>| Block {
+        header,
+        survey: None,
+        damage: Some((why.to_string(), bytes)),
+        after: Vec::new(),
+    };
+    if bytes.len() as u64 != h.block_len() {
+        return Ok(damaged(*h, "cut short", bytes));
+    }
+    let mut after = Vec::new();
+    if !h.checksummed() {
+        let claimed = u32::from_le_bytes([raw[12], raw[13], raw[14], raw[15]]);
+        if claimed as usize <= MAX_SURVEY_BYTES {
+            let extra = u64::from(claimed.saturating_sub(h.survey_len)) + BLOCK_CRC_LEN as u64;
+            r.take(extra).read_to_end(&mut after)?;
+            let mut all = bytes.clone();
+            all.extend_from_slice(&after);
+            if let Some(format) = checksummed_version_of(raw, claimed, &all) {
+                let why = format!(
+                    "damaged: its format version reads {}, but its checksum is of format {format}; read as format {format}",
+                    h.format
+                );
+                return Ok(damaged(Header { format, survey_len: claimed, ..*h }, &why, all));
+            }
+        }
     }
     let text_len = h.survey_len as usize;
     if h.checksummed() {
@@ -273,16 +312,30 @@ pub(crate) fn read_block(r: &mut impl Read, raw: &[u8], h: &Header) -> io::Resul
         digest.update(&bytes[..text_len]);
         let stored = u32::from_le_bytes(bytes[text_len..].try_into().expect("four checksum bytes"));
         if digest.finalize() != stored {
-            return Ok(damaged("damaged (its checksum does not match)", bytes));
+            return Ok(damaged(*h, "damaged (its checksum does not match)", bytes));
         }
     }
-    if text_len == 0 {
-        return Ok(Block { survey: None, damage: None });
-    }
-    match std::str::from_utf8(&bytes[..text_len]) {
-        Ok(t) => Ok(Block { survey: Some(t.to_string()), damage: None }),
-        Err(_) => Ok(damaged("not UTF-8", bytes)),
-    }
+    let survey = match (text_len, std::str::from_utf8(&bytes[..text_len])) {
+        (0, _) => None,
+        (_, Ok(t)) => Some(t.to_string()),
+        (_, Err(_)) => return Ok(damaged(*h, "not UTF-8", bytes)),
+    };
+    Ok(Block { header: *h, survey, damage: None, after })
+}
+
+/// The checksummed format whose header checksum `block` ends with, for the
+/// header `raw` announcing `survey_len` bytes of survey, if any.
+fn checksummed_version_of(raw: &[u8], survey_len: u32, block: &[u8]) -> Option<u16> {
+    let text_len = survey_len as usize;
+    let stored = u32::from_le_bytes(block.get(text_len..text_len + BLOCK_CRC_LEN)?.try_into().ok()?);
+    (CHECKSUMMED_FORMAT..=FORMAT_VERSION).find(|v| {
+        let mut h: [u8; HEADER_LEN] = raw[..HEADER_LEN].try_into().expect("a whole header");
+        h[8..10].copy_from_slice(&v.to_le_bytes());
+        let mut digest = cms_core::protocol::CRC.digest();
+        digest.update(&h);
+        digest.update(&block[..text_len]);
+        digest.finalize() == stored
+    })
 }
 
 /// Why a recording could not be written or read.

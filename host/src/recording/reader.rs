@@ -83,6 +83,7 @@ pub fn scan_records(
     // The survey is read by `survey_of`; here the block is passed over, or,
     // damaged, read as frames: a damaged length may have taken frames in.
     let block = read_block(&mut r, &h, &header).map_err(io_err)?;
+    let header = block.header;
     let mut stats = ScanStats { header: Some(header), survey_damaged: block.damage.is_some(), ..ScanStats::default() };
     let mut d = Deframer::new();
     let mut buf = vec![0u8; 64 << 10];
@@ -94,14 +95,17 @@ pub fn scan_records(
     // A block the file's end cut short has no frames after it: its bytes
     // are a truncated tail.
     let mut cut_short = 0;
-    let mut first = block.damage.and_then(|(_, mut bytes)| {
-        if (bytes.len() as u64) < header.block_len() {
-            cut_short = bytes.len() as u64;
-            return None;
+    let mut first = match block.damage {
+        Some((_, mut bytes)) if bytes.len() as u64 >= header.block_len() => {
+            bytes.push(0);
+            Some(bytes)
         }
-        bytes.push(0);
-        Some(bytes)
-    });
+        Some((_, bytes)) => {
+            cut_short = bytes.len() as u64;
+            None
+        }
+        None => Some(block.after).filter(|b| !b.is_empty()),
+    };
     loop {
         let n = match first.take() {
             Some(bytes) => {

@@ -80,11 +80,11 @@ impl Recorder {
             let mut h = Vec::with_capacity(HEADER_LEN);
             (&mut file).take(HEADER_LEN as u64).read_to_end(&mut h).map_err(|e| io_err("cannot read", e))?;
             let header = parse_header(&h).map_err(|why| format(format!("{why}; refusing to append")))?;
-            format_version = header.format;
             let block = read_block(&mut file, &h, &header).map_err(|e| io_err("cannot read", e))?;
             if let Some((why, _)) = block.damage {
                 return Err(format(format!("survey block: {why}; refusing to append")));
             }
+            format_version = block.header.format;
             if let Some(t) = survey {
                 appendable(block.survey.as_deref(), t).map_err(format)?;
             }

@@ -433,6 +433,40 @@ fn a_damaged_survey_is_reported_and_its_frames_kept() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("survey block: damaged"), "{o:?}");
 }
 
+/// A damaged version byte that makes a checksummed recording read as
+/// format 2 or 1 (no checksum) is caught by the checksum it still ends its
+/// block with: read as its own format, its survey reported damaged, every
+/// frame kept.
+#[test]
+fn a_damaged_version_byte_is_caught_by_the_header_checksum() {
+    for claimed in [2u8, 1] {
+        let (mut bytes, msgs, _) = surveyed();
+        assert_eq!(bytes[8], recording::FORMAT_VERSION as u8);
+        bytes[8] = claimed;
+        let dir = tempfile::tempdir().unwrap();
+        let path = write_file(dir.path(), "v.cmsrec", &bytes);
+        let info = Info::of_file(&path, &Silent).unwrap();
+        let text = info.report(&path);
+        let want = format!(
+            "its format version reads {claimed}, but its checksum is of format {0}; read as format {0}",
+            recording::FORMAT_VERSION
+        );
+        assert!(text.contains(&want), "{text}");
+        assert!(text.contains(&format!("format: {} (wire", recording::FORMAT_VERSION)), "{text}");
+        assert_eq!(info.frames, 5, "{text}");
+        let (got, s) = big(|| scan(&bytes));
+        assert_eq!((got, s.survey_damaged), (msgs, true));
+    }
+    // A real format-2 file (no checksum after its survey) still reads as one, whole.
+    let (bytes, msgs, survey) = surveyed();
+    let mut v2 = bytes[..recording::HEADER_LEN + survey.len()].to_vec();
+    v2[8] = 2;
+    v2.extend_from_slice(&bytes[recording::HEADER_LEN + survey.len() + 4..]);
+    let (got, s) = big(|| scan(&v2));
+    assert_eq!((got, s.survey_damaged, s.damaged), (msgs, false, 0));
+    assert_eq!(s.header.map(|h| h.format), Some(2));
+}
+
 // ------------------------------------------------------------------ export, info
 
 fn write_file(dir: &Path, name: &str, bytes: &[u8]) -> std::path::PathBuf {

@@ -173,11 +173,12 @@ impl<T: FftNum> Filter<T> {
         self.fwd_w.process(field);
         // The live columns, transposed into `scratch` (blocks of rows, for
         // the cache).
-        const B: usize = 16;
+        const B: usize = 32;
         for r0 in (0..h).step_by(B) {
-            for (l, &ku) in self.live.iter().enumerate() {
-                for r in r0..(r0 + B).min(h) {
-                    self.scratch[l * h + r] = field[r * w + ku];
+            let r1 = (r0 + B).min(h);
+            for (col, &ku) in self.scratch.chunks_exact_mut(h).zip(&self.live) {
+                for (s, f) in col[r0..r1].iter_mut().zip(field[r0 * w + ku..].iter().step_by(w)) {
+                    *s = *f;
                 }
             }
         }
@@ -188,14 +189,15 @@ impl<T: FftNum> Filter<T> {
         self.inv_h.process(&mut self.scratch);
         let zero = Complex::new(T::zero(), T::zero());
         for r0 in (0..h).step_by(B) {
-            for r in r0..(r0 + B).min(h) {
+            let r1 = (r0 + B).min(h);
+            for row in field[r0 * w..r1 * w].chunks_exact_mut(w) {
                 for d in &self.dead {
-                    field[r * w + d.start..r * w + d.end].fill(zero);
+                    row[d.clone()].fill(zero);
                 }
             }
-            for (l, &ku) in self.live.iter().enumerate() {
-                for r in r0..(r0 + B).min(h) {
-                    field[r * w + ku] = self.scratch[l * h + r];
+            for (col, &ku) in self.scratch.chunks_exact(h).zip(&self.live) {
+                for (f, s) in field[r0 * w + ku..].iter_mut().step_by(w).zip(&col[r0..r1]) {
+                    *f = *s;
                 }
             }
         }
@@ -217,30 +219,45 @@ pub(crate) fn phasor(seed: u64, stream: u64, a: i64, b: i64) -> Complex<f64> {
 /// [`phasor`] in `f32`: the same cell's phase to 24 bits (within 4·10⁻⁷
 /// rad of it), its cosine and sine by polynomials on the nearest quarter
 /// turn (within 3·10⁻⁷), without the library's `sin_cos`.
-#[inline]
+#[cfg(test)]
 pub(crate) fn phasor_f32(seed: u64, stream: u64, a: i64, b: i64) -> Complex<f32> {
-    let z = cell_hash(seed, stream, a, b);
-    // The phase in 2⁻²⁴ turns: the nearest quarter turn k (2²² of them)
-    // and the rest r in [−π/4, π/4].
-    let u = (z >> 40) as i64;
+    phasor_of_turns(phase_turns(column_hash(seed, stream, a), b))
+}
+
+/// The part of a cell's hash its column `a` decides, shared by the cells
+/// of a column ([`phase_turns`]).
+#[inline]
+pub(crate) fn column_hash(seed: u64, stream: u64, a: i64) -> u64 {
+    let z = seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    mix(z ^ (a as u64).wrapping_mul(0xD1B5_4A32_D192_ED03))
+}
+
+/// The phase of cell `b` of a column, in 2⁻²⁴ turns.
+#[inline]
+pub(crate) fn phase_turns(column: u64, b: i64) -> i32 {
+    (mix(column ^ (b as u64).wrapping_mul(0x8CB9_2BA7_2F3D_8DD7)) >> 40) as i32
+}
+
+/// The unit phasor of a phase in 2⁻²⁴ turns: the nearest quarter turn `k`
+/// (2²² of them) and the rest `r` in [−π/4, π/4], its cosine and sine by
+/// polynomials, turned by `k` quarters without branches (so that a row of
+/// them vectorises).
+#[inline]
+pub(crate) fn phasor_of_turns(u: i32) -> Complex<f32> {
     let k = (u + (1 << 21)) >> 22;
     let r = (u - (k << 22)) as f32 * (std::f32::consts::FRAC_PI_2 / (1u32 << 22) as f32);
     let r2 = r * r;
     let sin = r * (1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0 + r2 * (1.0 / 362_880.0)))));
     let cos = 1.0 + r2 * (-0.5 + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40_320.0))));
-    match k & 3 {
-        0 => Complex::new(cos, sin),
-        1 => Complex::new(-sin, cos),
-        2 => Complex::new(-cos, -sin),
-        _ => Complex::new(sin, -cos),
-    }
+    let odd = k & 1 != 0;
+    let (x, y) = (if odd { -sin } else { cos }, if odd { cos } else { sin });
+    let sign = if k & 2 != 0 { -1.0 } else { 1.0 };
+    Complex::new(sign * x, sign * y)
 }
 
 #[inline]
 fn cell_hash(seed: u64, stream: u64, a: i64, b: i64) -> u64 {
-    let mut z = seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    z = mix(z ^ (a as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
-    mix(z ^ (b as u64).wrapping_mul(0x8CB9_2BA7_2F3D_8DD7))
+    mix(column_hash(seed, stream, a) ^ (b as u64).wrapping_mul(0x8CB9_2BA7_2F3D_8DD7))
 }
 
 fn mix(mut x: u64) -> u64 {

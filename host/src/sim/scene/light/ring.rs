@@ -1,21 +1,20 @@
 //! The surface's speckle phasors along the rail, kept in a bounded ring.
 //!
 //! A surface cell's phase is a hash of the seed, the pattern's stream and
-//! the cell ([`phasor_f32`]): the same whichever frame sees it. The cells a
-//! shot needs are a band of rows along the rail (the image's rows, the
-//! guards, and the travel in the exposure) times a band of columns about
-//! the line. Consecutive sub-exposures of a shot see the same band shifted
-//! by a cell or two, and overlapping frames the same stretch of rail again:
-//! each row of cells is drawn once, kept in a ring indexed by its position
-//! along the rail, and reused until the rail has moved on by the ring's
-//! length. The values are the hash's, so a cell reads the same whether it
-//! came from the ring or was drawn anew.
+//! the cell (`coherent::phase_turns`): the same whichever frame sees it.
+//! The cells a shot needs are a band of rows along the rail (the image's
+//! rows, the guards, and the travel in the exposure) times a band of
+//! columns about the line, and overlapping frames see the same stretch of
+//! rail again: each row of cells is drawn once, kept in a ring indexed by
+//! its position along the rail, and reused until the rail has moved on by
+//! the ring's length. The values are the hash's, so a cell reads the same
+//! whether it came from the ring or was drawn anew.
 
 use rustfft::num_complex::Complex;
 
 #[cfg(test)]
 use super::coherent::phasor;
-use super::coherent::phasor_f32;
+use super::coherent::{column_hash, phase_turns, phasor_of_turns};
 
 /// Columns of cells kept beside the band a shot asked for, in samples per
 /// pixel (`q`) units: the line moves by a few pixels as the head's height
@@ -30,6 +29,10 @@ pub(crate) struct PhasorRing {
     lat0: i64,
     /// Lateral cells per row.
     lat_w: usize,
+    /// The hash of each lateral cell's column, shared by its rows.
+    columns: Vec<u64>,
+    /// A row's phases, 2⁻²⁴ turns.
+    turns: Vec<i32>,
     /// The along-rail cell each slot holds (`None`: not drawn).
     keys: Vec<Option<i64>>,
     cells: Vec<Complex<f32>>,
@@ -38,7 +41,16 @@ pub(crate) struct PhasorRing {
 impl PhasorRing {
     /// An empty ring.
     pub fn new() -> PhasorRing {
-        PhasorRing { seed: 0, stream: 0, lat0: 0, lat_w: 0, keys: Vec::new(), cells: Vec::new() }
+        PhasorRing {
+            seed: 0,
+            stream: 0,
+            lat0: 0,
+            lat_w: 0,
+            columns: Vec::new(),
+            turns: Vec::new(),
+            keys: Vec::new(),
+            cells: Vec::new(),
+        }
     }
 
     /// Makes the ring hold lateral cells `lat` of every row in `rows` at
@@ -55,6 +67,7 @@ impl PhasorRing {
         self.stream = stream;
         self.lat0 = lat.start - margin;
         self.lat_w = (lat.end - lat.start + 2 * margin).max(0) as usize;
+        self.columns = (0..self.lat_w).map(|j| column_hash(seed, stream, self.lat0 + j as i64)).collect();
         // A quarter more than one shot's rows: the next frame's rows that
         // overlap this one's are still there.
         let slots = span + span / 4 + 1;
@@ -70,8 +83,11 @@ impl PhasorRing {
         let slot = n.rem_euclid(self.keys.len() as i64) as usize;
         let cells = &mut self.cells[slot * self.lat_w..(slot + 1) * self.lat_w];
         if self.keys[slot] != Some(n) {
-            for (j, c) in cells.iter_mut().enumerate() {
-                *c = phasor_f32(self.seed, self.stream, self.lat0 + j as i64, n);
+            // The hashes, then their phasors (a loop that vectorises).
+            self.turns.clear();
+            self.turns.extend(self.columns.iter().map(|&column| phase_turns(column, n)));
+            for (c, &u) in cells.iter_mut().zip(&self.turns) {
+                *c = phasor_of_turns(u);
             }
             self.keys[slot] = Some(n);
         }

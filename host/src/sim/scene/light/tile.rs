@@ -34,6 +34,12 @@ impl LaserTile {
             }
         }
     }
+
+    /// Row `row` of the stripe, electrons per pixel from column `first_col` on.
+    #[cfg(test)]
+    pub fn row(&self, row: usize) -> (usize, &[f64]) {
+        (self.first_col, &self.e[row * self.width..(row + 1) * self.width])
+    }
 }
 
 /// Everything a laser's tile depends on.
@@ -152,6 +158,10 @@ pub(crate) struct LightCache {
     lasers: Vec<LaserState>,
     /// CPU time of the lasers' threads, summed.
     threads_cpu: std::time::Duration,
+    /// Every sub-exposure imaged under its own illumination instead of one
+    /// field read at each sub-exposure's place (the reference the light
+    /// model's tests hold the shifted reads to).
+    pub exact_exposure: bool,
 }
 
 /// One laser's filter, phasor rings and buffers, kept between shots.
@@ -161,11 +171,16 @@ struct LaserState {
     /// Pattern `k`'s surface cells in ring `min(k, RINGS − 1)`: the first
     /// patterns are kept from shot to shot, the others drawn each shot.
     rings: Vec<PhasorRing>,
-    illum: Vec<f64>,
-    lateral: Vec<f64>,
+    /// A row of the illumination, and where its samples fall across the rail.
+    row_e: Vec<f64>,
+    row_y: Vec<f64>,
+    /// The field's amplitude on the grid's lit samples.
     amp: Vec<f32>,
     field: Vec<Complex<f32>>,
-    acc: Vec<f32>,
+    /// Per sample row, the intensity summed over each pixel's columns.
+    colsum: Vec<f32>,
+    /// The tile's pixel sums, before normalising.
+    pixels: Vec<f64>,
     /// The last tile's grid: samples across, along, sub-exposures.
     grid: (usize, usize, usize),
 }
@@ -211,6 +226,12 @@ impl LightCache {
         (self.key == Some(key)).then_some(&self.tiles[..])
     }
 
+    /// The tiles kept, whichever shot they are of.
+    #[cfg(test)]
+    pub fn tiles(&self) -> &[Option<LaserTile>] {
+        &self.tiles
+    }
+
     /// Renders the tiles of shot `key`, one per laser (`None`: the laser is
     /// off or its line in no row), and keeps them. The lasers render on
     /// threads of their own when the host has cores for them; each tile
@@ -221,8 +242,9 @@ impl LightCache {
         }
         let lit = shots.iter().flatten().count();
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let exact = self.exact_exposure;
         let tiles = if lit < 2 || cores < 2 {
-            self.lasers.iter_mut().zip(shots).map(|(st, s)| s.as_ref().and_then(|s| st.render(s))).collect()
+            self.lasers.iter_mut().zip(shots).map(|(st, s)| s.as_ref().and_then(|s| st.render(s, exact))).collect()
         } else {
             let (tiles, cpu): (Vec<_>, Vec<_>) = std::thread::scope(|scope| {
                 let jobs: Vec<_> = self
@@ -233,7 +255,7 @@ impl LightCache {
                         s.as_ref().map(|s| {
                             scope.spawn(move || {
                                 let t0 = thread_cpu();
-                                let tile = st.render(s);
+                                let tile = st.render(s, exact);
                                 (tile, thread_cpu().saturating_sub(t0))
                             })
                         })
@@ -262,9 +284,38 @@ fn thread_cpu() -> std::time::Duration {
         .unwrap_or_default()
 }
 
-impl LaserState {
-    /// Renders one laser's tile (`None`: its line is in no row).
-    fn render(&mut self, s: &TileShot) -> Option<LaserTile> {
+/// Where a shot's tile lies and how it is sampled.
+struct Plan {
+    pupil: Option<Pupil>,
+    /// Samples per pixel, both ways.
+    q: usize,
+    /// The tile's first and last pixel columns (guards included).
+    u0: i64,
+    u1: i64,
+    /// Guard rows above and below the image, px.
+    g_rows: usize,
+    /// Pixel columns of the tile.
+    ncols: usize,
+    /// Sample rows the image and its guards span (`(h_img + 2 g_rows)·q`).
+    img_h: usize,
+    /// Sample rows of the grid: the image's, and under laser light the
+    /// surface's travel in the exposure.
+    lit_h: usize,
+    /// The FFT's grid (`lit_w = ncols·q` columns of it lit).
+    w: usize,
+    h: usize,
+    /// Sub-exposures: the surface slides under the line by the travel.
+    steps: usize,
+    /// Under laser light, per sub-exposure, the grid row the image's first
+    /// sample row sees (the surface slid by it), and the grid's first
+    /// surface row.
+    shifts: Vec<usize>,
+    n_lo: i64,
+    mid_row: f64,
+}
+
+impl Plan {
+    fn new(s: &TileShot) -> Option<Plan> {
         let h_img = s.lines.len();
         let rows: Vec<&StripeTruth> = s.lines.iter().flatten().collect();
         if rows.is_empty() {
@@ -288,55 +339,22 @@ impl LaserState {
             let blur = (p.defocus_waves.abs() * 8.0 / (2.0 * p.cutoff_per_px)).ceil();
             (3.0 * p.speckle_px() + blur).ceil() as i64 + 3
         });
-        let ghosts: Vec<_> = light.ghosts.iter().filter(|g| g.laser == s.laser).collect();
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
         for (r, l) in s.lines.iter().enumerate() {
             let Some(l) = l else { continue };
             lo = lo.min(l.column_px - 6.0 * l.sigma_px);
             hi = hi.max(l.column_px + 6.0 * l.sigma_px);
-            for g in &ghosts {
+            for g in light.ghosts.iter().filter(|g| g.laser == s.laser) {
                 let c = l.column_px + g.offset_px + g.tilt_px_per_row * (r as f64 - mid_row);
                 lo = lo.min(c - 6.0 * l.sigma_px * g.sigma_factor);
                 hi = hi.max(c + 6.0 * l.sigma_px * g.sigma_factor);
             }
         }
-        let u0 = lo.floor() as i64 - guard_px;
-        let u1 = hi.ceil() as i64 + guard_px;
-        let g_rows = if pupil.is_some() { guard_px } else { 0 };
-        let (ncols, nrows) = ((u1 - u0 + 1) as usize, h_img + 2 * g_rows as usize);
-        let (w, h) = if pupil.is_some() { (fft_size(ncols * q), fft_size(nrows * q)) } else { (ncols * q, nrows * q) };
-        let (a_mm, b_mm) = s.row_mm;
-        let sample_u = |j: usize| u0 as f64 + (j as f64 + 0.5) / q as f64 - 0.5;
-        let sample_v = |i: usize| -(g_rows as f64) + (i as f64 + 0.5) / q as f64 - 0.5;
-        // The geometric illumination (fixed to the head) and, per sample,
-        // where on the rail top it falls (for the reflectance).
-        let finish = light.oxidation.per_m > 0.0 || light.grease.per_m > 0.0 || light.band.is_some();
-        let illum = &mut self.illum;
-        illum.clear();
-        illum.resize(w * h, 0.0);
-        let lateral = &mut self.lateral;
-        lateral.clear();
-        if finish {
-            lateral.resize(w * h, 0.0);
-        }
-        for i in 0..nrows * q {
-            let v = sample_v(i);
-            let Some(l) = line_at(s.lines, v, s.gain_e_per_dn) else { continue };
-            let mm_per_px = l.depth_mm / s.fx_px;
-            let out = &mut illum[i * w..i * w + ncols * q];
-            let d0 = sample_u(0) - l.c;
-            gaussian_row(out, l.peak_e, d0, 1.0 / q as f64, l.sigma, false);
-            for g in &ghosts {
-                let dg0 = d0 - g.offset_px - g.tilt_px_per_row * (v - mid_row);
-                gaussian_row(out, g.fraction * l.peak_e, dg0, 1.0 / q as f64, l.sigma * g.sigma_factor, true);
-            }
-            if finish {
-                for (j, y) in lateral[i * w..i * w + ncols * q].iter_mut().enumerate() {
-                    *y = l.y_mm + (sample_u(j) - l.c) * mm_per_px;
-                }
-            }
-        }
-        // Sub-exposures: the surface slides under the line by the travel.
+        let (u0, u1) = (lo.floor() as i64 - guard_px, hi.ceil() as i64 + guard_px);
+        let g_rows = if pupil.is_some() { guard_px as usize } else { 0 };
+        let ncols = (u1 - u0 + 1) as usize;
+        let img_h = (h_img + 2 * g_rows) * q;
+        let (_, b_mm) = s.row_mm;
         let travel_rows = s.travel_mm / b_mm;
         let spacing_rows = pupil.map_or(0.5, |p| p.speckle_px() / 4.0);
         let steps = if travel_rows.abs() < spacing_rows {
@@ -344,95 +362,237 @@ impl LaserState {
         } else {
             ((travel_rows.abs() / spacing_rows).ceil() as usize + 1).min(MAX_STEPS)
         };
-        let shift_mm = |m: usize| {
-            if steps == 1 { 0.0 } else { s.travel_mm * (m as f64 / (steps - 1) as f64 - 0.5) }
+        let mut plan = Plan {
+            pupil,
+            q,
+            u0,
+            u1,
+            g_rows,
+            ncols,
+            img_h,
+            lit_h: img_h,
+            w: ncols * q,
+            h: img_h,
+            steps,
+            shifts: vec![0; steps],
+            n_lo: 0,
+            mid_row,
         };
-        let patterns = light.speckle.map_or(1, |sp| sp.patterns as usize);
-        self.grid = (w, h, steps);
-        let reflect = |m: usize, i: usize, j: usize| {
-            let x = s.odometer_mm + shift_mm(m) + a_mm + b_mm * sample_v(i);
-            surface::reflectance(light, s.seed, x, lateral[i * w + j])
-        };
-        let acc = &mut self.acc;
-        acc.clear();
-        acc.resize(w * h, 0.0);
-        match pupil {
+        if pupil.is_some() {
+            // Surface row of the image's first sample row at sub-exposure m.
+            let n_m: Vec<i64> = (0..steps)
+                .map(|m| ((s.odometer_mm + plan.shift_mm(s, m) + s.row_mm.0) / b_mm * q as f64).round() as i64)
+                .collect();
+            plan.n_lo = n_m.iter().copied().min().unwrap_or(0);
+            plan.shifts = n_m.iter().map(|n| (n - plan.n_lo) as usize).collect();
+            // The travel's rows whatever the rounding of the shifts (so the
+            // grid, and its filter, stay from shot to shot).
+            let ext = if steps == 1 { 0 } else { (travel_rows.abs() * q as f64).ceil() as usize + 1 };
+            plan.lit_h = img_h + ext.max(plan.shifts.iter().copied().max().unwrap_or(0));
+            plan.w = fft_size(ncols * q);
+            plan.h = fft_size(plan.lit_h);
+        }
+        Some(plan)
+    }
+
+    /// The surface's travel at sub-exposure `m` from the exposure's middle, mm.
+    fn shift_mm(&self, s: &TileShot, m: usize) -> f64 {
+        if self.steps == 1 { 0.0 } else { s.travel_mm * (m as f64 / (self.steps - 1) as f64 - 0.5) }
+    }
+
+    /// Image column of sample column `j`, px.
+    fn sample_u(&self, j: usize) -> f64 {
+        self.u0 as f64 + (j as f64 + 0.5) / self.q as f64 - 0.5
+    }
+
+    /// Image row of (fractional) sample row `i` of the image and its guards, px.
+    fn sample_v(&self, i: f64) -> f64 {
+        -(self.g_rows as f64) + (i + 0.5) / self.q as f64 - 0.5
+    }
+}
+
+/// The illumination at image row `v` (fixed to the head: the line and its
+/// ghosts) into `out`, electrons per sample, and where on the rail top
+/// each sample falls across the rail, mm, into `lateral` (if not empty).
+/// Zero where the line is in no row.
+fn illumination(s: &TileShot, plan: &Plan, v: f64, out: &mut [f64], lateral: &mut [f64]) {
+    let Some(l) = line_at(s.lines, v, s.gain_e_per_dn) else {
+        out.fill(0.0);
+        lateral.fill(0.0);
+        return;
+    };
+    let step = 1.0 / plan.q as f64;
+    let d0 = plan.sample_u(0) - l.c;
+    gaussian_row(out, l.peak_e, d0, step, l.sigma, false);
+    for g in s.light.ghosts.iter().filter(|g| g.laser == s.laser) {
+        let dg0 = d0 - g.offset_px - g.tilt_px_per_row * (v - plan.mid_row);
+        gaussian_row(out, g.fraction * l.peak_e, dg0, step, l.sigma * g.sigma_factor, true);
+    }
+    let mm_per_px = l.depth_mm / s.fx_px;
+    for (j, y) in lateral.iter_mut().enumerate() {
+        *y = l.y_mm + (plan.sample_u(j) - l.c) * mm_per_px;
+    }
+}
+
+fn has_finish(light: &LightModel) -> bool {
+    light.oxidation.per_m > 0.0 || light.grease.per_m > 0.0 || light.band.is_some()
+}
+
+impl LaserState {
+    /// Renders one laser's tile (`None`: its line is in no row).
+    fn render(&mut self, s: &TileShot, exact: bool) -> Option<LaserTile> {
+        let plan = Plan::new(s)?;
+        let h_img = s.lines.len();
+        self.grid = (plan.w, plan.h, plan.steps);
+        self.pixels.clear();
+        self.pixels.resize(h_img * plan.ncols, 0.0);
+        let patterns = match plan.pupil {
             None => {
-                for m in 0..steps {
-                    for i in 0..nrows * q {
-                        for j in 0..ncols * q {
-                            let e = illum[i * w + j];
-                            if e > 0.0 {
-                                acc[i * w + j] += (if finish { e * reflect(m, i, j) } else { e }) as f32;
-                            }
-                        }
-                    }
-                }
+                self.incoherent(s, &plan);
+                1
             }
             Some(p) => {
-                let key = FilterKey { w, h, q, pupil: p };
-                if self.filter.as_ref().is_none_or(|(k, _)| *k != key) {
-                    self.filter = Some((key, Filter::new(&p, q, w, h)));
-                }
-                let filter = &mut self.filter.as_mut().expect("made above").1;
-                // Surface cell of sample row i at sub-exposure m: i + n_m.
-                let n_m: Vec<i64> = (0..steps)
-                    .map(|m| ((s.odometer_mm + shift_mm(m) + a_mm) / b_mm * q as f64).round() as i64)
-                    .collect();
-                let amp = &mut self.amp;
-                amp.clear();
-                amp.extend(illum.iter().map(|e| e.sqrt() as f32));
-                let field = &mut self.field;
-                field.clear();
-                field.resize(w * h, Complex::new(0.0, 0.0));
-                let j0 = u0 * q as i64;
-                let (lit_w, lit_h) = (ncols * q, nrows * q);
-                let n_lo = n_m.iter().copied().min().unwrap_or(0);
-                let n_hi = n_m.iter().copied().max().unwrap_or(0) + lit_h as i64;
-                if self.rings.is_empty() {
-                    self.rings.resize_with(RINGS, PhasorRing::new);
-                }
-                for k in 0..patterns {
-                    let stream = SPECKLE_STREAM ^ ((s.laser as u64) << 32) ^ ((k as u64) << 48);
-                    let ring = &mut self.rings[k.min(RINGS - 1)];
-                    ring.prepare(s.seed, stream, j0..j0 + lit_w as i64, n_lo..n_hi, q as i64);
-                    for (m, &n0) in n_m.iter().enumerate() {
-                        for i in 0..lit_h {
-                            let cells = ring.row(n0 + i as i64, j0);
-                            let (f_row, a_row) = (&mut field[i * w..i * w + lit_w], &amp[i * w..i * w + lit_w]);
-                            for (j, ((f, &a), c)) in f_row.iter_mut().zip(a_row).zip(cells).enumerate() {
-                                let r = if finish && a > 0.0 { reflect(m, i, j).sqrt() as f32 } else { 1.0 };
-                                *f = c * (a * r);
-                            }
-                            field[i * w + lit_w..(i + 1) * w].fill(Complex::new(0.0, 0.0));
-                        }
-                        field[lit_h * w..].fill(Complex::new(0.0, 0.0));
-                        filter.apply(field);
-                        for (a, f) in acc.iter_mut().zip(field.iter()) {
-                            *a += f.norm_sqr();
-                        }
-                    }
-                }
+                self.coherent(s, &plan, p, exact);
+                s.light.speckle.map_or(1, |sp| sp.patterns as usize)
             }
-        }
-        // Pixel sums over the image's rows and columns.
-        let first = u0.max(0) as usize;
-        let last = (u1.min(s.width_px as i64 - 1)).max(u0.max(0)) as usize;
+        };
+        // The image's columns of the tile.
+        let first = plan.u0.max(0) as usize;
+        let last = (plan.u1.min(s.width_px as i64 - 1)).max(plan.u0.max(0)) as usize;
         let width = last + 1 - first;
-        let norm = 1.0 / ((steps * patterns * q * q) as f64);
+        let norm = 1.0 / ((plan.steps * patterns * plan.q * plan.q) as f64);
         let mut e = vec![0.0; width * h_img];
-        for r in 0..h_img {
-            for (cc, out) in e[r * width..(r + 1) * width].iter_mut().enumerate() {
-                let col = (first + cc) as i64 - u0;
-                let mut sum = 0.0;
-                for i in (r + g_rows as usize) * q..(r + g_rows as usize + 1) * q {
-                    for j in col as usize * q..(col as usize + 1) * q {
-                        sum += f64::from(acc[i * w + j]);
-                    }
-                }
-                *out = sum * norm;
+        for (out, src) in e.chunks_exact_mut(width).zip(self.pixels.chunks_exact(plan.ncols)) {
+            let off = (first as i64 - plan.u0) as usize;
+            for (o, p) in out.iter_mut().zip(&src[off..]) {
+                *o = p * norm;
             }
         }
         Some(LaserTile { first_col: first, width, e })
+    }
+
+    /// Incoherent light: each sub-exposure's illumination times the
+    /// reflectance the surface brings under it, summed over the pixels.
+    fn incoherent(&mut self, s: &TileShot, plan: &Plan) {
+        let (a_mm, b_mm) = s.row_mm;
+        let (q, ncols, lit_w) = (plan.q, plan.ncols, plan.ncols * plan.q);
+        let finish = has_finish(s.light);
+        self.row_e.resize(lit_w, 0.0);
+        self.row_y.resize(if finish { lit_w } else { 0 }, 0.0);
+        self.colsum.clear();
+        self.colsum.resize(plan.img_h * ncols, 0.0);
+        for i in 0..plan.img_h {
+            let v = plan.sample_v(i as f64);
+            illumination(s, plan, v, &mut self.row_e, &mut self.row_y);
+            let sums = &mut self.colsum[i * ncols..(i + 1) * ncols];
+            for m in 0..plan.steps {
+                let x = s.odometer_mm + plan.shift_mm(s, m) + a_mm + b_mm * v;
+                for (c, sum) in sums.iter_mut().enumerate() {
+                    for j in c * q..(c + 1) * q {
+                        let e = self.row_e[j];
+                        if e > 0.0 {
+                            let r = if finish { surface::reflectance(s.light, s.seed, x, self.row_y[j]) } else { 1.0 };
+                            *sum += (e * r) as f32;
+                        }
+                    }
+                }
+            }
+        }
+        add_pixels(&self.colsum, plan, 0, &mut self.pixels);
+    }
+
+    /// Laser light: the coherent image of the surface under the line, one
+    /// field a shot read at each sub-exposure's place (or, `exact`, one
+    /// field per sub-exposure under its own illumination).
+    fn coherent(&mut self, s: &TileShot, plan: &Plan, p: Pupil, exact: bool) {
+        let (w, h, q) = (plan.w, plan.h, plan.q);
+        let key = FilterKey { w, h, q, pupil: p };
+        if self.filter.as_ref().is_none_or(|(k, _)| *k != key) {
+            self.filter = Some((key, Filter::new(&p, q, w, h)));
+        }
+        // The illumination is fixed to the head and the surface slides under
+        // it: sub-exposure m sees the field of grid rows shifted by its
+        // travel. Along the rows the illumination varies only slowly (the
+        // line's column and brightness over the image), so one field, under
+        // the illumination of the exposure's middle, serves every
+        // sub-exposure.
+        let groups: Vec<(f64, Vec<usize>)> = if exact {
+            plan.shifts.iter().map(|&d| (d as f64, vec![d])).collect()
+        } else {
+            let mid = plan.shifts.iter().sum::<usize>() as f64 / plan.steps as f64;
+            vec![(mid, plan.shifts.clone())]
+        };
+        let patterns = s.light.speckle.map_or(1, |sp| sp.patterns as usize);
+        let lit_w = plan.ncols * q;
+        let j0 = plan.u0 * q as i64;
+        if self.rings.is_empty() {
+            self.rings.resize_with(RINGS, PhasorRing::new);
+        }
+        self.field.resize(w * h, Complex::new(0.0, 0.0));
+        self.colsum.resize(plan.lit_h * plan.ncols, 0.0);
+        for (d, reads) in groups {
+            self.amplitude(s, plan, d);
+            for k in 0..patterns {
+                let stream = SPECKLE_STREAM ^ ((s.laser as u64) << 32) ^ ((k as u64) << 48);
+                let ring = &mut self.rings[k.min(RINGS - 1)];
+                let rows = plan.n_lo..plan.n_lo + plan.lit_h as i64;
+                ring.prepare(s.seed, stream, j0..j0 + lit_w as i64, rows, q as i64);
+                let field = &mut self.field;
+                for i in 0..plan.lit_h {
+                    let cells = ring.row(plan.n_lo + i as i64, j0);
+                    let f_row = &mut field[i * w..(i + 1) * w];
+                    for ((f, &a), c) in f_row.iter_mut().zip(&self.amp[i * lit_w..(i + 1) * lit_w]).zip(cells) {
+                        *f = c * a;
+                    }
+                    f_row[lit_w..].fill(Complex::new(0.0, 0.0));
+                }
+                field[plan.lit_h * w..].fill(Complex::new(0.0, 0.0));
+                self.filter.as_mut().expect("made above").1.apply(field);
+                for (sums, f_row) in self.colsum.chunks_exact_mut(plan.ncols).zip(field.chunks_exact(w)) {
+                    for (sum, px) in sums.iter_mut().zip(f_row.chunks_exact(q)) {
+                        *sum = px.iter().map(|f| f.norm_sqr()).sum();
+                    }
+                }
+                for &shift in &reads {
+                    add_pixels(&self.colsum, plan, shift, &mut self.pixels);
+                }
+            }
+        }
+    }
+
+    /// The field's amplitude on the grid, √(illumination × reflectance),
+    /// the illumination that of image sample row `i − d` on grid row `i`.
+    fn amplitude(&mut self, s: &TileShot, plan: &Plan, d: f64) {
+        let (q, lit_w) = (plan.q, plan.ncols * plan.q);
+        let finish = has_finish(s.light);
+        let b_mm = s.row_mm.1;
+        self.row_e.resize(lit_w, 0.0);
+        self.row_y.resize(if finish { lit_w } else { 0 }, 0.0);
+        self.amp.resize(plan.lit_h * lit_w, 0.0);
+        for (i, amp) in self.amp.chunks_exact_mut(lit_w).enumerate() {
+            illumination(s, plan, plan.sample_v(i as f64 - d), &mut self.row_e, &mut self.row_y);
+            // Where on the rail the surface row lies (the reflectance is
+            // the surface's, tied to it like its phases).
+            let x = b_mm * ((plan.n_lo + i as i64) as f64 + 0.5) / q as f64 - b_mm * (plan.g_rows as f64 + 0.5);
+            for (j, (a, &e)) in amp.iter_mut().zip(&self.row_e).enumerate() {
+                let r = if finish && e > 0.0 { surface::reflectance(s.light, s.seed, x, self.row_y[j]) } else { 1.0 };
+                *a = (e * r).sqrt() as f32;
+            }
+        }
+    }
+}
+
+/// Adds the pixel sums of the image's rows to `pixels` (`h_img × ncols`),
+/// the image's sample row `i` read from grid row `i + shift` of `colsum`
+/// (per sample row, the sums over each pixel's columns).
+fn add_pixels(colsum: &[f32], plan: &Plan, shift: usize, pixels: &mut [f64]) {
+    let (q, ncols) = (plan.q, plan.ncols);
+    for (r, out) in pixels.chunks_exact_mut(ncols).enumerate() {
+        let i0 = (r + plan.g_rows) * q + shift;
+        for i in i0..i0 + q {
+            for (o, &c) in out.iter_mut().zip(&colsum[i * ncols..(i + 1) * ncols]) {
+                *o += f64::from(c);
+            }
+        }
     }
 }
