@@ -295,6 +295,7 @@ fn analyze<'py>(
         dx_mm,
         recording_only: only_recordings.iter().filter(|(_, given)| *given).map(|(f, _)| f.to_string()).collect(),
         track_register,
+        optics: None,
     };
     let opts = settings.options();
     let (source, a) = py.detach(|| runs::run(&req, &opts, &cms_host::progress::Silent)).map_err(py_err)?;

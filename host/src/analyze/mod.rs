@@ -28,6 +28,7 @@
 pub mod floor;
 pub mod live;
 pub mod marks;
+pub mod optics_floor;
 pub mod pieces;
 pub mod placing;
 pub mod profile;
@@ -97,6 +98,58 @@ pub struct Recording {
     pub fixes: Vec<crate::gnss::Placed>,
     /// The event marks recorded, in file order ([`marks`] places them).
     pub marks: Vec<crate::recording::mark::Mark>,
+    /// The profiles' exposures and travel, for the head's motion during
+    /// an exposure ([`Recording::motion`]).
+    pub motion: MotionSums,
+}
+
+/// Sums over a recording's profiles that give its mean exposure and speed.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct MotionSums {
+    exposure_us: f64,
+    exposures: u64,
+    travel_mm: f64,
+    time_s: f64,
+    /// The last profile's head time and odometer, µs and µm.
+    last: Option<(u64, i64)>,
+}
+
+impl MotionSums {
+    /// Adds a profile: its exposure, and its travel since the last one
+    /// when they are of one stretch (under a second apart, time running on).
+    pub fn profile(&mut self, timestamp_us: u64, odometer_um: i64, exposure_us: u32) {
+        if exposure_us > 0 {
+            self.exposure_us += f64::from(exposure_us);
+            self.exposures += 1;
+        }
+        if let Some((t, o)) = self.last
+            && timestamp_us > t
+            && timestamp_us - t < 1_000_000
+        {
+            self.travel_mm += (odometer_um - o).unsigned_abs() as f64 * 1e-3;
+            self.time_s += (timestamp_us - t) as f64 * 1e-6;
+        }
+        self.last = Some((timestamp_us, odometer_um));
+    }
+
+    /// The mean exposure and speed (`None`: no exposure or no travel time recorded).
+    pub fn motion(&self) -> Option<optics_floor::Motion> {
+        (self.exposures > 0 && self.time_s > 0.0).then(|| optics_floor::Motion {
+            exposure_us: self.exposure_us / self.exposures as f64,
+            speed_mm_s: self.travel_mm / self.time_s,
+        })
+    }
+
+    /// Both recordings' sums.
+    pub fn merge(&self, o: &MotionSums) -> MotionSums {
+        MotionSums {
+            exposure_us: self.exposure_us + o.exposure_us,
+            exposures: self.exposures + o.exposures,
+            travel_mm: self.travel_mm + o.travel_mm,
+            time_s: self.time_s + o.time_s,
+            last: None,
+        }
+    }
 }
 
 /// What [`check_runs`] lets through because the user asked for it.
@@ -237,6 +290,7 @@ pub fn read_recording(
             DeviceMsg::Profile(p) => {
                 rec.profiles += 1;
                 rec.heads.profile(p);
+                rec.motion.profile(p.timestamp_us, p.odometer_um, p.exposure_us);
                 if let Some(f) = asm.push(p) {
                     deliver(&mut rec, f, &mut failed)?;
                 }
@@ -339,6 +393,9 @@ pub struct Analysis {
     /// With a track register: how each run was placed by its GNSS fixes
     /// or its typed start ([`placing`]), one per run; empty without.
     pub gnss_placing: Vec<placing::GnssPlacing>,
+    /// The floor checked against what the recorded optics predict
+    /// ([`optics_floor`]; [`runs::run`] fills it in).
+    pub optics: optics_floor::OpticsCheck,
 }
 
 /// One section of the survey line: a stretch measured without a gap
@@ -541,6 +598,7 @@ pub fn judge(
         running_bands,
         verdict: verdict.finish(),
         gnss_placing: Vec::new(),
+        optics: optics_floor::OpticsCheck::NotRecorded,
     })
 }
 

@@ -8,6 +8,7 @@
 use std::path::{Path, PathBuf};
 
 use crate::Error;
+use crate::analyze::optics_floor::{HeadGeometry, Motion, OpticsCheck, OpticsSource};
 use crate::analyze::reprofiling::{self, Edition};
 use crate::analyze::standards::en15610;
 use crate::analyze::stitch::{self, Direction, Registration, Stitcher};
@@ -15,6 +16,7 @@ use crate::analyze::survey::{self, Placement};
 use crate::analyze::{self, Analysis, Options, Recording, RunsAllowed, Source, placing, profile};
 use crate::calib::file::CalibrationFile;
 use crate::measure::Measurer;
+use crate::model::optics::Optics;
 use crate::progress::Progress;
 use crate::recording::survey_info::Survey;
 
@@ -41,6 +43,9 @@ pub struct Request {
     /// A track register: each run with GNSS fixes placed by them, its
     /// typed start checked against them ([`crate::analyze::placing`]).
     pub track_register: Option<PathBuf>,
+    /// The optics the recordings were made with (`analyze --optics`), for
+    /// recordings that do not say: the floor is checked against them.
+    pub optics: Option<Optics>,
 }
 
 /// The settings a user gives `analyze` (the command line's flags, the
@@ -228,7 +233,32 @@ pub fn run(req: &Request, opts: &Options, progress: &dyn Progress) -> Result<(So
         survey::join(runs, &placements, &join_opts).map_err(|e| Error::Input(format!("{}: {e}", source.name())))?;
     let mut a = analyze::judge(stitching, joins, &opts, progress)?;
     a.gnss_placing = gnss_placing;
+    a.optics = optics_check(&source, req.optics, &a);
     Ok((source, a))
+}
+
+/// The survey's floor against the optics its recordings were made with
+/// (`given` for all of them, else each one's survey block).
+fn optics_check(source: &Source, given: Option<Optics>, a: &Analysis) -> OpticsCheck {
+    let Source::Recordings(recs) = source else { return OpticsCheck::NotRecorded };
+    let (optics, from) = match given {
+        Some(o) => (o, OpticsSource::Given),
+        None => {
+            let each: Vec<Option<Optics>> =
+                recs.iter().map(|(_, r)| r.survey.as_ref().and_then(|s| s.optics)).collect();
+            let Some(Some(first)) = each.first() else { return OpticsCheck::NotRecorded };
+            if let Some(k) = each.iter().position(|o| o.as_ref() != Some(first)) {
+                return OpticsCheck::Mixed(match each[k] {
+                    Some(o) => format!("run 1 was recorded with {first}, run {} with {o}", k + 1),
+                    None => format!("run {} does not say what optics it was made with", k + 1),
+                });
+            }
+            (*first, OpticsSource::Recorded)
+        }
+    };
+    let sums = recs.iter().fold(analyze::MotionSums::default(), |s, (_, r)| s.merge(&r.motion));
+    let motion = sums.motion().unwrap_or(Motion { exposure_us: 0.0, speed_mm_s: 0.0 });
+    OpticsCheck::of(optics, from, HeadGeometry::REFERENCE, motion, a.floor.as_ref())
 }
 
 /// The survey block of a recording, checked (`None`: none given).

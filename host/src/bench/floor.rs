@@ -21,7 +21,9 @@ use std::time::Instant;
 
 use super::{BenchError, put};
 use crate::analyze::Analysis;
+use crate::analyze::optics_floor::{BandCheck, HeadGeometry, Motion, OpticsCheck, OpticsSource};
 use crate::analyze::standards::{en13231, en15610};
+use crate::model::optics::Optics;
 use crate::sim::closed_loop::ClosedLoopError;
 use crate::sim::floor::{self as sf, Setting};
 
@@ -143,20 +145,27 @@ pub fn measured_spectrum(a: &Analysis) -> Option<&en15610::Spectrum> {
 /// minimum detectable corrugation; then the EN 15610 floor.
 pub fn markdown(rows: &[FloorRow]) -> String {
     let mut md = String::from(
-        "| setting | band mm | floor RMS µm (reported / smooth rail) | floor mean p-p µm (reported / smooth rail) | running band mean p-p µm | 0.71 × the 2006 limit µm | judged | detectable p-p µm |\n|---|---|---:|---:|---:|---:|---|---:|\n",
+        "| setting | band mm | floor RMS µm (reported / smooth rail) | predicted by the optics, RMS µm | reported / predicted dB | floor mean p-p µm (reported / smooth rail) | running band mean p-p µm | 0.71 × the 2006 limit µm | judged | detectable p-p µm |\n|---|---|---:|---:|---:|---:|---:|---:|---|---:|\n",
     );
     for r in rows {
         let Some(f) = &r.analysis.floor else {
             let _ = writeln!(md, "| {} | – | floor not known | | | | | |", r.name);
             continue;
         };
+        let check = predicted(&r.setting, Some(f));
         for (b, band) in en13231::BANDS.iter().enumerate().take(3) {
             let (Some(fl), Some((rms, pp))) = (f.band(b), measured(&r.analysis, b)) else { continue };
             let mean = fl.of_mean(f.lines);
             let judged = r.analysis.verdict.rows[b].judgement.not_judged.is_none();
+            let (pred, db) = match check.as_ref().and_then(|c| c.get(b).copied().flatten()) {
+                Some(c) => {
+                    (format!("{:.2}", c.predicted_rms_mm * 1e3), format!("{:+.1} ({})", c.ratio_db, c.agreement.name()))
+                }
+                None => ("–".into(), "–".into()),
+            };
             let _ = writeln!(
                 md,
-                "| {} | {}–{} | {:.2} / {:.2} | {:.1} / {:.1} | {:.1} | {:.0} | {} | {:.1} |",
+                "| {} | {}–{} | {:.2} / {:.2} | {pred} | {db} | {:.1} / {:.1} | {:.1} | {:.0} | {} | {:.1} |",
                 r.name,
                 band.lo_mm,
                 band.hi_mm,
@@ -204,6 +213,18 @@ pub fn markdown(rows: &[FloorRow]) -> String {
         waves.iter().map(|&w| en15610::iso3095_limit_db(w).map_or("–".into(), |l| format!("{l:.1}"))).collect();
     let _ = writeln!(md, "| ISO 3095 limit | {} |", limits.join(" | "));
     md
+}
+
+/// The floor `floor` checked against what the setting's optics predict
+/// ([`crate::analyze::optics_floor`]), per EN 13231-3 band (`None`:
+/// incoherent light, no speckle to predict).
+pub fn predicted(s: &Setting, floor: Option<&crate::analyze::floor::Floor>) -> Option<Vec<Option<BandCheck>>> {
+    let optics = Optics::new(s.f_number?, s.wavelength_nm).ok()?;
+    let motion = Motion { exposure_us: s.exposure_us, speed_mm_s: s.speed_mm_s };
+    match OpticsCheck::of(optics, OpticsSource::Given, HeadGeometry::REFERENCE, motion, floor) {
+        OpticsCheck::Checked { bands, .. } => Some(bands),
+        _ => None,
+    }
 }
 
 /// The peak-to-peak of a sine whose band RMS is `rms_mm`: `2√2 · rms`.

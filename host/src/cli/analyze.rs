@@ -10,6 +10,7 @@ use cms_host::analyze::standards::en15610;
 use cms_host::analyze::stitch::{Direction, Registration};
 use cms_host::analyze::survey::Placement;
 use cms_host::analyze::{self, Options, runs};
+use cms_host::model::optics::Optics;
 
 use super::progress::Bar;
 
@@ -128,6 +129,12 @@ pub struct AnalysisArgs {
     /// their combined tolerance; a run without a start is placed too.
     #[arg(long = "track-register", value_name = "REGISTER.csv")]
     pub track_register: Option<PathBuf>,
+    /// The lens's F-number and the lasers' wavelength the recordings were
+    /// made with, for recordings that do not say (their survey block's
+    /// `[optics]`, written by listen): the noise floor is checked against
+    /// what they predict (docs/noise-floor.md). E.g. 2.8@685.
+    #[arg(long, value_name = "F_NUMBER@WAVELENGTH_NM", value_parser = optics)]
+    pub optics: Option<Optics>,
 }
 
 /// Arguments of `cms-host analyze`.
@@ -152,6 +159,10 @@ pub struct AnalyzeArgs {
 
 fn placement(s: &str) -> Result<Placement, String> {
     s.parse().map_err(|e: cms_host::recording::survey_info::SurveyError| e.to_string())
+}
+
+fn optics(s: &str) -> Result<Optics, String> {
+    s.parse().map_err(|e: cms_host::model::optics::OpticsError| e.to_string())
 }
 
 fn block_m(s: &str) -> Result<f64, cms_host::Error> {
@@ -221,6 +232,7 @@ impl AnalysisArgs {
             ("--no-spike-removal", self.no_spike_removal),
             ("--no-curvature", self.no_curvature),
             ("--calibration", self.calibration.is_some()),
+            ("--optics", self.optics.is_some()),
         ]
         .into_iter()
         .filter_map(|(flag, given)| given.then_some(flag))
@@ -237,6 +249,7 @@ impl AnalysisArgs {
             ("--allow-repeated-runs", args.allow_repeated_runs),
             ("--allow-mixed-heads", args.allow_mixed_heads),
             ("--track-register", args.track_register.is_some()),
+            ("--optics", args.optics.is_some()),
         ];
         runs::Request {
             inputs: args.inputs.clone(),
@@ -247,6 +260,7 @@ impl AnalysisArgs {
             dx_mm: args.dx_mm,
             recording_only: only_recordings.iter().filter(|(_, given)| *given).map(|(f, _)| f.to_string()).collect(),
             track_register: args.track_register.clone(),
+            optics: args.optics,
         }
     }
 }

@@ -238,7 +238,13 @@ pub fn lasers(args: &LasersArgs) -> anyhow::Result<()> {
             if !(d.is_finite() && d > 0.0) {
                 return Err(usage(format!("--laser-diameter-mm {d}: must be > 0")));
             }
-            Some(HeadSection { laser_diameter_mm: d, range_min_mm: lo, range_max_mm: hi })
+            Some(HeadSection {
+                laser_diameter_mm: d,
+                range_min_mm: lo,
+                range_max_mm: hi,
+                f_number: None,
+                wavelength_nm: None,
+            })
         }
         _ => None,
     };

@@ -17,6 +17,7 @@ use cms_host::analyze::live::bands::LiveOptions;
 use cms_host::calib::file::CalibrationFile;
 use cms_host::device::listen::LinkState;
 use cms_host::device::listen::{self, ListenOptions, RowsRequest, StatusLine, Summary};
+use cms_host::model::optics::Optics;
 use cms_host::recording::survey_info::MAX_BYTES as MAX_SURVEY_BYTES;
 use cms_host::serve::access::Token;
 use cms_host::serve::{DEFAULT_ADDR, DISPLAY_HZ, Feed, LiveView, ServeOptions};
@@ -108,6 +109,13 @@ pub struct ListenArgs {
     /// header; `analyze` places the run by it.
     #[arg(long, value_name = "FILE.toml", requires = "record")]
     pub survey: Option<PathBuf>,
+    /// The lens's F-number and the lasers' wavelength this head records
+    /// with (e.g. 2.8@685), stored in the recording's survey block
+    /// (`[optics]`) for `analyze` to check the noise floor against; taken
+    /// from --windows-from's `[head]` f_number and wavelength_nm when they
+    /// are there, and with PORT `sim` from the simulated head's own light.
+    #[arg(long, value_name = "F_NUMBER@WAVELENGTH_NM", value_parser = parse_optics, requires = "record")]
+    pub optics: Option<Optics>,
     /// How long a lost port may stay away before giving up, seconds.
     #[arg(long, value_name = "SECS", default_value = "30", value_parser = parse_secs)]
     pub reconnect_timeout: Duration,
@@ -429,6 +437,35 @@ pub fn print_summary(sum: &Summary) {
     }
 }
 
+fn parse_optics(s: &str) -> Result<Optics, String> {
+    s.parse().map_err(|e: cms_host::model::optics::OpticsError| e.to_string())
+}
+
+/// The optics of two sources (each named), refused when they differ.
+fn merge_optics(a: Option<(Optics, String)>, b: Option<(Optics, String)>) -> Result<Option<(Optics, String)>, Usage> {
+    match (a, b) {
+        (Some((x, from_x)), Some((y, from_y))) if x != y => {
+            Err(Usage(format!("{from_x} says the optics are {x}, {from_y} says {y}: give one")))
+        }
+        (a, b) => Ok(a.or(b)),
+    }
+}
+
+/// The survey block a new recording carries: the survey given, with the
+/// optics (refused when the survey file names others).
+fn with_optics(survey: Option<String>, optics: Option<(Optics, String)>) -> Result<Option<String>, Usage> {
+    let Some((o, from)) = optics else { return Ok(survey) };
+    let mut sv = match &survey {
+        Some(t) => cms_host::recording::survey_info::Survey::parse(t).map_err(|e| Usage(e.to_string()))?,
+        None => cms_host::recording::survey_info::Survey::default(),
+    };
+    if let Some(theirs) = sv.optics.filter(|t| *t != o) {
+        return Err(Usage(format!("--survey's [optics] are {theirs}, {from} says {o}: give one")));
+    }
+    sv.optics = Some(o);
+    Ok(Some(sv.to_text()))
+}
+
 /// `cms-host listen` on a device path.
 pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
     if args.port == "sim" {
@@ -455,8 +492,11 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
         placement = survey.placement().ok();
         opts.survey = Some(survey.to_text());
     }
+    let mut optics = args.optics.map(|o| (o, "--optics".to_string()));
     if let Some(path) = &args.windows_from {
         let cal = CalibrationFile::load(path).map_err(cms_host::Error::from)?;
+        let locked = cal.head.as_ref().map(|h| h.optics()).transpose().map_err(Usage)?.flatten();
+        optics = merge_optics(optics, locked.map(|o| (o, path.display().to_string())))?;
         let mut w = cal.search_windows(WINDOW_MARGIN_PX).map_err(|e| Usage(format!("{}: {e}", path.display())))?;
         for &(k, cw) in &args.windows {
             w[k] = Some(cw);
@@ -469,6 +509,9 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
             .collect();
         let _ = writeln!(io::stderr(), "listen: search windows from {}: {}", path.display(), said.join(", "));
         opts.windows = Some(w);
+    }
+    if opts.record.is_some() {
+        opts.survey = with_optics(opts.survey.take(), optics)?;
     }
     if opts.track_px.is_some_and(|px| px > 0) {
         let Some(w) = &opts.windows else {
@@ -560,5 +603,21 @@ mod tests {
         for bad in ["0", "3", "8", "x", "-2", ""] {
             assert!(parse_row_skip(bad).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn optics_of_two_sources_agree_or_are_refused() {
+        let o = |t: &str, from: &str| Some((parse_optics(t).unwrap(), from.to_string()));
+        assert_eq!(merge_optics(o("2.8@685", "--optics"), None).unwrap(), o("2.8@685", "--optics"));
+        assert_eq!(merge_optics(None, o("2.8@685", "cal.toml")).unwrap(), o("2.8@685", "cal.toml"));
+        assert!(merge_optics(o("2.8@685", "--optics"), o("2.8@685", "cal.toml")).is_ok());
+        let e = merge_optics(o("4@685", "--optics"), o("2.8@685", "cal.toml")).unwrap_err().0;
+        assert!(e.contains("--optics says the optics are F/4, 685 nm, cal.toml says F/2.8, 685 nm"), "{e}");
+        // The survey block: the survey given, with the optics after it.
+        let text = with_optics(Some("line = \"LN 1\"\n".into()), o("2.8@685", "--optics")).unwrap().unwrap();
+        assert_eq!(text, "line = \"LN 1\"\n\n[optics]\nf_number = 2.8\nwavelength_nm = 685.0\n");
+        assert_eq!(with_optics(None, None).unwrap(), None);
+        let theirs = with_optics(Some(text), o("4@685", "--optics")).unwrap_err().0;
+        assert!(theirs.contains("[optics] are F/2.8, 685 nm"), "{theirs}");
     }
 }

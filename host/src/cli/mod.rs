@@ -102,7 +102,11 @@ fn dispatch(command: Command) -> Result<()> {
             Ok(cms_host::device::qemu::with_port(&args.port, &qemu.options(), stop, |port| {
                 cms_host::sim::head::with_ports(port, &sim_port, |port, gnss| {
                     let gnss = gnss.map(str::to_string).or(args.gnss.clone());
-                    listen::run(&listen::ListenArgs { port: port.to_string(), gnss, ..args.clone() })
+                    // The simulated head records the optics it renders with.
+                    let optics = args.optics.or_else(|| {
+                        (args.port == "sim").then(|| cms_host::sim::head::port_optics(&sim_port)).flatten()
+                    });
+                    listen::run(&listen::ListenArgs { port: port.to_string(), gnss, optics, ..args.clone() })
                 })
             })???)
         }

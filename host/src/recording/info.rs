@@ -213,6 +213,9 @@ impl Info {
         if let Some(t) = &self.survey {
             let kv: Vec<&str> = t.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
             let _ = writeln!(s, "survey: {}", crate::output::printable(&kv.join("; ")));
+            if let Some(o) = super::survey_info::Survey::parse(t).ok().and_then(|sv| sv.optics) {
+                let _ = writeln!(s, "optics: {o} (what analyze checks the noise floor against)");
+            }
         }
         let _ = writeln!(s, "frames: {} ({} profile messages)", self.frames, self.profiles);
         match self.time_us {

@@ -14,9 +14,16 @@
 //! operator = "A. Engineer"
 //! instrument = "CMS head 0042"
 //! notes = "after grinding, pass 2"
+//!
+//! [optics]                      # what set the speckle: the lens's iris, the lasers
+//! f_number = 2.8
+//! wavelength_nm = 685.0
 //! ```
 //!
-//! Every key is optional (a block written before `date` existed reads as
+//! `[optics]` is written by `listen` from the head's calibration
+//! (`[head]`'s `f_number`, `wavelength_nm`), its `--optics`, or the
+//! simulated head's own light; `analyze` predicts the noise floor from it
+//! (docs/noise-floor.md#the-floor-the-optics-predict). Every key is optional (a block written before `date` existed reads as
 //! it did, without a date); unknown keys are refused (a typo must not pass
 //! silently). The date is a quoted string, checked to be a real day. The text is stored as given (at most [`MAX_BYTES`]), so a
 //! later build reads keys this one does not know.
@@ -25,6 +32,8 @@ use std::fmt;
 use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
+
+use crate::model::optics::Optics;
 
 /// The largest survey block a recording holds, bytes.
 pub const MAX_BYTES: usize = 16 * 1024;
@@ -53,6 +62,9 @@ pub struct Survey {
     pub operator: Option<String>,
     pub instrument: Option<String>,
     pub notes: Option<String>,
+    /// The lens's F-number and the lasers' wavelength (`[optics]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub optics: Option<Optics>,
 }
 
 /// What is wrong with a survey file, a chainage or a placement; the text
@@ -236,6 +248,9 @@ impl Survey {
         if let Some(i) = &self.instrument {
             parts.push(format!("instrument {}", printable(i)));
         }
+        if let Some(o) = &self.optics {
+            parts.push(format!("optics {o}"));
+        }
         if let Some(n) = &self.notes {
             parts.push(format!("notes: {}", printable(n)));
         }
@@ -395,6 +410,27 @@ notes = "pass 2\u001b]0;owned\u0007\nsecond line"
         assert_eq!("2024-02-29".parse::<SurveyDate>().unwrap().to_string(), "2024-02-29");
         for bad in ["2023-02-29", "2026-13-01", "2026-5-14", "2026-05-14T00:00", "+2026-05-14", "2026-05-1x", ""] {
             assert!(bad.parse::<SurveyDate>().is_err(), "{bad} was taken");
+        }
+    }
+
+    #[test]
+    fn a_survey_says_what_optics_it_was_made_with() {
+        let text = "line = \"LN 1\"\n\n[optics]\nf_number = 2.8\nwavelength_nm = 685.0\n";
+        let s = Survey::parse(text).unwrap();
+        assert_eq!(s.optics, Some(Optics::new(2.8, 685.0).unwrap()));
+        // Written byte for byte as read: the block a recording stores.
+        assert_eq!(s.to_text(), text);
+        assert!(s.describe().contains("optics F/2.8, 685 nm"), "{}", s.describe());
+        // A block without the table (every recording before it) reads as it did.
+        assert_eq!(Survey::parse("line = \"LN 1\"\n").unwrap().optics, None);
+        for (bad, want) in [
+            ("[optics]\nf_number = 0.1\nwavelength_nm = 685.0\n", "f_number 0.1"),
+            ("[optics]\nf_number = 2.8\nwavelength_nm = 5.0\n", "wavelength_nm 5"),
+            ("[optics]\nf_number = 2.8\n", "wavelength_nm"),
+            ("[optics]\nf_number = 2.8\nwavelength_nm = 685.0\niris = 1\n", "iris"),
+        ] {
+            let e = Survey::parse(bad).unwrap_err().to_string();
+            assert!(e.contains(want), "{bad}: {e}");
         }
     }
 

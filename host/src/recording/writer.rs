@@ -25,6 +25,32 @@ pub struct Recorder {
     host_records: u64,
 }
 
+/// Whether a session whose survey block would be `new` may append to a
+/// file whose block is `kept`: the same block, or the same survey where
+/// only one of them says what optics it was made with (the file keeps its
+/// block). Other optics, or another survey, are refused.
+fn appendable(kept: Option<&str>, new: &str) -> Result<(), String> {
+    use super::survey_info::Survey;
+    if kept == Some(new) {
+        return Ok(());
+    }
+    let parse = |t: Option<&str>| t.map_or(Ok(Survey::default()), Survey::parse);
+    if let (Ok(k), Ok(n)) = (parse(kept), parse(Some(new)))
+        && (Survey { optics: None, ..k.clone() }) == (Survey { optics: None, ..n.clone() })
+    {
+        return match (k.optics, n.optics) {
+            (Some(a), Some(b)) if a != b => Err(format!(
+                "was recorded with optics {a}, this session's are {b}; refusing to append (record to a new file)"
+            )),
+            _ => Ok(()),
+        };
+    }
+    Err(match kept {
+        Some(_) => "holds another survey; refusing to append (record this survey to a new file)".into(),
+        None => "holds no survey; refusing to append one (record the survey to a new file)".into(),
+    })
+}
+
 impl Recorder {
     /// Creates `path`, or validates its header and appends to it.
     pub fn open(path: &Path) -> Result<Recorder, RecordError> {
@@ -32,7 +58,8 @@ impl Recorder {
     }
 
     /// [`Recorder::open`], a new file with `survey`'s block; appending to a
-    /// file of another survey (or of none, when one is given) is refused.
+    /// file of another survey (or of none, when one is given) is refused,
+    /// as is appending a session of other optics (its `[optics]`).
     pub fn open_with_survey(path: &Path, survey: Option<&str>) -> Result<Recorder, RecordError> {
         let io_err = |what, source| RecordError::Io { path: path.to_path_buf(), what, source };
         let format = |why: String| RecordError::Format { path: path.to_path_buf(), why };
@@ -58,14 +85,8 @@ impl Recorder {
                 return Err(format(format!("survey block: {why}; refusing to append")));
             }
             format_version = block.header.format;
-            let kept = block.survey;
-            if let Some(t) = survey
-                && kept.as_deref() != Some(t)
-            {
-                return Err(format(match kept {
-                    Some(_) => "holds another survey; refusing to append (record this survey to a new file)".into(),
-                    None => "holds no survey; refusing to append one (record the survey to a new file)".into(),
-                }));
+            if let Some(t) = survey {
+                appendable(block.survey.as_deref(), t).map_err(format)?;
             }
             if len > HEADER_LEN as u64 + header.block_len() {
                 let mut last = [0u8];
@@ -180,5 +201,26 @@ impl Recorder {
             }
             _ => Ok(()),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::appendable;
+
+    #[test]
+    fn a_session_of_other_optics_is_not_appended() {
+        let plain = "line = \"LN 1\"\n";
+        let f28 = "line = \"LN 1\"\n\n[optics]\nf_number = 2.8\nwavelength_nm = 685.0\n";
+        let f4 = "line = \"LN 1\"\n\n[optics]\nf_number = 4.0\nwavelength_nm = 685.0\n";
+        assert!(appendable(Some(f28), f28).is_ok());
+        // Only one of them says what optics: the same survey.
+        assert!(appendable(Some(plain), f28).is_ok());
+        assert!(appendable(Some(f28), plain).is_ok());
+        assert!(appendable(None, "[optics]\nf_number = 2.8\nwavelength_nm = 685.0\n").is_ok());
+        let e = appendable(Some(f28), f4).unwrap_err();
+        assert!(e.contains("optics F/2.8, 685 nm, this session's are F/4, 685 nm"), "{e}");
+        assert!(appendable(Some("line = \"LN 2\"\n"), f28).unwrap_err().contains("another survey"));
+        assert!(appendable(None, plain).unwrap_err().contains("holds no survey"));
     }
 }

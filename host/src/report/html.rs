@@ -509,6 +509,7 @@ fn floor(a: &Analysis) -> String {
         ],
         &rows,
     ));
+    s.push_str(&super::optics::html(a));
     for rb in &a.running_bands {
         let _ = writeln!(s, "<h4>Running band of section {}: the mean of {} lines</h4>", rb.section, rb.lines);
         s.push_str(&bands(&rb.bands, &rb.judgements));

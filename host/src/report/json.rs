@@ -98,6 +98,7 @@ fn survey_floor_json(a: &Analysis) -> Value {
     json!({
         "floor": floor,
         "stitch": stitch,
+        "predicted": super::optics::json(a),
         "running_bands": a.running_bands.iter().map(|rb| json!({
             "section": rb.section,
             "lines": rb.lines,

@@ -35,6 +35,7 @@ pub mod exports;
 pub mod html;
 pub mod json;
 pub mod marks;
+pub mod optics;
 pub mod table;
 pub mod text;
 pub mod traces;

@@ -388,6 +388,7 @@ pub fn describe_floor(a: &Analysis) -> String {
             s,
             "noise floor: not known (no section has two lines to tell rail from noise): verdicts as measured"
         );
+        s.push_str(&super::optics::describe(a));
         return s;
     };
     let _ = writeln!(
@@ -441,6 +442,7 @@ pub fn describe_floor(a: &Analysis) -> String {
         let _ = writeln!(s, "  EN 15610 floor (dB re 1 µm): {}", list.join(", "));
         let _ = writeln!(s, "  spike removal takes {:.1} \"spikes\" per metre out of noise alone", f.spikes_per_m);
     }
+    s.push_str(&super::optics::describe(a));
     for rb in &a.running_bands {
         let _ = writeln!(
             s,

@@ -3,10 +3,11 @@
 //! readable by every command that reads recordings: `info`, `export` (CSV
 //! and JSON lines), `measure` and `analyze` print what they printed then.
 //! The expected outputs were made by that build, except `analyze.txt`,
-//! made again when `analyze` began to print chainage and the EN 13231-3
-//! verdict (the same frames, read from the same file: `info` and `export`
-//! still match the version-3 build exactly); the exports are compared by
-//! length and FNV-1a hash (they are 0.36 and 0.79 MB).
+//! made again when `analyze` began to print chainage, the EN 13231-3
+//! verdict and the noise floor's check against the optics (the same
+//! frames, read from the same file: `info` and `export` still match the
+//! version-3 build exactly); the exports are compared by length and
+//! FNV-1a hash (they are 0.36 and 0.79 MB).
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

@@ -45,6 +45,9 @@
 //! laser_diameter_mm = 0.75
 //! range_min_mm = 170.0
 //! range_max_mm = 230.0
+//! f_number = 2.8            # optional, with wavelength_nm: the lens's iris, set and
+//! wavelength_nm = 685.0     # locked at calibration, and the lasers' wavelength
+//!                           # (listen records them: crate::model::optics)
 //!
 //! [[laser]]                 # cms-host calibrate lasers: three entries, id 0, 1, 2
 //! id = 0                    # laser index: left to right in the image
@@ -317,6 +320,24 @@ pub struct HeadSection {
     pub range_min_mm: f64,
     /// Farthest working distance, mm.
     pub range_max_mm: f64,
+    /// The lens's F-number, set and locked at calibration (with `wavelength_nm`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub f_number: Option<f64>,
+    /// The lasers' wavelength, nm (with `f_number`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wavelength_nm: Option<f64>,
+}
+
+impl HeadSection {
+    /// The optics the head records with, when the table gives them (both
+    /// keys, or neither: checked when the file is read).
+    pub fn optics(&self) -> Result<Option<crate::model::optics::Optics>, String> {
+        match (self.f_number, self.wavelength_nm) {
+            (None, None) => Ok(None),
+            (Some(f), Some(nm)) => crate::model::optics::Optics::new(f, nm).map(Some).map_err(|e| format!("head.{e}")),
+            _ => Err("head: f_number and wavelength_nm go together (the optics the head records with)".into()),
+        }
+    }
 }
 
 /// One `[[laser]]`.

@@ -28,6 +28,8 @@ pub fn truth(scene: &Scene) -> CalibrationFile {
         laser_diameter_mm: cfg.head.laser_diameter_mm,
         range_min_mm: cfg.head.working_range_mm[0],
         range_max_mm: cfg.head.working_range_mm[1],
+        f_number: None,
+        wavelength_nm: None,
     });
     f.lasers = scene
         .laser_planes()

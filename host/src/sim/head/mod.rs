@@ -302,6 +302,20 @@ pub fn port_light(preset: Preset) -> crate::sim::scene::LightModel {
     }
 }
 
+/// The optics PORT `sim` records with (`listen sim`'s survey block): the
+/// F-number of the lens its speckle is rendered through and its lasers'
+/// wavelength; `None` in incoherent light (no speckle to predict a floor
+/// from) and for the paper's geometry (not the head the prediction knows).
+pub fn port_optics(sim: &SimPort) -> Option<crate::model::optics::Optics> {
+    let preset = sim.sim_preset.unwrap_or(Preset::Reference);
+    if !matches!(preset, Preset::Reference) {
+        return None;
+    }
+    let light = sim.sim_light.clone().unwrap_or_else(|| port_light(preset));
+    let wavelength_nm = SimConfig::reference().lasers.first()?.wavelength_nm;
+    crate::model::optics::Optics::new(light.speckle?.f_number, wavelength_nm).ok()
+}
+
 /// Runs `f` on the device path of a `listen` PORT (see [`resolve_port`]);
 /// a simulated head is stopped afterwards (lasers off) and its summary
 /// printed as one `sim:` line on stderr.

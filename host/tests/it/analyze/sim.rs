@@ -482,6 +482,52 @@ fn a_survey_file_travels_with_the_recording() {
     assert!(e.contains("lnie"), "{e}");
 }
 
+/// `listen sim` records the optics its light is rendered with (the survey
+/// block's `[optics]`): `info` shows them and `analyze` checks the floor
+/// against them (`noise.predicted`); a recording in incoherent light does
+/// not say, and `analyze` says its floor is not checked unless `--optics`
+/// gives them; bad optics are a one-line error.
+#[test]
+fn a_recording_says_what_optics_it_was_made_with() {
+    let dir = tempfile::tempdir().unwrap();
+    let (laser, plain) = (dir.path().join("laser.cmsrec"), dir.path().join("plain.cmsrec"));
+    let (lr, pr) = (laser.to_str().unwrap(), plain.to_str().unwrap());
+    let state = dir.path().join("state");
+    let st = state.to_str().unwrap();
+    for (r, light) in [(lr, None), (pr, Some("--sim-light=incoherent"))] {
+        let mut args = vec!["listen", "sim", "--sim-state", st, "--frames", "12", "--record", r];
+        args.extend(light);
+        let l = run(&args);
+        assert!(l.status.success(), "{}", String::from_utf8_lossy(&l.stderr));
+    }
+    let info = String::from_utf8(run(&["info", lr]).stdout).unwrap();
+    assert!(info.contains("optics: F/2.8, 685 nm"), "{info}");
+    assert!(!String::from_utf8(run(&["info", pr]).stdout).unwrap().contains("optics"));
+    let json = |args: &[&str]| -> serde_json::Value {
+        let o = run(args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let p = &json(&["analyze", lr, "--json"])["noise"]["predicted"];
+    assert_eq!(
+        (p["checked"].as_bool(), p["f_number"].as_f64(), p["source"].as_str()),
+        (Some(true), Some(2.8), Some("recorded"))
+    );
+    assert!((p["point_um"].as_f64().unwrap() - 43.08).abs() < 0.01, "{p}");
+    assert!(p["speed_mm_s"].as_f64().unwrap() > 0.0 && p["exposure_us"].as_f64().unwrap() > 0.0, "{p}");
+    let text = String::from_utf8(run(&["analyze", pr]).stdout).unwrap();
+    assert!(text.contains("optics not recorded: the floor is not checked"), "{text}");
+    let p = &json(&["analyze", pr, "--json", "--optics", "F/4@685"])["noise"]["predicted"];
+    assert_eq!(
+        (p["checked"].as_bool(), p["f_number"].as_f64(), p["source"].as_str()),
+        (Some(true), Some(4.0), Some("given"))
+    );
+    let bad = run(&["analyze", pr, "--optics", "0.3@685"]);
+    let e = String::from_utf8_lossy(&bad.stderr);
+    assert_eq!(bad.status.code(), Some(2), "{e}");
+    assert!(e.starts_with("error: ") && e.contains("f_number 0.3: a lens's F-number is 0.7 to 64"), "{e}");
+}
+
 /// The README's main job within its own limits: `listen sim` at its
 /// default speed, recorded for two seconds, then `analyze`. The default
 /// travel is under the live page's limit for the reference head's 68.6 mm
@@ -573,6 +619,13 @@ fn a_smooth_rail_under_laser_light_reads_its_floor_and_never_fails() {
             fb.level_db
         );
         assert_ne!(b.exceeds(), Some(true), "{b:?}");
+    }
+    // The floor is what the optics predict: speckle at F/2.8 and 685 nm,
+    // sensor noise (docs/noise-floor.md#the-floor-the-optics-predict).
+    let check = cms_host::bench::floor::predicted(&cms_host::sim::floor::Setting::push_trolley(1500.0), Some(f));
+    for (b, c) in check.expect("laser light: a prediction").iter().enumerate().take(2) {
+        let c = c.expect("the floor of the band is measured");
+        assert_eq!(c.agreement, cms_host::analyze::optics_floor::Agreement::Agrees, "{}: {c:?}", BANDS[b].name());
     }
     let v = &a.verdict;
     assert_eq!(v.reprofile_mm, 0.0, "{v:?}");

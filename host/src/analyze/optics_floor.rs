@@ -1,0 +1,366 @@
+//! The noise floor the optics predict, and the survey's own floor checked
+//! against it (docs/noise-floor.md#the-floor-the-optics-predict).
+//!
+//! The floor [`crate::analyze::floor`] measures on the survey's own data
+//! sees everything that differs between the lines. What the optics alone
+//! would leave — speckle at the recorded aperture and wavelength, the
+//! sensor's noise — is predicted here from physics, so that a floor far
+//! over it says something besides them is in the data (vibration, grease,
+//! a glint, the stitch), and a floor far under it that the optics recorded
+//! are not the optics used, or the rail is not the rough steel speckle
+//! assumes.
+//!
+//! # The model
+//!
+//! * **A point's error at rest**: the detector reads the stripe's centre
+//!   `k` times the bound of Dorsch, Häusler & Herrmann (Appl. Opt. 33(7),
+//!   1994), `δz = λ / (2π · sin u · sin θ)`, `sin u = f / (2N · d)` the
+//!   observation aperture, `θ` the triangulation angle; `k` =
+//!   [`DETECTOR_OVER_DORSCH`], measured (`bench speckle`).
+//! * **Along the rail**, a point's error stays correlated over the larger
+//!   of a row's footprint on the rail `d · pitch / f` and a speckle's,
+//!   `2.44 λ N (1 + M) / M` (the pixel integrates the speckle finer than
+//!   itself): the correlation length `L₀`.
+//! * **Motion** during the exposure (travel `t = v · T`) averages
+//!   `K = 1 + t / L₀` patterns (variance `/K`) and stretches the
+//!   correlation to `L₀ + t`: the speckle is tied to the rail, so the
+//!   power at low wavenumbers is unchanged, and the travel is a moving
+//!   average over `t` along the rail (`sinc²(f·t)`).
+//! * A stitched line is then noise of one-sided spectral density
+//!   `S(f) = 2 · (kδz)² · L₀ · sinc²(f·t) + S_sensor` (µm² · mm; the mean
+//!   of a sample's rows keeps `2σ²L` whatever the sample spacing), with
+//!   `S_sensor` = [`SENSOR_PSD_UM2_MM`], measured in incoherent light.
+//! * A band's RMS is `√∫ S(f) · |H(f)|⁴ df` with the EN 13231-3 band
+//!   filter's forward–backward Butterworth response ([`band_power_gain`]).
+//!
+//! Not in it: the stitch's own error (a per-frame offset, which grows in
+//! the long bands), a vibration, the rail's own finish. The EN 15610
+//! third octaves are not predicted: curvature processing (the wheel on
+//! speckle's peaks) and spike removal are not linear in the noise.
+
+use crate::analyze::floor::Floor;
+use crate::analyze::standards::en13231::{self, Band};
+use crate::model::optics::Optics;
+
+/// The detector's scatter per point under speckle at rest over the Dorsch
+/// bound: 1.64–1.74 at F/2.8–F/5.6 (`bench speckle`, docs/light.md's
+/// aperture table; an independent coherent renderer found 1.7).
+pub const DETECTOR_OVER_DORSCH: f64 = 1.7;
+
+/// The sensor's noise on a stitched line, one-sided spectral density,
+/// µm² · mm: incoherent light (no speckle) reads 0.32 µm RMS in the
+/// 10–30 mm band (`bench floor`, docs/benchmarks.md#the-noise-floor),
+/// `0.32² / (1/10 − 1/30)`.
+pub const SENSOR_PSD_UM2_MM: f64 = 1.5;
+
+/// Within this many dB of the prediction the floor agrees with it.
+pub const AGREES_DB: f64 = 6.0;
+
+/// The head's geometry that sets the speckle's effect.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HeadGeometry {
+    /// The lens's focal length, mm.
+    pub focal_mm: f64,
+    /// Stand-off from the lens to the rail, mm.
+    pub standoff_mm: f64,
+    /// Angle between the camera's axis and the laser sheets, degrees.
+    pub triangulation_deg: f64,
+    /// The sensor's pixel pitch, µm.
+    pub pixel_um: f64,
+}
+
+impl HeadGeometry {
+    /// The reference head (docs/light.md): an 8.4 mm lens at 200 mm
+    /// stand-off, 35°, 6 µm pixels.
+    pub const REFERENCE: HeadGeometry =
+        HeadGeometry { focal_mm: 8.4, standoff_mm: 200.0, triangulation_deg: 35.0, pixel_um: 6.0 };
+
+    /// The lens's magnification `f / (d − f)`.
+    pub fn magnification(&self) -> f64 {
+        self.focal_mm / (self.standoff_mm - self.focal_mm)
+    }
+
+    /// A sensor row's footprint on the rail, mm.
+    pub fn row_mm(&self) -> f64 {
+        self.standoff_mm * self.pixel_um * 1e-3 / self.focal_mm
+    }
+}
+
+/// The head's motion during an exposure, as the recording says.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Motion {
+    /// The frames' mean exposure, µs.
+    pub exposure_us: f64,
+    /// The mean speed along the rail while recording, mm/s.
+    pub speed_mm_s: f64,
+}
+
+impl Motion {
+    /// Travel during an exposure, mm.
+    pub fn travel_mm(&self) -> f64 {
+        (self.speed_mm_s * self.exposure_us * 1e-6).abs()
+    }
+}
+
+/// What the optics predict, figure by figure.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Budget {
+    /// The Dorsch bound per point, µm.
+    pub dorsch_um: f64,
+    /// The detector's scatter per point at rest, µm.
+    pub point_um: f64,
+    /// A speckle on the sensor, px.
+    pub speckle_px: f64,
+    /// Correlation length of a point's error along the rail at rest, mm.
+    pub correlation_mm: f64,
+    /// Travel during an exposure, mm.
+    pub travel_mm: f64,
+    /// Patterns the motion averages, `1 + t / L₀`.
+    pub patterns: f64,
+    /// Speckle's spectral density on a stitched line at low wavenumbers, µm² · mm.
+    pub speckle_psd_um2_mm: f64,
+}
+
+/// The prediction's figures for `optics` on a head of `geometry` moving as `motion`.
+pub fn budget(optics: Optics, geometry: HeadGeometry, motion: Motion) -> Budget {
+    let lambda_um = optics.wavelength_nm() * 1e-3;
+    let n = optics.f_number();
+    let sin_u = geometry.focal_mm / (2.0 * n * geometry.standoff_mm);
+    let dorsch_um = lambda_um / (2.0 * std::f64::consts::PI * sin_u * geometry.triangulation_deg.to_radians().sin());
+    let point_um = DETECTOR_OVER_DORSCH * dorsch_um;
+    let m = geometry.magnification();
+    let speckle_px = 2.44 * lambda_um * n * (1.0 + m) / geometry.pixel_um;
+    let correlation_mm = geometry.row_mm() * speckle_px.max(1.0);
+    let travel_mm = motion.travel_mm();
+    Budget {
+        dorsch_um,
+        point_um,
+        speckle_px,
+        correlation_mm,
+        travel_mm,
+        patterns: 1.0 + travel_mm / correlation_mm,
+        speckle_psd_um2_mm: 2.0 * point_um * point_um * correlation_mm,
+    }
+}
+
+impl Budget {
+    /// One-sided spectral density of a stitched line's noise at `f` cycles/mm, µm² · mm.
+    pub fn psd_um2_mm(&self, f_per_mm: f64) -> f64 {
+        let x = std::f64::consts::PI * f_per_mm * self.travel_mm;
+        let smear = if x.abs() < 1e-9 { 1.0 } else { (x.sin() / x).powi(2) };
+        self.speckle_psd_um2_mm * smear + SENSOR_PSD_UM2_MM
+    }
+
+    /// One line's predicted RMS in `band`, µm.
+    pub fn band_rms_um(&self, band: &Band) -> f64 {
+        // A log grid over two decades either side of the band: the filter's
+        // skirts fall as f^±24 there.
+        let (lo, hi) = (0.1 / band.hi_mm, 10.0 / band.lo_mm);
+        let steps = 4000;
+        let r = (hi / lo).ln() / steps as f64;
+        let mut sum = 0.0;
+        for i in 0..steps {
+            let f = lo * ((i as f64 + 0.5) * r).exp();
+            sum += self.psd_um2_mm(f) * band_power_gain(band, f) * f * r;
+        }
+        sum.sqrt()
+    }
+}
+
+/// The EN 13231-3 band filter's power gain at `f` cycles/mm: a 6th-order
+/// Butterworth high-pass and low-pass, run forward and backward, each
+/// 3 dB down at the band's edge (as [`en13231::band_pass`] designs them).
+pub fn band_power_gain(band: &Band, f_per_mm: f64) -> f64 {
+    const ORDER: i32 = 6;
+    let shift = (std::f64::consts::SQRT_2 - 1.0).powf(1.0 / (2.0 * f64::from(ORDER)));
+    let (f_hp, f_lp) = (shift / band.hi_mm, 1.0 / (band.lo_mm * shift));
+    let hp = 1.0 / (1.0 + (f_hp / f_per_mm).powi(2 * ORDER));
+    let lp = 1.0 / (1.0 + (f_per_mm / f_lp).powi(2 * ORDER));
+    (hp * lp).powi(2)
+}
+
+/// How a measured floor stands to the prediction.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Agreement {
+    /// Within [`AGREES_DB`].
+    Agrees,
+    /// More than [`AGREES_DB`] over it.
+    Over,
+    /// More than [`AGREES_DB`] under it.
+    Under,
+}
+
+impl Agreement {
+    /// The word the outputs carry.
+    pub fn name(self) -> &'static str {
+        match self {
+            Agreement::Agrees => "agrees",
+            Agreement::Over => "over",
+            Agreement::Under => "under",
+        }
+    }
+}
+
+/// One band's floor against the prediction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BandCheck {
+    /// What the optics predict for one line, RMS, mm.
+    pub predicted_rms_mm: f64,
+    /// One line's floor the survey measured, RMS, mm.
+    pub measured_rms_mm: f64,
+    /// `20 log₁₀(measured / predicted)`.
+    pub ratio_db: f64,
+    pub agreement: Agreement,
+}
+
+impl BandCheck {
+    /// The measured floor `measured_rms_mm` against `predicted_rms_mm`.
+    pub fn of(predicted_rms_mm: f64, measured_rms_mm: f64) -> BandCheck {
+        let ratio_db = 20.0 * (measured_rms_mm / predicted_rms_mm).log10();
+        let agreement = if ratio_db > AGREES_DB {
+            Agreement::Over
+        } else if ratio_db < -AGREES_DB {
+            Agreement::Under
+        } else {
+            Agreement::Agrees
+        };
+        BandCheck { predicted_rms_mm, measured_rms_mm, ratio_db, agreement }
+    }
+
+    /// What it says, in words: never a verdict on the rail.
+    pub fn says(&self) -> String {
+        match self.agreement {
+            Agreement::Agrees => format!("agrees with the optics ({:+.1} dB)", self.ratio_db),
+            Agreement::Over => format!(
+                "the floor is {:.1} dB over what the optics predict: something besides speckle and sensor noise (vibration, grease, a glint, the stitch)",
+                self.ratio_db
+            ),
+            Agreement::Under => format!(
+                "the floor is {:.1} dB under the prediction (a specular or polished rail, or other optics than recorded)",
+                -self.ratio_db
+            ),
+        }
+    }
+}
+
+/// Where the optics of a check come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OpticsSource {
+    /// The recording's survey block.
+    Recorded,
+    /// `analyze --optics`.
+    Given,
+}
+
+/// The survey's floor checked against the optics.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub enum OpticsCheck {
+    /// The recording does not say what optics it was made with, and none were given.
+    #[default]
+    NotRecorded,
+    /// Runs of different optics: no one prediction holds for the survey's floor.
+    Mixed(String),
+    /// Checked (per band; `None` where the floor of the band is not known).
+    Checked {
+        optics: Optics,
+        source: OpticsSource,
+        geometry: HeadGeometry,
+        motion: Motion,
+        budget: Budget,
+        bands: Vec<Option<BandCheck>>,
+    },
+}
+
+impl OpticsCheck {
+    /// The floor `floor` (`None`: not known) against what `optics` predict
+    /// on a head of `geometry` moving as `motion`.
+    pub fn of(
+        optics: Optics,
+        source: OpticsSource,
+        geometry: HeadGeometry,
+        motion: Motion,
+        floor: Option<&Floor>,
+    ) -> OpticsCheck {
+        let budget = budget(optics, geometry, motion);
+        let bands = en13231::BANDS
+            .iter()
+            .enumerate()
+            .map(|(b, band)| {
+                let measured = floor?.band(b)?.rms_mm;
+                Some(BandCheck::of(budget.band_rms_um(band) * 1e-3, measured))
+            })
+            .collect();
+        OpticsCheck::Checked { optics, source, geometry, motion, budget, bands }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn motion(speed_mm_s: f64) -> Motion {
+        Motion { exposure_us: 100.0, speed_mm_s }
+    }
+
+    /// The push-trolley setting worked by hand: sin u = 8.4/(2·2.8·200) =
+    /// 0.0075, δz = 0.685/(2π·0.0075·sin 35°) = 25.34 µm, 1.7× = 43.08 µm;
+    /// a speckle of 2.44·0.685·2.8·(1 + 8.4/191.6)/6 = 0.814 px, under a
+    /// row, so L₀ = 200·0.006/8.4 = 0.14286 mm; S = 2·43.08²·0.14286 =
+    /// 530.2 µm²·mm, plus the sensor's 1.5; the 10–30 mm band's noise
+    /// bandwidth about 1/10 − 1/30 = 0.0667 /mm: 5.96 µm RMS.
+    #[test]
+    fn the_prediction_is_the_hand_computation() {
+        let b = budget(Optics::new(2.8, 685.0).unwrap(), HeadGeometry::REFERENCE, motion(1500.0));
+        assert!((b.dorsch_um - 25.34).abs() < 0.01, "{b:?}");
+        assert!((b.point_um - 43.08).abs() < 0.01, "{b:?}");
+        assert!((b.speckle_px - 0.814).abs() < 0.001, "{b:?}");
+        assert!((b.correlation_mm - 0.142_86).abs() < 1e-5, "{b:?}");
+        assert!((b.speckle_psd_um2_mm - 530.2).abs() < 0.2, "{b:?}");
+        assert!((b.travel_mm - 0.15).abs() < 1e-12);
+        let by_hand = ((530.2f64 + 1.5) * (1.0 / 10.0 - 1.0 / 30.0)).sqrt();
+        let rms = b.band_rms_um(&en13231::BANDS[0]);
+        // The filter's skirts and the smear: within 3 % of the ideal band.
+        assert!((rms / by_hand - 1.0).abs() < 0.03, "{rms} against {by_hand}");
+        // The 30–100 mm band has 0.35 of the 10–30's bandwidth.
+        let r1 = b.band_rms_um(&en13231::BANDS[1]);
+        assert!((r1 / rms - (0.7f64 / 2.0).sqrt()).abs() < 0.02, "{r1} {rms}");
+    }
+
+    /// Speckle tied to the rail: speed moves the band's floor only by the
+    /// smear; aperture and wavelength move it as λN.
+    #[test]
+    fn speed_barely_moves_it_and_aperture_does() {
+        let band = &en13231::BANDS[0];
+        let at = |f: f64, nm: f64, v: f64| {
+            budget(Optics::new(f, nm).unwrap(), HeadGeometry::REFERENCE, motion(v)).band_rms_um(band)
+        };
+        let (rest, walk, vehicle) = (at(4.0, 685.0, 0.0), at(4.0, 685.0, 1500.0), at(4.0, 685.0, 5000.0));
+        assert!(walk / rest > 0.99 && vehicle / rest > 0.95 && vehicle < rest, "{rest} {walk} {vehicle}");
+        // Both speckles under a row: the floor goes as λN.
+        let ratio = at(2.8, 405.0, 1500.0) / at(2.8, 685.0, 1500.0);
+        assert!((ratio - 405.0 / 685.0).abs() < 0.02, "{ratio}");
+    }
+
+    #[test]
+    fn a_floor_is_checked_band_by_band() {
+        let c = BandCheck::of(0.006, 0.007);
+        assert_eq!(c.agreement, Agreement::Agrees);
+        assert!((c.ratio_db - 1.339).abs() < 0.001, "{c:?}");
+        assert!(c.says().starts_with("agrees"));
+        let over = BandCheck::of(0.006, 0.020);
+        assert_eq!(over.agreement, Agreement::Over);
+        assert!(over.says().contains("10.5 dB over what the optics predict"), "{}", over.says());
+        let under = BandCheck::of(0.006, 0.001);
+        assert_eq!(under.agreement, Agreement::Under);
+        assert!(under.says().contains("15.6 dB under the prediction"), "{}", under.says());
+        // No floor: every band unchecked, the budget still there.
+        let o = Optics::new(4.0, 685.0).unwrap();
+        match OpticsCheck::of(o, OpticsSource::Given, HeadGeometry::REFERENCE, motion(1000.0), None) {
+            OpticsCheck::Checked { bands, budget, .. } => {
+                assert!(bands.iter().all(Option::is_none));
+                assert!(budget.point_um > 60.0);
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+}

@@ -1,0 +1,137 @@
+//! The noise floor against what the optics predict
+//! ([`crate::analyze::optics_floor`]), as the text summary, `--json`
+//! (`noise.predicted`) and `report.html` carry it. It says how the floor
+//! stands to speckle and sensor noise, never anything of the rail.
+
+use std::fmt::Write as _;
+
+use serde_json::{Value, json};
+
+use super::table::{escape, table};
+use crate::analyze::optics_floor::{OpticsCheck, OpticsSource};
+use crate::analyze::standards::en13231;
+use crate::analyze::{Analysis, fmt_len};
+
+/// What is said when the optics are not known.
+pub const NOT_RECORDED: &str =
+    "optics not recorded: the floor is not checked against them (analyze --optics F_NUMBER@WAVELENGTH_NM gives them)";
+
+/// The check's heading line: the optics, where they come from, the
+/// geometry and motion taken.
+fn heading(c: &OpticsCheck) -> String {
+    match c {
+        OpticsCheck::NotRecorded => NOT_RECORDED.to_string(),
+        OpticsCheck::Mixed(why) => format!("optics: {why}: the floor is not checked against them"),
+        OpticsCheck::Checked { optics, source, geometry, motion, budget, .. } => format!(
+            "the floor against what the optics predict ({optics}, {}; the reference head's {} mm lens at {} mm, {}°; {:.0} µs exposures at {:.2} m/s, {:.2} mm of travel; docs/noise-floor.md): a point {:.1} µm ({} × the Dorsch bound {:.1} µm), a speckle {:.2} px, correlated over {:.2} mm of rail",
+            match source {
+                OpticsSource::Recorded => "recorded",
+                OpticsSource::Given => "given with --optics",
+            },
+            geometry.focal_mm,
+            geometry.standoff_mm,
+            geometry.triangulation_deg,
+            motion.exposure_us,
+            motion.speed_mm_s / 1000.0,
+            budget.travel_mm,
+            budget.point_um,
+            crate::analyze::optics_floor::DETECTOR_OVER_DORSCH,
+            budget.dorsch_um,
+            budget.speckle_px,
+            budget.correlation_mm,
+        ),
+    }
+}
+
+/// The text lines (the summary's and report.md's noise floor section).
+pub fn describe(a: &Analysis) -> String {
+    let mut s = format!("{}\n", heading(&a.optics));
+    let OpticsCheck::Checked { bands, .. } = &a.optics else { return s };
+    for (band, c) in en13231::BANDS.iter().zip(bands) {
+        let name = format!("{:>4}–{:<4} mm", fmt_len(band.lo_mm), fmt_len(band.hi_mm));
+        match c {
+            Some(c) => {
+                let _ = writeln!(
+                    s,
+                    "  {name}: predicted RMS {:.1} µm, measured {:.1} µm: {}",
+                    c.predicted_rms_mm * 1000.0,
+                    c.measured_rms_mm * 1000.0,
+                    c.says()
+                );
+            }
+            None => {
+                let _ = writeln!(s, "  {name}: floor not measured, not checked");
+            }
+        }
+    }
+    s.push_str(
+        "  (EN 15610's third octaves are not predicted: curvature processing and spike removal are not linear)\n",
+    );
+    s
+}
+
+/// `noise.predicted` of `--json`.
+pub fn json(a: &Analysis) -> Value {
+    let OpticsCheck::Checked { optics, source, geometry, motion, budget, bands } = &a.optics else {
+        return json!({ "checked": false, "why": heading(&a.optics) });
+    };
+    json!({
+        "checked": true,
+        "f_number": optics.f_number(),
+        "wavelength_nm": optics.wavelength_nm(),
+        "source": match source { OpticsSource::Recorded => "recorded", OpticsSource::Given => "given" },
+        "geometry": {
+            "focal_mm": geometry.focal_mm,
+            "standoff_mm": geometry.standoff_mm,
+            "triangulation_deg": geometry.triangulation_deg,
+            "pixel_um": geometry.pixel_um,
+        },
+        "exposure_us": motion.exposure_us,
+        "speed_mm_s": motion.speed_mm_s,
+        "dorsch_um": budget.dorsch_um,
+        "point_um": budget.point_um,
+        "speckle_px": budget.speckle_px,
+        "correlation_mm": budget.correlation_mm,
+        "travel_mm": budget.travel_mm,
+        "agrees_within_db": crate::analyze::optics_floor::AGREES_DB,
+        "bands": en13231::BANDS.iter().zip(bands).map(|(band, c)| json!({
+            "lo_mm": band.lo_mm,
+            "hi_mm": band.hi_mm,
+            "predicted_rms_mm": c.map(|c| c.predicted_rms_mm),
+            "measured_rms_mm": c.map(|c| c.measured_rms_mm),
+            "ratio_db": c.map(|c| c.ratio_db),
+            "agreement": c.map(|c| c.agreement.name()),
+            "says": c.map(|c| c.says()),
+        })).collect::<Vec<_>>(),
+    })
+}
+
+/// The check in report.html.
+pub fn html(a: &Analysis) -> String {
+    let mut s = format!("<p>{}.</p>\n", escape(&heading(&a.optics)));
+    let OpticsCheck::Checked { bands, .. } = &a.optics else { return s };
+    let dash = || "-".to_string();
+    let rows: Vec<Vec<String>> = en13231::BANDS
+        .iter()
+        .zip(bands)
+        .map(|(band, c)| {
+            let name = format!("{}–{} mm", fmt_len(band.lo_mm), fmt_len(band.hi_mm));
+            match c {
+                Some(c) => vec![
+                    name,
+                    format!("{:.1}", c.predicted_rms_mm * 1000.0),
+                    format!("{:.1}", c.measured_rms_mm * 1000.0),
+                    format!("{:+.1}", c.ratio_db),
+                    c.says(),
+                ],
+                None => vec![name, dash(), dash(), dash(), "not measured".into()],
+            }
+        })
+        .collect();
+    s.push_str(&table(
+        "optics",
+        &["band", "predicted by the optics, RMS µm", "one line's floor, RMS µm", "ratio, dB", "the floor"],
+        &rows,
+    ));
+    s
+}
