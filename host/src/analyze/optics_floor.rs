@@ -204,7 +204,8 @@ impl Agreement {
 /// One band's floor against the prediction.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BandCheck {
-    /// What the optics predict for one line, RMS, mm.
+    /// What the optics predict for one line, with the stitch's propagated
+    /// share in quadrature, RMS, mm.
     pub predicted_rms_mm: f64,
     /// One line's floor the survey measured, RMS, mm.
     pub measured_rms_mm: f64,
@@ -286,8 +287,10 @@ impl OpticsCheck {
             .iter()
             .enumerate()
             .map(|(b, band)| {
-                let measured = floor?.band(b)?.rms_mm;
-                Some(BandCheck::of(budget.band_rms_um(band) * 1e-3, measured))
+                // The measured floor holds the stitch's propagated share
+                // (`BandFloor::with_stitch`): the prediction holds it too.
+                let f = floor?.band(b)?;
+                Some(BandCheck::of((budget.band_rms_um(band) * 1e-3).hypot(f.stitch_rms_mm), f.rms_mm))
             })
             .collect();
         OpticsCheck::Checked { optics, source, geometry, motion, budget, bands }

@@ -495,7 +495,13 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
     let mut optics = args.optics.map(|o| (o, "--optics".to_string()));
     if let Some(path) = &args.windows_from {
         let cal = CalibrationFile::load(path).map_err(cms_host::Error::from)?;
-        let locked = cal.head.as_ref().map(|h| h.optics()).transpose().map_err(Usage)?.flatten();
+        let locked = cal
+            .head
+            .as_ref()
+            .map(|h| h.optics())
+            .transpose()
+            .map_err(|e| Usage(format!("{}: head.{e}", path.display())))?
+            .flatten();
         optics = merge_optics(optics, locked.map(|o| (o, path.display().to_string())))?;
         let mut w = cal.search_windows(WINDOW_MARGIN_PX).map_err(|e| Usage(format!("{}: {e}", path.display())))?;
         for &(k, cw) in &args.windows {

@@ -54,6 +54,9 @@ pub enum OpticsError {
     /// Not `F_NUMBER@WAVELENGTH_NM`.
     #[error("`{0}` is not F_NUMBER@WAVELENGTH_NM (e.g. 2.8@685)")]
     Syntax(String),
+    /// An F-number without a wavelength, or a wavelength without an F-number.
+    #[error("f_number and wavelength_nm go together (the optics the head records with)")]
+    Unpaired,
 }
 
 impl Optics {

@@ -84,7 +84,7 @@ impl CalibrationFile {
             if h.range_max_mm <= h.range_min_mm {
                 return Err(format!("head.range_max_mm = {} must be above range_min_mm", h.range_max_mm));
             }
-            h.optics()?;
+            h.optics().map_err(|e| format!("head.{e}"))?;
         }
         let mut seen = [false; LASERS];
         for (i, l) in self.lasers.iter_mut().enumerate() {

@@ -331,11 +331,11 @@ pub struct HeadSection {
 impl HeadSection {
     /// The optics the head records with, when the table gives them (both
     /// keys, or neither: checked when the file is read).
-    pub fn optics(&self) -> Result<Option<crate::model::optics::Optics>, String> {
+    pub fn optics(&self) -> Result<Option<crate::model::optics::Optics>, crate::model::optics::OpticsError> {
         match (self.f_number, self.wavelength_nm) {
             (None, None) => Ok(None),
-            (Some(f), Some(nm)) => crate::model::optics::Optics::new(f, nm).map(Some).map_err(|e| format!("head.{e}")),
-            _ => Err("head: f_number and wavelength_nm go together (the optics the head records with)".into()),
+            (Some(f), Some(nm)) => crate::model::optics::Optics::new(f, nm).map(Some),
+            _ => Err(crate::model::optics::OpticsError::Unpaired),
         }
     }
 }
