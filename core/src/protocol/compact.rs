@@ -237,14 +237,7 @@ impl Serialize for V4<'_> {
         // postcard writes a tuple's elements without a length: the records
         // stream into the frame as they are made.
         let mut t = s.serialize_tuple(usize::MAX)?;
-        t.serialize_element(&profile.seq)?;
-        t.serialize_element(&profile.part)?;
-        t.serialize_element(&profile.parts)?;
-        t.serialize_element(&profile.timestamp_us)?;
-        t.serialize_element(&profile.odometer_um)?;
-        t.serialize_element(&profile.exposure_us)?;
-        t.serialize_element(&profile.laser_mask)?;
-        t.serialize_element(&(profile.lasers.len() as u8))?;
+        write_header(&mut t, profile)?;
         for lp in &profile.lasers {
             t.serialize_element(&lp.laser)?;
         }
@@ -309,12 +302,44 @@ impl Serialize for V4<'_> {
 
 struct ProfileVisitor;
 
-fn next<'de, T: Deserialize<'de>, A: SeqAccess<'de>>(a: &mut A) -> Result<T, A::Error> {
+/// The next element of a profile's tuple (protocols 4 and 5).
+pub(super) fn next<'de, T: Deserialize<'de>, A: SeqAccess<'de>>(a: &mut A) -> Result<T, A::Error> {
     a.next_element()?.ok_or_else(|| de::Error::custom("the profile ends early"))
 }
 
-fn bad<E: de::Error>(what: &'static str) -> E {
+pub(super) fn bad<E: de::Error>(what: &'static str) -> E {
     E::custom(what)
+}
+
+/// A profile's header as protocols 4 and 5 write it: its fields before
+/// the laser entries, then the number of entries.
+pub(super) fn write_header<T: SerializeTuple>(t: &mut T, p: &Profile) -> Result<(), T::Error> {
+    t.serialize_element(&p.seq)?;
+    t.serialize_element(&p.part)?;
+    t.serialize_element(&p.parts)?;
+    t.serialize_element(&p.timestamp_us)?;
+    t.serialize_element(&p.odometer_um)?;
+    t.serialize_element(&p.exposure_us)?;
+    t.serialize_element(&p.laser_mask)?;
+    t.serialize_element(&(p.lasers.len() as u8))
+}
+
+/// [`write_header`]'s fields read back: a profile without points, and
+/// its number of laser entries (checked against [`LASERS`]).
+pub(super) fn read_header<'de, A: SeqAccess<'de>>(a: &mut A) -> Result<(Profile, u8), A::Error> {
+    let mut p = Profile::empty();
+    p.seq = next(a)?;
+    p.part = next(a)?;
+    p.parts = next(a)?;
+    p.timestamp_us = next(a)?;
+    p.odometer_um = next(a)?;
+    p.exposure_us = next(a)?;
+    p.laser_mask = next(a)?;
+    let entries: u8 = next(a)?;
+    if usize::from(entries) > LASERS {
+        return Err(bad("more laser entries than lasers"));
+    }
+    Ok((p, entries))
 }
 
 impl<'de> Visitor<'de> for ProfileVisitor {
@@ -325,18 +350,7 @@ impl<'de> Visitor<'de> for ProfileVisitor {
     }
 
     fn visit_seq<A: SeqAccess<'de>>(self, mut a: A) -> Result<Profile, A::Error> {
-        let mut p = Profile::empty();
-        p.seq = next(&mut a)?;
-        p.part = next(&mut a)?;
-        p.parts = next(&mut a)?;
-        p.timestamp_us = next(&mut a)?;
-        p.odometer_um = next(&mut a)?;
-        p.exposure_us = next(&mut a)?;
-        p.laser_mask = next(&mut a)?;
-        let entries: u8 = next(&mut a)?;
-        if usize::from(entries) > LASERS {
-            return Err(bad("more laser entries than lasers"));
-        }
+        let (mut p, entries) = read_header(&mut a)?;
         for _ in 0..entries {
             let laser: u8 = next(&mut a)?;
             if usize::from(laser) >= LASERS {

@@ -82,11 +82,13 @@
 
 use core::fmt;
 
-use serde::de::{self, Deserializer, SeqAccess, Visitor};
+use serde::de::{Deserializer, SeqAccess, Visitor};
 use serde::ser::{self, SerializeTuple, Serializer};
 use serde::{Deserialize, Serialize};
 
-use super::compact::{height_code, position_code, strength_code, strength_from_code, width_code};
+use super::compact::{
+    bad, height_code, next, position_code, read_header, strength_code, strength_from_code, width_code, write_header,
+};
 use super::{LASERS, LaserPoints, Metric, Point, Profile};
 use crate::fixed::Px;
 use crate::peak::Flags;
@@ -414,14 +416,7 @@ impl Serialize for Profile {
         // postcard writes a tuple's elements without a length: the bytes
         // stream into the frame as they are made.
         let mut t = s.serialize_tuple(usize::MAX)?;
-        t.serialize_element(&self.seq)?;
-        t.serialize_element(&self.part)?;
-        t.serialize_element(&self.parts)?;
-        t.serialize_element(&self.timestamp_us)?;
-        t.serialize_element(&self.odometer_um)?;
-        t.serialize_element(&self.exposure_us)?;
-        t.serialize_element(&self.laser_mask)?;
-        t.serialize_element(&(self.lasers.len() as u8))?;
+        write_header(&mut t, self)?;
         let mut tracks = [Track::new(Model::default()); LASERS];
         for (lp, track) in self.lasers.iter().zip(tracks.iter_mut()) {
             let model = if lp.points.iter().any(|p| p.metric.is_some()) { Model::fit(&lp.points) } else { None };
@@ -520,14 +515,6 @@ impl<'de> Deserialize<'de> for Profile {
 
 struct ProfileVisitor;
 
-fn next<'de, T: Deserialize<'de>, A: SeqAccess<'de>>(a: &mut A) -> Result<T, A::Error> {
-    a.next_element()?.ok_or_else(|| de::Error::custom("the profile ends early"))
-}
-
-fn bad<E: de::Error>(what: &'static str) -> E {
-    E::custom(what)
-}
-
 /// Bits out of postcard's input, a byte at a time.
 struct BitReader<A> {
     seq: A,
@@ -588,18 +575,7 @@ impl<'de> Visitor<'de> for ProfileVisitor {
     }
 
     fn visit_seq<A: SeqAccess<'de>>(self, mut a: A) -> Result<Profile, A::Error> {
-        let mut p = Profile::empty();
-        p.seq = next(&mut a)?;
-        p.part = next(&mut a)?;
-        p.parts = next(&mut a)?;
-        p.timestamp_us = next(&mut a)?;
-        p.odometer_um = next(&mut a)?;
-        p.exposure_us = next(&mut a)?;
-        p.laser_mask = next(&mut a)?;
-        let entries: u8 = next(&mut a)?;
-        if usize::from(entries) > LASERS {
-            return Err(bad("more laser entries than lasers"));
-        }
+        let (mut p, entries) = read_header(&mut a)?;
         let mut tracks = [Track::new(Model::default()); LASERS];
         let mut modelled = 0u8;
         for (j, track) in tracks.iter_mut().enumerate().take(usize::from(entries)) {
