@@ -171,11 +171,10 @@ impl Budget {
 /// Butterworth high-pass and low-pass, run forward and backward, each
 /// 3 dB down at the band's edge (as [`en13231::band_pass`] designs them).
 pub fn band_power_gain(band: &Band, f_per_mm: f64) -> f64 {
-    const ORDER: i32 = 6;
-    let shift = (std::f64::consts::SQRT_2 - 1.0).powf(1.0 / (2.0 * f64::from(ORDER)));
+    let (shift, order) = (en13231::edge_shift(), 2 * en13231::ORDER as i32);
     let (f_hp, f_lp) = (shift / band.hi_mm, 1.0 / (band.lo_mm * shift));
-    let hp = 1.0 / (1.0 + (f_hp / f_per_mm).powi(2 * ORDER));
-    let lp = 1.0 / (1.0 + (f_per_mm / f_lp).powi(2 * ORDER));
+    let hp = 1.0 / (1.0 + (f_hp / f_per_mm).powi(order));
+    let lp = 1.0 / (1.0 + (f_per_mm / f_lp).powi(order));
     (hp * lp).powi(2)
 }
 

@@ -154,7 +154,15 @@ pub const EDGE_WAVELENGTHS: f64 = 2.0;
 
 /// Butterworth order of each of the high-pass and low-pass filters (the
 /// forward–backward pass doubles it in magnitude).
-const ORDER: usize = 6;
+pub const ORDER: usize = 6;
+
+/// The ratio of a band's filter cut-off to its edge frequency, `(√2 − 1)^(1/2N)`:
+/// forward–backward gives `|H|² = 1/(1 + (f/fc)^(2N))`, 3 dB down at the
+/// edge where `(f/fc)^(2N) = √2 − 1`. The high-pass cuts at `shift / hi`,
+/// the low-pass at `1 / (lo · shift)`.
+pub fn edge_shift() -> f64 {
+    (std::f64::consts::SQRT_2 - 1.0).powf(1.0 / (2.0 * ORDER as f64))
+}
 
 /// The whole analysis of one profile.
 #[derive(Debug, Clone, PartialEq)]
@@ -465,9 +473,7 @@ pub fn band_pass(z: &[f64], dx_mm: f64, lo_mm: f64, hi_mm: f64) -> Result<Vec<f6
             what: format!("the {}–{} mm band", fmt_mm(lo_mm), fmt_mm(hi_mm)),
         });
     }
-    // Forward–backward gives |H|² = 1/(1 + (f/fc)^(2N)); −3 dB at the edge
-    // needs (f/fc)^(2N) = √2 − 1.
-    let shift = (std::f64::consts::SQRT_2 - 1.0).powf(1.0 / (2.0 * ORDER as f64));
+    let shift = edge_shift();
     // Normalised angular cut-offs (radians per sample).
     let w_hp = 2.0 * std::f64::consts::PI * dx_mm / hi_mm * shift;
     let w_lp = 2.0 * std::f64::consts::PI * dx_mm / lo_mm / shift;
