@@ -143,6 +143,11 @@ pub struct ListenArgs {
     /// anyway (random, in the address printed); on loopback only if given.
     #[arg(long, value_name = "TOKEN", requires = "serve", value_parser = Token::given)]
     pub serve_token: Option<Token>,
+    /// Serve the live view over HTTPS with the PEM certificate chain CERT
+    /// and its private key KEY (the token then crosses the network
+    /// encrypted; plain HTTP to the port is refused).
+    #[arg(long, num_args = 2, value_names = ["CERT", "KEY"], requires = "serve")]
+    pub serve_tls: Option<Vec<std::path::PathBuf>>,
 }
 
 /// `--serve ADDR`: `IP:PORT` or `IP` (port 8130).
@@ -544,6 +549,7 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
                 marks: Some(marks.clone()),
                 token: args.serve_token.clone(),
                 live_bands: opts.live_bands,
+                tls: super::view::serve_tls(args.serve_tls.as_deref())?,
             };
             let v = LiveView::start(&opts).map_err(cms_host::Error::from)?;
             let _ = writeln!(io::stderr(), "listen: live view on {} (read-only but for event marks)", v.url());

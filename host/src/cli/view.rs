@@ -3,10 +3,12 @@
 
 use std::io::Write as _;
 use std::net::SocketAddr;
+use std::path::PathBuf;
 
 use clap::Args;
 use cms_host::Error;
 use cms_host::serve::access::Token;
+use cms_host::serve::tls::Tls;
 use cms_host::serve::viewer::{View, Viewer};
 
 use super::analyze::AnalysisArgs;
@@ -26,11 +28,25 @@ pub struct ViewArgs {
     /// anyway (random, in the address printed); on loopback only if given.
     #[arg(long, value_name = "TOKEN", value_parser = Token::given)]
     pub serve_token: Option<Token>,
+    /// Serve over HTTPS with the PEM certificate chain CERT and its
+    /// private key KEY (the token then crosses the network encrypted;
+    /// plain HTTP to the port is refused).
+    #[arg(long, num_args = 2, value_names = ["CERT", "KEY"])]
+    pub serve_tls: Option<Vec<PathBuf>>,
+}
+
+/// `--serve-tls CERT KEY` loaded and checked, before anything is served.
+pub(super) fn serve_tls(files: Option<&[PathBuf]>) -> Result<Option<Tls>, Error> {
+    match files {
+        Some([cert, key]) => Ok(Some(Tls::load(cert, key)?)),
+        _ => Ok(None),
+    }
 }
 
 /// Analyses the inputs as `cms-host analyze` does (or reads a report
 /// folder `analyze --report` wrote), then serves the viewer until interrupted.
 pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
+    let tls = serve_tls(args.serve_tls.as_deref())?;
     let view = match args.analysis.inputs.as_slice() {
         [dir] if dir.is_dir() => {
             // A report is shown as it was analysed: another option would
@@ -46,7 +62,7 @@ pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
         }
         _ => View::open(&args.analysis.request(), &args.analysis.options(), &Bar::stderr())?,
     };
-    let viewer = Viewer::start(view, args.serve, args.serve_token.clone()).map_err(Error::from)?;
+    let viewer = Viewer::start(view, args.serve, args.serve_token.clone(), tls).map_err(Error::from)?;
     let mut err = std::io::stderr().lock();
     writeln!(err, "view: on {} (Ctrl-C to stop)", viewer.url()).map_err(Error::Output)?;
     drop(err);

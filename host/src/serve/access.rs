@@ -106,11 +106,13 @@ pub fn token_for(addr: SocketAddr, given: Option<Token>) -> Result<Option<Token>
     }
 }
 
-/// The address of a view's page: with its token, where it has one.
-pub fn page_url(addr: SocketAddr, token: Option<&Token>) -> String {
+/// The address of a view's page (`https://` where it is served over
+/// TLS): with its token, where it has one.
+pub fn page_url(addr: SocketAddr, token: Option<&Token>, https: bool) -> String {
+    let scheme = if https { "https" } else { "http" };
     match token {
-        Some(t) => format!("http://{addr}/?{TOKEN_PARAM}={}", t.as_str()),
-        None => format!("http://{addr}/"),
+        Some(t) => format!("{scheme}://{addr}/?{TOKEN_PARAM}={}", t.as_str()),
+        None => format!("{scheme}://{addr}/"),
     }
 }
 
@@ -130,8 +132,10 @@ pub(super) enum Admission {
     Out(StatusCode, &'static str),
 }
 
-/// Whether a request to the view on `port` with `uri` and `headers` may in.
-pub(super) fn admit(token: Option<&Token>, port: u16, uri: &Uri, headers: &HeaderMap) -> Admission {
+/// Whether a request to the view on `port` with `uri` and `headers` may
+/// in. Over HTTPS (`secure`) the cookie is one the browser sends over
+/// HTTPS only.
+pub(super) fn admit(token: Option<&Token>, port: u16, secure: bool, uri: &Uri, headers: &HeaderMap) -> Admission {
     let Some(token) = token else { return Admission::In };
     let wrong = Admission::Out(StatusCode::FORBIDDEN, "wrong token for this view\n");
     let in_query = uri
@@ -143,7 +147,8 @@ pub(super) fn admit(token: Option<&Token>, port: u16, uri: &Uri, headers: &Heade
         if !token.is(v) {
             return wrong;
         }
-        let cookie = format!("{}={}; Path=/; HttpOnly; SameSite=Strict", cookie_name(port), token.as_str());
+        let secure = if secure { "; Secure" } else { "" };
+        let cookie = format!("{}={}; Path=/; HttpOnly; SameSite=Strict{secure}", cookie_name(port), token.as_str());
         return match HeaderValue::from_str(&cookie) {
             Ok(c) => Admission::InSetCookie(c),
             Err(_) => wrong,
@@ -180,7 +185,7 @@ mod tests {
         for (k, v) in headers {
             h.append(*k, HeaderValue::from_str(v).unwrap());
         }
-        admit(Some(token), 8130, &uri.parse().unwrap(), &h)
+        admit(Some(token), 8130, false, &uri.parse().unwrap(), &h)
     }
 
     #[test]
@@ -203,16 +208,20 @@ mod tests {
         assert!(token_for(any, None).unwrap().is_some());
         let t = Token::given("0123456789abcdef").unwrap();
         assert_eq!(token_for(lo, Some(t.clone())).unwrap(), Some(t.clone()));
-        assert_eq!(page_url(any, Some(&t)), "http://0.0.0.0:8130/?token=0123456789abcdef");
-        assert_eq!(page_url(lo, None), "http://127.0.0.1:8130/");
+        assert_eq!(page_url(any, Some(&t), false), "http://0.0.0.0:8130/?token=0123456789abcdef");
+        assert_eq!(page_url(any, Some(&t), true), "https://0.0.0.0:8130/?token=0123456789abcdef");
+        assert_eq!(page_url(lo, None, false), "http://127.0.0.1:8130/");
     }
 
     #[test]
     fn only_the_token_lets_a_request_in() {
         let t = Token::given("0123456789abcdef").unwrap();
-        assert_eq!(admit(None, 8130, &"/".parse().unwrap(), &HeaderMap::new()), Admission::In);
+        assert_eq!(admit(None, 8130, false, &"/".parse().unwrap(), &HeaderMap::new()), Admission::In);
         let Admission::InSetCookie(c) = at(&t, "/?token=0123456789abcdef", &[]) else { panic!() };
         assert_eq!(c, "cms_view_8130=0123456789abcdef; Path=/; HttpOnly; SameSite=Strict");
+        let secure = admit(Some(&t), 8130, true, &"/?token=0123456789abcdef".parse().unwrap(), &HeaderMap::new());
+        let Admission::InSetCookie(c) = secure else { panic!() };
+        assert_eq!(c, "cms_view_8130=0123456789abcdef; Path=/; HttpOnly; SameSite=Strict; Secure");
         assert_eq!(at(&t, "/ws", &[("cookie", "a=b; cms_view_8130=0123456789abcdef")]), Admission::In);
         assert_eq!(at(&t, "/marks", &[("authorization", "Bearer 0123456789abcdef")]), Admission::In);
         let code = |a: Admission| match a {

@@ -56,20 +56,31 @@ pub(super) struct Context {
     pub placement: Option<Placement>,
     /// The secret every request carries (`None`: on loopback, none asked).
     pub token: Option<Token>,
+    /// Served over TLS (`--serve-tls`): the page's origin is `https://`.
+    pub https: bool,
 }
 
 /// Serves on `listener` until `shutdown`; the runtime (and with it every
 /// page's task) is dropped then.
-pub(super) fn serve(listener: std::net::TcpListener, ctx: Context, shutdown: tokio::sync::oneshot::Receiver<()>) {
+pub(super) fn serve(
+    listener: std::net::TcpListener,
+    ctx: Context,
+    tls: Option<super::tls::Tls>,
+    shutdown: tokio::sync::oneshot::Receiver<()>,
+) {
     let rt = match tokio::runtime::Builder::new_current_thread().enable_io().enable_time().build() {
         Ok(rt) => rt,
         Err(_) => return,
     };
     rt.block_on(async move {
         let Ok(listener) = tokio::net::TcpListener::from_std(listener) else { return };
+        let shared = ctx.shared.clone();
+        let on_plain = Arc::new(move || {
+            shared.refused.fetch_add(1, Ordering::Relaxed);
+        });
         let app = router(ctx);
         tokio::select! {
-            _ = axum::serve(listener, app) => {}
+            _ = super::tls::serve(listener, app, tls, on_plain) => {}
             _ = shutdown => {}
         }
     });
@@ -108,7 +119,7 @@ async fn guard(State(ctx): State<Context>, req: Request, next: Next) -> Response
         ctx.shared.refused.fetch_add(1, Ordering::Relaxed);
         r
     };
-    let mut resp = match checked(&ctx.local, ctx.token.as_ref(), &req) {
+    let mut resp = match checked(&ctx.local, ctx.token.as_ref(), ctx.https, &req) {
         Err(r) => refuse(*r),
         Ok(_)
             if req.method() != axum::http::Method::GET
@@ -139,6 +150,7 @@ async fn guard(State(ctx): State<Context>, req: Request, next: Next) -> Response
 pub(super) fn checked(
     local: &SocketAddr,
     token: Option<&Token>,
+    https: bool,
     req: &Request,
 ) -> Result<Option<HeaderValue>, Box<Response>> {
     let host = req.headers().get(header::HOST).and_then(|h| h.to_str().ok()).unwrap_or("");
@@ -149,7 +161,7 @@ pub(super) fn checked(
             (StatusCode::MISDIRECTED_REQUEST, "this server answers to its loopback address only\n").into_response(),
         ));
     }
-    match admit(token, local.port(), req.uri(), req.headers()) {
+    match admit(token, local.port(), https, req.uri(), req.headers()) {
         Admission::In => Ok(None),
         Admission::InSetCookie(c) => Ok(Some(c)),
         Admission::Out(code, why) => {
@@ -174,7 +186,7 @@ pub(super) fn harden(h: &mut HeaderMap) {
 
 /// `GET /ws`: the page's updates, from another origin refused.
 async fn socket(State(ctx): State<Context>, headers: HeaderMap, ws: WebSocketUpgrade) -> Response {
-    if !same_origin(&headers) {
+    if !same_origin(&headers, ctx.https) {
         return (StatusCode::FORBIDDEN, "updates go to this server's own page only\n").into_response();
     }
     if ctx.shared.pages_open.load(Ordering::SeqCst) >= MAX_PAGES as u64 {
@@ -183,11 +195,13 @@ async fn socket(State(ctx): State<Context>, headers: HeaderMap, ws: WebSocketUpg
     ws.on_upgrade(move |s| page(s, ctx))
 }
 
-/// Whether a request's `Origin`, if it has one, is this server's own page.
-fn same_origin(headers: &HeaderMap) -> bool {
+/// Whether a request's `Origin`, if it has one, is this server's own page
+/// (`https://` when served over TLS, `http://` otherwise).
+fn same_origin(headers: &HeaderMap, https: bool) -> bool {
     let host = headers.get(header::HOST).and_then(|h| h.to_str().ok()).unwrap_or("");
+    let scheme = if https { "https://" } else { "http://" };
     match headers.get(header::ORIGIN) {
-        Some(origin) => origin.to_str().ok().and_then(|o| o.strip_prefix("http://")).is_some_and(|o| o == host),
+        Some(origin) => origin.to_str().ok().and_then(|o| o.strip_prefix(scheme)).is_some_and(|o| o == host),
         None => true,
     }
 }
@@ -239,7 +253,7 @@ fn mark_entry(headers: &HeaderMap, body: &[u8]) -> Result<MarkEntry, Refusal> {
 /// `POST /marks`: an event mark at the head's position, recorded; answered
 /// with the mark as recorded (201) or why not (4xx, 503).
 async fn mark(State(ctx): State<Context>, headers: HeaderMap, body: axum::body::Body) -> Response {
-    if !same_origin(&headers) {
+    if !same_origin(&headers, ctx.https) {
         return mark_refusal(StatusCode::FORBIDDEN, "marks come from this server's own page only");
     }
     let Ok(bytes) = axum::body::to_bytes(body, MAX_MARK_BODY).await else {
@@ -364,10 +378,13 @@ mod tests {
 
     #[test]
     fn marks_come_from_the_page_of_this_server() {
-        assert!(same_origin(&headers(&[("host", "127.0.0.1:8130")])));
-        assert!(same_origin(&headers(&[("host", "127.0.0.1:8130"), ("origin", "http://127.0.0.1:8130")])));
-        assert!(!same_origin(&headers(&[("host", "127.0.0.1:8130"), ("origin", "http://evil.example")])));
-        assert!(!same_origin(&headers(&[("host", "127.0.0.1:8130"), ("origin", "null")])));
+        assert!(same_origin(&headers(&[("host", "127.0.0.1:8130")]), false));
+        assert!(same_origin(&headers(&[("host", "127.0.0.1:8130"), ("origin", "http://127.0.0.1:8130")]), false));
+        assert!(!same_origin(&headers(&[("host", "127.0.0.1:8130"), ("origin", "http://evil.example")]), false));
+        assert!(!same_origin(&headers(&[("host", "127.0.0.1:8130"), ("origin", "null")]), false));
+        // Over TLS the page's origin is https://, and a plain page of the same host is another origin.
+        assert!(same_origin(&headers(&[("host", "10.0.0.2:8130"), ("origin", "https://10.0.0.2:8130")]), true));
+        assert!(!same_origin(&headers(&[("host", "10.0.0.2:8130"), ("origin", "http://10.0.0.2:8130")]), true));
     }
 
     #[test]

@@ -80,6 +80,7 @@
 pub mod access;
 mod http;
 mod hub;
+pub mod tls;
 pub mod viewer;
 
 use std::net::{IpAddr, Ipv4Addr, SocketAddr, TcpListener};
@@ -139,6 +140,8 @@ pub struct ServeOptions {
     pub token: Option<access::Token>,
     /// What the live EN 13231-3 band figures evaluate.
     pub live_bands: crate::analyze::live::bands::LiveOptions,
+    /// HTTPS (`--serve-tls`): the certificate and key, loaded; `None`: plain HTTP.
+    pub tls: Option<tls::Tls>,
 }
 
 /// Why the live view could not start.
@@ -277,6 +280,7 @@ impl std::fmt::Display for ViewSummary {
 pub struct LiveView {
     addr: SocketAddr,
     token: Option<access::Token>,
+    https: bool,
     feed: Feed,
     shared: Arc<Shared>,
     shutdown: Option<tokio::sync::oneshot::Sender<()>>,
@@ -314,18 +318,21 @@ impl LiveView {
                 marks: opts.marks.clone(),
                 placement: opts.placement,
                 token: token.clone(),
+                https: opts.tls.is_some(),
             };
+            let tls = opts.tls.clone();
             std::thread::Builder::new()
                 .name("cms-view-http".into())
                 .spawn(move || {
                     lower_priority();
-                    http::serve(listener, ctx, shutdown_rx)
+                    http::serve(listener, ctx, tls, shutdown_rx)
                 })
                 .map_err(ServeError::Start)?
         };
         Ok(LiveView {
             addr,
             token,
+            https: opts.tls.is_some(),
             feed: Feed { tx, shared: shared.clone() },
             shared,
             shutdown: Some(shutdown),
@@ -341,7 +348,7 @@ impl LiveView {
 
     /// The page's address, with the token where the view asks for one.
     pub fn url(&self) -> String {
-        access::page_url(self.addr, self.token.as_ref())
+        access::page_url(self.addr, self.token.as_ref(), self.https)
     }
 
     /// The listener's end.

@@ -37,6 +37,7 @@ use serde_json::json;
 
 use super::ServeError;
 use super::access::{Token, page_url, token_for};
+use super::tls::Tls;
 use crate::Error;
 use crate::analyze::runs::{self, Request as AnalysisRequest};
 use crate::analyze::store::{Samples, ScratchError};
@@ -381,19 +382,22 @@ fn param<T: std::str::FromStr>(query: Option<&str>, name: &str) -> Result<T, Str
 pub struct Viewer {
     addr: SocketAddr,
     token: Option<Token>,
+    https: bool,
     thread: std::thread::JoinHandle<()>,
 }
 
 impl Viewer {
     /// Serves `view` on `addr` (port 0: any free one), to whoever holds
     /// `token` where one is given, and off loopback to whoever holds a
-    /// random one ([`super::access`]).
-    pub fn start(view: View, addr: SocketAddr, token: Option<Token>) -> Result<Viewer, ServeError> {
+    /// random one ([`super::access`]); over HTTPS where `tls` is given
+    /// ([`super::tls`]).
+    pub fn start(view: View, addr: SocketAddr, token: Option<Token>, tls: Option<Tls>) -> Result<Viewer, ServeError> {
         let token = token_for(addr, token)?;
         let listener = std::net::TcpListener::bind(addr).map_err(|source| ServeError::Bind { addr, source })?;
         let local = listener.local_addr().map_err(ServeError::Start)?;
         listener.set_nonblocking(true).map_err(ServeError::Start)?;
-        let ctx = Ctx { view: Arc::new(view), local, token: token.clone() };
+        let https = tls.is_some();
+        let ctx = Ctx { view: Arc::new(view), local, token: token.clone(), https };
         let thread = std::thread::Builder::new()
             .name("cms-view".into())
             .spawn(move || {
@@ -402,11 +406,11 @@ impl Viewer {
                 };
                 rt.block_on(async move {
                     let Ok(listener) = tokio::net::TcpListener::from_std(listener) else { return };
-                    let _ = axum::serve(listener, router(ctx)).await;
+                    super::tls::serve(listener, router(ctx), tls, Arc::new(|| {})).await;
                 });
             })
             .map_err(ServeError::Start)?;
-        Ok(Viewer { addr: local, token, thread })
+        Ok(Viewer { addr: local, token, https, thread })
     }
 
     /// The address served.
@@ -416,7 +420,7 @@ impl Viewer {
 
     /// The page's address, with the token where the viewer asks for one.
     pub fn url(&self) -> String {
-        page_url(self.addr, self.token.as_ref())
+        page_url(self.addr, self.token.as_ref(), self.https)
     }
 
     /// Serves until the process ends (Ctrl-C: the viewer writes nothing).
@@ -430,6 +434,7 @@ struct Ctx {
     view: Arc<View>,
     local: SocketAddr,
     token: Option<Token>,
+    https: bool,
 }
 
 fn router(ctx: Ctx) -> Router {
@@ -493,7 +498,7 @@ async fn frame(State(ctx): State<Ctx>, req: Request) -> Response {
 /// The live view's refusals: another host name on loopback, a method
 /// other than GET or HEAD; and its headers on every response.
 async fn guard(State(ctx): State<Ctx>, req: Request, next: Next) -> Response {
-    let mut resp = match super::http::checked(&ctx.local, ctx.token.as_ref(), &req) {
+    let mut resp = match super::http::checked(&ctx.local, ctx.token.as_ref(), ctx.https, &req) {
         Err(r) => *r,
         Ok(_) if req.method() != axum::http::Method::GET && req.method() != axum::http::Method::HEAD => {
             (StatusCode::METHOD_NOT_ALLOWED, "the viewer is read-only\n").into_response()

@@ -450,6 +450,9 @@ def _job(a: argparse.Namespace, options: dict, target: store.Target) -> tuple[Ma
             client.wait_for_workers(a.workers or os.cpu_count() or 1)
         workers = len(client.nthreads())
         stage = target.begin()
+        # Other runs' staging found beside this one: what was removed, what was left and why.
+        for note in target.notes:
+            print(f"note: {note}", file=sys.stderr)
         t1 = time.perf_counter()
         run(recordings, client, options, stage, workers, m)
         t2 = time.perf_counter()

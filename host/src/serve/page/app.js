@@ -193,7 +193,7 @@ function draw() {
 }
 
 function connect() {
-  const ws = new WebSocket(`ws://${location.host}/ws`);
+  const ws = new WebSocket(`${location.protocol === 'https:' ? 'wss' : 'ws'}://${location.host}/ws`);
   ws.onopen = () => { text("conn", "live"); $("conn").className = "ok"; };
   ws.onmessage = (ev) => {
     const u = JSON.parse(ev.data);

@@ -64,6 +64,11 @@ pub(super) struct Browser {
 
 impl Browser {
     pub(super) fn start() -> Browser {
+        Browser::start_with(&[])
+    }
+
+    /// Chromium with `extra` flags besides [`FLAGS`].
+    pub(super) fn start_with(extra: &[&str]) -> Browser {
         let chromium = tool("chromium", &["/usr/bin/chromium", "/usr/bin/chromium-browser"])
             .unwrap_or_else(|| panic!("no chromium: the live view's test needs a real browser ({INSTALL})"));
         let chromedriver = tool("chromedriver", &["/usr/bin/chromedriver", "/usr/lib/chromium/chromedriver"])
@@ -81,7 +86,7 @@ impl Browser {
             thread::sleep(Duration::from_millis(50));
         }
         let profile = tempfile::tempdir().unwrap();
-        let mut args: Vec<String> = FLAGS.iter().map(|s| s.to_string()).collect();
+        let mut args: Vec<String> = FLAGS.iter().chain(extra).map(|s| s.to_string()).collect();
         args.push(format!("--user-data-dir={}", profile.path().display()));
         let caps = json!({
             "browserName": "chrome",

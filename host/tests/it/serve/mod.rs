@@ -10,6 +10,7 @@
 mod browser;
 mod feed;
 mod live_bands;
+mod tls;
 mod token;
 mod viewer;
 
@@ -28,8 +29,8 @@ use crate::common::bin;
 /// A `cms-host listen sim --serve 127.0.0.1:0 --record …` process.
 struct Listen {
     child: Child,
-    /// The page's address as printed: `http://127.0.0.1:PORT/`, with
-    /// `?token=…` where the view has one.
+    /// The page's address as printed: `http://127.0.0.1:PORT/` (`https://`
+    /// with `--serve-tls`), with `?token=…` where the view has one.
     url: String,
     /// `127.0.0.1:PORT` (also for a view bound to every address).
     host: String,
@@ -76,7 +77,8 @@ impl Listen {
                 break rest.split_whitespace().next().unwrap().to_string();
             }
         };
-        let (addr, query) = url.trim_start_matches("http://").split_once('/').unwrap();
+        let bare = url.strip_prefix("https://").or_else(|| url.strip_prefix("http://")).unwrap();
+        let (addr, query) = bare.split_once('/').unwrap();
         let host = addr.replace("0.0.0.0:", "127.0.0.1:");
         let token = query.strip_prefix("?token=").map(String::from);
         Listen { child, url, host, token, rec, stderr }

@@ -11,7 +11,7 @@ use super::browser::Browser;
 use super::*;
 
 /// The answer to one raw HTTP/1.1 request: status code and head.
-fn exchange(host: &str, request: &str) -> (u16, String) {
+pub(super) fn exchange(host: &str, request: &str) -> (u16, String) {
     let mut s = TcpStream::connect(host).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
     s.write_all(request.as_bytes()).unwrap();
@@ -30,7 +30,7 @@ fn exchange(host: &str, request: &str) -> (u16, String) {
 }
 
 /// The recording's marks: kind and text.
-fn marks_of(rec: &Path) -> Vec<(&'static str, String)> {
+pub(super) fn marks_of(rec: &Path) -> Vec<(&'static str, String)> {
     let mut marks = Vec::new();
     cms_host::recording::scan_records(rec, std::fs::File::open(rec).unwrap(), |item| {
         if let cms_host::recording::Item::Host(cms_host::recording::HostRecord::Mark(m)) = item {
