@@ -518,15 +518,19 @@ fn listen_sim_crosses_the_pty() {
 #[test]
 fn a_rate_the_simulator_cannot_render_is_named_as_its_own_limit() {
     let out = Process::new(BIN)
-        .args(["listen", "sim", "--sim-light=incoherent", "--rate", "1000", "--duration", "2"])
+        .args(["listen", "sim", "--sim-light=incoherent", "--rate", "1000", "--duration", "3"])
         .stdin(Stdio::null())
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{:?}: {err}", out.status);
     assert!(err.contains("head dropped frames: 0"), "{err}");
-    let limit = err.lines().find(|l| l.contains("simulator: rendering ")).unwrap_or_else(|| panic!("{err}"));
+    // In the summary and on the status line.
+    let limit = err.lines().find(|l| l.starts_with("listen: simulator: rendering ")).unwrap_or_else(|| panic!("{err}"));
     assert!(limit.ends_with("frames/s of 1000 (the simulator's limit, not the head's)"), "{limit}");
+    let status: Vec<&str> = err.lines().filter(|l| l.starts_with("streaming: ")).collect();
+    assert!(status.iter().all(|l| l.contains(", dropped 0,")), "{err}");
+    assert!(status.iter().any(|l| l.contains("frames/s of 1000 (the simulator's limit, not the head's)")), "{err}");
     let sim = err.lines().find(|l| l.starts_with("sim: served")).unwrap_or_else(|| panic!("{err}"));
     assert!(sim.contains("frame times passed while rendering (the simulator's limit at 1000 frames/s asked"), "{sim}");
     assert!(sim.contains(", 0 dropped by the head,"), "{sim}");

@@ -164,10 +164,15 @@ pub(crate) struct LightCache {
     pub exact_exposure: bool,
 }
 
-/// One laser's filter, phasor rings and buffers, kept between shots.
+/// One laser's filters, phasor rings and buffers, kept between shots.
 #[derive(Default)]
 struct LaserState {
-    filter: Option<(FilterKey, Filter<f32>)>,
+    /// The last filters made, the latest first ([`FILTERS_KEPT`]).
+    filters: Vec<(FilterKey, Filter<f32>)>,
+    /// Their transforms' plans, made once a size.
+    planner: Option<rustfft::FftPlanner<f32>>,
+    /// The pupil's columns of the field, transposed.
+    scratch: Vec<Complex<f32>>,
     /// Pattern `k`'s surface cells in ring `min(k, RINGS − 1)`: the first
     /// patterns are kept from shot to shot, the others drawn each shot.
     rings: Vec<PhasorRing>,
@@ -190,6 +195,12 @@ struct LaserState {
 
 /// Phasor rings per laser (their memory: a shot's cells, about 4 MB at F/4).
 const RINGS: usize = 3;
+
+/// Filters kept per laser (3.8 MB each at F/2.8). A filter is made for the
+/// line's mean depth to 0.1 mm: as the rail's height wanders across a
+/// tenth's boundary from frame to frame, the filters on either side are
+/// made once, not each time it crosses.
+const FILTERS_KEPT: usize = 3;
 
 /// What a filter was made for: grid size, samples per pixel, pupil.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -529,8 +540,17 @@ impl LaserState {
     fn coherent(&mut self, s: &TileShot, plan: &Plan, p: Pupil, exact: bool) {
         let (w, h, q) = (plan.w, plan.h, plan.q);
         let key = FilterKey { w, h, q, pupil: p };
-        if self.filter.as_ref().is_none_or(|(k, _)| *k != key) {
-            self.filter = Some((key, Filter::new(&p, q, w, h)));
+        match self.filters.iter().position(|(k, _)| *k == key) {
+            Some(0) => {}
+            Some(i) => {
+                let f = self.filters.remove(i);
+                self.filters.insert(0, f);
+            }
+            None => {
+                let planner = self.planner.get_or_insert_with(rustfft::FftPlanner::new);
+                self.filters.truncate(FILTERS_KEPT - 1);
+                self.filters.insert(0, (key, Filter::planned(planner, &p, q, w, h)));
+            }
         }
         // The illumination is fixed to the head and the surface slides under
         // it: sub-exposure m sees the field of grid rows shifted by its
@@ -569,7 +589,7 @@ impl LaserState {
                     f_row[lit_w..].fill(Complex::new(0.0, 0.0));
                 }
                 field[plan.lit_h * w..].fill(Complex::new(0.0, 0.0));
-                self.filter.as_mut().expect("made above").1.apply(field);
+                self.filters[0].1.apply_with(field, &mut self.scratch);
                 for (sums, f_row) in self.colsum.chunks_exact_mut(plan.ncols).zip(field.chunks_exact(w)) {
                     for (sum, px) in sums.iter_mut().zip(f_row.chunks_exact(q)) {
                         *sum = px.iter().map(|f| f.norm_sqr()).sum();
