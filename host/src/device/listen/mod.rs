@@ -407,7 +407,9 @@ impl Summary {
     pub fn simulator_limit(&self, frames_per_s: f64) -> Option<String> {
         let asked = f64::from(self.asked_rate_hz?);
         (self.simulated() && frames_per_s > 0.0 && frames_per_s < SIM_RATE_SHORT * asked).then(|| {
-            format!("simulator: rendering {frames_per_s:.1} frames/s of {asked} (the simulator's limit, not the head's)")
+            format!(
+                "simulator: rendering {frames_per_s:.1} frames/s of {asked} (the simulator's limit, not the head's)"
+            )
         })
     }
 }

@@ -545,7 +545,12 @@ fn optics_that_are_not_the_simulated_heads_are_refused() {
         e
     };
     let e = refused(&["--optics", "4@685"]);
-    assert!(e.contains("--optics says the optics are F/4, 685 nm, the simulated head renders F/2.8, 685 nm (its default light)"), "{e}");
+    assert!(
+        e.contains(
+            "--optics says the optics are F/4, 685 nm, the simulated head renders F/2.8, 685 nm (its default light)"
+        ),
+        "{e}"
+    );
     assert!(e.contains("--sim-light speckle=4"), "{e}");
     let e = refused(&["--optics", "2.8@650", "--sim-light", "speckle=2.8"]);
     assert!(e.contains("F/2.8, 650 nm, the simulated head renders F/2.8, 685 nm (its --sim-light)"), "{e}");
