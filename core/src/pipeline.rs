@@ -188,6 +188,9 @@ pub struct Head<const W: usize, L: LaserDriver> {
     window_ns: u64,
     window_start_us: u64,
     dropped: u32,
+    /// The part of `dropped` whose time passed before the head came to
+    /// them (its processing or its camera slower than the rate).
+    late: u32,
     window_on_us: u64,
     duty: DutyLimit,
     trigger: Trigger,
@@ -247,6 +250,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             window_ns: 0,
             window_start_us: 0,
             dropped: 0,
+            late: 0,
             window_on_us: 0,
             duty: DutyLimit::default(),
             trigger: Trigger::Timed,
@@ -267,6 +271,14 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
     /// State.
     pub fn state(&self) -> HeadState {
         self.state
+    }
+
+    /// Frames dropped because their time passed before the head came to
+    /// them — its processing, or its camera, slower than the rate: a part
+    /// of `Status::dropped_frames` (the simulated head names it as its
+    /// renderer's limit instead).
+    pub fn late_frames(&self) -> u32 {
+        self.late
     }
 
     /// Lasers currently lit.
@@ -455,6 +467,7 @@ impl<const W: usize, L: LaserDriver> Head<W, L> {
             // Frames whose time has already passed are dropped, not queued.
             let late = (now_us - self.next_frame_us) / period;
             self.dropped = self.dropped.wrapping_add(late as u32);
+            self.late = self.late.wrapping_add(late as u32);
             self.next_frame_us += (late + 1) * period;
             self.frame(now_us, camera, clock_ns, reply);
         }

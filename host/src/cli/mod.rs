@@ -99,13 +99,15 @@ fn dispatch(command: Command) -> Result<()> {
             if args.gnss.as_deref() == Some("sim") {
                 sim_port.sim_gnss = Some(cms_host::sim::gnss::GnssSimOptions::built_in(sim_port.sim_seed.unwrap_or(1)));
             }
+            // The simulated head records the optics it renders with (other
+            // optics given are refused before it starts).
+            let optics = match args.port.as_str() {
+                "sim" => cms_host::sim::head::port_optics(&sim_port, args.optics)?,
+                _ => args.optics,
+            };
             Ok(cms_host::device::qemu::with_port(&args.port, &qemu.options(), stop, |port| {
                 cms_host::sim::head::with_ports(port, &sim_port, |port, gnss| {
                     let gnss = gnss.map(str::to_string).or(args.gnss.clone());
-                    // The simulated head records the optics it renders with.
-                    let optics = args.optics.or_else(|| {
-                        (args.port == "sim").then(|| cms_host::sim::head::port_optics(&sim_port)).flatten()
-                    });
                     listen::run(&listen::ListenArgs { port: port.to_string(), gnss, optics, ..args.clone() })
                 })
             })???)

@@ -118,10 +118,12 @@ pub struct SimulateArgs {
     /// Start without the factory calibration (pixels only until one is uploaded).
     #[arg(long)]
     pub uncalibrated: bool,
-    /// The light on the rail, comma-separated: incoherent (clean stripes, the default), speckle[=F-NUMBER] (laser
+    /// The light on the rail, comma-separated: incoherent (clean stripes), speckle[=F-NUMBER] (laser
     /// speckle through the lens, F/8 if no number), patterns=K (independent speckle patterns), focus=MM (where the
     /// lens is focused), oxidation, grease, band (the running band), glints, ghost (a secondary reflection of the
-    /// middle line). Speckle's rendering can cap the frame rate: `cms-host bench render` measures it.
+    /// middle line). Speckle's rendering can cap the frame rate: `cms-host bench render` measures it. [default:
+    /// `listen sim`'s: speckle=2.8 on the reference head, laser light at the push-trolley setting; incoherent on the
+    /// paper's]
     #[arg(long, value_name = "SPEC", value_parser = parse_light)]
     pub light: Option<LightModel>,
 }
@@ -144,7 +146,7 @@ impl SimulateArgs {
             laser_gain: self.laser_gain,
             state: self.state.clone(),
             factory_calibration: !self.uncalibrated,
-            light: self.light.clone(),
+            light: Some(self.light.clone().unwrap_or_else(|| head::default_light(self.preset.into()))),
             odometer_tap: None,
         }
     }
@@ -323,6 +325,24 @@ mod tests {
         assert!(fraction("0.01").is_ok() && fraction("0.2").is_err());
         assert!(non_negative("0").is_ok() && non_negative("-1").is_err());
         assert!(speed("-500").is_ok() && speed("1e9").is_err());
+    }
+
+    /// `simulate` without `--light` renders `listen sim`'s default light.
+    #[test]
+    fn simulate_shines_the_default_light() {
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            args: SimulateArgs,
+        }
+        let light = |args: &[&str]| {
+            let cli = <Cli as clap::Parser>::try_parse_from(std::iter::once("simulate").chain(args.iter().copied()));
+            cli.unwrap().args.options().light.unwrap()
+        };
+        assert_eq!(light(&[]), head::default_light(Preset::Reference));
+        assert_eq!(light(&[]), LightModel::speckle(2.8));
+        assert_eq!(light(&["--preset", "paper"]), head::default_light(Preset::Paper));
+        assert_eq!(light(&["--light", "incoherent"]), LightModel::incoherent());
     }
 
     #[test]

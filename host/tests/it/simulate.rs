@@ -30,9 +30,13 @@ struct Sim {
 }
 
 impl Sim {
+    /// `simulate ARGS`, in incoherent light unless ARGS give one (the
+    /// profiles are compared with the clean stripes' truth).
     fn spawn(args: &[&str]) -> Sim {
+        let light = (!args.iter().any(|a| a.starts_with("--light"))).then_some("--light=incoherent");
         let mut child = Process::new(BIN)
             .arg("simulate")
+            .args(light)
             .args(args)
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
@@ -505,4 +509,29 @@ fn listen_sim_crosses_the_pty() {
     let out = Process::new(BIN).args(["listen", "/dev/null", "--sim-seed", "3"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).starts_with("error: --sim-seed"));
+}
+
+/// A simulated head asked for more frames than its renderer makes runs at
+/// the rate it sustains: the frames it could not render in time are not
+/// called dropped (the head's count stays 0), the summary names the rate
+/// as the simulator's limit, and the `sim:` line counts them as such.
+#[test]
+fn a_rate_the_simulator_cannot_render_is_named_as_its_own_limit() {
+    let out = Process::new(BIN)
+        .args(["listen", "sim", "--sim-light=incoherent", "--rate", "1000", "--duration", "3"])
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{:?}: {err}", out.status);
+    assert!(err.contains("head dropped frames: 0"), "{err}");
+    // In the summary and on the status line.
+    let limit = err.lines().find(|l| l.starts_with("listen: simulator: rendering ")).unwrap_or_else(|| panic!("{err}"));
+    assert!(limit.ends_with("frames/s of 1000 (the simulator's limit, not the head's)"), "{limit}");
+    let status: Vec<&str> = err.lines().filter(|l| l.starts_with("streaming: ")).collect();
+    assert!(status.iter().all(|l| l.contains(", dropped 0,")), "{err}");
+    assert!(status.iter().any(|l| l.contains("frames/s of 1000 (the simulator's limit, not the head's)")), "{err}");
+    let sim = err.lines().find(|l| l.starts_with("sim: served")).unwrap_or_else(|| panic!("{err}"));
+    assert!(sim.contains("frame times passed while rendering (the simulator's limit at 1000 frames/s asked"), "{sim}");
+    assert!(sim.contains(", 0 dropped by the head,"), "{sim}");
 }

@@ -41,8 +41,17 @@
 //!   stretch.
 //! * The exceedance threshold uses the floor known when the stretch was
 //!   summed, `analyze` the whole run's.
-//! * Bands whose window and edge zones are longer than the overlap (the
-//!   300–1000 mm band, 9 m) are left to `analyze`.
+//!
+//! # The 300–1000 mm band
+//!
+//! Its window and edge zones are 9 m (the shorter bands' 2.2 m): stretches
+//! cut for it would make the shorter bands' recent figures 18 m old and
+//! judging them four times dearer. So it has its own series of stretches
+//! ([`LiveBands::long`]: 18 m, each starting 9 m before the last one ends,
+//! judged every [`LONG_EVAL_EVERY_MM`]), cut and judged the same way, the
+//! shorter bands theirs; the report takes each band from its series. Until
+//! 9 m of track have stitched without a gap it is *not evaluated yet*, as
+//! `analyze` says of a record too short for it.
 //!
 //! Each figure carries its uncertainty ([`Figures`]): the spread of the
 //! window values over the independent windows the stretch holds, and
@@ -70,6 +79,12 @@ use crate::analyze::stitch::{self, Direction, FramePoints, Stitched, Stitcher};
 
 /// The stretch still open is judged again after this much new travel, mm.
 pub const EVAL_EVERY_MM: f64 = 250.0;
+/// The same for the 300–1000 mm band's series of stretches, mm (a tenth
+/// of its 5 m window: its figures move slowly).
+pub const LONG_EVAL_EVERY_MM: f64 = 500.0;
+/// Bands judged on the short stretches: 10–30, 30–100 and 100–300 mm
+/// (the others on the long ones).
+const SHORT_BANDS: usize = 3;
 /// Share of a figure stated as its systematic uncertainty: the stitch's
 /// registration inside a stretch and the filters' cut edges (≤ 1 % at
 /// two longest wavelengths, [`EDGE_WAVELENGTHS`]).
@@ -80,7 +95,8 @@ const FLAGS_KEPT: usize = 16;
 /// What the live figures evaluate.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LiveOptions {
-    /// The first `bands` of [`en13231::BANDS`] (1 to 4).
+    /// The first `bands` of [`en13231::BANDS`] (1 to 4; 4: the
+    /// 300–1000 mm band too, on stretches of its own).
     pub bands: usize,
     pub edition: Edition,
     pub stitch: stitch::Options,
@@ -88,24 +104,31 @@ pub struct LiveOptions {
 
 impl Default for LiveOptions {
     fn default() -> Self {
-        LiveOptions { bands: 3, edition: Edition::default(), stitch: stitch::Options::default() }
+        LiveOptions { bands: 4, edition: Edition::default(), stitch: stitch::Options::default() }
     }
 }
 
 impl LiveOptions {
-    /// What two stretches share: the longest band's window and its edge
-    /// zones at both ends, mm.
+    /// What two of the shorter bands' stretches share: the longest of
+    /// their windows and its edge zones at both ends, mm.
     pub fn overlap_mm(&self) -> f64 {
-        en13231::BANDS[..self.bands.clamp(1, 4)]
-            .iter()
-            .map(|b| b.window_mm + 2.0 * EDGE_WAVELENGTHS * b.hi_mm)
-            .fold(0.0, f64::max)
+        overlap_of(&self.short())
     }
 
-    /// The travel of one stretch: twice the overlap, mm.
+    /// The travel of one of the shorter bands' stretches: twice the overlap, mm.
     pub fn stretch_mm(&self) -> f64 {
         2.0 * self.overlap_mm()
     }
+
+    /// The bands judged on the short stretches.
+    fn short(&self) -> Range<usize> {
+        0..self.bands.clamp(1, SHORT_BANDS)
+    }
+}
+
+/// A window of the longest band of `bands` and its edge zones at both ends, mm.
+fn overlap_of(bands: &Range<usize>) -> f64 {
+    en13231::BANDS[bands.clone()].iter().map(|b| b.window_mm + 2.0 * EDGE_WAVELENGTHS * b.hi_mm).fold(0.0, f64::max)
 }
 
 /// A frame that would not stitch.
@@ -213,6 +236,12 @@ struct Open {
 /// The live band state of a run (module docs).
 pub struct LiveBands {
     opts: LiveOptions,
+    /// The bands this series of stretches judges.
+    span: Range<usize>,
+    /// The open stretch is judged again after this much new travel, mm.
+    every_mm: f64,
+    /// The 300–1000 mm band's own series of stretches (module docs).
+    long: Option<Box<LiveBands>>,
     current: Option<Open>,
     next: Option<Open>,
     /// The direction of travel: +1 odometer counting up, −1 down.
@@ -240,8 +269,18 @@ impl Default for LiveBands {
 
 impl LiveBands {
     pub fn new(opts: LiveOptions) -> LiveBands {
+        let long =
+            (opts.bands >= 4).then(|| Box::new(LiveBands::series(opts, SHORT_BANDS..4, LONG_EVAL_EVERY_MM, None)));
+        LiveBands::series(opts, opts.short(), EVAL_EVERY_MM, long)
+    }
+
+    /// One series of stretches, judging the bands of `span`.
+    fn series(opts: LiveOptions, span: Range<usize>, every_mm: f64, long: Option<Box<LiveBands>>) -> LiveBands {
         LiveBands {
             opts,
+            span,
+            every_mm,
+            long,
             current: None,
             next: None,
             travel: 0.0,
@@ -268,6 +307,9 @@ impl LiveBands {
         if !o.is_finite() || f.points() == 0 {
             return;
         }
+        if let Some(l) = &mut self.long {
+            l.add(f);
+        }
         self.newest_mm = o;
         if self.current.is_none() {
             self.current = self.open(o, None);
@@ -277,7 +319,8 @@ impl LiveBands {
             self.travel = (o - from).signum();
         }
         let travelled = (o - from) * self.travel;
-        let (overlap, stretch) = (self.opts.overlap_mm(), self.opts.stretch_mm());
+        let overlap = overlap_of(&self.span);
+        let stretch = 2.0 * overlap;
         if travelled >= stretch - overlap && self.next.is_none() {
             self.next = self.open(o, Some(o + self.travel * overlap / 2.0));
         }
@@ -337,7 +380,7 @@ impl LiveBands {
             self.direction = stitching.direction;
         }
         let lines: Vec<(&Stitched, [bool; 4])> =
-            stitching.lasers.iter().map(|s| (s, evaluated(s, self.opts.bands))).collect();
+            stitching.lasers.iter().map(|s| (s, evaluated(s, &self.span))).collect();
         let first = lines.first()?.0;
         let grid = crate::analyze::Grid::of_lines(&lines.iter().map(|l| l.0).collect::<Vec<_>>(), first.dx_mm);
         let want = Wanted { lines: true, mean: true, nulls: true };
@@ -357,28 +400,47 @@ impl LiveBands {
             core.floor.add(rb, a..b);
             floor.merge(&core.floor);
         }
-        core.add_piece(&piece, a..b, &floor, self.opts.bands);
+        core.add_piece(&piece, a..b, &floor, &self.span);
         let mut whole = RunSums { floor: core.floor, ..RunSums::default() };
-        whole.add_piece(&piece, 0..grid.len, &floor, self.opts.bands);
+        whole.add_piece(&piece, 0..grid.len, &floor, &self.span);
         Some((core, (whole, grid.len as f64 * grid.dx_mm)))
     }
 
     /// The figures so far: the open stretch judged again when the head
-    /// has travelled [`EVAL_EVERY_MM`] since it last was (`None` before
-    /// any calibrated frame).
+    /// has travelled [`EVAL_EVERY_MM`] since it last was (the 300–1000 mm
+    /// band's, [`LONG_EVAL_EVERY_MM`]; `None` before any calibrated frame).
     pub fn report(&mut self) -> Option<&BandsReport> {
-        let stale = self.judged_at_mm.is_none_or(|at| (self.newest_mm - at).abs() >= EVAL_EVERY_MM);
+        let stale = self.judged_at_mm.is_none_or(|at| (self.newest_mm - at).abs() >= self.every_mm);
         if stale || self.report.is_none() {
-            return self.judge_open();
+            self.judge_series();
+        }
+        self.with_long(false)
+    }
+
+    /// The figures so far, the open stretches judged now (what
+    /// [`LiveBands::report`] does when they are stale; its cost is the
+    /// `live/bands_judge` benchmark's).
+    pub fn judge_open(&mut self) -> Option<&BandsReport> {
+        self.judge_series();
+        self.with_long(true)
+    }
+
+    /// The report with the 300–1000 mm band's figures from its own series
+    /// (judged `now`, or when stale).
+    fn with_long(&mut self, now: bool) -> Option<&BandsReport> {
+        if let (Some(long), Some(report)) = (&mut self.long, &mut self.report) {
+            let span = long.span.clone();
+            let from_long = if now { long.judge_open() } else { long.report() };
+            if let Some(lr) = from_long {
+                report.take_bands(lr, &span);
+            }
         }
         self.report.as_ref()
     }
 
-    /// The figures so far, the open stretch judged now (what
-    /// [`LiveBands::report`] does when they are stale; its cost is the
-    /// `live/bands_judge` benchmark's).
-    pub fn judge_open(&mut self) -> Option<&BandsReport> {
-        let mut c = self.current.take()?;
+    /// Judges this series' open stretch now.
+    fn judge_series(&mut self) {
+        let Some(mut c) = self.current.take() else { return };
         let open = self.judge(&mut c, None);
         self.current = Some(c);
         self.judged_at_mm = Some(self.newest_mm);
@@ -390,7 +452,6 @@ impl LiveBands {
             self.last = Some(whole);
         }
         self.report = Some(self.build(&since, since_mm));
-        self.report.as_ref()
     }
 
     fn build(&self, since: &RunSums, since_mm: f64) -> BandsReport {
@@ -522,11 +583,11 @@ fn figures(s: &BandSums, sp: &Spread, band: &en13231::Band, dx_mm: f64) -> Figur
     }
 }
 
-/// Which bands a stretched line evaluates: the first `bands` of them, as its runs allow.
-fn evaluated(s: &Stitched, bands: usize) -> [bool; 4] {
+/// Which bands a stretched line evaluates: those of `span`, as its runs allow.
+fn evaluated(s: &Stitched, span: &Range<usize>) -> [bool; 4] {
     let mut e = pieces::evaluated_on(&pieces::runs(s), s.dx_mm);
-    for v in e.iter_mut().skip(bands) {
-        *v = false;
+    for (b, v) in e.iter_mut().enumerate() {
+        *v &= span.contains(&b);
     }
     e
 }
@@ -534,7 +595,7 @@ fn evaluated(s: &Stitched, bands: usize) -> [bool; 4] {
 impl RunSums {
     /// Adds a piece's lines and running band over `within` (core
     /// indices), windows exceeding over the threshold of `floor`.
-    fn add_piece(&mut self, p: &Piece, within: Range<usize>, floor: &FloorSums, bands: usize) {
+    fn add_piece(&mut self, p: &Piece, within: Range<usize>, floor: &FloorSums, bands: &Range<usize>) {
         let dx = p.grid.dx_mm;
         let k = p.band.as_ref().map_or(1, |rb| rb.lines);
         let floors = floor.bands(k.max(2), dx);
@@ -591,7 +652,7 @@ fn merge_into(s: &mut Sums4, sp: &mut [Spread; 4], o: &Sums4, osp: &[Spread; 4])
     }
 }
 
-/// Adds the first `bands` traces over `within` to the sums, windows
+/// Adds the traces of `bands` over `within` to the sums, windows
 /// exceeding over `over` (mm).
 fn add_traces(
     sums: &mut Sums4,
@@ -599,9 +660,9 @@ fn add_traces(
     traces: &[Option<BandTrace>],
     within: &Range<usize>,
     over: &[f64; 4],
-    bands: usize,
+    bands: &Range<usize>,
 ) {
-    for (b, t) in traces.iter().enumerate().take(bands) {
+    for (b, t) in traces.iter().enumerate().filter(|(b, _)| bands.contains(b)) {
         let Some(t) = t else { continue };
         let t = t.within(within.clone());
         sums[b].add_over(&en13231::BANDS[b], &t, over[b]);
@@ -615,6 +676,19 @@ fn add_traces(
 }
 
 impl BandsReport {
+    /// Takes the bands of `span` from `other` (the same run judged on
+    /// another series of stretches), line by line.
+    fn take_bands(&mut self, other: &BandsReport, span: &Range<usize>) {
+        for line in &mut self.lines {
+            let Some(theirs) = other.lines.iter().find(|l| l.laser == line.laser) else { continue };
+            for b in span.clone() {
+                if let (Some(mine), Some(t)) = (line.bands.get_mut(b), theirs.bands.get(b)) {
+                    *mine = t.clone();
+                }
+            }
+        }
+    }
+
     /// `bands 2006 since 3.9 m: 10–30 not judged (floor 21.1 µm), 30–100
     /// L0 60.1 L1 61.9 L2 61.1 µm over, …; 1 frame not stitched (last seq 1: gap)`.
     pub fn status(&self) -> String {

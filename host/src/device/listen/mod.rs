@@ -318,6 +318,8 @@ pub struct Summary {
     pub head_restarts: u32,
     /// Frames the head dropped (its last `Status`).
     pub head_dropped: u32,
+    /// The frame rate the `Start` asked for, Hz.
+    pub asked_rate_hz: Option<u16>,
     /// Lasers lit according to the head's last `Status`.
     pub lasers_on: Option<u8>,
     /// The head's last `Status` (its telemetry).
@@ -391,7 +393,31 @@ impl Summary {
         let t = self.streaming.as_secs_f64();
         if self.frames > 1 && t > 0.0 { (self.frames - 1) as f64 / t } else { 0.0 }
     }
+
+    /// Whether the head is the simulated one (its `Hello`'s board).
+    pub fn simulated(&self) -> bool {
+        self.device.as_ref().is_some_and(|d| d.board.as_str() == crate::sim::head::server::IDENTITY.board)
+    }
+
+    /// For a simulated head streaming `frames_per_s` under
+    /// [`SIM_RATE_SHORT`] of the rate asked: the rate, named as the
+    /// simulator's limit. The simulated head does not count the frames it
+    /// could not render in time as dropped (they are this computer's, not
+    /// a head's or the link's), so this is where they show.
+    pub fn simulator_limit(&self, frames_per_s: f64) -> Option<String> {
+        let asked = f64::from(self.asked_rate_hz?);
+        (self.simulated() && frames_per_s > 0.0 && frames_per_s < SIM_RATE_SHORT * asked).then(|| {
+            format!(
+                "simulator: rendering {frames_per_s:.1} frames/s of {asked} (the simulator's limit, not the head's)"
+            )
+        })
+    }
 }
+
+/// A simulated head streaming under this share of the asked rate has its
+/// rate named as the simulator's limit: a second's count of frames varies
+/// by one in thirty (3 %) at the default rate without anything lost.
+pub const SIM_RATE_SHORT: f64 = 0.97;
 
 impl fmt::Display for Summary {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -416,6 +442,9 @@ impl fmt::Display for Summary {
             self.line.second_dropped
         )?;
         writeln!(f, "elapsed: {:.3} s, {:.2} frames/s", self.elapsed.as_secs_f64(), self.frames_per_s())?;
+        if let Some(limit) = self.simulator_limit(self.frames_per_s()) {
+            writeln!(f, "{limit}")?;
+        }
         writeln!(
             f,
             "link: {} CRC errors, {} resyncs ({} decode errors, {} overflows), {} bytes discarded",

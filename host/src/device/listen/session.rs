@@ -121,6 +121,7 @@ impl Session<'_> {
             }
         }
         self.start_seq = Some(out.push(HostMsg::Start(self.opts.start)));
+        self.sum.asked_rate_hz = Some(self.opts.start.rate_hz);
         self.phase = Phase::Starting { sent: now };
     }
 
@@ -368,10 +369,17 @@ impl Session<'_> {
         }
         // The head's own report, once it has one from streaming (the one
         // answering Start has an empty window).
-        let head = match &self.sum.head {
+        let mut head = match &self.sum.head {
             Some(h) if h.frames > 0 => format!(", head {}", telemetry(h)),
             _ => String::new(),
         };
+        // A simulated head's rate, since the first frame, when the
+        // simulator cannot render the rate asked.
+        let since = self.first_profile.map_or(0.0, |t| now.saturating_duration_since(t).as_secs_f64());
+        let rate = if self.sum.frames > 1 && since >= 1.0 { (self.sum.frames - 1) as f64 / since } else { 0.0 };
+        if let Some(limit) = self.sum.simulator_limit(rate) {
+            head = format!("{head}, {limit}");
+        }
         format!(
             "{state}: {:.1} frames/s, {:.0} points/frame ({:.1} rejected), {} frames, CRC errors {}, resyncs {}, dropped {}, reconnects {}, lasers {lasers}{head}{}{}{corrugation}",
             self.window_rates.frames_per_s,

@@ -89,7 +89,8 @@ pub struct HeadOptions {
     /// whenever no calibration is kept in its state directory.
     pub factory_calibration: bool,
     /// What the rail does to the lasers' light (speckle, finish, glints,
-    /// ghosts); `None` keeps the preset's (incoherent light).
+    /// ghosts); `None` keeps the preset's scene light (incoherent: the
+    /// commands give [`default_light`] instead).
     pub light: Option<crate::sim::scene::LightModel>,
     /// Where each frame's odometer is published (µm) for a simulated GNSS
     /// receiver riding with the head ([`crate::sim::gnss`]).
@@ -231,8 +232,8 @@ pub struct SimPort {
     /// With PORT `sim`: the simulated head starts without its factory calibration.
     pub sim_uncalibrated: bool,
     /// With PORT `sim`: the light on the simulated rail (speckle, finish,
-    /// glints, ghosts); `None`: [`port_light`] (laser speckle at F/2.8 on the
-    /// reference head).
+    /// glints, ghosts); `None`: [`default_light`] (laser speckle at F/2.8 on
+    /// the reference head).
     pub sim_light: Option<crate::sim::scene::LightModel>,
     /// With PORT `sim`: a simulated GNSS receiver rides with the head
     /// ([`crate::sim::gnss`]).
@@ -285,17 +286,18 @@ fn port_options(sim: &SimPort) -> HeadOptions {
         corrugation: sim.sim_corrugation.clone(),
         roughness_um: sim.sim_roughness_um,
         factory_calibration: !sim.sim_uncalibrated,
-        light: Some(sim.sim_light.clone().unwrap_or_else(|| port_light(preset))),
+        light: Some(sim.sim_light.clone().unwrap_or_else(|| default_light(preset))),
         odometer_tap: sim.sim_gnss.as_ref().map(|_| Arc::new(AtomicI64::new(crate::sim::gnss::NO_FRAME))),
         ..HeadOptions::default()
     }
 }
 
-/// The light PORT `sim` shines without `--sim-light`: the reference head's
+/// The simulated head's light when none is asked for (`simulate` without
+/// `--light`, PORT `sim` without `--sim-light`): the reference head's
 /// lasers at the push-trolley setting of docs/light.md (speckle through the
 /// lens at F/2.8; the camera's 100 µs exposure), the paper's geometry in
 /// incoherent light (its synthetic protocol's).
-pub fn port_light(preset: Preset) -> crate::sim::scene::LightModel {
+pub fn default_light(preset: Preset) -> crate::sim::scene::LightModel {
     match preset {
         Preset::Reference => crate::sim::scene::LightModel::push_trolley(),
         Preset::Paper => crate::sim::scene::LightModel::incoherent(),
@@ -304,16 +306,42 @@ pub fn port_light(preset: Preset) -> crate::sim::scene::LightModel {
 
 /// The optics PORT `sim` records with (`listen sim`'s survey block): the
 /// F-number of the lens its speckle is rendered through and its lasers'
-/// wavelength; `None` in incoherent light (no speckle to predict a floor
-/// from) and for the paper's geometry (not the head the prediction knows).
-pub fn port_optics(sim: &SimPort) -> Option<crate::model::optics::Optics> {
+/// wavelength. Optics `given` by the user (`--optics`) must be those: the
+/// head renders its own light, so other optics would be recorded for images
+/// they did not make, and `analyze` would check the floor against them —
+/// refused, as two sources that disagree are. `None` in incoherent light
+/// (no speckle to predict a floor from: optics given are refused) and for
+/// the paper's geometry (not the head the prediction knows: optics given
+/// are kept if they are its light's).
+pub fn port_optics(
+    sim: &SimPort,
+    given: Option<crate::model::optics::Optics>,
+) -> Result<Option<crate::model::optics::Optics>, SimulateError> {
+    use crate::model::optics::Optics;
     let preset = sim.sim_preset.unwrap_or(Preset::Reference);
-    if !matches!(preset, Preset::Reference) {
-        return None;
+    let told = sim.sim_light.is_some();
+    let light = sim.sim_light.clone().unwrap_or_else(|| default_light(preset));
+    let config = match preset {
+        Preset::Reference => SimConfig::reference(),
+        Preset::Paper => SimConfig::paper(),
+    };
+    let wavelength_nm = config.lasers.first().map(|l| l.wavelength_nm);
+    let own = light.speckle.zip(wavelength_nm).and_then(|(s, w)| Optics::new(s.f_number, w).ok());
+    let whose = if told { "its --sim-light" } else { "its default light" };
+    match (given, own) {
+        (Some(g), Some(o)) if g != o => Err(SimulateError::Usage(format!(
+            "--optics says the optics are {g}, the simulated head renders {o} ({whose}): give one (--sim-light speckle={} renders F/{})",
+            g.f_number(),
+            g.f_number()
+        ))),
+        (Some(g), None) => Err(SimulateError::Usage(format!(
+            "--optics says the optics are {g}, the simulated head renders incoherent light ({whose}): no optics to record (--sim-light speckle={} renders F/{})",
+            g.f_number(),
+            g.f_number()
+        ))),
+        _ if !matches!(preset, Preset::Reference) => Ok(given),
+        _ => Ok(own),
     }
-    let light = sim.sim_light.clone().unwrap_or_else(|| port_light(preset));
-    let wavelength_nm = SimConfig::reference().lasers.first()?.wavelength_nm;
-    crate::model::optics::Optics::new(light.speckle?.f_number, wavelength_nm).ok()
 }
 
 /// Runs `f` on the device path of a `listen` PORT (see [`resolve_port`]);
@@ -522,8 +550,30 @@ mod tests {
         assert_eq!(light(&told), LightModel::incoherent());
         let paper = SimPort { sim_preset: Some(Preset::Paper), ..SimPort::default() };
         assert_eq!(light(&paper), LightModel::incoherent());
-        // `simulate` keeps the preset's light.
+        // A scene built without a light keeps the preset's.
         assert_eq!(sim_config(&HeadOptions::default()).unwrap().light, LightModel::incoherent());
+    }
+
+    /// The optics PORT `sim` records are its light's; others given are refused.
+    #[test]
+    fn port_sim_records_its_own_optics_and_refuses_others() {
+        use crate::model::optics::Optics;
+        use crate::sim::scene::LightModel;
+        let o = |f: f64, nm: f64| Optics::new(f, nm).unwrap();
+        let plain = SimPort::default();
+        assert_eq!(port_optics(&plain, None).unwrap(), Some(o(2.8, 685.0)));
+        assert_eq!(port_optics(&plain, Some(o(2.8, 685.0))).unwrap(), Some(o(2.8, 685.0)));
+        assert!(port_optics(&plain, Some(o(4.0, 685.0))).is_err());
+        let f4 = SimPort { sim_light: Some(LightModel::speckle(4.0)), ..SimPort::default() };
+        assert_eq!(port_optics(&f4, Some(o(4.0, 685.0))).unwrap(), Some(o(4.0, 685.0)));
+        let clean = SimPort { sim_light: Some(LightModel::incoherent()), ..SimPort::default() };
+        assert_eq!(port_optics(&clean, None).unwrap(), None);
+        assert!(port_optics(&clean, Some(o(2.8, 685.0))).is_err());
+        let paper = SimPort { sim_preset: Some(Preset::Paper), ..SimPort::default() };
+        assert_eq!(port_optics(&paper, None).unwrap(), None);
+        let paper_f4 = SimPort { sim_light: Some(LightModel::speckle(4.0)), ..paper };
+        assert_eq!(port_optics(&paper_f4, None).unwrap(), None);
+        assert_eq!(port_optics(&paper_f4, Some(o(4.0, 685.0))).unwrap(), Some(o(4.0, 685.0)));
     }
 
     #[test]

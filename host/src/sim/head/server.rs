@@ -266,8 +266,15 @@ pub struct ServeSummary {
     pub render_cpu: Duration,
     /// Frames the head produced (`Status::frames`).
     pub frames: u64,
-    /// Frames the head skipped because it fell behind its rate.
+    /// Frames the head dropped as a head would (the laser duty limit): its
+    /// `Status::dropped_frames` as sent, without [`ServeSummary::sim_late`].
     pub head_dropped: u64,
+    /// Frames whose time passed while the simulator was still rendering and
+    /// detecting the one before: the simulator's limit on this computer,
+    /// not the head's: left out of the `Status` it sends.
+    pub sim_late: u64,
+    /// The rate the host's last `Start` asked for, Hz (0: never started).
+    pub asked_rate_hz: u16,
     /// `Profile` messages queued for the link.
     pub profiles_sent: u64,
     /// `Profile` messages dropped because nobody read the pty.
@@ -296,9 +303,17 @@ impl ServeSummary {
 impl std::fmt::Display for ServeSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let secs = self.elapsed.as_secs_f64();
+        let limit = if self.sim_late > 0 {
+            format!(
+                ", {} frame times passed while rendering (the simulator's limit at {} frames/s asked, not the head's)",
+                self.sim_late, self.asked_rate_hz
+            )
+        } else {
+            String::new()
+        };
         write!(
             f,
-            "served {:.1} s: {} frames ({:.1}/s), {} skipped by the head, {} profiles dropped on the link, \
+            "served {:.1} s: {} frames ({:.1}/s){limit}, {} dropped by the head, {} profiles dropped on the link, \
              {} commands, {} bad host frames, {:.1} MB sent, CPU {:.2} ms/frame (head {:.2} + render {:.2}); \
              trolley held {:.1} s for the renderer; lasers off",
             secs,
@@ -470,6 +485,25 @@ fn write_loop(mut file: File, rx: mpsc::Receiver<Vec<u8>>, shared: &LinkShared) 
     }
 }
 
+/// The head's `Status` as the simulated head sends it. The frames the head
+/// was late for ([`Head::late_frames`]) are the simulator's: this computer
+/// rendering and detecting slower than the rate (the server never waits
+/// for the link), not a head's processing — the simulated camera runs at
+/// the rate the simulator sustains. They leave `dropped_frames` (which
+/// keeps what a real head drops), the host names the rate it sees as the
+/// simulator's, and the `sim:` line counts them ([`ServeSummary::sim_late`]).
+fn sim_status(s: &cms_core::protocol::Status, late: u32) -> DeviceMsg {
+    DeviceMsg::Status(cms_core::protocol::Status { dropped_frames: s.dropped_frames.wrapping_sub(late), ..*s })
+}
+
+/// Pushes the head's replies, its `Status` as [`sim_status`] makes it.
+fn push_reply(out: &mut PtyOutbox, m: &DeviceMsg, late: u32) {
+    match m {
+        DeviceMsg::Status(s) => out.push(&sim_status(s, late)),
+        m => out.push(m),
+    }
+}
+
 fn wire_to_code(e: WireError) -> ErrorCode {
     match e {
         WireError::Crc => ErrorCode::Crc,
@@ -532,11 +566,20 @@ pub fn serve<R: RowRenderer>(
         for r in decoded.drain(..) {
             if let Ok(Command { msg: HostMsg::Start(st), .. }) = &r {
                 camera.streaming_at(st.rate_hz);
+                summary.asked_rate_hz = st.rate_hz;
             }
             handle_command(&mut head, r, now_us, &camera, &mut out, opts, &mut summary);
         }
-        // The head: watchdog, due frame, status.
-        head.poll(now_us, &mut camera, &mut clock_ns, &mut |m| out.push(m));
+        // The head: watchdog, due frame, status (sent once the frames it
+        // was late for in this turn are known).
+        let mut status = None;
+        head.poll(now_us, &mut camera, &mut clock_ns, &mut |m| match m {
+            DeviceMsg::Status(s) => status = Some(*s),
+            m => out.push(m),
+        });
+        if let Some(s) = status {
+            out.push(&sim_status(&s, head.late_frames()));
+        }
 
         // The simulated lasers' log: the set lit while streaming, then off.
         let lit = head.laser_driver().take_lit();
@@ -566,7 +609,8 @@ pub fn serve<R: RowRenderer>(
     summary.elapsed = start.elapsed();
     summary.cpu = thread_cpu().saturating_sub(cpu0);
     summary.frames = status.frames as u64;
-    summary.head_dropped = status.dropped_frames as u64;
+    summary.sim_late = u64::from(head.late_frames());
+    summary.head_dropped = u64::from(status.dropped_frames.wrapping_sub(head.late_frames()));
     summary.profiles_sent = out.profiles_sent;
     summary.link_dropped_profiles = out.dropped_profiles;
     summary.link_dropped_other = out.dropped_other;
@@ -656,7 +700,8 @@ fn handle_command<R: RowRenderer>(
             let kept = head.calibration().copied();
             // An upload is kept even when it equals the factory calibration.
             let upload = matches!(cmd.msg, HostMsg::SetCalibration(_));
-            head.handle(cmd, now_us, camera, &mut |m| out.push(m));
+            let late = head.late_frames();
+            head.handle(cmd, now_us, camera, &mut |m| push_reply(out, m, late));
             if let (Some(path), Some(c)) = (&opts.calibration_file, head.calibration())
                 && (upload || Some(*c) != kept)
                 && let Err(e) = stored::save(path, c)
@@ -666,7 +711,8 @@ fn handle_command<R: RowRenderer>(
         }
         Err(e) => {
             summary.link_errors += 1;
-            head.link_error(wire_to_code(e), &mut |m| out.push(m));
+            let late = head.late_frames();
+            head.link_error(wire_to_code(e), &mut |m| push_reply(out, m, late));
         }
     }
 }

@@ -494,7 +494,8 @@ fn a_recording_says_what_optics_it_was_made_with() {
     let (lr, pr) = (laser.to_str().unwrap(), plain.to_str().unwrap());
     let state = dir.path().join("state");
     let st = state.to_str().unwrap();
-    for (r, light) in [(lr, None), (pr, Some("--sim-light=incoherent"))] {
+    // Optics given that are the head's own are recorded as its own.
+    for (r, light) in [(lr, Some("--optics=2.8@685")), (pr, Some("--sim-light=incoherent"))] {
         let mut args = vec!["listen", "sim", "--sim-state", st, "--frames", "12", "--record", r];
         args.extend(light);
         let l = run(&args);
@@ -526,6 +527,35 @@ fn a_recording_says_what_optics_it_was_made_with() {
     let e = String::from_utf8_lossy(&bad.stderr);
     assert_eq!(bad.status.code(), Some(2), "{e}");
     assert!(e.starts_with("error: ") && e.contains("f_number 0.3: a lens's F-number is 0.7 to 64"), "{e}");
+}
+
+/// `listen sim --optics` other than the simulated head's light is refused
+/// before the head starts (one line naming both; nothing recorded), in
+/// laser light, told or by default, and in incoherent light.
+#[test]
+fn optics_that_are_not_the_simulated_heads_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("x.cmsrec");
+    let r = rec.to_str().unwrap();
+    let refused = |extra: &[&str]| {
+        let mut args = vec!["listen", "sim", "--frames", "2", "--record", r];
+        args.extend(extra);
+        let e = one_line_error(&run(&args));
+        assert!(!rec.exists(), "{extra:?}: nothing recorded");
+        e
+    };
+    let e = refused(&["--optics", "4@685"]);
+    assert!(
+        e.contains(
+            "--optics says the optics are F/4, 685 nm, the simulated head renders F/2.8, 685 nm (its default light)"
+        ),
+        "{e}"
+    );
+    assert!(e.contains("--sim-light speckle=4"), "{e}");
+    let e = refused(&["--optics", "2.8@650", "--sim-light", "speckle=2.8"]);
+    assert!(e.contains("F/2.8, 650 nm, the simulated head renders F/2.8, 685 nm (its --sim-light)"), "{e}");
+    let e = refused(&["--optics", "2.8@685", "--sim-light", "incoherent"]);
+    assert!(e.contains("the simulated head renders incoherent light"), "{e}");
 }
 
 /// The README's main job within its own limits: `listen sim` at its

@@ -279,6 +279,21 @@ fn a_calibrated_head_triangulates_every_point_and_refuses_bad_calibrations() {
     assert_eq!(n, 3 * 480);
 }
 
+/// Frames whose time passed before the head came to them are dropped, not
+/// queued, and counted late (a part of the dropped frames).
+#[test]
+fn frames_the_head_is_late_for_are_dropped_and_counted_late() {
+    let (mut h, l) = head();
+    let mut cam = Cam::watching(&l);
+    h.handle(cmd(1, start(0b111, LaserPattern::Simultaneous)), 0, &cam, &mut |_| {});
+    // 10 Hz: frames due at 0, 100, 200 … ms; the head comes at 0, 350 and 400 ms.
+    for t in [0, 350_000, 400_000] {
+        h.poll(t, &mut cam, &mut || 0, &mut |_| {});
+    }
+    assert_eq!(cam.exposures, 3);
+    assert_eq!((h.late_frames(), h.status(400_000).dropped_frames), (2, 2));
+}
+
 #[test]
 fn exposure_times_rate_over_the_duty_limit_is_refused() {
     let (mut h, l) = head();

@@ -106,13 +106,18 @@ pub(crate) struct Filter<T: FftNum = f64> {
     /// phases keeps unit mean intensity: the light the pupil collects is in
     /// the stripe's peak already.
     transfer: Vec<Complex<T>>,
-    scratch: Vec<Complex<T>>,
 }
 
 impl<T: FftNum> Filter<T> {
     /// A filter for fields of `w × h` samples (`q` per pixel), row-major.
+    #[cfg(test)]
     pub fn new(pupil: &Pupil, q: usize, w: usize, h: usize) -> Filter<T> {
-        let mut planner = FftPlanner::new();
+        Filter::planned(&mut FftPlanner::new(), pupil, q, w, h)
+    }
+
+    /// [`Filter::new`], its transforms from `planner` (which keeps the
+    /// plans of the sizes it has made: the same transforms, made once).
+    pub fn planned(planner: &mut FftPlanner<T>, pupil: &Pupil, q: usize, w: usize, h: usize) -> Filter<T> {
         let freq = |k: usize, n: usize| {
             let s = if k <= n / 2 { k as f64 } else { k as f64 - n as f64 };
             s * q as f64 / n as f64
@@ -143,7 +148,6 @@ impl<T: FftNum> Filter<T> {
         let scale = 1.0 / ((w * h) as f64 * (inside.max(1) as f64 / (w * h) as f64).sqrt());
         let cast = |x: f64| T::from_f64(x).expect("a float type");
         let transfer = transfer.into_iter().map(|t| Complex::new(cast(t.re * scale), cast(t.im * scale))).collect();
-        let zero = Complex::new(cast(0.0), cast(0.0));
         let mut dead = Vec::new();
         let mut next = 0;
         for &ku in live.iter().chain(std::iter::once(&w)) {
@@ -160,34 +164,41 @@ impl<T: FftNum> Filter<T> {
             inv_w: planner.plan_fft_inverse(w),
             fwd_h: planner.plan_fft_forward(h),
             inv_h: planner.plan_fft_inverse(h),
-            scratch: vec![zero; live.len() * h],
             live,
             transfer,
         }
     }
 
     /// Images `field` (row-major, `h` rows of `w`) through the pupil, in place.
-    pub fn apply(&mut self, field: &mut [Complex<T>]) {
+    #[cfg(test)]
+    pub fn apply(&self, field: &mut [Complex<T>]) {
+        self.apply_with(field, &mut Vec::new());
+    }
+
+    /// [`Filter::apply`], the pupil's columns transposed into `scratch`
+    /// (kept by the caller across filters: its size is the filter's).
+    pub fn apply_with(&self, field: &mut [Complex<T>], scratch: &mut Vec<Complex<T>>) {
         let (w, h) = (self.w, self.h);
         assert_eq!(field.len(), w * h, "field size");
+        let zero = Complex::new(T::zero(), T::zero());
+        scratch.resize(self.live.len() * h, zero);
         self.fwd_w.process(field);
         // The live columns, transposed into `scratch` (blocks of rows, for
         // the cache).
         const B: usize = 32;
         for r0 in (0..h).step_by(B) {
             let r1 = (r0 + B).min(h);
-            for (col, &ku) in self.scratch.chunks_exact_mut(h).zip(&self.live) {
+            for (col, &ku) in scratch.chunks_exact_mut(h).zip(&self.live) {
                 for (s, f) in col[r0..r1].iter_mut().zip(field[r0 * w + ku..].iter().step_by(w)) {
                     *s = *f;
                 }
             }
         }
-        self.fwd_h.process(&mut self.scratch);
-        for (s, t) in self.scratch.iter_mut().zip(&self.transfer) {
+        self.fwd_h.process(scratch);
+        for (s, t) in scratch.iter_mut().zip(&self.transfer) {
             *s = *s * *t;
         }
-        self.inv_h.process(&mut self.scratch);
-        let zero = Complex::new(T::zero(), T::zero());
+        self.inv_h.process(scratch);
         for r0 in (0..h).step_by(B) {
             let r1 = (r0 + B).min(h);
             for row in field[r0 * w..r1 * w].chunks_exact_mut(w) {
@@ -195,7 +206,7 @@ impl<T: FftNum> Filter<T> {
                     row[d.clone()].fill(zero);
                 }
             }
-            for (col, &ku) in self.scratch.chunks_exact(h).zip(&self.live) {
+            for (col, &ku) in scratch.chunks_exact(h).zip(&self.live) {
                 for (f, s) in field[r0 * w + ku..].iter_mut().step_by(w).zip(&col[r0..r1]) {
                     *f = *s;
                 }
@@ -323,7 +334,7 @@ mod tests {
     /// the sample intensities.
     fn uniform_speckle(pupil: &Pupil, w: usize, h: usize, seed: u64) -> Vec<f64> {
         let q = pupil.samples_per_px();
-        let mut f = Filter::new(pupil, q, w, h);
+        let f = Filter::new(pupil, q, w, h);
         let mut field: Vec<Complex<f64>> =
             (0..w * h).map(|k| phasor(seed, 1, (k % w) as i64, (k / w) as i64)).collect();
         f.apply(&mut field);

@@ -164,10 +164,15 @@ pub(crate) struct LightCache {
     pub exact_exposure: bool,
 }
 
-/// One laser's filter, phasor rings and buffers, kept between shots.
+/// One laser's filters, phasor rings and buffers, kept between shots.
 #[derive(Default)]
 struct LaserState {
-    filter: Option<(FilterKey, Filter<f32>)>,
+    /// The last filters made, the latest first ([`FILTERS_KEPT`]).
+    filters: Vec<(FilterKey, Filter<f32>)>,
+    /// Their transforms' plans, made once a size.
+    planner: Option<rustfft::FftPlanner<f32>>,
+    /// The pupil's columns of the field, transposed.
+    scratch: Vec<Complex<f32>>,
     /// Pattern `k`'s surface cells in ring `min(k, RINGS − 1)`: the first
     /// patterns are kept from shot to shot, the others drawn each shot.
     rings: Vec<PhasorRing>,
@@ -183,10 +188,19 @@ struct LaserState {
     pixels: Vec<f64>,
     /// The last tile's grid: samples across, along, sub-exposures.
     grid: (usize, usize, usize),
+    /// The last shot's tile's pixels, made again into this shot's (a
+    /// tile's worth of fresh pages a frame costs as much as its sums).
+    spare: Vec<f64>,
 }
 
 /// Phasor rings per laser (their memory: a shot's cells, about 4 MB at F/4).
 const RINGS: usize = 3;
+
+/// Filters kept per laser (3.8 MB each at F/2.8). A filter is made for the
+/// line's mean depth to 0.1 mm: as the rail's height wanders across a
+/// tenth's boundary from frame to frame, the filters on either side are
+/// made once, not each time it crosses.
+const FILTERS_KEPT: usize = 3;
 
 /// What a filter was made for: grid size, samples per pixel, pupil.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -239,6 +253,12 @@ impl LightCache {
     pub fn render_shot(&mut self, key: (u64, u64, u64, u8), shots: &[Option<TileShot>]) {
         if self.lasers.len() < shots.len() {
             self.lasers.resize_with(shots.len(), LaserState::default);
+        }
+        // The last shot's tiles' memory, for this shot's.
+        for (st, old) in self.lasers.iter_mut().zip(std::mem::take(&mut self.tiles)) {
+            if let Some(t) = old {
+                st.spare = t.e;
+            }
         }
         let lit = shots.iter().flatten().count();
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
@@ -434,6 +454,17 @@ fn illumination(s: &TileShot, plan: &Plan, v: f64, out: &mut [f64], lateral: &mu
     }
 }
 
+/// The square root of the line's illumination at image row `v` (no
+/// ghosts): `√(peak · exp(−x²/2σ²)) = √peak · exp(−x²/(2 (σ√2)²))`, into `out`.
+fn line_amplitude(s: &TileShot, plan: &Plan, v: f64, out: &mut [f64]) {
+    let Some(l) = line_at(s.lines, v, s.gain_e_per_dn) else {
+        out.fill(0.0);
+        return;
+    };
+    let d0 = plan.sample_u(0) - l.c;
+    gaussian_row(out, l.peak_e.sqrt(), d0, 1.0 / plan.q as f64, l.sigma * std::f64::consts::SQRT_2, false);
+}
+
 fn has_finish(light: &LightModel) -> bool {
     light.oxidation.per_m > 0.0 || light.grease.per_m > 0.0 || light.band.is_some()
 }
@@ -461,7 +492,9 @@ impl LaserState {
         let last = (plan.u1.min(s.width_px as i64 - 1)).max(plan.u0.max(0)) as usize;
         let width = last + 1 - first;
         let norm = 1.0 / ((plan.steps * patterns * plan.q * plan.q) as f64);
-        let mut e = vec![0.0; width * h_img];
+        let mut e = std::mem::take(&mut self.spare);
+        e.clear();
+        e.resize(width * h_img, 0.0);
         for (out, src) in e.chunks_exact_mut(width).zip(self.pixels.chunks_exact(plan.ncols)) {
             let off = (first as i64 - plan.u0) as usize;
             for (o, p) in out.iter_mut().zip(&src[off..]) {
@@ -507,8 +540,17 @@ impl LaserState {
     fn coherent(&mut self, s: &TileShot, plan: &Plan, p: Pupil, exact: bool) {
         let (w, h, q) = (plan.w, plan.h, plan.q);
         let key = FilterKey { w, h, q, pupil: p };
-        if self.filter.as_ref().is_none_or(|(k, _)| *k != key) {
-            self.filter = Some((key, Filter::new(&p, q, w, h)));
+        match self.filters.iter().position(|(k, _)| *k == key) {
+            Some(0) => {}
+            Some(i) => {
+                let f = self.filters.remove(i);
+                self.filters.insert(0, f);
+            }
+            None => {
+                let planner = self.planner.get_or_insert_with(rustfft::FftPlanner::new);
+                self.filters.truncate(FILTERS_KEPT - 1);
+                self.filters.insert(0, (key, Filter::planned(planner, &p, q, w, h)));
+            }
         }
         // The illumination is fixed to the head and the surface slides under
         // it: sub-exposure m sees the field of grid rows shifted by its
@@ -547,7 +589,7 @@ impl LaserState {
                     f_row[lit_w..].fill(Complex::new(0.0, 0.0));
                 }
                 field[plan.lit_h * w..].fill(Complex::new(0.0, 0.0));
-                self.filter.as_mut().expect("made above").1.apply(field);
+                self.filters[0].1.apply_with(field, &mut self.scratch);
                 for (sums, f_row) in self.colsum.chunks_exact_mut(plan.ncols).zip(field.chunks_exact(w)) {
                     for (sum, px) in sums.iter_mut().zip(f_row.chunks_exact(q)) {
                         *sum = px.iter().map(|f| f.norm_sqr()).sum();
@@ -569,6 +611,17 @@ impl LaserState {
         self.row_e.resize(lit_w, 0.0);
         self.row_y.resize(if finish { lit_w } else { 0 }, 0.0);
         self.amp.resize(plan.lit_h * lit_w, 0.0);
+        if !finish && !s.light.ghosts.iter().any(|g| g.laser == s.laser) {
+            // The line alone: its amplitude is a Gaussian itself, drawn
+            // without a square root a sample.
+            for (i, amp) in self.amp.chunks_exact_mut(lit_w).enumerate() {
+                line_amplitude(s, plan, plan.sample_v(i as f64 - d), &mut self.row_e);
+                for (a, &e) in amp.iter_mut().zip(&self.row_e) {
+                    *a = e as f32;
+                }
+            }
+            return;
+        }
         for (i, amp) in self.amp.chunks_exact_mut(lit_w).enumerate() {
             illumination(s, plan, plan.sample_v(i as f64 - d), &mut self.row_e, &mut self.row_y);
             // Where on the rail the surface row lies (the reflectance is
@@ -593,6 +646,32 @@ fn add_pixels(colsum: &[f32], plan: &Plan, shift: usize, pixels: &mut [f64]) {
             for (o, &c) in out.iter_mut().zip(&colsum[i * ncols..(i + 1) * ncols]) {
                 *o += f64::from(c);
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::gaussian_row;
+
+    /// The line's amplitude drawn as a Gaussian of its own is the square
+    /// root of its illumination to the recurrence's own rounding (10⁻¹¹ in
+    /// the far tail), and the `f32` field's amplitudes are the same but for
+    /// a rare last bit.
+    #[test]
+    fn the_amplitude_gaussian_is_the_root_of_the_illumination() {
+        let (n, step) = (320, 1.0 / 6.0);
+        for (peak, sigma, d0) in [(180.0, 3.1, -26.0), (2.5e4, 1.2, -40.3), (7.0, 6.0, 3.0)] {
+            let (mut e, mut a) = (vec![0.0; n], vec![0.0; n]);
+            gaussian_row(&mut e, peak, d0, step, sigma, false);
+            gaussian_row(&mut a, f64::sqrt(peak), d0, step, sigma * std::f64::consts::SQRT_2, false);
+            let mut flips = 0;
+            for (e, a) in e.iter().zip(&a) {
+                let want = e.sqrt();
+                assert!((a - want).abs() <= 1e-10 * want, "{a} vs {want}");
+                flips += usize::from(*a as f32 != want as f32);
+            }
+            assert!(flips <= 3, "{flips} f32 amplitudes of {n} differ");
         }
     }
 }
