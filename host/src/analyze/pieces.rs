@@ -26,7 +26,7 @@ use super::store::ScratchError;
 use super::{Grid, Options};
 use crate::Error;
 use crate::analyze::standards::en13231::{self, BandTrace};
-use crate::analyze::standards::{Stretch, en15610};
+use crate::analyze::standards::{Stretch, en15610, wheel};
 
 /// Shortest core of a piece, mm (whole blocks are added until it is reached).
 pub const CORE_MM: f64 = 100_000.0;
@@ -119,7 +119,17 @@ pub struct PieceLine {
 impl PieceLine {
     /// The stretch read for the piece: its core and margins.
     pub fn stretch(&self, core: Range<usize>) -> Stretch<'_> {
-        Stretch { z_um: &self.ext_z_um, start: self.ext_start, core, runs: &self.runs, dx_mm: self.dx_mm }
+        self.stretch_of(&self.ext_z_um, core)
+    }
+
+    /// Other heights `z_um` over the line's stretch (its length), with the line's runs.
+    pub fn stretch_of<'a>(&'a self, z_um: &'a [f64], core: Range<usize>) -> Stretch<'a> {
+        Stretch { z_um, start: self.ext_start, core, runs: &self.runs, dx_mm: self.dx_mm }
+    }
+
+    /// The heights over the stretch read for the piece, µm.
+    pub fn ext_z_um(&self) -> &[f64] {
+        &self.ext_z_um
     }
 
     /// The line's runs cut to the grid indices `within`.
@@ -381,22 +391,57 @@ fn running_band(
         dx_mm,
         if wanted.mean { evaluate } else { &none },
     );
-    let nulls = if wanted.nulls {
-        (1..k)
+    // The nulls are always formed (EN 15610's steps read the mean's noise
+    // off them), traced only when wanted.
+    let nulls = (1..k)
+        .map(|j| {
+            let norm = ((j * (j + 1)) as f64).sqrt();
+            let n = combine(&|line| match line.cmp(&j) {
+                std::cmp::Ordering::Less => 1.0 / norm,
+                std::cmp::Ordering::Equal => -(j as f64) / norm,
+                std::cmp::Ordering::Greater => 0.0,
+            });
+            let trace = if wanted.nulls { evaluate } else { &none };
+            PieceLine::traced(MEAN_LINE + j, n, ext, core, common.to_vec(), dx_mm, trace)
+        })
+        .collect();
+    RunningBand { lines: k, mean, nulls }
+}
+
+impl RunningBand {
+    /// How EN 15610's nonlinear steps see the rail through the piece's
+    /// noise (the mean's spectrum against its noise's, which the nulls
+    /// measure: [`wheel`]).
+    pub fn rail_steps(&self, opt: &en15610::Options) -> wheel::RailSteps {
+        let nulls: Vec<&[f64]> = self.nulls.iter().map(|n| n.ext_z_um.as_slice()).collect();
+        wheel::RailSteps::measure(&self.mean.ext_z_um, &nulls, self.lines, self.mean.dx_mm, opt)
+    }
+
+    /// Noise as a line and the lines' mean see it, from the nulls, for
+    /// the floor of the lines' EN 15610 spectra: per null `j`, the mean's
+    /// noise `g = n_j/√k` and a line's `s = g + √(1 − 1/k)·n_{j+1}` (a
+    /// line is the mean plus a part independent of it: the pair has the
+    /// joint statistics of a line's noise and the mean's for lines of
+    /// equal white noise); two lines, one null: `s = n_1`, which makes the
+    /// pair's correlation `√2` times too strong. Over the stretch, NaN
+    /// where not every line has a sample.
+    pub fn noise_pairs(&self) -> Vec<(Vec<f64>, Vec<f64>)> {
+        let k = self.lines.max(2) as f64;
+        let n = self.nulls.len();
+        (0..n)
             .map(|j| {
-                let norm = ((j * (j + 1)) as f64).sqrt();
-                let n = combine(&|line| match line.cmp(&j) {
-                    std::cmp::Ordering::Less => 1.0 / norm,
-                    std::cmp::Ordering::Equal => -(j as f64) / norm,
-                    std::cmp::Ordering::Greater => 0.0,
-                });
-                PieceLine::traced(MEAN_LINE + j, n, ext, core, common.to_vec(), dx_mm, evaluate)
+                let nj = &self.nulls[j].ext_z_um;
+                let g: Vec<f64> = nj.iter().map(|v| v / k.sqrt()).collect();
+                let s = if n >= 2 {
+                    let other = &self.nulls[(j + 1) % n].ext_z_um;
+                    g.iter().zip(other).map(|(g, o)| g + (1.0 - 1.0 / k).sqrt() * o).collect()
+                } else {
+                    nj.clone()
+                };
+                (s, g)
             })
             .collect()
-    } else {
-        Vec::new()
-    };
-    RunningBand { lines: k, mean, nulls }
+    }
 }
 
 /// A block of the verdict met by a piece.
