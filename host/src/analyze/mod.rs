@@ -546,7 +546,10 @@ pub fn judge(
         pieces::walk_section(section[0].section, &lines, opts, want, &mut |p| {
             // EN 15610's nonlinear steps on the rail the lines share, their
             // effect added to each line (one line: on itself).
-            let rail = p.band.as_ref().map(|rb| rb.rail_steps(&opts.roughness).correction(rb.mean.ext_z_um(), &opts.roughness));
+            let rail = p
+                .band
+                .as_ref()
+                .map(|rb| rb.rail_steps(&opts.roughness).correction(rb.mean.ext_z_um(), &opts.roughness));
             for (k, l) in p.lines.iter().enumerate() {
                 for (((sum, t), band), over) in sums[k].iter_mut().zip(&l.bands).zip(&en13231::BANDS).zip(&line_over) {
                     if let Some(t) = t {

@@ -59,8 +59,9 @@ pub const SPIKE_CURVATURE_UM_PER_M2: f64 = -1e7;
 pub const SPIKE_EDGE_SLOPE_UM_PER_M: f64 = 5e3;
 /// Spike removal: removed when h > w²/a with this a, m.
 pub const SPIKE_A_M: f64 = 3.0;
-/// A spike is taken out of a rail estimate only where its height stands
-/// this many standard deviations of the estimate's noise over it
+/// A spike is taken out of a rail estimate only where its sharpness and
+/// height stand this many standard deviations of the estimate's noise
+/// over the criterion
 /// ([`remove_spikes_over`]): one-sided 3 × 10⁻⁷ of the normal, so that
 /// the tens of candidates a metre that noise offers the standard's
 /// criterion yield about one false spike in 50 km.
@@ -416,17 +417,31 @@ fn check_spectrum_args(longest: usize, dx_mm: f64, segment_mm: f64) -> Result<us
 /// many were removed. See the module documentation for the criteria.
 pub fn remove_spikes(z_um: &mut [f64], dx_mm: f64) -> usize {
     let mut at = Vec::new();
-    remove_spikes_over(z_um, dx_mm, 0.0, &mut at);
+    remove_spikes_over(z_um, dx_mm, SpikeNoise::default(), &mut at);
     at.len()
 }
 
-/// [`remove_spikes`], a spike taken only where its height over the line
-/// joining its edges also stands over the profile's noise,
-/// `h > `[`SPIKE_EVIDENCE_Z`]` · height_noise_um` (the standard deviation
-/// of such a height on noise alone; 0: every spike the standard's
-/// criterion finds), each spike's peak index pushed to `at`.
-pub fn remove_spikes_over(z_um: &mut [f64], dx_mm: f64, height_noise_um: f64, at: &mut Vec<usize>) {
-    let min_height_um = SPIKE_EVIDENCE_Z * height_noise_um.max(0.0);
+/// The noise of a profile as the spike criterion sees it: standard
+/// deviations, on noise alone, of a spike's height over the line joining
+/// its edges and of the second difference.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SpikeNoise {
+    pub height_um: f64,
+    pub curvature_um_per_m2: f64,
+}
+
+/// [`remove_spikes`], a spike taken only where it stands over the
+/// profile's `noise` ([`SpikeNoise`]; zero: every spike the standard's
+/// criterion finds): its second difference under the criterion's by
+/// [`SPIKE_EVIDENCE_Z`] of its noise, and its height over the line joining
+/// its edges over that many of its noise — a spike that is the rail's,
+/// not noise's nor the noise's push on a rounded crest. Each spike's peak
+/// index pushed to `at`.
+pub fn remove_spikes_over(z_um: &mut [f64], dx_mm: f64, noise: SpikeNoise, at: &mut Vec<usize>) {
+    let gate = SpikeNoise {
+        height_um: SPIKE_EVIDENCE_Z * noise.height_um.max(0.0),
+        curvature_um_per_m2: SPIKE_CURVATURE_UM_PER_M2 - SPIKE_EVIDENCE_Z * noise.curvature_um_per_m2.max(0.0),
+    };
     if check_dx(dx_mm).is_err() {
         return;
     }
@@ -439,7 +454,7 @@ pub fn remove_spikes_over(z_um: &mut [f64], dx_mm: f64, height_noise_um: f64, at
         // only guards against floating-point surprises.
         for _ in 0..y.len() {
             let before = at.len();
-            spike_pass(y, dx_m, min_height_um, &mut |i| at.push(start + i));
+            spike_pass(y, dx_m, gate, &mut |i| at.push(start + i));
             if at.len() == before {
                 break;
             }
@@ -448,7 +463,7 @@ pub fn remove_spikes_over(z_um: &mut [f64], dx_mm: f64, height_noise_um: f64, at
 }
 
 /// One scan over a run; returns the number of spikes removed.
-fn spike_pass(y: &mut [f64], dx_m: f64, min_height_um: f64, removed_at: &mut dyn FnMut(usize)) -> usize {
+fn spike_pass(y: &mut [f64], dx_m: f64, gate: SpikeNoise, removed_at: &mut dyn FnMut(usize)) -> usize {
     let n = y.len();
     let slope = |y: &[f64], j: usize| (y[j + 1] - y[j]) / dx_m;
     let mut removed = 0;
@@ -457,7 +472,7 @@ fn spike_pass(y: &mut [f64], dx_m: f64, min_height_um: f64, removed_at: &mut dyn
         let left = slope(y, i - 1);
         let right = slope(y, i);
         let d2 = (right - left) / dx_m;
-        if !(d2 < SPIKE_CURVATURE_UM_PER_M2 && left >= 0.0 && right <= 0.0) {
+        if !(d2 < gate.curvature_um_per_m2 && left >= 0.0 && right <= 0.0) {
             i += 1;
             continue;
         }
@@ -473,7 +488,7 @@ fn spike_pass(y: &mut [f64], dx_m: f64, min_height_um: f64, removed_at: &mut dyn
         let base = y[l] + (y[r] - y[l]) * (i - l) as f64 / span;
         let h_m = (y[i] - base) * 1e-6;
         let w_m = span * dx_m;
-        if h_m > w_m * w_m / SPIKE_A_M && h_m * 1e6 > min_height_um {
+        if h_m > w_m * w_m / SPIKE_A_M && h_m * 1e6 > gate.height_um {
             let (yl, yr) = (y[l], y[r]);
             for (t, v) in y[l + 1..r].iter_mut().enumerate() {
                 *v = yl + (yr - yl) * (t + 1) as f64 / span;
