@@ -311,11 +311,11 @@ pub fn measure(stitched: &[Stitched], opts: &Options, progress: &dyn Progress) -
             sums.add(band, 0..p.core.len());
             if let Some(w) = &mut welch {
                 // Noise through the processing a line goes through: its own
-                // share linearly, the mean's through EN 15610's steps.
+                // linearly, the mean's through EN 15610's steps.
                 let steps = band.rail_steps(&opts.roughness);
-                for ((line, mean), n) in band.noise_pairs().iter().zip(&band.nulls) {
-                    let correction = steps.correction(mean, &opts.roughness);
-                    spikes += w.add_corrected(&n.stretch_of(line, p.core.clone()), &correction, &opts.roughness);
+                for (j, n) in band.nulls.iter().enumerate() {
+                    let correction = steps.correction(&band.mean_noise(j), &opts.roughness);
+                    spikes += w.add_corrected(&n.stretch(p.core.clone()), &correction, &opts.roughness);
                 }
             }
             done_m += p.core.len() as f64 * p.grid.dx_mm / 1000.0;

@@ -119,12 +119,7 @@ pub struct PieceLine {
 impl PieceLine {
     /// The stretch read for the piece: its core and margins.
     pub fn stretch(&self, core: Range<usize>) -> Stretch<'_> {
-        self.stretch_of(&self.ext_z_um, core)
-    }
-
-    /// Other heights `z_um` over the line's stretch (its length), with the line's runs.
-    pub fn stretch_of<'a>(&'a self, z_um: &'a [f64], core: Range<usize>) -> Stretch<'a> {
-        Stretch { z_um, start: self.ext_start, core, runs: &self.runs, dx_mm: self.dx_mm }
+        Stretch { z_um: &self.ext_z_um, start: self.ext_start, core, runs: &self.runs, dx_mm: self.dx_mm }
     }
 
     /// The heights over the stretch read for the piece, µm.
@@ -417,30 +412,16 @@ impl RunningBand {
         wheel::RailSteps::measure(&self.mean.ext_z_um, &nulls, self.lines, self.mean.dx_mm, opt)
     }
 
-    /// Noise as a line and the lines' mean see it, from the nulls, for
-    /// the floor of the lines' EN 15610 spectra: per null `j`, the mean's
-    /// noise `g = n_j/√k` and a line's `s = g + √(1 − 1/k)·n_{j+1}` (a
-    /// line is the mean plus a part independent of it: the pair has the
-    /// joint statistics of a line's noise and the mean's for lines of
-    /// equal white noise); two lines, one null: `s = n_1`, which makes the
-    /// pair's correlation `√2` times too strong. Over the stretch, NaN
+    /// The mean's noise to put through EN 15610's steps for the floor of
+    /// the null `j`: `n_{j+1}/√k` (the next null, cyclically: the null
+    /// `j` itself passes linearly, as a line's noise does, and its
+    /// correction comes from noise independent of it with the mean's
+    /// statistics; two lines, one null: `n_1/√2`). Over the stretch, NaN
     /// where not every line has a sample.
-    pub fn noise_pairs(&self) -> Vec<(Vec<f64>, Vec<f64>)> {
+    pub fn mean_noise(&self, j: usize) -> Vec<f64> {
         let k = self.lines.max(2) as f64;
-        let n = self.nulls.len();
-        (0..n)
-            .map(|j| {
-                let nj = &self.nulls[j].ext_z_um;
-                let g: Vec<f64> = nj.iter().map(|v| v / k.sqrt()).collect();
-                let s = if n >= 2 {
-                    let other = &self.nulls[(j + 1) % n].ext_z_um;
-                    g.iter().zip(other).map(|(g, o)| g + (1.0 - 1.0 / k).sqrt() * o).collect()
-                } else {
-                    nj.clone()
-                };
-                (s, g)
-            })
-            .collect()
+        let other = &self.nulls[(j + 1) % self.nulls.len().max(1)].ext_z_um;
+        other.iter().map(|v| v / k.sqrt()).collect()
     }
 }
 
