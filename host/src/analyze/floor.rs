@@ -310,8 +310,12 @@ pub fn measure(stitched: &[Stitched], opts: &Options, progress: &dyn Progress) -
             let Some(band) = &p.band else { return Ok(()) };
             sums.add(band, 0..p.core.len());
             if let Some(w) = &mut welch {
-                for n in &band.nulls {
-                    spikes += w.add(&n.stretch(p.core.clone()), &opts.roughness);
+                // Noise through the processing a line goes through: its own
+                // linearly, the mean's through EN 15610's steps.
+                let steps = band.rail_steps(&opts.roughness);
+                for (j, n) in band.nulls.iter().enumerate() {
+                    let correction = steps.correction(&band.mean_noise(j), &opts.roughness);
+                    spikes += w.add_corrected(&n.stretch(p.core.clone()), &correction, &opts.roughness);
                 }
             }
             done_m += p.core.len() as f64 * p.grid.dx_mm / 1000.0;
@@ -484,6 +488,26 @@ mod tests {
             assert!((y.rms_mm / x.rms_mm - 1.0).abs() < 0.02, "band {b}: {} vs {}", x.rms_mm, y.rms_mm);
         }
         assert!(g.band(0).unwrap().coherence > 0.4 && g.band(1).unwrap().coherence > 0.8, "{g:?}");
+    }
+
+    /// EN 15610's nonlinear steps act on the rail the lines share: on a
+    /// smooth rail no spike is taken out of the noise, and the floor and
+    /// each line read the noise as the linear processing does (the wheel
+    /// on each line's noise lifted 50–250 mm by several dB).
+    #[test]
+    fn the_wheel_leaves_the_noise_linear() {
+        let a = survey(12_000, 27.0, &|_| 0.0, 4);
+        let f = a.floor.as_ref().unwrap();
+        assert!(f.spikes_per_m < 0.5, "{}", f.spikes_per_m);
+        let z: Vec<f64> = a.lasers[0].stitched.z.read(0..a.lasers[0].stitched.z.len()).unwrap();
+        let linear = en15610::third_octave_spectrum(&z, 1.0, en15610::MIN_SEGMENT_MM).unwrap();
+        let line = &a.lasers[0].roughness.as_ref().unwrap().spectrum;
+        for ((fb, lb), nb) in f.spectrum.as_ref().unwrap().bands.iter().zip(&line.bands).zip(&linear.bands) {
+            assert!((lb.level_db - nb.level_db).abs() < 0.5, "line {lb:?} vs linear {nb:?}");
+            if (50.0..=250.0).contains(&fb.nominal_wavelength_mm) {
+                assert!((fb.level_db - nb.level_db).abs() < 1.5, "floor {fb:?} vs linear {nb:?}");
+            }
+        }
     }
 
     /// A floor too high for a verdict: not judged, the floor and the limit

@@ -544,6 +544,12 @@ pub fn judge(
         let mut spikes = vec![0usize; section.len()];
         let want = Wanted { lines: true, mean: true, nulls: false };
         pieces::walk_section(section[0].section, &lines, opts, want, &mut |p| {
+            // EN 15610's nonlinear steps on the rail the lines share, their
+            // effect added to each line (one line: on itself).
+            let rail = p
+                .band
+                .as_ref()
+                .map(|rb| rb.rail_steps(&opts.roughness).correction(rb.mean.ext_z_um(), &opts.roughness));
             for (k, l) in p.lines.iter().enumerate() {
                 for (((sum, t), band), over) in sums[k].iter_mut().zip(&l.bands).zip(&en13231::BANDS).zip(&line_over) {
                     if let Some(t) = t {
@@ -551,7 +557,10 @@ pub fn judge(
                     }
                 }
                 if let Ok(w) = &mut welch[k] {
-                    spikes[k] += w.add(&l.stretch(p.core.clone()), &opts.roughness);
+                    spikes[k] += match &rail {
+                        Some(c) => w.add_corrected(&l.stretch(p.core.clone()), c, &opts.roughness),
+                        None => w.add(&l.stretch(p.core.clone()), &opts.roughness),
+                    };
                 }
             }
             if let Some(rb) = &p.band {

@@ -26,7 +26,7 @@ use super::store::ScratchError;
 use super::{Grid, Options};
 use crate::Error;
 use crate::analyze::standards::en13231::{self, BandTrace};
-use crate::analyze::standards::{Stretch, en15610};
+use crate::analyze::standards::{Stretch, en15610, wheel};
 
 /// Shortest core of a piece, mm (whole blocks are added until it is reached).
 pub const CORE_MM: f64 = 100_000.0;
@@ -120,6 +120,11 @@ impl PieceLine {
     /// The stretch read for the piece: its core and margins.
     pub fn stretch(&self, core: Range<usize>) -> Stretch<'_> {
         Stretch { z_um: &self.ext_z_um, start: self.ext_start, core, runs: &self.runs, dx_mm: self.dx_mm }
+    }
+
+    /// The heights over the stretch read for the piece, µm.
+    pub fn ext_z_um(&self) -> &[f64] {
+        &self.ext_z_um
     }
 
     /// The line's runs cut to the grid indices `within`.
@@ -381,22 +386,43 @@ fn running_band(
         dx_mm,
         if wanted.mean { evaluate } else { &none },
     );
-    let nulls = if wanted.nulls {
-        (1..k)
-            .map(|j| {
-                let norm = ((j * (j + 1)) as f64).sqrt();
-                let n = combine(&|line| match line.cmp(&j) {
-                    std::cmp::Ordering::Less => 1.0 / norm,
-                    std::cmp::Ordering::Equal => -(j as f64) / norm,
-                    std::cmp::Ordering::Greater => 0.0,
-                });
-                PieceLine::traced(MEAN_LINE + j, n, ext, core, common.to_vec(), dx_mm, evaluate)
-            })
-            .collect()
-    } else {
-        Vec::new()
-    };
+    // The nulls are always formed (EN 15610's steps read the mean's noise
+    // off them), traced only when wanted.
+    let nulls = (1..k)
+        .map(|j| {
+            let norm = ((j * (j + 1)) as f64).sqrt();
+            let n = combine(&|line| match line.cmp(&j) {
+                std::cmp::Ordering::Less => 1.0 / norm,
+                std::cmp::Ordering::Equal => -(j as f64) / norm,
+                std::cmp::Ordering::Greater => 0.0,
+            });
+            let trace = if wanted.nulls { evaluate } else { &none };
+            PieceLine::traced(MEAN_LINE + j, n, ext, core, common.to_vec(), dx_mm, trace)
+        })
+        .collect();
     RunningBand { lines: k, mean, nulls }
+}
+
+impl RunningBand {
+    /// How EN 15610's nonlinear steps see the rail through the piece's
+    /// noise (the mean's spectrum against its noise's, which the nulls
+    /// measure: [`wheel`]).
+    pub fn rail_steps(&self, opt: &en15610::Options) -> wheel::RailSteps {
+        let nulls: Vec<&[f64]> = self.nulls.iter().map(|n| n.ext_z_um.as_slice()).collect();
+        wheel::RailSteps::measure(&self.mean.ext_z_um, &nulls, self.lines, self.mean.dx_mm, opt)
+    }
+
+    /// The mean's noise to put through EN 15610's steps for the floor of
+    /// the null `j`: `n_{j+1}/√k` (the next null, cyclically: the null
+    /// `j` itself passes linearly, as a line's noise does, and its
+    /// correction comes from noise independent of it with the mean's
+    /// statistics; two lines, one null: `n_1/√2`). Over the stretch, NaN
+    /// where not every line has a sample.
+    pub fn mean_noise(&self, j: usize) -> Vec<f64> {
+        let k = self.lines.max(2) as f64;
+        let other = &self.nulls[(j + 1) % self.nulls.len().max(1)].ext_z_um;
+        other.iter().map(|v| v / k.sqrt()).collect()
+    }
 }
 
 /// A block of the verdict met by a piece.

@@ -314,6 +314,8 @@ impl Builder {
     /// The blocks a piece meets: summed in, and given out when whole.
     fn blocks(&mut self, p: &Piece) {
         let default = en15610::Options::default();
+        // EN 15610's nonlinear steps on the rail the lines share (the piece's noise measured once).
+        let steps = p.band.as_ref().map(|rb| (rb.rail_steps(&default), &rb.mean));
         for part in crate::analyze::pieces::blocks(p, self.v.options.block_mm) {
             if self.block.as_ref().is_none_or(|b| b.span_mm != part.span_mm) {
                 self.close_block();
@@ -329,6 +331,7 @@ impl Builder {
             }
             let Some(open) = &mut self.block else { continue };
             let core = p.core.start + part.range.start..p.core.start + part.range.end;
+            let correction = steps.as_ref().map(|(s, mean)| s.correction(&mean.masked(&part.grid), &default));
             for l in &p.lines {
                 let Some((_, sums, welch)) = open.lines.iter_mut().find(|o| o.0 == l.laser) else { continue };
                 for (sum, t) in sums.iter_mut().zip(&l.bands) {
@@ -344,7 +347,10 @@ impl Builder {
                     let runs = l.runs_within(&part.grid);
                     let stretch =
                         Stretch { z_um: &z, start: l.ext_start(), core: core.clone(), runs: &runs, dx_mm: l.dx_mm() };
-                    w.add(&stretch, &default);
+                    match &correction {
+                        Some(c) => w.add_corrected(&stretch, c, &default),
+                        None => w.add(&stretch, &default),
+                    };
                 }
             }
             if part.ends {

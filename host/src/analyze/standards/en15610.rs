@@ -50,6 +50,7 @@ use std::fmt::Write as _;
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
 
+use super::wheel::{self, Correction};
 use super::{StandardsError, Stretch, check_dx, fmt_mm, remove_mean_and_trend, run_mm, samples_for, segments};
 
 /// Spike criterion: second derivative below this, µm/m².
@@ -58,6 +59,13 @@ pub const SPIKE_CURVATURE_UM_PER_M2: f64 = -1e7;
 pub const SPIKE_EDGE_SLOPE_UM_PER_M: f64 = 5e3;
 /// Spike removal: removed when h > w²/a with this a, m.
 pub const SPIKE_A_M: f64 = 3.0;
+/// A spike is taken out of a rail estimate only where its sharpness and
+/// height stand this many standard deviations of the estimate's noise
+/// over the criterion
+/// ([`remove_spikes_over`]): one-sided 3 × 10⁻⁷ of the normal, so that
+/// the tens of candidates a metre that noise offers the standard's
+/// criterion yield about one false spike in 50 km.
+pub const SPIKE_EVIDENCE_Z: f64 = 5.0;
 /// Wheel radius of the curvature processing, mm.
 pub const WHEEL_RADIUS_MM: f64 = 375.0;
 /// EN 15610 sampling: at most this spacing, mm.
@@ -285,19 +293,34 @@ impl Welch {
         opt.segment_mm + 2.0 * opt.wheel_radius_mm + 100.0
     }
 
-    /// Processes a stretch as `opt` says and adds the segments that start
-    /// in its core; returns the spikes removed in the core.
+    /// Processes a stretch as `opt` says, the line taken as its own rail
+    /// estimate (one line: no noise to tell it from), and adds the
+    /// segments that start in its core; returns the spikes removed in the
+    /// core.
     pub fn add(&mut self, s: &Stretch, opt: &Options) -> usize {
+        self.add_corrected(s, &Correction::none(s.z_um.len()), opt)
+    }
+
+    /// Adds the segments that start in the stretch's core of the line
+    /// with the nonlinear steps' `correction` of its rail estimate added
+    /// (aligned with the stretch; where it has none, the line's own
+    /// processing stands in); returns the spikes removed in the core.
+    pub fn add_corrected(&mut self, s: &Stretch, correction: &Correction, opt: &Options) -> usize {
+        let own_needed = s.z_um.iter().zip(&correction.c_um).any(|(z, c)| z.is_finite() && !c.is_finite());
+        let own = own_needed.then(|| wheel::RailSteps::exact(self.dx_mm).correction(s.z_um, opt));
         let mut processed = s.z_um.to_vec();
-        let spikes = if opt.remove_spikes {
-            let mut at = Vec::new();
-            remove_spikes_at(&mut processed, self.dx_mm, &mut at);
-            at.iter().filter(|&&i| s.core.contains(&(s.start + i))).count()
-        } else {
-            0
-        };
-        if opt.curvature {
-            processed = curvature_process(&processed, self.dx_mm, opt.wheel_radius_mm);
+        let mut spikes = 0;
+        for (i, v) in processed.iter_mut().enumerate() {
+            let (c, at) = match &own {
+                Some(o) if !correction.c_um[i].is_finite() => (o.c_um[i], &o.spikes_at),
+                _ => (correction.c_um[i], &correction.spikes_at),
+            };
+            if c.is_finite() {
+                *v += c;
+            }
+            if at.binary_search(&i).is_ok() && s.core.contains(&(s.start + i)) {
+                spikes += 1;
+            }
         }
         let (m, hop) = (self.m, (self.m / 2).max(1));
         for run in s.runs {
@@ -394,12 +417,31 @@ fn check_spectrum_args(longest: usize, dx_mm: f64, segment_mm: f64) -> Result<us
 /// many were removed. See the module documentation for the criteria.
 pub fn remove_spikes(z_um: &mut [f64], dx_mm: f64) -> usize {
     let mut at = Vec::new();
-    remove_spikes_at(z_um, dx_mm, &mut at);
+    remove_spikes_over(z_um, dx_mm, SpikeNoise::default(), &mut at);
     at.len()
 }
 
-/// [`remove_spikes`], each spike's peak index pushed to `at`.
-fn remove_spikes_at(z_um: &mut [f64], dx_mm: f64, at: &mut Vec<usize>) {
+/// The noise of a profile as the spike criterion sees it: standard
+/// deviations, on noise alone, of a spike's height over the line joining
+/// its edges and of the second difference.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SpikeNoise {
+    pub height_um: f64,
+    pub curvature_um_per_m2: f64,
+}
+
+/// [`remove_spikes`], a spike taken only where it stands over the
+/// profile's `noise` ([`SpikeNoise`]; zero: every spike the standard's
+/// criterion finds): its second difference under the criterion's by
+/// [`SPIKE_EVIDENCE_Z`] of its noise, and its height over the line joining
+/// its edges over that many of its noise — a spike that is the rail's,
+/// not noise's nor the noise's push on a rounded crest. Each spike's peak
+/// index pushed to `at`.
+pub fn remove_spikes_over(z_um: &mut [f64], dx_mm: f64, noise: SpikeNoise, at: &mut Vec<usize>) {
+    let gate = SpikeNoise {
+        height_um: SPIKE_EVIDENCE_Z * noise.height_um.max(0.0),
+        curvature_um_per_m2: SPIKE_CURVATURE_UM_PER_M2 - SPIKE_EVIDENCE_Z * noise.curvature_um_per_m2.max(0.0),
+    };
     if check_dx(dx_mm).is_err() {
         return;
     }
@@ -412,7 +454,7 @@ fn remove_spikes_at(z_um: &mut [f64], dx_mm: f64, at: &mut Vec<usize>) {
         // only guards against floating-point surprises.
         for _ in 0..y.len() {
             let before = at.len();
-            spike_pass(y, dx_m, &mut |i| at.push(start + i));
+            spike_pass(y, dx_m, gate, &mut |i| at.push(start + i));
             if at.len() == before {
                 break;
             }
@@ -421,7 +463,7 @@ fn remove_spikes_at(z_um: &mut [f64], dx_mm: f64, at: &mut Vec<usize>) {
 }
 
 /// One scan over a run; returns the number of spikes removed.
-fn spike_pass(y: &mut [f64], dx_m: f64, removed_at: &mut dyn FnMut(usize)) -> usize {
+fn spike_pass(y: &mut [f64], dx_m: f64, gate: SpikeNoise, removed_at: &mut dyn FnMut(usize)) -> usize {
     let n = y.len();
     let slope = |y: &[f64], j: usize| (y[j + 1] - y[j]) / dx_m;
     let mut removed = 0;
@@ -430,7 +472,7 @@ fn spike_pass(y: &mut [f64], dx_m: f64, removed_at: &mut dyn FnMut(usize)) -> us
         let left = slope(y, i - 1);
         let right = slope(y, i);
         let d2 = (right - left) / dx_m;
-        if !(d2 < SPIKE_CURVATURE_UM_PER_M2 && left >= 0.0 && right <= 0.0) {
+        if !(d2 < gate.curvature_um_per_m2 && left >= 0.0 && right <= 0.0) {
             i += 1;
             continue;
         }
@@ -446,7 +488,7 @@ fn spike_pass(y: &mut [f64], dx_m: f64, removed_at: &mut dyn FnMut(usize)) -> us
         let base = y[l] + (y[r] - y[l]) * (i - l) as f64 / span;
         let h_m = (y[i] - base) * 1e-6;
         let w_m = span * dx_m;
-        if h_m > w_m * w_m / SPIKE_A_M {
+        if h_m > w_m * w_m / SPIKE_A_M && h_m * 1e6 > gate.height_um {
             let (yl, yr) = (y[l], y[r]);
             for (t, v) in y[l + 1..r].iter_mut().enumerate() {
                 *v = yl + (yr - yl) * (t + 1) as f64 / span;

@@ -33,6 +33,7 @@
 
 pub mod en13231;
 pub mod en15610;
+pub mod wheel;
 
 use std::ops::Range;
 
