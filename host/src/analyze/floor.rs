@@ -12,10 +12,12 @@
 //! common rail at all, only what differs among the lines, with the
 //! statistics of one line's noise when the lines' noises are alike. Each
 //! is run through exactly the processing a line goes through — the
-//! EN 13231-3 band filters and moving windows, EN 15610's spike removal,
-//! curvature processing and Welch spectrum — so the floor carries the
-//! nonlinear steps' effect on noise (the wheel riding on speckle's peaks,
-//! spikes that are noise), not only its linear part.
+//! EN 13231-3 band filters and moving windows, and EN 15610's Welch
+//! spectrum with the effect of its nonlinear steps, which act on the rail
+//! the lines share ([`crate::analyze::standards::wheel`]): a line's own
+//! noise passes them linearly, and what the mean's noise leaves in their
+//! effect is put into each null line from noise of the mean's statistics
+//! ([`RunningBand::mean_noise`]).
 //!
 //! What it can and cannot see (docs/noise-floor.md):
 //! * it sees speckle, sensor noise, the stitch's per-line errors and any

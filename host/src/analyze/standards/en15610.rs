@@ -21,6 +21,13 @@
 //!    the surface the wheel touches (that step followed by its reverse, a
 //!    closing); docs/corrugation-and-standards.md gives the reading and its
 //!    sources.
+//!
+//! Where a section has several lines, steps 1 and 2 act on the rail they
+//! share, not on each line's noise ([`super::wheel`]): they run on the
+//! lines' mean, despiked on evidence over its noise and denoised for the
+//! wheel, and their effect is added to each line ([`Welch::add_corrected`]).
+//! One line is its own rail estimate: the steps as above, on it.
+//!
 //! 3. **Spectrum** ([`third_octave_spectrum`]): Welch's method on segments of
 //!    at least 1 m (option, default 1 m) with 50 % overlap inside each
 //!    continuous run; per segment the mean and least-squares trend are
