@@ -47,7 +47,7 @@
 //! Its window and edge zones are 9 m (the shorter bands' 2.2 m): stretches
 //! cut for it would make the shorter bands' recent figures 18 m old and
 //! judging them four times dearer. So it has its own series of stretches
-//! ([`LiveBands::long`]: 18 m, each starting 9 m before the last one ends,
+//! (18 m, each starting 9 m before the last one ends,
 //! judged every [`LONG_EVAL_EVERY_MM`]), cut and judged the same way, the
 //! shorter bands theirs; the report takes each band from its series. Until
 //! 9 m of track have stitched without a gap it is *not evaluated yet*, as

@@ -115,8 +115,9 @@ impl<T: FftNum> Filter<T> {
         Filter::planned(&mut FftPlanner::new(), pupil, q, w, h)
     }
 
-    /// [`Filter::new`], its transforms from `planner` (which keeps the
-    /// plans of the sizes it has made: the same transforms, made once).
+    /// A filter for fields of `w × h` samples (`q` per pixel), row-major,
+    /// its transforms from `planner` (which keeps the plans of the sizes it
+    /// has made: the same transforms, made once).
     pub fn planned(planner: &mut FftPlanner<T>, pupil: &Pupil, q: usize, w: usize, h: usize) -> Filter<T> {
         let freq = |k: usize, n: usize| {
             let s = if k <= n / 2 { k as f64 } else { k as f64 - n as f64 };
@@ -175,8 +176,9 @@ impl<T: FftNum> Filter<T> {
         self.apply_with(field, &mut Vec::new());
     }
 
-    /// [`Filter::apply`], the pupil's columns transposed into `scratch`
-    /// (kept by the caller across filters: its size is the filter's).
+    /// Images `field` (row-major, `h` rows of `w`) through the pupil, in
+    /// place, the pupil's columns transposed into `scratch` (kept by the
+    /// caller across filters: its size is the filter's).
     pub fn apply_with(&self, field: &mut [Complex<T>], scratch: &mut Vec<Complex<T>>) {
         let (w, h) = (self.w, self.h);
         assert_eq!(field.len(), w * h, "field size");
