@@ -46,6 +46,10 @@
 //! response forbids other origins (`Content-Security-Policy: default-src
 //! 'none'`, scripts, styles and connections to the server itself only).
 //!
+//! With [`ServeOptions::tls`] (`--serve-tls CERT KEY`) it speaks HTTPS
+//! only ([`tls`]): the page, `wss://` and the marks over TLS, a plain HTTP
+//! request answered 400 naming the `https://` address.
+//!
 //! It binds to loopback ([`DEFAULT_ADDR`]) unless an address is given.
 //! Off loopback every request must carry the run's secret token
 //! ([`access`]): without it the page, the socket and `POST /marks` are
