@@ -220,7 +220,7 @@ fn settle(level: Estimate, floor: Option<Estimate>, limit_db: f64, capture: f64)
     }
     match floor {
         Some(f) if f.level_db >= limit_db => {
-            "the floor is over the limit: a lower floor would settle it (other light, a clean window, the laser in focus)"
+            "a lower floor would settle it (other light, a clean window, the laser in focus): the noise alone reaches the limit"
                 .into()
         }
         _ => "the rail reads at the limit: only a much longer record or a lower floor would settle it".into(),
