@@ -65,12 +65,15 @@ pub struct LineFloor {
     pub clipped: Vec<String>,
 }
 
+/// One pair's sums: per band its sum of squares (mm²) and count, and its
+/// EN 15610 Welch average.
+type Pair = ([(f64, usize); 4], Option<en15610::Welch>);
+
 /// Sums over the pairs of lines, in any order of pieces.
 #[derive(Default)]
 pub struct PairSums {
-    /// Per pair of lasers `(i, j)`, `i < j`: per band the pair's sum of
-    /// squares (mm²) and count, and its EN 15610 Welch average.
-    pairs: BTreeMap<(usize, usize), ([(f64, usize); 4], Option<en15610::Welch>)>,
+    /// Per pair of lasers `(i, j)`, `i < j`.
+    pairs: BTreeMap<(usize, usize), Pair>,
 }
 
 /// The weight of Helmert contrast `m` (from 1) on line `l`.
