@@ -180,7 +180,7 @@ impl ThirdOctave {
         self.iso3095_limit_db.map(|l| l - self.level_db)
     }
 
-    /// The ISO 3095 decision ([`detection`]): the level and its degrees
+    /// The ISO 3095 decision ([`crate::analyze::standards::detection`]): the level and its degrees
     /// of freedom over the floor and its own, against the limit (`None`:
     /// no limit for this band).
     pub fn decision(&self) -> Option<Decision> {
@@ -530,7 +530,7 @@ fn bands_of(power: &[f64], m: usize, dx_mm: f64, count: usize) -> Spectrum {
 /// holds in a Welch spectrum of periodic Hann segments (bin width `df`):
 /// the window spreads a sine over its bins as `|W(d)|²`,
 /// `W(d) = sinc(d) / (1 − d²)` at `d` bins off, which sums to 1.5 over all
-/// bins; the band takes each bin in proportion to its overlap, as [`band_power`] does.
+/// bins; the band takes each bin in proportion to its overlap, as `band_power` does.
 pub fn tone_capture(df: f64, f_lo: f64, f_hi: f64, centre: f64) -> f64 {
     let x = centre / df;
     let w2 = |d: f64| -> f64 {
@@ -574,7 +574,7 @@ fn band_power(power: &[f64], df: f64, f_lo: f64, f_hi: f64) -> f64 {
 /// (limit, margin and the decision's columns empty where ISO 3095 has no
 /// value; `floor_db` empty where the floor is not known; `rail_db` the
 /// level with the floor's power taken out and its interval
-/// ([`detection`]), empty where the reading is at or under the floor or
+/// ([`crate::analyze::standards::detection`]), empty where the reading is at or under the floor or
 /// a bound is open; `verdict` `within`, `EXCEEDS` or `not judged`).
 pub fn spectrum_csv(s: &Spectrum) -> String {
     let mut out = String::from(
