@@ -193,6 +193,10 @@ impl PairSums {
                 l.spectrum = Some(s);
             }
         }
+        // Nothing measured (the common runs too short for any band or segment): nothing to tell.
+        if out.iter().all(|l| l.bands.iter().all(Option::is_none) && l.spectrum.is_none()) {
+            return Vec::new();
+        }
         out
     }
 }

@@ -261,10 +261,11 @@ impl BandSums {
             // The RMS where the filters have settled (the windows' part): at a
             // run's ends the point reflection over one sample puts a step's
             // worth of the band's long wavelengths into noise.
-            if mn.is_finite() {
-                self.sq_mm2 += v * v;
-                self.count += 1;
+            if !mn.is_finite() {
+                continue;
             }
+            self.sq_mm2 += v * v;
+            self.count += 1;
             if band.abs_limit_mm.is_some_and(|lim| v.abs() > lim) {
                 self.abs_over += 1;
             }
