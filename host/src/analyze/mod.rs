@@ -26,6 +26,7 @@
 //! 778 MB) takes about 14 s and 52 MB (docs/benchmarks.md).
 
 pub mod floor;
+pub mod line_floor;
 pub mod live;
 pub mod marks;
 pub mod optics_floor;
@@ -513,20 +514,27 @@ pub fn judge(
     let dx = stitched.first().map_or(opts.stitch.dx_mm, |s| s.dx_mm);
     let mut verdict = reprofiling::Builder::new(&opts.verdict, dx, floor.clone());
     let edition = opts.verdict.edition;
-    let line_judgements: Vec<floor::BandJudgement> = en13231::BANDS
-        .iter()
-        .enumerate()
-        .map(|(b, band)| floor::BandJudgement::of(floor.as_ref().and_then(|f| f.band(b).copied()), edition, band))
-        .collect();
-    // 2006: a window exceeds where the rail's own mean peak-to-peak does (the floor's power taken out).
-    let over_of = |floor: Option<(&floor::Floor, usize)>| -> [f64; 4] {
-        std::array::from_fn(|b| {
-            let band = &en13231::BANDS[b];
-            let f = floor.and_then(|(f, k)| Some(f.band(b)?.of_mean(k)));
-            f.map_or(band.mean_pp_limit_mm, |f| f.threshold_mm(reprofiling::Edition::En2006, band.mean_pp_limit_mm))
-        })
+    // Each line judged against its own floor (the shared one where the lines cannot be told apart).
+    let line_judgements = |laser: usize| -> Vec<floor::BandJudgement> {
+        en13231::BANDS
+            .iter()
+            .enumerate()
+            .map(|(b, band)| {
+                floor::BandJudgement::of(floor.as_ref().and_then(|f| f.line_band(laser, b).copied()), edition, band)
+            })
+            .collect()
     };
-    let line_over = over_of(floor.as_ref().map(|f| (f, 1)));
+    // 2006: a window exceeds where the rail's own mean peak-to-peak does (the floor's power taken out).
+    let threshold = |f: Option<floor::BandFloor>, b: usize| -> f64 {
+        let band = &en13231::BANDS[b];
+        f.map_or(band.mean_pp_limit_mm, |f| f.threshold_mm(reprofiling::Edition::En2006, band.mean_pp_limit_mm))
+    };
+    let over_of = |floor: Option<&floor::Floor>, lasers: &[usize]| -> [f64; 4] {
+        std::array::from_fn(|b| threshold(floor.and_then(|f| f.running_band(b, lasers)), b))
+    };
+    let line_over = |laser: usize| -> [f64; 4] {
+        std::array::from_fn(|b| threshold(floor.as_ref().and_then(|f| f.line_band(laser, b).copied()), b))
+    };
     let mut lasers = Vec::new();
     let mut running_bands = Vec::new();
     for section in stitched.chunk_by(|a, b| a.section == b.section) {
@@ -543,7 +551,11 @@ pub fn judge(
         let mut mean_sums = [en13231::BandSums::default(); 4];
         let mut spikes = vec![0usize; section.len()];
         let want = Wanted { lines: true, mean: true, nulls: false };
-        pieces::walk_section(section[0].section, &lines, opts, want, &mut |p| {
+        let overs: Vec<[f64; 4]> = section.iter().map(|s| line_over(s.laser)).collect();
+        let numbers: Vec<usize> = section.iter().map(|s| s.laser).collect();
+        let weights = floor.as_ref().and_then(|f| f.running_band_weights(&numbers));
+        let band_over = over_of(floor.as_ref(), &numbers);
+        pieces::walk_section_weighted(section[0].section, &lines, opts, want, weights.as_deref(), &mut |p| {
             // EN 15610's nonlinear steps on the rail the lines share, their
             // effect added to each line (one line: on itself).
             let rail = p
@@ -551,7 +563,7 @@ pub fn judge(
                 .as_ref()
                 .map(|rb| rb.rail_steps(&opts.roughness).correction(rb.mean.ext_z_um(), &opts.roughness));
             for (k, l) in p.lines.iter().enumerate() {
-                for (((sum, t), band), over) in sums[k].iter_mut().zip(&l.bands).zip(&en13231::BANDS).zip(&line_over) {
+                for (((sum, t), band), over) in sums[k].iter_mut().zip(&l.bands).zip(&en13231::BANDS).zip(&overs[k]) {
                     if let Some(t) = t {
                         sum.add_over(band, t, *over);
                     }
@@ -564,7 +576,7 @@ pub fn judge(
                 }
             }
             if let Some(rb) = &p.band {
-                let over = over_of(floor.as_ref().map(|f| (f, rb.lines)));
+                let over = band_over;
                 for (((sum, t), band), over) in mean_sums.iter_mut().zip(&rb.mean.bands).zip(&en13231::BANDS).zip(&over)
                 {
                     if let Some(t) = t {
@@ -585,13 +597,13 @@ pub fn judge(
                     let mut spectrum = w.spectrum();
                     spectra.push(spectrum.clone());
                     if let Some(f) = &floor {
-                        f.mark(&mut spectrum);
+                        f.mark_line(s.laser, &mut spectrum);
                     }
                     Ok(en15610::Roughness { spectrum, spikes_removed: spikes[k] })
                 }
                 Err(e) => Err(e.clone()),
             };
-            lasers.push(LaserAnalysis { stitched: s.clone(), bands, judgements: line_judgements.clone(), roughness });
+            lasers.push(LaserAnalysis { stitched: s.clone(), bands, judgements: line_judgements(s.laser), roughness });
         }
         if section.len() >= 2 {
             running_bands.push(running_band(section, &mean_sums, &spectra, floor.as_ref(), edition));
@@ -671,10 +683,11 @@ fn running_band(
     let common = pieces::common_runs(&runs);
     let bands = summed(&en13231::plan(&common, grid.len, dx), sums);
     let k = section.len();
+    let lasers: Vec<usize> = section.iter().map(|s| s.laser).collect();
     let judgements = en13231::BANDS
         .iter()
         .enumerate()
-        .map(|(b, band)| floor::BandJudgement::of(floor.and_then(|f| Some(f.band(b)?.of_mean(k))), edition, band))
+        .map(|(b, band)| floor::BandJudgement::of(floor.and_then(|f| f.running_band(b, &lasers)), edition, band))
         .collect();
     let mut roughness = en15610::energy_average(spectra);
     if let (Some(s), Some(f)) = (&mut roughness, floor) {
@@ -711,7 +724,9 @@ impl Analysis {
         for section in self.sections() {
             let lines: Vec<(&Stitched, [bool; 4])> =
                 section.lasers.iter().map(|l| (&l.stitched, evaluated(&l.bands))).collect();
-            pieces::walk_section(section.number, &lines, &self.options, wanted, &mut f)?;
+            let lasers: Vec<usize> = section.lasers.iter().map(|l| l.stitched.laser).collect();
+            let weights = self.floor.as_ref().and_then(|f| f.running_band_weights(&lasers));
+            pieces::walk_section_weighted(section.number, &lines, &self.options, wanted, weights.as_deref(), &mut f)?;
         }
         Ok(())
     }
@@ -737,6 +752,22 @@ pub fn iso3095_not_evaluated(r: &en15610::Roughness) -> Vec<(f64, String)> {
 /// The band of highest level.
 pub fn spectrum_peak(r: &en15610::Roughness) -> Option<&en15610::ThirdOctave> {
     r.spectrum.bands.iter().max_by(|a, b| a.level_db.total_cmp(&b.level_db))
+}
+
+/// The peak's reading against the ISO 3095 limit, in words: the measured
+/// level, the rail's own with its interval, and the band's verdict —
+/// never "over the limit" unless the rail exceeds it.
+pub fn peak_words(p: &en15610::ThirdOctave) -> String {
+    let Some(d) = p.decision() else { return String::new() };
+    format!("measured {:.1} dB, rail {} dB, ISO 3095 limit {:.1} dB: {}", d.level_db, d.rail, d.limit_db, d.words())
+}
+
+/// How many third octaves with an ISO 3095 limit earn each verdict:
+/// `(exceeds, within, not judged)`.
+pub fn verdict_counts(s: &en15610::Spectrum) -> (usize, usize, usize) {
+    use standards::detection::Verdict;
+    let count = |v: Verdict| s.bands.iter().filter(|b| b.verdict() == Some(v)).count();
+    (count(Verdict::Exceeds), count(Verdict::Within), count(Verdict::NotJudged))
 }
 
 /// A length for people: whole numbers without decimals.

@@ -268,6 +268,9 @@ pub enum OpticsCheck {
         motion: Motion,
         budget: Budget,
         bands: Vec<Option<BandCheck>>,
+        /// Each line's own floor against the same prediction (laser, per
+        /// band); empty where the lines' own floors are not known.
+        lines: Vec<(usize, Vec<Option<BandCheck>>)>,
     },
 }
 
@@ -282,17 +285,22 @@ impl OpticsCheck {
         floor: Option<&Floor>,
     ) -> OpticsCheck {
         let budget = budget(optics, geometry, motion);
-        let bands = en13231::BANDS
-            .iter()
-            .enumerate()
-            .map(|(b, band)| {
-                // The measured floor holds the stitch's propagated share
-                // (`BandFloor::with_stitch`): the prediction holds it too.
-                let f = floor?.band(b)?;
-                Some(BandCheck::of((budget.band_rms_um(band) * 1e-3).hypot(f.stitch_rms_mm), f.rms_mm))
+        // The measured floor holds the stitch's propagated share
+        // (`BandFloor::with_stitch`): the prediction holds it too.
+        let check = |b: usize, f: Option<&crate::analyze::floor::BandFloor>| {
+            let f = f?;
+            Some(BandCheck::of((budget.band_rms_um(&en13231::BANDS[b]) * 1e-3).hypot(f.stitch_rms_mm), f.rms_mm))
+        };
+        let bands = (0..en13231::BANDS.len()).map(|b| check(b, floor?.band(b))).collect();
+        let lines = floor
+            .map(|f| {
+                f.lines_own
+                    .iter()
+                    .map(|l| (l.laser, (0..en13231::BANDS.len()).map(|b| check(b, l.bands[b].as_ref())).collect()))
+                    .collect()
             })
-            .collect();
-        OpticsCheck::Checked { optics, source, geometry, motion, budget, bands }
+            .unwrap_or_default();
+        OpticsCheck::Checked { optics, source, geometry, motion, budget, bands, lines }
     }
 }
 

@@ -205,7 +205,23 @@ pub fn walk_section(
     wanted: Wanted,
     f: &mut dyn FnMut(&Piece) -> Result<(), Error>,
 ) -> Result<(), Error> {
-    let Some(s) = Laid::new(section, lines, wanted) else { return Ok(()) };
+    walk_section_weighted(section, lines, opts, wanted, None, f)
+}
+
+/// [`walk_section`], the running band's profile in each EN 13231-3 band
+/// the lines weighted as `weights` says (per line, per band, summing to
+/// one over the lines: [`crate::analyze::floor::Floor::running_band_weights`]);
+/// `None`: their plain mean.
+pub fn walk_section_weighted(
+    section: usize,
+    lines: &[(&Stitched, [bool; 4])],
+    opts: &Options,
+    wanted: Wanted,
+    weights: Option<&[[f64; 4]]>,
+    f: &mut dyn FnMut(&Piece) -> Result<(), Error>,
+) -> Result<(), Error> {
+    let Some(mut s) = Laid::new(section, lines, wanted) else { return Ok(()) };
+    s.weights = weights.filter(|w| w.len() == lines.len()).map(<[[f64; 4]]>::to_vec);
     let margin = (margin_mm(opts) / s.grid.dx_mm).ceil() as usize;
     for core in cores(&s.grid, opts) {
         let ext = core.start.saturating_sub(margin)..(core.end + margin).min(s.grid.len);
@@ -241,6 +257,8 @@ struct Laid<'a> {
     combine: bool,
     common: Vec<Range<usize>>,
     common_bands: [bool; 4],
+    /// Per line, per band: its weight in the running band's profile (`None`: the plain mean).
+    weights: Option<Vec<[f64; 4]>>,
 }
 
 impl<'a> Laid<'a> {
@@ -259,7 +277,7 @@ impl<'a> Laid<'a> {
         let combine = (wanted.mean || wanted.nulls) && lines.len() >= 2;
         let common = if combine { common_runs(&line_runs) } else { Vec::new() };
         let common_bands = evaluated_on(&common, dx);
-        Some(Laid { section, lines, wanted, grid, line_runs, combine, common, common_bands })
+        Some(Laid { section, lines, wanted, grid, line_runs, combine, common, common_bands, weights: None })
     }
 
     /// The piece of `core`, its lines read over `ext`.
@@ -284,7 +302,9 @@ impl<'a> Laid<'a> {
             }
         }
         if self.combine {
-            piece.band = Some(running_band(&read, &ext, &core, &self.common, dx, &self.common_bands, self.wanted));
+            let weights = self.weights.as_deref();
+            piece.band =
+                Some(running_band(&read, &ext, &core, &self.common, dx, &self.common_bands, self.wanted, weights));
         }
         Ok(piece)
     }
@@ -352,8 +372,10 @@ pub fn evaluated_on(runs: &[Range<usize>], dx_mm: f64) -> [bool; 4] {
 }
 
 /// The running band of a piece from its lines' stretches `z` (each over
-/// `ext`): the mean and the Helmert contrasts
+/// `ext`): the mean (in each band the lines weighted by `weights` where
+/// given) and the Helmert contrasts
 /// `n_j = (z_0 + … + z_{j−1} − j·z_j) / √(j(j+1))`, NaN where a line has none.
+#[allow(clippy::too_many_arguments)]
 fn running_band(
     z: &[Vec<f64>],
     ext: &Range<usize>,
@@ -362,6 +384,7 @@ fn running_band(
     dx_mm: f64,
     evaluate: &[bool; 4],
     wanted: Wanted,
+    weights: Option<&[[f64; 4]]>,
 ) -> RunningBand {
     let k = z.len();
     let none = [false; 4];
@@ -376,16 +399,32 @@ fn running_band(
             })
             .collect()
     };
-    let mean = combine(&|_| 1.0 / k as f64);
-    let mean = PieceLine::traced(
-        MEAN_LINE,
-        mean,
-        ext,
-        core,
-        common.to_vec(),
-        dx_mm,
-        if wanted.mean { evaluate } else { &none },
-    );
+    let plain = combine(&|_| 1.0 / k as f64);
+    let mean = match weights {
+        Some(w) if wanted.mean => {
+            // Each band traced from its own weighted profile (the filters are per band).
+            let mut mean = PieceLine::traced(MEAN_LINE, plain, ext, core, common.to_vec(), dx_mm, &none);
+            for (b, &yes) in evaluate.iter().enumerate() {
+                let only: [bool; 4] = std::array::from_fn(|c| c == b && yes);
+                if !yes {
+                    continue;
+                }
+                let weighted = combine(&|line| w[line][b]);
+                let mut t = PieceLine::traced(MEAN_LINE, weighted, ext, core, common.to_vec(), dx_mm, &only);
+                mean.bands[b] = t.bands[b].take();
+            }
+            mean
+        }
+        _ => PieceLine::traced(
+            MEAN_LINE,
+            plain,
+            ext,
+            core,
+            common.to_vec(),
+            dx_mm,
+            if wanted.mean { evaluate } else { &none },
+        ),
+    };
     // The nulls are always formed (EN 15610's steps read the mean's noise
     // off them), traced only when wanted.
     let nulls = (1..k)
@@ -565,7 +604,7 @@ mod tests {
                     .spectrum
                     .bands
                     .iter()
-                    .filter(|b| b.exceeds() == Some(true))
+                    .filter(|b| b.verdict() == Some(crate::analyze::standards::detection::Verdict::Exceeds))
                     .map(|b| b.nominal_wavelength_mm)
                     .collect();
                 e.sort_by(|a, b| b.total_cmp(a));

@@ -43,6 +43,7 @@ use super::chainage;
 use super::floor::{BandJudgement, Floor};
 use super::pieces::Piece;
 use crate::analyze::standards::Stretch;
+use crate::analyze::standards::detection::Verdict;
 use crate::analyze::standards::{en13231, en15610};
 
 pub use crate::analyze::standards::en13231::Edition;
@@ -117,12 +118,13 @@ pub struct Block {
     /// Per band (in [`en13231::BANDS`] order): RMS of the band-filtered
     /// displacement over the block, largest over the lines, mm (`None` where not evaluated).
     pub rms_mm: Vec<Option<f64>>,
-    /// EN 15610 bands over the ISO 3095 limit (`None`: no spectrum): the
-    /// lines' spectra energy-averaged (EN 15610's lines across the
-    /// running band), judged where they stand over the noise floor.
+    /// EN 15610 third octaves that exceed the ISO 3095 limit (`None`: no
+    /// spectrum): the lines' spectra energy-averaged (EN 15610's lines
+    /// across the running band), the rail's own level over the limit with
+    /// confidence ([`crate::analyze::standards::detection`]).
     pub iso3095_exceeded: Option<Vec<f64>>,
-    /// EN 15610 bands over the ISO 3095 limit but within
-    /// [`en15610::FLOOR_MARGIN_DB`] of the floor: not judged.
+    /// EN 15610 third octaves neither within nor exceeding: not judged
+    /// (the floor and the block's length cannot tell).
     pub iso3095_not_judged: Vec<f64>,
     /// Per band: one line's noise floor RMS, mm (`None`: not known).
     pub floor_rms_mm: Vec<Option<f64>>,
@@ -186,7 +188,7 @@ impl Builder {
                 exceeding_mm: 0.0,
                 not_evaluated: None,
                 judgement: BandJudgement::of(
-                    floor.as_ref().and_then(|f| Some(f.band(b)?.of_mean(f.lines))),
+                    floor.as_ref().and_then(|f| f.running_band(b, &f.lasers())),
                     opts.edition,
                     band,
                 ),
@@ -384,11 +386,11 @@ impl Builder {
         if rms.iter().all(Option::is_none) && spectrum.is_none() {
             return;
         }
-        let over = |judged: bool| -> Vec<f64> {
+        let over = |verdict: Verdict| -> Vec<f64> {
             let mut e: Vec<f64> = spectrum
                 .iter()
                 .flat_map(|s| &s.bands)
-                .filter(|b| b.judged() == judged && b.iso3095_limit_db.is_some_and(|l| b.level_db > l))
+                .filter(|b| b.verdict() == Some(verdict))
                 .map(|b| b.nominal_wavelength_mm)
                 .collect();
             e.sort_by(|a, b| b.total_cmp(a));
@@ -401,8 +403,8 @@ impl Builder {
             start_mm,
             end_mm,
             rms_mm: rms,
-            iso3095_exceeded: spectrum.as_ref().map(|_| over(true)),
-            iso3095_not_judged: over(false),
+            iso3095_exceeded: spectrum.as_ref().map(|_| over(Verdict::Exceeds)),
+            iso3095_not_judged: over(Verdict::NotJudged),
             floor_rms_mm,
         });
     }
@@ -526,11 +528,12 @@ fn describe_blocks(v: &ReprofilingVerdict, s: &mut String) {
         let list = |e: &[f64]| e.iter().map(|w| format!("{w}")).collect::<Vec<_>>().join(", ");
         let mut iso = match &b.iso3095_exceeded {
             None => "no spectrum".to_string(),
-            Some(e) if e.is_empty() => "ISO 3095 pass".to_string(),
-            Some(e) => format!("ISO 3095 FAIL at {} mm", list(e)),
+            Some(e) if e.is_empty() && b.iso3095_not_judged.is_empty() => "ISO 3095 within".to_string(),
+            Some(e) if e.is_empty() => "ISO 3095: none exceeds".to_string(),
+            Some(e) => format!("ISO 3095 EXCEEDS at {} mm", list(e)),
         };
         if !b.iso3095_not_judged.is_empty() {
-            let _ = write!(iso, " (not judged at the noise floor: {} mm)", list(&b.iso3095_not_judged));
+            let _ = write!(iso, " (not judged: {} mm)", list(&b.iso3095_not_judged));
         }
         let _ = writeln!(s, "  {} – {}: {}; {iso}", chainage(b.start_mm), chainage(b.end_mm), rms.join(" / "));
     }

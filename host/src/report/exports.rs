@@ -183,11 +183,13 @@ pub fn profile_table(source: &Source, a: &Analysis) -> Result<Table, Error> {
 
 /// The blocks: `source`, `start_chainage_mm`, `end_chainage_mm`,
 /// `rms_um_LO_HI` per band (largest line; null where not evaluated),
-/// `iso3095_pass` (null: no spectrum), `iso3095_exceeded_mm` (a list of
-/// the one-third-octave wavelengths over the limit; empty on a pass, null
-/// without a spectrum), `floor_rms_um_LO_HI` per band (one line's noise
-/// floor; null where not known), `iso3095_not_judged_mm` (the wavelengths
-/// over the limit but within 3 dB of the floor: not judged).
+/// `iso3095_pass` (null: no spectrum; true: no third octave exceeds),
+/// `iso3095_exceeded_mm` (the one-third-octave wavelengths whose rail,
+/// the floor's power taken out, exceeds the limit with confidence; empty
+/// when none does, null without a spectrum), `floor_rms_um_LO_HI` per
+/// band (one line's noise floor; null where not known),
+/// `iso3095_not_judged_mm` (the wavelengths neither within nor exceeding:
+/// not judged, `crate::analyze::standards::detection`).
 pub fn blocks_table(source: &Source, a: &Analysis) -> Table {
     let b = &a.verdict.blocks;
     let n = b.len();

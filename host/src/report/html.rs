@@ -234,11 +234,12 @@ fn blocks(v: &reprofiling::ReprofilingVerdict) -> String {
             let list = |e: &[f64]| e.iter().map(|w| w.to_string()).collect::<Vec<_>>().join(", ");
             let mut iso = match &b.iso3095_exceeded {
                 None => "no spectrum".into(),
-                Some(e) if e.is_empty() => "pass".into(),
-                Some(e) => format!("FAIL at {} mm", list(e)),
+                Some(e) if e.is_empty() && b.iso3095_not_judged.is_empty() => "within".into(),
+                Some(e) if e.is_empty() => "none exceeds".into(),
+                Some(e) => format!("EXCEEDS at {} mm", list(e)),
             };
             if !b.iso3095_not_judged.is_empty() {
-                let _ = write!(iso, "; not judged at the noise floor: {} mm", list(&b.iso3095_not_judged));
+                let _ = write!(iso, "; not judged: {} mm", list(&b.iso3095_not_judged));
             }
             r.push(iso);
             r
@@ -509,6 +510,7 @@ fn floor(a: &Analysis) -> String {
         ],
         &rows,
     ));
+    s.push_str(&line_floors(f));
     s.push_str(&super::optics::html(a));
     for rb in &a.running_bands {
         let _ = writeln!(s, "<h4>Running band of section {}: the mean of {} lines</h4>", rb.section, rb.lines);
@@ -517,6 +519,40 @@ fn floor(a: &Analysis) -> String {
             let _ = writeln!(s, "<p>EN 15610: the {} lines' spectra energy-averaged.</p>", rb.lines);
             s.push_str(&roughness(&Ok(en15610::Roughness { spectrum: sp.clone(), spikes_removed: 0 })));
         }
+    }
+    s
+}
+
+/// Each line's own floor (from the pairs of lines) and the line whose
+/// floor stands out, with its likely causes.
+fn line_floors(f: &crate::analyze::floor::Floor) -> String {
+    use crate::analyze::line_floor::{LIKELY_CAUSES, MIN_SHARE};
+    let mut s = String::new();
+    if f.lines_own.is_empty() {
+        return s;
+    }
+    let mut head = vec!["line".to_string()];
+    head.extend(en13231::BANDS.iter().map(|b| format!("{}, RMS µm", band_name(b))));
+    head.push(format!("clipped at {:.0} dB of the mean", 10.0 * MIN_SHARE.log10()));
+    let head: Vec<&str> = head.iter().map(String::as_str).collect();
+    let rows: Vec<Vec<String>> = f
+        .lines_own
+        .iter()
+        .map(|l| {
+            let mut r = vec![l.laser.to_string()];
+            r.extend(l.bands.iter().map(|b| b.map_or("-".into(), |b| format!("{:.2}", b.rms_mm * 1000.0))));
+            r.push(if l.clipped.is_empty() { "-".into() } else { l.clipped.join(", ") });
+            r
+        })
+        .collect();
+    s.push_str("<p>Each line's own floor, from the pairs of lines (each line is judged against its own):</p>\n");
+    s.push_str(&table("line-floors", &head, &rows));
+    if let Some((laser, db)) = f.standing_out() {
+        let _ = writeln!(
+            s,
+            "<p class=\"note\">Line {laser}'s floor stands {db:.1} dB over the other lines' (median over the bands): likely {}.</p>",
+            escape(LIKELY_CAUSES)
+        );
     }
     s
 }
@@ -666,19 +702,21 @@ fn roughness(r: &Result<en15610::Roughness, StandardsError>) -> String {
         .iter()
         .map(|b| {
             let dash = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
+            let d = b.decision();
             vec![
                 fmt_mm(b.nominal_wavelength_mm),
                 format!("{:.1}", b.level_db),
                 dash(b.floor_db),
+                d.as_ref().map_or("-".into(), |d| d.rail.to_string()),
                 dash(b.iso3095_limit_db),
-                dash(b.margin_db()),
-                b.verdict(),
+                d.map_or("-".into(), |d| d.words()),
             ]
         })
         .collect();
+    let rail_head = format!("rail, dB [{} % interval]", crate::analyze::standards::detection::CONFIDENCE_PERCENT);
     s.push_str(&table(
         "spectrum",
-        &["wavelength, mm", "level, dB", "noise floor, dB", "ISO 3095 limit, dB", "margin, dB", "verdict"],
+        &["wavelength, mm", "level, dB", "noise floor, dB", &rail_head, "ISO 3095 limit, dB", "verdict"],
         &rows,
     ));
     let missing = crate::analyze::iso3095_not_evaluated(r);
@@ -687,21 +725,17 @@ fn roughness(r: &Result<en15610::Roughness, StandardsError>) -> String {
         s.push_str(&table("iso3095-missing", &["ISO 3095 wavelength not evaluated, mm", "why"], &rows));
     }
     if let Some(p) = crate::analyze::spectrum_peak(r) {
-        let over = sp.bands.iter().filter(|b| b.exceeds() == Some(true)).count();
-        let judged = sp.bands.iter().filter(|b| b.iso3095_limit_db.is_some()).count();
+        let (exceeds, within, not_judged) = crate::analyze::verdict_counts(sp);
         let mut rows = vec![
             ("spectrum peak", format!("{} mm one-third octave", fmt_len(p.nominal_wavelength_mm))),
-            ("peak level", format!("{:.1} dB", p.level_db)),
+            ("measured level", format!("{:.1} dB", p.level_db)),
         ];
-        if let Some(m) = p.margin_db() {
-            rows.push(("ISO 3095 limit there", format!("{:.1} dB", p.level_db + m)));
-            rows.push(if m < 0.0 {
-                ("over the limit by", format!("{:.1} dB", -m))
-            } else {
-                ("below the limit by", format!("{m:.1} dB"))
-            });
+        if let Some(d) = p.decision() {
+            rows.push(("rail's own level", format!("{} dB", d.rail)));
+            rows.push(("ISO 3095 limit there", format!("{:.1} dB", d.limit_db)));
+            rows.push(("its verdict", d.words()));
         }
-        rows.push(("bands over the ISO 3095 limit", format!("{over} of {judged}")));
+        rows.push(("ISO 3095 third octaves", format!("{exceeds} exceed, {within} within, {not_judged} not judged")));
         s.push_str(&facts("peak", &rows));
     }
     s

@@ -86,6 +86,28 @@ fn survey_floor_json(a: &Analysis) -> Value {
                 "floor_db": num(b.level_db),
             })).collect::<Vec<_>>()),
             "spikes_per_m": num(f.spikes_per_m),
+            "lines_own": f.lines_own.iter().map(|l| json!({
+                "laser": l.laser,
+                "bands": l.bands.iter().zip(&en13231::BANDS).map(|(b, band)| {
+                    let mut o = floor_json(b.as_ref());
+                    if let Value::Object(m) = &mut o {
+                        m.insert("lo_mm".into(), json!(band.lo_mm));
+                        m.insert("hi_mm".into(), json!(band.hi_mm));
+                    }
+                    o
+                }).collect::<Vec<_>>(),
+                "en15610": l.spectrum.as_ref().map(|s| s.bands.iter().map(|b| json!({
+                    "nominal_wavelength_mm": b.nominal_wavelength_mm,
+                    "floor_db": num(b.level_db),
+                    "dof": num(b.dof),
+                })).collect::<Vec<_>>()),
+                "clipped": l.clipped,
+            })).collect::<Vec<_>>(),
+            "standing_out": f.standing_out().map(|(laser, db)| json!({
+                "laser": laser,
+                "over_others_db": num(db),
+                "likely": crate::analyze::line_floor::LIKELY_CAUSES,
+            })),
         })
     });
     let stitch = a.stitching.share.map(|s| {
@@ -121,8 +143,17 @@ fn third_octaves_json(s: &en15610::Spectrum) -> Vec<Value> {
                 "level_db": num(b.level_db),
                 "iso3095_limit_db": b.iso3095_limit_db,
                 "floor_db": b.floor_db.map(num),
-                "judged": b.judged(),
-                "exceeds": b.exceeds(),
+                "floor_dof": b.floor_dof.map(num),
+                "dof": num(b.dof),
+                "decision": b.decision().map(|d| json!({
+                    "verdict": d.verdict.name(),
+                    "level_hi_db": d.level_hi_db.map(num),
+                    "rail_db": d.rail.db.map(num),
+                    "rail_lo_db": d.rail.lo_db.map(num),
+                    "rail_hi_db": d.rail.hi_db.map(num),
+                    "confidence_percent": crate::analyze::standards::detection::CONFIDENCE_PERCENT,
+                    "settle": d.settle,
+                })),
             })
         })
         .collect()

@@ -170,7 +170,7 @@ impl Figure for BandsFig<'_> {
             let mut chart = ChartBuilder::on(panel)
                 .caption(
                     format!(
-                        "{name}: window {} mm, {:.1} % of length over the limit",
+                        "{name}: window {} mm, {:.1} % of length exceeding",
                         b.band.window_mm, st.exceeding_percent
                     ),
                     ("sans-serif", 15),

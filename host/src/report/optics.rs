@@ -64,6 +64,19 @@ pub fn describe(a: &Analysis) -> String {
             }
         }
     }
+    if let OpticsCheck::Checked { lines, .. } = &a.optics {
+        for (laser, checks) in lines {
+            let list: Vec<String> = en13231::BANDS
+                .iter()
+                .zip(checks)
+                .map(|(band, c)| {
+                    let v = c.map_or("-".into(), |c| format!("{:+.1} dB", c.ratio_db));
+                    format!("{}–{} mm {v}", fmt_len(band.lo_mm), fmt_len(band.hi_mm))
+                })
+                .collect();
+            let _ = writeln!(s, "  line {laser}'s own floor against the prediction: {}", list.join(", "));
+        }
+    }
     s.push_str(
         "  (EN 15610's third octaves are not predicted: curvature processing and spike removal are not linear)\n",
     );
@@ -72,7 +85,7 @@ pub fn describe(a: &Analysis) -> String {
 
 /// `noise.predicted` of `--json`.
 pub fn json(a: &Analysis) -> Value {
-    let OpticsCheck::Checked { optics, source, geometry, motion, budget, bands } = &a.optics else {
+    let OpticsCheck::Checked { optics, source, geometry, motion, budget, bands, lines } = &a.optics else {
         return json!({ "checked": false, "why": heading(&a.optics) });
     };
     json!({
@@ -102,6 +115,11 @@ pub fn json(a: &Analysis) -> Value {
             "ratio_db": c.map(|c| c.ratio_db),
             "agreement": c.map(|c| c.agreement.name()),
             "says": c.map(|c| c.says()),
+        })).collect::<Vec<_>>(),
+        "lines": lines.iter().map(|(laser, checks)| json!({
+            "laser": laser,
+            "ratio_db": checks.iter().map(|c| c.map(|c| c.ratio_db)).collect::<Vec<_>>(),
+            "agreement": checks.iter().map(|c| c.map(|c| c.agreement.name())).collect::<Vec<_>>(),
         })).collect::<Vec<_>>(),
     })
 }

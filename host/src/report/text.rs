@@ -287,19 +287,12 @@ pub fn describe_roughness(r: &Result<en15610::Roughness, StandardsError>) -> Str
                 let _ = writeln!(s, "ISO 3095 wavelengths not evaluated: {}", list.join("; "));
             }
             if let Some(p) = spectrum_peak(r) {
-                let over = r.spectrum.bands.iter().filter(|b| b.exceeds() == Some(true)).count();
+                let (exceeds, within, not_judged) = crate::analyze::verdict_counts(&r.spectrum);
                 let _ = writeln!(
                     s,
-                    "spectrum peak: {} mm one-third octave at {:.1} dB{}; {over} of {} bands over the ISO 3095 limit",
+                    "spectrum peak: {} mm one-third octave ({}); ISO 3095: {exceeds} third octave(s) exceed, {within} within, {not_judged} not judged",
                     fmt_len(p.nominal_wavelength_mm),
-                    p.level_db,
-                    match p.margin_db() {
-                        Some(m) if m < 0.0 =>
-                            format!(" (ISO 3095 limit {:.1} dB: over by {:.1} dB)", p.level_db + m, -m),
-                        Some(m) => format!(" (ISO 3095 limit {:.1} dB: {:.1} dB below)", p.level_db + m, m),
-                        None => String::new(),
-                    },
-                    r.spectrum.bands.iter().filter(|b| b.iso3095_limit_db.is_some()).count()
+                    crate::analyze::peak_words(p),
                 );
             }
         }
@@ -421,6 +414,7 @@ pub fn describe_floor(a: &Analysis) -> String {
             }
         }
     }
+    s.push_str(&describe_line_floors(f));
     if let Some(share) = &a.stitching.share {
         let list: Vec<String> = en13231::BANDS
             .iter()
@@ -459,6 +453,43 @@ pub fn describe_floor(a: &Analysis) -> String {
                 let _ = writeln!(s, "  {line}");
             }
         }
+    }
+    s
+}
+
+/// Each line's own floor, and the line whose floor stands out over the
+/// others' with the likely causes; empty when the lines cannot be told apart.
+pub fn describe_line_floors(f: &crate::analyze::floor::Floor) -> String {
+    use crate::analyze::line_floor::{LIKELY_CAUSES, MIN_SHARE};
+    let mut s = String::new();
+    if f.lines_own.is_empty() {
+        return s;
+    }
+    let _ = writeln!(s, "  each line's own floor, from the pairs of lines (RMS, µm):");
+    for l in &f.lines_own {
+        let list: Vec<String> = en13231::BANDS
+            .iter()
+            .zip(&l.bands)
+            .map(|(band, b)| {
+                let v = b.map_or("-".into(), |b| format!("{:.2}", b.rms_mm * 1000.0));
+                format!("{}–{} mm {v}", fmt_len(band.lo_mm), fmt_len(band.hi_mm))
+            })
+            .collect();
+        let _ = writeln!(s, "    line {}: {}", l.laser, list.join(", "));
+        if !l.clipped.is_empty() {
+            let _ = writeln!(
+                s,
+                "      its estimate fell under {:.0} dB of the lines' mean and was clipped there in {}",
+                10.0 * MIN_SHARE.log10(),
+                l.clipped.join(", ")
+            );
+        }
+    }
+    if let Some((laser, db)) = f.standing_out() {
+        let _ = writeln!(
+            s,
+            "  line {laser}'s floor stands {db:.1} dB over the other lines' (median over the bands): likely {LIKELY_CAUSES}; each line is judged against its own floor"
+        );
     }
     s
 }

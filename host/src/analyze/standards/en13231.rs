@@ -201,7 +201,8 @@ pub struct BandStats {
     pub worst_mean_pp_mm: f64,
     /// Largest max − min of a window, mm.
     pub worst_max_pp_mm: f64,
-    /// RMS of the band-filtered profile, mm.
+    /// RMS of the band-filtered profile where the filters have settled
+    /// (where the window statistics are: a run's edge zones left out), mm.
     pub rms_mm: f64,
     /// Share of window positions whose mean peak-to-peak exceeds the limit, %.
     pub exceeding_percent: f64,
@@ -256,7 +257,13 @@ impl BandSums {
     /// is over `threshold_mm` (the limit with a noise floor's power added:
     /// `crate::analyze::floor::BandFloor::threshold_mm`).
     pub fn add_over(&mut self, band: &Band, t: &BandTrace, threshold_mm: f64) {
-        for v in t.band_mm.iter().filter(|v| v.is_finite()) {
+        for (v, mn) in t.band_mm.iter().zip(&t.mean_pp_mm).filter(|(v, _)| v.is_finite()) {
+            // The RMS where the filters have settled (the windows' part): at a
+            // run's ends the point reflection over one sample puts a step's
+            // worth of the band's long wavelengths into noise.
+            if !mn.is_finite() {
+                continue;
+            }
             self.sq_mm2 += v * v;
             self.count += 1;
             if band.abs_limit_mm.is_some_and(|lim| v.abs() > lim) {

@@ -57,6 +57,7 @@ use std::fmt::Write as _;
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
 
+use super::detection::{Decision, Estimate, Verdict};
 use super::wheel::{self, Correction};
 use super::{StandardsError, Stretch, check_dx, fmt_mm, remove_mean_and_trend, run_mm, samples_for, segments};
 
@@ -79,16 +80,6 @@ pub const WHEEL_RADIUS_MM: f64 = 375.0;
 pub const MAX_DX_MM: f64 = 1.0;
 /// EN 15610 segments: at least this long, mm.
 pub const MIN_SEGMENT_MM: f64 = 1000.0;
-/// A one-third octave is judged against ISO 3095 when its level is this
-/// much over the instrument's noise floor there, dB: twice the floor's
-/// power, at least as much rail as noise ([`crate::analyze::floor`]).
-pub const FLOOR_MARGIN_DB: f64 = 3.0;
-/// Standard deviations of the level-to-floor ratio noise alone must not
-/// reach: one-sided 5 × 10⁻⁴ of the normal, so that a survey's three lines
-/// of about 17 third octaves each (and its blocks') read noise over the
-/// floor's margin once in more than a hundred smooth-rail surveys, not
-/// once in three as a per-band 1 % would.
-pub const NOISE_OVER_FLOOR_Z: f64 = 3.29;
 /// The Hann window's equivalent noise bandwidth, bins: the band's bins
 /// are correlated through the window, so a band of `B` bins holds about
 /// `B / 1.5` independent ones.
@@ -191,49 +182,37 @@ pub struct ThirdOctave {
     pub dof: f64,
     /// Degrees of freedom of the floor's estimate.
     pub floor_dof: Option<f64>,
+    /// The share of a rail component at the band's centre the band holds
+    /// (the rest leaks into its neighbours through the Hann window: 0.67
+    /// for a band one bin wide, near 1 from a few bins): the least the
+    /// reading can make of the rail, which widens its upper bound ([`tone_capture`]).
+    pub capture: f64,
 }
 
 impl ThirdOctave {
-    /// Limit minus level, dB (negative: over the limit).
+    /// Limit minus level, dB (negative: the reading, noise included, is over the limit).
     pub fn margin_db(&self) -> Option<f64> {
         self.iso3095_limit_db.map(|l| l - self.level_db)
     }
 
-    /// Whether the level stands far enough over the noise floor to be
-    /// judged ([`ThirdOctave::margin_over_floor_db`]); true where the floor
-    /// is not known.
-    pub fn judged(&self) -> bool {
-        self.floor_db.is_none_or(|f| self.level_db - f >= self.margin_over_floor_db())
+    /// The ISO 3095 decision ([`crate::analyze::standards::detection`]): the level and its degrees
+    /// of freedom over the floor and its own, against the limit (`None`:
+    /// no limit for this band).
+    pub fn decision(&self) -> Option<Decision> {
+        let limit = self.iso3095_limit_db?;
+        let floor = self.floor_db.map(|f| Estimate { level_db: f, dof: self.floor_dof.unwrap_or(f64::INFINITY) });
+        Some(Decision::of(Estimate { level_db: self.level_db, dof: self.dof }, floor, limit, self.capture))
     }
 
-    /// How far over its floor the level must stand to be judged, dB: at
-    /// least [`FLOOR_MARGIN_DB`], and more where level and floor are
-    /// estimated from few segments: the ratio of two χ² estimates with `ν`
-    /// and `ν_f` degrees of freedom, `ln` of which has a variance of about
-    /// `2/ν + 2/ν_f`, at [`NOISE_OVER_FLOOR_Z`] of its standard deviations.
-    pub fn margin_over_floor_db(&self) -> f64 {
-        let nf = self.floor_dof.unwrap_or(f64::INFINITY);
-        let sd_ln = (2.0 / self.dof.max(1.0) + 2.0 / nf.max(1.0)).sqrt();
-        FLOOR_MARGIN_DB.max(10.0 * std::f64::consts::LOG10_E * NOISE_OVER_FLOOR_Z * sd_ln)
+    /// The verdict alone (`None`: no limit).
+    pub fn verdict(&self) -> Option<Verdict> {
+        self.decision().map(|d| d.verdict)
     }
 
-    /// Whether the level is over the ISO 3095 limit (`None`: no limit, or
-    /// not [`ThirdOctave::judged`]: the floor cannot tell).
-    pub fn exceeds(&self) -> Option<bool> {
-        if !self.judged() {
-            return None;
-        }
-        self.iso3095_limit_db.map(|l| self.level_db > l)
-    }
-
-    /// The verdict in words: "EXCEEDS", "within", "not judged (floor … dB)" or "-".
-    pub fn verdict(&self) -> String {
-        match (self.exceeds(), self.floor_db) {
-            (Some(true), _) => "EXCEEDS".into(),
-            (Some(false), _) => "within".into(),
-            (None, Some(f)) if self.iso3095_limit_db.is_some() => format!("not judged (floor {f:.1} dB)"),
-            (None, _) => "-".into(),
-        }
+    /// The verdict in words: "EXCEEDS", "within", "not judged (floor …,
+    /// limit …: what would settle it)" or "-" without a limit.
+    pub fn verdict_words(&self) -> String {
+        self.decision().map_or("-".into(), |d| d.words())
     }
 }
 
@@ -590,9 +569,38 @@ fn bands_of(power: &[f64], m: usize, dx_mm: f64, count: usize) -> Spectrum {
             floor_db: None,
             dof: welch_dof((f_hi - f_lo) / df, count),
             floor_dof: None,
+            capture: tone_capture(df, f_lo, f_hi, centre),
         });
     }
     Spectrum { dx_mm, segment_mm: seg_len_mm, segments: count, bands }
+}
+
+/// The share of a sine at `centre` (cycles/m) that the band `f_lo`–`f_hi`
+/// holds in a Welch spectrum of periodic Hann segments (bin width `df`):
+/// the window spreads a sine over its bins as `|W(d)|²`,
+/// `W(d) = sinc(d) / (1 − d²)` at `d` bins off, which sums to 1.5 over all
+/// bins; the band takes each bin in proportion to its overlap, as `band_power` does.
+pub fn tone_capture(df: f64, f_lo: f64, f_hi: f64, centre: f64) -> f64 {
+    let x = centre / df;
+    let w2 = |d: f64| -> f64 {
+        if d.abs() < 1e-9 {
+            return 1.0;
+        }
+        if (d.abs() - 1.0).abs() < 1e-9 {
+            return 0.25;
+        }
+        let s = (std::f64::consts::PI * d).sin() / (std::f64::consts::PI * d);
+        (s / (1.0 - d * d)).powi(2)
+    };
+    let (first, last) = ((f_lo / df).floor() as i64 - 4, (f_hi / df).ceil() as i64 + 4);
+    let held: f64 = (first.max(0)..=last)
+        .map(|k| {
+            let (a, b) = ((k as f64 - 0.5) * df, (k as f64 + 0.5) * df);
+            let overlap = (b.min(f_hi) - a.max(f_lo)).max(0.0) / df;
+            w2(k as f64 - x) * overlap
+        })
+        .sum();
+    (held / 1.5).clamp(0.05, 1.0)
 }
 
 /// Sum of the bins' power between `f_lo` and `f_hi`, a bin (width `df`,
@@ -611,35 +619,42 @@ fn band_power(power: &[f64], df: f64, f_lo: f64, f_hi: f64) -> f64 {
 }
 
 /// The spectrum as CSV, one line per band, long wavelengths first:
-/// `k,centre_per_m,wavelength_mm,nominal_wavelength_mm,level_db,iso3095_limit_db,margin_db,exceeds,floor_db,judged`
-/// (limit and margin empty where ISO 3095 has no value, `exceeds` empty
-/// there and where the noise floor cannot tell, `floor_db` empty where
-/// it is not known).
+/// `k,centre_per_m,wavelength_mm,nominal_wavelength_mm,level_db,iso3095_limit_db,margin_db,floor_db,rail_db,rail_lo_db,rail_hi_db,verdict`
+/// (limit, margin and the decision's columns empty where ISO 3095 has no
+/// value; `floor_db` empty where the floor is not known; `rail_db` the
+/// level with the floor's power taken out and its interval
+/// ([`crate::analyze::standards::detection`]), empty where the reading is at or under the floor or
+/// a bound is open; `verdict` `within`, `EXCEEDS` or `not judged`).
 pub fn spectrum_csv(s: &Spectrum) -> String {
     let mut out = String::from(
-        "k,centre_per_m,wavelength_mm,nominal_wavelength_mm,level_db,iso3095_limit_db,margin_db,exceeds,floor_db,judged\n",
+        "k,centre_per_m,wavelength_mm,nominal_wavelength_mm,level_db,iso3095_limit_db,margin_db,floor_db,rail_db,rail_lo_db,rail_hi_db,verdict\n",
     );
-    let opt = |v: Option<String>| v.unwrap_or_default();
+    let opt = |v: Option<f64>, digits: usize| v.map_or(String::new(), |v| format!("{v:.digits$}"));
     for b in &s.bands {
+        let d = b.decision();
         let _ = writeln!(
             out,
-            "{},{:.4},{:.4},{},{:.2},{},{},{},{},{}",
+            "{},{:.4},{:.4},{},{:.2},{},{},{},{},{},{},{}",
             b.k,
             b.centre_per_m,
             b.wavelength_mm,
             fmt_mm(b.nominal_wavelength_mm),
             b.level_db,
-            opt(b.iso3095_limit_db.map(|l| format!("{l:.1}"))),
-            opt(b.margin_db().map(|m| format!("{m:.2}"))),
-            opt(b.exceeds().map(|e| e.to_string())),
-            opt(b.floor_db.map(|f| format!("{f:.2}"))),
-            b.judged()
+            opt(b.iso3095_limit_db, 1),
+            opt(b.margin_db(), 2),
+            opt(b.floor_db, 2),
+            opt(d.as_ref().and_then(|d| d.rail.db), 2),
+            opt(d.as_ref().and_then(|d| d.rail.lo_db), 2),
+            opt(d.as_ref().and_then(|d| d.rail.hi_db), 2),
+            d.map_or("", |d| d.verdict.name()),
         );
     }
     out
 }
 
-/// The spectrum against the ISO 3095 limit as a plain-text table.
+/// The spectrum against the ISO 3095 limit as a plain-text table: each
+/// band's reading, its floor, the rail with the floor taken out and its
+/// interval, the limit and the verdict.
 pub fn spectrum_table(r: &Roughness) -> String {
     let s = &r.spectrum;
     let mut out = String::new();
@@ -653,20 +668,25 @@ pub fn spectrum_table(r: &Roughness) -> String {
     );
     let _ = writeln!(
         out,
-        "{:>14} {:>9} {:>10} {:>10} {:>9}  verdict",
-        "wavelength_mm", "level_db", "limit_db", "margin_db", "floor_db"
+        "{:>14} {:>9} {:>9} {:>26} {:>10}  verdict",
+        "wavelength_mm",
+        "level_db",
+        "floor_db",
+        format!("rail_db [{}% interval]", super::detection::CONFIDENCE_PERCENT),
+        "limit_db"
     );
     let dash = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
     for b in &s.bands {
+        let d = b.decision();
         let _ = writeln!(
             out,
-            "{:>14} {:>9.1} {:>10} {:>10} {:>9}  {}",
+            "{:>14} {:>9.1} {:>9} {:>26} {:>10}  {}",
             fmt_mm(b.nominal_wavelength_mm),
             b.level_db,
-            dash(b.iso3095_limit_db),
-            dash(b.margin_db()),
             dash(b.floor_db),
-            b.verdict()
+            d.as_ref().map_or("-".into(), |d| d.rail.to_string()),
+            dash(b.iso3095_limit_db),
+            d.map_or("-".into(), |d| d.words())
         );
     }
     out

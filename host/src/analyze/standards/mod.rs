@@ -31,6 +31,7 @@
 //! sense (non-positive or non-finite sampling, records shorter than a window)
 //! are [`StandardsError`]s with a message that says what is missing.
 
+pub mod detection;
 pub mod en13231;
 pub mod en15610;
 pub mod wheel;

@@ -61,9 +61,11 @@ function tables(a) {
   const blocks = $("blocks").tBodies[0];
   for (const b of v.blocks) {
     let iso = b.iso3095_exceeded_mm === null ? "no spectrum"
-      : b.iso3095_exceeded_mm.length === 0 ? "pass" : "over at " + b.iso3095_exceeded_mm.join(", ") + " mm";
+      : b.iso3095_exceeded_mm.length === 0
+        ? (b.iso3095_not_judged_mm && b.iso3095_not_judged_mm.length ? "none exceeds" : "within")
+        : "EXCEEDS at " + b.iso3095_exceeded_mm.join(", ") + " mm";
     if (b.iso3095_not_judged_mm && b.iso3095_not_judged_mm.length) {
-      iso += "; not judged at the noise floor: " + b.iso3095_not_judged_mm.join(", ") + " mm";
+      iso += "; not judged: " + b.iso3095_not_judged_mm.join(", ") + " mm";
     }
     row(blocks, [chainage(b.start_mm), chainage(b.end_mm), ...b.rms_mm.map((r) => fmt(r === null ? NaN : r * 1000, 1)), iso],
       b.iso3095_exceeded_mm && b.iso3095_exceeded_mm.length ? "fail" : "");

@@ -2,6 +2,7 @@
 
 use super::{frames, write_recording};
 use crate::common::{one_line_error, run};
+use cms_host::analyze::standards::detection::Verdict;
 use cms_host::recording;
 use cms_host::sim::calibration::truth::truth;
 use cms_host::sim::head::{CorrugationSpec, HeadOptions, sim_config};
@@ -132,7 +133,7 @@ fn sim_recording_end_to_end() {
         let b50 = r["bands"].as_array().unwrap().iter().find(|b| b["nominal_wavelength_mm"] == 50.0).unwrap();
         let lvl = b50["level_db"].as_f64().unwrap();
         assert!((lvl - 26.5).abs() < 1.0, "{lvl}");
-        assert_eq!(b50["exceeds"], true);
+        assert_eq!(b50["decision"]["verdict"], "EXCEEDS");
     }
 
     // The stitched profiles against the simulated rail.
@@ -648,7 +649,7 @@ fn a_smooth_rail_under_laser_light_reads_its_floor_and_never_fails() {
             b.level_db,
             fb.level_db
         );
-        assert_ne!(b.exceeds(), Some(true), "{b:?}");
+        assert_ne!(b.verdict(), Some(Verdict::Exceeds), "{b:?}");
     }
     // The floor is what the optics predict: speckle at F/2.8 and 685 nm,
     // sensor noise (docs/noise-floor.md#the-floor-the-optics-predict).
@@ -673,8 +674,15 @@ fn a_smooth_rail_under_laser_light_reads_its_floor_and_never_fails() {
                 );
             }
         }
-        let exceeding: Vec<_> =
-            l.roughness.as_ref().unwrap().spectrum.bands.iter().filter(|b| b.exceeds() == Some(true)).collect();
+        let exceeding: Vec<_> = l
+            .roughness
+            .as_ref()
+            .unwrap()
+            .spectrum
+            .bands
+            .iter()
+            .filter(|b| b.verdict() == Some(Verdict::Exceeds))
+            .collect();
         assert!(exceeding.is_empty(), "laser {}: {exceeding:?}", l.stitched.laser);
     }
 }
