@@ -321,14 +321,15 @@ pub fn measure(stitched: &[Stitched], opts: &Options, progress: &dyn Progress) -
         pieces::walk_section(section[0].section, &with, opts, want, &mut |p| {
             let Some(band) = &p.band else { return Ok(()) };
             sums.add(band, 0..p.core.len());
-            pairs.add(band, &lasers, p.core.clone(), &opts.roughness, &new_welch);
+            // Noise through the processing a line goes through: its own
+            // linearly, the mean's through EN 15610's steps.
+            let steps = band.rail_steps(&opts.roughness);
+            let corrections: Vec<_> =
+                (0..band.nulls.len()).map(|j| steps.correction(&band.mean_noise(j), &opts.roughness)).collect();
+            pairs.add(band, &lasers, p.core.clone(), &opts.roughness, &corrections, &new_welch);
             if let Some(w) = &mut welch {
-                // Noise through the processing a line goes through: its own
-                // linearly, the mean's through EN 15610's steps.
-                let steps = band.rail_steps(&opts.roughness);
-                for (j, n) in band.nulls.iter().enumerate() {
-                    let correction = steps.correction(&band.mean_noise(j), &opts.roughness);
-                    spikes += w.add_corrected(&n.stretch(p.core.clone()), &correction, &opts.roughness);
+                for (n, correction) in band.nulls.iter().zip(&corrections) {
+                    spikes += w.add_corrected(&n.stretch(p.core.clone()), correction, &opts.roughness);
                 }
             }
             done_m += p.core.len() as f64 * p.grid.dx_mm / 1000.0;

@@ -8,9 +8,11 @@
 //! grease or a dull patch, behind a dirty window or with its laser out of
 //! focus then carries its own floor, and the others keep theirs.
 //!
-//! Each pair goes through exactly the processing a line does (the
-//! EN 13231-3 band filters; EN 15610's spike removal, curvature and
-//! Welch spectrum), as the null lines do ([`crate::analyze::floor`]).
+//! Each pair goes through exactly the processing a line's noise does (the
+//! EN 13231-3 band filters; EN 15610's steps, which act on the rail the
+//! lines share, so that a line's noise passes them linearly with the
+//! steps' effect on the mean's noise added; the Welch spectrum), as the
+//! null lines do ([`crate::analyze::floor`]).
 //! A band's pair figures are exact linear combinations of the null lines'
 //! band traces (the filters are linear); the third octaves' pairs are
 //! built from the null lines' samples and processed on their own.
@@ -39,6 +41,7 @@ use std::collections::BTreeMap;
 use super::floor::BandFloor;
 use super::pieces::RunningBand;
 use crate::analyze::standards::en13231;
+use crate::analyze::standards::wheel::Correction;
 use crate::analyze::standards::{Stretch, en15610, fmt_mm};
 
 /// A line's floor power is at least this share of the lines' mean (−10 dB).
@@ -88,21 +91,27 @@ fn helmert(m: usize, l: usize) -> f64 {
 
 impl PairSums {
     /// Adds a piece's running band (lines of lasers `lasers`, in its
-    /// order) over its core; `welch` makes a pair's spectrum accumulator.
+    /// order) over its core; `corrections` are EN 15610's steps' effect
+    /// on the mean's noise (one per null line, as the survey's floor
+    /// takes them); `welch` makes a pair's spectrum accumulator.
     pub fn add(
         &mut self,
         band: &RunningBand,
         lasers: &[usize],
         core: std::ops::Range<usize>,
         opts: &en15610::Options,
+        corrections: &[Correction],
         welch: &dyn Fn() -> Option<en15610::Welch>,
     ) {
         let k = band.lines;
         if k != 3 || lasers.len() != k || band.nulls.len() != k - 1 {
             return;
         }
+        let mut pair_index = 0;
         for i in 0..k {
             for j in i + 1..k {
+                let correction = &corrections[pair_index % corrections.len().max(1)];
+                pair_index += 1;
                 // (z_i − z_j)/√2 in the contrasts: Σ_m (H_m[i] − H_m[j])/√2 · n_m.
                 let c: Vec<f64> = (1..k).map(|m| (helmert(m, i) - helmert(m, j)) / std::f64::consts::SQRT_2).collect();
                 let entry = self.pairs.entry((lasers[i], lasers[j])).or_insert_with(|| ([(0.0, 0); 4], welch()));
@@ -131,8 +140,10 @@ impl PairSums {
                     let z: Vec<f64> = (0..first.z_um.len())
                         .map(|t| stretches.iter().zip(&c).map(|(s, c)| c * s.z_um[t]).sum())
                         .collect();
+                    // The lines' shared correction cancels in their difference: the
+                    // pair's noise passes linearly, with the mean's noise's share on it.
                     let pair = Stretch { z_um: &z, ..first.clone() };
-                    w.add(&pair, opts);
+                    w.add_corrected(&pair, correction, opts);
                 }
             }
         }
