@@ -758,7 +758,9 @@ pub fn spectrum_peak(r: &en15610::Roughness) -> Option<&en15610::ThirdOctave> {
 /// level, the rail's own with its interval, and the band's verdict —
 /// never "over the limit" unless the rail exceeds it.
 pub fn peak_words(p: &en15610::ThirdOctave) -> String {
-    let Some(d) = p.decision() else { return String::new() };
+    let Some(d) = p.decision() else {
+        return format!("measured {:.1} dB; ISO 3095 sets no limit at this wavelength", p.level_db);
+    };
     format!("measured {:.1} dB, rail {} dB, ISO 3095 limit {:.1} dB: {}", d.level_db, d.rail, d.limit_db, d.words())
 }
 
