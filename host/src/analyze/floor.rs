@@ -515,14 +515,7 @@ mod tests {
     /// Three lines 1 mm apart over `n` samples: the rail `rail(x_mm)` on
     /// each, plus independent Gaussian noise of `sigma_um` per sample.
     fn survey(n: usize, sigma_um: f64, rail: &dyn Fn(f64) -> f64, seed: u64) -> Analysis {
-        let mut s = seed.max(1);
-        let mut uniform = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
-        let mut gauss = move || (-2.0 * uniform().ln()).sqrt() * (std::f64::consts::TAU * uniform()).cos();
+        let mut gauss = crate::analyze::seeded_gauss(seed);
         let lasers = (0..3)
             .map(|k| {
                 let z = (0..n).map(|i| rail(i as f64) + sigma_um * gauss()).collect();

@@ -781,3 +781,17 @@ pub fn fmt_len(v: f64) -> String {
 pub fn chainage(x_mm: f64) -> String {
     survey::Chainage(x_mm / 1000.0).to_string()
 }
+
+/// A seeded Gaussian (xorshift and Box–Muller) for the analysis's unit
+/// tests: the same profile every run.
+#[cfg(test)]
+pub(crate) fn seeded_gauss(seed: u64) -> impl FnMut() -> f64 {
+    let mut s = seed.max(1);
+    let mut uniform = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    };
+    move || (-2.0 * uniform().ln()).sqrt() * (std::f64::consts::TAU * uniform()).cos()
+}

@@ -8,17 +8,7 @@ use super::*;
 use crate::analyze::standards::detection::Verdict;
 use crate::analyze::{Analysis, judge, profile, runs};
 
-/// A seeded Gaussian (xorshift and Box–Muller): the same profile every run.
-fn gauss(seed: u64) -> impl FnMut() -> f64 {
-    let mut s = seed.max(1);
-    let mut uniform = move || {
-        s ^= s << 13;
-        s ^= s >> 7;
-        s ^= s << 17;
-        ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    };
-    move || (-2.0 * uniform().ln()).sqrt() * (std::f64::consts::TAU * uniform()).cos()
-}
+use crate::analyze::seeded_gauss as gauss;
 
 /// A sine at the exact centre of the one-third octave `k` at `level_db`.
 #[derive(Clone, Copy)]

@@ -259,16 +259,7 @@ mod tests {
 
     const DX_MM: f64 = 0.5;
 
-    fn gauss(seed: u64) -> impl FnMut() -> f64 {
-        let mut s = seed.max(1);
-        let mut uniform = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
-        move || (-2.0 * uniform().ln()).sqrt() * (std::f64::consts::TAU * uniform()).cos()
-    }
+    use crate::analyze::seeded_gauss as gauss;
 
     /// Three lines of `rail` with white noise of `sigma_um` each: the
     /// lines, their mean and their Helmert nulls.
