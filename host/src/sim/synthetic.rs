@@ -156,11 +156,17 @@ impl Rail {
 /// between its ends (the ends of the zone are where the rail changes).
 pub fn survey_rail_um(x_mm: f64, zone_mm: (f64, f64), wavelength_mm: f64, amplitude_um: f64) -> f64 {
     use std::f64::consts::TAU;
+    // Wavelength and phase per component, computed once: a survey asks
+    // for millions of heights.
+    static COMPONENTS: std::sync::LazyLock<[(f64, f64); 48]> = std::sync::LazyLock::new(|| {
+        std::array::from_fn(|k| {
+            let w = 8.0 * (2000.0f64 / 8.0).powf(k as f64 / 47.0);
+            // A fixed pseudo-random phase per component (golden-ratio sequence).
+            (w, TAU * ((k as f64 * 0.618_033_988_75) % 1.0))
+        })
+    });
     let mut z = 0.0;
-    for k in 0..48 {
-        let w = 8.0 * (2000.0f64 / 8.0).powf(k as f64 / 47.0);
-        // A fixed pseudo-random phase per component (golden-ratio sequence).
-        let phase = TAU * ((k as f64 * 0.618_033_988_75) % 1.0);
+    for &(w, phase) in COMPONENTS.iter() {
         z += 0.01 * w * (TAU * x_mm / w + phase).sin();
     }
     if x_mm >= zone_mm.0 && x_mm < zone_mm.1 {

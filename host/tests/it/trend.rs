@@ -20,14 +20,15 @@ const AMPLITUDES_UM: [f64; 3] = [4.0, 6.0, 8.0];
 const DATES: [&str; 3] = ["2024-05-02", "2025-05-02", "2026-05-02"];
 const SITE_MM: f64 = 150_000.0;
 
-fn surveys(dir: &Path) -> Vec<PathBuf> {
-    let frames = (SITE_MM / 17.0) as u32;
+/// The surveys of a site `site_mm` long whose zone `zone_mm` grows.
+fn surveys(dir: &Path, site_mm: f64, zone_mm: (f64, f64)) -> Vec<PathBuf> {
+    let frames = (site_mm / 17.0) as u32;
     AMPLITUDES_UM
         .iter()
         .zip(DATES)
         .enumerate()
         .map(|(i, (&a, date))| {
-            let rail = Rail::Survey { zone_mm: ZONE_MM, wavelength_mm: 50.0, amplitude_um: a };
+            let rail = Rail::Survey { zone_mm, wavelength_mm: 50.0, amplitude_um: a };
             let survey = format!("start_chainage = \"0+000\"\nchainage = \"up\"\ndate = \"{date}\"\n");
             let o = synthetic::Options {
                 frames,
@@ -63,7 +64,7 @@ fn true_figures(lo_mm: f64, hi_mm: f64) -> Vec<f64> {
 #[test]
 fn a_trend_over_three_surveys_recovers_the_growth() {
     let dir = tempfile::tempdir().unwrap();
-    let files = surveys(dir.path());
+    let files = surveys(dir.path(), SITE_MM, ZONE_MM);
     let names: Vec<&str> = files.iter().map(|p| p.to_str().unwrap()).collect();
     let report = dir.path().join("trend-report");
     let mut args = vec!["trend"];
@@ -143,7 +144,9 @@ fn a_trend_over_three_surveys_recovers_the_growth() {
 #[test]
 fn surveys_a_trend_cannot_follow_are_refused() {
     let dir = tempfile::tempdir().unwrap();
-    let files = surveys(dir.path());
+    // Refusals need no long site: 40 m, a 20 m zone (the 1 m shift is
+    // still found by registration).
+    let files = surveys(dir.path(), 40_000.0, (10_000.0, 30_000.0));
     let n: Vec<&str> = files.iter().map(|p| p.to_str().unwrap()).collect();
     let e = one_line_error(&run(&["trend", n[0]]));
     assert!(e.contains("at least two dates"), "{e}");
