@@ -471,8 +471,8 @@ fn with_optics(survey: Option<String>, optics: Option<(Optics, String)>) -> Resu
     Ok(Some(sv.to_text()))
 }
 
-/// `cms-host listen` on a device path.
-pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
+/// `cms-host listen` on a device path; `tls`: `--serve-tls`, loaded.
+pub fn run(args: &ListenArgs, tls: Option<cms_host::serve::tls::Tls>) -> anyhow::Result<()> {
     if args.port == "sim" {
         anyhow::bail!(Usage(
             "`listen sim` needs the simulated head, which this build does not have; give a device path".to_string(),
@@ -549,7 +549,7 @@ pub fn run(args: &ListenArgs) -> anyhow::Result<()> {
                 marks: Some(marks.clone()),
                 token: args.serve_token.clone(),
                 live_bands: opts.live_bands,
-                tls: super::view::serve_tls(args.serve_tls.as_deref())?,
+                tls,
             };
             let v = LiveView::start(&opts).map_err(cms_host::Error::from)?;
             let _ = writeln!(io::stderr(), "listen: live view on {} (read-only but for event marks)", v.url());

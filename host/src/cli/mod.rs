@@ -105,10 +105,13 @@ fn dispatch(command: Command) -> Result<()> {
                 "sim" => cms_host::sim::head::port_optics(&sim_port, args.optics)?,
                 _ => args.optics,
             };
+            // The certificate is read before a head starts, so that a bad
+            // one is the only thing said.
+            let tls = view::serve_tls(args.serve_tls.as_deref())?;
             Ok(cms_host::device::qemu::with_port(&args.port, &qemu.options(), stop, |port| {
                 cms_host::sim::head::with_ports(port, &sim_port, |port, gnss| {
                     let gnss = gnss.map(str::to_string).or(args.gnss.clone());
-                    listen::run(&listen::ListenArgs { port: port.to_string(), gnss, optics, ..args.clone() })
+                    listen::run(&listen::ListenArgs { port: port.to_string(), gnss, optics, ..args.clone() }, tls)
                 })
             })???)
         }
