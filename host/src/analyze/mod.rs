@@ -512,7 +512,7 @@ pub fn judge(
     progress.begin("judging", line_metres(&stitched), "m");
     let mut done_m = 0.0;
     let dx = stitched.first().map_or(opts.stitch.dx_mm, |s| s.dx_mm);
-    let mut verdict = reprofiling::Builder::new(&opts.verdict, dx, floor.clone());
+    let mut verdict = reprofiling::Builder::new(&opts.verdict, &opts.roughness, dx, floor.clone());
     let edition = opts.verdict.edition;
     // Each line judged against its own floor (the shared one where the lines cannot be told apart).
     let line_judgements = |laser: usize| -> Vec<floor::BandJudgement> {

@@ -150,6 +150,8 @@ pub struct ReprofilingVerdict {
 /// runs on from one piece into the next is carried over.
 pub struct Builder {
     v: ReprofilingVerdict,
+    /// EN 15610's settings for the blocks' spectra: the analysis's own.
+    roughness: en15610::Options,
     dx_mm: f64,
     floor: Option<Floor>,
     /// Per band: why no line evaluated it (the last reason seen).
@@ -176,8 +178,9 @@ type BlockLine = (usize, [(f64, usize); 4], Option<en15610::Welch>);
 
 impl Builder {
     /// A verdict judged against `floor` (one line's, of the survey):
-    /// the running band's profile of `floor.lines` lines.
-    pub fn new(opts: &Options, dx_mm: f64, floor: Option<Floor>) -> Builder {
+    /// the running band's profile of `floor.lines` lines; the blocks'
+    /// spectra under `roughness`, as the whole run's.
+    pub fn new(opts: &Options, roughness: &en15610::Options, dx_mm: f64, floor: Option<Floor>) -> Builder {
         let rows = en13231::BANDS
             .iter()
             .enumerate()
@@ -203,6 +206,7 @@ impl Builder {
                 measured_mm: 0.0,
                 blocks: vec![],
             },
+            roughness: roughness.clone(),
             dx_mm,
             floor,
             why: vec![None; en13231::BANDS.len()],
@@ -315,9 +319,9 @@ impl Builder {
 
     /// The blocks a piece meets: summed in, and given out when whole.
     fn blocks(&mut self, p: &Piece) {
-        let default = en15610::Options::default();
+        let ro = self.roughness.clone();
         // EN 15610's nonlinear steps on the rail the lines share (the piece's noise measured once).
-        let steps = p.band.as_ref().map(|rb| (rb.rail_steps(&default), &rb.mean));
+        let steps = p.band.as_ref().map(|rb| (rb.rail_steps(&ro), &rb.mean));
         for part in crate::analyze::pieces::blocks(p, self.v.options.block_mm) {
             if self.block.as_ref().is_none_or(|b| b.span_mm != part.span_mm) {
                 self.close_block();
@@ -325,7 +329,7 @@ impl Builder {
                     .lines
                     .iter()
                     .map(|l| {
-                        let welch = en15610::Welch::new(&l.runs_within(&part.grid), l.dx_mm(), &default).ok();
+                        let welch = en15610::Welch::new(&l.runs_within(&part.grid), l.dx_mm(), &ro).ok();
                         (l.laser, [(0.0, 0); 4], welch)
                     })
                     .collect();
@@ -333,7 +337,7 @@ impl Builder {
             }
             let Some(open) = &mut self.block else { continue };
             let core = p.core.start + part.range.start..p.core.start + part.range.end;
-            let correction = steps.as_ref().map(|(s, mean)| s.correction(&mean.masked(&part.grid), &default));
+            let correction = steps.as_ref().map(|(s, mean)| s.correction(&mean.masked(&part.grid), &ro));
             for l in &p.lines {
                 let Some((_, sums, welch)) = open.lines.iter_mut().find(|o| o.0 == l.laser) else { continue };
                 for (sum, t) in sums.iter_mut().zip(&l.bands) {
@@ -350,8 +354,8 @@ impl Builder {
                     let stretch =
                         Stretch { z_um: &z, start: l.ext_start(), core: core.clone(), runs: &runs, dx_mm: l.dx_mm() };
                     match &correction {
-                        Some(c) => w.add_corrected(&stretch, c, &default),
-                        None => w.add(&stretch, &default),
+                        Some(c) => w.add_corrected(&stretch, c, &ro),
+                        None => w.add(&stretch, &ro),
                     };
                 }
             }

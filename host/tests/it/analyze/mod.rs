@@ -169,3 +169,51 @@ fn gaps_are_reported_where_they_are() {
     }
     assert_eq!(l.joins.len(), 11);
 }
+
+/// The 50 m blocks' spectra take `analyze`'s EN 15610 settings, as the
+/// whole run's do: dirt spikes (60 µm, one sample) on a smooth rail with
+/// 0.1 µm of noise are removed by default, so only the rail's own 63 mm
+/// sine exceeds; with `--no-spike-removal` the spikes' broadband energy
+/// exceeds in the blocks too.
+#[test]
+fn blocks_follow_the_spike_removal_setting() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("spiky.csv");
+    let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+    let mut uniform = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut text = String::from("x_mm,height_um_0,height_um_1,height_um_2\n");
+    for i in 0..120_000 {
+        let x = i as f64 * 0.5;
+        let rail = 2.0 * (2.0 * std::f64::consts::PI * x / 63.0).sin();
+        let spike = if i % 1000 == 500 { 60.0 } else { 0.0 };
+        // Uniform noise of 0.1 µm RMS.
+        let h: Vec<String> =
+            (0..3).map(|_| format!("{:.4}", rail + spike + 0.1 * 12f64.sqrt() * (uniform() - 0.5))).collect();
+        text += &format!("{x:.1},{}\n", h.join(","));
+    }
+    std::fs::write(&csv, text).unwrap();
+    let exceeded = |extra: &[&str]| -> Vec<Vec<f64>> {
+        let mut args = vec!["analyze", csv.to_str().unwrap(), "--json"];
+        args.extend(extra);
+        let o = crate::common::run(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        v["verdict"]["blocks"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|b| b["iso3095_exceeded_mm"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect())
+            .collect()
+    };
+    let removed = exceeded(&[]);
+    let kept = exceeded(&["--no-spike-removal"]);
+    println!("blocks exceeding, spikes removed: {removed:?}; kept: {kept:?}");
+    assert_eq!(removed.len(), 2);
+    assert!(removed.iter().all(|b| b == &[63.0]), "{removed:?}");
+    assert!(kept.iter().all(|b| b.len() > 3 && b.contains(&63.0)), "{kept:?}");
+}
