@@ -65,7 +65,7 @@
 use std::borrow::Cow;
 use std::ops::Range;
 
-use super::line_floor::{self, LineFloor, PairSums};
+use super::line_floor::{self, LineFloor, PairBands, PairSums};
 use super::pieces::{self, RunningBand, Wanted};
 use super::stitch::Stitched;
 use super::{Grid, Options};
@@ -223,10 +223,13 @@ struct Sums {
 }
 
 /// The floor's sums over pieces of running band, in any order: what
-/// [`measure`] makes a survey's floor of, and the live view a run's so far.
-#[derive(Debug, Clone, Copy, Default)]
+/// [`measure`] makes a survey's floor of, and the live view a run's so far
+/// ([`FloorSums::floor`]: the same floor, each line's own and the running
+/// band's lines weighted by them, in the EN 13231-3 bands).
+#[derive(Debug, Clone, Default)]
 pub struct FloorSums {
     bands: [Sums; 4],
+    pairs: PairBands,
 }
 
 /// A trace cut to `within` (borrowed when that is all of it).
@@ -239,8 +242,10 @@ fn cut<'a>(t: &'a BandTrace, within: &Range<usize>) -> Cow<'a, BandTrace> {
 }
 
 impl FloorSums {
-    /// Adds a piece's running band over `within` (indices in the piece's core).
-    pub fn add(&mut self, band: &RunningBand, within: Range<usize>) {
+    /// Adds a piece's running band (lines of lasers `lasers`, in its
+    /// order) over `within` (indices in the piece's core).
+    pub fn add(&mut self, band: &RunningBand, lasers: &[usize], within: Range<usize>) {
+        self.pairs.add(band, lasers, within.clone());
         for (b, (s, spec)) in self.bands.iter_mut().zip(&en13231::BANDS).enumerate() {
             if let Some(t) = band.mean.bands.get(b).and_then(Option::as_ref) {
                 s.mean.add(spec, &cut(t, &within));
@@ -261,6 +266,18 @@ impl FloorSums {
             s.mean.merge(&o.mean);
             s.seen |= o.seen;
         }
+        self.pairs.merge(&o.pairs);
+    }
+
+    /// The floor of the EN 13231-3 bands these sums hold, of `lines`
+    /// lines sampled `dx_mm` apart over `measured_mm`: one line's, and
+    /// each line's own (three lines) — what [`measure`] finds of the
+    /// same pieces, without the one-third octaves (no spectrum, no spikes
+    /// counted).
+    pub fn floor(&self, lines: usize, dx_mm: f64, measured_mm: f64) -> Floor {
+        let bands = self.bands(lines, dx_mm);
+        let lines_own = self.pairs.lines(&bands);
+        Floor { lines, measured_mm, bands, spectrum: None, spikes_per_m: 0.0, lines_own }
     }
 
     /// One line's floor per band ([`en13231::BANDS`] order; `None` where
@@ -320,7 +337,7 @@ pub fn measure(stitched: &[Stitched], opts: &Options, progress: &dyn Progress) -
         let new_welch = || en15610::Welch::new(&common, dx, &opts.roughness).ok();
         pieces::walk_section(section[0].section, &with, opts, want, &mut |p| {
             let Some(band) = &p.band else { return Ok(()) };
-            sums.add(band, 0..p.core.len());
+            sums.add(band, &lasers, 0..p.core.len());
             // Noise through the processing a line goes through: its own
             // linearly, the mean's through EN 15610's steps.
             let steps = band.rail_steps(&opts.roughness);
@@ -343,7 +360,7 @@ pub fn measure(stitched: &[Stitched], opts: &Options, progress: &dyn Progress) -
     }
     let nulls = (lines - 1) as f64;
     let bands = sums.bands(lines, stitched[0].dx_mm);
-    let lines_own = pairs.lines(&bands);
+    let lines_own = pairs.lines(&sums.pairs, &bands);
     Ok(Some(Floor {
         lines,
         measured_mm,

@@ -68,15 +68,21 @@ pub struct LineFloor {
     pub clipped: Vec<String>,
 }
 
-/// One pair's sums: per band its sum of squares (mm²) and count, and its
-/// EN 15610 Welch average.
-type Pair = ([(f64, usize); 4], Option<en15610::Welch>);
+/// Per pair of lasers `(i, j)`, `i < j`, per band: its sum of squares
+/// (mm²) and count.
+type BandPairs = BTreeMap<(usize, usize), [(f64, usize); 4]>;
 
-/// Sums over the pairs of lines, in any order of pieces.
+/// The pairs' EN 15610 Welch averages, in any order of pieces (their
+/// band sums are [`PairBands`]).
 #[derive(Default)]
 pub struct PairSums {
-    /// Per pair of lasers `(i, j)`, `i < j`.
-    pairs: BTreeMap<(usize, usize), Pair>,
+    spectra: BTreeMap<(usize, usize), Option<en15610::Welch>>,
+}
+
+/// The pairs' band sums alone, in any order of pieces.
+#[derive(Debug, Clone, Default)]
+pub struct PairBands {
+    pairs: BandPairs,
 }
 
 /// The weight of Helmert contrast `m` (from 1) on line `l`.
@@ -86,6 +92,75 @@ fn helmert(m: usize, l: usize) -> f64 {
         std::cmp::Ordering::Less => 1.0 / norm,
         std::cmp::Ordering::Equal => -(m as f64) / norm,
         std::cmp::Ordering::Greater => 0.0,
+    }
+}
+
+/// The pairs `(i, j)` of `k` lines in order, each with the weights on
+/// the null combinations that make `(z_i − z_j)/√2`:
+/// `Σ_m (H_m[i] − H_m[j])/√2 · n_m`.
+fn pair_weights(k: usize) -> Vec<((usize, usize), Vec<f64>)> {
+    let mut out = Vec::new();
+    for i in 0..k {
+        for j in i + 1..k {
+            let c = (1..k).map(|m| (helmert(m, i) - helmert(m, j)) / std::f64::consts::SQRT_2).collect();
+            out.push(((i, j), c));
+        }
+    }
+    out
+}
+
+/// Whether a running band of lasers `lasers` can be paired: three lines.
+fn pairable(band: &RunningBand, lasers: &[usize]) -> bool {
+    let k = band.lines;
+    k == 3 && lasers.len() == k && band.nulls.len() == k - 1
+}
+
+impl PairBands {
+    /// Adds a piece's running band (lines of lasers `lasers`, in its
+    /// order) over `within` (indices in the piece's core).
+    pub fn add(&mut self, band: &RunningBand, lasers: &[usize], within: std::ops::Range<usize>) {
+        if !pairable(band, lasers) {
+            return;
+        }
+        for ((i, j), c) in pair_weights(band.lines) {
+            let entry = self.pairs.entry((lasers[i], lasers[j])).or_insert([(0.0, 0); 4]);
+            for (b, sums) in entry.iter_mut().enumerate() {
+                let traces: Option<Vec<&en13231::BandTrace>> =
+                    band.nulls.iter().map(|n| n.bands.get(b).and_then(Option::as_ref)).collect();
+                let Some(traces) = traces else { continue };
+                let len = traces.iter().map(|t| t.band_mm.len()).min().unwrap_or(0);
+                for t in within.start.min(len)..within.end.min(len) {
+                    // Where the filters have settled (the window statistics are there): a
+                    // run's ends, where the point reflection over one noisy sample puts a
+                    // step's worth of long wavelengths, would sway the lines' shares.
+                    if traces.iter().any(|tr| !tr.mean_pp_mm[t].is_finite()) {
+                        continue;
+                    }
+                    let v: f64 = traces.iter().zip(&c).map(|(tr, c)| c * tr.band_mm[t]).sum();
+                    if v.is_finite() {
+                        sums.0 += v * v;
+                        sums.1 += 1;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Adds the sums of other pieces.
+    pub fn merge(&mut self, o: &PairBands) {
+        for (key, theirs) in &o.pairs {
+            let mine = self.pairs.entry(*key).or_insert([(0.0, 0); 4]);
+            for (m, t) in mine.iter_mut().zip(theirs) {
+                m.0 += t.0;
+                m.1 += t.1;
+            }
+        }
+    }
+
+    /// Each line's own floor in the bands alone ([`PairSums::lines`]
+    /// without spectra).
+    pub fn lines(&self, shared: &[Option<BandFloor>]) -> Vec<LineFloor> {
+        lines_of(&self.pairs, None, shared)
     }
 }
 
@@ -103,113 +178,96 @@ impl PairSums {
         corrections: &[Correction],
         welch: &dyn Fn() -> Option<en15610::Welch>,
     ) {
-        let k = band.lines;
-        if k != 3 || lasers.len() != k || band.nulls.len() != k - 1 {
+        if !pairable(band, lasers) {
             return;
         }
-        let mut pair_index = 0;
-        for i in 0..k {
-            for j in i + 1..k {
-                let correction = &corrections[pair_index % corrections.len().max(1)];
-                pair_index += 1;
-                // (z_i − z_j)/√2 in the contrasts: Σ_m (H_m[i] − H_m[j])/√2 · n_m.
-                let c: Vec<f64> = (1..k).map(|m| (helmert(m, i) - helmert(m, j)) / std::f64::consts::SQRT_2).collect();
-                let entry = self.pairs.entry((lasers[i], lasers[j])).or_insert_with(|| ([(0.0, 0); 4], welch()));
-                for (b, sums) in entry.0.iter_mut().enumerate() {
-                    let traces: Option<Vec<&en13231::BandTrace>> =
-                        band.nulls.iter().map(|n| n.bands.get(b).and_then(Option::as_ref)).collect();
-                    let Some(traces) = traces else { continue };
-                    let len = traces.iter().map(|t| t.band_mm.len()).min().unwrap_or(0);
-                    for t in 0..len {
-                        // Where the filters have settled (the window statistics are there): a
-                        // run's ends, where the point reflection over one noisy sample puts a
-                        // step's worth of long wavelengths, would sway the lines' shares.
-                        if traces.iter().any(|tr| !tr.mean_pp_mm[t].is_finite()) {
-                            continue;
-                        }
-                        let v: f64 = traces.iter().zip(&c).map(|(tr, c)| c * tr.band_mm[t]).sum();
-                        if v.is_finite() {
-                            sums.0 += v * v;
-                            sums.1 += 1;
-                        }
-                    }
-                }
-                if let Some(w) = &mut entry.1 {
-                    let stretches: Vec<Stretch> = band.nulls.iter().map(|n| n.stretch(core.clone())).collect();
-                    let first = &stretches[0];
-                    let z: Vec<f64> = (0..first.z_um.len())
-                        .map(|t| stretches.iter().zip(&c).map(|(s, c)| c * s.z_um[t]).sum())
-                        .collect();
-                    // The lines' shared correction cancels in their difference: the
-                    // pair's noise passes linearly, with the mean's noise's share on it.
-                    let pair = Stretch { z_um: &z, ..first.clone() };
-                    w.add_corrected(&pair, correction, opts);
-                }
+        for (pair_index, ((i, j), c)) in pair_weights(band.lines).into_iter().enumerate() {
+            let correction = &corrections[pair_index % corrections.len().max(1)];
+            let entry = self.spectra.entry((lasers[i], lasers[j])).or_insert_with(welch);
+            if let Some(w) = entry {
+                let stretches: Vec<Stretch> = band.nulls.iter().map(|n| n.stretch(core.clone())).collect();
+                let first = &stretches[0];
+                let z: Vec<f64> =
+                    (0..first.z_um.len()).map(|t| stretches.iter().zip(&c).map(|(s, c)| c * s.z_um[t]).sum()).collect();
+                // The lines' shared correction cancels in their difference: the
+                // pair's noise passes linearly, with the mean's noise's share on it.
+                let pair = Stretch { z_um: &z, ..first.clone() };
+                w.add_corrected(&pair, correction, opts);
             }
         }
     }
 
-    /// Each line's own floor, its band figures scaled from `shared` (one
-    /// line's floor averaged over the lines); empty unless exactly three
-    /// lines were paired.
-    pub fn lines(&self, shared: &[Option<BandFloor>]) -> Vec<LineFloor> {
-        let mut lasers: Vec<usize> = self.pairs.keys().flat_map(|&(i, j)| [i, j]).collect();
-        lasers.sort_unstable();
-        lasers.dedup();
-        if lasers.len() != 3 || self.pairs.len() != 3 {
-            return Vec::new();
-        }
-        let pair = |a: usize, b: usize| &self.pairs[&(a.min(b), a.max(b))];
-        let mut out: Vec<LineFloor> = lasers
-            .iter()
-            .map(|&laser| LineFloor { laser, bands: Vec::new(), spectrum: None, clipped: Vec::new() })
-            .collect();
-        for (b, band) in en13231::BANDS.iter().enumerate() {
-            let p = |x: usize, y: usize| {
-                let (sq, n) = pair(lasers[x], lasers[y]).0[b];
-                (n > 0).then(|| sq / n as f64)
-            };
-            let (Some(p01), Some(p02), Some(p12), Some(s)) = (p(0, 1), p(0, 2), p(1, 2), shared[b]) else {
-                out.iter_mut().for_each(|l| l.bands.push(None));
-                continue;
-            };
-            let own = separate([p01, p02, p12], f64::INFINITY);
-            let mean = (p01 + p02 + p12) / 3.0;
-            for (l, (v, _, clipped)) in out.iter_mut().zip(own) {
-                if clipped {
-                    l.clipped.push(band.name());
-                }
-                l.bands.push(Some(s.scaled(s.rms_mm * (v / mean).sqrt())));
-            }
-        }
-        let spectra: Vec<en15610::Spectrum> = [(0, 1), (0, 2), (1, 2)]
-            .iter()
-            .filter_map(|&(x, y)| pair(lasers[x], lasers[y]).1.as_ref().filter(|w| w.segments() > 0))
-            .map(en15610::Welch::spectrum)
-            .collect();
-        if let [s01, s02, s12] = &spectra[..] {
-            let mut own: Vec<en15610::Spectrum> = vec![s01.clone(); 3];
-            let pw = |s: &en15610::Spectrum, t: usize| 10f64.powf(s.bands[t].level_db / 10.0);
-            let pairs: Vec<[f64; 3]> = (0..s01.bands.len()).map(|t| [pw(s01, t), pw(s02, t), pw(s12, t)]).collect();
-            for (t, b) in s01.bands.iter().enumerate() {
-                for ((o, l), (v, dof, clipped)) in own.iter_mut().zip(&mut out).zip(pooled(&pairs, &s01.bands, t)) {
-                    o.bands[t].level_db = 10.0 * v.max(1e-30).log10();
-                    o.bands[t].dof = dof;
-                    if clipped {
-                        l.clipped.push(format!("{} mm", fmt_mm(b.nominal_wavelength_mm)));
-                    }
-                }
-            }
-            for (l, s) in out.iter_mut().zip(own) {
-                l.spectrum = Some(s);
-            }
-        }
-        // Nothing measured (the common runs too short for any band or segment): nothing to tell.
-        if out.iter().all(|l| l.bands.iter().all(Option::is_none) && l.spectrum.is_none()) {
-            return Vec::new();
-        }
-        out
+    /// Each line's own floor from the pairs' band sums `bands` and these
+    /// spectra, its band figures scaled from `shared` (one line's floor
+    /// averaged over the lines); empty unless exactly three lines were paired.
+    pub fn lines(&self, bands: &PairBands, shared: &[Option<BandFloor>]) -> Vec<LineFloor> {
+        lines_of(&bands.pairs, Some(&self.spectra), shared)
     }
+}
+
+/// Each line's own floor from the pairs' band sums and (where given)
+/// spectra, its band figures scaled from `shared`.
+fn lines_of(
+    bands: &BandPairs,
+    spectra: Option<&BTreeMap<(usize, usize), Option<en15610::Welch>>>,
+    shared: &[Option<BandFloor>],
+) -> Vec<LineFloor> {
+    let mut lasers: Vec<usize> = bands.keys().flat_map(|&(i, j)| [i, j]).collect();
+    lasers.sort_unstable();
+    lasers.dedup();
+    if lasers.len() != 3 || bands.len() != 3 {
+        return Vec::new();
+    }
+    let key = |a: usize, b: usize| (a.min(b), a.max(b));
+    let mut out: Vec<LineFloor> = lasers
+        .iter()
+        .map(|&laser| LineFloor { laser, bands: Vec::new(), spectrum: None, clipped: Vec::new() })
+        .collect();
+    for (b, band) in en13231::BANDS.iter().enumerate() {
+        let p = |x: usize, y: usize| {
+            let (sq, n) = bands[&key(lasers[x], lasers[y])][b];
+            (n > 0).then(|| sq / n as f64)
+        };
+        let (Some(p01), Some(p02), Some(p12), Some(s)) = (p(0, 1), p(0, 2), p(1, 2), shared[b]) else {
+            out.iter_mut().for_each(|l| l.bands.push(None));
+            continue;
+        };
+        let own = separate([p01, p02, p12], f64::INFINITY);
+        let mean = (p01 + p02 + p12) / 3.0;
+        for (l, (v, _, clipped)) in out.iter_mut().zip(own) {
+            if clipped {
+                l.clipped.push(band.name());
+            }
+            l.bands.push(Some(s.scaled(s.rms_mm * (v / mean).sqrt())));
+        }
+    }
+    let spectra: Vec<en15610::Spectrum> = [(0, 1), (0, 2), (1, 2)]
+        .iter()
+        .filter_map(|&(x, y)| spectra?.get(&key(lasers[x], lasers[y]))?.as_ref().filter(|w| w.segments() > 0))
+        .map(en15610::Welch::spectrum)
+        .collect();
+    if let [s01, s02, s12] = &spectra[..] {
+        let mut own: Vec<en15610::Spectrum> = vec![s01.clone(); 3];
+        let pw = |s: &en15610::Spectrum, t: usize| 10f64.powf(s.bands[t].level_db / 10.0);
+        let pairs: Vec<[f64; 3]> = (0..s01.bands.len()).map(|t| [pw(s01, t), pw(s02, t), pw(s12, t)]).collect();
+        for (t, b) in s01.bands.iter().enumerate() {
+            for ((o, l), (v, dof, clipped)) in own.iter_mut().zip(&mut out).zip(pooled(&pairs, &s01.bands, t)) {
+                o.bands[t].level_db = 10.0 * v.max(1e-30).log10();
+                o.bands[t].dof = dof;
+                if clipped {
+                    l.clipped.push(format!("{} mm", fmt_mm(b.nominal_wavelength_mm)));
+                }
+            }
+        }
+        for (l, s) in out.iter_mut().zip(own) {
+            l.spectrum = Some(s);
+        }
+    }
+    // Nothing measured (the common runs too short for any band or segment): nothing to tell.
+    if out.iter().all(|l| l.bands.iter().all(Option::is_none) && l.spectrum.is_none()) {
+        return Vec::new();
+    }
+    out
 }
 
 /// Third octaves either side whose lines' shares are pooled with a band's.

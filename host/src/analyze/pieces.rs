@@ -234,14 +234,17 @@ pub fn walk_section_weighted(
 /// grid indices `core`, read over `ext` (which holds it; cut to the
 /// grid); `None` without lines. A stretch seen on its own, as the live
 /// view sees the last one stitched, is one piece whose `ext` is all of it.
+/// The running band's profile weighted as [`walk_section_weighted`]'s.
 pub fn piece_of(
     section: usize,
     lines: &[(&Stitched, [bool; 4])],
     wanted: Wanted,
     core: Range<usize>,
     ext: Range<usize>,
+    weights: Option<&[[f64; 4]]>,
 ) -> Result<Option<Piece>, Error> {
-    let Some(s) = Laid::new(section, lines, wanted) else { return Ok(None) };
+    let Some(mut s) = Laid::new(section, lines, wanted) else { return Ok(None) };
+    s.weights = weights.filter(|w| w.len() == lines.len()).map(<[[f64; 4]]>::to_vec);
     let ext = ext.start.min(core.start)..ext.end.max(core.end).min(s.grid.len);
     let core = core.start.max(ext.start)..core.end.min(ext.end);
     s.piece(core, ext).map(Some)

@@ -21,9 +21,13 @@
 //! one piece ([`pieces::piece_of`]: each line, their mean — the running
 //! band — and their Helmert null combinations, band-filtered by
 //! [`en13231::trace`]), the floor summed as [`crate::analyze::floor::measure`] sums it
-//! ([`FloorSums`]), each band's figures as [`en13231::BandSums`], its
-//! verdict by [`BandJudgement`] (a band whose floor is over `1/√2` of the
-//! limit is *not judged*, a window exceeds over `√(limit² + floor²)`).
+//! ([`FloorSums`]: each line's own floor from the three pairs, and the
+//! running band's profile and floor with its lines weighted by their own
+//! noise, `1/σᵢ²` per band, by [`Floor::running_band_weights`] and
+//! [`Floor::running_band`] as `analyze` weights them), each band's
+//! figures as [`en13231::BandSums`], its verdict by [`BandJudgement`] (a
+//! band whose floor is over `1/√2` of the limit is *not judged*, a window
+//! exceeds over `√(limit² + floor²)`).
 //!
 //! When a stretch's travel is complete its core's sums join those of the
 //! run; the stretch still open is judged on demand ([`LiveBands::report`],
@@ -39,8 +43,11 @@
 //!   the bands (each stretch is filtered on its own, its edges outside
 //!   the core); what differs is the registration's random walk inside a
 //!   stretch.
-//! * The exceedance threshold uses the floor known when the stretch was
-//!   summed, `analyze` the whole run's.
+//! * The exceedance threshold, and the lines' weights in the running
+//!   band's profile, use the floor known when the stretch was summed,
+//!   `analyze` the whole run's.
+//! * The floor leaves out the stitch's share common to the lines, which
+//!   `analyze` propagates from the whole line's registration.
 //!
 //! # The 300–1000 mm band
 //!
@@ -71,7 +78,7 @@ use std::ops::Range;
 
 use serde::Serialize;
 
-use crate::analyze::floor::{BandFloor, BandJudgement, FloorSums};
+use crate::analyze::floor::{BandFloor, BandJudgement, Floor, FloorSums};
 use crate::analyze::pieces::{self, Piece, Wanted};
 use crate::analyze::standards::en13231::{self, BandSums, BandTrace, EDGE_WAVELENGTHS, Edition};
 use crate::analyze::standards::fmt_mm;
@@ -383,8 +390,9 @@ impl LiveBands {
             stitching.lasers.iter().map(|s| (s, evaluated(s, &self.span))).collect();
         let first = lines.first()?.0;
         let grid = crate::analyze::Grid::of_lines(&lines.iter().map(|l| l.0).collect::<Vec<_>>(), first.dx_mm);
-        let want = Wanted { lines: true, mean: true, nulls: true };
-        let piece = pieces::piece_of(1, &lines, want, 0..grid.len, 0..grid.len).ok()??;
+        let lasers: Vec<usize> = lines.iter().map(|l| l.0.laser).collect();
+        let want = Wanted { lines: true, mean: false, nulls: true };
+        let mut piece = pieces::piece_of(1, &lines, want, 0..grid.len, 0..grid.len, None).ok()??;
         let index = |x: f64| ((x - grid.origin_mm) / grid.dx_mm).round().clamp(0.0, grid.len as f64) as usize;
         let (a, b) = match (c.core_from_mm, core_to_mm) {
             (Some(f), Some(t)) => (index(f.min(t)), index(f.max(t))),
@@ -394,14 +402,23 @@ impl LiveBands {
             (None, Some(t)) => (0, index(t)),
             (None, None) => (0, grid.len),
         };
-        let mut floor = self.done.floor;
+        let mut sums = self.done.floor.clone();
         let mut core = RunSums::default();
         if let Some(rb) = &piece.band {
-            core.floor.add(rb, a..b);
-            floor.merge(&core.floor);
+            core.floor.add(rb, &lasers, a..b);
+            sums.merge(&core.floor);
+        }
+        let floor = sums.floor(lasers.len().max(2), grid.dx_mm, (self.done.samples + (b - a)) as f64 * grid.dx_mm);
+        // The running band's profile with its lines weighted by their own
+        // floors known so far, as analyze weights them over the survey's.
+        let weights = floor.running_band_weights(&lasers);
+        let mean = Wanted { lines: false, mean: true, nulls: false };
+        let weighted = pieces::piece_of(1, &lines, mean, 0..grid.len, 0..grid.len, weights.as_deref()).ok()??;
+        if let (Some(rb), Some(w)) = (piece.band.as_mut(), weighted.band) {
+            rb.mean = w.mean;
         }
         core.add_piece(&piece, a..b, &floor, &self.span);
-        let mut whole = RunSums { floor: core.floor, ..RunSums::default() };
+        let mut whole = RunSums { floor: core.floor.clone(), ..RunSums::default() };
         whole.add_piece(&piece, 0..grid.len, &floor, &self.span);
         Some((core, (whole, grid.len as f64 * grid.dx_mm)))
     }
@@ -458,15 +475,18 @@ impl LiveBands {
         let dx = self.opts.stitch.dx_mm;
         let (recent, recent_mm) = self.last.as_ref().map_or((None, 0.0), |(s, l)| (Some(s), *l));
         let k = since.combined.max(recent.map_or(0, |r| r.combined));
-        let floors = since.floor.bands(k.max(2), dx);
+        let floor = since.floor.floor(k.max(2), dx, since_mm);
+        let lasers: Vec<usize> = since.lines.iter().map(|l| l.0).collect();
         let mut lines = Vec::new();
         for (laser, sums, spread) in &since.lines {
             let r = recent.and_then(|r| r.lines.iter().find(|l| l.0 == *laser)).map(|l| (&l.1, &l.2));
-            lines.push(LineLive { laser: Some(*laser), bands: self.bands(sums, spread, r, &floors, 1) });
+            let own = |b: usize| floor.line_band(*laser, b).copied();
+            lines.push(LineLive { laser: Some(*laser), bands: self.bands(sums, spread, r, &own) });
         }
         if let Some((sums, spread)) = &since.mean {
             let r = recent.and_then(|r| r.mean.as_ref()).map(|m| (&m.0, &m.1));
-            lines.push(LineLive { laser: None, bands: self.bands(sums, spread, r, &floors, k) });
+            let running = |b: usize| floor.running_band(b, &lasers);
+            lines.push(LineLive { laser: None, bands: self.bands(sums, spread, r, &running) });
         }
         BandsReport {
             edition: self.opts.edition.name(),
@@ -479,14 +499,13 @@ impl LiveBands {
     }
 
     /// One profile's bands from its sums since the start and over the
-    /// last stretch; `k` lines combined in it (1 for a line).
+    /// last stretch; `floor_of(b)`: its floor in band `b`.
     fn bands(
         &self,
         since: &Sums4,
         spread: &[Spread; 4],
         recent: Option<(&Sums4, &[Spread; 4])>,
-        floors: &[Option<BandFloor>],
-        k: usize,
+        floor_of: &dyn Fn(usize) -> Option<BandFloor>,
     ) -> Vec<BandLive> {
         let dx = self.opts.stitch.dx_mm;
         let edition = self.opts.edition;
@@ -494,7 +513,7 @@ impl LiveBands {
             .iter()
             .enumerate()
             .map(|(b, band)| {
-                let floor = floors.get(b).copied().flatten().map(|f| f.of_mean(k));
+                let floor = floor_of(b);
                 let j = BandJudgement::of(floor, edition, band);
                 let fig = |s: &BandSums, sp: &Spread| (s.windows() > 0).then(|| figures(s, sp, band, dx));
                 let since_f = fig(&since[b], &spread[b]);
@@ -594,20 +613,18 @@ fn evaluated(s: &Stitched, span: &Range<usize>) -> [bool; 4] {
 
 impl RunSums {
     /// Adds a piece's lines and running band over `within` (core
-    /// indices), windows exceeding over the threshold of `floor`.
-    fn add_piece(&mut self, p: &Piece, within: Range<usize>, floor: &FloorSums, bands: &Range<usize>) {
-        let dx = p.grid.dx_mm;
-        let k = p.band.as_ref().map_or(1, |rb| rb.lines);
-        let floors = floor.bands(k.max(2), dx);
-        let over = |k: usize| -> [f64; 4] {
+    /// indices), windows exceeding over the threshold of `floor` (each
+    /// line's own, the running band's of its lines weighted).
+    fn add_piece(&mut self, p: &Piece, within: Range<usize>, floor: &Floor, bands: &Range<usize>) {
+        let over = |floor_of: &dyn Fn(usize) -> Option<BandFloor>| -> [f64; 4] {
             std::array::from_fn(|b| {
                 let band = &en13231::BANDS[b];
-                let f = floors.get(b).copied().flatten().map(|f| f.of_mean(k));
-                f.map_or(band.mean_pp_limit_mm, |f| f.threshold_mm(Edition::En2006, band.mean_pp_limit_mm))
+                floor_of(b).map_or(band.mean_pp_limit_mm, |f| f.threshold_mm(Edition::En2006, band.mean_pp_limit_mm))
             })
         };
-        let line_over = over(1);
+        let lasers: Vec<usize> = p.lines.iter().map(|l| l.laser).collect();
         for l in &p.lines {
+            let line_over = over(&|b| floor.line_band(l.laser, b).copied());
             let at = match self.lines.iter().position(|x| x.0 == l.laser) {
                 Some(i) => i,
                 None => {
@@ -620,7 +637,8 @@ impl RunSums {
         }
         if let Some(rb) = &p.band {
             let (sums, spread) = self.mean.get_or_insert_with(Default::default);
-            add_traces(sums, spread, &rb.mean.bands, &within, &over(rb.lines), bands);
+            let mean_over = over(&|b| floor.running_band(b, &lasers));
+            add_traces(sums, spread, &rb.mean.bands, &within, &mean_over, bands);
             self.combined = self.combined.max(rb.lines);
         }
         self.samples += within.len();

@@ -13,7 +13,9 @@
 //! * **EXCEEDS** when the lower bound of `R` is over the limit: the rail
 //!   itself, the floor's power taken out, is over it with confidence.
 //! * **not judged** between the two, with the floor, the limit and what
-//!   would settle it ([`Decision::settle`]).
+//!   would settle it ([`Decision::settle`]: a longer record where the
+//!   interval's narrowing would decide, a lower floor where the floor
+//!   itself stands at or over the limit).
 //!
 //! Each bound is one-sided at [`Z`] standard deviations (5 × 10⁻⁴): a
 //! survey holds some sixty decisions (three lines and their average, about
@@ -38,8 +40,6 @@ pub const Z: f64 = 3.29;
 pub const Z_PAIR: f64 = 3.48;
 /// The confidence of the intervals reported, percent (two-sided, [`Z`] a side).
 pub const CONFIDENCE_PERCENT: f64 = 99.9;
-/// Record multiples tried for what would settle a band not judged.
-const LONGER: [f64; 6] = [2.0, 4.0, 8.0, 16.0, 32.0, 64.0];
 
 /// What a band earns.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -206,25 +206,81 @@ impl Decision {
     }
 }
 
-/// What would settle a band not judged: a record some times as long
-/// (more segments: more runs joined, or a longer survey) where the same
-/// readings would then decide; otherwise a lower floor.
+/// What would settle a band not judged. As the record grows (more
+/// segments: a longer survey, or more runs joined) both bounds close on
+/// the readings, at the rate the χ² quantiles narrow with the degrees of
+/// freedom: a longer record can show the band within only if its reading
+/// is under the limit, EXCEEDS only if the rail's own reading is over it.
+/// It narrows the interval; it does not lower the floor. So where the
+/// floor itself stands at or over the limit, within is out of reach at
+/// any length, and only a lower floor could show the rail within.
 fn settle(level: Estimate, floor: Option<Estimate>, limit_db: f64, capture: f64) -> String {
     let limit = 10f64.powf(limit_db / 10.0);
-    for m in LONGER {
-        let more = |e: Estimate| Estimate { dof: e.dof * m, ..e };
-        let (v, _) = verdict_of(more(level), floor.map(more), limit, capture);
-        if v != Verdict::NotJudged {
-            return format!("a record about {m:.0}× as long (or as many runs joined) would settle it");
-        }
-    }
+    let times = longer_record(level, floor, limit, capture);
+    let as_long = |m: f64| format!("a record about {}× as long (or as many runs joined)", fmt_times(m));
     match floor {
         Some(f) if f.level_db >= limit_db => {
-            "a lower floor would settle it (other light, a clean window, the laser in focus): the noise alone reaches the limit"
-                .into()
+            let mut s = format!(
+                "within is out of reach at any record length: the floor stands {:.1} dB over the limit, and only a \
+                 lower floor (other light, speckle diversity, averaged repeat runs) could show the rail within; a \
+                 longer record could still show EXCEEDS if the rail is over the limit",
+                f.level_db - limit_db
+            );
+            let (_, (rail_lo, _)) = verdict_of(level, floor, limit, capture);
+            let rail_db = db(level.power() - f.power());
+            match (times, rail_db) {
+                // The rail stands out of the floor, and its reading is over the limit.
+                (Some(m), Some(r)) if rail_lo > 0.0 => {
+                    s += &format!(" (it reads {r:.1} dB: {} would show it)", as_long(m));
+                }
+                _ if rail_lo > 0.0 => s += " (it stands out of the floor, its reading under the limit)",
+                _ => s += " (it does not stand out of the floor yet)",
+            }
+            s
         }
-        _ => "the rail reads at the limit: only a much longer record or a lower floor would settle it".into(),
+        _ => match times {
+            Some(m) => format!("{} would settle it", as_long(m)),
+            None => {
+                let p = level.power();
+                let rail = p - floor.map_or(0.0, |f| f.power());
+                if p / capture >= limit && rail <= limit {
+                    "the rail reads at the limit: no length of record settles it at this floor, only a lower floor \
+                     (other light, speckle diversity, averaged repeat runs)"
+                        .into()
+                } else {
+                    format!("only a record over {LONGEST:.0}× as long, or a lower floor, would settle it")
+                }
+            }
+        },
     }
+}
+
+/// The longest record offered, as a multiple of this one.
+const LONGEST: f64 = 100.0;
+
+/// The shortest multiple of the record (1 to [`LONGEST`]) whose degrees
+/// of freedom, the readings the same, would decide the band: the bounds
+/// narrow monotonically with the degrees of freedom, so a bisection on
+/// the multiple finds it (`None`: not within [`LONGEST`]).
+fn longer_record(level: Estimate, floor: Option<Estimate>, limit: f64, capture: f64) -> Option<f64> {
+    let decided = |m: f64| {
+        let more = |e: Estimate| Estimate { dof: e.dof * m, ..e };
+        verdict_of(more(level), floor.map(more), limit, capture).0 != Verdict::NotJudged
+    };
+    if !decided(LONGEST) {
+        return None;
+    }
+    let (mut lo, mut hi) = (1.0, LONGEST);
+    while hi / lo > 1.01 {
+        let mid = (lo * hi).sqrt();
+        if decided(mid) { hi = mid } else { lo = mid }
+    }
+    Some(hi)
+}
+
+/// A record multiple rounded up: a tenth under 10, a whole number over.
+fn fmt_times(m: f64) -> String {
+    if m < 10.0 { format!("{:.1}", (m * 10.0).ceil() / 10.0) } else { format!("{:.0}", m.ceil()) }
 }
 
 #[cfg(test)]
@@ -261,5 +317,54 @@ mod tests {
         let close = Decision::of(est(-1.0, 20.0), Some(est(-20.0, 40.0)), 0.0, 1.0);
         assert_eq!(close.verdict, Verdict::NotJudged);
         assert!(close.words().contains("as long"), "{}", close.words());
+    }
+
+    /// A floor over the limit: within is out of reach whatever the
+    /// record's length, and the words say so, with by how much the floor
+    /// stands over it; no longer record is offered for noise that does
+    /// not stand out of the floor, one is where the rail does and reads
+    /// over the limit.
+    #[test]
+    fn a_floor_over_the_limit_cannot_be_outwaited() {
+        // A smooth rail: the reading is the floor's, 15 dB over the limit.
+        let smooth = Decision::of(est(15.5, 90.0), Some(est(15.0, 180.0)), 0.0, 1.0);
+        assert_eq!(smooth.verdict, Verdict::NotJudged);
+        let w = smooth.words();
+        assert!(w.contains("out of reach") && w.contains("15.0 dB over the limit"), "{w}");
+        assert!(w.contains("lower floor") && w.contains("EXCEEDS") && !w.contains("× as long"), "{w}");
+        assert!(w.contains("does not stand out of the floor"), "{w}");
+        // A rail standing out of a floor 1 dB over the limit, its reading 1 dB over it.
+        let rail = Decision::of(est(18.0, 400.0), Some(est(15.0, 800.0)), 14.0, 1.0);
+        assert_eq!(rail.verdict, Verdict::NotJudged);
+        let w = rail.words();
+        assert!(w.contains("out of reach") && w.contains("1.0 dB over the limit") && w.contains("× as long"), "{w}");
+        // Whatever the length, never within.
+        let limit = 10f64.powf(14.0 / 10.0);
+        let huge = |e: Estimate| Estimate { dof: e.dof * 1e6, ..e };
+        let (v, _) = verdict_of(huge(est(15.0, 90.0)), Some(huge(est(15.0, 180.0))), limit, 1.0);
+        assert_ne!(v, Verdict::Within);
+    }
+
+    /// Under the floor's limit the record multiple offered is the least
+    /// that decides: the interval at that many more degrees of freedom
+    /// decides, at 5 % fewer it does not; a reading at the limit is
+    /// offered no length at all.
+    #[test]
+    fn the_longer_record_offered_is_the_one_that_settles() {
+        for (level, floor, limit) in [(-1.0, -20.0, 0.0), (3.0, -6.0, 0.0), (-3.0, -3.5, -1.0)] {
+            let (l, f) = (est(level, 20.0), Some(est(floor, 40.0)));
+            let d = Decision::of(l, f, limit, 1.0);
+            assert_eq!(d.verdict, Verdict::NotJudged, "{level} {floor}");
+            let lim = 10f64.powf(limit / 10.0);
+            let m = longer_record(l, f, lim, 1.0).expect("a length that settles it");
+            let more = |e: Estimate, m: f64| Estimate { dof: e.dof * m, ..e };
+            assert_ne!(verdict_of(more(l, m), f.map(|f| more(f, m)), lim, 1.0).0, Verdict::NotJudged);
+            assert_eq!(verdict_of(more(l, m / 1.05), f.map(|f| more(f, m / 1.05)), lim, 1.0).0, Verdict::NotJudged);
+            assert!(d.words().contains(&format!("about {}× as long", fmt_times(m))), "{}", d.words());
+        }
+        // The reading over the limit, the rail's own under it: no length settles it.
+        let at = Decision::of(est(0.2, 20.0), Some(est(-3.0, 40.0)), 0.0, 1.0);
+        assert_eq!(at.verdict, Verdict::NotJudged);
+        assert!(at.words().contains("at the limit") && !at.words().contains("× as long"), "{}", at.words());
     }
 }

@@ -4,6 +4,11 @@ use crate::analyze::{self, Analysis};
 /// Frames of three lines over `length_mm` of rail `rail(x)` (µm), `step_mm`
 /// apart, 480 points each over 68.6 mm, 2 µm of noise per point.
 fn frames(length_mm: f64, step_mm: f64, rail: &dyn Fn(f64) -> f64) -> Vec<FramePoints> {
+    frames_noisy(length_mm, step_mm, rail, [2.0; 3])
+}
+
+/// [`frames`] with `sigma_um[k]` of noise per point on line `k`.
+fn frames_noisy(length_mm: f64, step_mm: f64, rail: &dyn Fn(f64) -> f64, sigma_um: [f64; 3]) -> Vec<FramePoints> {
     let mut rng = cms_study::Rng::new(11);
     let n = (length_mm / step_mm) as u32;
     (0..n)
@@ -13,7 +18,7 @@ fn frames(length_mm: f64, step_mm: f64, rail: &dyn Fn(f64) -> f64) -> Vec<FrameP
             for (k, pts) in f.lasers.iter_mut().enumerate() {
                 *pts = (0..480)
                     .map(|r| -34.3 + 0.143 * f64::from(r))
-                    .map(|a| (a, rail(o + a) + 50.0 * k as f64 + 2.0 * rng.normal()))
+                    .map(|a| (a, rail(o + a) + 50.0 * k as f64 + sigma_um[k] * rng.normal()))
                     .collect();
             }
             f
@@ -92,6 +97,45 @@ fn live_bands_are_what_analyze_finds() {
     let missing = (pending / a.lasers[0].stitched.dx_mm).round() as usize;
     assert!((got + missing).abs_diff(windows) <= 2, "{got} windows vs {windows}");
     assert!(r.status().contains("30–100 L0"), "{}", r.status());
+}
+
+/// One line 4× noisier than the others: each line's live floor is its
+/// own and the running band's is that of its lines weighted by their
+/// noise, as analyze finds on the same frames (the stitch's share left
+/// out) — not the plain mean's (twice as high for noises of 4 : 1 : 1).
+#[test]
+fn the_live_floor_weights_the_lines_as_analyze_does() {
+    let f = frames_noisy(5_000.0, 16.7, &rail, [8.0, 2.0, 2.0]);
+    let r = live(&f);
+    let a = analyze::analyze(&f, &analyze::Options::default()).unwrap();
+    let shared = a.floor.as_ref().expect("analyze's floor");
+    let edition = a.verdict.options.edition;
+    // analyze's floors without the stitch's share (the live floor leaves it out: module docs).
+    let own = |f: BandFloor| f.scaled((f.rms_mm.powi(2) - f.stitch_rms_mm.powi(2)).max(0.0).sqrt());
+    let pp = |f: Option<BandFloor>| f.map(|f| own(f).judged_quantity_mm(edition) * 1000.0);
+    let rb = r.lines.iter().find(|l| l.laser.is_none()).expect("the running band");
+    let mut compared = 0;
+    for b in 0..SHORT_BANDS {
+        let (Some(got), Some(want)) = (rb.bands[b].floor_um, pp(a.running_bands[0].judgements[b].floor)) else {
+            continue;
+        };
+        let plain = pp(shared.band(b).map(|f| f.of_mean(3))).unwrap();
+        eprintln!("running band {b}: live floor {got:.3} µm, analyze {want:.3} µm, the plain mean's {plain:.3} µm");
+        assert!((got / want - 1.0).abs() < 0.15, "band {b}: live {got} vs analyze {want}");
+        assert!(plain > 1.5 * want, "band {b}: the plain mean's {plain} vs {want}");
+        for la in &a.lasers {
+            let line = r.lines.iter().find(|l| l.laser == Some(la.stitched.laser)).unwrap();
+            let (got, want) = (line.bands[b].floor_um.unwrap(), pp(la.judgements[b].floor).unwrap());
+            eprintln!("  laser {} floor: live {got:.3} µm, analyze {want:.3} µm", la.stitched.laser);
+            assert!(
+                (got / want - 1.0).abs() < 0.15,
+                "laser {} band {b}: live {got} vs analyze {want}",
+                la.stitched.laser
+            );
+        }
+        compared += 1;
+    }
+    assert!(compared >= 2, "{r:?}");
 }
 
 /// The 300–1000 mm band: not evaluated yet while the run is under its 9 m,
