@@ -21,6 +21,10 @@
 //!   of a row's footprint on the rail `d · pitch / f` and a speckle's,
 //!   `2.44 λ N (1 + M) / M` (the pixel integrates the speckle finer than
 //!   itself): the correlation length `L₀`.
+//! * **Speckle diversity**: `K` independent patterns summed within an
+//!   exposure ([`HeadLens::speckle_patterns`]: several diodes, a moving
+//!   diffuser, a broad-area source) lower the contrast as `1/√K`, the
+//!   variance of a point's error as `1/K`, at the same correlation length.
 //! * **Motion** during the exposure (travel `t = v · T`) averages
 //!   `K = 1 + t / L₀` patterns (variance `/K`) and stretches the
 //!   correlation to `L₀ + t`: the speckle is tied to the rail, so the
@@ -40,6 +44,7 @@
 
 use crate::analyze::floor::Floor;
 use crate::analyze::standards::en13231::{self, Band};
+pub use crate::model::head::HeadLens;
 use crate::model::optics::Optics;
 
 /// The detector's scatter per point under speckle at rest over the Dorsch
@@ -55,36 +60,6 @@ pub const SENSOR_PSD_UM2_MM: f64 = 1.5;
 
 /// Within this many dB of the prediction the floor agrees with it.
 pub const AGREES_DB: f64 = 6.0;
-
-/// The head's geometry that sets the speckle's effect.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct HeadGeometry {
-    /// The lens's focal length, mm.
-    pub focal_mm: f64,
-    /// Stand-off from the lens to the rail, mm.
-    pub standoff_mm: f64,
-    /// Angle between the camera's axis and the laser sheets, degrees.
-    pub triangulation_deg: f64,
-    /// The sensor's pixel pitch, µm.
-    pub pixel_um: f64,
-}
-
-impl HeadGeometry {
-    /// The reference head (docs/light.md): an 8.4 mm lens at 200 mm
-    /// stand-off, 35°, 6 µm pixels.
-    pub const REFERENCE: HeadGeometry =
-        HeadGeometry { focal_mm: 8.4, standoff_mm: 200.0, triangulation_deg: 35.0, pixel_um: 6.0 };
-
-    /// The lens's magnification `f / (d − f)`.
-    pub fn magnification(&self) -> f64 {
-        self.focal_mm / (self.standoff_mm - self.focal_mm)
-    }
-
-    /// A sensor row's footprint on the rail, mm.
-    pub fn row_mm(&self) -> f64 {
-        self.standoff_mm * self.pixel_um * 1e-3 / self.focal_mm
-    }
-}
 
 /// The head's motion during an exposure, as the recording says.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -117,20 +92,21 @@ pub struct Budget {
     pub travel_mm: f64,
     /// Patterns the motion averages, `1 + t / L₀`.
     pub patterns: f64,
-    /// Speckle's spectral density on a stitched line at low wavenumbers, µm² · mm.
+    /// Speckle's spectral density on a stitched line at low wavenumbers
+    /// (the source's independent patterns averaged), µm² · mm.
     pub speckle_psd_um2_mm: f64,
 }
 
-/// The prediction's figures for `optics` on a head of `geometry` moving as `motion`.
-pub fn budget(optics: Optics, geometry: HeadGeometry, motion: Motion) -> Budget {
+/// The prediction's figures for `optics` on the head `head` moving as `motion`.
+pub fn budget(optics: Optics, head: &HeadLens, motion: Motion) -> Budget {
     let lambda_um = optics.wavelength_nm() * 1e-3;
     let n = optics.f_number();
-    let sin_u = geometry.focal_mm / (2.0 * n * geometry.standoff_mm);
-    let dorsch_um = lambda_um / (2.0 * std::f64::consts::PI * sin_u * geometry.triangulation_deg.to_radians().sin());
+    let sin_u = head.focal_mm() / (2.0 * n * head.standoff_mm());
+    let dorsch_um = lambda_um / (2.0 * std::f64::consts::PI * sin_u * head.triangulation_deg().to_radians().sin());
     let point_um = DETECTOR_OVER_DORSCH * dorsch_um;
-    let m = geometry.magnification();
-    let speckle_px = 2.44 * lambda_um * n * (1.0 + m) / geometry.pixel_um;
-    let correlation_mm = geometry.row_mm() * speckle_px.max(1.0);
+    let m = head.magnification();
+    let speckle_px = 2.44 * lambda_um * n * (1.0 + m) / head.pixel_um;
+    let correlation_mm = head.row_mm() * speckle_px.max(1.0);
     let travel_mm = motion.travel_mm();
     Budget {
         dorsch_um,
@@ -139,7 +115,7 @@ pub fn budget(optics: Optics, geometry: HeadGeometry, motion: Motion) -> Budget 
         correlation_mm,
         travel_mm,
         patterns: 1.0 + travel_mm / correlation_mm,
-        speckle_psd_um2_mm: 2.0 * point_um * point_um * correlation_mm,
+        speckle_psd_um2_mm: 2.0 * point_um * point_um * correlation_mm / f64::from(head.speckle_patterns.max(1)),
     }
 }
 
@@ -264,7 +240,8 @@ pub enum OpticsCheck {
     Checked {
         optics: Optics,
         source: OpticsSource,
-        geometry: HeadGeometry,
+        /// The head predicted for, and where its figures come from.
+        head: HeadLens,
         motion: Motion,
         budget: Budget,
         bands: Vec<Option<BandCheck>>,
@@ -276,15 +253,15 @@ pub enum OpticsCheck {
 
 impl OpticsCheck {
     /// The floor `floor` (`None`: not known) against what `optics` predict
-    /// on a head of `geometry` moving as `motion`.
+    /// on the head `head` moving as `motion`.
     pub fn of(
         optics: Optics,
         source: OpticsSource,
-        geometry: HeadGeometry,
+        head: HeadLens,
         motion: Motion,
         floor: Option<&Floor>,
     ) -> OpticsCheck {
-        let budget = budget(optics, geometry, motion);
+        let budget = budget(optics, &head, motion);
         // The measured floor holds the stitch's propagated share
         // (`BandFloor::with_stitch`): the prediction holds it too.
         let check = |b: usize, f: Option<&crate::analyze::floor::BandFloor>| {
@@ -300,7 +277,7 @@ impl OpticsCheck {
                     .collect()
             })
             .unwrap_or_default();
-        OpticsCheck::Checked { optics, source, geometry, motion, budget, bands, lines }
+        OpticsCheck::Checked { optics, source, head, motion, budget, bands, lines }
     }
 }
 
@@ -320,7 +297,7 @@ mod tests {
     /// bandwidth about 1/10 − 1/30 = 0.0667 /mm: 5.96 µm RMS.
     #[test]
     fn the_prediction_is_the_hand_computation() {
-        let b = budget(Optics::new(2.8, 685.0).unwrap(), HeadGeometry::REFERENCE, motion(1500.0));
+        let b = budget(Optics::new(2.8, 685.0).unwrap(), &HeadLens::reference(), motion(1500.0));
         assert!((b.dorsch_um - 25.34).abs() < 0.01, "{b:?}");
         assert!((b.point_um - 43.08).abs() < 0.01, "{b:?}");
         assert!((b.speckle_px - 0.814).abs() < 0.001, "{b:?}");
@@ -342,13 +319,26 @@ mod tests {
     fn speed_barely_moves_it_and_aperture_does() {
         let band = &en13231::BANDS[0];
         let at = |f: f64, nm: f64, v: f64| {
-            budget(Optics::new(f, nm).unwrap(), HeadGeometry::REFERENCE, motion(v)).band_rms_um(band)
+            budget(Optics::new(f, nm).unwrap(), &HeadLens::reference(), motion(v)).band_rms_um(band)
         };
         let (rest, walk, vehicle) = (at(4.0, 685.0, 0.0), at(4.0, 685.0, 1500.0), at(4.0, 685.0, 5000.0));
         assert!(walk / rest > 0.99 && vehicle / rest > 0.95 && vehicle < rest, "{rest} {walk} {vehicle}");
         // Both speckles under a row: the floor goes as λN.
         let ratio = at(2.8, 405.0, 1500.0) / at(2.8, 685.0, 1500.0);
         assert!((ratio - 405.0 / 685.0).abs() < 0.02, "{ratio}");
+    }
+
+    /// K independent patterns: speckle's density a K-th, the sensor's kept.
+    #[test]
+    fn independent_patterns_divide_speckle_power() {
+        let o = Optics::new(2.8, 685.0).unwrap();
+        let one = budget(o, &HeadLens::reference(), motion(0.0));
+        let four = budget(o, &HeadLens { speckle_patterns: 4, ..HeadLens::reference() }, motion(0.0));
+        assert!((four.speckle_psd_um2_mm * 4.0 / one.speckle_psd_um2_mm - 1.0).abs() < 1e-12);
+        let band = &en13231::BANDS[0];
+        let want =
+            ((one.band_rms_um(band).powi(2) - SENSOR_PSD_UM2_MM * 0.0667) / 4.0 + SENSOR_PSD_UM2_MM * 0.0667).sqrt();
+        assert!((four.band_rms_um(band) / want - 1.0).abs() < 0.02, "{} vs {want}", four.band_rms_um(band));
     }
 
     #[test]
@@ -365,7 +355,7 @@ mod tests {
         assert!(under.says().contains("15.6 dB under the prediction"), "{}", under.says());
         // No floor: every band unchecked, the budget still there.
         let o = Optics::new(4.0, 685.0).unwrap();
-        match OpticsCheck::of(o, OpticsSource::Given, HeadGeometry::REFERENCE, motion(1000.0), None) {
+        match OpticsCheck::of(o, OpticsSource::Given, HeadLens::reference(), motion(1000.0), None) {
             OpticsCheck::Checked { bands, budget, .. } => {
                 assert!(bands.iter().all(Option::is_none));
                 assert!(budget.point_um > 60.0);

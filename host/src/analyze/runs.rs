@@ -8,7 +8,7 @@
 use std::path::{Path, PathBuf};
 
 use crate::Error;
-use crate::analyze::optics_floor::{HeadGeometry, Motion, OpticsCheck, OpticsSource};
+use crate::analyze::optics_floor::{HeadLens, Motion, OpticsCheck, OpticsSource};
 use crate::analyze::reprofiling::{self, Edition};
 use crate::analyze::standards::en15610;
 use crate::analyze::stitch::{self, Direction, Registration, Stitcher};
@@ -233,13 +233,16 @@ pub fn run(req: &Request, opts: &Options, progress: &dyn Progress) -> Result<(So
         survey::join(runs, &placements, &join_opts).map_err(|e| Error::Input(format!("{}: {e}", source.name())))?;
     let mut a = analyze::judge(stitching, joins, &opts, progress)?;
     a.gnss_placing = gnss_placing;
-    a.optics = optics_check(&source, req.optics, &a);
+    let head = calibration.as_ref().and_then(|(file, _, _)| file.head_lens()).unwrap_or_else(HeadLens::reference);
+    a.optics = optics_check(&source, req.optics, head, &a);
     Ok((source, a))
 }
 
 /// The survey's floor against the optics its recordings were made with
-/// (`given` for all of them, else each one's survey block).
-fn optics_check(source: &Source, given: Option<Optics>, a: &Analysis) -> OpticsCheck {
+/// (`given` for all of them, else each one's survey block), on `head`
+/// (the calibration's when one is given, else the reference head: the
+/// check says which).
+fn optics_check(source: &Source, given: Option<Optics>, head: HeadLens, a: &Analysis) -> OpticsCheck {
     let Source::Recordings(recs) = source else { return OpticsCheck::NotRecorded };
     let (optics, from) = match given {
         Some(o) => (o, OpticsSource::Given),
@@ -258,7 +261,7 @@ fn optics_check(source: &Source, given: Option<Optics>, a: &Analysis) -> OpticsC
     };
     let sums = recs.iter().fold(analyze::MotionSums::default(), |s, (_, r)| s.merge(&r.motion));
     let motion = sums.motion().unwrap_or(Motion { exposure_us: 0.0, speed_mm_s: 0.0 });
-    OpticsCheck::of(optics, from, HeadGeometry::REFERENCE, motion, a.floor.as_ref())
+    OpticsCheck::of(optics, from, head, motion, a.floor.as_ref())
 }
 
 /// The survey block of a recording, checked (`None`: none given).

@@ -21,7 +21,7 @@ use std::time::Instant;
 
 use super::{BenchError, put};
 use crate::analyze::Analysis;
-use crate::analyze::optics_floor::{BandCheck, HeadGeometry, Motion, OpticsCheck, OpticsSource};
+use crate::analyze::optics_floor::{BandCheck, Motion, OpticsCheck, OpticsSource};
 use crate::analyze::standards::{en13231, en15610};
 use crate::model::optics::Optics;
 use crate::sim::closed_loop::ClosedLoopError;
@@ -221,7 +221,7 @@ pub fn markdown(rows: &[FloorRow]) -> String {
 pub fn predicted(s: &Setting, floor: Option<&crate::analyze::floor::Floor>) -> Option<Vec<Option<BandCheck>>> {
     let optics = Optics::new(s.f_number?, s.wavelength_nm).ok()?;
     let motion = Motion { exposure_us: s.exposure_us, speed_mm_s: s.speed_mm_s };
-    match OpticsCheck::of(optics, OpticsSource::Given, HeadGeometry::REFERENCE, motion, floor) {
+    match OpticsCheck::of(optics, OpticsSource::Given, s.config().head_lens(), motion, floor) {
         OpticsCheck::Checked { bands, .. } => Some(bands),
         _ => None,
     }

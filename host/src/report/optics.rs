@@ -22,15 +22,17 @@ fn heading(c: &OpticsCheck) -> String {
     match c {
         OpticsCheck::NotRecorded => NOT_RECORDED.to_string(),
         OpticsCheck::Mixed(why) => format!("optics: {why}: the floor is not checked against them"),
-        OpticsCheck::Checked { optics, source, geometry, motion, budget, .. } => format!(
-            "the floor against what the optics predict ({optics}, {}; the reference head's {} mm lens at {} mm, {}°; {:.0} µs exposures at {:.2} m/s, {:.2} mm of travel; docs/noise-floor.md): a point {:.1} µm ({} × the Dorsch bound {:.1} µm), a speckle {:.2} px, correlated over {:.2} mm of rail",
+        OpticsCheck::Checked { optics, source, head, motion, budget, .. } => format!(
+            "the floor against what the optics predict ({optics}, {}; {}: a {:.1} mm lens at {:.0} mm, {:.0}°, {} µm pixels; {:.0} µs exposures at {:.2} m/s, {:.2} mm of travel; docs/noise-floor.md): a point {:.1} µm ({} × the Dorsch bound {:.1} µm), a speckle {:.2} px, correlated over {:.2} mm of rail",
             match source {
                 OpticsSource::Recorded => "recorded",
                 OpticsSource::Given => "given with --optics",
             },
-            geometry.focal_mm,
-            geometry.standoff_mm,
-            geometry.triangulation_deg,
+            head.source.name(),
+            head.focal_mm(),
+            head.standoff_mm(),
+            head.triangulation_deg(),
+            head.pixel_um,
             motion.exposure_us,
             motion.speed_mm_s / 1000.0,
             budget.travel_mm,
@@ -85,7 +87,7 @@ pub fn describe(a: &Analysis) -> String {
 
 /// `noise.predicted` of `--json`.
 pub fn json(a: &Analysis) -> Value {
-    let OpticsCheck::Checked { optics, source, geometry, motion, budget, bands, lines } = &a.optics else {
+    let OpticsCheck::Checked { optics, source, head, motion, budget, bands, lines } = &a.optics else {
         return json!({ "checked": false, "why": heading(&a.optics) });
     };
     json!({
@@ -94,10 +96,12 @@ pub fn json(a: &Analysis) -> Value {
         "wavelength_nm": optics.wavelength_nm(),
         "source": match source { OpticsSource::Recorded => "recorded", OpticsSource::Given => "given" },
         "geometry": {
-            "focal_mm": geometry.focal_mm,
-            "standoff_mm": geometry.standoff_mm,
-            "triangulation_deg": geometry.triangulation_deg,
-            "pixel_um": geometry.pixel_um,
+            "focal_mm": head.focal_mm(),
+            "standoff_mm": head.standoff_mm(),
+            "triangulation_deg": head.triangulation_deg(),
+            "pixel_um": head.pixel_um,
+            "speckle_patterns": head.speckle_patterns,
+            "from": head.source.name(),
         },
         "exposure_us": motion.exposure_us,
         "speed_mm_s": motion.speed_mm_s,

@@ -1,11 +1,13 @@
 //! What a calibration file gives the head: its calibration message and
-//! the search windows of its lasers.
+//! the search windows of its lasers; and the head it describes
+//! ([`HeadLens`]) for the optics prediction of the noise floor.
 
 use cms_core::peak::ColumnWindow;
 use cms_core::peak::window::MIN_WINDOW_PX;
 use cms_core::protocol::{Calibration, LASERS};
 
 use super::{CalibrationFile, FileError};
+use crate::model::head::{HeadGeometry, HeadLens, HeadSource, REFERENCE_PIXEL_UM};
 
 impl CalibrationFile {
     /// The calibration message for the head: needs the datum and all three lasers.
@@ -82,5 +84,41 @@ impl CalibrationFile {
             }
         }
         Ok(out)
+    }
+}
+
+impl CalibrationFile {
+    /// The head this calibration describes, as the optics prediction of
+    /// the noise floor reads it: the focal length, the stand-off along the
+    /// optical axis to the datum, the camera's tilt from the datum's
+    /// normal, the mean angle between the optical axis and the laser
+    /// planes, `[head]`'s line and range (the reference head's where it
+    /// has none), one speckle pattern a line, and the reference sensor's pixel pitch (the file gives
+    /// the focal length in pixels, not the pitch). `None` without a datum
+    /// and laser planes (a camera calibration alone).
+    pub fn head_lens(&self) -> Option<HeadLens> {
+        let datum = self.datum?;
+        if self.lasers.is_empty() || datum.nz.abs() < 1e-9 {
+            return None;
+        }
+        let alpha_deg = self.lasers.iter().map(|l| l.nz.abs().clamp(0.0, 1.0).asin().to_degrees()).sum::<f64>()
+            / self.lasers.len() as f64;
+        let mut geometry = HeadGeometry {
+            standoff_mm: datum.d_mm / datum.nz,
+            alpha_deg,
+            camera_tilt_deg: datum.nx.atan2(-datum.nz).to_degrees(),
+            ..HeadGeometry::reference()
+        };
+        if let Some(h) = self.head {
+            geometry.laser_diameter_mm = h.laser_diameter_mm;
+            geometry.working_range_mm = [h.range_min_mm, h.range_max_mm];
+        }
+        (geometry.standoff_mm > 0.0).then_some(HeadLens {
+            geometry,
+            focal_px: self.intrinsics().fx_px,
+            pixel_um: REFERENCE_PIXEL_UM,
+            speckle_patterns: 1,
+            source: HeadSource::Calibration,
+        })
     }
 }

@@ -53,3 +53,32 @@ pub fn truth(scene: &Scene) -> CalibrationFile {
         .collect();
     f
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::scene::SimConfig;
+
+    /// The head a calibration describes is the head it was made of: the
+    /// optics prediction reads the same geometry the simulator renders.
+    #[test]
+    fn the_calibration_gives_back_the_head() {
+        let mut cfg = SimConfig::reference();
+        cfg.head.camera_tilt_deg = 10.0;
+        cfg.head.alpha_deg = 30.0;
+        let want = cfg.head_lens();
+        let got = truth(&Scene::new(cfg).unwrap()).head_lens().unwrap();
+        assert_eq!(got.source, crate::model::head::HeadSource::Calibration);
+        assert!((got.standoff_mm() - 200.0).abs() < 1e-9, "{got:?}");
+        assert!((got.triangulation_deg() - 30.0).abs() < 1e-9, "{got:?}");
+        assert!((got.geometry.camera_tilt_deg - 10.0).abs() < 1e-9, "{got:?}");
+        assert_eq!((got.focal_px, got.pixel_um), (want.focal_px, want.pixel_um));
+        assert_eq!(got.geometry.working_range_mm, want.geometry.working_range_mm);
+        // A camera calibration alone describes no head.
+        assert_eq!(CalibrationFile::camera_only(&want_intrinsics(), 0.0, None).head_lens(), None);
+    }
+
+    fn want_intrinsics() -> crate::model::camera::Intrinsics {
+        crate::sim::scene::Camera::reference().intrinsics
+    }
+}

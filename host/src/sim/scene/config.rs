@@ -167,6 +167,19 @@ impl SimConfig {
         }
     }
 
+    /// The simulated head as the optics prediction of the noise floor
+    /// reads it (`crate::analyze::optics_floor`): its geometry, focal
+    /// length, pixel pitch and speckle patterns.
+    pub fn head_lens(&self) -> crate::model::head::HeadLens {
+        crate::model::head::HeadLens {
+            geometry: self.head,
+            focal_px: self.camera.intrinsics.fx_px,
+            pixel_um: self.camera.pixel_pitch_um,
+            speckle_patterns: self.light.speckle.map_or(1, |s| s.patterns),
+            source: crate::model::head::HeadSource::Simulated,
+        }
+    }
+
     /// The head's optics for `cms_core` (paper Eq. 10–11 with the 25 %
     /// margin): `optics().scale_range()` is the detector's scale range.
     pub fn optics(&self) -> cms_core::optics::Optics {

@@ -1,11 +1,14 @@
 //! Small 3-D geometry: vectors, planes, rigid poses, and the sensor head's
-//! construction (camera pose on the rail, laser planes in the camera frame).
+//! construction (camera pose on the rail, laser planes in the camera frame)
+//! from its geometry ([`crate::model::head::HeadGeometry`], which the
+//! optics prediction reads too).
 //!
 //! On the plain `[f64; 3]` of [`crate::model::vec3`] (a few dozen operations
 //! per image row).
 
 use super::SimError;
 use super::check;
+pub use crate::model::head::HeadGeometry;
 use crate::model::vec3::{Vec3, add, dot, scale, sub};
 
 /// A 3 × 3 matrix, row-major.
@@ -95,85 +98,7 @@ impl Pose {
     }
 }
 
-/// How the camera and the lasers sit on the rail (paper §2.2, Fig. 8, Table 4).
-///
-/// Rail frame: `x` along the track (direction of travel, 0 below the aim
-/// point), `y` across the rail head from its centreline (the crown's apex),
-/// `z` up from the nominal rail top. The camera (OpenCV axes) has `x_cam =
-/// +y` (columns cross the rail), `y_cam = +x` (rows run along the rail) and
-/// looks down; so each image row sees one position along the rail and the
-/// laser lines, which run along the rail, are near-vertical stripes.
-///
-/// The laser planes contain the rail direction and make the angle
-/// `alpha_deg` with the optical axis: a point of the rail top that rises by
-/// Δz moves its line sideways by Δz·tan(tilt + α) and its stripe by about
-/// `f_x·Δz·tan(tilt + α)/standoff` columns. They are fixed to the head:
-/// `yaw_deg`, `pitch_deg` and `roll_deg` turn the whole head (camera and
-/// lasers together) about the aim point, as a misaligned mount would
-/// (paper §2.2), and leave the planes in the camera frame unchanged.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct HeadGeometry {
-    /// Working distance: camera centre to the aim point on the nominal rail
-    /// top, along the optical axis, mm.
-    pub standoff_mm: f64,
-    /// Angle between the optical axis and each laser plane (paper α), degrees, in (0, 80).
-    pub alpha_deg: f64,
-    /// Tilt of the optical axis from the rail-top normal about the rail axis,
-    /// degrees (0 = looking straight down; `-alpha_deg` = vertical laser
-    /// planes and an oblique camera). The laser planes lean by
-    /// `camera_tilt_deg + alpha_deg` from the vertical.
-    pub camera_tilt_deg: f64,
-    /// Lateral position of the aim point from the rail centreline, mm.
-    pub lateral_offset_mm: f64,
-    /// Head yaw about the vertical through the aim point, degrees (lines not
-    /// parallel to the rail).
-    pub yaw_deg: f64,
-    /// Head pitch about the lateral axis through the aim point, degrees.
-    pub pitch_deg: f64,
-    /// Head roll about the rail axis through the aim point, degrees (camera
-    /// and lasers together; not perpendicular to the rail top).
-    pub roll_deg: f64,
-    /// Laser line thickness `d` (Table 4 "laser diameter"), mm: the stripe σ
-    /// is `f_x·d·sin α / depth` px (paper Eq. 10–11).
-    pub laser_diameter_mm: f64,
-    /// Working range `[r_min, r_max]` (Table 4), mm: the detector's scale
-    /// range comes from it (see `SimConfig::optics`).
-    pub working_range_mm: [f64; 2],
-}
-
 impl HeadGeometry {
-    /// The reference head: 200 mm standoff, α = 35°, camera straight down,
-    /// 0.75 mm line (σ ≈ 3.0 px at f = 1400 px), range 170–230 mm.
-    pub fn reference() -> HeadGeometry {
-        HeadGeometry {
-            standoff_mm: 200.0,
-            alpha_deg: 35.0,
-            camera_tilt_deg: 0.0,
-            lateral_offset_mm: 0.0,
-            yaw_deg: 0.0,
-            pitch_deg: 0.0,
-            roll_deg: 0.0,
-            laser_diameter_mm: 0.75,
-            working_range_mm: [170.0, 230.0],
-        }
-    }
-
-    /// The paper's prototype (Table 4): α = 42°, 2 mm line, range 350–550 mm,
-    /// standoff at the middle of the range (450 mm), camera straight down.
-    pub fn paper() -> HeadGeometry {
-        HeadGeometry {
-            standoff_mm: 450.0,
-            alpha_deg: 42.0,
-            camera_tilt_deg: 0.0,
-            lateral_offset_mm: 0.0,
-            yaw_deg: 0.0,
-            pitch_deg: 0.0,
-            roll_deg: 0.0,
-            laser_diameter_mm: 2.0,
-            working_range_mm: [350.0, 550.0],
-        }
-    }
-
     pub(crate) fn validate(&self) -> Result<(), SimError> {
         check("head.standoff_mm", self.standoff_mm, self.standoff_mm > 0.0, "finite and > 0")?;
         check("head.alpha_deg", self.alpha_deg, self.alpha_deg > 0.0 && self.alpha_deg < 80.0, "in (0, 80)")?;

@@ -80,26 +80,43 @@ fn speckle_keeps_the_light_and_is_fully_developed() {
     assert!((contrast / want - 1.0).abs() < 0.2, "{contrast} vs {want}");
 }
 
+/// The contrast of the third line's peak pixels, row to row, each scaled
+/// to its value in incoherent light.
+fn peak_contrast(cfg: &SimConfig) -> f64 {
+    let (img, t) = frame(cfg, 0);
+    let (clean, _) = frame(&SimConfig { light: LightModel::incoherent(), ..cfg.clone() }, 0);
+    let (mut s, mut s2, mut n) = (0.0, 0.0, 0.0);
+    for (r, st) in t.stripes[2].iter().enumerate() {
+        let Some(st) = st else { continue };
+        let c = st.column_px.round() as usize;
+        let v = f64::from(img[r * 752 + c]) / f64::from(clean[r * 752 + c]);
+        (s, s2, n) = (s + v, s2 + v * v, n + 1.0);
+    }
+    let m = s / n;
+    (s2 / n - m * m).sqrt() / m
+}
+
+/// K independent patterns summed in intensity (several diodes, a moving
+/// diffuser): the contrast falls as 1/√K (Goodman, Speckle Phenomena in
+/// Optics §5.2), the variance the prediction carries as a K-th.
+#[test]
+fn independent_patterns_lower_the_contrast_as_one_over_root_k() {
+    let at = |patterns: u32| {
+        let light = LightModel { speckle: Some(Speckle { f_number: 8.0, patterns }), ..LightModel::default() };
+        peak_contrast(&quiet(light, 0.0))
+    };
+    let (one, four) = (at(1), at(4));
+    // About 200 independent rows: the ratio within 20 %.
+    assert!(((four / one) / 0.5 - 1.0).abs() < 0.2, "{one} {four}: {} vs 0.5", four / one);
+}
+
 #[test]
 fn speckle_is_frozen_at_rest_and_averages_out_in_motion() {
     let still = quiet(LightModel::speckle(8.0), 0.0);
     let (a, _) = frame(&still, 0);
     let (b, _) = frame(&still, 5);
     assert_eq!(a, b, "a head at rest sees the same speckle every frame");
-    let contrast = |speed: f64| {
-        let cfg = quiet(LightModel::speckle(8.0), speed);
-        let (img, t) = frame(&cfg, 0);
-        let (clean, _) = frame(&quiet(LightModel::incoherent(), speed), 0);
-        let (mut s, mut s2, mut n) = (0.0, 0.0, 0.0);
-        for (r, st) in t.stripes[2].iter().enumerate() {
-            let Some(st) = st else { continue };
-            let c = st.column_px.round() as usize;
-            let v = f64::from(img[r * 752 + c]) / f64::from(clean[r * 752 + c]);
-            (s, s2, n) = (s + v, s2 + v * v, n + 1.0);
-        }
-        let m = s / n;
-        (s2 / n - m * m).sqrt() / m
-    };
+    let contrast = |speed: f64| peak_contrast(&quiet(LightModel::speckle(8.0), speed));
     // 20 m/s × 100 µs = 2 mm = 14 rows of travel: the window 1 × 15 px.
     let p = Pupil::new(0.685, 8.0, 8.4 / (200.0 - 8.4), 6.0, 0.0);
     let rows = 2000.0 * 1e-3 / 0.1429;
