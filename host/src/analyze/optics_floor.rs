@@ -240,8 +240,9 @@ pub enum OpticsCheck {
     Checked {
         optics: Optics,
         source: OpticsSource,
-        /// The head predicted for, and where its figures come from.
-        head: HeadLens,
+        /// The head predicted for, and where its figures come from (boxed:
+        /// it is most of the variant's size).
+        head: Box<HeadLens>,
         motion: Motion,
         budget: Budget,
         bands: Vec<Option<BandCheck>>,
@@ -277,7 +278,7 @@ impl OpticsCheck {
                     .collect()
             })
             .unwrap_or_default();
-        OpticsCheck::Checked { optics, source, head, motion, budget, bands, lines }
+        OpticsCheck::Checked { optics, source, head: Box::new(head), motion, budget, bands, lines }
     }
 }
 
