@@ -591,13 +591,13 @@ fn describe_blocks(v: &ReprofilingVerdict, s: &mut String) {
 }
 
 /// A block's ISO 3095 verdict in words: the lines' energy average's, and
-/// each line's where its third octaves fall otherwise ("within; laser 2
-/// not judged at 8 mm").
+/// each line's whose verdict differs ("within; laser 2 not judged at 8
+/// mm"); every line's third octaves are in `--json` and Parquet.
 pub fn block_iso3095_words(b: &Block) -> String {
     let Some(avg) = &b.iso3095 else { return "no spectrum".into() };
     let mut s = avg.words();
     for (laser, l) in &b.iso3095_lines {
-        if l != avg {
+        if l.verdict() != avg.verdict() {
             let _ = write!(s, "; laser {laser} {}", l.words());
         }
     }

@@ -49,15 +49,13 @@ function isoWords(i) {
   return s;
 }
 
-// A block's verdict: the energy average's, and each line's whose third
-// octaves fall otherwise (reprofiling::block_iso3095_words).
+// A block's verdict: the energy average's, and each line's whose verdict
+// differs (reprofiling::block_iso3095_words).
 function blockIsoWords(b) {
   if (!b.iso3095) return "no spectrum";
-  const same = (x, y) => x.verdict === y.verdict
-    && ["within_mm", "exceeded_mm", "not_judged_mm"].every((k) => x[k].join() === y[k].join());
   let s = isoWords(b.iso3095);
   for (const l of b.lines) {
-    if (!same(l.iso3095, b.iso3095)) s += "; laser " + l.laser + " " + isoWords(l.iso3095);
+    if (l.iso3095.verdict !== b.iso3095.verdict) s += "; laser " + l.laser + " " + isoWords(l.iso3095);
   }
   return s;
 }
