@@ -53,16 +53,30 @@ def dataset(fleet, cluster):
     return out
 
 
+ISO_CLASSES = ("within_mm", "exceeded_mm", "not_judged_mm")
+
+
+def iso3095_of(o, suffix):
+    """A spectrum's ISO 3095 verdict and third octaves in the JSON as the table's columns."""
+    row = {f"iso3095_verdict{suffix}": None if o is None else o["verdict"]}
+    for c in ISO_CLASSES:
+        row[f"iso3095_{c}{suffix}"] = None if o is None else [float(w) for w in o[c]]
+    return row
+
+
 def blocks_of(v):
-    """The CLI's blocks as the table's rows."""
+    """The CLI's blocks as the table's rows: the energy average's ISO 3095
+    verdict and each line's (``_K``, null where the line has no spectrum)."""
+    lasers = sorted({l["laser"] for l in v["lasers"]})
     rows = []
     for b in v["verdict"]["blocks"]:
-        e = b["iso3095_exceeded_mm"]
         row = {"start_chainage_mm": b["start_mm"], "end_chainage_mm": b["end_mm"]}
         for k, r in zip(BANDS, b["rms_mm"]):
             row[f"rms_um_{k}"] = None if r is None else r * 1000.0
-        row["iso3095_pass"] = None if e is None else not e
-        row["iso3095_exceeded_mm"] = None if e is None else [float(w) for w in e]
+        row |= iso3095_of(b["iso3095"], "")
+        lines = {l["laser"]: l["iso3095"] for l in b["lines"]}
+        for k in lasers:
+            row |= iso3095_of(lines.get(k), f"_{k}")
         rows.append(row)
     return rows
 
@@ -91,18 +105,21 @@ def pick(rows, keys):
 def test_the_package_gives_the_figures_of_the_cli(fleet):
     _, paths = fleet
     zones = 0
+    verdicts = set()
     for p in paths[:5]:
         v = cli_json(p)
         a = cms.analyze(p, block_m=BLOCK_M)
         assert a.summary == v
         want = blocks_of(v)
         assert pick(a.blocks.to_pylist(), want[0].keys()) == want
+        verdicts.update(r["iso3095_verdict"] for r in want)
         assert a.blocks["source"].to_pylist() == [p] * len(want)
         wz = zones_of(v)
         zones += len(wz)
         assert pick(a.zones.to_pylist(), ZONE_KEYS) == wz
         assert a.profile.num_rows > 1000 and a.profile["coverage"].null_count == 0
     assert zones > 0
+    assert verdicts - {None}, verdicts
 
 def test_the_tables_equal_the_cli_parquet_exports(fleet, tmp_path):
     import pyarrow.parquet as pq
@@ -170,6 +187,15 @@ def test_the_queries_run_and_agree_with_the_dataset(dataset):
     assert sorted((r["line"], r["track"]) for r in trends) == sorted({(r["line"], r["track"]) for r in runs})
     assert sum(r["surveys"] for r in trends) == COUNT
     assert all(r["error"] for r in trends), [r for r in trends if not r["error"]]
+    # Every block with a spectrum counted once, by its verdict.
+    (cols, rows) = res[queries.ISO3095_QUERY]
+    blocks = duckdb.connect().execute(
+        f"SELECT iso3095_verdict, count(*) FROM read_parquet('{dataset}/blocks/**/*.parquet', union_by_name = true) GROUP BY ALL"
+    ).fetchall()
+    by_verdict = dict(blocks)
+    for word, column in [("EXCEEDS", "blocks_exceeding"), ("not judged", "blocks_not_judged"), ("within", "blocks_within")]:
+        assert sum(r[cols.index(column)] for r in rows) == by_verdict.get(word, 0), (word, blocks)
+    assert sum(by_verdict.get(w, 0) for w in ("EXCEEDS", "not judged", "within")) > 0, blocks
     (cols, rows) = res["reprofiling length per line (EN 13231-3 verdict of each run, summed)"]
     assert sum(r[cols.index("runs")] for r in rows) == COUNT
     con = duckdb.connect()

@@ -589,7 +589,7 @@ mod tests {
         assert!(v.rows.iter().all(|r| r.passes(v.options.edition) != Some(false)), "{:?}", v.rows);
         assert_eq!(v.reprofile_mm, 0.0);
         assert!(v.zones.is_empty());
-        assert!(v.blocks.iter().all(|b| b.iso3095_exceeded.as_ref().is_none_or(Vec::is_empty)));
+        assert!(v.blocks.iter().all(|b| b.iso3095.as_ref().is_none_or(|i| i.exceeded_mm.is_empty())));
         for l in &smooth.lasers {
             assert!(l.roughness.as_ref().unwrap().spectrum.bands.iter().all(|b| b.verdict() != Some(Verdict::Exceeds)));
         }

@@ -613,7 +613,7 @@ mod tests {
                 e.sort_by(|a, b| b.total_cmp(a));
                 e
             });
-            assert_eq!(b.iso3095_exceeded, whole, "block {}", b.start_mm);
+            assert_eq!(b.iso3095.as_ref().map(|i| i.exceeded_mm.clone()), whole, "block {}", b.start_mm);
         }
     }
 }

@@ -118,16 +118,77 @@ pub struct Block {
     /// Per band (in [`en13231::BANDS`] order): RMS of the band-filtered
     /// displacement over the block, largest over the lines, mm (`None` where not evaluated).
     pub rms_mm: Vec<Option<f64>>,
-    /// EN 15610 third octaves that exceed the ISO 3095 limit (`None`: no
-    /// spectrum): the lines' spectra energy-averaged (EN 15610's lines
-    /// across the running band), the rail's own level over the limit with
-    /// confidence ([`crate::analyze::standards::detection`]).
-    pub iso3095_exceeded: Option<Vec<f64>>,
-    /// EN 15610 third octaves neither within nor exceeding: not judged
-    /// (the floor and the block's length cannot tell).
-    pub iso3095_not_judged: Vec<f64>,
+    /// The ISO 3095 third octaves of the lines' EN 15610 spectra
+    /// energy-averaged (EN 15610's lines across the running band), by
+    /// verdict (`None`: no spectrum).
+    pub iso3095: Option<Iso3095>,
+    /// Each line's own (by laser, in the block's line order; a line
+    /// without a spectrum in the block left out), judged against its own floor.
+    pub iso3095_lines: Vec<(usize, Iso3095)>,
     /// Per band: one line's noise floor RMS, mm (`None`: not known).
     pub floor_rms_mm: Vec<Option<f64>>,
+}
+
+/// A spectrum's ISO 3095 third octaves by their verdict
+/// ([`crate::analyze::standards::detection`]): nominal wavelengths, mm,
+/// longest first.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Iso3095 {
+    /// The reading, noise included, under the limit with confidence.
+    pub within_mm: Vec<f64>,
+    /// The rail's own level, the floor's power taken out, over the limit with confidence.
+    pub exceeded_mm: Vec<f64>,
+    /// Neither: the floor and the record's length cannot tell.
+    pub not_judged_mm: Vec<f64>,
+}
+
+impl Iso3095 {
+    /// The third octaves of `s` (its floors marked) by verdict.
+    pub fn of(s: &en15610::Spectrum) -> Iso3095 {
+        let mut out = Iso3095::default();
+        for b in &s.bands {
+            let class = match b.verdict() {
+                Some(Verdict::Within) => &mut out.within_mm,
+                Some(Verdict::Exceeds) => &mut out.exceeded_mm,
+                Some(Verdict::NotJudged) => &mut out.not_judged_mm,
+                None => continue,
+            };
+            class.push(b.nominal_wavelength_mm);
+        }
+        for class in [&mut out.within_mm, &mut out.exceeded_mm, &mut out.not_judged_mm] {
+            class.sort_by(|a, b| b.total_cmp(a));
+        }
+        out
+    }
+
+    /// The spectrum's verdict: EXCEEDS when a third octave exceeds, else
+    /// not judged when one is not judged, else within (`None`: no third
+    /// octave has an ISO 3095 limit).
+    pub fn verdict(&self) -> Option<Verdict> {
+        if !self.exceeded_mm.is_empty() {
+            Some(Verdict::Exceeds)
+        } else if !self.not_judged_mm.is_empty() {
+            Some(Verdict::NotJudged)
+        } else {
+            (!self.within_mm.is_empty()).then_some(Verdict::Within)
+        }
+    }
+
+    /// The verdict in words with the third octaves that make it: "within",
+    /// "EXCEEDS at 50, 40 mm; not judged at 8 mm", "not judged at 8, 6.3 mm".
+    pub fn words(&self) -> String {
+        let list = |e: &[f64]| e.iter().map(|w| w.to_string()).collect::<Vec<_>>().join(", ");
+        let mut s = match self.verdict() {
+            None => return "no ISO 3095 limit".into(),
+            Some(Verdict::Exceeds) => format!("{} at {} mm", Verdict::Exceeds, list(&self.exceeded_mm)),
+            Some(v) => v.name().to_string(),
+        };
+        if !self.not_judged_mm.is_empty() {
+            let sep = if self.exceeded_mm.is_empty() { " at" } else { "; not judged at" };
+            let _ = write!(s, "{sep} {} mm", list(&self.not_judged_mm));
+        }
+        s
+    }
 }
 
 /// The whole verdict.
@@ -370,7 +431,8 @@ impl Builder {
         let Some(open) = self.block.take() else { return };
         let mut rms = vec![None; en13231::BANDS.len()];
         let mut spectra = Vec::new();
-        for (_, sums, welch) in &open.lines {
+        let mut iso3095_lines = Vec::new();
+        for (laser, sums, welch) in &open.lines {
             for (b, &(sq, n)) in sums.iter().enumerate() {
                 if n > 0 {
                     let v = (sq / n as f64).sqrt();
@@ -380,7 +442,12 @@ impl Builder {
             if let Some(w) = welch
                 && w.segments() > 0
             {
-                spectra.push(w.spectrum());
+                let mut s = w.spectrum();
+                spectra.push(s.clone());
+                if let Some(f) = &self.floor {
+                    f.mark_line(*laser, &mut s);
+                }
+                iso3095_lines.push((*laser, Iso3095::of(&s)));
             }
         }
         let mut spectrum = en15610::energy_average(&spectra);
@@ -390,16 +457,6 @@ impl Builder {
         if rms.iter().all(Option::is_none) && spectrum.is_none() {
             return;
         }
-        let over = |verdict: Verdict| -> Vec<f64> {
-            let mut e: Vec<f64> = spectrum
-                .iter()
-                .flat_map(|s| &s.bands)
-                .filter(|b| b.verdict() == Some(verdict))
-                .map(|b| b.nominal_wavelength_mm)
-                .collect();
-            e.sort_by(|a, b| b.total_cmp(a));
-            e
-        };
         let (start_mm, end_mm) = open.span_mm;
         let floor_rms_mm =
             (0..en13231::BANDS.len()).map(|b| self.floor.as_ref().and_then(|f| f.band(b)).map(|f| f.rms_mm)).collect();
@@ -407,8 +464,8 @@ impl Builder {
             start_mm,
             end_mm,
             rms_mm: rms,
-            iso3095_exceeded: spectrum.as_ref().map(|_| over(Verdict::Exceeds)),
-            iso3095_not_judged: over(Verdict::NotJudged),
+            iso3095: spectrum.as_ref().map(Iso3095::of),
+            iso3095_lines,
             floor_rms_mm,
         });
     }
@@ -517,7 +574,7 @@ pub fn describe(v: &ReprofilingVerdict) -> String {
 
 /// The blocks' lines of [`describe`].
 fn describe_blocks(v: &ReprofilingVerdict, s: &mut String) {
-    if v.blocks.iter().all(|b| b.rms_mm.iter().all(Option::is_none) && b.iso3095_exceeded.is_none()) {
+    if v.blocks.iter().all(|b| b.rms_mm.iter().all(Option::is_none) && b.iso3095.is_none()) {
         let _ = writeln!(s, "blocks of {} m: no band or spectrum evaluated", v.options.block_mm / 1000.0);
         return;
     }
@@ -529,16 +586,24 @@ fn describe_blocks(v: &ReprofilingVerdict, s: &mut String) {
     for b in &v.blocks {
         let rms: Vec<String> =
             b.rms_mm.iter().map(|r| r.map_or("-".into(), |v| format!("{:.1}", v * 1000.0))).collect();
-        let list = |e: &[f64]| e.iter().map(|w| format!("{w}")).collect::<Vec<_>>().join(", ");
-        let mut iso = match &b.iso3095_exceeded {
-            None => "no spectrum".to_string(),
-            Some(e) if e.is_empty() && b.iso3095_not_judged.is_empty() => "ISO 3095 within".to_string(),
-            Some(e) if e.is_empty() => "ISO 3095: none exceeds".to_string(),
-            Some(e) => format!("ISO 3095 EXCEEDS at {} mm", list(e)),
+        let iso = match b.iso3095 {
+            Some(_) => format!("ISO 3095 {}", block_iso3095_words(b)),
+            None => block_iso3095_words(b),
         };
-        if !b.iso3095_not_judged.is_empty() {
-            let _ = write!(iso, " (not judged: {} mm)", list(&b.iso3095_not_judged));
-        }
         let _ = writeln!(s, "  {} – {}: {}; {iso}", chainage(b.start_mm), chainage(b.end_mm), rms.join(" / "));
     }
+}
+
+/// A block's ISO 3095 verdict in words: the lines' energy average's, and
+/// each line's whose verdict differs ("within; laser 2 not judged at 8
+/// mm"); every line's third octaves are in `--json` and Parquet.
+pub fn block_iso3095_words(b: &Block) -> String {
+    let Some(avg) = &b.iso3095 else { return "no spectrum".into() };
+    let mut s = avg.words();
+    for (laser, l) in &b.iso3095_lines {
+        if l.verdict() != avg.verdict() {
+            let _ = write!(s, "; laser {laser} {}", l.words());
+        }
+    }
+    s
 }

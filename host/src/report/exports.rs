@@ -47,11 +47,11 @@ use parquet::schema::types::Type;
 use crate::Error;
 use crate::analyze::pieces::Piece;
 use crate::analyze::standards::en13231;
-use crate::analyze::{Analysis, Source};
+use crate::analyze::{Analysis, Source, reprofiling};
 use crate::output::AtomicFile;
 
 /// Version of the schema below, in each file's key-value metadata as `cms.schema`.
-pub const SCHEMA_VERSION: &str = "cms-host analyze exports 2";
+pub const SCHEMA_VERSION: &str = "cms-host analyze exports 3";
 
 /// One column's values.
 #[derive(Debug, Clone, PartialEq)]
@@ -181,15 +181,30 @@ pub fn profile_table(source: &Source, a: &Analysis) -> Result<Table, Error> {
     Ok(t.unwrap_or_else(|| profile_rows(&name, &lines, &Piece::empty())))
 }
 
+/// The ISO 3095 columns of one spectrum per block, named `PREFIX…SUFFIX`:
+/// `iso3095_verdict` ("within", "EXCEEDS", "not judged"), and the
+/// third octaves of each verdict, `iso3095_within_mm`,
+/// `iso3095_exceeded_mm`, `iso3095_not_judged_mm` (all null without a spectrum).
+fn iso3095_columns(suffix: &str, of: Vec<Option<&reprofiling::Iso3095>>) -> [Column; 4] {
+    let list = |f: fn(&reprofiling::Iso3095) -> &Vec<f64>| {
+        Values::ListF64(of.iter().map(|i| i.map(|i| f(i).clone())).collect())
+    };
+    let verdict = of.iter().map(|i| i.and_then(|i| i.verdict()).map(|v| v.name().to_string())).collect();
+    [
+        col(format!("iso3095_verdict{suffix}"), true, Values::Str(verdict)),
+        col(format!("iso3095_within_mm{suffix}"), true, list(|i| &i.within_mm)),
+        col(format!("iso3095_exceeded_mm{suffix}"), true, list(|i| &i.exceeded_mm)),
+        col(format!("iso3095_not_judged_mm{suffix}"), true, list(|i| &i.not_judged_mm)),
+    ]
+}
+
 /// The blocks: `source`, `start_chainage_mm`, `end_chainage_mm`,
 /// `rms_um_LO_HI` per band (largest line; null where not evaluated),
-/// `iso3095_pass` (null: no spectrum; true: no third octave exceeds),
-/// `iso3095_exceeded_mm` (the one-third-octave wavelengths whose rail,
-/// the floor's power taken out, exceeds the limit with confidence; empty
-/// when none does, null without a spectrum), `floor_rms_um_LO_HI` per
-/// band (one line's noise floor; null where not known),
-/// `iso3095_not_judged_mm` (the wavelengths neither within nor exceeding:
-/// not judged, `crate::analyze::standards::detection`).
+/// `floor_rms_um_LO_HI` per band (one line's noise floor; null where not
+/// known); the ISO 3095 verdict of the lines' EN 15610 spectra
+/// energy-averaged ([`iso3095_columns`], `crate::analyze::standards::detection`)
+/// and of each line K against its own floor (the same columns, `_K` after
+/// the name; null where the line has no spectrum in the block).
 pub fn blocks_table(source: &Source, a: &Analysis) -> Table {
     let b = &a.verdict.blocks;
     let n = b.len();
@@ -204,25 +219,15 @@ pub fn blocks_table(source: &Source, a: &Analysis) -> Table {
         let v = b.iter().map(|b| b.rms_mm.get(k).copied().flatten().map(|v| v * 1000.0)).collect();
         columns.push(col(format!("rms_um_{}", band_key(band)), true, Values::F64(v)));
     }
-    columns.push(col(
-        "iso3095_pass",
-        true,
-        Values::Bool(b.iter().map(|b| b.iso3095_exceeded.as_ref().map(Vec::is_empty)).collect()),
-    ));
-    columns.push(col(
-        "iso3095_exceeded_mm",
-        true,
-        Values::ListF64(b.iter().map(|b| b.iso3095_exceeded.clone()).collect()),
-    ));
     for (k, band) in en13231::BANDS.iter().enumerate() {
         let v = b.iter().map(|b| b.floor_rms_mm.get(k).copied().flatten().map(|v| v * 1000.0)).collect();
         columns.push(col(format!("floor_rms_um_{}", band_key(band)), true, Values::F64(v)));
     }
-    columns.push(col(
-        "iso3095_not_judged_mm",
-        false,
-        Values::ListF64(b.iter().map(|b| Some(b.iso3095_not_judged.clone())).collect()),
-    ));
+    columns.extend(iso3095_columns("", b.iter().map(|b| b.iso3095.as_ref()).collect()));
+    for k in line_numbers(a) {
+        let line = b.iter().map(|b| b.iso3095_lines.iter().find(|(l, _)| *l == k).map(|(_, i)| i)).collect();
+        columns.extend(iso3095_columns(&format!("_{k}"), line));
+    }
     Table { columns }
 }
 

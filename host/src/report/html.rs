@@ -231,17 +231,7 @@ fn blocks(v: &reprofiling::ReprofilingVerdict) -> String {
         .map(|b| {
             let mut r = vec![chainage(b.start_mm), chainage(b.end_mm)];
             r.extend(b.rms_mm.iter().map(|v| v.map_or("-".into(), |v| format!("{:.1}", v * 1000.0))));
-            let list = |e: &[f64]| e.iter().map(|w| w.to_string()).collect::<Vec<_>>().join(", ");
-            let mut iso = match &b.iso3095_exceeded {
-                None => "no spectrum".into(),
-                Some(e) if e.is_empty() && b.iso3095_not_judged.is_empty() => "within".into(),
-                Some(e) if e.is_empty() => "none exceeds".into(),
-                Some(e) => format!("EXCEEDS at {} mm", list(e)),
-            };
-            if !b.iso3095_not_judged.is_empty() {
-                let _ = write!(iso, "; not judged: {} mm", list(&b.iso3095_not_judged));
-            }
-            r.push(iso);
+            r.push(reprofiling::block_iso3095_words(b));
             r
         })
         .collect();

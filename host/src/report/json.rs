@@ -47,9 +47,22 @@ fn verdict_json(v: &reprofiling::ReprofilingVerdict) -> Value {
             "end_mm": b.end_mm,
             "rms_mm": b.rms_mm,
             "floor_rms_mm": b.floor_rms_mm,
-            "iso3095_exceeded_mm": b.iso3095_exceeded,
-            "iso3095_not_judged_mm": b.iso3095_not_judged,
+            "iso3095": b.iso3095.as_ref().map(iso3095_json),
+            "lines": b.iso3095_lines.iter().map(|(laser, i)| json!({
+                "laser": laser,
+                "iso3095": iso3095_json(i),
+            })).collect::<Vec<_>>(),
         })).collect::<Vec<_>>(),
+    })
+}
+
+/// A spectrum's ISO 3095 verdict and its third octaves by verdict.
+fn iso3095_json(i: &reprofiling::Iso3095) -> Value {
+    json!({
+        "verdict": i.verdict().map(|v| v.name()),
+        "within_mm": i.within_mm,
+        "exceeded_mm": i.exceeded_mm,
+        "not_judged_mm": i.not_judged_mm,
     })
 }
 

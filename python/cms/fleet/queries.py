@@ -1,8 +1,8 @@
 """``python -m cms.fleet.queries DATASET``: example DuckDB queries over a
-dataset of ``cms.fleet.job`` — the blocks over the limit across the
-network, the worst sites, the reprofiling length per line, and the blocks
-that will cross their limit soonest. Each is a
-plain SQL text (``QUERIES``) over ``read_parquet(…, hive_partitioning = true)``:
+dataset of ``cms.fleet.job`` — the blocks by their ISO 3095 verdict
+across the network (``iso3095_verdict``: of the lines' energy average),
+the worst sites, the reprofiling length per line, and the blocks that
+will cross their limit soonest. Each is a plain SQL text (``QUERIES``) over ``read_parquet(…, hive_partitioning = true)``:
 copy it into any DuckDB."""
 
 from __future__ import annotations
@@ -15,15 +15,19 @@ import duckdb
 
 from . import store
 
+ISO3095_QUERY = "blocks by ISO 3095 verdict (within, EXCEEDS, not judged), per line and track"
+
 QUERIES = {
-    "blocks over the ISO 3095 limit, per line and track": """
+    ISO3095_QUERY: """
         SELECT line, track, year,
-               count(*) FILTER (WHERE NOT iso3095_pass) AS blocks_over,
-               count(iso3095_pass) AS blocks_judged,
-               round(sum(end_chainage_mm - start_chainage_mm) FILTER (WHERE NOT iso3095_pass) / 1000, 1) AS over_m,
-               round(100.0 * count(*) FILTER (WHERE NOT iso3095_pass) / nullif(count(iso3095_pass), 0), 1) AS over_percent
-        FROM read_parquet('{d}/blocks/**/*.parquet', hive_partitioning = true)
-        GROUP BY ALL ORDER BY blocks_over DESC, line, track, year""",
+               count(*) FILTER (WHERE iso3095_verdict = 'EXCEEDS') AS blocks_exceeding,
+               count(*) FILTER (WHERE iso3095_verdict = 'not judged') AS blocks_not_judged,
+               count(*) FILTER (WHERE iso3095_verdict = 'within') AS blocks_within,
+               round(sum(end_chainage_mm - start_chainage_mm) FILTER (WHERE iso3095_verdict = 'EXCEEDS') / 1000, 1) AS exceeding_m,
+               round(100.0 * count(*) FILTER (WHERE iso3095_verdict = 'EXCEEDS') / nullif(count(iso3095_verdict), 0), 1)
+                   AS exceeding_percent
+        FROM read_parquet('{d}/blocks/**/*.parquet', hive_partitioning = true, union_by_name = true)
+        GROUP BY ALL ORDER BY blocks_exceeding DESC, blocks_not_judged DESC, line, track, year""",
     "the worst sites (EN 13231-3 zones, by worst peak-to-peak over the band's limit)": """
         SELECT line, track, year, round(start_chainage_mm / 1000, 1) AS from_m, round(end_chainage_mm / 1000, 1) AS to_m,
                band_lo_mm || '-' || band_hi_mm AS band_mm,

@@ -78,7 +78,12 @@ fn a_smooth_rail_is_within_in_every_third_octave() {
             assert_eq!(b.verdict(), Some(Verdict::Within), "{what}: {b:?} {:?}", b.decision());
         }
     }
-    assert!(a.verdict.blocks.iter().all(|b| b.iso3095_exceeded == Some(vec![]) && b.iso3095_not_judged.is_empty()));
+    // Each block within, its energy average and each line.
+    for b in &a.verdict.blocks {
+        let lines = b.iso3095_lines.iter().map(|(_, i)| i);
+        assert!(b.iso3095.iter().chain(lines).all(|i| i.verdict() == Some(Verdict::Within)), "{b:?}");
+        assert_eq!(b.iso3095_lines.len(), 3, "{b:?}");
+    }
 }
 
 /// One line's RMS in `band` of white noise of `sigma_um` a sample `dx_mm`
@@ -120,7 +125,11 @@ fn unequal_lines_each_carry_their_own_floor() {
             assert_ne!(b.verdict(), Some(Verdict::Exceeds), "{what}: {b:?}");
         }
     }
-    assert!(v.blocks.iter().all(|b| b.iso3095_exceeded.as_ref().is_none_or(Vec::is_empty)), "{:?}", v.blocks);
+    // No block's energy average or line exceeds.
+    for b in &v.blocks {
+        let lines = b.iso3095_lines.iter().map(|(_, i)| i);
+        assert!(b.iso3095.iter().chain(lines).all(|i| i.exceeded_mm.is_empty()), "{b:?}");
+    }
     let f = a.floor.as_ref().unwrap();
     assert_eq!(f.lines_own.len(), 3);
     for own in &f.lines_own {

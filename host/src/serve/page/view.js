@@ -37,6 +37,78 @@ function row(tbody, cells, cls) {
   tbody.appendChild(tr);
 }
 
+// A spectrum's ISO 3095 third octaves by verdict in words, as the text
+// summary writes them (reprofiling::Iso3095::words).
+function isoWords(i) {
+  const list = (e) => e.join(", ");
+  let s = i.verdict === null ? "no ISO 3095 limit"
+    : i.verdict === "EXCEEDS" ? "EXCEEDS at " + list(i.exceeded_mm) + " mm" : i.verdict;
+  if (i.verdict !== null && i.not_judged_mm.length) {
+    s += (i.exceeded_mm.length ? "; not judged at " : " at ") + list(i.not_judged_mm) + " mm";
+  }
+  return s;
+}
+
+// A block's verdict: the energy average's, and each line's whose verdict
+// differs (reprofiling::block_iso3095_words).
+function blockIsoWords(b) {
+  if (!b.iso3095) return "no spectrum";
+  let s = isoWords(b.iso3095);
+  for (const l of b.lines) {
+    if (l.iso3095.verdict !== b.iso3095.verdict) s += "; laser " + l.laser + " " + isoWords(l.iso3095);
+  }
+  return s;
+}
+
+// The rail's level and interval as the text summary writes it (detection::RailLevel).
+function railText(d) {
+  const v = (x) => (x === null || x === undefined ? "-" : x.toFixed(1));
+  const lo = d.rail_lo_db, hi = d.rail_hi_db;
+  const range = lo !== null && hi !== null ? "[" + v(lo) + ", " + v(hi) + "]"
+    : hi !== null ? "[under " + v(hi) + "]" : lo !== null ? "[over " + v(lo) + "]" : "[unbounded]";
+  return v(d.rail_db) + " " + range;
+}
+
+// One third octave's cell: its verdict, and the rail with its interval where not within.
+function isoCell(b) {
+  const d = b && b.decision;
+  if (!d) return "–";
+  return d.verdict === "within" ? "within" : d.verdict + ": rail " + railText(d) + " dB";
+}
+
+// Each section's third octaves with a limit: every line's verdict and the energy average's.
+function isoTable(a) {
+  const t = $("iso3095");
+  const spectra = [];
+  for (const l of a.lasers || []) {
+    if (l.en15610 && l.en15610.bands) spectra.push({ section: l.section, name: "laser " + l.laser, bands: l.en15610.bands });
+  }
+  for (const rb of (a.noise && a.noise.running_bands) || []) {
+    if (rb.en15610) spectra.push({ section: rb.section, name: "energy average", bands: rb.en15610.bands });
+  }
+  const names = [...new Set(spectra.map((s) => s.name))];
+  const head = t.tHead.rows[0];
+  for (const n of names) {
+    const th = document.createElement("th");
+    th.textContent = n;
+    head.appendChild(th);
+  }
+  const sections = [...new Set(spectra.map((s) => s.section))];
+  for (const sec of sections) {
+    const of = spectra.filter((s) => s.section === sec);
+    const waves = [...new Set(of.flatMap((s) => s.bands.filter((b) => b.decision).map((b) => b.nominal_wavelength_mm)))];
+    for (const w of waves) {
+      const cells = names.map((n) => {
+        const s = of.find((x) => x.name === n);
+        return isoCell(s && s.bands.find((b) => b.nominal_wavelength_mm === w));
+      });
+      const limit = of.flatMap((s) => s.bands).find((b) => b.nominal_wavelength_mm === w).iso3095_limit_db;
+      row(t.tBodies[0], [String(sec), w + " mm", fmt(limit, 1, "dB"), ...cells],
+        cells.some((c) => c.startsWith("EXCEEDS")) ? "fail" : "");
+    }
+  }
+}
+
 function tables(a) {
   const v = a.verdict;
   const bands = $("bands").tBodies[0];
@@ -60,16 +132,10 @@ function tables(a) {
   }
   const blocks = $("blocks").tBodies[0];
   for (const b of v.blocks) {
-    let iso = b.iso3095_exceeded_mm === null ? "no spectrum"
-      : b.iso3095_exceeded_mm.length === 0
-        ? (b.iso3095_not_judged_mm && b.iso3095_not_judged_mm.length ? "none exceeds" : "within")
-        : "EXCEEDS at " + b.iso3095_exceeded_mm.join(", ") + " mm";
-    if (b.iso3095_not_judged_mm && b.iso3095_not_judged_mm.length) {
-      iso += "; not judged: " + b.iso3095_not_judged_mm.join(", ") + " mm";
-    }
-    row(blocks, [chainage(b.start_mm), chainage(b.end_mm), ...b.rms_mm.map((r) => fmt(r === null ? NaN : r * 1000, 1)), iso],
-      b.iso3095_exceeded_mm && b.iso3095_exceeded_mm.length ? "fail" : "");
+    row(blocks, [chainage(b.start_mm), chainage(b.end_mm), ...b.rms_mm.map((r) => fmt(r === null ? NaN : r * 1000, 1)),
+      blockIsoWords(b)], b.iso3095 && b.iso3095.verdict === "EXCEEDS" ? "fail" : "");
   }
+  isoTable(a);
   const marks = a.marks || [];
   const mt = $("marks").tBodies[0];
   for (const m of marks) row(mt, [m.chainage || chainage(m.chainage_mm), m.kind || "", m.text || ""]);

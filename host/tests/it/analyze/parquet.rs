@@ -313,7 +313,7 @@ fn parquet_exports_read_back_with_an_independent_reader() {
             s("coverage", "INT32", false),
         ]
     );
-    assert_eq!(p.meta["cms.schema"], "cms-host analyze exports 2");
+    assert_eq!(p.meta["cms.schema"], "cms-host analyze exports 3");
     assert_eq!(p.meta["cms.dx_mm"].parse::<f64>().unwrap(), dx);
     let origin = lasers.iter().map(|l| l["x0_mm"].as_f64().unwrap()).fold(f64::INFINITY, f64::min);
     let idx = |x: f64| ((x - origin) / dx).round() as usize;
@@ -373,29 +373,39 @@ fn parquet_exports_read_back_with_an_independent_reader() {
     // blocks.parquet
     let verdict = &v["verdict"];
     let b = pq::read(&pqdir.join("blocks.parquet"));
-    assert_eq!(
-        b.schema(),
-        vec![
-            s("source", "STRING", false),
-            s("start_chainage_mm", "DOUBLE", false),
-            s("end_chainage_mm", "DOUBLE", false),
-            s("rms_um_10_30", "DOUBLE", true),
-            s("rms_um_30_100", "DOUBLE", true),
-            s("rms_um_100_300", "DOUBLE", true),
-            s("rms_um_300_1000", "DOUBLE", true),
-            s("iso3095_pass", "BOOLEAN", true),
-            s("iso3095_exceeded_mm", "LIST<DOUBLE>", true),
-            s("floor_rms_um_10_30", "DOUBLE", true),
-            s("floor_rms_um_30_100", "DOUBLE", true),
-            s("floor_rms_um_100_300", "DOUBLE", true),
-            s("floor_rms_um_300_1000", "DOUBLE", true),
-            s("iso3095_not_judged_mm", "LIST<DOUBLE>", false),
+    // The energy average's ISO 3095 columns, then each line's (`_K`).
+    let iso = |k: &str| {
+        let c = |n: &str, t| s(&format!("iso3095_{n}{k}"), t, true);
+        [
+            c("verdict", "STRING"),
+            c("within_mm", "LIST<DOUBLE>"),
+            c("exceeded_mm", "LIST<DOUBLE>"),
+            c("not_judged_mm", "LIST<DOUBLE>"),
         ]
-    );
+    };
+    let mut want = vec![
+        s("source", "STRING", false),
+        s("start_chainage_mm", "DOUBLE", false),
+        s("end_chainage_mm", "DOUBLE", false),
+        s("rms_um_10_30", "DOUBLE", true),
+        s("rms_um_30_100", "DOUBLE", true),
+        s("rms_um_100_300", "DOUBLE", true),
+        s("rms_um_300_1000", "DOUBLE", true),
+        s("floor_rms_um_10_30", "DOUBLE", true),
+        s("floor_rms_um_30_100", "DOUBLE", true),
+        s("floor_rms_um_100_300", "DOUBLE", true),
+        s("floor_rms_um_300_1000", "DOUBLE", true),
+    ];
+    for k in ["", "_0", "_1", "_2"] {
+        want.extend(iso(k));
+    }
+    assert_eq!(b.schema(), want);
     let blocks = verdict["blocks"].as_array().unwrap();
     assert!(blocks.len() >= 3, "{blocks:?}");
     assert_eq!(b.rows, blocks.len());
-    let pq::Col::Bool(pass) = b.col("iso3095_pass") else { panic!() };
+    let wavelengths =
+        |v: &serde_json::Value| v.as_array().map(|e| e.iter().map(|w| w.as_f64().unwrap()).collect::<Vec<_>>());
+    let mut verdicts = std::collections::BTreeSet::new();
     let bands = ["10_30", "30_100", "100_300", "300_1000"];
     let mut rms_seen = 0;
     let mut several_exceeded = false;
@@ -413,13 +423,27 @@ fn parquet_exports_read_back_with_an_independent_reader() {
                 None => assert_eq!(got, None, "block {i} {band}"),
             }
         }
-        let exceeded = j["iso3095_exceeded_mm"].as_array();
-        assert_eq!(pass[i], exceeded.map(|e| e.is_empty()), "block {i}");
-        let list = exceeded.map(|e| e.iter().map(|w| w.as_f64().unwrap()).collect::<Vec<_>>());
-        assert_eq!(b.list("iso3095_exceeded_mm")[i], list, "block {i}");
-        several_exceeded |= list.is_some_and(|l| l.len() > 1);
+        // The energy average's and each line's verdict and third octaves, the JSON's.
+        let lines = j["lines"].as_array().unwrap();
+        let of = |k: &str| match k {
+            "" => &j["iso3095"],
+            k => lines
+                .iter()
+                .find(|l| format!("_{}", l["laser"]) == k)
+                .map_or(&serde_json::Value::Null, |l| &l["iso3095"]),
+        };
+        for k in ["", "_0", "_1", "_2"] {
+            let o = of(k);
+            assert_eq!(b.str(&format!("iso3095_verdict{k}"))[i].as_deref(), o["verdict"].as_str(), "block {i}{k}");
+            for class in ["within_mm", "exceeded_mm", "not_judged_mm"] {
+                assert_eq!(b.list(&format!("iso3095_{class}{k}"))[i], wavelengths(&o[class]), "block {i} {class}{k}");
+            }
+            verdicts.extend(o["verdict"].as_str().map(String::from));
+        }
+        several_exceeded |= wavelengths(&j["iso3095"]["exceeded_mm"]).is_some_and(|l| l.len() > 1);
     }
     assert!(several_exceeded, "a block with several wavelengths over the limit");
+    assert!(verdicts.contains("EXCEEDS"), "{verdicts:?}");
     assert!(rms_seen >= blocks.len(), "{rms_seen}");
 
     // zones.parquet

@@ -83,8 +83,46 @@ const t = (id) => document.getElementById(id).textContent;
 const rows = (id) => [...document.querySelectorAll('#' + id + ' tbody tr')].map((r) => [...r.cells].map((c) => c.textContent));
 return { reprofile: t('reprofile'), measured: t('measured'), frames: t('frames'), kept: t('kept'),
          zones: rows('zones'), blocks: rows('blocks'), bands: rows('bands'), edition: t('edition'),
+         iso: rows('iso3095'), iso_head: [...document.querySelectorAll('#iso3095 thead th')].map((c) => c.textContent),
          range: t('range'), frame: t('frameno'), odometer: t('frameodo') };
 "#;
+
+/// The viewer's ISO 3095 table: each line's and the energy average's
+/// verdict word per third octave is `analyze --json`'s, and where not
+/// within the rail's level is shown.
+fn iso3095_shown_is_analyzes(shown: &Value, a: &Value) {
+    let head: Vec<&str> = shown["iso_head"].as_array().unwrap().iter().map(|h| h.as_str().unwrap()).collect();
+    assert!(head.len() > 3 && head.contains(&"energy average"), "{head:?}");
+    let rows = shown["iso"].as_array().unwrap();
+    assert!(!rows.is_empty());
+    let mut words = std::collections::BTreeSet::new();
+    for r in rows {
+        let section = r[0].as_str().unwrap();
+        let spectrum = |name: &str| -> &Value {
+            let same = |v: &Value| v["section"].to_string() == section;
+            match name.strip_prefix("laser ") {
+                Some(k) => {
+                    &a["lasers"].as_array().unwrap().iter().find(|l| same(l) && l["laser"].to_string() == k).unwrap()["en15610"]
+                }
+                None => &a["noise"]["running_bands"].as_array().unwrap().iter().find(|rb| same(rb)).unwrap()["en15610"],
+            }
+        };
+        for (name, cell) in head[3..].iter().zip(&r.as_array().unwrap()[3..]) {
+            let cell = cell.as_str().unwrap();
+            let bands = spectrum(name)["bands"].as_array().unwrap();
+            let band =
+                bands.iter().find(|b| format!("{} mm", b["nominal_wavelength_mm"].as_f64().unwrap()) == r[1]).unwrap();
+            let d = &band["decision"];
+            let word = d["verdict"].as_str().unwrap();
+            assert_eq!(cell.split(':').next(), Some(word), "{name} at {}: {cell} vs {d}", r[1]);
+            if let (false, Some(rail)) = (word == "within", d["rail_db"].as_f64()) {
+                assert!(cell.contains(&format!("rail {rail:.1} [")), "{cell} vs {d}");
+            }
+            words.insert(word.to_string());
+        }
+    }
+    assert!(words.contains("EXCEEDS"), "{words:?}");
+}
 
 /// The viewer of a synthetic 20 m run (30 µm at 50 mm: zones over the
 /// 30–100 mm limit) shows `analyze --json`'s verdict, zones, blocks and
@@ -137,7 +175,10 @@ fn the_viewer_shows_what_analyze_finds() {
     for (s, j) in shown_blocks.iter().zip(blocks) {
         let rms = j["rms_mm"][1].as_f64().map_or("–".to_string(), |mm| format!("{:.1}", mm * 1000.0));
         assert_eq!(s[3], rms, "{s} {j}");
+        let verdict = j["iso3095"]["verdict"].as_str().unwrap_or("no spectrum");
+        assert!(s[6].as_str().unwrap().starts_with(verdict), "{s} {j}");
     }
+    iso3095_shown_is_analyzes(&shown, &a);
     assert_eq!(shown["bands"].as_array().unwrap().len(), v["bands"].as_array().unwrap().len());
 
     // Zoom: the server is asked again, the range narrows.
