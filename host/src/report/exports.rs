@@ -202,7 +202,7 @@ fn iso3095_columns(suffix: &str, of: Vec<Option<&reprofiling::Iso3095>>) -> [Col
 /// `rms_um_LO_HI` per band (largest line; null where not evaluated),
 /// `floor_rms_um_LO_HI` per band (one line's noise floor; null where not
 /// known); the ISO 3095 verdict of the lines' EN 15610 spectra
-/// energy-averaged ([`iso3095_columns`], `crate::analyze::standards::detection`)
+/// energy-averaged (`iso3095_columns`, [`crate::analyze::standards::detection`])
 /// and of each line K against its own floor (the same columns, `_K` after
 /// the name; null where the line has no spectrum in the block).
 pub fn blocks_table(source: &Source, a: &Analysis) -> Table {

@@ -207,7 +207,7 @@ fn blocks_follow_the_spike_removal_setting() {
             .as_array()
             .unwrap()
             .iter()
-            .map(|b| b["iso3095_exceeded_mm"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect())
+            .map(|b| b["iso3095"]["exceeded_mm"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect())
             .collect()
     };
     let removed = exceeded(&[]);

@@ -99,10 +99,12 @@ fn iso3095_shown_is_analyzes(shown: &Value, a: &Value) {
     for r in rows {
         let section = r[0].as_str().unwrap();
         let spectrum = |name: &str| -> &Value {
-            let same = |v: &Value| v["section"].to_string() == section;
+            // Numbers in the JSON, text in the page's table.
+            let text = |v: &Value| v.to_string();
+            let same = |v: &Value| text(&v["section"]) == section;
             match name.strip_prefix("laser ") {
                 Some(k) => {
-                    &a["lasers"].as_array().unwrap().iter().find(|l| same(l) && l["laser"].to_string() == k).unwrap()["en15610"]
+                    &a["lasers"].as_array().unwrap().iter().find(|l| same(l) && text(&l["laser"]) == k).unwrap()["en15610"]
                 }
                 None => &a["noise"]["running_bands"].as_array().unwrap().iter().find(|rb| same(rb)).unwrap()["en15610"],
             }
