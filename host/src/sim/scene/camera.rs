@@ -7,6 +7,7 @@
 use super::SimError;
 use super::check;
 use crate::model::camera::Intrinsics;
+use crate::model::head::{REFERENCE_FOCAL_PX, REFERENCE_PIXEL_UM};
 
 /// A camera: intrinsics, distortion and image size, bit depth, exposure and
 /// full-well capacity.
@@ -37,8 +38,8 @@ impl Camera {
             intrinsics: Intrinsics {
                 width_px: 752,
                 height_px: 480,
-                fx_px: 1400.0,
-                fy_px: 1400.0,
+                fx_px: REFERENCE_FOCAL_PX,
+                fy_px: REFERENCE_FOCAL_PX,
                 cx_px: 379.2,
                 cy_px: 236.8,
                 skew_px: 0.0,
@@ -48,7 +49,7 @@ impl Camera {
                 p2: -1.5e-4,
                 k3: 0.0,
             },
-            pixel_pitch_um: 6.0,
+            pixel_pitch_um: REFERENCE_PIXEL_UM,
             bits: 8,
             exposure_us: 100.0,
             full_well_e: 20_000.0,
