@@ -42,7 +42,7 @@ use super::floor::BandFloor;
 use super::pieces::RunningBand;
 use crate::analyze::standards::en13231;
 use crate::analyze::standards::wheel::Correction;
-use crate::analyze::standards::{Stretch, en15610, fmt_mm};
+use crate::analyze::standards::{Stretch, en15610, fmt_nominal_mm};
 
 /// A line's floor power is at least this share of the lines' mean (−10 dB).
 pub const MIN_SHARE: f64 = 0.1;
@@ -255,7 +255,7 @@ fn lines_of(
                 o.bands[t].level_db = 10.0 * v.max(1e-30).log10();
                 o.bands[t].dof = dof;
                 if clipped {
-                    l.clipped.push(format!("{} mm", fmt_mm(b.nominal_wavelength_mm)));
+                    l.clipped.push(format!("{} mm", fmt_nominal_mm(b.nominal_wavelength_mm)));
                 }
             }
         }

@@ -12,7 +12,7 @@
 use std::fmt::Write as _;
 
 use crate::analyze::marks::PlacedMark;
-use crate::analyze::standards::{StandardsError, en13231, en15610, fmt_mm};
+use crate::analyze::standards::{StandardsError, en13231, en15610, fmt_mm, fmt_nominal_mm};
 use crate::analyze::stitch::Stitched;
 use crate::analyze::{Analysis, LaserAnalysis, Recording, Source, chainage, fmt_len, reprofiling};
 
@@ -694,7 +694,7 @@ fn roughness(r: &Result<en15610::Roughness, StandardsError>) -> String {
             let dash = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
             let d = b.decision();
             vec![
-                fmt_mm(b.nominal_wavelength_mm),
+                fmt_nominal_mm(b.nominal_wavelength_mm),
                 format!("{:.1}", b.level_db),
                 dash(b.floor_db),
                 d.as_ref().map_or("-".into(), |d| d.rail.to_string()),

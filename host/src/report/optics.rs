@@ -8,7 +8,7 @@ use std::fmt::Write as _;
 use serde_json::{Value, json};
 
 use super::table::{escape, table};
-use crate::analyze::optics_floor::{OpticsCheck, OpticsSource};
+use crate::analyze::optics_floor::{Agreement, OctaveChecks, OpticsCheck, OpticsSource};
 use crate::analyze::standards::en13231;
 use crate::analyze::{Analysis, fmt_len};
 
@@ -79,15 +79,43 @@ pub fn describe(a: &Analysis) -> String {
             let _ = writeln!(s, "  line {laser}'s own floor against the prediction: {}", list.join(", "));
         }
     }
-    s.push_str(
-        "  (EN 15610's third octaves are not predicted: curvature processing and spike removal are not linear)\n",
-    );
+    if let OpticsCheck::Checked { octaves, line_octaves, .. } = &a.optics {
+        if !octaves.is_empty() {
+            let _ = writeln!(s, "  EN 15610 one-third octaves, one line's floor: {}", octave_summary(octaves));
+        }
+        for (laser, checks) in line_octaves.iter().filter(|(_, c)| !c.is_empty()) {
+            let _ = writeln!(s, "  line {laser}'s own third-octave floor: {}", octave_summary(checks));
+        }
+    }
     s
+}
+
+/// A third-octave check in one line: how many agree, the spread, and
+/// every one that does not.
+fn octave_summary(checks: &OctaveChecks) -> String {
+    use crate::analyze::standards::fmt_nominal_mm;
+    let agree = checks.iter().filter(|(_, c)| c.agreement == Agreement::Agrees).count();
+    let (lo, hi) = checks
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (_, c)| (lo.min(c.ratio_db), hi.max(c.ratio_db)));
+    let mut out = format!(
+        "{agree} of {} agree with the optics ({:+.1} to {:+.1} dB, {}–{} mm)",
+        checks.len(),
+        lo,
+        hi,
+        fmt_nominal_mm(checks.last().map_or(0.0, |c| c.0)),
+        fmt_nominal_mm(checks.first().map_or(0.0, |c| c.0)),
+    );
+    for (mm, c) in checks.iter().filter(|(_, c)| c.agreement != Agreement::Agrees) {
+        let _ = write!(out, "; {} mm: {}", fmt_nominal_mm(*mm), c.says());
+    }
+    out
 }
 
 /// `noise.predicted` of `--json`.
 pub fn json(a: &Analysis) -> Value {
-    let OpticsCheck::Checked { optics, source, head, motion, budget, bands, lines } = &a.optics else {
+    let OpticsCheck::Checked { optics, source, head, motion, budget, bands, lines, octaves, line_octaves } = &a.optics
+    else {
         return json!({ "checked": false, "why": heading(&a.optics) });
     };
     json!({
@@ -125,7 +153,31 @@ pub fn json(a: &Analysis) -> Value {
             "ratio_db": checks.iter().map(|c| c.map(|c| c.ratio_db)).collect::<Vec<_>>(),
             "agreement": checks.iter().map(|c| c.map(|c| c.agreement.name())).collect::<Vec<_>>(),
         })).collect::<Vec<_>>(),
+        "third_octaves": octaves_json(octaves),
+        "lines_third_octaves": line_octaves.iter().map(|(laser, checks)| json!({
+            "laser": laser,
+            "third_octaves": octaves_json(checks),
+        })).collect::<Vec<_>>(),
     })
+}
+
+/// Third-octave checks in `--json`: levels in dB re 1 µm.
+fn octaves_json(checks: &OctaveChecks) -> Value {
+    let db = |rms_mm: f64| 20.0 * (rms_mm * 1e3).log10();
+    Value::Array(
+        checks
+            .iter()
+            .map(|(mm, c)| {
+                json!({
+                    "wavelength_mm": mm,
+                    "predicted_db": db(c.predicted_rms_mm),
+                    "measured_db": db(c.measured_rms_mm),
+                    "ratio_db": c.ratio_db,
+                    "agreement": c.agreement.name(),
+                })
+            })
+            .collect(),
+    )
 }
 
 /// The check in report.html.
@@ -155,5 +207,14 @@ pub fn html(a: &Analysis) -> String {
         &["band", "predicted by the optics, RMS µm", "one line's floor, RMS µm", "ratio, dB", "the floor"],
         &rows,
     ));
+    if let OpticsCheck::Checked { octaves, .. } = &a.optics {
+        if !octaves.is_empty() {
+            let _ = writeln!(
+                s,
+                "<p>EN 15610 one-third octaves, one line's floor: {}.</p>",
+                escape(&octave_summary(octaves))
+            );
+        }
+    }
     s
 }

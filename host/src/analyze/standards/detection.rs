@@ -13,7 +13,7 @@
 //! * **EXCEEDS** when the lower bound of `R` is over the limit: the rail
 //!   itself, the floor's power taken out, is over it with confidence.
 //! * **not judged** between the two, with the floor, the limit and what
-//!   would settle it ([`Decision::settle`]: a longer record where the
+//!   would settle it (`settle`: a longer record where the
 //!   interval's narrowing would decide, a lower floor where the floor
 //!   itself stands at or over the limit).
 //!

@@ -59,7 +59,9 @@ use rustfft::num_complex::Complex;
 
 use super::detection::{Decision, Estimate, Verdict};
 use super::wheel::{self, Correction};
-use super::{StandardsError, Stretch, check_dx, fmt_mm, remove_mean_and_trend, run_mm, samples_for, segments};
+use super::{
+    StandardsError, Stretch, check_dx, fmt_mm, fmt_nominal_mm, remove_mean_and_trend, run_mm, samples_for, segments,
+};
 
 /// Spike criterion: second derivative below this, µm/m².
 pub const SPIKE_CURVATURE_UM_PER_M2: f64 = -1e7;
@@ -638,7 +640,7 @@ pub fn spectrum_csv(s: &Spectrum) -> String {
             b.k,
             b.centre_per_m,
             b.wavelength_mm,
-            fmt_mm(b.nominal_wavelength_mm),
+            fmt_nominal_mm(b.nominal_wavelength_mm),
             b.level_db,
             opt(b.iso3095_limit_db, 1),
             opt(b.margin_db(), 2),
@@ -681,7 +683,7 @@ pub fn spectrum_table(r: &Roughness) -> String {
         let _ = writeln!(
             out,
             "{:>14} {:>9.1} {:>9} {:>26} {:>10}  {}",
-            fmt_mm(b.nominal_wavelength_mm),
+            fmt_nominal_mm(b.nominal_wavelength_mm),
             b.level_db,
             dash(b.floor_db),
             d.as_ref().map_or("-".into(), |d| d.rail.to_string()),

@@ -63,6 +63,14 @@ pub fn fmt_mm(v: f64) -> String {
     if (v - v.round()).abs() < 1e-6 * v.abs().max(1.0) { format!("{}", v.round()) } else { format!("{v:.1}") }
 }
 
+/// A nominal (preferred-number) wavelength as the standards write it:
+/// 3.15, 31.5, 250 (the R10 series needs two decimals where [`fmt_mm`]
+/// keeps one).
+pub fn fmt_nominal_mm(v: f64) -> String {
+    let s = format!("{v:.2}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
+}
+
 /// Checks the sample spacing.
 fn check_dx(dx_mm: f64) -> Result<(), StandardsError> {
     if dx_mm.is_finite() && dx_mm > 0.0 { Ok(()) } else { Err(StandardsError::BadSampling { dx_mm }) }
