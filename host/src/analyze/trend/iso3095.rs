@@ -1,7 +1,7 @@
 //! ISO 3095 over surveys: per block of the first survey and ISO 3095 third
 //! octave, each survey's verdict of the lines' EN 15610 energy average and
 //! the rail's level with its interval — the block's own decision as
-//! `cms-host analyze` made it ([`reprofiling::Iso3095::bands`]), not
+//! `cms-host analyze` made it ([`crate::analyze::reprofiling::Iso3095::bands`]), not
 //! judged again — and the growth per year of the rail's level.
 //!
 //! # The figure
