@@ -36,23 +36,29 @@ PathLike = Union[str, "os.PathLike[str]"]
 class Analysis:
     """One ``analyze`` call's result.
 
-    ``profile``, ``blocks``, ``zones``: the ``pyarrow.Table`` of each export
-    (docs/exports.md, the schema ``SCHEMA_VERSION``; ``profile`` ``None``
-    when ``analyze`` was asked to leave it out); ``summary``: the
-    ``--json`` object. ``tables`` holds the three by name.
+    ``profile``, ``blocks``, ``zones``, ``third_octaves``: the
+    ``pyarrow.Table`` of each export (docs/exports.md, the schema
+    ``SCHEMA_VERSION``; ``profile`` ``None`` when ``analyze`` was asked to
+    leave it out; ``third_octaves`` is ``third_octaves.parquet``: each
+    block's ISO 3095 third octaves, of each line and of their energy
+    average); ``summary``: the ``--json`` object. ``tables`` holds the
+    four by name.
     """
 
-    __slots__ = ("profile", "blocks", "zones", "summary")
+    __slots__ = ("profile", "blocks", "zones", "third_octaves", "summary")
 
-    def __init__(self, profile: Optional[pa.Table], blocks: pa.Table, zones: pa.Table, summary: dict):
+    def __init__(
+        self, profile: Optional[pa.Table], blocks: pa.Table, zones: pa.Table, third_octaves: pa.Table, summary: dict
+    ):
         self.profile = profile
         self.blocks = blocks
         self.zones = zones
+        self.third_octaves = third_octaves
         self.summary = summary
 
     @property
     def tables(self) -> dict:
-        return {"profile": self.profile, "blocks": self.blocks, "zones": self.zones}
+        return {"profile": self.profile, "blocks": self.blocks, "zones": self.zones, "third_octaves": self.third_octaves}
 
     def __repr__(self) -> str:
         rows = ", ".join(f"{k} {t.num_rows} rows" for k, t in self.tables.items() if t is not None)
@@ -119,7 +125,7 @@ def analyze(
         paths = [paths]
     if isinstance(chainage, str):
         chainage = [chainage]
-    profile, blocks, zones, summary = _cms.analyze(
+    profile, blocks, zones, third_octaves, summary = _cms.analyze(
         [os.fspath(p) for p in paths],
         chainage=None if chainage is None else list(chainage),
         edition=str(edition),
@@ -137,7 +143,9 @@ def analyze(
         profile=bool(profile),
         track_register=None if track_register is None else os.fspath(track_register),
     )
-    return Analysis(None if profile is None else _table(profile), _table(blocks), _table(zones), json.loads(summary))
+    return Analysis(
+        None if profile is None else _table(profile), _table(blocks), _table(zones), _table(third_octaves), json.loads(summary)
+    )
 
 
 class Trend:

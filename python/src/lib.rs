@@ -231,12 +231,12 @@ fn registration(s: Option<&str>) -> PyResult<Registration> {
     }
 }
 
-/// The three tables (profile, blocks, zones) as lists of columns (the
-/// profile `None` when not asked for), and the report's JSON text.
-type Analysed<'py> = (Option<Bound<'py, PyList>>, Bound<'py, PyList>, Bound<'py, PyList>, String);
+/// The four tables (profile, blocks, zones, third octaves) as lists of
+/// columns (the profile `None` when not asked for), and the report's JSON text.
+type Analysed<'py> = (Option<Bound<'py, PyList>>, Bound<'py, PyList>, Bound<'py, PyList>, Bound<'py, PyList>, String);
 
 /// `cms-host analyze PATHS… --json --parquet`: the tables (profile,
-/// blocks, zones) as lists of columns and the report's JSON text.
+/// blocks, zones, third octaves) as lists of columns and the report's JSON text.
 #[pyfunction]
 #[pyo3(signature = (
     paths, chainage=None, edition="2006", block_m=50.0, search_m=25.0, dx_mm=None, direction=None,
@@ -309,6 +309,7 @@ fn analyze<'py>(
         profile,
         table(py, &exports::blocks_table(&source, &a))?,
         table(py, &exports::zones_table(&source, &a))?,
+        table(py, &exports::third_octaves_table(&source, &a))?,
         summary,
     ))
 }

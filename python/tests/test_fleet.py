@@ -81,6 +81,31 @@ def blocks_of(v):
     return rows
 
 
+def third_octaves_of(v):
+    """The CLI's blocks' ISO 3095 third octaves as ``third_octaves``' rows:
+    per block the energy average (``laser`` null), then each line."""
+    rows = []
+    for b in v["verdict"]["blocks"]:
+        spectra = [(None, b["iso3095"])] + [(l["laser"], l["iso3095"]) for l in b["lines"]]
+        for laser, o in spectra:
+            for t in [] if o is None else o["bands"]:
+                d = t["decision"]
+                if d is not None:
+                    rows.append(
+                        {
+                            "start_chainage_mm": b["start_mm"],
+                            "laser": laser,
+                            "wavelength_mm": t["nominal_wavelength_mm"],
+                            "level_db": t["level_db"],
+                            "floor_db": t["floor_db"],
+                            "rail_db": d["rail_db"],
+                            "rail_lo_db": d["rail_lo_db"],
+                            "verdict": d["verdict"],
+                        }
+                    )
+    return rows
+
+
 ZONE_KEYS = ("band_lo_mm", "band_hi_mm", "start_chainage_mm", "end_chainage_mm", "exceeding_mm", "worst_pp_mm")
 
 
@@ -104,7 +129,7 @@ def pick(rows, keys):
 
 def test_the_package_gives_the_figures_of_the_cli(fleet):
     _, paths = fleet
-    zones = 0
+    zones = octaves = 0
     verdicts = set()
     for p in paths[:5]:
         v = cli_json(p)
@@ -118,7 +143,10 @@ def test_the_package_gives_the_figures_of_the_cli(fleet):
         zones += len(wz)
         assert pick(a.zones.to_pylist(), ZONE_KEYS) == wz
         assert a.profile.num_rows > 1000 and a.profile["coverage"].null_count == 0
-    assert zones > 0
+        wt = third_octaves_of(v)
+        octaves += len(wt)
+        assert wt and pick(a.third_octaves.to_pylist(), wt[0].keys()) == wt
+    assert zones > 0 and octaves > 0
     assert verdicts - {None}, verdicts
 
 def test_the_tables_equal_the_cli_parquet_exports(fleet, tmp_path):
@@ -147,10 +175,11 @@ def test_the_dataset_holds_every_recording_with_the_cli_figures(fleet, dataset):
     blocks = ds.dataset(os.path.join(dataset, "blocks"), format="parquet", partitioning=part).to_table()
     zones = ds.dataset(os.path.join(dataset, "zones"), format="parquet", partitioning=part).to_table()
     runs = ds.dataset(os.path.join(dataset, "runs"), format="parquet", partitioning=part).to_table()
+    octaves = ds.dataset(os.path.join(dataset, "third_octaves"), format="parquet", partitioning=part).to_table()
     assert sorted(runs["source"].to_pylist()) == sorted(paths)
     assert runs["error"].null_count == COUNT
     by = lambda t: {s: [] for s in paths} | _group(t)
-    b_by, z_by, r_by = by(blocks), by(zones), by(runs)
+    b_by, z_by, r_by, o_by = by(blocks), by(zones), by(runs), by(octaves)
     for p in paths:
         v = cli_json(p)
         sv = v["survey"]
@@ -161,6 +190,9 @@ def test_the_dataset_holds_every_recording_with_the_cli_figures(fleet, dataset):
         gz = sorted(z_by[p], key=lambda r: (r["band_lo_mm"], r["start_chainage_mm"]))
         assert pick(gz, ZONE_KEYS) == sorted(wz, key=lambda r: (r["band_lo_mm"], r["start_chainage_mm"])), p
         zones_seen += len(wz)
+        keys = ("start_chainage_mm", "laser", "wavelength_mm", "verdict")
+        order = lambda r: (r["start_chainage_mm"], -1 if r["laser"] is None else r["laser"], -r["wavelength_mm"])
+        assert pick(sorted(o_by[p], key=order), keys) == pick(sorted(third_octaves_of(v), key=order), keys), p
         [run] = r_by[p]
         assert run["reprofile_mm"] == v["verdict"]["reprofile_mm"] and run["measured_mm"] == v["verdict"]["measured_mm"]
         for r in got + gz + [run]:
@@ -177,7 +209,7 @@ def _group(t):
 
 def test_the_queries_run_and_agree_with_the_dataset(dataset):
     res = queries.run(dataset)
-    assert len(res) == 4
+    assert len(res) == 5
     # The fleet's sites are surveyed at other chainages each time: no trend (test_the_trend_… has one).
     assert res.pop(TREND_QUERY) == ([], [])
     for title, (cols, rows) in res.items():
@@ -196,6 +228,15 @@ def test_the_queries_run_and_agree_with_the_dataset(dataset):
     for word, column in [("EXCEEDS", "blocks_exceeding"), ("not judged", "blocks_not_judged"), ("within", "blocks_within")]:
         assert sum(r[cols.index(column)] for r in rows) == by_verdict.get(word, 0), (word, blocks)
     assert sum(by_verdict.get(w, 0) for w in ("EXCEEDS", "not judged", "within")) > 0, blocks
+    # Every energy average's third octave counted once, by its verdict.
+    (cols, rows) = res[queries.THIRD_OCTAVE_QUERY]
+    octaves = dict(
+        duckdb.connect()
+        .execute(f"SELECT verdict, count(*) FROM read_parquet('{dataset}/third_octaves/**/*.parquet') WHERE laser IS NULL GROUP BY ALL")
+        .fetchall()
+    )
+    for word, column in [("EXCEEDS", "exceeding"), ("not judged", "not_judged"), ("within", "within")]:
+        assert sum(r[cols.index(column)] for r in rows) == octaves.get(word, 0), (word, octaves)
     (cols, rows) = res["reprofiling length per line (EN 13231-3 verdict of each run, summed)"]
     assert sum(r[cols.index("runs")] for r in rows) == COUNT
     con = duckdb.connect()

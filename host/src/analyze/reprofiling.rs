@@ -140,6 +140,11 @@ pub struct Iso3095 {
     pub exceeded_mm: Vec<f64>,
     /// Neither: the floor and the record's length cannot tell.
     pub not_judged_mm: Vec<f64>,
+    /// The third octaves judged, as the spectrum holds them (its floors
+    /// marked), long wavelengths first: each one's level, floor, limit and
+    /// decision ([`en15610::ThirdOctave::decision`]) — what the lists above
+    /// are made of.
+    pub bands: Vec<en15610::ThirdOctave>,
 }
 
 impl Iso3095 {
@@ -154,6 +159,7 @@ impl Iso3095 {
                 None => continue,
             };
             class.push(b.nominal_wavelength_mm);
+            out.bands.push(*b);
         }
         for class in [&mut out.within_mm, &mut out.exceeded_mm, &mut out.not_judged_mm] {
             class.sort_by(|a, b| b.total_cmp(a));

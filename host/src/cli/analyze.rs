@@ -147,7 +147,8 @@ pub struct AnalyzeArgs {
     #[arg(long, value_name = "DIR")]
     pub report: Option<PathBuf>,
     /// Write the stitched profile, the blocks and the zones as Parquet
-    /// (profile.parquet, blocks.parquet, zones.parquet, fixes.parquet; docs/exports.md)
+    /// (profile.parquet, blocks.parquet, zones.parquet, fixes.parquet,
+    /// third_octaves.parquet; docs/exports.md)
     /// into DIR (created if missing; an existing DIR is replaced whole).
     /// The report writes them too: the same DIR as --report writes the report once.
     #[arg(long, value_name = "DIR")]

@@ -46,7 +46,8 @@ pub struct TrendArgs {
     /// Print one JSON object instead of the text table.
     #[arg(long)]
     pub json: bool,
-    /// Write the trend report (trend.html, trend.svg/png, trend.csv, summary.txt) into DIR
+    /// Write the trend report (trend.html, trend.svg/png, trend.csv,
+    /// trend_iso3095.csv, summary.txt) into DIR
     /// (created if missing; an existing trend report is replaced whole).
     #[arg(long, value_name = "DIR")]
     pub report: Option<PathBuf>,

@@ -3,7 +3,9 @@
 //! `profile.parquet` (the stitched profile, one row per sample),
 //! `blocks.parquet` (block RMS and ISO 3095 per block) and
 //! `zones.parquet` (the exceedance zones), `fixes.parquet` (the runs'
-//! GNSS fixes, placed on the chainage). The schema is documented in
+//! GNSS fixes, placed on the chainage), `third_octaves.parquet` (each
+//! block's ISO 3095 third octaves, of each line and of their energy
+//! average: level, floor, limit, rail level with its interval, verdict). The schema is documented in
 //! docs/exports.md; every file of every survey has the same columns for
 //! the same lines, and a `source` column naming the inputs, so a fleet's
 //! files concatenate (`read_parquet('*/profile.parquet', union_by_name = true)`).
@@ -46,12 +48,12 @@ use parquet::schema::types::Type;
 
 use crate::Error;
 use crate::analyze::pieces::Piece;
-use crate::analyze::standards::en13231;
+use crate::analyze::standards::{detection, en13231, en15610};
 use crate::analyze::{Analysis, Source, reprofiling};
 use crate::output::AtomicFile;
 
 /// Version of the schema below, in each file's key-value metadata as `cms.schema`.
-pub const SCHEMA_VERSION: &str = "cms-host analyze exports 3";
+pub const SCHEMA_VERSION: &str = "cms-host analyze exports 4";
 
 /// One column's values.
 #[derive(Debug, Clone, PartialEq)]
@@ -229,6 +231,50 @@ pub fn blocks_table(source: &Source, a: &Analysis) -> Table {
         columns.extend(iso3095_columns(&format!("_{k}"), line));
     }
     Table { columns }
+}
+
+/// A row of [`third_octaves_table`]: the block, the line (`None`: the
+/// energy average), the third octave and its decision.
+type OctaveRow<'a> = (&'a reprofiling::Block, Option<i32>, &'a en15610::ThirdOctave, detection::Decision);
+
+/// Each block's ISO 3095 third octaves, one row per (block, spectrum,
+/// third octave), blocks in chainage order, the lines' energy average
+/// first and then each line, long wavelengths first: `source`,
+/// `start_chainage_mm`, `end_chainage_mm`, `laser` (the line, numbered
+/// as `--json`'s `laser`; null: the energy average — not `line`, which
+/// names the railway line in a survey block and a fleet's dataset),
+/// `wavelength_mm` (nominal), `level_db` (the reading, noise included;
+/// null where it is no finite level), `floor_db` (null: not known), `limit_db`, `rail_db`,
+/// `rail_lo_db`, `rail_hi_db` (the rail's level with the floor's power
+/// taken out and its interval; null where the reading is at or under the
+/// floor, or the bound is open), `verdict` ("within", "EXCEEDS", "not
+/// judged"), all in dB re 1 µm — the figures of `--json`'s
+/// `verdict.blocks[].iso3095.bands` and `lines[].iso3095.bands`.
+pub fn third_octaves_table(source: &Source, a: &Analysis) -> Table {
+    let mut rows: Vec<OctaveRow> = Vec::new();
+    for b in &a.verdict.blocks {
+        let lines = b.iso3095_lines.iter().map(|(k, i)| (i32::try_from(*k).ok(), i));
+        for (line, iso) in b.iso3095.as_ref().map(|i| (None, i)).into_iter().chain(lines) {
+            rows.extend(iso.bands.iter().filter_map(|t| Some((b, line, t, t.decision()?))));
+        }
+    }
+    let f = |g: &dyn Fn(&OctaveRow) -> Option<f64>| Values::F64(rows.iter().map(g).collect());
+    Table {
+        columns: vec![
+            col("source", false, Values::Str(vec![Some(source.name()); rows.len()])),
+            col("start_chainage_mm", false, f(&|r| Some(r.0.start_mm))),
+            col("end_chainage_mm", false, f(&|r| Some(r.0.end_mm))),
+            col("laser", true, Values::I32(rows.iter().map(|r| r.1).collect())),
+            col("wavelength_mm", false, f(&|r| Some(r.2.nominal_wavelength_mm))),
+            col("level_db", true, f(&|r| Some(r.3.level_db).filter(|v| v.is_finite()))),
+            col("floor_db", true, f(&|r| r.3.floor_db.filter(|v| v.is_finite()))),
+            col("limit_db", false, f(&|r| Some(r.3.limit_db))),
+            col("rail_db", true, f(&|r| r.3.rail.db)),
+            col("rail_lo_db", true, f(&|r| r.3.rail.lo_db)),
+            col("rail_hi_db", true, f(&|r| r.3.rail.hi_db)),
+            col("verdict", false, Values::Str(rows.iter().map(|r| Some(r.3.verdict.name().to_string())).collect())),
+        ],
+    }
 }
 
 /// The zones: `source`, `edition`, `band_lo_mm`, `band_hi_mm`,
@@ -520,14 +566,16 @@ fn meta(source: &Source, a: &Analysis) -> Vec<(&'static str, String)> {
 }
 
 /// The file names written by [`write()`].
-pub const FILES: [&str; 4] = ["profile.parquet", "blocks.parquet", "zones.parquet", "fixes.parquet"];
+pub const FILES: [&str; 5] =
+    ["profile.parquet", "blocks.parquet", "zones.parquet", "fixes.parquet", "third_octaves.parquet"];
 
 /// Whether a file of this name is one of [`FILES`].
 pub fn owns(name: &str) -> bool {
     FILES.contains(&name)
 }
 
-/// Writes `profile.parquet`, `blocks.parquet`, `zones.parquet` and `fixes.parquet` into
+/// Writes `profile.parquet`, `blocks.parquet`, `zones.parquet`, `fixes.parquet` and
+/// `third_octaves.parquet` into
 /// `dir` (created if missing) as one output set ([`crate::output::set`]):
 /// the folder then holds these files and nothing else, or — on any
 /// failure, or a crash — what it held before. Any failure is an error
@@ -536,7 +584,7 @@ pub fn write(dir: &Path, source: &Source, a: &Analysis) -> Result<(), Error> {
     crate::output::set::write_set(dir, owns, |d| write_files(d, source, a))
 }
 
-/// Writes the four files into `dir` (one file at a time, each whole).
+/// Writes the five files into `dir` (one file at a time, each whole).
 pub(crate) fn write_files(dir: &Path, source: &Source, a: &Analysis) -> Result<(), Error> {
     let mut profile = ProfileParquet::create(dir, source, a)?;
     a.for_each_piece(|p| profile.piece(p))?;
@@ -544,11 +592,15 @@ pub(crate) fn write_files(dir: &Path, source: &Source, a: &Analysis) -> Result<(
     write_tables(dir, source, a)
 }
 
-/// Writes `blocks.parquet`, `zones.parquet` and `fixes.parquet` into `dir`.
+/// Writes `blocks.parquet`, `zones.parquet`, `fixes.parquet` and `third_octaves.parquet` into `dir`.
 pub(crate) fn write_tables(dir: &Path, source: &Source, a: &Analysis) -> Result<(), Error> {
     let meta = meta(source, a);
-    let tables =
-        [("blocks", blocks_table(source, a)), ("zones", zones_table(source, a)), ("fixes", fixes_table(source, a))];
+    let tables = [
+        ("blocks", blocks_table(source, a)),
+        ("zones", zones_table(source, a)),
+        ("fixes", fixes_table(source, a)),
+        ("third_octaves", third_octaves_table(source, a)),
+    ];
     for ((name, t), file) in tables.iter().zip(&FILES[1..]) {
         let path = dir.join(file);
         let bytes = to_parquet(name, t, &meta)

@@ -63,6 +63,7 @@ fn iso3095_json(i: &reprofiling::Iso3095) -> Value {
         "within_mm": i.within_mm,
         "exceeded_mm": i.exceeded_mm,
         "not_judged_mm": i.not_judged_mm,
+        "bands": third_octaves_json(&i.bands),
     })
 }
 
@@ -140,14 +141,14 @@ fn survey_floor_json(a: &Analysis) -> Value {
             "en13231": bands_json(&rb.bands, &rb.judgements),
             "en15610": rb.roughness.as_ref().map(|s| json!({
                 "segments": s.segments,
-                "bands": third_octaves_json(s),
+                "bands": third_octaves_json(&s.bands),
             })),
         })).collect::<Vec<_>>(),
     })
 }
 
-fn third_octaves_json(s: &en15610::Spectrum) -> Vec<Value> {
-    s.bands
+fn third_octaves_json(bands: &[en15610::ThirdOctave]) -> Vec<Value> {
+    bands
         .iter()
         .map(|b| {
             json!({
@@ -339,7 +340,7 @@ fn roughness_json(l: &LaserAnalysis) -> Value {
             "segments": r.spectrum.segments,
             "segment_mm": r.spectrum.segment_mm,
             "spikes_removed": r.spikes_removed,
-            "bands": third_octaves_json(&r.spectrum),
+            "bands": third_octaves_json(&r.spectrum.bands),
             "not_evaluated": iso3095_not_evaluated(r).iter().map(|(w, why)| json!({
                 "nominal_wavelength_mm": w, "why": why,
             })).collect::<Vec<_>>(),

@@ -22,7 +22,7 @@
 //! | `registration.csv` | per laser and frame: overlap, offset, tilt, residual |
 //! | `gaps.csv` | per laser: start and length of every gap |
 //! | `marks.csv` | the event marks at their chainage ([`marks`]) |
-//! | `profile.parquet`, `blocks.parquet`, `zones.parquet`, `fixes.parquet` | the stitched profile, blocks, zones and GNSS fixes ([`exports`], docs/exports.md) |
+//! | `profile.parquet`, `blocks.parquet`, `zones.parquet`, `fixes.parquet`, `third_octaves.parquet` | the stitched profile, blocks, zones, GNSS fixes and each block's ISO 3095 third octaves ([`exports`], docs/exports.md) |
 //!
 //! Long profiles are plotted through a min/max envelope of at most
 //! [`MAX_PLOT_POINTS`] points per line (the CSVs keep every sample),
@@ -547,7 +547,7 @@ pub fn write(dir: &Path, source: &Source, a: &Analysis, summary: &str) -> Result
 const FILES: &str = "profile.csv (x_mm, one height column per laser, µm), bands_laserK.csv (band signals, mm), \
     spectrum_laserK.csv (one-third octaves; bands_laserK_sectionN.csv and \
     spectrum_laserK_sectionN.csv when the line is in several sections), registration.csv (per frame), gaps.csv, summary.txt; \
-    profile.parquet, blocks.parquet, zones.parquet, fixes.parquet (docs/exports.md); track.svg/.png when the recordings hold GNSS fixes";
+    profile.parquet, blocks.parquet, zones.parquet, fixes.parquet, third_octaves.parquet (docs/exports.md); track.svg/.png when the recordings hold GNSS fixes";
 
 /// A plot's error as the report's output error.
 fn out_err(what: &str, e: crate::plot::PlotError) -> Error {

@@ -2,7 +2,8 @@
 //! surveys, the registrations, the blocks nearest to exceeding and the
 //! whole table), `trend.svg` / `trend.png` (the growth per year of every
 //! block, per band, with ±2 u error bars, against chainage), `trend.csv`
-//! (one row per block and band) and `summary.txt` — written as one output
+//! (one row per block and band), `trend_iso3095.csv` (one row per block
+//! and ISO 3095 third octave) and `summary.txt` — written as one output
 //! set ([`crate::output::set`]), each file atomically.
 
 use std::fmt::Write as _;
@@ -13,6 +14,8 @@ use plotters::prelude::*;
 
 use crate::Error;
 use crate::analyze::chainage;
+use crate::analyze::standards::detection;
+use crate::analyze::trend::iso3095::{BlockIso3095, SHOWN_UNDER_LIMIT_DB, ThirdOctaveTrend};
 use crate::analyze::trend::{BlockTrend, Crossing, SurveyRun, Trend};
 use crate::plot::{self, Figure, err};
 use crate::recording::survey_info::SurveyDate;
@@ -20,7 +23,7 @@ use crate::report::exports::{Column, Table, Values};
 
 /// Whether a file of this name is one the trend report writes.
 pub fn owns(name: &str) -> bool {
-    ["trend.html", "trend.svg", "trend.png", "trend.csv", "summary.txt"].contains(&name)
+    ["trend.html", "trend.svg", "trend.png", "trend.csv", "trend_iso3095.csv", "summary.txt"].contains(&name)
 }
 
 /// The text table: surveys, registrations, the blocks nearest to exceeding.
@@ -55,19 +58,74 @@ pub fn summary(t: &Trend) -> String {
     let near = t.nearest();
     if near.is_empty() {
         let _ = writeln!(s, "no block crosses a limit within the horizon");
+    } else {
+        let _ = writeln!(s, "\nblocks nearest to exceeding:");
+        let _ = writeln!(
+            s,
+            "  {:<24} {:<11} {:>9} {:>9} {:>18} crossing (±2u)",
+            "block", "band", "limit µm", "last µm", "growth µm/yr ± u"
+        );
+        for b in near {
+            let _ = writeln!(s, "  {}", row(b));
+        }
+    }
+    s.push_str(&iso3095_summary(t));
+    s
+}
+
+/// The ISO 3095 part of the text: the block third octaves whose verdict
+/// changed or whose latest judged rail level stands near the limit.
+fn iso3095_summary(t: &Trend) -> String {
+    let mut s = String::new();
+    let mut shown: Vec<(&BlockIso3095, &ThirdOctaveTrend)> =
+        t.iso3095.iter().flat_map(|b| b.third_octaves.iter().filter(|o| o.shown()).map(move |o| (b, o))).collect();
+    // The changes first, then the highest over (or nearest under) the limit.
+    let over = |o: &ThirdOctaveTrend| o.latest_figure().map_or(f64::NEG_INFINITY, |f| f.0 - o.limit_db);
+    shown.sort_by(|a, b| b.1.changed().is_some().cmp(&a.1.changed().is_some()).then(over(b.1).total_cmp(&over(a.1))));
+    let more = shown.len().saturating_sub(MAX_SHOWN);
+    shown.truncate(MAX_SHOWN);
+    let what = format!(
+        "ISO 3095 third octaves (the lines' EN 15610 energy average) whose verdict changed from the first to the last \
+         survey, or whose latest judged rail level stands within {SHOWN_UNDER_LIMIT_DB:.0} dB of the limit or over; \
+         changes first, then the highest against the limit"
+    );
+    if shown.is_empty() {
+        let _ = writeln!(s, "\nno {what}");
         return s;
     }
-    let _ = writeln!(s, "\nblocks nearest to exceeding:");
+    let _ = writeln!(s, "\n{what}:");
     let _ = writeln!(
         s,
-        "  {:<24} {:<11} {:>9} {:>9} {:>18} crossing (±2u)",
-        "block", "band", "limit µm", "last µm", "growth µm/yr ± u"
+        "  {:<24} {:>7} {:>8}  {:<36} {:>22} {:>16}",
+        "block",
+        "λ mm",
+        "limit dB",
+        "verdict per survey",
+        format!("rail dB [{}%]", detection::CONFIDENCE_PERCENT),
+        "growth dB/yr ± u"
     );
-    for b in near {
-        let _ = writeln!(s, "  {}", row(b));
+    for (b, o) in shown {
+        let verdicts: Vec<&str> = o.readings.iter().map(|r| r.map_or("-", |r| r.verdict.name())).collect();
+        let rail = o.readings.iter().rev().flatten().next().map_or("-".into(), |r| r.rail.to_string());
+        let _ = writeln!(
+            s,
+            "  {:<24} {:>7} {:>8.1}  {:<36} {:>22} {:>16}",
+            format!("{} – {}", chainage(b.start_mm), chainage(b.end_mm)),
+            o.wavelength_mm,
+            o.limit_db,
+            verdicts.join(" → "),
+            rail,
+            o.growth.map_or("-".into(), |(g, u)| format!("{g:+.2} ± {u:.2}")),
+        );
+    }
+    if more > 0 {
+        let _ = writeln!(s, "  … and {more} more (every block and third octave: --json, trend_iso3095.csv)");
     }
     s
 }
+
+/// The most block third octaves the text lists.
+const MAX_SHOWN: usize = 20;
 
 /// "30–100 mm".
 fn label(band: &crate::analyze::standards::en13231::Band) -> String {
@@ -118,6 +176,48 @@ pub fn csv(t: &Trend) -> String {
             opt(b.growth.map(|g| g.1)),
             opt(b.chi2_reduced)
         );
+    }
+    s
+}
+
+/// The ISO 3095 CSV table: one row per block and third octave, each
+/// survey's verdict, reading, floor and rail level with its interval (dB
+/// re 1 µm; empty where the survey has no spectrum of the block or the
+/// figure is not known), the change of verdict (`within → EXCEEDS`) and
+/// the growth of the rail's level.
+pub fn iso3095_csv(t: &Trend) -> String {
+    let mut s = String::from("start_mm,end_mm,wavelength_mm,limit_db");
+    for (_, date) in &t.surveys {
+        for c in ["verdict", "level_db", "floor_db", "rail_db", "rail_lo_db", "rail_hi_db"] {
+            let _ = write!(s, ",{c}_{date}");
+        }
+    }
+    s.push_str(",changed,growth_db_per_year,u_growth_db_per_year,chi2_reduced\n");
+    let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.3}"));
+    for b in &t.iso3095 {
+        for o in &b.third_octaves {
+            let _ = write!(s, "{:.3},{:.3},{},{:.1}", b.start_mm, b.end_mm, o.wavelength_mm, o.limit_db);
+            for r in &o.readings {
+                let _ = write!(
+                    s,
+                    ",{},{},{},{},{},{}",
+                    r.map_or("", |r| r.verdict.name()),
+                    opt(r.map(|r| r.level_db)),
+                    opt(r.and_then(|r| r.floor_db)),
+                    opt(r.and_then(|r| r.rail.db)),
+                    opt(r.and_then(|r| r.rail.lo_db)),
+                    opt(r.and_then(|r| r.rail.hi_db)),
+                );
+            }
+            let changed = o.changed().map_or(String::new(), |(a, b)| format!("{a} → {b}"));
+            let _ = writeln!(
+                s,
+                ",{changed},{},{},{}",
+                opt(o.growth.map(|g| g.0)),
+                opt(o.growth.map(|g| g.1)),
+                opt(o.chi2_reduced)
+            );
+        }
     }
     s
 }
@@ -246,8 +346,41 @@ pub fn json(t: &Trend) -> String {
             "chi2_reduced": b.chi2_reduced,
             "crossing": crossing(&b.crossing),
         })).collect::<Vec<_>>(),
+        "iso3095": t.iso3095.iter().map(iso3095_json).collect::<Vec<_>>(),
     });
     v.to_string()
+}
+
+/// One block's ISO 3095 third octaves over the surveys as JSON (dB re 1
+/// µm, dB/year).
+fn iso3095_json(b: &BlockIso3095) -> serde_json::Value {
+    use serde_json::json;
+    let reading = |r: &crate::analyze::trend::iso3095::Reading| {
+        json!({
+            "verdict": r.verdict.name(),
+            "level_db": r.level_db,
+            "floor_db": r.floor_db,
+            "rail_db": r.rail.db,
+            "rail_lo_db": r.rail.lo_db,
+            "rail_hi_db": r.rail.hi_db,
+            "figure_db": r.figure().map(|f| f.0),
+            "u_db": r.figure().map(|f| f.1),
+        })
+    };
+    json!({
+        "start_mm": b.start_mm,
+        "end_mm": b.end_mm,
+        "third_octaves": b.third_octaves.iter().map(|o| json!({
+            "wavelength_mm": o.wavelength_mm,
+            "limit_db": o.limit_db,
+            "readings": o.readings.iter().map(|r| r.as_ref().map(reading)).collect::<Vec<_>>(),
+            "changed": o.changed().map(|(a, b)| json!({"from": a.name(), "to": b.name()})),
+            "growth_db_per_year": o.growth.map(|g| g.0),
+            "u_growth_db_per_year": o.growth.map(|g| g.1),
+            "chi2_reduced": o.chi2_reduced,
+            "shown": o.shown(),
+        })).collect::<Vec<_>>(),
+    })
 }
 
 /// Writes the trend report into `dir` as one output set.
@@ -258,6 +391,7 @@ pub fn write(dir: &Path, t: &Trend) -> Result<(), Error> {
         };
         put("summary.txt", &summary(t))?;
         put("trend.csv", &csv(t))?;
+        put("trend_iso3095.csv", &iso3095_csv(t))?;
         let svg = plot::svg_and_png(&d.join("trend"), (1400, 1000), &GrowthFig(t)).map_err(Error::from)?;
         put("trend.html", &html(t, &svg))
     })

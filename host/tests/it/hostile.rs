@@ -301,7 +301,10 @@ fn a_rerun_replaces_an_output_set_whole() {
     std::fs::create_dir(&pq).unwrap();
     std::fs::write(pq.join("zones.parquet"), b"old").unwrap();
     assert!(run(&["analyze", s(&one), "--parquet", s(&pq)]).status.success());
-    assert_eq!(names_in(&pq), ["blocks.parquet", "fixes.parquet", "profile.parquet", "zones.parquet"]);
+    assert_eq!(
+        names_in(&pq),
+        ["blocks.parquet", "fixes.parquet", "profile.parquet", "third_octaves.parquet", "zones.parquet"]
+    );
     assert_ne!(std::fs::read(pq.join("zones.parquet")).unwrap(), b"old");
     let before = files_of(&out);
     let e = one_line_error(&run(&["analyze", s(&one), "--parquet", s(&out)]));

@@ -125,7 +125,8 @@ fn a_trend_over_three_surveys_recovers_the_growth() {
         }
     }
     assert_eq!(grown, 1, "one block inside the zone");
-    for f in ["trend.html", "trend.svg", "trend.png", "trend.csv", "summary.txt"] {
+    iso3095_follows_the_rail(&v);
+    for f in ["trend.html", "trend.svg", "trend.png", "trend.csv", "trend_iso3095.csv", "summary.txt"] {
         assert!(report.join(f).is_file(), "{f}");
     }
     let csv = std::fs::read_to_string(report.join("trend.csv")).unwrap();
@@ -139,6 +140,95 @@ fn a_trend_over_three_surveys_recovers_the_growth() {
     let text = String::from_utf8_lossy(&o.stdout);
     println!("{text}");
     assert!(text.contains("blocks nearest to exceeding") && text.contains("0+050"), "{text}");
+    // The corrugated block's 50 mm third octave, over the limit in every survey, is shown.
+    let iso = text.split("ISO 3095 third octaves").nth(1).unwrap_or_default();
+    assert!(
+        iso.lines().any(|l| l.contains("0+050") && l.contains(" 50 ") && l.contains("EXCEEDS → EXCEEDS → EXCEEDS")),
+        "{text}"
+    );
+    let csv = std::fs::read_to_string(report.join("trend_iso3095.csv")).unwrap();
+    assert!(csv.starts_with("start_mm,end_mm,wavelength_mm,limit_db,verdict_2024-05-02,level_db_2024-05-02"), "{csv}");
+    assert_eq!(
+        csv.lines().count(),
+        1 + v["iso3095"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|b| b["third_octaves"].as_array().unwrap().len())
+            .sum::<usize>()
+    );
+}
+
+/// The rail's level in a third octave over a block, per survey: the EN 15610
+/// spectrum of the rail itself (no head, no noise), dB re 1 µm.
+fn true_levels_db(lo_mm: f64, hi_mm: f64, wavelength_mm: f64) -> Vec<f64> {
+    use cms_host::analyze::standards::en15610;
+    AMPLITUDES_UM
+        .iter()
+        .map(|&a| {
+            let z: Vec<f64> = (lo_mm.round() as usize..hi_mm.round() as usize)
+                .map(|x| survey_rail_um(x as f64, ZONE_MM, 50.0, a))
+                .collect();
+            let r = en15610::analyze(&z, 1.0, &en15610::Options::default()).unwrap();
+            r.spectrum.bands.iter().find(|b| b.nominal_wavelength_mm == wavelength_mm).unwrap().level_db
+        })
+        .collect()
+}
+
+/// The trend's ISO 3095 part: every block, every survey read; the
+/// corrugated block's 50 mm third octave EXCEEDS in every survey and its
+/// rail level grows as the true rail's does (within 3 u), the blocks
+/// outside the zone never over the limit and, where followed, not growing.
+fn iso3095_follows_the_rail(v: &serde_json::Value) {
+    use cms_host::recording::survey_info::SurveyDate;
+    let first: SurveyDate = DATES[0].parse().unwrap();
+    let years: Vec<f64> = DATES.iter().map(|d| d.parse::<SurveyDate>().unwrap().years_since(first)).collect();
+    let blocks = v["iso3095"].as_array().unwrap();
+    let starts: std::collections::BTreeSet<i64> =
+        v["blocks"].as_array().unwrap().iter().map(|b| b["start_mm"].as_f64().unwrap() as i64).collect();
+    assert_eq!(blocks.len(), starts.len());
+    let (mut zone, mut flat, mut judged_outside) = (0, 0, 0);
+    for b in blocks {
+        let (lo, hi) = (b["start_mm"].as_f64().unwrap(), b["end_mm"].as_f64().unwrap());
+        let inside = lo >= ZONE_MM.0 - 1000.0 && hi <= ZONE_MM.1 + 1000.0;
+        // A block's spectrum is of its own length alone: no filter reaches past its ends.
+        let outside = hi <= ZONE_MM.0 || lo >= ZONE_MM.1;
+        for o in b["third_octaves"].as_array().unwrap() {
+            let w = o["wavelength_mm"].as_f64().unwrap();
+            let readings = o["readings"].as_array().unwrap();
+            assert_eq!(readings.len(), 3, "{o}");
+            let growth = o["growth_db_per_year"].as_f64().map(|g| (g, o["u_growth_db_per_year"].as_f64().unwrap()));
+            let judged = readings.iter().filter(|r| !r["figure_db"].is_null()).count();
+            assert_eq!(growth.is_some(), judged >= 2, "{o}");
+            if inside && w == 50.0 {
+                assert!(readings.iter().all(|r| r["verdict"] == "EXCEEDS"), "{o}");
+                let (g, u) = growth.unwrap();
+                let truth = true_levels_db(lo, hi, w);
+                let pts: Vec<(f64, f64, f64)> = readings
+                    .iter()
+                    .zip(&truth)
+                    .zip(&years)
+                    .map(|((r, &l), &t)| (t, l, r["u_db"].as_f64().unwrap()))
+                    .collect();
+                let want = cms_host::analyze::trend::weighted_fit(&pts).unwrap().b;
+                println!(
+                    "block {lo:.0}–{hi:.0} mm, 50 mm: growth {g:+.3} ± {u:.3} dB/yr, truth {want:+.3} (true levels {truth:.2?} dB)"
+                );
+                assert!((g - want).abs() <= 3.0 * u && u < 1.0, "{g} ± {u} against {want}");
+                zone += 1;
+            } else if outside {
+                // The same rail every year, well under the limit: never over it, not growing.
+                assert!(readings.iter().all(|r| r["verdict"] != "EXCEEDS"), "{lo} {w} mm: {o}");
+                if let Some((g, u)) = growth {
+                    assert!(g.abs() <= 3.0 * u, "{lo} {w} mm: {g} ± {u}");
+                    flat += 1;
+                }
+                judged_outside += judged;
+            }
+        }
+    }
+    println!("ISO 3095 outside the zone: {judged_outside} figures, {flat} third octaves followed, none growing");
+    assert!(zone == 1 && flat >= 10, "{zone} {flat}");
 }
 
 #[test]

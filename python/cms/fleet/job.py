@@ -6,7 +6,8 @@ analysed on its own, as ``cms-host analyze RECORDING`` would, on a Dask
 cluster: a LocalCluster of N single-threaded worker processes on this
 machine, or the scheduler at ADDRESS (the same code on a cluster; its
 workers need the ``cms`` package and must reach INPUT and OUTPUT). The blocks, the
-zones and one row per recording (``runs``) go into OUTPUT as a
+zones, the blocks' ISO 3095 third octaves (``third_octaves``) and one row
+per recording (``runs``) go into OUTPUT as a
 hive-partitioned Parquet dataset ``TABLE/line=…/track=…/year=…/``.
 
 Then the trend of every site: the analysed recordings grouped by the
@@ -177,6 +178,7 @@ def analyse_one(url: str, options: dict) -> dict:
         )
         out["blocks"] = _with_keys(a.blocks, keys, url)
         out["zones"] = _with_keys(zones, keys, url)
+        out["third_octaves"] = _with_keys(a.third_octaves, keys, url)
         row.update(
             date=survey.get("date"),
             rail=survey.get("rail"),
@@ -231,7 +233,7 @@ def analyse_task(urls: list[str], stage: str, task: int, options: dict) -> dict:
     """A task's recordings analysed on a worker, its tables written by the
     worker into ``stage`` (one file per table and partition): back go the
     files' paths and row counts, and per recording the ``RUN_KEYS``."""
-    parts: dict = {"blocks": [], "zones": [], "runs": []}
+    parts: dict = {"blocks": [], "zones": [], "third_octaves": [], "runs": []}
     for url in urls:
         for name, t in analyse_one(url, options).items():
             parts[name].append(t)

@@ -1,8 +1,9 @@
 """``python -m cms.fleet.queries DATASET``: example DuckDB queries over a
 dataset of ``cms.fleet.job`` — the blocks by their ISO 3095 verdict
 across the network (``iso3095_verdict``: of the lines' energy average),
-the worst sites, the reprofiling length per line, and the blocks that
-will cross their limit soonest. Each is a plain SQL text (``QUERIES``) over ``read_parquet(…, hive_partitioning = true)``:
+the ISO 3095 third octaves whose rail exceeds the limit most often, the
+worst sites, the reprofiling length per line, and the blocks that will
+cross their limit soonest. Each is a plain SQL text (``QUERIES``) over ``read_parquet(…, hive_partitioning = true)``:
 copy it into any DuckDB."""
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import duckdb
 from . import store
 
 ISO3095_QUERY = "blocks by ISO 3095 verdict (within, EXCEEDS, not judged), per line and track"
+THIRD_OCTAVE_QUERY = "ISO 3095 third octaves of the blocks (lines' energy average) by verdict, per line, track and wavelength"
 
 QUERIES = {
     ISO3095_QUERY: """
@@ -28,6 +30,16 @@ QUERIES = {
                    AS exceeding_percent
         FROM read_parquet('{d}/blocks/**/*.parquet', hive_partitioning = true, union_by_name = true)
         GROUP BY ALL ORDER BY blocks_exceeding DESC, blocks_not_judged DESC, line, track, year""",
+    THIRD_OCTAVE_QUERY: """
+        SELECT line, track, wavelength_mm, any_value(limit_db) AS limit_db,
+               count(*) FILTER (WHERE verdict = 'EXCEEDS') AS exceeding,
+               count(*) FILTER (WHERE verdict = 'not judged') AS not_judged,
+               count(*) FILTER (WHERE verdict = 'within') AS within,
+               round(max(rail_db), 1) AS worst_rail_db,
+               round(max(rail_lo_db - limit_db) FILTER (WHERE verdict = 'EXCEEDS'), 1) AS worst_over_limit_db
+        FROM read_parquet('{d}/third_octaves/**/*.parquet', hive_partitioning = true, union_by_name = true)
+        WHERE laser IS NULL
+        GROUP BY ALL ORDER BY exceeding DESC, not_judged DESC, line, track, wavelength_mm DESC""",
     "the worst sites (EN 13231-3 zones, by worst peak-to-peak over the band's limit)": """
         SELECT line, track, year, round(start_chainage_mm / 1000, 1) AS from_m, round(end_chainage_mm / 1000, 1) AS to_m,
                band_lo_mm || '-' || band_hi_mm AS band_mm,

@@ -64,6 +64,7 @@ MANIFEST = "_cms_fleet.json"
 PARTITIONS = {
     "blocks": ("line", "track", "year"),
     "zones": ("line", "track", "year"),
+    "third_octaves": ("line", "track", "year"),
     "runs": ("line", "track", "year"),
     "trend": ("line", "track"),
     "trends": ("line", "track"),

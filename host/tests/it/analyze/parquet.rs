@@ -313,7 +313,7 @@ fn parquet_exports_read_back_with_an_independent_reader() {
             s("coverage", "INT32", false),
         ]
     );
-    assert_eq!(p.meta["cms.schema"], "cms-host analyze exports 3");
+    assert_eq!(p.meta["cms.schema"], "cms-host analyze exports 4");
     assert_eq!(p.meta["cms.dx_mm"].parse::<f64>().unwrap(), dx);
     let origin = lasers.iter().map(|l| l["x0_mm"].as_f64().unwrap()).fold(f64::INFINITY, f64::min);
     let idx = |x: f64| ((x - origin) / dx).round() as usize;
@@ -481,10 +481,76 @@ fn parquet_exports_read_back_with_an_independent_reader() {
     let fx = pq::read(&pqdir.join("fixes.parquet"));
     assert_eq!(fx.rows, 0);
     assert_eq!(fx.schema(), fixes_schema());
+    third_octaves_are_the_jsons(&pqdir, &v, r);
     // The report writes the same files.
-    for f in ["profile.parquet", "blocks.parquet", "zones.parquet", "fixes.parquet"] {
+    for f in ["profile.parquet", "blocks.parquet", "zones.parquet", "fixes.parquet", "third_octaves.parquet"] {
         assert_eq!(std::fs::read(pqdir.join(f)).unwrap(), std::fs::read(report.join(f)).unwrap(), "{f}");
     }
+}
+
+/// `third_octaves.parquet`: its columns (docs/exports.md), one row per
+/// block, spectrum (the energy average, then each line) and ISO 3095 third
+/// octave, each value the JSON's `verdict.blocks[].iso3095.bands` (and
+/// `lines[].iso3095.bands`) exactly.
+fn third_octaves_are_the_jsons(pqdir: &Path, v: &serde_json::Value, source: &str) {
+    let t = pq::read(&pqdir.join("third_octaves.parquet"));
+    let s = |n: &str, t: &'static str, null: bool| (n.to_string(), t, null);
+    assert_eq!(
+        t.schema(),
+        vec![
+            s("source", "STRING", false),
+            s("start_chainage_mm", "DOUBLE", false),
+            s("end_chainage_mm", "DOUBLE", false),
+            s("laser", "INT32", true),
+            s("wavelength_mm", "DOUBLE", false),
+            s("level_db", "DOUBLE", true),
+            s("floor_db", "DOUBLE", true),
+            s("limit_db", "DOUBLE", false),
+            s("rail_db", "DOUBLE", true),
+            s("rail_lo_db", "DOUBLE", true),
+            s("rail_hi_db", "DOUBLE", true),
+            s("verdict", "STRING", false),
+        ]
+    );
+    let pq::Col::I32(laser) = t.col("laser") else { panic!("laser type") };
+    let mut i = 0;
+    let mut kinds = std::collections::BTreeSet::new();
+    for b in v["verdict"]["blocks"].as_array().unwrap() {
+        let lines = b["lines"].as_array().unwrap().iter().map(|l| (l["laser"].as_i64(), &l["iso3095"]));
+        for (k, iso) in std::iter::once((None, &b["iso3095"])).chain(lines).filter(|(_, o)| !o.is_null()) {
+            for band in iso["bands"].as_array().unwrap().iter().filter(|o| !o["decision"].is_null()) {
+                let d = &band["decision"];
+                assert_eq!(t.str("source")[i].as_deref(), Some(source));
+                assert_eq!(t.f64("start_chainage_mm")[i], b["start_mm"].as_f64(), "row {i}");
+                assert_eq!(t.f64("end_chainage_mm")[i], b["end_mm"].as_f64(), "row {i}");
+                assert_eq!(laser[i].map(i64::from), k, "row {i}");
+                for (col, json) in [
+                    ("wavelength_mm", &band["nominal_wavelength_mm"]),
+                    ("level_db", &band["level_db"]),
+                    ("floor_db", &band["floor_db"]),
+                    ("limit_db", &band["iso3095_limit_db"]),
+                    ("rail_db", &d["rail_db"]),
+                    ("rail_lo_db", &d["rail_lo_db"]),
+                    ("rail_hi_db", &d["rail_hi_db"]),
+                ] {
+                    // serde_json parses a float to within an ulp of what was printed.
+                    let (got, want) = (t.f64(col)[i], json.as_f64());
+                    let same = match (got, want) {
+                        (Some(a), Some(b)) => (a - b).abs() <= 1e-12 * b.abs().max(1.0),
+                        (a, b) => a == b,
+                    };
+                    assert!(same, "row {i} {col}: {got:?} against the JSON's {want:?}");
+                }
+                assert_eq!(t.str("verdict")[i].as_deref(), d["verdict"].as_str(), "row {i}");
+                kinds.insert((k.is_some(), d["verdict"].as_str().unwrap().to_string()));
+                i += 1;
+            }
+        }
+    }
+    assert_eq!(t.rows, i);
+    // Every block's energy average and lines, over 20 third octaves each at most.
+    assert!(i >= 4 * v["verdict"]["blocks"].as_array().unwrap().len(), "{i} rows");
+    assert!(kinds.contains(&(false, "EXCEEDS".into())) && kinds.contains(&(true, "EXCEEDS".into())), "{kinds:?}");
 }
 
 /// `fixes.parquet`'s columns (docs/exports.md): name, type, nullable.

@@ -46,6 +46,13 @@
 //! is *not within* that horizon. A band whose noise floor, in the latest
 //! survey, does not allow a verdict has no crossing: *at the noise floor*
 //! (growth within the floor is not growth).
+//!
+//! # ISO 3095
+//!
+//! Beside the bands, per block and ISO 3095 third octave, each survey's
+//! verdict of the lines' energy average and the rail's level with its
+//! interval, the third octaves whose verdict changed and the growth of the
+//! rail's level, dB per year ([`iso3095`]).
 
 use std::fmt;
 
@@ -54,6 +61,8 @@ use crate::analyze::standards::en13231::{self, Band};
 use crate::analyze::survey::masked_correlation;
 use crate::analyze::{Analysis, LaserAnalysis};
 use crate::recording::survey_info::SurveyDate;
+
+pub mod iso3095;
 
 /// One survey of the site: its name (for messages), its day and its analysis.
 #[derive(Debug, Clone)]
@@ -179,6 +188,8 @@ pub struct Trend {
     pub registrations: Vec<Registration>,
     /// Per block, per band ([`en13231::BANDS`] order).
     pub blocks: Vec<BlockTrend>,
+    /// Per block: its ISO 3095 third octaves over the surveys.
+    pub iso3095: Vec<iso3095::BlockIso3095>,
 }
 
 impl Trend {
@@ -290,6 +301,7 @@ pub fn trend(surveys: &[SurveyRun], opts: &Options) -> Result<Trend, TrendError>
         placings: order.iter().map(|s| s.analysis.gnss_placing.clone()).collect(),
         registrations,
         blocks,
+        iso3095: iso3095::trend(verdict, &order.iter().map(|s| &s.analysis.verdict).collect::<Vec<_>>(), &years),
     })
 }
 
@@ -401,6 +413,48 @@ pub fn figure_of(values: &[f64], edition: Edition) -> Option<f64> {
 /// quarter is not known better than the profile's resolution).
 pub const MIN_UNCERTAINTY_MM: f64 = 1e-4;
 
+/// A straight line `y = a + b·(t − tm)` fitted by weighted least squares.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fit {
+    /// The weighted mean time, years.
+    pub tm: f64,
+    pub a: f64,
+    /// The slope per year.
+    pub b: f64,
+    /// Standard uncertainties of `a` and `b`, scaled by the reduced χ² when above 1.
+    pub ua: f64,
+    pub ub: f64,
+    /// The reduced χ² (`None` with two points).
+    pub chi2_reduced: Option<f64>,
+}
+
+/// The weighted fit of `(t, y, u)` points (weights `1/u²`): the slope's
+/// uncertainty the fit's, scaled by the residuals' reduced χ² when it is
+/// above 1 (scatter the points' uncertainties do not explain widens it,
+/// never narrows it). `None` with fewer than two distinct times.
+pub fn weighted_fit(pts: &[(f64, f64, f64)]) -> Option<Fit> {
+    let distinct = pts.iter().map(|p| p.0).fold(Vec::<f64>::new(), |mut v, t| {
+        if !v.contains(&t) {
+            v.push(t);
+        }
+        v
+    });
+    if distinct.len() < 2 {
+        return None;
+    }
+    let w: Vec<f64> = pts.iter().map(|p| 1.0 / (p.2 * p.2)).collect();
+    let sw: f64 = w.iter().sum();
+    let tm = pts.iter().zip(&w).map(|(p, w)| w * p.0).sum::<f64>() / sw;
+    let a = pts.iter().zip(&w).map(|(p, w)| w * p.1).sum::<f64>() / sw;
+    let stt: f64 = pts.iter().zip(&w).map(|(p, w)| w * (p.0 - tm).powi(2)).sum();
+    let b = pts.iter().zip(&w).map(|(p, w)| w * (p.0 - tm) * (p.1 - a)).sum::<f64>() / stt;
+    let dof = pts.len() - 2;
+    let chi2: f64 = pts.iter().zip(&w).map(|(p, w)| w * (p.1 - a - b * (p.0 - tm)).powi(2)).sum();
+    let scale = if dof > 0 { (chi2 / dof as f64).max(1.0) } else { 1.0 };
+    let chi2_reduced = (dof > 0).then(|| chi2 / dof as f64);
+    Some(Fit { tm, a, b, ua: (scale / sw).sqrt(), ub: (scale / stt).sqrt(), chi2_reduced })
+}
+
 /// The weighted fit of one block and band.
 #[allow(clippy::too_many_arguments)]
 fn fit_block(
@@ -424,26 +478,9 @@ fn fit_block(
         chi2_reduced: None,
         crossing: Crossing::NotJudged,
     };
-    let distinct = pts.iter().map(|p| p.0).fold(Vec::<f64>::new(), |mut v, t| {
-        if !v.contains(&t) {
-            v.push(t);
-        }
-        v
-    });
-    if distinct.len() < 2 {
-        return out;
-    }
-    let w: Vec<f64> = pts.iter().map(|p| 1.0 / (p.2 * p.2)).collect();
-    let sw: f64 = w.iter().sum();
-    let tm = pts.iter().zip(&w).map(|(p, w)| w * p.0).sum::<f64>() / sw;
-    let a = pts.iter().zip(&w).map(|(p, w)| w * p.1).sum::<f64>() / sw;
-    let stt: f64 = pts.iter().zip(&w).map(|(p, w)| w * (p.0 - tm).powi(2)).sum();
-    let b = pts.iter().zip(&w).map(|(p, w)| w * (p.0 - tm) * (p.1 - a)).sum::<f64>() / stt;
-    let dof = pts.len() - 2;
-    let chi2: f64 = pts.iter().zip(&w).map(|(p, w)| w * (p.1 - a - b * (p.0 - tm)).powi(2)).sum();
-    let scale = if dof > 0 { (chi2 / dof as f64).max(1.0) } else { 1.0 };
-    out.chi2_reduced = (dof > 0).then(|| chi2 / dof as f64);
-    let (ua, ub) = ((scale / sw).sqrt(), (scale / stt).sqrt());
+    let Some(fit) = weighted_fit(&pts) else { return out };
+    let Fit { tm, a, b, ua, ub, chi2_reduced } = fit;
+    out.chi2_reduced = chi2_reduced;
     out.growth = Some((b, ub));
     let Some(limit) = limit_mm else { return out };
     let last = pts.iter().max_by(|p, q| p.0.total_cmp(&q.0)).map_or(0.0, |p| p.1);
