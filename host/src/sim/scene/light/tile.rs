@@ -366,7 +366,10 @@ impl Plan {
         let pupil = light.speckle.map(|sp| {
             let f_mm = s.fx_px * s.pixel_pitch_um * 1e-3;
             let m = f_mm / (depth - f_mm).max(f_mm);
-            let defocus_um = m * m * (depth - s.focus_mm) * 1e3;
+            // The focus to 0.1 mm too (a Scheimpflug sensor's moves with
+            // the line), so the filter's defocus stays from frame to frame.
+            let focus = (s.focus_mm * 10.0).round() / 10.0;
+            let defocus_um = m * m * (depth - focus) * 1e3;
             Pupil::new(s.wavelength_um, sp.f_number, m, s.pixel_pitch_um, defocus_um)
         });
         let q = pupil.map_or(4, |p| p.samples_per_px());
