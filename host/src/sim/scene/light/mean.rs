@@ -67,7 +67,7 @@ pub(super) fn expected_colsums(
         }
         fwd.process(row);
         for (r, t) in row.iter_mut().zip(transfer) {
-            *r = *r * *t;
+            *r *= *t;
         }
         inv.process(row);
         for (k, part) in [(i, 0), (i + 1, 1)] {
