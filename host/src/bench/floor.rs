@@ -26,6 +26,7 @@ use crate::analyze::standards::{en13231, en15610};
 use crate::model::optics::Optics;
 use crate::sim::closed_loop::ClosedLoopError;
 use crate::sim::floor::{self as sf, Setting};
+use crate::sim::scene::LightModel;
 
 /// Options of the floor benchmark.
 #[derive(Debug, Clone)]
@@ -34,6 +35,10 @@ pub struct FloorOptions {
     pub reduced: bool,
     /// Only the settings whose name holds this text.
     pub only: Option<String>,
+    /// Heads to measure instead of the sweep: the push-trolley setting
+    /// under each of these lights (speckle's F-number and patterns, a
+    /// Scheimpflug sensor, or incoherent light).
+    pub lights: Vec<LightModel>,
     /// Length of rail per setting, mm.
     pub length_mm: f64,
     /// Worker threads (`None`: one a core).
@@ -243,7 +248,11 @@ pub fn floor(a: &FloorOptions) -> Result<String, BenchError> {
     }
     super::create_dir(&a.out)?;
     let t = Instant::now();
-    let set = settings(a.reduced, a.length_mm, a.only.as_deref());
+    let set = if a.lights.is_empty() {
+        settings(a.reduced, a.length_mm, a.only.as_deref())
+    } else {
+        a.lights.iter().map(|l| head_setting(l, a.length_mm)).collect::<Result<Vec<_>, _>>()?
+    };
     if set.is_empty() {
         return Err(BenchError::Options(format!(
             "--only {:?}: no setting's name holds it (`bench floor` without --only lists them in floor.md)",
@@ -254,8 +263,9 @@ pub fn floor(a: &FloorOptions) -> Result<String, BenchError> {
     for got in sweep(&set, super::threads(a.threads)) {
         rows.push(got?);
     }
+    let heads = if a.lights.is_empty() { String::new() } else { heads_markdown(&rows) };
     let md = format!(
-        "# The noise floor against the head's optics and timing\n\n`cms-host bench floor{}` ({:.1} m of smooth rail per setting, a frame every 30 mm unless set): {:.0} s.\n\n{}",
+        "# The noise floor against the head's optics and timing\n\n`cms-host bench floor{}` ({:.1} m of smooth rail per setting, a frame every 30 mm unless set): {:.0} s.\n\n{}{heads}",
         if a.reduced { " --reduced" } else { "" },
         a.length_mm / 1e3,
         t.elapsed().as_secs_f64(),
@@ -263,4 +273,69 @@ pub fn floor(a: &FloorOptions) -> Result<String, BenchError> {
     );
     put(&a.out.join("floor.md"), &md)?;
     Ok(md)
+}
+
+/// The push-trolley setting (100 µs, 1.5 m/s, a frame every 30 mm) under
+/// `light`, named by it; a light `bench floor` cannot drive (a finish,
+/// glints, ghosts, another focus) is refused.
+pub fn head_setting(light: &LightModel, length_mm: f64) -> Result<(String, Setting), BenchError> {
+    let bare = LightModel { speckle: light.speckle, scheimpflug: light.scheimpflug, ..LightModel::incoherent() };
+    if *light != bare {
+        return Err(BenchError::Options(
+            "--light: bench floor drives speckle=F, patterns=K, scheimpflug or incoherent only".into(),
+        ));
+    }
+    let name = match light.speckle {
+        None => "incoherent light (no speckle)".to_string(),
+        Some(s) => format!(
+            "F/{}, K = {}{}",
+            s.f_number,
+            s.patterns,
+            if light.scheimpflug { ", Scheimpflug sensor" } else { "" }
+        ),
+    };
+    let setting = Setting {
+        f_number: light.speckle.map(|s| s.f_number),
+        patterns: light.speckle.map_or(1, |s| s.patterns),
+        scheimpflug: light.scheimpflug,
+        ..Setting::push_trolley(length_mm)
+    };
+    Ok((name, setting))
+}
+
+/// Each head's smooth rail per ISO 3095 third octave, 5–250 mm: its
+/// worst line's level and the lines' energy average (EN 15610's), dB re
+/// 1 µm, each with its margin to the limit (negative: under it).
+pub fn heads_markdown(rows: &[FloorRow]) -> String {
+    let waves: Vec<f64> =
+        en15610::ISO3095_LIMIT.iter().map(|&(w, _)| w).filter(|w| (5.0..=250.0).contains(w)).collect();
+    let mut md =
+        String::from("\n### Each head's smooth rail against ISO 3095: level dB re 1 µm (margin to the limit, dB)\n\n");
+    let _ = writeln!(
+        md,
+        "| head | lines | {} |\n|---|---|{}",
+        waves.iter().map(|w| format!("{w} mm")).collect::<Vec<_>>().join(" | "),
+        "---:|".repeat(waves.len())
+    );
+    let level = |s: &en15610::Spectrum, w: f64| {
+        s.bands.iter().find(|b| (b.nominal_wavelength_mm - w).abs() < 1e-6 * w).map(|b| b.level_db)
+    };
+    let cell = |l: Option<f64>, w: f64| match (l, en15610::iso3095_limit_db(w)) {
+        (Some(l), Some(lim)) => format!("{l:.1} ({:+.1})", l - lim),
+        _ => "–".into(),
+    };
+    for r in rows {
+        let lines: Vec<&en15610::Spectrum> =
+            r.analysis.lasers.iter().filter_map(|l| l.roughness.as_ref().ok().map(|r| &r.spectrum)).collect();
+        let worst: Vec<String> =
+            waves.iter().map(|&w| cell(lines.iter().filter_map(|s| level(s, w)).max_by(f64::total_cmp), w)).collect();
+        let mean: Vec<String> =
+            waves.iter().map(|&w| cell(measured_spectrum(&r.analysis).and_then(|s| level(s, w)), w)).collect();
+        let _ = writeln!(md, "| {} | worst line | {} |", r.name, worst.join(" | "));
+        let _ = writeln!(md, "| {} | energy average | {} |", r.name, mean.join(" | "));
+    }
+    let limits: Vec<String> =
+        waves.iter().map(|&w| en15610::iso3095_limit_db(w).map_or("–".into(), |l| format!("{l:.1}"))).collect();
+    let _ = writeln!(md, "| ISO 3095 limit | | {} |", limits.join(" | "));
+    md
 }

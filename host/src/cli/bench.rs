@@ -82,6 +82,12 @@ pub struct FloorArgs {
     /// Only the settings whose name holds TEXT (e.g. "405 nm").
     #[arg(long, value_name = "TEXT")]
     pub only: Option<String>,
+    /// Measure these heads instead of the sweep (repeat for several): the push-trolley setting (100 µs, 1.5 m/s)
+    /// under each light, as `--sim-light` spells it: speckle=F-NUMBER, patterns=K, scheimpflug, or incoherent (e.g.
+    /// `--light speckle=1.4,patterns=100,scheimpflug --light incoherent`); per ISO 3095 third octave 5–250 mm, the
+    /// worst line and the lines' energy average against the limit.
+    #[arg(long = "light", value_name = "SPEC", value_parser = super::simulate::parse_light)]
+    pub lights: Vec<cms_host::sim::scene::LightModel>,
     /// Worker threads [default: all cores].
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=256))]
     pub threads: Option<u64>,
@@ -354,6 +360,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
         BenchCmd::Floor(f) => bench::floor::floor(&bench::floor::FloorOptions {
             reduced: f.reduced,
             only: f.only.clone(),
+            lights: f.lights.clone(),
             length_mm: f.length_m * 1000.0,
             threads: f.threads.map(|t| t as usize),
             out: f.out.clone(),

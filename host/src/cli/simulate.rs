@@ -9,6 +9,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Args, ValueEnum};
 use cms_host::sim::head::{self, CorrugationSpec, HeadOptions, Preset, SimPort, SimulateError};
+use cms_host::sim::scene::light::MAX_PATTERNS;
 use cms_host::sim::scene::{LightModel, Speckle};
 
 /// `--preset`: camera and head geometry.
@@ -119,8 +120,9 @@ pub struct SimulateArgs {
     #[arg(long)]
     pub uncalibrated: bool,
     /// The light on the rail, comma-separated: incoherent (clean stripes), speckle[=F-NUMBER] (laser
-    /// speckle through the lens, F/8 if no number), patterns=K (independent speckle patterns), focus=MM (where the
-    /// lens is focused), oxidation, grease, band (the running band), glints, ghost (a secondary reflection of the
+    /// speckle through the lens, F/8 if no number), patterns=K (independent speckle patterns, up to 10000: a
+    /// broad-area or multimode line source; more than 4 are rendered as 4 with the statistics of K), focus=MM (where
+    /// the lens is focused), scheimpflug (a tilted sensor: the middle laser's plane in focus), oxidation, grease, band (the running band), glints, ghost (a secondary reflection of the
     /// middle line). Speckle's rendering can cap the frame rate: `cms-host bench render` measures it. [default:
     /// `listen sim`'s: speckle=2.8 on the reference head, laser light at the push-trolley setting; incoherent on the
     /// paper's]
@@ -220,7 +222,8 @@ impl SimPortArgs {
 /// Parses `--light`: comma-separated items (see [`SimulateArgs::light`]);
 /// the ranges are checked when the scene is built.
 pub(crate) fn parse_light(s: &str) -> Result<LightModel, String> {
-    const ITEMS: &str = "incoherent, speckle[=F-NUMBER], patterns=K, focus=MM, oxidation, grease, band, glints, ghost";
+    const ITEMS: &str =
+        "incoherent, speckle[=F-NUMBER], patterns=K, focus=MM, scheimpflug, oxidation, grease, band, glints, ghost";
     let mut light = LightModel::incoherent();
     for item in s.split(',').map(str::trim) {
         let (key, value) = item.split_once('=').map_or((item, None), |(k, v)| (k.trim(), Some(v.trim())));
@@ -243,14 +246,15 @@ pub(crate) fn parse_light(s: &str) -> Result<LightModel, String> {
             }
             "patterns" => {
                 let k = number("K")?;
-                if k.fract() != 0.0 || !(1.0..=64.0).contains(&k) {
-                    return Err(format!("light patterns={k}: a whole number in 1..=64"));
+                if k.fract() != 0.0 || !(1.0..=f64::from(MAX_PATTERNS)).contains(&k) {
+                    return Err(format!("light patterns={k}: a whole number in 1..={MAX_PATTERNS}"));
                 }
                 let f_number = light.speckle.map_or(8.0, |s| s.f_number);
                 light.speckle = Some(Speckle { f_number, patterns: k as u32 });
             }
             "incoherent" => flag(&mut light, |l| l.speckle = None)?,
             "focus" => light.focus_mm = Some(number("MM")?),
+            "scheimpflug" => flag(&mut light, |l| l.scheimpflug = true)?,
             "oxidation" => flag(&mut light, |l| l.oxidation = LightModel::oxidation())?,
             "grease" => flag(&mut light, |l| l.grease = LightModel::grease())?,
             "band" => flag(&mut light, |l| l.band = Some(LightModel::running_band()))?,

@@ -28,6 +28,10 @@ use crate::sim::scene::{Corrugation, LightModel, RailModel, Scene, SimConfig, Sp
 pub struct Setting {
     /// The lens's F-number (`None`: incoherent light, no speckle).
     pub f_number: Option<f64>,
+    /// The line source's independent speckle patterns ([`Speckle::patterns`]).
+    pub patterns: u32,
+    /// A Scheimpflug sensor ([`LightModel::scheimpflug`]).
+    pub scheimpflug: bool,
     /// Exposure, µs.
     pub exposure_us: f64,
     /// Travel speed, mm/s (the motion during the exposure).
@@ -53,6 +57,8 @@ impl Setting {
     pub fn push_trolley(length_mm: f64) -> Setting {
         Setting {
             f_number: Some(crate::sim::scene::light::PUSH_TROLLEY_F_NUMBER),
+            patterns: 1,
+            scheimpflug: false,
             exposure_us: 100.0,
             speed_mm_s: 1500.0,
             step_mm: 30.0,
@@ -69,7 +75,8 @@ impl Setting {
         let mut cfg = SimConfig::reference();
         cfg.rail = RailModel { corrugation: self.corrugation.clone(), roughness_rms_um: 0.0, ..RailModel::default() };
         cfg.light = LightModel {
-            speckle: self.f_number.map(|f_number| Speckle { f_number, patterns: 1 }),
+            speckle: self.f_number.map(|f_number| Speckle { f_number, patterns: self.patterns }),
+            scheimpflug: self.scheimpflug,
             ..LightModel::incoherent()
         };
         cfg.camera.exposure_us = self.exposure_us;

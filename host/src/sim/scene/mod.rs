@@ -656,6 +656,7 @@ impl Scene {
             })
             .collect();
         let width_px = self.width();
+        let focus: Vec<f64> = lines.iter().map(|l| l.as_deref().map_or(0.0, |l| self.focus_mm(l))).collect();
         let shots: Vec<Option<TileShot>> = lines
             .iter()
             .enumerate()
@@ -667,7 +668,7 @@ impl Scene {
                     wavelength_um: self.cfg.lasers[k].wavelength_nm * 1e-3,
                     pixel_pitch_um: cam.pixel_pitch_um,
                     fx_px: cam.intrinsics.fx_px,
-                    focus_mm: self.cfg.light.focus_mm.unwrap_or(self.cfg.head.standoff_mm),
+                    focus_mm: focus[k],
                     lines,
                     gain_e_per_dn: self.gain_e_per_dn,
                     odometer_mm: shot.odometer_mm,
@@ -678,6 +679,31 @@ impl Scene {
             })
             .collect();
         self.light_cache.render_shot(key, &shots);
+    }
+
+    /// Where the lens is focused for a laser's line, mm along the axis:
+    /// the light's `focus_mm` (the standoff if not set), or under a
+    /// Scheimpflug sensor the plane of focus — the plane of the laser
+    /// nearest the aim point — where the line's rays meet it (their mean
+    /// over the lit rows).
+    fn focus_mm(&self, lines: &[Option<StripeTruth>]) -> f64 {
+        let across = self.cfg.light.focus_mm.unwrap_or(self.cfg.head.standoff_mm);
+        let nearest = (0..self.cfg.lasers.len())
+            .min_by(|&a, &b| self.cfg.lasers[a].offset_mm.abs().total_cmp(&self.cfg.lasers[b].offset_mm.abs()));
+        let (true, Some(k)) = (self.cfg.light.scheimpflug, nearest) else { return across };
+        let plane = &self.planes_cam[k];
+        let (mut sum, mut n) = (0.0, 0.0);
+        for (r, l) in lines.iter().enumerate() {
+            let Some(l) = l else { continue };
+            let ray = self.cfg.camera.intrinsics.unproject(l.column_px, r as f64);
+            let along = vec3::dot(plane.normal, ray);
+            if along.abs() > 1e-9 {
+                // The ray's point t·(x, y, 1) on the plane has depth t.
+                sum += plane.d_mm / along;
+                n += 1.0;
+            }
+        }
+        if n > 0.0 { sum / n } else { across }
     }
 
     /// Noise, banding, saturation and quantisation of a row.

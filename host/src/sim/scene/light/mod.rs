@@ -6,10 +6,13 @@
 //!   pattern is tied to the surface, so motion during the exposure averages
 //!   it and a head at rest sees the same one frame after frame. Several
 //!   independent patterns (several diodes, a moving diffuser) add as
-//!   intensities ([`Speckle::patterns`]).
+//!   intensities ([`Speckle::patterns`]); many of them are rendered as a
+//!   few ([`RENDERED_PATTERNS`]) with the statistics of many.
 //! * **Focus**: the coherent transfer function carries the defocus of a
 //!   rail outside the plane the lens is focused on (image-side focus error
-//!   `M² Δz`, wavefront error `W₀₂₀ = Δz_img / (8 N_eff²)`).
+//!   `M² Δz`, wavefront error `W₀₂₀ = Δz_img / (8 N_eff²)`); a
+//!   Scheimpflug sensor ([`LightModel::scheimpflug`]) makes that plane a
+//!   laser's own.
 //! * **Surface finish** (`surface.rs`): oxidation and rust patches, grease
 //!   films and the shiny running band, as a reflectance over the rail top
 //!   (5–100 %, sharp or soft edges) that multiplies the illumination.
@@ -23,6 +26,7 @@
 //! are rendered exactly as the clean renderer always did.
 
 pub(crate) mod coherent;
+mod mean;
 mod ring;
 pub(crate) mod surface;
 #[cfg(test)]
@@ -46,6 +50,18 @@ pub struct LightModel {
     /// Where the lens is focused, mm from the camera along its axis
     /// (`None`: the head's standoff). Acts through the coherent imaging.
     pub focus_mm: Option<f64>,
+    /// A Scheimpflug sensor: tilted so that the plane in focus is the
+    /// plane of the laser nearest the aim point (its line stays in focus
+    /// whatever the rail's height and the F-number) instead of the plane
+    /// across the optical axis at `focus_mm`. One sensor has one plane of
+    /// focus: the other lasers' parallel planes stand off it by their
+    /// lines' spacing over `tan(tilt + α)` along the axis (14 mm for the
+    /// reference head's 10 mm spacing at 35°), and their lines are that
+    /// far out of focus. The laser sheet's own thickness is neglected
+    /// (±0.4 mm from its plane: 0.06 waves of defocus at F/1.4, under the
+    /// quarter wave of Rayleigh's depth of focus). Geometry is unchanged:
+    /// the tilt's keystone is taken as calibrated out.
+    pub scheimpflug: bool,
     /// Oxidation and rust patches.
     pub oxidation: Patches,
     /// Grease films.
@@ -66,9 +82,29 @@ pub struct Speckle {
     /// Independent speckle patterns summed in intensity within one
     /// exposure: 1 for one single-mode diode per line; `K` for `K`
     /// mutually incoherent diodes on one line or a diffuser moving through
-    /// `K` independent positions (contrast falls as `1/√K`).
+    /// `K` independent positions, a broad-area or multimode line diode
+    /// (contrast falls as `1/√K`). Up to [`RENDERED_PATTERNS`] are
+    /// rendered one by one; more are rendered as that many with the
+    /// statistics of `K`.
     pub patterns: u32,
 }
+
+/// Independent patterns rendered one by one; a source of more (`K`) is
+/// rendered from `M` = this many, its intensity `Ī + (I_M − Ī)·√(M/K)`,
+/// `I_M` the mean of the `M` patterns and `Ī` its expectation (the
+/// illumination imaged incoherently through the lens). By the central
+/// limit the sum of `K` patterns tends to `Ī` plus a Gaussian field whose
+/// covariance is one pattern's over `K`: the rendering keeps the mean and
+/// the second-order statistics exactly — the contrast `1/√K`, the
+/// speckle's size and correlation, the pixel and motion averaging — and
+/// these set the stripe centre's error to first order. The higher moments
+/// are those of `M` patterns scaled (the skewness `√(M/K)`-fold too large
+/// against the sum's, for example: `2/√M` per sample where the sum has
+/// `2/√K`), which matters only for rare deep fades of the line.
+pub const RENDERED_PATTERNS: u32 = 4;
+
+/// Most independent patterns a source may have.
+pub const MAX_PATTERNS: u32 = 10_000;
 
 /// Patches of another reflectance on the rail top (oxidation, rust,
 /// grease), scattered along the rail: one per `1000 / per_m` mm cell, its
@@ -217,7 +253,7 @@ impl LightModel {
         if let Some(s) = &self.speckle {
             check("light.speckle.f_number", s.f_number, (1.0..=64.0).contains(&s.f_number), "in [1, 64]")?;
             let k = f64::from(s.patterns);
-            check("light.speckle.patterns", k, (1.0..=64.0).contains(&k), "in 1..=64")?;
+            check("light.speckle.patterns", k, (1.0..=f64::from(MAX_PATTERNS)).contains(&k), "in 1..=10000")?;
         }
         if let Some(f) = self.focus_mm {
             check("light.focus_mm", f, f > 0.0, "finite and > 0")?;

@@ -110,6 +110,153 @@ fn independent_patterns_lower_the_contrast_as_one_over_root_k() {
     assert!(((four / one) / 0.5 - 1.0).abs() < 0.2, "{one} {four}: {} vs 0.5", four / one);
 }
 
+/// The peak pixels' contrast of the third line between two surfaces (two
+/// seeds): each pixel scaled to its value in incoherent light, the
+/// variance from their difference — so that what the two share (the lens's
+/// blur of the line against the clean renderer's, which changes with the
+/// line's sub-pixel place) is no part of it.
+fn seeds_contrast(light: LightModel) -> f64 {
+    let scaled = |seed: u64| {
+        let cfg = SimConfig { seed, ..quiet(light.clone(), 0.0) };
+        let (img, t) = frame(&cfg, 0);
+        let (clean, _) = frame(&SimConfig { light: LightModel::incoherent(), ..cfg.clone() }, 0);
+        let peaks = t.stripes[2]
+            .iter()
+            .enumerate()
+            .filter_map(|(r, st)| Some(r * 752 + st.as_ref()?.column_px.round() as usize));
+        peaks.map(|k| f64::from(img[k]) / f64::from(clean[k])).collect::<Vec<f64>>()
+    };
+    let (a, b) = (scaled(1), scaled(2));
+    let n = a.len() as f64;
+    let var = a.iter().zip(&b).map(|(x, y)| (x - y) * (x - y) / 2.0).sum::<f64>() / n;
+    let mean = a.iter().zip(&b).map(|(x, y)| (x + y) / 2.0).sum::<f64>() / n;
+    var.sqrt() / mean
+}
+
+/// A source of many patterns, rendered from a few with the statistics of
+/// all: the contrast still falls as 1/√K.
+#[test]
+fn many_patterns_rendered_as_few_keep_the_contrast_one_over_root_k() {
+    let at = |patterns: u32| {
+        seeds_contrast(LightModel { speckle: Some(Speckle { f_number: 8.0, patterns }), ..LightModel::default() })
+    };
+    let one = at(1);
+    for k in [16u32, 100] {
+        let want = 1.0 / f64::from(k).sqrt();
+        let got = at(k) / one;
+        // About 200 independent rows a seed: the ratio within 10 %.
+        assert!((got / want - 1.0).abs() < 0.15, "K = {k}: {got} vs {want}");
+    }
+}
+
+/// Per row and line, the centroid of the noise-free tile's pixels within
+/// ±4σ of the true centre, less the true centre, px.
+fn centroid_errors(cfg: &SimConfig, exact_patterns: bool) -> Vec<f64> {
+    let mut scene = Scene::new(cfg.clone()).unwrap();
+    scene.light_cache.exact_patterns = exact_patterns;
+    let mut img = vec![0u16; scene.width() * scene.height()];
+    let t = scene.render_frame(0, scene.all_lasers_mask(), &mut img);
+    let mut errors = Vec::new();
+    for (laser, tile) in scene.light_cache.tiles().iter().enumerate() {
+        let Some(tile) = tile else { continue };
+        for (r, st) in t.stripes[laser].iter().enumerate() {
+            let Some(st) = st else { continue };
+            let (c0, row) = tile.row(r);
+            let (mut s, mut sx) = (0.0, 0.0);
+            for (j, e) in row.iter().enumerate() {
+                let c = (c0 + j) as f64;
+                if (c - st.column_px).abs() <= 4.0 * st.sigma_px {
+                    (s, sx) = (s + e, sx + e * c);
+                }
+            }
+            if s > 0.0 {
+                errors.push(sx / s - st.column_px);
+            }
+        }
+    }
+    errors
+}
+
+fn rms(v: &[f64]) -> f64 {
+    (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
+}
+
+/// What the stripe centre's error depends on to first order (the
+/// intensity's mean and covariance) the fast rendering of many patterns
+/// keeps: its RMS is brute force's, every one of 16 patterns filtered.
+#[test]
+fn the_centroid_error_of_many_patterns_is_brute_forces() {
+    let light = LightModel { speckle: Some(Speckle { f_number: 8.0, patterns: 16 }), ..LightModel::default() };
+    let cfg = quiet(light, 0.0);
+    let (fast, brute) = (rms(&centroid_errors(&cfg, false)), rms(&centroid_errors(&cfg, true)));
+    // About 600 independent speckles along the three lines: ±3 % each.
+    assert!((fast / brute - 1.0).abs() < 0.15, "fast {fast:.4} px vs brute force {brute:.4} px");
+    // And a quarter of one pattern's (1/√16).
+    let one = rms(&centroid_errors(&quiet(LightModel::speckle(8.0), 0.0), false));
+    assert!((brute / one / 0.25 - 1.0).abs() < 0.2, "{brute} of {one}");
+}
+
+/// The RMS width of each line across the rows (its pixels within ±4σ of
+/// the true centre about their centroid), px, of a noise-free frame.
+fn stripe_widths(cfg: &SimConfig) -> Vec<f64> {
+    let mut scene = Scene::new(cfg.clone()).unwrap();
+    let mut img = vec![0u16; scene.width() * scene.height()];
+    let t = scene.render_frame(0, scene.all_lasers_mask(), &mut img);
+    let mut widths = Vec::new();
+    for (laser, tile) in scene.light_cache.tiles().iter().enumerate() {
+        let Some(tile) = tile else { continue };
+        let (mut var, mut n) = (0.0, 0.0);
+        for (r, st) in t.stripes[laser].iter().enumerate() {
+            let Some(st) = st else { continue };
+            let (c0, row) = tile.row(r);
+            let near = |j: usize| ((c0 + j) as f64 - st.column_px).abs() <= 4.0 * st.sigma_px;
+            let (s, sx) = row
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| near(*j))
+                .fold((0.0, 0.0), |(s, sx), (j, e)| (s + e, sx + e * (c0 + j) as f64));
+            let m = sx / s;
+            let sxx: f64 =
+                row.iter().enumerate().filter(|(j, _)| near(*j)).map(|(j, e)| e * ((c0 + j) as f64 - m).powi(2)).sum();
+            (var, n) = (var + sxx / s, n + 1.0);
+        }
+        widths.push((var / n).sqrt());
+    }
+    widths
+}
+
+/// At F/1.4 a rail 5 mm over the standoff is out of the lens's focus and
+/// its lines widen; a Scheimpflug sensor holds the middle laser's plane in
+/// focus, so that line stays as sharp as a lens focused on it — and the
+/// outer lines, whose parallel planes stand 14 mm off that plane along the
+/// axis, are blurred more.
+#[test]
+fn a_scheimpflug_sensor_keeps_the_laser_plane_in_focus() {
+    let at = |focus_mm: Option<f64>, scheimpflug: bool| {
+        // Many patterns: the lines nearly their expected intensity.
+        let speckle = Some(Speckle { f_number: 1.4, patterns: 10_000 });
+        let mut cfg = quiet(LightModel { speckle, focus_mm, scheimpflug, ..LightModel::default() }, 0.0);
+        let up = crate::sim::scene::Corrugation {
+            wavelength_mm: 1e7,
+            amplitude_um: 5000.0,
+            phase_rad: std::f64::consts::FRAC_PI_2,
+        };
+        cfg.rail.corrugation = vec![up];
+        cfg.camera.exposure_us = 30.0;
+        // The middle laser's plane is in focus; one outer line shows the others'.
+        cfg.lasers.truncate(2);
+        stripe_widths(&cfg)
+    };
+    let focused = at(Some(195.0), false);
+    let standoff = at(None, false);
+    let tilted = at(None, true);
+    for k in 0..2 {
+        assert!(standoff[k] > focused[k] + 0.01, "laser {k}: {} px against {} px in focus", standoff[k], focused[k]);
+    }
+    assert!((tilted[1] - focused[1]).abs() < 0.003, "{} px against {} px in focus", tilted[1], focused[1]);
+    assert!(tilted[0] > standoff[0] + 0.01, "the outer line: {} px against {} px", tilted[0], standoff[0]);
+}
+
 #[test]
 fn speckle_is_frozen_at_rest_and_averages_out_in_motion() {
     let still = quiet(LightModel::speckle(8.0), 0.0);

@@ -9,7 +9,7 @@ use rustfft::num_complex::Complex;
 use super::super::StripeTruth;
 use super::coherent::{Filter, Pupil, fft_size};
 use super::ring::PhasorRing;
-use super::{LightModel, surface};
+use super::{LightModel, RENDERED_PATTERNS, mean, surface};
 
 /// Stream of the speckle phases (one sub-stream per laser and pattern).
 const SPECKLE_STREAM: u64 = 0x5350_4543;
@@ -162,13 +162,26 @@ pub(crate) struct LightCache {
     /// field read at each sub-exposure's place (the reference the light
     /// model's tests hold the shifted reads to).
     pub exact_exposure: bool,
+    /// Every one of a source's independent patterns rendered, not
+    /// [`RENDERED_PATTERNS`] with the statistics of all (the reference the
+    /// light model's tests hold the fast rendering to).
+    pub exact_patterns: bool,
+}
+
+/// How faithfully a tile is rendered (the tests' references).
+#[derive(Clone, Copy, Debug, Default)]
+struct Exact {
+    exposure: bool,
+    patterns: bool,
 }
 
 /// One laser's filters, phasor rings and buffers, kept between shots.
 #[derive(Default)]
 struct LaserState {
-    /// The last filters made, the latest first ([`FILTERS_KEPT`]).
-    filters: Vec<(FilterKey, Filter<f32>)>,
+    /// The last filters made, the latest first ([`FILTERS_KEPT`]), with
+    /// their line-spread transfer once a source of many patterns asked for
+    /// it ([`mean::lsf_transfer`]).
+    filters: Vec<(FilterKey, Filter<f32>, Option<Vec<f32>>)>,
     /// Their transforms' plans, made once a size.
     planner: Option<rustfft::FftPlanner<f32>>,
     /// The pupil's columns of the field, transposed.
@@ -186,6 +199,10 @@ struct LaserState {
     colsum: Vec<f32>,
     /// The tile's pixel sums, before normalising.
     pixels: Vec<f64>,
+    /// Their expectation (a source of more patterns than rendered).
+    mean_px: Vec<f64>,
+    /// A row of the expectation's transform.
+    row_c: Vec<Complex<f32>>,
     /// The last tile's grid: samples across, along, sub-exposures.
     grid: (usize, usize, usize),
     /// The last shot's tile's pixels, made again into this shot's (a
@@ -262,7 +279,7 @@ impl LightCache {
         }
         let lit = shots.iter().flatten().count();
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-        let exact = self.exact_exposure;
+        let exact = Exact { exposure: self.exact_exposure, patterns: self.exact_patterns };
         let tiles = if lit < 2 || cores < 2 {
             self.lasers.iter_mut().zip(shots).map(|(st, s)| s.as_ref().and_then(|s| st.render(s, exact))).collect()
         } else {
@@ -349,7 +366,10 @@ impl Plan {
         let pupil = light.speckle.map(|sp| {
             let f_mm = s.fx_px * s.pixel_pitch_um * 1e-3;
             let m = f_mm / (depth - f_mm).max(f_mm);
-            let defocus_um = m * m * (depth - s.focus_mm) * 1e3;
+            // The focus to 0.1 mm too (a Scheimpflug sensor's moves with
+            // the line), so the filter's defocus stays from frame to frame.
+            let focus = (s.focus_mm * 10.0).round() / 10.0;
+            let defocus_um = m * m * (depth - focus) * 1e3;
             Pupil::new(s.wavelength_um, sp.f_number, m, s.pixel_pitch_um, defocus_um)
         });
         let q = pupil.map_or(4, |p| p.samples_per_px());
@@ -471,7 +491,7 @@ fn has_finish(light: &LightModel) -> bool {
 
 impl LaserState {
     /// Renders one laser's tile (`None`: its line is in no row).
-    fn render(&mut self, s: &TileShot, exact: bool) -> Option<LaserTile> {
+    fn render(&mut self, s: &TileShot, exact: Exact) -> Option<LaserTile> {
         let plan = Plan::new(s)?;
         let h_img = s.lines.len();
         self.grid = (plan.w, plan.h, plan.steps);
@@ -482,10 +502,7 @@ impl LaserState {
                 self.incoherent(s, &plan);
                 1
             }
-            Some(p) => {
-                self.coherent(s, &plan, p, exact);
-                s.light.speckle.map_or(1, |sp| sp.patterns as usize)
-            }
+            Some(p) => self.coherent(s, &plan, p, exact),
         };
         // The image's columns of the tile.
         let first = plan.u0.max(0) as usize;
@@ -536,11 +553,14 @@ impl LaserState {
 
     /// Laser light: the coherent image of the surface under the line, one
     /// field a shot read at each sub-exposure's place (or, `exact`, one
-    /// field per sub-exposure under its own illumination).
-    fn coherent(&mut self, s: &TileShot, plan: &Plan, p: Pupil, exact: bool) {
+    /// field per sub-exposure under its own illumination), for each of the
+    /// source's patterns up to [`RENDERED_PATTERNS`] (or, `exact`, all);
+    /// the rendered patterns' fluctuation about their expectation scaled
+    /// to the source's. Returns the patterns rendered.
+    fn coherent(&mut self, s: &TileShot, plan: &Plan, p: Pupil, exact: Exact) -> usize {
         let (w, h, q) = (plan.w, plan.h, plan.q);
         let key = FilterKey { w, h, q, pupil: p };
-        match self.filters.iter().position(|(k, _)| *k == key) {
+        match self.filters.iter().position(|(k, _, _)| *k == key) {
             Some(0) => {}
             Some(i) => {
                 let f = self.filters.remove(i);
@@ -549,8 +569,20 @@ impl LaserState {
             None => {
                 let planner = self.planner.get_or_insert_with(rustfft::FftPlanner::new);
                 self.filters.truncate(FILTERS_KEPT - 1);
-                self.filters.insert(0, (key, Filter::planned(planner, &p, q, w, h)));
+                self.filters.insert(0, (key, Filter::planned(planner, &p, q, w, h), None));
             }
+        }
+        let patterns = s.light.speckle.map_or(1, |sp| sp.patterns as usize);
+        let rendered = if exact.patterns { patterns } else { patterns.min(RENDERED_PATTERNS as usize) };
+        let many = rendered < patterns;
+        if many && self.filters[0].2.is_none() {
+            let planner = self.planner.get_or_insert_with(rustfft::FftPlanner::new);
+            let t = mean::lsf_transfer(&self.filters[0].1, planner, (w, h), &mut self.field, &mut self.scratch);
+            self.filters[0].2 = Some(t);
+        }
+        if many {
+            self.mean_px.clear();
+            self.mean_px.resize(self.pixels.len(), 0.0);
         }
         // The illumination is fixed to the head and the surface slides under
         // it: sub-exposure m sees the field of grid rows shifted by its
@@ -558,13 +590,12 @@ impl LaserState {
         // line's column and brightness over the image), so one field, under
         // the illumination of the exposure's middle, serves every
         // sub-exposure.
-        let groups: Vec<(f64, Vec<usize>)> = if exact {
+        let groups: Vec<(f64, Vec<usize>)> = if exact.exposure {
             plan.shifts.iter().map(|&d| (d as f64, vec![d])).collect()
         } else {
             let mid = plan.shifts.iter().sum::<usize>() as f64 / plan.steps as f64;
             vec![(mid, plan.shifts.clone())]
         };
-        let patterns = s.light.speckle.map_or(1, |sp| sp.patterns as usize);
         let lit_w = plan.ncols * q;
         let j0 = plan.u0 * q as i64;
         if self.rings.is_empty() {
@@ -574,7 +605,7 @@ impl LaserState {
         self.colsum.resize(plan.lit_h * plan.ncols, 0.0);
         for (d, reads) in groups {
             self.amplitude(s, plan, d);
-            for k in 0..patterns {
+            for k in 0..rendered {
                 let stream = SPECKLE_STREAM ^ ((s.laser as u64) << 32) ^ ((k as u64) << 48);
                 let ring = &mut self.rings[k.min(RINGS - 1)];
                 let rows = plan.n_lo..plan.n_lo + plan.lit_h as i64;
@@ -599,7 +630,23 @@ impl LaserState {
                     add_pixels(&self.colsum, plan, shift, &mut self.pixels);
                 }
             }
+            if let (true, Some(t)) = (many, &self.filters[0].2) {
+                let planner = self.planner.get_or_insert_with(rustfft::FftPlanner::new);
+                mean::expected_colsums(&self.amp, lit_w, q, t, planner, &mut self.row_c, &mut self.colsum);
+                for &shift in &reads {
+                    add_pixels(&self.colsum, plan, shift, &mut self.mean_px);
+                }
+            }
         }
+        if many {
+            // Ī + (I_M − Ī)·√(M/K), in sums of M patterns.
+            let (m, gain) = (rendered as f64, (rendered as f64 / patterns as f64).sqrt());
+            for (p, e) in self.pixels.iter_mut().zip(&self.mean_px) {
+                let mean = m * e;
+                *p = mean + (*p - mean) * gain;
+            }
+        }
+        rendered
     }
 
     /// The field's amplitude on the grid, √(illumination × reflectance),
