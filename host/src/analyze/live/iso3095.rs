@@ -53,18 +53,23 @@
 //! judges on a worker thread of its own (started by the hub, at the
 //! hub's lowered priority), at most one stretch in flight; the hub takes
 //! the verdicts when they are ready and peeks the next stretch (a copy
-//! of its cells, O(cells)) only when the worker is free.
+//! of its cells, O(cells)) only when the worker is free and has rested
+//! as long as its last judgement took: the worker takes at most half of
+//! one core, however slow the machine or fast the travel, and the
+//! verdicts come as often as that allows (every [`EVAL_EVERY_MM`] of
+//! travel at most).
 
 use std::collections::VecDeque;
 use std::sync::mpsc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
+use crate::analyze::floor::common_runs;
 use crate::analyze::reprofiling::Iso3095;
 use crate::analyze::standards::en15610;
 use crate::analyze::stitch::{Direction, FramePoints, Stitcher, Stitching};
-use crate::analyze::{self, Grid, pieces};
+use crate::analyze::{self, Grid};
 
 /// The longest stretch judged, mm: a stitcher opens every half of it.
 pub const STRETCH_MM: f64 = 30_000.0;
@@ -156,14 +161,7 @@ impl RecentTrack {
         let lines: Vec<_> = stitching.lasers.iter().collect();
         let dx = lines.first().map_or(1.0, |l| l.dx_mm);
         let grid = Grid::of_lines(&lines, dx);
-        let runs: Vec<Vec<std::ops::Range<usize>>> = lines
-            .iter()
-            .map(|s| {
-                let off = grid.offset(s);
-                pieces::runs(s).into_iter().map(|r| r.start + off..r.end + off).collect()
-            })
-            .collect();
-        let longest = pieces::common_runs(&runs).iter().map(|r| r.len()).max().unwrap_or(0);
+        let longest = common_runs(&stitching.lasers, dx).iter().map(|r| r.len()).max().unwrap_or(0);
         RecentTrack {
             stitching,
             from_odometer_mm,
@@ -269,6 +267,8 @@ pub struct LiveIso3095 {
     taken_at: Option<(f64, bool)>,
     report: Option<Iso3095Live>,
     worker: Option<Worker>,
+    /// The worker rests until then: as long as its last judgement took.
+    rest_until: Option<Instant>,
 }
 
 impl LiveIso3095 {
@@ -283,6 +283,7 @@ impl LiveIso3095 {
             taken_at: None,
             report: None,
             worker: None,
+            rest_until: None,
         }
     }
 
@@ -356,16 +357,22 @@ impl LiveIso3095 {
 
     /// The verdicts so far (`None` before a calibrated frame): the
     /// stretch taken and judged when due — on the worker, whose verdicts
-    /// are returned once ready (until then the last ones), or here.
+    /// are returned once ready (until then the last ones), and which
+    /// then rests as long as the judgement took, or here.
     pub fn report(&mut self) -> Option<&Iso3095Live> {
         match self.worker.as_mut().map(Worker::poll) {
-            Some(Ok(Some(r))) => self.report = Some(r),
+            Some(Ok(Some(r))) => {
+                let cost = Duration::from_secs_f64(r.cost_ms.unwrap_or(0.0).max(0.0) / 1e3);
+                self.rest_until = Some(Instant::now() + cost);
+                self.report = Some(r);
+            }
             // The thread is gone (it cannot panic on a stretch, but if it
             // did): judge here from now on.
             Some(Err(())) => self.worker = None,
             _ => {}
         }
-        if self.due() && self.worker.as_ref().is_none_or(|w| !w.busy) {
+        let rested = self.rest_until.is_none_or(|t| Instant::now() >= t);
+        if self.due() && rested && self.worker.as_ref().is_none_or(|w| !w.busy) {
             self.judge_taken();
         }
         self.report.as_ref()

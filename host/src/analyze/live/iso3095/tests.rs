@@ -105,3 +105,22 @@ fn live_iso3095_verdicts_are_what_analyze_finds() {
     assert!(exceeds >= 12, "{r:?}");
     assert!(r.cost_ms.is_some_and(|c| c > 0.0), "{r:?}");
 }
+
+/// The stretch stays bounded: past 30 m of travel the oldest stitcher
+/// is dropped, and the stretch taken is the last 15 to 30 m.
+#[test]
+fn the_stretch_judged_is_the_latest_15_to_30_m() {
+    let f = frames(40_000.0, 33.3, 120, 2.0, &rail);
+    let mut live = LiveIso3095::new(analyze::Options::default());
+    for fr in &f {
+        live.add(fr);
+    }
+    assert_eq!(live.open.len(), 2);
+    let t = live.take().unwrap();
+    let newest = f.last().unwrap().odometer_mm;
+    assert_eq!(t.to_odometer_mm, newest);
+    let span = newest - t.from_odometer_mm;
+    assert!((STRETCH_MM / 2.0..STRETCH_MM).contains(&span), "{span} mm");
+    // The last eight frames not yet committed by the joint registration.
+    assert!((span - 400.0..span + 100.0).contains(&t.stretch_mm), "{} of {span} mm", t.stretch_mm);
+}
