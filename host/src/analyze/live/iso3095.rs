@@ -47,8 +47,11 @@
 //! small: it walks the stretch twice (the floor, then the standards) and
 //! runs EN 15610's nonlinear steps on the rail for the floor, the lines
 //! and the blocks. The `live/iso3095_judge` benchmark (`cargo bench -p
-//! cms-host --bench corrugation`; docs/benchmarks.md has the figures)
-//! measures it on a 30 m stretch of three lines. So it never runs on the
+//! cms-host --bench corrugation`) measured 173 ms for a 30 m stretch of
+//! three lines of synthetic frames on the 2-core development VM, and the
+//! first 5 m of a `listen sim` run took 1.04 s there while the simulated
+//! head and a browser shared the machine; a frame stitched costs 0.25 ms
+//! (`live/iso3095_add_per_frame`). So it never runs on the
 //! listener's loop, nor on the view's hub: [`LiveIso3095::threaded`]
 //! judges on a worker thread of its own (started by the hub, at the
 //! hub's lowered priority), at most one stretch in flight; the hub takes
