@@ -401,7 +401,7 @@ impl LiveIso3095 {
                 if let Err(track) = w.submit(track) {
                     // The worker is gone: judge here from now on.
                     self.worker = None;
-                    self.report = Some(judge(track, &self.opts));
+                    self.report = Some(judge(*track, &self.opts));
                 }
             }
             None => self.report = Some(judge(track, &self.opts)),
@@ -438,8 +438,8 @@ impl Worker {
 
     /// Hands a stretch over (the caller checks that none is in hand);
     /// the stretch back if the thread is gone.
-    fn submit(&mut self, track: RecentTrack) -> Result<(), RecentTrack> {
-        self.tx.send(track).map_err(|e| e.0)?;
+    fn submit(&mut self, track: RecentTrack) -> Result<(), Box<RecentTrack>> {
+        self.tx.send(track).map_err(|e| Box::new(e.0))?;
         self.busy = true;
         Ok(())
     }
