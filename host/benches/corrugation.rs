@@ -10,10 +10,16 @@
 //! when its travel ends) over 7 m of the same frames at 0.5 m/s (16.7 mm
 //! apart), and the open stretch judged at its longest (4.3 m).
 //!
+//! The live ISO 3095 verdicts (`cms_host::analyze::live::iso3095`): a
+//! frame taken (stitched into one or two stitchers) over 7 m at 1 m/s
+//! (33.3 mm apart), and a stretch judged by `analyze` at the longest the
+//! live view judges (30 m, 900 frames at 1 m/s).
+//!
 //! `cargo bench -p cms-host --bench corrugation`.
 
 use cms_host::analyze::live::LiveEstimate;
 use cms_host::analyze::live::bands::LiveBands;
+use cms_host::analyze::live::iso3095::{LiveIso3095, STRETCH_MM};
 use cms_host::analyze::stitch::FramePoints;
 use cms_study::Rng;
 use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
@@ -76,6 +82,36 @@ fn bands(c: &mut Criterion) {
     g.finish();
 }
 
+fn iso3095(c: &mut Criterion) {
+    let opts = cms_host::analyze::Options::default;
+    let run = frames(210, 33.3);
+    let mut g = c.benchmark_group("live");
+    g.sample_size(10).measurement_time(Duration::from_secs(10));
+    g.throughput(Throughput::Elements(run.len() as u64));
+    g.bench_function("iso3095_add_per_frame", |b| {
+        b.iter_batched(
+            || LiveIso3095::new(opts()),
+            |mut live| {
+                for f in &run {
+                    live.add(f);
+                }
+                live
+            },
+            BatchSize::LargeInput,
+        )
+    });
+    let mut live = LiveIso3095::new(opts());
+    for f in frames((STRETCH_MM / 33.3) as u32, 33.3) {
+        live.add(&f);
+    }
+    let r = live.judge_now().expect("a report").clone();
+    assert_eq!(r.state, "evaluated", "{r:?}");
+    println!("stretch judged: {:.0} mm, {:.0} ms", r.stretch_mm, r.cost_ms.unwrap_or(f64::NAN));
+    g.throughput(Throughput::Elements(1));
+    g.bench_function("iso3095_judge", |b| b.iter(|| black_box(live.judge_now().is_some())));
+    g.finish();
+}
+
 fn update(c: &mut Criterion) {
     let live = window();
     let est = live.estimate();
@@ -91,5 +127,5 @@ fn update(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, update, bands);
+criterion_group!(benches, update, bands, iso3095);
 criterion_main!(benches);

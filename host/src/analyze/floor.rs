@@ -383,7 +383,7 @@ pub fn coherence(mean_rms: f64, null_rms: f64, k: usize) -> f64 {
 }
 
 /// The runs (grid indices of the section) where every line has a sample.
-fn common_runs(section: &[Stitched], dx_mm: f64) -> Vec<Range<usize>> {
+pub(crate) fn common_runs(section: &[Stitched], dx_mm: f64) -> Vec<Range<usize>> {
     let grid = Grid::of_lines(&section.iter().collect::<Vec<_>>(), dx_mm);
     let runs: Vec<Vec<Range<usize>>> = section
         .iter()

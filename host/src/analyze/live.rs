@@ -37,9 +37,12 @@
 //! doubtful. It is a diagnostic of the fit, not a verdict on the rail: a
 //! rail of several wavelengths does not fit one sine, and says so here.
 //! The rail's live verdict is [`bands`]': each line's EN 13231-3 figures
-//! so far, judged by `analyze`'s code against its floor.
+//! so far, judged by `analyze`'s code against its floor; and
+//! [`iso3095`]'s: each line's and the energy average's ISO 3095 third
+//! octaves over the latest stretch, judged by `analyze` itself.
 
 pub mod bands;
+pub mod iso3095;
 
 use std::collections::VecDeque;
 use std::fmt::Write as _;

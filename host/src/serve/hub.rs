@@ -13,6 +13,7 @@ use serde::Serialize;
 use super::http::Update;
 use super::{DISPLAY_HZ, Input, ServeOptions, Shared};
 use crate::analyze::live::bands::{BandsReport, LiveBands};
+use crate::analyze::live::iso3095::{Iso3095Live, LiveIso3095};
 use crate::analyze::live::{LaserEstimate, LiveEstimate};
 use crate::device::listen::LinkState;
 use crate::recording::FrameCounter;
@@ -129,6 +130,9 @@ struct Snapshot<'a> {
     corrugation: &'a [Corrugation],
     /// The run's EN 13231-3 band figures so far (`None` before calibrated frames).
     bands: Option<&'a BandsReport>,
+    /// The latest stretch's ISO 3095 verdicts, or what they need (`None`
+    /// before calibrated frames).
+    iso3095: Option<&'a Iso3095Live>,
 }
 
 #[derive(Debug, Serialize)]
@@ -172,6 +176,10 @@ struct Hub<'a> {
     estimated_at: Option<Instant>,
     bands: LiveBands,
     bands_report: Option<BandsReport>,
+    /// Judged on a worker thread of its own (it would hold the hub for
+    /// its cost: [`crate::analyze::live::iso3095`]).
+    iso3095: LiveIso3095,
+    iso3095_report: Option<Iso3095Live>,
     ticks: VecDeque<Tick>,
     frames_seen: u64,
 }
@@ -191,6 +199,11 @@ pub(super) fn run(rx: Receiver<Input>, out: tokio::sync::watch::Sender<Update>, 
         estimated_at: None,
         bands: LiveBands::new(opts.live_bands),
         bands_report: None,
+        iso3095: LiveIso3095::threaded(crate::analyze::Options {
+            stitch: opts.live_bands.stitch,
+            ..crate::analyze::Options::default()
+        }),
+        iso3095_report: None,
         ticks: VecDeque::new(),
         frames_seen: 0,
     };
@@ -213,6 +226,7 @@ pub(super) fn run(rx: Receiver<Input>, out: tokio::sync::watch::Sender<Update>, 
             if hub.estimated_at.is_none_or(|t| now.duration_since(t) >= ESTIMATE_EVERY) {
                 hub.estimate = hub.live.estimate().iter().map(corrugation).collect();
                 hub.bands_report = hub.bands.report().cloned();
+                hub.iso3095_report = hub.iso3095.report().cloned();
                 hub.estimated_at = Some(now);
             }
             let n = shared.updates.fetch_add(1, Ordering::Relaxed) + 1;
@@ -284,6 +298,7 @@ impl Hub<'_> {
     fn profile(&mut self, p: &Profile) -> bool {
         if let Some(f) = self.live.push(p) {
             self.bands.add(f);
+            self.iso3095.add(f);
         }
         let complete = self.counter.profile(p);
         if p.part == 0 || self.building.as_ref().is_none_or(|b| b.seq != p.seq) {
@@ -461,6 +476,7 @@ impl Hub<'_> {
             frame: self.newest.as_ref(),
             corrugation: &self.estimate,
             bands: self.bands_report.as_ref(),
+            iso3095: self.iso3095_report.as_ref(),
         };
         serde_json::to_string(&s).unwrap_or_else(|e| format!("{{\"error\":\"{e}\"}}"))
     }

@@ -22,8 +22,10 @@
 //! (`view_dropped`), the recording is not touched. The hub (a thread of its
 //! own) assembles frames, the frame rate, speed, lost and damaged frames,
 //! the running corrugation estimate ([`crate::analyze::live`], twice a
-//! second) and the run's EN 13231-3 band figures
-//! ([`crate::analyze::live::bands`]), and publishes an update — the newest frame's points and every
+//! second), the run's EN 13231-3 band figures
+//! ([`crate::analyze::live::bands`]) and the latest stretch's ISO 3095
+//! verdicts ([`crate::analyze::live::iso3095`]: `analyze` itself on the
+//! stretch, on a worker thread of the hub's, taken when ready), and publishes an update — the newest frame's points and every
 //! figure, as one JSON text — at most [`DISPLAY_HZ`] times a second into a
 //! `watch` channel, which holds the newest update only. Each page's task
 //! sends the newest when it can: a slow page skips updates (counted,

@@ -93,6 +93,7 @@ function figures(u) {
     r.querySelector(".reasons").textContent = c.reasons.join("; ");
   }
   bands(u.bands);
+  iso(u.iso3095);
 }
 
 // Each line's EN 13231-3 bands since the start (the last stretch in
@@ -123,6 +124,54 @@ function bands(b) {
   const un = b.latest_unstitched[b.latest_unstitched.length - 1];
   text("unstitched", b.unstitched === 0 ? "every frame stitched" : `${b.unstitched} frame(s) would not stitch; latest seq ${un.seq} at ${fmt(un.odometer_mm / 1000, 3, "m")}, laser ${un.laser}: ${un.kind}, overlap ${fmt(un.overlap_mm, 1, "mm")} (analyze registers a frame from 3 mm)`);
   $("unstitched").className = b.unstitched === 0 ? "" : "warn";
+}
+
+// The latest stretch's ISO 3095 third octaves: each line's and the
+// energy average's verdict as the viewer words it (within, or the verdict
+// with the rail and its interval), with the level and the floor.
+function iso(r) {
+  const t = $("isotable");
+  const lines = r ? r.lines : [];
+  const name = (l) => (l.laser === null ? "energy average" : "L" + l.laser);
+  const th = (s) => { const e = document.createElement("th"); e.textContent = s; return e; };
+  t.tHead.rows[0].replaceChildren(th("third octave"), th("limit"), ...lines.map((l) => th(name(l))));
+  text("isoverdicts", lines.map((l) => name(l) + ": " + (l.error ? "not evaluated: " + l.error : l.verdict)).join("; "));
+  if (!r) { text("isostretch", "(no calibrated frames yet)"); t.tBodies[0].replaceChildren(); return; }
+  text("isoconfidence", r.confidence_percent + " %");
+  const track = `odometer ${fmt(r.from_odometer_mm / 1000, 2)}–${fmt(r.to_odometer_mm / 1000, 2, "m")}, ${fmt(r.gapless_mm / 1000, 2, "m")} without a gap`;
+  if (r.state !== "evaluated") {
+    text("isostretch", `(${track})`);
+    const tr = document.createElement("tr");
+    tr.dataset.state = r.state;
+    const td = document.createElement("td");
+    td.colSpan = 2;
+    td.className = "notevaluated";
+    td.textContent = r.why;
+    tr.appendChild(td);
+    t.tBodies[0].replaceChildren(tr);
+    return;
+  }
+  text("isostretch", `(${track}; judged in ${fmt(r.cost_ms, 0, "ms")})`);
+  const cls = { within: "within", EXCEEDS: "over", "not judged": "notjudged" };
+  const waves = [...new Set(lines.flatMap((l) => l.bands.map((b) => b.wavelength_mm)))];
+  const rows = waves.map((w) => {
+    const tr = document.createElement("tr");
+    tr.dataset.state = "evaluated";
+    tr.dataset.wavelength = String(w);
+    const add = (s, c, title) => { const td = document.createElement("td"); td.textContent = s; if (c) td.className = c; if (title) td.title = title; tr.appendChild(td); return td; };
+    const any = lines.flatMap((l) => l.bands).find((b) => b.wavelength_mm === w);
+    add(w + " mm");
+    add(fmt(any.limit_db, 1, "dB"));
+    for (const l of lines) {
+      const b = l.bands.find((x) => x.wavelength_mm === w);
+      if (!b) { add("–"); continue; }
+      const figures = `level ${fmt(b.level_db, 1)}, floor ${fmt(b.floor_db, 1, "dB")}`;
+      const s = b.verdict === "within" ? `within (${figures})` : `${b.verdict}: rail ${b.rail} dB (${figures})`;
+      add(s, cls[b.verdict], b.words).dataset.verdict = b.verdict;
+    }
+    return tr;
+  });
+  t.tBodies[0].replaceChildren(...rows);
 }
 
 function ticks(lo, hi, n) {

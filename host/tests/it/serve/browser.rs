@@ -226,7 +226,11 @@ const lines = [...document.querySelectorAll('#lines .line')].map((l) => {
            saturated: q('.saturated'), strength: q('.strength'), wavelength: q('.wavelength'),
            amplitude: q('.amplitude'), verdict: q('.verdict'), reasons: q('.reasons') };
 });
-return { seq: t('seq'), frames: t('frames'), fps: t('fps'), odometer: t('odometer'), lost: t('lost'),
+// The ISO 3095 panel: its columns, and per third octave each cell's verdict and words.
+const isoHead = [...document.querySelectorAll('#isotable thead th')].map((c) => c.textContent);
+const iso = [...document.querySelectorAll('#isotable tbody tr')].map((r) => ({ state: r.dataset.state,
+  cells: [...r.cells].map((c) => ({ text: c.textContent, verdict: c.dataset.verdict || null, tip: c.title })) }));
+return { isoHead, iso, isoVerdicts: t('isoverdicts'), isoStretch: t('isostretch'), seq: t('seq'), frames: t('frames'), fps: t('fps'), odometer: t('odometer'), lost: t('lost'),
          damaged: t('damaged'), speed: t('speed'), speedlimit: t('speedlimit'), speedwarn: t('speedwarn'),
          phase: t('phase'), lasers: t('lasers'), updates: t('updates'), lines, bands, red };
 "#;
@@ -268,9 +272,9 @@ fn a_real_browser_shows_the_recorded_frames_live() {
             .to_string(),
     ));
     b.wait_for(
-        "return window.cmsView().updates >= 30 && document.querySelectorAll('#lines .verdict[data-fit]').length === 3 && [...document.querySelectorAll('#bandtable tbody tr')].some((r) => r.dataset.state === 'over')",
+        "return window.cmsView().updates >= 30 && document.querySelectorAll('#lines .verdict[data-fit]').length === 3 && [...document.querySelectorAll('#bandtable tbody tr')].some((r) => r.dataset.state === 'over') && document.querySelectorAll('#isotable tbody tr[data-state=evaluated]').length > 0",
         Duration::from_secs(90),
-        "live frames, corrugation estimates and the band table",
+        "live frames, corrugation estimates, the band table and the ISO 3095 panel",
     );
     let shown = b.eval(SHOWN);
     // Two event marks: the Weld button clicked, then D typed with the text box filled.
@@ -332,6 +336,33 @@ fn a_real_browser_shows_the_recorded_frames_live() {
     assert_eq!(bands[1]["state"], "over", "{shown}");
     assert_eq!(bands[1]["cells"][0], "30–100 mm", "{shown}");
     assert_eq!(shown["red"], 0, "{shown}");
+    // The ISO 3095 panel: every line and the energy average, every third
+    // octave 5–250 mm with its verdict; the rail's 50 mm wave EXCEEDS on
+    // each, with the rail's level and interval; within words the level and floor.
+    assert_eq!(shown["isoHead"], serde_json::json!(["third octave", "limit", "L0", "L1", "L2", "energy average"]));
+    let iso = shown["iso"].as_array().unwrap();
+    let row =
+        |w: &str| iso.iter().find(|r| r["cells"][0]["text"] == w).unwrap_or_else(|| panic!("no {w} row: {shown}"));
+    for w in ["250 mm", "100 mm", "50 mm", "20 mm", "10 mm", "5 mm"] {
+        let cells = row(w)["cells"].as_array().unwrap();
+        assert_eq!(cells.len(), 6, "{w}: {cells:?}");
+        for c in &cells[2..] {
+            let (v, text) = (c["verdict"].as_str().unwrap(), c["text"].as_str().unwrap());
+            assert!(["within", "EXCEEDS", "not judged"].contains(&v), "{w}: {c}");
+            let figures = text.contains("(level ") && text.contains(", floor ") && text.ends_with(" dB)");
+            assert!(
+                text.starts_with(&format!("{v}{}", if v == "within" { " (" } else { ": rail " })) && figures,
+                "{w}: {c}"
+            );
+            assert!(c["tip"].as_str().unwrap().starts_with(v), "{w}: {c}");
+        }
+    }
+    for c in &row("50 mm")["cells"].as_array().unwrap()[2..] {
+        assert_eq!(c["verdict"], "EXCEEDS", "{c}");
+    }
+    let verdicts = shown["isoVerdicts"].as_str().unwrap();
+    assert!(verdicts.contains("energy average: EXCEEDS at ") && verdicts.contains("50"), "{verdicts}");
+    assert!(shown["isoStretch"].as_str().unwrap().contains("without a gap; judged in "), "{shown}");
     // The run's own counts: no frame damaged, all shown up to then.
     let shown_frames: u64 = shown["frames"].as_str().unwrap().parse().unwrap();
     assert!(shown_frames as usize <= frames.len() && shown_frames > 30, "{shown}");

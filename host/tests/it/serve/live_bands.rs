@@ -88,6 +88,20 @@ fn live_bands_agree_with_analyze() {
             }
         }
     }
+    // The ISO 3095 verdicts: judged once 5 m have no gap, else what they need.
+    let iso = &last["iso3095"];
+    match iso["state"].as_str() {
+        Some("evaluated") => {
+            let avg =
+                iso["lines"].as_array().unwrap().iter().find(|l| l["laser"].is_null()).expect("the energy average");
+            let b50 = avg["bands"].as_array().unwrap().iter().find(|b| b["wavelength_mm"] == 50.0).unwrap();
+            assert_eq!(b50["verdict"], "EXCEEDS", "{iso}");
+        }
+        Some("not evaluated yet") => {
+            assert!(iso["why"].as_str().unwrap().starts_with("not evaluated yet: it needs 5000 mm"), "{iso}")
+        }
+        _ => panic!("{iso}"),
+    }
     for c in last["corrugation"].as_array().unwrap() {
         assert!(c["verdict"].is_string(), "the sine's diagnostic: {c}");
     }
