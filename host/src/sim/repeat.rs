@@ -10,25 +10,30 @@
 //! the rail, `sim::scene`'s repeat tests) reads other speckle, and the
 //! floor's power falls as `1/N` for `N` such runs.
 
+use crate::analyze::stitch::Stitching;
 use crate::analyze::survey::{self, Heading, JoinOptions, Placement};
 use crate::analyze::{self, Analysis};
 use crate::sim::closed_loop::ClosedLoopError;
 use crate::sim::floor::{MIN_LENGTH_MM, Setting, drive};
 
-/// One run of a repeat: the head's place across the rail, mm, and its
-/// odometer at frame 0, mm (runs rarely start at the same millimetre, so
-/// their frames fall elsewhere on the rail).
+/// One run of a repeat: which run (its own frame noise), the head's place
+/// across the rail, mm, and its odometer at frame 0, mm (runs rarely start
+/// at the same millimetre, so their frames fall elsewhere on the rail).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pass {
+    pub run: u64,
     pub lateral_mm: f64,
     pub odometer_start_mm: f64,
 }
 
-/// Drives the head over the setting's rail once per pass, run `k` with its
-/// own frame noise, joins the runs at their true start (chainage 0, up: the
-/// simulated odometer is exact) and judges the survey with `analyze`'s
-/// defaults.
+/// Drives the head over the setting's rail once per pass, joins the runs
+/// and judges the survey ([`join`]).
 pub fn run(s: &Setting, passes: &[Pass]) -> Result<Analysis, ClosedLoopError> {
+    join(drive_passes(s, passes)?)
+}
+
+/// Each pass's lines, stitched as `analyze` stitches a recording.
+pub fn drive_passes(s: &Setting, passes: &[Pass]) -> Result<Vec<Stitching>, ClosedLoopError> {
     if !(s.length_mm >= MIN_LENGTH_MM && s.length_mm <= 1e6 && s.step_mm > 0.0 && !passes.is_empty()) {
         return Err(ClosedLoopError::Options(format!(
             "{} mm of rail at {} mm a frame, {} run(s): at least {MIN_LENGTH_MM} mm, a positive step, a run",
@@ -37,14 +42,22 @@ pub fn run(s: &Setting, passes: &[Pass]) -> Result<Analysis, ClosedLoopError> {
             passes.len()
         )));
     }
-    let mut runs = Vec::with_capacity(passes.len());
-    for (k, p) in passes.iter().enumerate() {
-        let mut cfg = s.config();
-        cfg.run = k as u64;
-        cfg.head.lateral_offset_mm = p.lateral_mm;
-        cfg.odometer_start_mm = p.odometer_start_mm;
-        runs.push(drive(s, cfg)?);
-    }
+    passes
+        .iter()
+        .map(|p| {
+            let mut cfg = s.config();
+            cfg.run = p.run;
+            cfg.head.lateral_offset_mm = p.lateral_mm;
+            cfg.odometer_start_mm = p.odometer_start_mm;
+            drive(s, cfg)
+        })
+        .collect()
+}
+
+/// Joins runs at their true start (chainage 0, up: the simulated odometer
+/// is exact) as `analyze run1 run2 …` joins them, and judges the survey
+/// with `analyze`'s defaults.
+pub fn join(runs: Vec<Stitching>) -> Result<Analysis, ClosedLoopError> {
     let at = vec![Placement { start_m: Some(0.0), heading: Some(Heading::Up) }; runs.len()];
     let analysis = |e: String| ClosedLoopError::Analysis(e);
     let (stitching, joins) = survey::join(runs, &at, &JoinOptions::default()).map_err(|e| analysis(e.to_string()))?;
@@ -73,15 +86,17 @@ mod tests {
     #[test]
     fn the_floor_falls_as_one_over_n_with_runs_that_see_other_speckle() {
         let s = Setting { step_mm: 60.0, ..Setting::push_trolley(MIN_LENGTH_MM) };
-        let pass = |k: usize, lateral_mm: f64| Pass { lateral_mm, odometer_start_mm: 7.3 * k as f64 };
-        let across: Vec<Pass> = (0..4).map(|k| pass(k, 3.0 * k as f64)).collect();
-        let (one, n1) = floor(&run(&s, &across[..1]).unwrap());
-        let (two, n2) = floor(&run(&s, &across[..2]).unwrap());
-        let (four, n4) = floor(&run(&s, &across).unwrap());
-        let (same, n_same) = floor(&run(&s, &[pass(0, 0.0), pass(1, 0.0)]).unwrap());
+        let pass = |run: u64, lateral_mm: f64| Pass { run, lateral_mm, odometer_start_mm: 7.3 * run as f64 };
+        // Four runs 3 mm apart across the rail, and a second run on the first's strip.
+        let passes = [pass(0, 0.0), pass(1, 3.0), pass(2, 6.0), pass(3, 9.0), pass(1, 0.0)];
+        let runs = drive_passes(&s, &passes).unwrap();
+        let joined = |k: &[usize]| floor(&join(k.iter().map(|&k| runs[k].clone()).collect()).unwrap());
+        let ((one, n1), (two, n2), (four, n4), (same, n_same)) =
+            (joined(&[0]), joined(&[0, 1]), joined(&[0, 1, 2, 3]), joined(&[0, 4]));
         eprintln!("10–30 mm floor: 1 run {one:.2} dB, 2 runs {two:.2}, 4 runs {four:.2}, 2 on one strip {same:.2}");
-        assert!((n1 - 1.0).abs() < 1e-9 && (n2 - 2.0).abs() < 0.05 && (n4 - 4.0).abs() < 0.1, "{n1} {n2} {n4}");
-        assert!((n_same - 2.0).abs() < 0.05, "{n_same}");
+        // The runs start 7.3 mm apart: their ends average fewer.
+        assert!((n1 - 1.0).abs() < 1e-9 && (1.9..=2.0).contains(&n2) && (3.6..=4.0).contains(&n4), "{n1} {n2} {n4}");
+        assert!((1.9..=2.0).contains(&n_same), "{n_same}");
         assert!((one - two - 3.0).abs() < 2.0, "2 runs: {one:.2} → {two:.2} dB");
         assert!((one - four - 6.0).abs() < 2.0, "4 runs: {one:.2} → {four:.2} dB");
         assert!((one - same).abs() < 1.5, "2 runs on one strip: {one:.2} → {same:.2} dB");

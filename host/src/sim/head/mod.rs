@@ -501,7 +501,11 @@ mod scene {
             .map_err(|e| SimulateError::Usage(format!("detector for this scene: {e}")))?;
         let exposure_us = scene.camera().exposure_us.round().clamp(1.0, 1e6) as u32;
         let factory = if args.factory_calibration {
-            let file = crate::sim::calibration::truth::truth(&scene);
+            // The head's own calibration, wherever it stands on the rail
+            // (runs of one head across the rail are of one head).
+            let at_aim = HeadOptions { lateral_mm: None, ..args.clone() };
+            let aimed = Scene::new(sim_config(&at_aim)?).map_err(|e| SimulateError::Usage(format!("scene: {e}")))?;
+            let file = crate::sim::calibration::truth::truth(&aimed);
             Some(file.to_head().map_err(|e| SimulateError::Usage(format!("factory calibration: {e}")))?)
         } else {
             None
