@@ -407,7 +407,7 @@ pub fn sim_config(args: &HeadOptions) -> Result<SimConfig, SimulateError> {
     cfg.seed = args.seed;
     cfg.run = args.run;
     if let Some(y) = args.lateral_mm {
-        if !(y.abs() <= MAX_LATERAL_MM) {
+        if !y.is_finite() || y.abs() > MAX_LATERAL_MM {
             return Err(SimulateError::Usage(format!(
                 "the head's place across the rail must be within ±{MAX_LATERAL_MM} mm, got {y}"
             )));
