@@ -101,6 +101,10 @@ pub struct Budget {
     /// Speckle's spectral density on a stitched line at low wavenumbers
     /// (the source's independent patterns averaged), µm² · mm.
     pub speckle_psd_um2_mm: f64,
+    /// Runs averaged on the lines ([`crate::analyze::stitch::Stitched::runs_averaged`]):
+    /// the speckle and sensor noise of runs that see independent speckle
+    /// (lines on other strips of the rail head) average, power `/ N`.
+    pub runs_averaged: f64,
 }
 
 /// The prediction's figures for `optics` on the head `head` moving as `motion`.
@@ -122,6 +126,7 @@ pub fn budget(optics: Optics, head: &HeadLens, motion: Motion) -> Budget {
         travel_mm,
         patterns: 1.0 + travel_mm / correlation_mm,
         speckle_psd_um2_mm: 2.0 * point_um * point_um * correlation_mm / f64::from(head.speckle_patterns.max(1)),
+        runs_averaged: 1.0,
     }
 }
 
@@ -130,7 +135,7 @@ impl Budget {
     pub fn psd_um2_mm(&self, f_per_mm: f64) -> f64 {
         let x = std::f64::consts::PI * f_per_mm * self.travel_mm;
         let smear = if x.abs() < 1e-9 { 1.0 } else { (x.sin() / x).powi(2) };
-        self.speckle_psd_um2_mm * smear + SENSOR_PSD_UM2_MM
+        (self.speckle_psd_um2_mm * smear + SENSOR_PSD_UM2_MM) / self.runs_averaged.max(1.0)
     }
 
     /// One line's predicted RMS in `band`, µm.
@@ -230,7 +235,7 @@ impl BandCheck {
         match self.agreement {
             Agreement::Agrees => format!("agrees with the optics ({:+.1} dB)", self.ratio_db),
             Agreement::Over => format!(
-                "the floor is {:.1} dB over what the optics predict: something besides speckle and sensor noise (vibration, grease, a glint, the stitch)",
+                "the floor is {:.1} dB over what the optics predict: something besides speckle and sensor noise (vibration, grease, a glint, the stitch, or repeat runs whose lines read the same strip of rail: the same speckle)",
                 self.ratio_db
             ),
             Agreement::Under => format!(
@@ -303,7 +308,7 @@ pub enum OpticsCheck {
 
 impl OpticsCheck {
     /// The floor `floor` (`None`: not known) against what `optics` predict
-    /// on the head `head` moving as `motion`.
+    /// on the head `head` moving as `motion`, for one run.
     pub fn of(
         optics: Optics,
         source: OpticsSource,
@@ -311,7 +316,19 @@ impl OpticsCheck {
         motion: Motion,
         floor: Option<&Floor>,
     ) -> OpticsCheck {
-        let budget = budget(optics, &head, motion);
+        OpticsCheck::of_runs(optics, source, (head, motion), 1.0, floor)
+    }
+
+    /// [`OpticsCheck::of`] for lines that average `runs_averaged` runs
+    /// ([`Budget::runs_averaged`]).
+    pub fn of_runs(
+        optics: Optics,
+        source: OpticsSource,
+        (head, motion): (HeadLens, Motion),
+        runs_averaged: f64,
+        floor: Option<&Floor>,
+    ) -> OpticsCheck {
+        let budget = Budget { runs_averaged: runs_averaged.max(1.0), ..budget(optics, &head, motion) };
         // The measured floor holds the stitch's propagated share
         // (`BandFloor::with_stitch`): the prediction holds it too.
         let check = |b: usize, f: Option<&crate::analyze::floor::BandFloor>| {

@@ -265,6 +265,7 @@ pub fn stitched(line: usize, x0_mm: f64, dx_mm: f64, z_um: Vec<f64>) -> Stitched
         points: z_um.iter().filter(|v| v.is_finite()).count(),
         z: Samples::from_vec(z_um),
         frames: 0,
+        runs_averaged: 1.0,
         fits: FitLog::default(),
         joins: Vec::new(),
         gaps,

@@ -261,7 +261,17 @@ fn optics_check(source: &Source, given: Option<Optics>, head: HeadLens, a: &Anal
     };
     let sums = recs.iter().fold(analyze::MotionSums::default(), |s, (_, r)| s.merge(&r.motion));
     let motion = sums.motion().unwrap_or(Motion { exposure_us: 0.0, speed_mm_s: 0.0 });
-    OpticsCheck::of(optics, from, head, motion, a.floor.as_ref())
+    OpticsCheck::of_runs(optics, from, (head, motion), runs_averaged(&a.lasers), a.floor.as_ref())
+}
+
+/// The runs averaged over all the lines' samples (harmonic: the factor by
+/// which noise independent from run to run falls in the pooled floor).
+pub fn runs_averaged(lasers: &[analyze::LaserAnalysis]) -> f64 {
+    let (samples, inverse) = lasers.iter().fold((0.0, 0.0), |(n, i), l| {
+        let k = l.stitched.z.finite() as f64;
+        (n + k, i + k / l.stitched.runs_averaged.max(1.0))
+    });
+    if inverse > 0.0 { samples / inverse } else { 1.0 }
 }
 
 /// The survey block of a recording, checked (`None`: none given).

@@ -249,6 +249,11 @@ pub struct Stitched {
     pub frames: usize,
     /// Points that contributed.
     pub points: usize,
+    /// Runs averaged on the line: the harmonic mean over its samples of
+    /// how many runs' samples were averaged there, so that noise
+    /// independent from run to run has `1 / runs_averaged` of one run's
+    /// power (1 for one run; see [`crate::analyze::survey`]).
+    pub runs_averaged: f64,
     /// Registered frames.
     pub fits: FitLog,
     /// Frames joined without registration (the first frame is not one).
@@ -595,6 +600,7 @@ impl Lane {
             z: z.counted(finite),
             frames: self.frames,
             points: self.points,
+            runs_averaged: 1.0,
             fits: self.fits,
             joins: self.joins,
             gaps,

@@ -54,6 +54,10 @@ fn fraction(s: &str) -> Result<f64, String> {
     Ok(v)
 }
 
+fn finite_mm(s: &str) -> Result<f64, String> {
+    finite(s, "length")
+}
+
 pub(crate) fn speed(s: &str) -> Result<f64, String> {
     let v = finite(s, "speed")?;
     if v.abs() > 100_000.0 {
@@ -149,7 +153,7 @@ impl SimulateArgs {
             state: self.state.clone(),
             factory_calibration: !self.uncalibrated,
             light: Some(self.light.clone().unwrap_or_else(|| head::default_light(self.preset.into()))),
-            odometer_tap: None,
+            ..HeadOptions::default()
         }
     }
 }
@@ -177,6 +181,16 @@ pub struct SimPortArgs {
     /// With PORT `sim`: seed of the simulated scene.
     #[arg(long = "sim-seed", value_name = "S")]
     pub sim_seed: Option<u64>,
+    /// With PORT `sim`: which run over the same rail (0 first): each run's
+    /// camera reads its own noise, the rail (the seed's) is the same.
+    #[arg(long = "sim-run", value_name = "N")]
+    pub sim_run: Option<u64>,
+    /// With PORT `sim`: the head's place across the rail for the run, mm
+    /// (within ±15; a trolley's play on the rail head): its lines light
+    /// other surface, whose speckle is its own (a repeat run over the same
+    /// rail 2.5 mm or more across sees speckle independent of the first's).
+    #[arg(long = "sim-lateral-mm", value_name = "Y", allow_hyphen_values = true, value_parser = finite_mm)]
+    pub sim_lateral_mm: Option<f64>,
     /// With PORT `sim`: camera and head geometry of the simulated head.
     #[arg(long = "sim-preset", value_enum)]
     pub sim_preset: Option<PresetArg>,
@@ -207,6 +221,8 @@ impl SimPortArgs {
     pub fn options(&self) -> SimPort {
         SimPort {
             sim_seed: self.sim_seed,
+            sim_run: self.sim_run,
+            sim_lateral_mm: self.sim_lateral_mm,
             sim_preset: self.sim_preset.map(Into::into),
             sim_state: self.sim_state.clone(),
             sim_speed_mm_s: self.sim_speed_mm_s,

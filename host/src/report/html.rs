@@ -573,6 +573,7 @@ fn stitched(l: &Stitched) -> String {
         ("section", l.section.to_string()),
         ("track", format!("{:.0} mm from chainage {}", l.length_mm(), chainage(l.x0_mm))),
         ("covered", format!("{:.0} mm", l.covered_mm())),
+        ("runs averaged", format!("{:.2}", l.runs_averaged)),
         ("frames", l.frames.to_string()),
         ("points", l.points.to_string()),
         ("registered frames", l.fits.len().to_string()),

@@ -255,6 +255,8 @@ pub fn to_json(source: &Source, a: &Analysis) -> Value {
                     "start_chainage": chainage(x0),
                     "end_chainage": chainage(x1),
                     "lasers": sec.lasers.iter().map(|l| l.stitched.laser).collect::<Vec<_>>(),
+                    "runs": a.joins.iter().filter(|j| j.section == sec.number).map(|j| j.run).collect::<Vec<_>>(),
+                    "runs_averaged": sec.lasers.iter().map(|l| num(l.stitched.runs_averaged)).collect::<Vec<_>>(),
                 })
             })
             .collect::<Vec<_>>()
@@ -280,6 +282,7 @@ fn laser_json(l: &LaserAnalysis) -> Value {
         "covered_mm": s.covered_mm(),
         "frames": s.frames,
         "points": s.points,
+        "runs_averaged": s.runs_averaged,
         "registered": s.fits.len(),
         "registration_residual_median_um": s.median_residual_um(),
         "offset_rms_um": s.fits.offset_rms_um(),

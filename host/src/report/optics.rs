@@ -23,7 +23,7 @@ fn heading(c: &OpticsCheck) -> String {
         OpticsCheck::NotRecorded => NOT_RECORDED.to_string(),
         OpticsCheck::Mixed(why) => format!("optics: {why}: the floor is not checked against them"),
         OpticsCheck::Checked { optics, source, head, motion, budget, .. } => format!(
-            "the floor against what the optics predict ({optics}, {}; {}: a {:.1} mm lens at {:.0} mm, {:.0}°, {} µm pixels; {:.0} µs exposures at {:.2} m/s, {:.2} mm of travel; docs/noise-floor.md): a point {:.1} µm ({} × the Dorsch bound {:.1} µm), a speckle {:.2} px, correlated over {:.2} mm of rail",
+            "the floor against what the optics predict ({optics}, {}; {}: a {:.1} mm lens at {:.0} mm, {:.0}°, {} µm pixels; {:.0} µs exposures at {:.2} m/s, {:.2} mm of travel; docs/noise-floor.md): a point {:.1} µm ({} × the Dorsch bound {:.1} µm), a speckle {:.2} px, correlated over {:.2} mm of rail{}",
             match source {
                 OpticsSource::Recorded => "recorded",
                 OpticsSource::Given => "given with --optics",
@@ -41,6 +41,14 @@ fn heading(c: &OpticsCheck) -> String {
             budget.dorsch_um,
             budget.speckle_px,
             budget.correlation_mm,
+            if budget.runs_averaged > 1.0 + 1e-9 {
+                format!(
+                    "; {:.2} runs averaged (their noise independent: power / {:.2})",
+                    budget.runs_averaged, budget.runs_averaged
+                )
+            } else {
+                String::new()
+            },
         ),
     }
 }
@@ -138,6 +146,7 @@ pub fn json(a: &Analysis) -> Value {
         "speckle_px": budget.speckle_px,
         "correlation_mm": budget.correlation_mm,
         "travel_mm": budget.travel_mm,
+        "runs_averaged": budget.runs_averaged,
         "agrees_within_db": crate::analyze::optics_floor::AGREES_DB,
         "bands": en13231::BANDS.iter().zip(bands).map(|(band, c)| json!({
             "lo_mm": band.lo_mm,

@@ -231,18 +231,24 @@ fn describe_recording(s: &mut String, path: &Path, rec: &Recording) {
     }
 }
 
+/// `, N runs averaged` on a line that averages runs (nothing for one run).
+fn runs_averaged(l: &Stitched) -> String {
+    if l.runs_averaged > 1.0 + 1e-9 { format!(", {:.2} runs averaged", l.runs_averaged) } else { String::new() }
+}
+
 /// One laser's stitching in a few lines.
 pub fn describe_stitched(l: &Stitched) -> String {
     let mut s = String::new();
     let overlap = l.fits.median_overlap_mm();
     let _ = writeln!(
         s,
-        "laser {}: {:.0} mm of track from chainage {} ({:.0} mm covered), {} frames, {} points; {} registered \
+        "laser {}: {:.0} mm of track from chainage {} ({:.0} mm covered{}), {} frames, {} points; {} registered \
          (median overlap {}, residual median {}, offsets RMS {:.2} µm, tilts RMS {:.4} µm/mm), {} unregistered join(s), {} gap(s)",
         l.laser,
         l.length_mm(),
         chainage(l.x0_mm),
         l.covered_mm(),
+        runs_averaged(l),
         l.frames,
         l.points,
         l.fits.len(),

@@ -103,7 +103,14 @@ pub fn run(s: &Setting) -> Result<Analysis, ClosedLoopError> {
             s.length_mm, s.step_mm, s.speed_mm_s, MIN_LENGTH_MM
         )));
     }
-    let cfg = s.config();
+    let stitching = drive(s, s.config())?;
+    analyze::judge(stitching, Vec::new(), &analyze::Options::default(), &crate::progress::Silent)
+        .map_err(|e| ClosedLoopError::Analysis(e.to_string()))
+}
+
+/// The head as `cfg` sets it driven over the setting's rail, a frame every
+/// `s.step_mm`: its lines stitched as `analyze` stitches a recording.
+pub fn drive(s: &Setting, cfg: SimConfig) -> Result<stitch::Stitching, ClosedLoopError> {
     let mut scene = Scene::new(cfg.clone())?;
     let m = Measurer::new(&truth(&scene))?;
     let mut det = detector(&cfg)?;
@@ -118,7 +125,5 @@ pub fn run(s: &Setting) -> Result<Analysis, ClosedLoopError> {
         }
         stitcher.push(&f);
     }
-    let stitching: stitch::Stitching = stitcher.finish().map_err(|e| ClosedLoopError::Analysis(e.to_string()))?;
-    analyze::judge(stitching, Vec::new(), &opts, &crate::progress::Silent)
-        .map_err(|e| ClosedLoopError::Analysis(e.to_string()))
+    stitcher.finish().map_err(|e| ClosedLoopError::Analysis(e.to_string()))
 }

@@ -31,6 +31,7 @@ pub mod gnss;
 pub mod head;
 pub mod pty;
 pub mod real_light;
+pub mod repeat;
 pub mod scene;
 pub mod synthetic;
 

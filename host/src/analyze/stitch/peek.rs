@@ -32,6 +32,7 @@ impl Stitcher {
                 z: Samples::from_vec(z),
                 frames: l.frames,
                 points: l.points,
+                runs_averaged: 1.0,
                 fits: l.fits.clone(),
                 joins: l.joins.clone(),
                 gaps,

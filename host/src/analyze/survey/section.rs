@@ -121,6 +121,21 @@ impl JoinedLine {
         Ok(acc)
     }
 
+    /// The harmonic mean, over the samples of `range` with a value, of the
+    /// runs averaged in each (a run adds weight 1 to each of its samples):
+    /// the factor by which noise independent from run to run falls in
+    /// power (1 where nothing was measured).
+    fn runs_averaged(&self, range: Range<i64>) -> io::Result<f64> {
+        let (mut samples, mut inverse) = (0u64, 0.0);
+        self.cells().for_stretch(range, |_, _, w| {
+            for &w in w.iter().filter(|&&w| w > 0) {
+                samples += 1;
+                inverse += 1.0 / f64::from(w);
+            }
+        })?;
+        Ok(if inverse > 0.0 { samples as f64 / inverse } else { 1.0 })
+    }
+
     /// Grows the line to cover grid indices `lo..hi`.
     fn cover(&mut self, lo: i64, hi: i64) {
         if self.base == self.end {
@@ -322,6 +337,7 @@ impl Section {
         for l in self.lines {
             let (first, last) = l.measured()?.unwrap_or((l.base, l.base));
             let x0_mm = g0 + first as f64 * dx;
+            let runs_averaged = l.runs_averaged(first..last)?;
             let cells = l.cells.into_inner().unwrap_or_else(|e| e.into_inner());
             let z = Samples::from_cells(cells, first, (last - first) as usize, 0);
             let (gaps, finite) = gaps_in(x0_mm, dx, &z)?;
@@ -333,6 +349,7 @@ impl Section {
                 z: z.counted(finite),
                 frames: 0,
                 points: finite,
+                runs_averaged,
                 fits: Default::default(),
                 joins: Vec::new(),
                 gaps,

@@ -39,6 +39,10 @@ pub use crate::sim::scene::Preset;
 /// trolley back ([`server::SimCamera::streaming_at`]) instead of opening gaps.
 pub const DEFAULT_SPEED_MM_S: f64 = 500.0;
 
+/// Farthest the head may stand across the rail from where the preset aims
+/// it, mm: its outer lines stay on a rail head's top (about 70 mm wide).
+pub const MAX_LATERAL_MM: f64 = 15.0;
+
 /// One corrugation component, `WAVELENGTH_MM:AMPLITUDE_UM[:PHASE_DEG]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CorrugationSpec {
@@ -59,6 +63,12 @@ pub struct HeadOptions {
     pub preset: Preset,
     /// Seed of every random part of the scene (roughness, noise, hot pixels).
     pub seed: u64,
+    /// Which run over the rail: each run reads its own frame noise on the
+    /// same rail (`SimConfig::run`).
+    pub run: u64,
+    /// The head's place across the rail for the run, mm from where the
+    /// preset aims it (a trolley's play on the rail head; `None`: there).
+    pub lateral_mm: Option<f64>,
     /// The camera's highest frame rate, Hz: the host's `Start` picks the
     /// rate, and one above this is refused (out of range).
     pub rate: u16,
@@ -102,6 +112,8 @@ impl Default for HeadOptions {
         HeadOptions {
             preset: Preset::Reference,
             seed: 1,
+            run: 0,
+            lateral_mm: None,
             rate: 30,
             speed_mm_s: None,
             corrugation: Vec::new(),
@@ -219,6 +231,10 @@ pub fn spawn_on_pty(args: &HeadOptions) -> Result<(PathBuf, SimHandle), Simulate
 pub struct SimPort {
     /// With PORT `sim`: seed of the simulated scene.
     pub sim_seed: Option<u64>,
+    /// With PORT `sim`: which run over the rail (its own frame noise, the same rail).
+    pub sim_run: Option<u64>,
+    /// With PORT `sim`: the head's place across the rail for the run, mm.
+    pub sim_lateral_mm: Option<f64>,
     /// With PORT `sim`: camera and head geometry of the simulated head.
     pub sim_preset: Option<Preset>,
     /// With PORT `sim`: the simulated head's state directory (its kept calibration).
@@ -244,6 +260,8 @@ impl SimPort {
     /// Whether any option was given (they all need PORT `sim`).
     pub fn any(&self) -> bool {
         self.sim_seed.is_some()
+            || self.sim_run.is_some()
+            || self.sim_lateral_mm.is_some()
             || self.sim_preset.is_some()
             || self.sim_state.is_some()
             || self.sim_speed_mm_s.is_some()
@@ -261,7 +279,7 @@ impl SimPort {
 pub fn resolve_port(port: &str, sim: &SimPort) -> Result<(PathBuf, Option<SimHandle>), SimulateError> {
     if port != "sim" {
         if sim.any() {
-            return Err(SimulateError::Usage("--sim-seed, --sim-preset, --sim-state, --sim-speed-mm-s, --sim-corrugation, --sim-roughness-um, --sim-uncalibrated, --sim-light and --gnss sim need PORT `sim`".into()));
+            return Err(SimulateError::Usage("--sim-seed, --sim-run, --sim-lateral-mm, --sim-preset, --sim-state, --sim-speed-mm-s, --sim-corrugation, --sim-roughness-um, --sim-uncalibrated, --sim-light and --gnss sim need PORT `sim`".into()));
         }
         return Ok((PathBuf::from(port), None));
     }
@@ -279,6 +297,8 @@ fn port_options(sim: &SimPort) -> HeadOptions {
     let preset = sim.sim_preset.unwrap_or(Preset::Reference);
     HeadOptions {
         seed: sim.sim_seed.unwrap_or(1),
+        run: sim.sim_run.unwrap_or(0),
+        lateral_mm: sim.sim_lateral_mm,
         preset,
         rate: 1000,
         state: sim.sim_state.clone(),
@@ -385,6 +405,15 @@ pub fn sim_config(args: &HeadOptions) -> Result<SimConfig, SimulateError> {
         cfg.light = light.clone();
     }
     cfg.seed = args.seed;
+    cfg.run = args.run;
+    if let Some(y) = args.lateral_mm {
+        if !y.is_finite() || y.abs() > MAX_LATERAL_MM {
+            return Err(SimulateError::Usage(format!(
+                "the head's place across the rail must be within ±{MAX_LATERAL_MM} mm, got {y}"
+            )));
+        }
+        cfg.head.lateral_offset_mm += y;
+    }
     cfg.frame_rate_hz = args.rate as f64;
     if let Some(b) = args.bits {
         cfg.camera.bits = b;
@@ -472,7 +501,11 @@ mod scene {
             .map_err(|e| SimulateError::Usage(format!("detector for this scene: {e}")))?;
         let exposure_us = scene.camera().exposure_us.round().clamp(1.0, 1e6) as u32;
         let factory = if args.factory_calibration {
-            let file = crate::sim::calibration::truth::truth(&scene);
+            // The head's own calibration, wherever it stands on the rail
+            // (runs of one head across the rail are of one head).
+            let at_aim = HeadOptions { lateral_mm: None, ..args.clone() };
+            let aimed = Scene::new(sim_config(&at_aim)?).map_err(|e| SimulateError::Usage(format!("scene: {e}")))?;
+            let file = crate::sim::calibration::truth::truth(&aimed);
             Some(file.to_head().map_err(|e| SimulateError::Usage(format!("factory calibration: {e}")))?)
         } else {
             None

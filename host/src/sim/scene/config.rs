@@ -114,6 +114,10 @@ pub struct SimConfig {
     pub odometer_start_mm: f64,
     /// Seed of every random quantity (roughness, sensor pattern, frame noise).
     pub seed: u64,
+    /// Which run of the head over the rail: each run reads its own frame
+    /// noise, on the same rail and surface (the seed's). The head's place
+    /// across the rail for the run is [`HeadGeometry::lateral_offset_mm`].
+    pub run: u64,
 }
 
 impl Default for SimConfig {
@@ -140,6 +144,7 @@ impl SimConfig {
             frame_rate_hz: 60.0,
             odometer_start_mm: 0.0,
             seed: 1,
+            run: 0,
         }
     }
 
@@ -164,6 +169,7 @@ impl SimConfig {
             frame_rate_hz: 3.4,
             odometer_start_mm: 0.0,
             seed: 1,
+            run: 0,
         }
     }
 

@@ -84,6 +84,8 @@ pub mod noise;
 pub mod rail;
 
 mod config;
+#[cfg(test)]
+mod repeat_tests;
 mod stripe;
 #[cfg(test)]
 mod tests;
@@ -669,6 +671,7 @@ impl Scene {
                     pixel_pitch_um: cam.pixel_pitch_um,
                     fx_px: cam.intrinsics.fx_px,
                     focus_mm: focus[k],
+                    lateral_px: self.cfg.head.lateral_offset_mm * cam.intrinsics.fx_px / self.cfg.head.standoff_mm,
                     lines,
                     gain_e_per_dn: self.gain_e_per_dn,
                     odometer_mm: shot.odometer_mm,
@@ -719,7 +722,9 @@ impl Scene {
             }
             return;
         }
-        let mut rng = Rng::for_stream(self.cfg.seed, NOISE_STREAM, frame_index, row as u64);
+        // Run 0's stream is the seed's own; another run reads other noise.
+        let stream = NOISE_STREAM ^ self.cfg.run.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        let mut rng = Rng::for_stream(self.cfg.seed, stream, frame_index, row as u64);
         let row_offset = if nm.row_banding_e > 0.0 { nm.row_banding_e * rng.normal() } else { 0.0 };
         let read2 = nm.read_noise_e * nm.read_noise_e;
         let shot = if nm.shot_noise { 1.0 } else { 0.0 };

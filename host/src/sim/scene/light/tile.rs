@@ -52,6 +52,10 @@ pub(crate) struct TileShot<'a> {
     pub fx_px: f64,
     /// Where the lens is focused, mm.
     pub focus_mm: f64,
+    /// The head's place across the rail in image columns at the standoff:
+    /// the surface's cells (its speckle phases) are the rail's, so a head
+    /// moved across sees other cells under the same image columns.
+    pub lateral_px: f64,
     /// The laser's line in each row of the image (`None`: not in that row).
     pub lines: &'a [Option<StripeTruth>],
     pub gain_e_per_dn: f64,
@@ -597,7 +601,8 @@ impl LaserState {
             vec![(mid, plan.shifts.clone())]
         };
         let lit_w = plan.ncols * q;
-        let j0 = plan.u0 * q as i64;
+        // The rail's lateral cell under the tile's first sample column.
+        let j0 = plan.u0 * q as i64 + (s.lateral_px * q as f64).round() as i64;
         if self.rings.is_empty() {
             self.rings.resize_with(RINGS, PhasorRing::new);
         }
