@@ -216,14 +216,11 @@ pub fn html(a: &Analysis) -> String {
         &["band", "predicted by the optics, RMS µm", "one line's floor, RMS µm", "ratio, dB", "the floor"],
         &rows,
     ));
-    if let OpticsCheck::Checked { octaves, .. } = &a.optics {
-        if !octaves.is_empty() {
-            let _ = writeln!(
-                s,
-                "<p>EN 15610 one-third octaves, one line's floor: {}.</p>",
-                escape(&octave_summary(octaves))
-            );
-        }
+    if let OpticsCheck::Checked { octaves, .. } = &a.optics
+        && !octaves.is_empty()
+    {
+        let _ =
+            writeln!(s, "<p>EN 15610 one-third octaves, one line's floor: {}.</p>", escape(&octave_summary(octaves)));
     }
     s
 }
