@@ -30,8 +30,10 @@
 //!   that matches nothing is refused ([`JoinError::NoOverlap`]).
 //! * **Registration moves a run only onto a clear match**: a normalised
 //!   correlation of at least 0.9 (rail overlapping by chance stays far
-//!   below, corrugation mirrored onto itself too). A weaker best match
-//!   leaves the run where the user put it.
+//!   below, corrugation mirrored onto itself too), or of at least 0.5 that
+//!   stands four times over every other placement searched (runs whose
+//!   noise is comparable to the rail's roughness: repeat runs). A weaker
+//!   best match leaves the run where the user put it.
 //! * **A given heading is kept.** Both headings are tried only when none
 //!   is given; with one given, the other is tried too, only to check it:
 //!   when it matches clearly better the run is still placed as given and
@@ -405,14 +407,21 @@ fn place_run(
     // registration only says by how much).
     let min_overlap = (opts.min_overlap_mm / dx).ceil() as i64;
     let mut best: Option<(usize, Match)> = None;
+    // The best correlation of the placements other than the best: its
+    // rivals (the other heading's, other sections').
+    let mut rival = 0.0f64;
     for (k, sec) in sections.iter().enumerate() {
         for m in search(&sec.lines, run, &within(k, -min_overlap), (g0, dx), n, opts)? {
-            if best.is_none_or(|(_, b)| m.correlation > b.correlation) {
-                best = Some((k, m));
+            match best {
+                Some((_, b)) if m.correlation <= b.correlation => rival = rival.max(m.correlation),
+                _ => {
+                    rival = rival.max(best.map_or(0.0, |(_, b)| b.correlation));
+                    best = Some((k, m));
+                }
             }
         }
     }
-    let clear = best.filter(|(_, m)| m.correlation >= CLEAR_MATCH);
+    let clear = best.filter(|(_, m)| is_clear(m, rival));
     // A run placed as given is still checked: registration near its given
     // start (within the tolerance) that finds a clear match is reported,
     // not taken.
@@ -421,7 +430,7 @@ fn place_run(
         let window = (opts.search_mm / dx).ceil() as i64;
         for (k, sec) in sections.iter().enumerate() {
             for m in search(&sec.lines, run, &within(k, window), (g0, dx), Some(n), opts)? {
-                if m.correlation >= CLEAR_MATCH && elsewhere.is_none_or(|(_, c)| m.correlation > c) {
+                if is_clear(&m, 0.0) && elsewhere.is_none_or(|(_, c)| m.correlation > c) {
                     elsewhere = Some(((m.lo as f64 - n) * dx, m.correlation));
                 }
             }
@@ -501,12 +510,35 @@ fn heading_dispute(
 const HEADING_AGREEMENT: f64 = 0.8;
 
 /// The correlation of a match clear enough to register on (or to report
-/// against a placement as given): normalised, band-passed, over at least
-/// the registration's overlap. Rail overlapping by chance stays far below;
-/// corrugation mirrored onto itself does not (a run over a corrugated
-/// stretch given the wrong heading: 0.73, residual 40 µm, against 0.98 and
-/// 0.6 µm where it belongs, `host/tests/it/hostile_survey.rs`).
+/// against a placement as given) whatever else the search found:
+/// normalised, band-passed, over at least the registration's overlap. Rail
+/// overlapping by chance stays far below; corrugation mirrored onto itself
+/// does not (a run over a corrugated stretch given the wrong heading:
+/// 0.73, residual 40 µm, against 0.98 and 0.6 µm where it belongs,
+/// `host/tests/it/hostile_survey.rs`).
 const CLEAR_MATCH: f64 = 0.9;
+
+/// A weaker correlation is still a clear match when it stands this many
+/// times over every other placement searched (its heading's best peak
+/// outside the main lobe, the other heading's best, other sections'):
+/// runs of one rail whose own noise is comparable to the rail's roughness
+/// (repeat runs averaged for just that reason) correlate at 0.7–0.8 where
+/// they belong and under 0.1 anywhere else (2 µm of roughness in the
+/// sensor's floor: `sim::repeat`'s registration test). Chance peaks of the
+/// many shifts searched cluster near their maximum, so the best of them is
+/// never several times the next; corrugation repeats its peak a wavelength
+/// away, so a periodic rail's rival is nearly the best itself.
+const CLEAR_RATIO: f64 = 4.0;
+
+/// The least correlation a clear match has however far it stands over its
+/// rivals: under it the shift's refinement is too noisy to average runs by.
+const LEAST_MATCH: f64 = 0.5;
+
+/// Whether a match is clear enough to register on, against the best
+/// correlation `rival` of the other placements searched.
+fn is_clear(m: &Match, rival: f64) -> bool {
+    m.correlation >= CLEAR_MATCH || (m.correlation >= LEAST_MATCH && m.correlation >= CLEAR_RATIO * rival.max(m.second))
+}
 
 /// Grid indices `lo..hi` the run covers with its start at index `start`.
 fn extent(run: &Stitching, h: Heading, start: i64, (g0, dx): (f64, f64)) -> Option<(i64, i64)> {
