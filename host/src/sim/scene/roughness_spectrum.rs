@@ -7,7 +7,7 @@
 //! ones from 1 to 1000 mm (EN 15610's: centre 10^(k/10) cycles/m, named by
 //! the R10 preferred number, [`en15610::nominal_wavelength_mm`]).
 //!
-//! The profile ([`RoughnessSpectrum::table`]) is a sum of cosines on the
+//! The profile (`RoughnessSpectrum::table`) is a sum of cosines on the
 //! bins of one long inverse FFT (`rustfft`), with seeded random phases:
 //! every bin whose frequency lies inside a listed band gets the same
 //! amplitude (a flat density within the band), chosen so that the band's
