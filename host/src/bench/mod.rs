@@ -12,6 +12,8 @@
 //!   paper's four corrugation samples through the simulated head.
 //! * [`floor`] — the noise floor over a smooth rail against the head's
 //!   optics and timing ([`crate::sim::floor`]).
+//! * [`rails`] — measured rails' roughness spectra laid on the simulated
+//!   rail, measured as `listen sim` does and judged as `analyze` does.
 //!
 //! `bench qemu` is the emulated head's ([`crate::device::qemu`]); `bench
 //! annex-a` and `bench recording` are the simulator's
@@ -20,6 +22,7 @@
 pub mod accuracy;
 pub mod corrugation;
 pub mod floor;
+pub mod rails;
 pub mod render;
 pub mod speckle;
 pub mod speed;

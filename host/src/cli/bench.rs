@@ -24,6 +24,9 @@
 //!   length (`cms_host::sim::synthetic`), the input of the scale benchmarks of
 //!   `analyze` and `export` (docs/benchmarks.md); with `--gnss REGISTER.csv`
 //!   the simulated GNSS receiver's fixes among its frames (docs/gnss.md).
+//! * `bench rails` — measured rails' roughness spectra laid on the simulated
+//!   rail, measured as `listen sim` measures by default and judged as
+//!   `analyze` judges (`cms_host::bench::rails`): `rails.md`.
 
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
@@ -68,6 +71,76 @@ pub enum BenchCmd {
     /// The noise floor over a smooth rail against aperture, speed, exposure, frame overlap, rows and wavelength:
     /// the floor analyze reports beside what the rail reads, the minimum detectable corrugation; writes floor.md.
     Floor(FloorArgs),
+    /// Measured rails' roughness spectra laid on the simulated rail and measured as `listen sim` measures by default
+    /// (0.5 m/s, 30 frames/s, its light): per rail the lines' ISO 3095 third octaves 5–250 mm judged, the worst
+    /// judged level against the rail's true one, wrong verdicts and EN 13231-3; writes rails.md.
+    Rails(RailsArgs),
+}
+
+/// Options of `bench rails`.
+#[derive(Args, Debug, Clone)]
+pub struct RailsArgs {
+    /// A rail's roughness spectrum (CSV `wavelength_mm,level_db`, as `listen --sim-roughness-spectrum` reads it;
+    /// repeat for several) [default: every docs/examples/rails/*.csv].
+    #[arg(long = "spectrum", value_name = "FILE")]
+    pub spectra: Vec<PathBuf>,
+    /// The light on the rail, as `--sim-light` spells it [default: `listen sim`'s].
+    #[arg(long, value_name = "SPEC", value_parser = super::simulate::parse_light)]
+    pub light: Option<cms_host::sim::scene::LightModel>,
+    /// Seconds of `listen sim` at its 0.5 m/s: the length of rail per spectrum.
+    #[arg(long, default_value_t = 30.0, value_parser = seconds)]
+    pub seconds: f64,
+    /// Length of rail per spectrum, m (1.2 to 100; instead of --seconds).
+    #[arg(long = "length-m", conflicts_with = "seconds")]
+    pub length_m: Option<f64>,
+    /// Seed of the rails' phases, the speckle and the sensor noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Worker threads [default: all cores].
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=256))]
+    pub threads: Option<u64>,
+    /// Output directory (created if missing).
+    #[arg(long, default_value = "out/rails")]
+    pub out: PathBuf,
+}
+
+fn seconds(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => Err(format!("seconds {s:?}: a positive number")),
+    }
+}
+
+/// `bench rails`: the spectra read (the examples without --spectrum), then measured.
+fn rails(r: &RailsArgs) -> Result<String> {
+    use cms_host::sim::scene::RoughnessSpectrum;
+    let mut files = r.spectra.clone();
+    if files.is_empty() {
+        let dir = std::path::Path::new("docs/examples/rails");
+        let list = std::fs::read_dir(dir)
+            .map_err(|e| super::exit::input(format!("no --spectrum, and {}: {e}", dir.display())))?;
+        files = list
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x == "csv"))
+            .collect();
+        files.sort();
+    }
+    let mut rails = Vec::new();
+    for f in &files {
+        let name = f.file_stem().map_or_else(|| f.display().to_string(), |s| s.to_string_lossy().into_owned());
+        rails.push((name, RoughnessSpectrum::load(f)?));
+    }
+    let light =
+        r.light.clone().unwrap_or_else(|| cms_host::sim::head::default_light(cms_host::sim::head::Preset::Reference));
+    let length_mm = r.length_m.map_or(r.seconds * cms_host::sim::head::DEFAULT_SPEED_MM_S, |m| m * 1000.0);
+    Ok(bench::rails::rails(&bench::rails::RailsOptions {
+        rails,
+        light,
+        length_mm,
+        seed: r.seed,
+        threads: r.threads.map(|t| t as usize),
+        out: r.out.clone(),
+    })?)
 }
 
 /// Options of `bench floor`.
@@ -365,6 +438,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
             threads: f.threads.map(|t| t as usize),
             out: f.out.clone(),
         })?,
+        BenchCmd::Rails(r) => rails(&r)?,
     };
     let mut out = std::io::stdout().lock();
     out.write_all(text.as_bytes()).and_then(|()| out.flush()).context("writing the report to stdout")

@@ -38,7 +38,7 @@ pub fn run(cmd: &CalibrateCmd) -> anyhow::Result<()> {
         CalibrateCmd::Lasers(a) => lasers(a),
         CalibrateCmd::Upload(a) => {
             let opts =
-                upload::Options { file: a.file.clone(), port: a.port.clone(), baud: a.baud, sim: a.sim.options() };
+                upload::Options { file: a.file.clone(), port: a.port.clone(), baud: a.baud, sim: a.sim.options()? };
             println!("{}", upload::upload(&opts)?);
             Ok(())
         }

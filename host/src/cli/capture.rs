@@ -41,7 +41,7 @@ pub fn run(args: &CaptureArgs) -> anyhow::Result<()> {
     // Before the head lights its lasers for nothing.
     cms_host::output::check_target(&args.out)?;
     let opts = Options { lasers: args.lasers, exposure_us: args.exposure_us, baud: args.baud };
-    let frame = head::with_port(&args.port, &args.sim.options(), |port| capture::capture(port, &opts))??;
+    let frame = head::with_port(&args.port, &args.sim.options()?, |port| capture::capture(port, &opts))??;
     capture::save_png(&frame, &args.out)?;
     println!(
         "{}: {}×{} px, {} bit, lasers {:#05b}",

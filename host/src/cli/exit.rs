@@ -69,6 +69,7 @@ fn class_of(e: &(dyn std::error::Error + 'static)) -> Option<Class> {
         cms_host::output::OutputError,
         cms_host::device::qemu::QemuError,
         cms_host::sim::head::SimulateError,
+        cms_host::sim::scene::RoughnessSpectrumError,
         cms_host::gnss::ReceiverError,
         cms_host::gnss::register::RegisterError
     );

@@ -95,7 +95,7 @@ fn dispatch(command: Command) -> Result<()> {
             // Ctrl-C from here on stops the listener (and then QEMU) instead of
             // ending this process with QEMU left running in its own process group.
             let stop = listen::interrupt_flag();
-            let mut sim_port = sim.options();
+            let mut sim_port = sim.options()?;
             if args.gnss.as_deref() == Some("sim") {
                 sim_port.sim_gnss = Some(cms_host::sim::gnss::GnssSimOptions::built_in(sim_port.sim_seed.unwrap_or(1)));
             }

@@ -10,7 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use clap::{Args, ValueEnum};
 use cms_host::sim::head::{self, CorrugationSpec, HeadOptions, Preset, SimPort, SimulateError};
 use cms_host::sim::scene::light::MAX_PATTERNS;
-use cms_host::sim::scene::{LightModel, Speckle};
+use cms_host::sim::scene::{LightModel, RoughnessSpectrum, RoughnessSpectrumError, Speckle};
 
 /// `--preset`: camera and head geometry.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ValueEnum)]
@@ -97,6 +97,11 @@ pub struct SimulateArgs {
     /// RMS random roughness of the running surface, µm.
     #[arg(long = "roughness-um", value_name = "R", value_parser = non_negative)]
     pub roughness_um: Option<f64>,
+    /// A measured roughness spectrum laid on the rail: CSV `wavelength_mm,level_db` (third octaves as EN 15610 and
+    /// ISO 3095 report them, dB re 1 µm; a header line, `#` comments), random phases from --seed. The rail is then
+    /// the spectrum plus any --corrugation and --roughness-um given (the default rail's are left out).
+    #[arg(long = "roughness-spectrum", value_name = "FILE")]
+    pub roughness_spectrum: Option<PathBuf>,
     /// Random (read) noise, RMS counts.
     #[arg(long, value_name = "COUNTS", value_parser = non_negative)]
     pub noise: Option<f64>,
@@ -135,15 +140,17 @@ pub struct SimulateArgs {
 }
 
 impl SimulateArgs {
-    /// The simulated head these arguments describe.
-    pub fn options(&self) -> HeadOptions {
-        HeadOptions {
+    /// The simulated head these arguments describe (the roughness
+    /// spectrum read and checked).
+    pub fn options(&self) -> Result<HeadOptions, RoughnessSpectrumError> {
+        Ok(HeadOptions {
             preset: self.preset.into(),
             seed: self.seed,
             rate: self.rate,
             speed_mm_s: self.speed_mm_s,
             corrugation: self.corrugation.clone(),
             roughness_um: self.roughness_um,
+            roughness_spectrum: spectrum(self.roughness_spectrum.as_deref())?,
             noise: self.noise,
             hot_pixels: self.hot_pixels,
             banding: self.banding,
@@ -154,8 +161,13 @@ impl SimulateArgs {
             factory_calibration: !self.uncalibrated,
             light: Some(self.light.clone().unwrap_or_else(|| head::default_light(self.preset.into()))),
             ..HeadOptions::default()
-        }
+        })
     }
+}
+
+/// Reads a `--roughness-spectrum` file, if one is given.
+fn spectrum(path: Option<&std::path::Path>) -> Result<Option<RoughnessSpectrum>, RoughnessSpectrumError> {
+    path.map(RoughnessSpectrum::load).transpose()
 }
 
 /// Runs `cms-host simulate`: the pty's path as the first line of stdout,
@@ -165,7 +177,7 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
     let flag = stop.clone();
     ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed))
         .map_err(|e| SimulateError::Io("installing the SIGINT/SIGTERM handler", io::Error::other(e)))?;
-    let summary = head::serve_on_new_pty(&args.options(), &stop, |path| {
+    let summary = head::serve_on_new_pty(&args.options()?, &stop, |path| {
         let mut out = io::stdout().lock();
         writeln!(out, "{}", path.display())?;
         out.flush()
@@ -207,6 +219,11 @@ pub struct SimPortArgs {
     /// With PORT `sim`: RMS random roughness of the simulated rail, µm.
     #[arg(long = "sim-roughness-um", value_name = "R", value_parser = non_negative)]
     pub sim_roughness_um: Option<f64>,
+    /// With PORT `sim`: a measured roughness spectrum laid on the simulated rail (as `simulate --roughness-spectrum`:
+    /// CSV `wavelength_mm,level_db`, third octaves in dB re 1 µm); the rail is then the spectrum plus any
+    /// --sim-corrugation and --sim-roughness-um given.
+    #[arg(long = "sim-roughness-spectrum", value_name = "FILE")]
+    pub sim_roughness_spectrum: Option<PathBuf>,
     /// With PORT `sim`: the simulated head starts without its factory calibration.
     #[arg(long = "sim-uncalibrated")]
     pub sim_uncalibrated: bool,
@@ -217,9 +234,9 @@ pub struct SimPortArgs {
 }
 
 impl SimPortArgs {
-    /// The library's options.
-    pub fn options(&self) -> SimPort {
-        SimPort {
+    /// The library's options (the roughness spectrum read and checked).
+    pub fn options(&self) -> Result<SimPort, RoughnessSpectrumError> {
+        Ok(SimPort {
             sim_seed: self.sim_seed,
             sim_run: self.sim_run,
             sim_lateral_mm: self.sim_lateral_mm,
@@ -228,10 +245,11 @@ impl SimPortArgs {
             sim_speed_mm_s: self.sim_speed_mm_s,
             sim_corrugation: self.sim_corrugation.clone(),
             sim_roughness_um: self.sim_roughness_um,
+            sim_roughness_spectrum: spectrum(self.sim_roughness_spectrum.as_deref())?,
             sim_uncalibrated: self.sim_uncalibrated,
             sim_light: self.sim_light.as_deref().cloned(),
             sim_gnss: None,
-        }
+        })
     }
 }
 
@@ -357,7 +375,7 @@ mod tests {
         }
         let light = |args: &[&str]| {
             let cli = <Cli as clap::Parser>::try_parse_from(std::iter::once("simulate").chain(args.iter().copied()));
-            cli.unwrap().args.options().light.unwrap()
+            cli.unwrap().args.options().unwrap().light.unwrap()
         };
         assert_eq!(light(&[]), head::default_light(Preset::Reference));
         assert_eq!(light(&[]), LightModel::speckle(2.8));

@@ -98,3 +98,23 @@ fn an_output_that_cannot_be_written_is_1() {
     let e = one_line_failure(&o, 1);
     assert!(e.contains("writing output"), "{e}");
 }
+
+/// A bad roughness spectrum for the simulated rail (`simulate
+/// --roughness-spectrum`, `listen sim --sim-roughness-spectrum`, `bench
+/// rails --spectrum`) is refused before anything runs: exit 2, one line
+/// naming the file, the line and what is wrong.
+#[test]
+fn a_bad_roughness_spectrum_is_2_naming_its_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("rail.csv");
+    fs::write(&bad, "# a ground rail\nwavelength_mm,level_db\n16,-3\n33,-5\n").unwrap();
+    let bad = bad.to_str().unwrap();
+    for args in [
+        vec!["simulate", "--roughness-spectrum", bad],
+        vec!["listen", "sim", "--frames", "1", "--sim-roughness-spectrum", bad],
+        vec!["bench", "rails", "--spectrum", bad, "--out", dir.path().to_str().unwrap()],
+    ] {
+        let e = one_line_error(&run(&args));
+        assert!(e.contains("rail.csv, line 4: wavelength 33 mm is not a standard third octave"), "{args:?}: {e}");
+    }
+}

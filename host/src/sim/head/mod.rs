@@ -26,7 +26,7 @@ pub use scene::SceneCamera;
 pub use server::{MAX_WIDTH, RowRenderer, ServeOptions, ServeSummary, serve};
 
 use crate::sim::pty::Pty;
-use crate::sim::scene::{Corrugation, SimConfig};
+use crate::sim::scene::{Corrugation, RoughnessSpectrum, SimConfig};
 
 pub use crate::sim::SimulateError;
 pub use crate::sim::scene::Preset;
@@ -78,6 +78,10 @@ pub struct HeadOptions {
     pub corrugation: Vec<CorrugationSpec>,
     /// RMS random roughness of the running surface, µm.
     pub roughness_um: Option<f64>,
+    /// A measured roughness spectrum laid on the rail: the rail is then
+    /// the spectrum plus the corrugation and roughness given above (the
+    /// preset's own corrugation and roughness are left out).
+    pub roughness_spectrum: Option<RoughnessSpectrum>,
     /// Random (read) noise, RMS counts.
     pub noise: Option<f64>,
     /// Fraction of hot pixels (fixed pattern), 0..=0.1.
@@ -118,6 +122,7 @@ impl Default for HeadOptions {
             speed_mm_s: None,
             corrugation: Vec::new(),
             roughness_um: None,
+            roughness_spectrum: None,
             noise: None,
             hot_pixels: None,
             banding: None,
@@ -245,6 +250,9 @@ pub struct SimPort {
     pub sim_corrugation: Vec<CorrugationSpec>,
     /// With PORT `sim`: RMS random roughness of the simulated rail, µm.
     pub sim_roughness_um: Option<f64>,
+    /// With PORT `sim`: a measured roughness spectrum laid on the
+    /// simulated rail ([`HeadOptions::roughness_spectrum`]).
+    pub sim_roughness_spectrum: Option<RoughnessSpectrum>,
     /// With PORT `sim`: the simulated head starts without its factory calibration.
     pub sim_uncalibrated: bool,
     /// With PORT `sim`: the light on the simulated rail (speckle, finish,
@@ -267,6 +275,7 @@ impl SimPort {
             || self.sim_speed_mm_s.is_some()
             || !self.sim_corrugation.is_empty()
             || self.sim_roughness_um.is_some()
+            || self.sim_roughness_spectrum.is_some()
             || self.sim_uncalibrated
             || self.sim_light.is_some()
             || self.sim_gnss.is_some()
@@ -279,7 +288,7 @@ impl SimPort {
 pub fn resolve_port(port: &str, sim: &SimPort) -> Result<(PathBuf, Option<SimHandle>), SimulateError> {
     if port != "sim" {
         if sim.any() {
-            return Err(SimulateError::Usage("--sim-seed, --sim-run, --sim-lateral-mm, --sim-preset, --sim-state, --sim-speed-mm-s, --sim-corrugation, --sim-roughness-um, --sim-uncalibrated, --sim-light and --gnss sim need PORT `sim`".into()));
+            return Err(SimulateError::Usage("--sim-seed, --sim-run, --sim-lateral-mm, --sim-preset, --sim-state, --sim-speed-mm-s, --sim-corrugation, --sim-roughness-um, --sim-roughness-spectrum, --sim-uncalibrated, --sim-light and --gnss sim need PORT `sim`".into()));
         }
         return Ok((PathBuf::from(port), None));
     }
@@ -305,6 +314,7 @@ fn port_options(sim: &SimPort) -> HeadOptions {
         speed_mm_s: sim.sim_speed_mm_s,
         corrugation: sim.sim_corrugation.clone(),
         roughness_um: sim.sim_roughness_um,
+        roughness_spectrum: sim.sim_roughness_spectrum.clone(),
         factory_calibration: !sim.sim_uncalibrated,
         light: Some(sim.sim_light.clone().unwrap_or_else(|| default_light(preset))),
         odometer_tap: sim.sim_gnss.as_ref().map(|_| Arc::new(AtomicI64::new(crate::sim::gnss::NO_FRAME))),
@@ -434,6 +444,17 @@ pub fn sim_config(args: &HeadOptions) -> Result<SimConfig, SimulateError> {
     }
     if let Some(r) = args.roughness_um {
         cfg.rail.roughness_rms_um = r;
+    }
+    if let Some(spectrum) = &args.roughness_spectrum {
+        // The measured spectrum is the rail's roughness: the preset's own
+        // corrugation and roughness would be a second rail laid over it.
+        if args.corrugation.is_empty() {
+            cfg.rail.corrugation.clear();
+        }
+        if args.roughness_um.is_none() {
+            cfg.rail.roughness_rms_um = 0.0;
+        }
+        cfg.rail.roughness_spectrum = Some(spectrum.clone());
     }
     if let Some(n) = args.noise {
         cfg.noise.read_noise_e = n * e_per_count;

@@ -82,6 +82,7 @@ pub mod geom;
 pub mod light;
 pub mod noise;
 pub mod rail;
+pub mod roughness_spectrum;
 
 mod config;
 #[cfg(test)]
@@ -98,6 +99,7 @@ pub use geom::{HeadGeometry, Pose, ScenePlane};
 pub use light::{Ghost, Glints, LightModel, Patches, RunningBand, Speckle};
 pub use noise::NoiseModel;
 pub use rail::{Corrugation, RailModel};
+pub use roughness_spectrum::{RoughnessSpectrum, RoughnessSpectrumError};
 
 use light::{LightCache, TileShot};
 use noise::{Rng, SensorPattern};
