@@ -253,15 +253,15 @@ pub fn floor(a: &FloorOptions) -> Result<String, BenchError> {
         )));
     }
     a.sensor.check().map_err(|e| BenchError::Options(e.to_string()))?;
+    if a.lights.is_empty() && (a.step_mm.is_some() || a.sensor != Sensor::reference()) {
+        return Err(BenchError::Options(
+            "--step-mm, --power-mw, --read-noise-e, --focal-px and --no-sensor-noise change the heads of --light: give one"
+                .into(),
+        ));
+    }
     super::create_dir(&a.out)?;
     let t = Instant::now();
     let set = if a.lights.is_empty() {
-        if a.step_mm.is_some() || a.sensor != Sensor::reference() {
-            return Err(BenchError::Options(
-                "--step-mm, --power-mw, --read-noise-e, --focal-px and --no-sensor-noise change the heads of --light: give one"
-                    .into(),
-            ));
-        }
         settings(a.reduced, a.length_mm, a.only.as_deref())
     } else {
         let step_mm = a.step_mm.unwrap_or(Setting::push_trolley(a.length_mm).step_mm);
@@ -393,4 +393,47 @@ pub fn heads_markdown(rows: &[FloorRow]) -> String {
         waves.iter().map(|&w| en15610::iso3095_limit_db(w).map_or("–".into(), |l| format!("{l:.1}"))).collect();
     let _ = writeln!(md, "| ISO 3095 limit | | {} |", limits.join(" | "));
     md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The head flags change the heads of `--light` and name what they
+    /// change; without a light, or out of range, they are refused before
+    /// anything renders.
+    #[test]
+    fn the_head_flags_name_the_head_and_are_checked() {
+        let light = crate::sim::scene::LightModel {
+            scheimpflug: true,
+            sensor_per_line: true,
+            ..crate::sim::scene::LightModel::speckle(1.4)
+        };
+        let sensor = Sensor { focal_px: 2800.0, power_mw: 70.0, ..Sensor::reference() };
+        let (name, s) = head_setting(&light, 2000.0, 7.5, sensor).unwrap();
+        assert_eq!(
+            name,
+            "F/1.4, K = 1, a Scheimpflug sensor per line, a frame every 7.5 mm, 70 mW a line, f = 2800 px"
+        );
+        assert!(s.sensor_per_line && s.step_mm == 7.5);
+        let cfg = s.config();
+        assert_eq!((cfg.camera.intrinsics.fx_px, cfg.lasers[2].power_mw), (2800.0, 70.0));
+        assert!(cfg.light.sensor_per_line);
+        let out = std::env::temp_dir().join("cms-floor-flags-never-written");
+        let base = FloorOptions {
+            reduced: true,
+            only: None,
+            lights: Vec::new(),
+            step_mm: Some(10.0),
+            sensor: Sensor::reference(),
+            length_mm: 2000.0,
+            threads: Some(1),
+            out: out.clone(),
+        };
+        assert!(matches!(floor(&base), Err(BenchError::Options(_))), "a step without a head");
+        let dark =
+            FloorOptions { lights: vec![light], sensor: Sensor { power_mw: 0.0, ..Sensor::reference() }, ..base };
+        assert!(matches!(floor(&dark), Err(BenchError::Options(_))), "no light");
+        assert!(!out.exists());
+    }
 }
