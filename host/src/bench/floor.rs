@@ -25,7 +25,7 @@ use crate::analyze::optics_floor::{BandCheck, Motion, OpticsCheck, OpticsSource}
 use crate::analyze::standards::{en13231, en15610};
 use crate::model::optics::Optics;
 use crate::sim::closed_loop::ClosedLoopError;
-use crate::sim::floor::{self as sf, Setting};
+use crate::sim::floor::{self as sf, Sensor, Setting};
 use crate::sim::scene::LightModel;
 
 /// Options of the floor benchmark.
@@ -39,6 +39,12 @@ pub struct FloorOptions {
     /// under each of these lights (speckle's F-number and patterns, a
     /// Scheimpflug sensor, or incoherent light).
     pub lights: Vec<LightModel>,
+    /// With `lights`: travel between frames, mm (`None`: the push
+    /// trolley's 30; a frame every 10 mm at 1.5 m/s is 150 frames/s).
+    pub step_mm: Option<f64>,
+    /// With `lights`: the sensor and lasers ([`Sensor::reference`]: the
+    /// reference head's).
+    pub sensor: Sensor,
     /// Length of rail per setting, mm.
     pub length_mm: f64,
     /// Worker threads (`None`: one a core).
@@ -246,12 +252,20 @@ pub fn floor(a: &FloorOptions) -> Result<String, BenchError> {
             sf::MIN_LENGTH_MM / 1e3
         )));
     }
+    a.sensor.check().map_err(|e| BenchError::Options(e.to_string()))?;
+    if a.lights.is_empty() && (a.step_mm.is_some() || a.sensor != Sensor::reference()) {
+        return Err(BenchError::Options(
+            "--step-mm, --power-mw, --read-noise-e, --focal-px and --no-sensor-noise change the heads of --light: give one"
+                .into(),
+        ));
+    }
     super::create_dir(&a.out)?;
     let t = Instant::now();
     let set = if a.lights.is_empty() {
         settings(a.reduced, a.length_mm, a.only.as_deref())
     } else {
-        a.lights.iter().map(|l| head_setting(l, a.length_mm)).collect::<Result<Vec<_>, _>>()?
+        let step_mm = a.step_mm.unwrap_or(Setting::push_trolley(a.length_mm).step_mm);
+        a.lights.iter().map(|l| head_setting(l, a.length_mm, step_mm, a.sensor)).collect::<Result<Vec<_>, _>>()?
     };
     if set.is_empty() {
         return Err(BenchError::Options(format!(
@@ -275,37 +289,73 @@ pub fn floor(a: &FloorOptions) -> Result<String, BenchError> {
     Ok(md)
 }
 
-/// The push-trolley setting (100 µs, 1.5 m/s, a frame every 30 mm) under
-/// `light`, named by it; a light `bench floor` cannot drive (a finish,
-/// glints, ghosts, another focus) is refused.
-pub fn head_setting(light: &LightModel, length_mm: f64) -> Result<(String, Setting), BenchError> {
-    let bare = LightModel { speckle: light.speckle, scheimpflug: light.scheimpflug, ..LightModel::incoherent() };
+/// The push-trolley setting (100 µs, 1.5 m/s) under `light`, a frame
+/// every `step_mm`, with `sensor`, named by what differs from the
+/// reference head; a light `bench floor` cannot drive (a finish, glints,
+/// ghosts, another focus) is refused.
+pub fn head_setting(
+    light: &LightModel,
+    length_mm: f64,
+    step_mm: f64,
+    sensor: Sensor,
+) -> Result<(String, Setting), BenchError> {
+    let bare = LightModel {
+        speckle: light.speckle,
+        scheimpflug: light.scheimpflug,
+        sensor_per_line: light.sensor_per_line,
+        ..LightModel::incoherent()
+    };
     if *light != bare {
         return Err(BenchError::Options(
-            "--light: bench floor drives speckle=F, patterns=K, scheimpflug or incoherent only".into(),
+            "--light: bench floor drives speckle=F, patterns=K, scheimpflug[=each] or incoherent only".into(),
         ));
     }
-    let name = match light.speckle {
+    let trolley = Setting::push_trolley(length_mm);
+    let mut name = match light.speckle {
         None => "incoherent light (no speckle)".to_string(),
         Some(s) => format!(
             "F/{}, K = {}{}",
             s.f_number,
             s.patterns,
-            if light.scheimpflug { ", Scheimpflug sensor" } else { "" }
+            match (light.scheimpflug, light.sensor_per_line) {
+                (true, true) => ", a Scheimpflug sensor per line",
+                (true, false) => ", Scheimpflug sensor",
+                _ => "",
+            }
         ),
     };
+    let reference = Sensor::reference();
+    if step_mm != trolley.step_mm {
+        let _ = write!(name, ", a frame every {step_mm} mm");
+    }
+    if sensor.power_mw != reference.power_mw {
+        let _ = write!(name, ", {} mW a line", sensor.power_mw);
+    }
+    if !sensor.noise {
+        name.push_str(", no sensor noise");
+    } else if sensor.read_noise_e != reference.read_noise_e {
+        let _ = write!(name, ", {} e⁻ read noise", sensor.read_noise_e);
+    }
+    if sensor.focal_px != reference.focal_px {
+        let _ = write!(name, ", f = {} px", sensor.focal_px);
+    }
     let setting = Setting {
         f_number: light.speckle.map(|s| s.f_number),
         patterns: light.speckle.map_or(1, |s| s.patterns),
         scheimpflug: light.scheimpflug,
-        ..Setting::push_trolley(length_mm)
+        sensor_per_line: light.sensor_per_line,
+        step_mm,
+        sensor,
+        ..trolley
     };
     Ok((name, setting))
 }
 
-/// Each head's smooth rail per ISO 3095 third octave, 5–250 mm: its
-/// worst line's level and the lines' energy average (EN 15610's), dB re
-/// 1 µm, each with its margin to the limit (negative: under it).
+/// Each head's smooth rail per ISO 3095 third octave, 5–250 mm: each
+/// line's level (in the head's order: the middle one is the reference
+/// head's line 2), the worst line's and the lines' energy average (EN
+/// 15610's), dB re 1 µm, each with its margin to the limit (negative:
+/// under it).
 pub fn heads_markdown(rows: &[FloorRow]) -> String {
     let waves: Vec<f64> =
         en15610::ISO3095_LIMIT.iter().map(|&(w, _)| w).filter(|w| (5.0..=250.0).contains(w)).collect();
@@ -331,6 +381,11 @@ pub fn heads_markdown(rows: &[FloorRow]) -> String {
             waves.iter().map(|&w| cell(lines.iter().filter_map(|s| level(s, w)).max_by(f64::total_cmp), w)).collect();
         let mean: Vec<String> =
             waves.iter().map(|&w| cell(measured_spectrum(&r.analysis).and_then(|s| level(s, w)), w)).collect();
+        for (k, l) in r.analysis.lasers.iter().enumerate() {
+            let s = l.roughness.as_ref().ok().map(|r| &r.spectrum);
+            let row: Vec<String> = waves.iter().map(|&w| cell(s.and_then(|s| level(s, w)), w)).collect();
+            let _ = writeln!(md, "| {} | line {} | {} |", r.name, k + 1, row.join(" | "));
+        }
         let _ = writeln!(md, "| {} | worst line | {} |", r.name, worst.join(" | "));
         let _ = writeln!(md, "| {} | energy average | {} |", r.name, mean.join(" | "));
     }
@@ -338,4 +393,47 @@ pub fn heads_markdown(rows: &[FloorRow]) -> String {
         waves.iter().map(|&w| en15610::iso3095_limit_db(w).map_or("–".into(), |l| format!("{l:.1}"))).collect();
     let _ = writeln!(md, "| ISO 3095 limit | | {} |", limits.join(" | "));
     md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The head flags change the heads of `--light` and name what they
+    /// change; without a light, or out of range, they are refused before
+    /// anything renders.
+    #[test]
+    fn the_head_flags_name_the_head_and_are_checked() {
+        let light = crate::sim::scene::LightModel {
+            scheimpflug: true,
+            sensor_per_line: true,
+            ..crate::sim::scene::LightModel::speckle(1.4)
+        };
+        let sensor = Sensor { focal_px: 2800.0, power_mw: 70.0, ..Sensor::reference() };
+        let (name, s) = head_setting(&light, 2000.0, 7.5, sensor).unwrap();
+        assert_eq!(
+            name,
+            "F/1.4, K = 1, a Scheimpflug sensor per line, a frame every 7.5 mm, 70 mW a line, f = 2800 px"
+        );
+        assert!(s.sensor_per_line && s.step_mm == 7.5);
+        let cfg = s.config();
+        assert_eq!((cfg.camera.intrinsics.fx_px, cfg.lasers[2].power_mw), (2800.0, 70.0));
+        assert!(cfg.light.sensor_per_line);
+        let out = std::env::temp_dir().join("cms-floor-flags-never-written");
+        let base = FloorOptions {
+            reduced: true,
+            only: None,
+            lights: Vec::new(),
+            step_mm: Some(10.0),
+            sensor: Sensor::reference(),
+            length_mm: 2000.0,
+            threads: Some(1),
+            out: out.clone(),
+        };
+        assert!(matches!(floor(&base), Err(BenchError::Options(_))), "a step without a head");
+        let dark =
+            FloorOptions { lights: vec![light], sensor: Sensor { power_mw: 0.0, ..Sensor::reference() }, ..base };
+        assert!(matches!(floor(&dark), Err(BenchError::Options(_))), "no light");
+        assert!(!out.exists());
+    }
 }

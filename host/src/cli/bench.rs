@@ -156,11 +156,28 @@ pub struct FloorArgs {
     #[arg(long, value_name = "TEXT")]
     pub only: Option<String>,
     /// Measure these heads instead of the sweep (repeat for several): the push-trolley setting (100 µs, 1.5 m/s)
-    /// under each light, as `--sim-light` spells it: speckle=F-NUMBER, patterns=K, scheimpflug, or incoherent (e.g.
-    /// `--light speckle=1.4,patterns=100,scheimpflug --light incoherent`); per ISO 3095 third octave 5–250 mm, the
-    /// worst line and the lines' energy average against the limit.
+    /// under each light, as `--sim-light` spells it: speckle=F-NUMBER, patterns=K, scheimpflug[=each], or incoherent (e.g.
+    /// `--light speckle=1.4,patterns=100,scheimpflug --light incoherent`); per ISO 3095 third octave 5–250 mm, each
+    /// line, the worst and the lines' energy average against the limit.
     #[arg(long = "light", value_name = "SPEC", value_parser = super::simulate::parse_light)]
     pub lights: Vec<cms_host::sim::scene::LightModel>,
+    /// With --light: travel between frames, mm [default: 30; 10 at 1.5 m/s is 150 frames/s]: each point of the
+    /// rail seen by more frames (the sensor's noise averages, the speckle, tied to the rail, does not).
+    #[arg(long = "step-mm", value_parser = step_mm)]
+    pub step_mm: Option<f64>,
+    /// With --light: each laser's power, mW [default: 50] (the stripe's peak scales with it, to the full well).
+    #[arg(long = "power-mw")]
+    pub power_mw: Option<f64>,
+    /// With --light: the sensor's read noise, electrons [default: 25].
+    #[arg(long = "read-noise-e")]
+    pub read_noise_e: Option<f64>,
+    /// With --light: the lens's focal length, px [default: 1400, 8.4 mm on 6 µm pixels]: a longer lens or finer
+    /// pixels put more rows on a millimetre of rail and less rail in a frame (at 2800: 34 mm; set --step-mm under it).
+    #[arg(long = "focal-px")]
+    pub focal_px: Option<f64>,
+    /// With --light: no sensor noise and no ambient light (quantisation alone): what speckle does by itself.
+    #[arg(long = "no-sensor-noise")]
+    pub no_sensor_noise: bool,
     /// Worker threads [default: all cores].
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=256))]
     pub threads: Option<u64>,
@@ -434,6 +451,16 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
             reduced: f.reduced,
             only: f.only.clone(),
             lights: f.lights.clone(),
+            step_mm: f.step_mm,
+            sensor: {
+                let r = cms_host::sim::floor::Sensor::reference();
+                cms_host::sim::floor::Sensor {
+                    power_mw: f.power_mw.unwrap_or(r.power_mw),
+                    read_noise_e: f.read_noise_e.unwrap_or(r.read_noise_e),
+                    focal_px: f.focal_px.unwrap_or(r.focal_px),
+                    noise: !f.no_sensor_noise,
+                }
+            },
             length_mm: f.length_m * 1000.0,
             threads: f.threads.map(|t| t as usize),
             out: f.out.clone(),

@@ -131,7 +131,7 @@ pub struct SimulateArgs {
     /// The light on the rail, comma-separated: incoherent (clean stripes), speckle[=F-NUMBER] (laser
     /// speckle through the lens, F/8 if no number), patterns=K (independent speckle patterns, up to 10000: a
     /// broad-area or multimode line source; more than 4 are rendered as 4 with the statistics of K), focus=MM (where
-    /// the lens is focused), scheimpflug (a tilted sensor: the middle laser's plane in focus), oxidation, grease, band (the running band), glints, ghost (a secondary reflection of the
+    /// the lens is focused), scheimpflug (a tilted sensor: the middle laser's plane in focus; scheimpflug=each: a sensor per line, each line in focus), oxidation, grease, band (the running band), glints, ghost (a secondary reflection of the
     /// middle line). Speckle's rendering can cap the frame rate: `cms-host bench render` measures it. [default:
     /// `listen sim`'s: speckle=2.8 on the reference head, laser light at the push-trolley setting; incoherent on the
     /// paper's]
@@ -256,8 +256,7 @@ impl SimPortArgs {
 /// Parses `--light`: comma-separated items (see [`SimulateArgs::light`]);
 /// the ranges are checked when the scene is built.
 pub(crate) fn parse_light(s: &str) -> Result<LightModel, String> {
-    const ITEMS: &str =
-        "incoherent, speckle[=F-NUMBER], patterns=K, focus=MM, scheimpflug, oxidation, grease, band, glints, ghost";
+    const ITEMS: &str = "incoherent, speckle[=F-NUMBER], patterns=K, focus=MM, scheimpflug[=each], oxidation, grease, band, glints, ghost";
     let mut light = LightModel::incoherent();
     for item in s.split(',').map(str::trim) {
         let (key, value) = item.split_once('=').map_or((item, None), |(k, v)| (k.trim(), Some(v.trim())));
@@ -288,7 +287,15 @@ pub(crate) fn parse_light(s: &str) -> Result<LightModel, String> {
             }
             "incoherent" => flag(&mut light, |l| l.speckle = None)?,
             "focus" => light.focus_mm = Some(number("MM")?),
-            "scheimpflug" => flag(&mut light, |l| l.scheimpflug = true)?,
+            "scheimpflug" => match value {
+                None => light.scheimpflug = true,
+                Some("each") => (light.scheimpflug, light.sensor_per_line) = (true, true),
+                Some(v) => {
+                    return Err(format!(
+                        "light scheimpflug={v:?}: `scheimpflug` (one sensor) or `scheimpflug=each` (a sensor per line)"
+                    ));
+                }
+            },
             "oxidation" => flag(&mut light, |l| l.oxidation = LightModel::oxidation())?,
             "grease" => flag(&mut light, |l| l.grease = LightModel::grease())?,
             "band" => flag(&mut light, |l| l.band = Some(LightModel::running_band()))?,

@@ -21,7 +21,7 @@ use crate::analyze::{self, Analysis};
 use crate::measure::Measurer;
 use crate::sim::calibration::truth::truth;
 use crate::sim::closed_loop::{ClosedLoopError, detector, frame_profiles};
-use crate::sim::scene::{Corrugation, LightModel, RailModel, Scene, SimConfig, Speckle};
+use crate::sim::scene::{Corrugation, LightModel, NoiseModel, RailModel, Scene, SimConfig, Speckle};
 
 /// One setting of the head and one rail.
 #[derive(Debug, Clone, PartialEq)]
@@ -32,6 +32,8 @@ pub struct Setting {
     pub patterns: u32,
     /// A Scheimpflug sensor ([`LightModel::scheimpflug`]).
     pub scheimpflug: bool,
+    /// A Scheimpflug sensor per line ([`LightModel::sensor_per_line`]).
+    pub sensor_per_line: bool,
     /// Exposure, µs.
     pub exposure_us: f64,
     /// Travel speed, mm/s (the motion during the exposure).
@@ -48,6 +50,53 @@ pub struct Setting {
     pub corrugation: Vec<Corrugation>,
     /// Seed of the sensor noise and the surface.
     pub seed: u64,
+    /// The sensor: what sets its own floor under the line.
+    pub sensor: Sensor,
+}
+
+/// What sets the sensor's own floor: the light it gets, its noise, and
+/// how many rows see a millimetre of rail.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sensor {
+    /// Each laser's optical power, mW (the reference head's 50; the
+    /// stripe's peak scales with it, up to the sensor's full well).
+    pub power_mw: f64,
+    /// Read noise σ, electrons (the reference sensor's 25).
+    pub read_noise_e: f64,
+    /// The lens's focal length, px (the reference 8.4 mm lens on 6 µm
+    /// pixels: 1400): a longer lens or finer pixels put more rows on a
+    /// millimetre of rail and a shorter stretch of rail in a frame.
+    pub focal_px: f64,
+    /// The sensor's random noise and the ambient light (`false`: none,
+    /// quantisation alone: what speckle does by itself).
+    pub noise: bool,
+}
+
+impl Sensor {
+    /// The reference head's sensor and lasers.
+    pub fn reference() -> Sensor {
+        Sensor {
+            power_mw: 50.0,
+            read_noise_e: crate::sim::scene::NoiseModel::default().read_noise_e,
+            focal_px: crate::model::head::REFERENCE_FOCAL_PX,
+            noise: true,
+        }
+    }
+
+    /// `Ok` if every figure is one the simulated head can take.
+    pub fn check(&self) -> Result<(), ClosedLoopError> {
+        let ok = self.power_mw > 0.0
+            && self.power_mw <= 1000.0
+            && (0.0..=200.0).contains(&self.read_noise_e)
+            && (700.0..=5600.0).contains(&self.focal_px);
+        if ok {
+            return Ok(());
+        }
+        Err(ClosedLoopError::Options(format!(
+            "{} mW a laser, {} e⁻ read noise, a {} px lens: the power in (0, 1000] mW, the read noise in [0, 200] e⁻, the focal length in [700, 5600] px",
+            self.power_mw, self.read_noise_e, self.focal_px
+        )))
+    }
 }
 
 impl Setting {
@@ -59,6 +108,7 @@ impl Setting {
             f_number: Some(crate::sim::scene::light::PUSH_TROLLEY_F_NUMBER),
             patterns: 1,
             scheimpflug: false,
+            sensor_per_line: false,
             exposure_us: 100.0,
             speed_mm_s: 1500.0,
             step_mm: 30.0,
@@ -67,6 +117,7 @@ impl Setting {
             length_mm,
             corrugation: Vec::new(),
             seed: 11,
+            sensor: Sensor::reference(),
         }
     }
 
@@ -77,12 +128,21 @@ impl Setting {
         cfg.light = LightModel {
             speckle: self.f_number.map(|f_number| Speckle { f_number, patterns: self.patterns }),
             scheimpflug: self.scheimpflug,
+            sensor_per_line: self.sensor_per_line,
             ..LightModel::incoherent()
         };
         cfg.camera.exposure_us = self.exposure_us;
         for l in &mut cfg.lasers {
             l.wavelength_nm = self.wavelength_nm;
+            l.power_mw = self.sensor.power_mw;
         }
+        let i = &mut cfg.camera.intrinsics;
+        (i.fx_px, i.fy_px) = (self.sensor.focal_px, i.fy_px * self.sensor.focal_px / i.fx_px);
+        cfg.noise = if self.sensor.noise {
+            NoiseModel { read_noise_e: self.sensor.read_noise_e, ..cfg.noise }
+        } else {
+            NoiseModel::none()
+        };
         cfg.speed_mm_s = self.speed_mm_s;
         cfg.frame_rate_hz = self.speed_mm_s / self.step_mm;
         cfg.seed = self.seed;
@@ -103,6 +163,7 @@ pub fn run(s: &Setting) -> Result<Analysis, ClosedLoopError> {
             s.length_mm, s.step_mm, s.speed_mm_s, MIN_LENGTH_MM
         )));
     }
+    s.sensor.check()?;
     let stitching = drive(s, s.config())?;
     analyze::judge(stitching, Vec::new(), &analyze::Options::default(), &crate::progress::Silent)
         .map_err(|e| ClosedLoopError::Analysis(e.to_string()))

@@ -660,7 +660,8 @@ impl Scene {
             })
             .collect();
         let width_px = self.width();
-        let focus: Vec<f64> = lines.iter().map(|l| l.as_deref().map_or(0.0, |l| self.focus_mm(l))).collect();
+        let focus: Vec<f64> =
+            lines.iter().enumerate().map(|(k, l)| l.as_deref().map_or(0.0, |l| self.focus_mm(k, l))).collect();
         let shots: Vec<Option<TileShot>> = lines
             .iter()
             .enumerate()
@@ -686,16 +687,17 @@ impl Scene {
         self.light_cache.render_shot(key, &shots);
     }
 
-    /// Where the lens is focused for a laser's line, mm along the axis:
-    /// the light's `focus_mm` (the standoff if not set), or under a
+    /// Where the lens is focused for laser `laser`'s line, mm along the
+    /// axis: the light's `focus_mm` (the standoff if not set), or under a
     /// Scheimpflug sensor the plane of focus — the plane of the laser
-    /// nearest the aim point — where the line's rays meet it (their mean
-    /// over the lit rows).
-    fn focus_mm(&self, lines: &[Option<StripeTruth>]) -> f64 {
+    /// nearest the aim point, or the line's own with a sensor per line —
+    /// where the line's rays meet it (their mean over the lit rows).
+    fn focus_mm(&self, laser: usize, lines: &[Option<StripeTruth>]) -> f64 {
         let across = self.cfg.light.focus_mm.unwrap_or(self.cfg.head.standoff_mm);
         let nearest = (0..self.cfg.lasers.len())
             .min_by(|&a, &b| self.cfg.lasers[a].offset_mm.abs().total_cmp(&self.cfg.lasers[b].offset_mm.abs()));
-        let (true, Some(k)) = (self.cfg.light.scheimpflug, nearest) else { return across };
+        let plane_of = if self.cfg.light.sensor_per_line { Some(laser) } else { nearest };
+        let (true, Some(k)) = (self.cfg.light.scheimpflug, plane_of) else { return across };
         let plane = &self.planes_cam[k];
         let (mut sum, mut n) = (0.0, 0.0);
         for (r, l) in lines.iter().enumerate() {

@@ -62,6 +62,12 @@ pub struct LightModel {
     /// quarter wave of Rayleigh's depth of focus). Geometry is unchanged:
     /// the tilt's keystone is taken as calibrated out.
     pub scheimpflug: bool,
+    /// With [`scheimpflug`](Self::scheimpflug): a Scheimpflug sensor per
+    /// laser, each tilted to its own laser's plane, so that every line is
+    /// in focus (one camera per line: three for three lasers). The
+    /// simulator keeps one camera's geometry and gives each line the focus
+    /// of its own plane.
+    pub sensor_per_line: bool,
     /// Oxidation and rust patches.
     pub oxidation: Patches,
     /// Grease films.
@@ -254,6 +260,13 @@ impl LightModel {
             check("light.speckle.f_number", s.f_number, (1.0..=64.0).contains(&s.f_number), "in [1, 64]")?;
             let k = f64::from(s.patterns);
             check("light.speckle.patterns", k, (1.0..=f64::from(MAX_PATTERNS)).contains(&k), "in 1..=10000")?;
+        }
+        if self.sensor_per_line && !self.scheimpflug {
+            return Err(SimError::Field {
+                field: "light.sensor_per_line",
+                value: 1.0,
+                expected: "set only with a Scheimpflug sensor",
+            });
         }
         if let Some(f) = self.focus_mm {
             check("light.focus_mm", f, f > 0.0, "finite and > 0")?;

@@ -229,13 +229,15 @@ fn stripe_widths(cfg: &SimConfig) -> Vec<f64> {
 /// its lines widen; a Scheimpflug sensor holds the middle laser's plane in
 /// focus, so that line stays as sharp as a lens focused on it — and the
 /// outer lines, whose parallel planes stand 14 mm off that plane along the
-/// axis, are blurred more.
+/// axis, are blurred more. A sensor per line holds each line in its own
+/// focus: the outer line as sharp as a lens focused on its plane.
 #[test]
 fn a_scheimpflug_sensor_keeps_the_laser_plane_in_focus() {
-    let at = |focus_mm: Option<f64>, scheimpflug: bool| {
+    let at = |focus_mm: Option<f64>, scheimpflug: bool, sensor_per_line: bool| {
         // Many patterns: the lines nearly their expected intensity.
         let speckle = Some(Speckle { f_number: 1.4, patterns: 10_000 });
-        let mut cfg = quiet(LightModel { speckle, focus_mm, scheimpflug, ..LightModel::default() }, 0.0);
+        let light = LightModel { speckle, focus_mm, scheimpflug, sensor_per_line, ..LightModel::default() };
+        let mut cfg = quiet(light, 0.0);
         let up = crate::sim::scene::Corrugation {
             wavelength_mm: 1e7,
             amplitude_um: 5000.0,
@@ -247,14 +249,30 @@ fn a_scheimpflug_sensor_keeps_the_laser_plane_in_focus() {
         cfg.lasers.truncate(2);
         stripe_widths(&cfg)
     };
-    let focused = at(Some(195.0), false);
-    let standoff = at(None, false);
-    let tilted = at(None, true);
+    let focused = at(Some(195.0), false, false);
+    let standoff = at(None, false, false);
+    let tilted = at(None, true, false);
     for k in 0..2 {
         assert!(standoff[k] > focused[k] + 0.01, "laser {k}: {} px against {} px in focus", standoff[k], focused[k]);
     }
     assert!((tilted[1] - focused[1]).abs() < 0.003, "{} px against {} px in focus", tilted[1], focused[1]);
     assert!(tilted[0] > standoff[0] + 0.01, "the outer line: {} px against {} px", tilted[0], standoff[0]);
+    // The outer line lies at the raised rail's depth too (the crown drops
+    // it by a fraction of a mm): its own sensor holds it as sharp as the
+    // lens focused at 195 mm does.
+    let each = at(None, true, true);
+    assert!((each[1] - tilted[1]).abs() < 1e-9, "the middle line: {} px against {} px", each[1], tilted[1]);
+    assert!(
+        (each[0] - focused[0]).abs() < 0.01 && each[0] < tilted[0] - 0.01,
+        "the outer line: {} px with its own sensor, {} px in focus, {} px under one sensor",
+        each[0],
+        focused[0],
+        tilted[0]
+    );
+    let mut lone = quiet(LightModel { sensor_per_line: true, ..LightModel::speckle(1.4) }, 0.0);
+    assert!(crate::sim::scene::Scene::new(lone.clone()).is_err(), "a sensor per line without a Scheimpflug tilt");
+    lone.light.scheimpflug = true;
+    assert!(crate::sim::scene::Scene::new(lone).is_ok());
 }
 
 #[test]
