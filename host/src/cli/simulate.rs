@@ -128,8 +128,8 @@ pub struct SimulateArgs {
     /// broad-area or multimode line source; more than 4 are rendered as 4 with the statistics of K), focus=MM (where
     /// the lens is focused), scheimpflug (a tilted sensor: the middle laser's plane in focus), oxidation, grease, band (the running band), glints, ghost (a secondary reflection of the
     /// middle line). Speckle's rendering can cap the frame rate: `cms-host bench render` measures it. [default:
-    /// `listen sim`'s: speckle=2.8 on the reference head, laser light at the push-trolley setting; incoherent on the
-    /// paper's]
+    /// `listen sim`'s: speckle=1.4,patterns=100,scheimpflug on the reference head, the recommended head's light
+    /// (speckle=2.8 is the push-trolley setting: one pattern at F/2.8); incoherent on the paper's]
     #[arg(long, value_name = "SPEC", value_parser = parse_light)]
     pub light: Option<LightModel>,
 }
@@ -210,8 +210,9 @@ pub struct SimPortArgs {
     /// With PORT `sim`: the simulated head starts without its factory calibration.
     #[arg(long = "sim-uncalibrated")]
     pub sim_uncalibrated: bool,
-    /// With PORT `sim`: the light on the simulated rail (as `simulate --light`) [default: speckle=2.8, laser light
-    /// at the push-trolley setting; `incoherent`: the clean stripes].
+    /// With PORT `sim`: the light on the simulated rail (as `simulate --light`) [default:
+    /// speckle=1.4,patterns=100,scheimpflug, the recommended head's light; speckle=2.8: the push-trolley setting;
+    /// `incoherent`: the clean stripes].
     #[arg(long = "sim-light", value_name = "SPEC", value_parser = parse_light_boxed)]
     pub sim_light: Option<Box<LightModel>>,
 }

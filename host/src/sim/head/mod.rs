@@ -248,8 +248,8 @@ pub struct SimPort {
     /// With PORT `sim`: the simulated head starts without its factory calibration.
     pub sim_uncalibrated: bool,
     /// With PORT `sim`: the light on the simulated rail (speckle, finish,
-    /// glints, ghosts); `None`: [`default_light`] (laser speckle at F/2.8 on
-    /// the reference head).
+    /// glints, ghosts); `None`: [`default_light`] (the recommended head's
+    /// light on the reference head).
     pub sim_light: Option<crate::sim::scene::LightModel>,
     /// With PORT `sim`: a simulated GNSS receiver rides with the head
     /// ([`crate::sim::gnss`]).
@@ -314,12 +314,13 @@ fn port_options(sim: &SimPort) -> HeadOptions {
 
 /// The simulated head's light when none is asked for (`simulate` without
 /// `--light`, PORT `sim` without `--sim-light`): the reference head's
-/// lasers at the push-trolley setting of docs/light.md (speckle through the
-/// lens at F/2.8; the camera's 100 µs exposure), the paper's geometry in
-/// incoherent light (its synthetic protocol's).
+/// lasers as the recommended head of docs/light.md shines them (a line
+/// source of 100 speckle patterns through the lens at F/1.4 on a
+/// Scheimpflug sensor; the camera's 100 µs exposure), the paper's geometry
+/// in incoherent light (its synthetic protocol's).
 pub fn default_light(preset: Preset) -> crate::sim::scene::LightModel {
     match preset {
-        Preset::Reference => crate::sim::scene::LightModel::push_trolley(),
+        Preset::Reference => crate::sim::scene::LightModel::recommended(),
         Preset::Paper => crate::sim::scene::LightModel::incoherent(),
     }
 }

@@ -42,6 +42,14 @@ use super::{SimError, check};
 /// and the one that brings the 10–30 mm band's floor 6 dB under its limit.
 pub const PUSH_TROLLEY_F_NUMBER: f64 = 2.8;
 
+/// The recommended head's aperture (`docs/light.md`, "What to set"): the
+/// widest a Scheimpflug sensor holds in focus on the laser's plane.
+pub const RECOMMENDED_F_NUMBER: f64 = 1.4;
+
+/// The recommended head's line source: a broad-area or multimode diode of
+/// about this many independent speckle patterns (contrast 0.1).
+pub const RECOMMENDED_PATTERNS: u32 = 100;
+
 /// How the rail returns the lasers' light.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct LightModel {
@@ -189,6 +197,18 @@ impl LightModel {
     /// camera's 100 µs exposure).
     pub fn push_trolley() -> LightModel {
         LightModel::speckle(PUSH_TROLLEY_F_NUMBER)
+    }
+
+    /// The head of docs/light.md that judges ISO 3095: a line source of
+    /// [`RECOMMENDED_PATTERNS`] independent patterns through the lens at
+    /// [`RECOMMENDED_F_NUMBER`] on a Scheimpflug sensor (the middle laser's
+    /// plane in focus).
+    pub fn recommended() -> LightModel {
+        LightModel {
+            speckle: Some(Speckle { f_number: RECOMMENDED_F_NUMBER, patterns: RECOMMENDED_PATTERNS }),
+            scheimpflug: true,
+            ..LightModel::default()
+        }
     }
 
     /// Oxidation: dark patches 10–60 mm long, 5–30 mm wide, 5–40 % of the
