@@ -279,25 +279,32 @@ pub fn floor(a: &FloorOptions) -> Result<String, BenchError> {
 /// `light`, named by it; a light `bench floor` cannot drive (a finish,
 /// glints, ghosts, another focus) is refused.
 pub fn head_setting(light: &LightModel, length_mm: f64) -> Result<(String, Setting), BenchError> {
-    let bare = LightModel { speckle: light.speckle, scheimpflug: light.scheimpflug, ..LightModel::incoherent() };
+    let bare = LightModel {
+        speckle: light.speckle,
+        scheimpflug: light.scheimpflug,
+        exact_speckle: light.exact_speckle,
+        ..LightModel::incoherent()
+    };
     if *light != bare {
         return Err(BenchError::Options(
-            "--light: bench floor drives speckle=F, patterns=K, scheimpflug or incoherent only".into(),
+            "--light: bench floor drives speckle=F, patterns=K, scheimpflug, exact or incoherent only".into(),
         ));
     }
     let name = match light.speckle {
         None => "incoherent light (no speckle)".to_string(),
         Some(s) => format!(
-            "F/{}, K = {}{}",
+            "F/{}, K = {}{}{}",
             s.f_number,
             s.patterns,
-            if light.scheimpflug { ", Scheimpflug sensor" } else { "" }
+            if light.scheimpflug { ", Scheimpflug sensor" } else { "" },
+            if light.exact_speckle { ", speckle fields" } else { "" }
         ),
     };
     let setting = Setting {
         f_number: light.speckle.map(|s| s.f_number),
         patterns: light.speckle.map_or(1, |s| s.patterns),
         scheimpflug: light.scheimpflug,
+        exact_speckle: light.exact_speckle,
         ..Setting::push_trolley(length_mm)
     };
     Ok((name, setting))

@@ -32,6 +32,9 @@ pub struct Setting {
     pub patterns: u32,
     /// A Scheimpflug sensor ([`LightModel::scheimpflug`]).
     pub scheimpflug: bool,
+    /// Many patterns rendered as speckle fields, not fast
+    /// ([`LightModel::exact_speckle`]).
+    pub exact_speckle: bool,
     /// Exposure, µs.
     pub exposure_us: f64,
     /// Travel speed, mm/s (the motion during the exposure).
@@ -59,6 +62,7 @@ impl Setting {
             f_number: Some(crate::sim::scene::light::PUSH_TROLLEY_F_NUMBER),
             patterns: 1,
             scheimpflug: false,
+            exact_speckle: false,
             exposure_us: 100.0,
             speed_mm_s: 1500.0,
             step_mm: 30.0,
@@ -77,6 +81,7 @@ impl Setting {
         cfg.light = LightModel {
             speckle: self.f_number.map(|f_number| Speckle { f_number, patterns: self.patterns }),
             scheimpflug: self.scheimpflug,
+            exact_speckle: self.exact_speckle,
             ..LightModel::incoherent()
         };
         cfg.camera.exposure_us = self.exposure_us;

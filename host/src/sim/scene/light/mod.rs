@@ -70,6 +70,12 @@ pub struct LightModel {
     /// quarter wave of Rayleigh's depth of focus). Geometry is unchanged:
     /// the tilt's keystone is taken as calibrated out.
     pub scheimpflug: bool,
+    /// A source of many patterns rendered as speckle fields
+    /// ([`RENDERED_PATTERNS`] of them with the statistics of all) where it
+    /// would be rendered fast (speckle under a pixel: its expected image
+    /// with the stripe-centre error emulated): the reference the fast
+    /// rendering is held to, at the fields' cost.
+    pub exact_speckle: bool,
     /// Oxidation and rust patches.
     pub oxidation: Patches,
     /// Grease films.

@@ -58,11 +58,13 @@ const PROFILES_KEPT: usize = 32;
 
 /// Whether a laser's tile is rendered fast: a source of more patterns than
 /// [`RENDERED_PATTERNS`], speckle under a pixel, the line alone (no finish,
-/// no ghost: their speckle is the exact rendering's).
+/// no ghost: their speckle is the exact rendering's), no reference asked
+/// for ([`super::super::LightModel::exact_speckle`]).
 pub(super) fn applies(s: &TileShot, p: &Pupil, exact: Exact) -> bool {
     let many = s.light.speckle.is_some_and(|sp| sp.patterns > RENDERED_PATTERNS);
     many && !exact.patterns
         && !exact.rendered
+        && !s.light.exact_speckle
         && p.speckle_px() <= MAX_SPECKLE_PX
         && !has_finish(s.light)
         && !s.light.ghosts.iter().any(|g| g.laser == s.laser)
