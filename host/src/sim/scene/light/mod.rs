@@ -7,7 +7,9 @@
 //!   it and a head at rest sees the same one frame after frame. Several
 //!   independent patterns (several diodes, a moving diffuser) add as
 //!   intensities ([`Speckle::patterns`]); many of them are rendered as a
-//!   few ([`RENDERED_PATTERNS`]) with the statistics of many.
+//!   few ([`RENDERED_PATTERNS`]) with the statistics of many, or, where
+//!   the speckle is under a pixel, as their expected image with the
+//!   stripe-centre error their speckle causes (`tile/fast.rs`).
 //! * **Focus**: the coherent transfer function carries the defocus of a
 //!   rail outside the plane the lens is focused on (image-side focus error
 //!   `M² Δz`, wavefront error `W₀₂₀ = Δz_img / (8 N_eff²)`); a
@@ -99,7 +101,8 @@ pub struct Speckle {
     /// `K` independent positions, a broad-area or multimode line diode
     /// (contrast falls as `1/√K`). Up to [`RENDERED_PATTERNS`] are
     /// rendered one by one; more are rendered as that many with the
-    /// statistics of `K`.
+    /// statistics of `K`, or fast where the speckle is under a pixel
+    /// (see [`LightModel::exact_speckle`]).
     pub patterns: u32,
 }
 

@@ -27,9 +27,10 @@
 //! error, measured, not modelled. The calibration costs one exact tile
 //! (about 0.4 s of CPU at F/1.4) per laser when a head starts or its focus
 //! moves by a fifth of a wave. What is left out is the speckle's effect on
-//! the line's shape and brightness (a few per cent a pixel at F/1.4 and
-//! `K` = 100, under the sensor's shot noise); the exact rendering
-//! ([`super::LightCache::rendered_patterns`]) keeps it.
+//! the line's shape and brightness (a contrast of about 2 % a pixel at
+//! F/1.4 and `K` = 100); the speckle fields
+//! ([`super::LightCache::rendered_patterns`],
+//! [`super::super::LightModel::exact_speckle`]) keep it.
 
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
@@ -39,7 +40,7 @@ use super::super::{RENDERED_PATTERNS, mean};
 use super::{Exact, LaserState, Plan, TileShot, has_finish, line_at};
 
 /// Widest speckle (px) rendered fast: over a pixel the sum's per-pixel
-/// fluctuation is no longer small against the shot noise.
+/// fluctuation is no longer small, nor its effect on the line's shape.
 const MAX_SPECKLE_PX: f64 = 1.0;
 
 /// Stream of the centre errors' cells (one sub-stream per laser).
