@@ -594,10 +594,11 @@ mod tests {
         use crate::model::optics::Optics;
         use crate::sim::scene::LightModel;
         let o = |f: f64, nm: f64| Optics::new(f, nm).unwrap();
+        // The default light: the recommended head's, at F/1.4.
         let plain = SimPort::default();
-        assert_eq!(port_optics(&plain, None).unwrap(), Some(o(2.8, 685.0)));
-        assert_eq!(port_optics(&plain, Some(o(2.8, 685.0))).unwrap(), Some(o(2.8, 685.0)));
-        assert!(port_optics(&plain, Some(o(4.0, 685.0))).is_err());
+        assert_eq!(port_optics(&plain, None).unwrap(), Some(o(1.4, 685.0)));
+        assert_eq!(port_optics(&plain, Some(o(1.4, 685.0))).unwrap(), Some(o(1.4, 685.0)));
+        assert!(port_optics(&plain, Some(o(2.8, 685.0))).is_err());
         let f4 = SimPort { sim_light: Some(LightModel::speckle(4.0)), ..SimPort::default() };
         assert_eq!(port_optics(&f4, Some(o(4.0, 685.0))).unwrap(), Some(o(4.0, 685.0)));
         let clean = SimPort { sim_light: Some(LightModel::incoherent()), ..SimPort::default() };
