@@ -491,7 +491,7 @@ fn the_fast_rendering_holds_the_centre_error_of_many_patterns() {
     }
     // 25 mm a frame: the next frame's row r sees this one's r + 175.
     let lag = 175;
-    let mut overlap = |scene: &mut Scene| -> Vec<f64> {
+    let overlap = |scene: &mut Scene| -> Vec<f64> {
         let (e0, e1) = (row_errors(scene, 0), row_errors(scene, 1));
         e0.iter().zip(&e1).map(|(a, b)| correlation(&pairs(&a[lag..], b)).1).collect()
     };
