@@ -578,7 +578,7 @@ mod tests {
     fn port_sim_shines_laser_light_unless_told() {
         use crate::sim::scene::LightModel;
         let light = |sim: &SimPort| sim_config(&port_options(sim)).unwrap().light;
-        assert_eq!(light(&SimPort::default()), LightModel::speckle(2.8));
+        assert_eq!(light(&SimPort::default()), LightModel::recommended());
         assert_eq!(light(&SimPort::default()).method(), cms_core::peak::Method::Centroid);
         let told = SimPort { sim_light: Some(LightModel::incoherent()), ..SimPort::default() };
         assert_eq!(light(&told), LightModel::incoherent());
