@@ -303,25 +303,27 @@ pub fn head_setting(
         speckle: light.speckle,
         scheimpflug: light.scheimpflug,
         sensor_per_line: light.sensor_per_line,
+        exact_speckle: light.exact_speckle,
         ..LightModel::incoherent()
     };
     if *light != bare {
         return Err(BenchError::Options(
-            "--light: bench floor drives speckle=F, patterns=K, scheimpflug[=each] or incoherent only".into(),
+            "--light: bench floor drives speckle=F, patterns=K, scheimpflug[=each], exact or incoherent only".into(),
         ));
     }
     let trolley = Setting::push_trolley(length_mm);
     let mut name = match light.speckle {
         None => "incoherent light (no speckle)".to_string(),
         Some(s) => format!(
-            "F/{}, K = {}{}",
+            "F/{}, K = {}{}{}",
             s.f_number,
             s.patterns,
             match (light.scheimpflug, light.sensor_per_line) {
                 (true, true) => ", a Scheimpflug sensor per line",
                 (true, false) => ", Scheimpflug sensor",
                 _ => "",
-            }
+            },
+            if light.exact_speckle { ", speckle fields" } else { "" }
         ),
     };
     let reference = Sensor::reference();
@@ -344,6 +346,7 @@ pub fn head_setting(
         patterns: light.speckle.map_or(1, |s| s.patterns),
         scheimpflug: light.scheimpflug,
         sensor_per_line: light.sensor_per_line,
+        exact_speckle: light.exact_speckle,
         step_mm,
         sensor,
         ..trolley

@@ -156,7 +156,8 @@ pub struct FloorArgs {
     #[arg(long, value_name = "TEXT")]
     pub only: Option<String>,
     /// Measure these heads instead of the sweep (repeat for several): the push-trolley setting (100 µs, 1.5 m/s)
-    /// under each light, as `--sim-light` spells it: speckle=F-NUMBER, patterns=K, scheimpflug[=each], or incoherent (e.g.
+    /// under each light, as `--sim-light` spells it: speckle=F-NUMBER, patterns=K, scheimpflug[=each], exact (many
+    /// patterns as speckle fields: the fast rendering's reference), or incoherent (e.g.
     /// `--light speckle=1.4,patterns=100,scheimpflug --light incoherent`); per ISO 3095 third octave 5–250 mm, each
     /// line, the worst and the lines' energy average against the limit.
     #[arg(long = "light", value_name = "SPEC", value_parser = super::simulate::parse_light)]

@@ -130,11 +130,13 @@ pub struct SimulateArgs {
     pub uncalibrated: bool,
     /// The light on the rail, comma-separated: incoherent (clean stripes), speckle[=F-NUMBER] (laser
     /// speckle through the lens, F/8 if no number), patterns=K (independent speckle patterns, up to 10000: a
-    /// broad-area or multimode line source; more than 4 are rendered as 4 with the statistics of K), focus=MM (where
+    /// broad-area or multimode line source; more than 4 are rendered fast where the speckle is under a pixel, as the
+    /// line's expected image with the stripe-centre error their speckle causes, else as 4 with the statistics of K),
+    /// exact (many patterns rendered as 4 speckle fields with the statistics of K even so: the reference, slow), focus=MM (where
     /// the lens is focused), scheimpflug (a tilted sensor: the middle laser's plane in focus; scheimpflug=each: a sensor per line, each line in focus), oxidation, grease, band (the running band), glints, ghost (a secondary reflection of the
     /// middle line). Speckle's rendering can cap the frame rate: `cms-host bench render` measures it. [default:
-    /// `listen sim`'s: speckle=2.8 on the reference head, laser light at the push-trolley setting; incoherent on the
-    /// paper's]
+    /// `listen sim`'s: speckle=1.4,patterns=100,scheimpflug on the reference head, the recommended head's light
+    /// (speckle=2.8 is the push-trolley setting: one pattern at F/2.8); incoherent on the paper's]
     #[arg(long, value_name = "SPEC", value_parser = parse_light)]
     pub light: Option<LightModel>,
 }
@@ -227,8 +229,9 @@ pub struct SimPortArgs {
     /// With PORT `sim`: the simulated head starts without its factory calibration.
     #[arg(long = "sim-uncalibrated")]
     pub sim_uncalibrated: bool,
-    /// With PORT `sim`: the light on the simulated rail (as `simulate --light`) [default: speckle=2.8, laser light
-    /// at the push-trolley setting; `incoherent`: the clean stripes].
+    /// With PORT `sim`: the light on the simulated rail (as `simulate --light`) [default:
+    /// speckle=1.4,patterns=100,scheimpflug, the recommended head's light; speckle=2.8: the push-trolley setting;
+    /// `incoherent`: the clean stripes].
     #[arg(long = "sim-light", value_name = "SPEC", value_parser = parse_light_boxed)]
     pub sim_light: Option<Box<LightModel>>,
 }
@@ -256,7 +259,7 @@ impl SimPortArgs {
 /// Parses `--light`: comma-separated items (see [`SimulateArgs::light`]);
 /// the ranges are checked when the scene is built.
 pub(crate) fn parse_light(s: &str) -> Result<LightModel, String> {
-    const ITEMS: &str = "incoherent, speckle[=F-NUMBER], patterns=K, focus=MM, scheimpflug[=each], oxidation, grease, band, glints, ghost";
+    const ITEMS: &str = "incoherent, speckle[=F-NUMBER], patterns=K, exact, focus=MM, scheimpflug[=each], oxidation, grease, band, glints, ghost";
     let mut light = LightModel::incoherent();
     for item in s.split(',').map(str::trim) {
         let (key, value) = item.split_once('=').map_or((item, None), |(k, v)| (k.trim(), Some(v.trim())));
@@ -296,6 +299,7 @@ pub(crate) fn parse_light(s: &str) -> Result<LightModel, String> {
                     ));
                 }
             },
+            "exact" => flag(&mut light, |l| l.exact_speckle = true)?,
             "oxidation" => flag(&mut light, |l| l.oxidation = LightModel::oxidation())?,
             "grease" => flag(&mut light, |l| l.grease = LightModel::grease())?,
             "band" => flag(&mut light, |l| l.band = Some(LightModel::running_band()))?,

@@ -34,6 +34,9 @@ pub struct Setting {
     pub scheimpflug: bool,
     /// A Scheimpflug sensor per line ([`LightModel::sensor_per_line`]).
     pub sensor_per_line: bool,
+    /// Many patterns rendered as speckle fields, not fast
+    /// ([`LightModel::exact_speckle`]).
+    pub exact_speckle: bool,
     /// Exposure, µs.
     pub exposure_us: f64,
     /// Travel speed, mm/s (the motion during the exposure).
@@ -109,6 +112,7 @@ impl Setting {
             patterns: 1,
             scheimpflug: false,
             sensor_per_line: false,
+            exact_speckle: false,
             exposure_us: 100.0,
             speed_mm_s: 1500.0,
             step_mm: 30.0,
@@ -129,6 +133,7 @@ impl Setting {
             speckle: self.f_number.map(|f_number| Speckle { f_number, patterns: self.patterns }),
             scheimpflug: self.scheimpflug,
             sensor_per_line: self.sensor_per_line,
+            exact_speckle: self.exact_speckle,
             ..LightModel::incoherent()
         };
         cfg.camera.exposure_us = self.exposure_us;

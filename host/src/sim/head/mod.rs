@@ -256,8 +256,8 @@ pub struct SimPort {
     /// With PORT `sim`: the simulated head starts without its factory calibration.
     pub sim_uncalibrated: bool,
     /// With PORT `sim`: the light on the simulated rail (speckle, finish,
-    /// glints, ghosts); `None`: [`default_light`] (laser speckle at F/2.8 on
-    /// the reference head).
+    /// glints, ghosts); `None`: [`default_light`] (the recommended head's
+    /// light on the reference head).
     pub sim_light: Option<crate::sim::scene::LightModel>,
     /// With PORT `sim`: a simulated GNSS receiver rides with the head
     /// ([`crate::sim::gnss`]).
@@ -324,12 +324,13 @@ fn port_options(sim: &SimPort) -> HeadOptions {
 
 /// The simulated head's light when none is asked for (`simulate` without
 /// `--light`, PORT `sim` without `--sim-light`): the reference head's
-/// lasers at the push-trolley setting of docs/light.md (speckle through the
-/// lens at F/2.8; the camera's 100 µs exposure), the paper's geometry in
-/// incoherent light (its synthetic protocol's).
+/// lasers as the recommended head of docs/light.md shines them (a line
+/// source of 100 speckle patterns through the lens at F/1.4 on a
+/// Scheimpflug sensor; the camera's 100 µs exposure), the paper's geometry
+/// in incoherent light (its synthetic protocol's).
 pub fn default_light(preset: Preset) -> crate::sim::scene::LightModel {
     match preset {
-        Preset::Reference => crate::sim::scene::LightModel::push_trolley(),
+        Preset::Reference => crate::sim::scene::LightModel::recommended(),
         Preset::Paper => crate::sim::scene::LightModel::incoherent(),
     }
 }
@@ -598,7 +599,7 @@ mod tests {
     fn port_sim_shines_laser_light_unless_told() {
         use crate::sim::scene::LightModel;
         let light = |sim: &SimPort| sim_config(&port_options(sim)).unwrap().light;
-        assert_eq!(light(&SimPort::default()), LightModel::speckle(2.8));
+        assert_eq!(light(&SimPort::default()), LightModel::recommended());
         assert_eq!(light(&SimPort::default()).method(), cms_core::peak::Method::Centroid);
         let told = SimPort { sim_light: Some(LightModel::incoherent()), ..SimPort::default() };
         assert_eq!(light(&told), LightModel::incoherent());
@@ -614,10 +615,11 @@ mod tests {
         use crate::model::optics::Optics;
         use crate::sim::scene::LightModel;
         let o = |f: f64, nm: f64| Optics::new(f, nm).unwrap();
+        // The default light: the recommended head's, at F/1.4.
         let plain = SimPort::default();
-        assert_eq!(port_optics(&plain, None).unwrap(), Some(o(2.8, 685.0)));
-        assert_eq!(port_optics(&plain, Some(o(2.8, 685.0))).unwrap(), Some(o(2.8, 685.0)));
-        assert!(port_optics(&plain, Some(o(4.0, 685.0))).is_err());
+        assert_eq!(port_optics(&plain, None).unwrap(), Some(o(1.4, 685.0)));
+        assert_eq!(port_optics(&plain, Some(o(1.4, 685.0))).unwrap(), Some(o(1.4, 685.0)));
+        assert!(port_optics(&plain, Some(o(2.8, 685.0))).is_err());
         let f4 = SimPort { sim_light: Some(LightModel::speckle(4.0)), ..SimPort::default() };
         assert_eq!(port_optics(&f4, Some(o(4.0, 685.0))).unwrap(), Some(o(4.0, 685.0)));
         let clean = SimPort { sim_light: Some(LightModel::incoherent()), ..SimPort::default() };

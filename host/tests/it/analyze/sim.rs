@@ -495,10 +495,11 @@ fn a_recording_says_what_optics_it_was_made_with() {
     let (lr, pr) = (laser.to_str().unwrap(), plain.to_str().unwrap());
     let state = dir.path().join("state");
     let st = state.to_str().unwrap();
-    // Optics given that are the head's own are recorded as its own.
-    for (r, light) in [(lr, Some("--optics=2.8@685")), (pr, Some("--sim-light=incoherent"))] {
+    // Optics given that are the head's own (the push-trolley light's) are
+    // recorded as its own.
+    for (r, light) in [(lr, ["--optics=2.8@685", "--sim-light=speckle=2.8"]), (pr, ["--sim-light=incoherent", ""])] {
         let mut args = vec!["listen", "sim", "--sim-state", st, "--frames", "12", "--record", r];
-        args.extend(light);
+        args.extend(light.into_iter().filter(|a| !a.is_empty()));
         let l = run(&args);
         assert!(l.status.success(), "{}", String::from_utf8_lossy(&l.stderr));
     }
@@ -548,7 +549,7 @@ fn optics_that_are_not_the_simulated_heads_are_refused() {
     let e = refused(&["--optics", "4@685"]);
     assert!(
         e.contains(
-            "--optics says the optics are F/4, 685 nm, the simulated head renders F/2.8, 685 nm (its default light)"
+            "--optics says the optics are F/4, 685 nm, the simulated head renders F/1.4, 685 nm (its default light)"
         ),
         "{e}"
     );

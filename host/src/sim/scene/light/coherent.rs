@@ -269,7 +269,7 @@ pub(crate) fn phasor_of_turns(u: i32) -> Complex<f32> {
 }
 
 #[inline]
-fn cell_hash(seed: u64, stream: u64, a: i64, b: i64) -> u64 {
+pub(crate) fn cell_hash(seed: u64, stream: u64, a: i64, b: i64) -> u64 {
     mix(column_hash(seed, stream, a) ^ (b as u64).wrapping_mul(0x8CB9_2BA7_2F3D_8DD7))
 }
 

@@ -7,7 +7,9 @@
 //!   it and a head at rest sees the same one frame after frame. Several
 //!   independent patterns (several diodes, a moving diffuser) add as
 //!   intensities ([`Speckle::patterns`]); many of them are rendered as a
-//!   few ([`RENDERED_PATTERNS`]) with the statistics of many.
+//!   few ([`RENDERED_PATTERNS`]) with the statistics of many, or, where
+//!   the speckle is under a pixel, as their expected image with the
+//!   stripe-centre error their speckle causes (`tile/fast.rs`).
 //! * **Focus**: the coherent transfer function carries the defocus of a
 //!   rail outside the plane the lens is focused on (image-side focus error
 //!   `M² Δz`, wavefront error `W₀₂₀ = Δz_img / (8 N_eff²)`); a
@@ -42,6 +44,14 @@ use super::{SimError, check};
 /// and the one that brings the 10–30 mm band's floor 6 dB under its limit.
 pub const PUSH_TROLLEY_F_NUMBER: f64 = 2.8;
 
+/// The recommended head's aperture (`docs/light.md`, "What to set"): the
+/// widest a Scheimpflug sensor holds in focus on the laser's plane.
+pub const RECOMMENDED_F_NUMBER: f64 = 1.4;
+
+/// The recommended head's line source: a broad-area or multimode diode of
+/// about this many independent speckle patterns (contrast 0.1).
+pub const RECOMMENDED_PATTERNS: u32 = 100;
+
 /// How the rail returns the lasers' light.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct LightModel {
@@ -68,6 +78,12 @@ pub struct LightModel {
     /// simulator keeps one camera's geometry and gives each line the focus
     /// of its own plane.
     pub sensor_per_line: bool,
+    /// A source of many patterns rendered as speckle fields
+    /// ([`RENDERED_PATTERNS`] of them with the statistics of all) where it
+    /// would be rendered fast (speckle under a pixel: its expected image
+    /// with the stripe-centre error emulated): the reference the fast
+    /// rendering is held to, at the fields' cost.
+    pub exact_speckle: bool,
     /// Oxidation and rust patches.
     pub oxidation: Patches,
     /// Grease films.
@@ -91,7 +107,8 @@ pub struct Speckle {
     /// `K` independent positions, a broad-area or multimode line diode
     /// (contrast falls as `1/√K`). Up to [`RENDERED_PATTERNS`] are
     /// rendered one by one; more are rendered as that many with the
-    /// statistics of `K`.
+    /// statistics of `K`, or fast where the speckle is under a pixel
+    /// (see [`LightModel::exact_speckle`]).
     pub patterns: u32,
 }
 
@@ -195,6 +212,18 @@ impl LightModel {
     /// camera's 100 µs exposure).
     pub fn push_trolley() -> LightModel {
         LightModel::speckle(PUSH_TROLLEY_F_NUMBER)
+    }
+
+    /// The head of docs/light.md that judges ISO 3095: a line source of
+    /// [`RECOMMENDED_PATTERNS`] independent patterns through the lens at
+    /// [`RECOMMENDED_F_NUMBER`] on a Scheimpflug sensor (the middle laser's
+    /// plane in focus).
+    pub fn recommended() -> LightModel {
+        LightModel {
+            speckle: Some(Speckle { f_number: RECOMMENDED_F_NUMBER, patterns: RECOMMENDED_PATTERNS }),
+            scheimpflug: true,
+            ..LightModel::default()
+        }
     }
 
     /// Oxidation: dark patches 10–60 mm long, 5–30 mm wide, 5–40 % of the

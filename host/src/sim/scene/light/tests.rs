@@ -408,3 +408,134 @@ fn nonsense_is_refused() {
         assert!(Scene::new(SimConfig { light: light.clone(), ..SimConfig::reference() }).is_err(), "{light:?}");
     }
 }
+
+/// The recommended head: F/1.4, a line source of 100 patterns, a
+/// Scheimpflug sensor (the middle line in focus, the outer two 14 mm off
+/// it), at 1.5 m/s.
+fn recommended(exposure_us: f64) -> SimConfig {
+    let speckle = Some(Speckle { f_number: 1.4, patterns: 100 });
+    let mut cfg = quiet(LightModel { speckle, scheimpflug: true, ..LightModel::default() }, 1500.0);
+    cfg.camera.exposure_us = exposure_us;
+    cfg
+}
+
+/// A scene rendering many patterns fast or (`rendered`) as four.
+fn scene_of(cfg: &SimConfig, rendered: bool) -> Scene {
+    let mut scene = Scene::new(cfg.clone()).unwrap();
+    scene.light_cache.rendered_patterns = rendered;
+    scene
+}
+
+/// Per line and row of frame `index`'s noise-free tiles, the error of a
+/// centroid over ±3σ re-centred on itself (the detector's), px.
+fn row_errors(scene: &mut Scene, index: u64) -> Vec<Vec<Option<f64>>> {
+    let mut img = vec![0u16; scene.width() * scene.height()];
+    let t = scene.render_frame(index, scene.all_lasers_mask(), &mut img);
+    let mut out = Vec::new();
+    for (laser, tile) in scene.light_cache.tiles().iter().enumerate() {
+        let Some(tile) = tile else { continue };
+        let rows = t.stripes[laser].iter().enumerate().map(|(r, st)| {
+            let st = st.as_ref()?;
+            let (c0, row) = tile.row(r);
+            let half = 3.0 * st.sigma_px;
+            let mut c = st.column_px;
+            for _ in 0..12 {
+                let (mut s, mut sx) = (0.0, 0.0);
+                for (j, e) in row.iter().enumerate() {
+                    let u = (c0 + j) as f64;
+                    let part = ((u + 0.5).min(c + half) - (u - 0.5).max(c - half)).clamp(0.0, 1.0);
+                    (s, sx) = (s + e * part, sx + e * part * u);
+                }
+                c = sx / s;
+            }
+            Some(c - st.column_px)
+        });
+        out.push(rows.collect());
+    }
+    out
+}
+
+/// The standard deviation of the errors and the correlation of
+/// neighbouring rows' (rows `lag` apart), over the rows where both are.
+fn spread(e: &[Option<f64>], lag: usize) -> (f64, f64) {
+    correlation(&pairs(e, &e[lag..]))
+}
+
+/// The standard deviation of the pairs' first members and their correlation.
+fn correlation(pairs: &[(f64, f64)]) -> (f64, f64) {
+    let n = pairs.len() as f64;
+    let (ma, mb) = (pairs.iter().map(|p| p.0).sum::<f64>() / n, pairs.iter().map(|p| p.1).sum::<f64>() / n);
+    let (mut saa, mut sbb, mut sab) = (0.0, 0.0, 0.0);
+    for (a, b) in pairs {
+        (saa, sbb, sab) = (saa + (a - ma) * (a - ma), sbb + (b - mb) * (b - mb), sab + (a - ma) * (b - mb));
+    }
+    ((saa / n).sqrt(), sab / (saa * sbb).sqrt())
+}
+
+/// The fast rendering of many patterns holds each line's stripe-centre
+/// error to the patterns' own, rendered as four: its spread and the
+/// correlation of neighbouring rows, still and at 1.5 m/s with 100 µs, the
+/// middle line in focus and the outer one 14 mm out of it, on stretches of
+/// rail other than the one it was calibrated on. And the error is the
+/// rail's: two overlapping frames read the same strip's errors as the
+/// patterns do, and a head 3 mm across reads others.
+#[test]
+fn the_fast_rendering_holds_the_centre_error_of_many_patterns() {
+    let mut cfg = recommended(1.0);
+    // The middle line and one outer line.
+    cfg.lasers.truncate(2);
+    let (mut fast, mut rendered) = (scene_of(&cfg, false), scene_of(&cfg, true));
+    // Calibrated 1 m on.
+    row_errors(&mut fast, 40);
+    for exposure_us in [1.0, 100.0] {
+        fast.cfg.camera.exposure_us = exposure_us;
+        rendered.cfg.camera.exposure_us = exposure_us;
+        // Two frames 100 mm apart (independent rail): 960 rows a line.
+        let (mut a, mut b) = (vec![Vec::new(); 2], vec![Vec::new(); 2]);
+        for index in [0, 4] {
+            let (ea, eb) = (row_errors(&mut fast, index), row_errors(&mut rendered, index));
+            for (laser, (ea, eb)) in ea.into_iter().zip(eb).enumerate() {
+                a[laser].extend(ea);
+                b[laser].extend(eb);
+            }
+        }
+        for laser in 0..2 {
+            let ((sa, ra), (sb, rb)) = (spread(&a[laser], 1), spread(&b[laser], 1));
+            // 960 rows: the ratio of spreads within ±3 % (1σ), the
+            // correlations within ±0.045.
+            assert!((sa / sb - 1.0).abs() < 0.1, "{exposure_us} µs, line {laser}: {sa:.4} px against {sb:.4} px");
+            assert!((ra - rb).abs() < 0.12, "{exposure_us} µs, line {laser}: rows correlate {ra:.3} against {rb:.3}");
+        }
+    }
+    // 25 mm a frame: the next frame's row r sees this one's r + 175.
+    let lag = 175;
+    let overlap = |scene: &mut Scene| -> Vec<f64> {
+        let (e0, e1) = (row_errors(scene, 0), row_errors(scene, 1));
+        e0.iter().zip(&e1).map(|(a, b)| correlation(&pairs(&a[lag..], b)).1).collect()
+    };
+    let (a, b) = (overlap(&mut fast), overlap(&mut rendered));
+    for laser in 0..2 {
+        assert!(
+            b[laser] > 0.5 && (a[laser] - b[laser]).abs() < 0.15,
+            "line {laser}: overlapping frames correlate {:.3} against {:.3}",
+            a[laser],
+            b[laser]
+        );
+    }
+    // The head moved across the rail (its speckle's cells, not its lines).
+    let here = row_errors(&mut fast, 0);
+    fast.cfg.head.lateral_offset_mm += 3.0;
+    // Another shot first: the last one's tiles are kept.
+    row_errors(&mut fast, 4);
+    let there = row_errors(&mut fast, 0);
+    for laser in 0..2 {
+        let r = correlation(&pairs(&here[laser], &there[laser])).1;
+        // 480 rows: ±0.05.
+        assert!(r.abs() < 0.2, "line {laser}: 3 mm across correlates {r:.3}");
+    }
+}
+
+/// The rows where both have an error, paired.
+fn pairs(a: &[Option<f64>], b: &[Option<f64>]) -> Vec<(f64, f64)> {
+    a.iter().zip(b).filter_map(|(x, y)| Some(((*x)?, (*y)?))).collect()
+}

@@ -11,6 +11,8 @@ use super::coherent::{Filter, Pupil, fft_size};
 use super::ring::PhasorRing;
 use super::{LightModel, RENDERED_PATTERNS, mean, surface};
 
+mod fast;
+
 /// Stream of the speckle phases (one sub-stream per laser and pattern).
 const SPECKLE_STREAM: u64 = 0x5350_4543;
 
@@ -170,6 +172,11 @@ pub(crate) struct LightCache {
     /// [`RENDERED_PATTERNS`] with the statistics of all (the reference the
     /// light model's tests hold the fast rendering to).
     pub exact_patterns: bool,
+    /// A source of many patterns with speckle under a pixel rendered as
+    /// [`RENDERED_PATTERNS`] with the statistics of all, not as its
+    /// expected image with the stripe-centre error emulated (`fast.rs`):
+    /// the reference the emulation is calibrated against and held to.
+    pub rendered_patterns: bool,
 }
 
 /// How faithfully a tile is rendered (the tests' references).
@@ -177,6 +184,7 @@ pub(crate) struct LightCache {
 struct Exact {
     exposure: bool,
     patterns: bool,
+    rendered: bool,
 }
 
 /// One laser's filters, phasor rings and buffers, kept between shots.
@@ -212,6 +220,8 @@ struct LaserState {
     /// The last shot's tile's pixels, made again into this shot's (a
     /// tile's worth of fresh pages a frame costs as much as its sums).
     spare: Vec<f64>,
+    /// The fast rendering's profiles, calibrations and cells.
+    fast: fast::FastState,
 }
 
 /// Phasor rings per laser (their memory: a shot's cells, about 4 MB at F/4).
@@ -283,7 +293,8 @@ impl LightCache {
         }
         let lit = shots.iter().flatten().count();
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-        let exact = Exact { exposure: self.exact_exposure, patterns: self.exact_patterns };
+        let exact =
+            Exact { exposure: self.exact_exposure, patterns: self.exact_patterns, rendered: self.rendered_patterns };
         let tiles = if lit < 2 || cores < 2 {
             self.lasers.iter_mut().zip(shots).map(|(st, s)| s.as_ref().and_then(|s| st.render(s, exact))).collect()
         } else {
@@ -501,18 +512,26 @@ impl LaserState {
         self.grid = (plan.w, plan.h, plan.steps);
         self.pixels.clear();
         self.pixels.resize(h_img * plan.ncols, 0.0);
-        let patterns = match plan.pupil {
+        // The pixels' sums are over sub-exposures, patterns and samples;
+        // the fast rendering's are electrons already.
+        let norm = match plan.pupil {
             None => {
                 self.incoherent(s, &plan);
-                1
+                1.0 / ((plan.steps * plan.q * plan.q) as f64)
             }
-            Some(p) => self.coherent(s, &plan, p, exact),
+            Some(p) if fast::applies(s, &p, exact) => {
+                self.fast(s, &plan, p);
+                1.0
+            }
+            Some(p) => {
+                let patterns = self.coherent(s, &plan, p, exact);
+                1.0 / ((plan.steps * patterns * plan.q * plan.q) as f64)
+            }
         };
         // The image's columns of the tile.
         let first = plan.u0.max(0) as usize;
         let last = (plan.u1.min(s.width_px as i64 - 1)).max(plan.u0.max(0)) as usize;
         let width = last + 1 - first;
-        let norm = 1.0 / ((plan.steps * patterns * plan.q * plan.q) as f64);
         let mut e = std::mem::take(&mut self.spare);
         e.clear();
         e.resize(width * h_img, 0.0);
