@@ -389,7 +389,7 @@ mod tests {
             cli.unwrap().args.options().unwrap().light.unwrap()
         };
         assert_eq!(light(&[]), head::default_light(Preset::Reference));
-        assert_eq!(light(&[]), LightModel::speckle(2.8));
+        assert_eq!(light(&[]), LightModel::recommended());
         assert_eq!(light(&["--preset", "paper"]), head::default_light(Preset::Paper));
         assert_eq!(light(&["--light", "incoherent"]), LightModel::incoherent());
     }
