@@ -56,6 +56,9 @@ impl Optics {
             light: LightModel {
                 speckle: Some(Speckle { f_number: self.f_number, patterns: self.patterns }),
                 scheimpflug: self.scheimpflug,
+                // The budget holds the detector to the speckle itself: many
+                // patterns as speckle fields, not their emulated centre error.
+                exact_speckle: true,
                 ..LightModel::incoherent()
             },
             speed_mm_s: self.speed_mm_s,
