@@ -243,15 +243,22 @@ pub fn detectable_pp_mm(rms_mm: f64) -> f64 {
     2.0 * std::f64::consts::SQRT_2 * rms_mm
 }
 
-/// The sweep, written into `a.out` (`floor.md`); returns the report.
-pub fn floor(a: &FloorOptions) -> Result<String, BenchError> {
-    if !(a.length_mm >= sf::MIN_LENGTH_MM && a.length_mm <= 100_000.0) {
+/// A length of rail the closed loop drives: at least
+/// [`sf::MIN_LENGTH_MM`], at most 100 m.
+pub(crate) fn check_length(length_mm: f64) -> Result<(), BenchError> {
+    if !(sf::MIN_LENGTH_MM..=100_000.0).contains(&length_mm) {
         return Err(BenchError::Options(format!(
             "{} m of rail: at least {} m and at most 100 m",
-            a.length_mm / 1e3,
+            length_mm / 1e3,
             sf::MIN_LENGTH_MM / 1e3
         )));
     }
+    Ok(())
+}
+
+/// The sweep, written into `a.out` (`floor.md`); returns the report.
+pub fn floor(a: &FloorOptions) -> Result<String, BenchError> {
+    check_length(a.length_mm)?;
     a.sensor.check().map_err(|e| BenchError::Options(e.to_string()))?;
     if a.lights.is_empty() && (a.step_mm.is_some() || a.sensor != Sensor::reference()) {
         return Err(BenchError::Options(

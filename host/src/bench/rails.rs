@@ -350,13 +350,7 @@ fn detail(r: &RailScore) -> String {
 
 /// The benchmark, written into `o.out` (`rails.md`); returns the report.
 pub fn rails(o: &RailsOptions) -> Result<String, BenchError> {
-    if !(o.length_mm >= sf::MIN_LENGTH_MM && o.length_mm <= 100_000.0) {
-        return Err(BenchError::Options(format!(
-            "{} m of rail: at least {} m and at most 100 m",
-            o.length_mm / 1e3,
-            sf::MIN_LENGTH_MM / 1e3
-        )));
-    }
+    super::floor::check_length(o.length_mm)?;
     if o.rails.is_empty() {
         return Err(BenchError::Options("no rail to measure: give --spectrum FILE".into()));
     }
